@@ -1,0 +1,99 @@
+"""Validation helpers shared by the model containers (internal).
+
+Each helper raises :class:`~torchhrc.errors.ModelError` (a ``ValueError``) or ``TypeError``
+with a message naming the argument, what was expected and what was given.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+from torchhrc.errors import ModelError
+
+__all__ = [
+    "check_probabilities",
+    "check_shape",
+    "check_tensor",
+    "format_index",
+]
+
+DEFAULT_ATOL = 1e-6
+
+
+def format_index(index: Sequence[int] | torch.Tensor) -> str:
+    """Format a multi-index as ``[i, j, k]``."""
+    values = index.tolist() if isinstance(index, torch.Tensor) else list(index)
+    return "[" + ", ".join(str(int(v)) for v in values) + "]"
+
+
+def check_tensor(name: str, value: object, *, floating: bool = True) -> torch.Tensor:
+    """Check that ``value`` is a tensor (floating point unless ``floating=False``)."""
+    if not isinstance(value, torch.Tensor):
+        raise TypeError(f"expected {name} to be a torch.Tensor, got {type(value).__name__}")
+    if floating and not value.is_floating_point():
+        raise TypeError(f"expected {name} to have a floating dtype, got {value.dtype}")
+    return value
+
+
+def check_shape(name: str, value: torch.Tensor, expected: Sequence[int | None], doc: str) -> None:
+    """Check the trailing dims of ``value`` against ``expected`` (None = any size).
+
+    Args:
+        name: the argument's name, used in the message.
+        value: the tensor.
+        expected: the trailing sizes; leading (batch) dims are free.
+        doc: the shape's documentation, e.g. ``"(..., A, S, S)"``.
+    """
+    n = len(expected)
+    if value.dim() < n:
+        raise ModelError(
+            f"expected {name} to have shape {doc} (at least {n} dims), "
+            f"actual shape = {tuple(value.shape)}"
+        )
+    tail = value.shape[value.dim() - n :]
+    for got, want in zip(tail, expected):
+        if want is not None and got != want:
+            raise ModelError(
+                f"expected {name} to have shape {doc} with trailing dims "
+                f"{tuple('*' if w is None else w for w in expected)}, "
+                f"actual shape = {tuple(value.shape)}"
+            )
+
+
+def check_probabilities(
+    name: str,
+    value: torch.Tensor,
+    *,
+    dims: int = 1,
+    atol: float = DEFAULT_ATOL,
+    sums_to_one: bool = True,
+) -> None:
+    """Check entries in [0, 1] and that the last ``dims`` dims sum to one.
+
+    The error names the tensor, the first offending index and its value.
+    """
+    if not torch.isfinite(value).all():
+        bad = torch.nonzero(~torch.isfinite(value))[0]
+        raise ModelError(
+            f"{name}{format_index(bad)} = {value[tuple(bad)].item()} is not finite"
+        )
+    low = value < -atol
+    high = value > 1 + atol
+    if low.any() or high.any():
+        bad = torch.nonzero(low | high)[0]
+        raise ModelError(
+            f"{name}{format_index(bad)} = {value[tuple(bad)].item():.6g} is not a probability "
+            "(expected a value in [0, 1])"
+        )
+    if sums_to_one:
+        total = value.sum(dim=tuple(range(-dims, 0)))
+        off = (total - 1).abs() > max(atol, 1e-4 if value.dtype == torch.float32 else atol)
+        if off.any():
+            bad = torch.nonzero(off)[0]
+            over = "row" if dims == 1 else "slice"
+            raise ModelError(
+                f"{name}{format_index(bad)} {over} sums to {total[tuple(bad)].item():.6g}, "
+                "expected 1 (within tolerance)"
+            )

@@ -1,0 +1,1 @@
+"""Sub-commands of the ``torchhrc`` command line, one module each (see :mod:`torchhrc.cli`)."""

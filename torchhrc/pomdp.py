@@ -1,0 +1,347 @@
+"""POMDP and MOMDP containers: validated, frozen dataclasses of tensors.
+
+Notation (shared/DESIGN.md): S states, A actions, O observations; for a MOMDP, X observed
+state values and Y hidden values (the human type in the paper). Leading batch dims ``...``
+come first and broadcast: a batch of problems of one shape, e.g. one per noise level.
+
+Flat POMDP::
+
+    T:  (..., A, S, S)   T[..., a, s, s2] = P(s2 | s, a)
+    Z:  (..., A, S, O)   Z[..., a, s2, o] = P(o | s2, a)
+    R:  (..., A, S)      R[..., a, s]     = expected immediate reward of a in s
+    b0: (..., S)         initial belief
+
+MOMDP (Ong et al. 2010, "Planning under uncertainty for robotic tasks with mixed
+observability"; paper Eq. 3)::
+
+    Tx: (..., A, X, Y, X)        Tx[..., a, x, y, x2]        = P(x2 | x, y, a)
+    Ty: (..., A, X, Y, X, Y)     Ty[..., a, x, y, x2, y2]    = P(y2 | x, y, a, x2)
+        or None: the hidden value is static (Ty = identity), the fast path.
+    Z:  (..., A, X, Y, O)        Z[..., a, x2, y2, o]        = P(o | x2, y2, a)
+    R:  (..., A, X, Y)           R[..., a, x, y]             = reward of a in (x, y)
+    x0: int                      initial observed value
+    b0: (..., Y)                 initial belief over the hidden value
+
+The flat form of a MOMDP numbers states ``s = x * Y + y`` and observations
+``o_flat = x2 * O + o`` (the observed part of the next state is seen exactly).
+
+Example:
+    >>> import torch
+    >>> from torchhrc.pomdp import POMDP
+    >>> T = torch.eye(2, dtype=torch.float64).expand(1, 2, 2)
+    >>> Z = torch.full((1, 2, 2), 0.5, dtype=torch.float64)
+    >>> m = POMDP(T=T, Z=Z, R=torch.zeros(1, 2, dtype=torch.float64),
+    ...           b0=torch.tensor([0.5, 0.5], dtype=torch.float64), discount=0.95)
+    >>> m.num_states, m.num_actions, m.num_observations, m.batch_shape
+    (2, 1, 2, torch.Size([]))
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import torch
+
+from torchhrc._checks import check_probabilities, check_shape, check_tensor
+from torchhrc.errors import ModelError
+
+__all__ = ["MOMDP", "POMDP"]
+
+
+def _check_names(name: str, names: tuple[str, ...] | None, size: int) -> tuple[str, ...] | None:
+    if names is None:
+        return None
+    names = tuple(names)
+    if len(names) != size:
+        raise ModelError(f"expected {size} {name}, got {len(names)}: {names!r}")
+    if not all(isinstance(n, str) for n in names):
+        raise TypeError(f"expected {name} to be strings, got {names!r}")
+    if len(set(names)) != len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise ModelError(f"{name} must be distinct, {dup!r} appears twice")
+    return names
+
+
+def _check_discount(discount: object) -> float:
+    if isinstance(discount, torch.Tensor):
+        discount = discount.item()
+    if not isinstance(discount, (int, float)) or isinstance(discount, bool):
+        raise TypeError(f"expected discount to be a float, got {type(discount).__name__}")
+    if not 0.0 < float(discount) <= 1.0:
+        raise ModelError(f"expected discount in (0, 1], got {discount}")
+    return float(discount)
+
+
+def _tensor_fields_to(obj: object, device: torch.device | str | None, dtype: torch.dtype | None):
+    changes = {}
+    for f in dataclasses.fields(obj):  # type: ignore[arg-type]
+        value = getattr(obj, f.name)
+        if isinstance(value, torch.Tensor) and value.is_floating_point():
+            changes[f.name] = value.to(device=device, dtype=dtype)
+        elif isinstance(value, torch.Tensor):
+            changes[f.name] = value.to(device=device)
+    return dataclasses.replace(obj, **changes)  # type: ignore[type-var]
+
+
+@dataclass(frozen=True)
+class POMDP:
+    """A discrete POMDP (batched over leading dims). See the module docstring for shapes.
+
+    Args:
+        T: ``(..., A, S, S)`` transition probabilities ``P(s2 | s, a)``.
+        Z: ``(..., A, S, O)`` observation probabilities ``P(o | s2, a)``.
+        R: ``(..., A, S)`` expected immediate rewards.
+        b0: ``(..., S)`` initial belief.
+        discount: discount factor in (0, 1].
+        states, actions, observations: optional names.
+
+    Raises:
+        ModelError: shapes disagree, or a probability is out of range / not normalised.
+        TypeError: a field has the wrong type.
+    """
+
+    T: torch.Tensor
+    Z: torch.Tensor
+    R: torch.Tensor
+    b0: torch.Tensor
+    discount: float
+    states: tuple[str, ...] | None = None
+    actions: tuple[str, ...] | None = None
+    observations: tuple[str, ...] | None = None
+    validate_probabilities: bool = field(default=True, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Check shapes, ranges and normalisation; raise :class:`ModelError` if invalid."""
+        T = check_tensor("T", self.T)
+        check_shape("T", T, (None, None, None), "(..., A, S, S)")
+        A, S = T.shape[-3], T.shape[-1]
+        if T.shape[-2] != S:
+            raise ModelError(f"expected T to have shape (..., A, S, S), actual shape = {tuple(T.shape)}")
+        Z = check_tensor("Z", self.Z)
+        check_shape("Z", Z, (A, S, None), f"(..., A={A}, S={S}, O)")
+        R = check_tensor("R", self.R)
+        check_shape("R", R, (A, S), f"(..., A={A}, S={S})")
+        b0 = check_tensor("b0", self.b0)
+        check_shape("b0", b0, (S,), f"(..., S={S})")
+        object.__setattr__(self, "discount", _check_discount(self.discount))
+        try:
+            torch.broadcast_shapes(T.shape[:-3], Z.shape[:-3], R.shape[:-2], b0.shape[:-1])
+        except RuntimeError:
+            raise ModelError(
+                "batch dims of T, Z, R, b0 do not broadcast: "
+                f"{tuple(T.shape[:-3])}, {tuple(Z.shape[:-3])}, {tuple(R.shape[:-2])}, "
+                f"{tuple(b0.shape[:-1])}"
+            ) from None
+        if not torch.isfinite(R).all():
+            raise ModelError("R has non-finite entries")
+        if self.validate_probabilities:
+            check_probabilities("T", T)
+            check_probabilities("Z", Z)
+            check_probabilities("b0", b0)
+        object.__setattr__(self, "states", _check_names("states", self.states, S))
+        object.__setattr__(self, "actions", _check_names("actions", self.actions, A))
+        object.__setattr__(
+            self, "observations", _check_names("observations", self.observations, Z.shape[-1])
+        )
+
+    @property
+    def num_states(self) -> int:
+        return self.T.shape[-1]
+
+    @property
+    def num_actions(self) -> int:
+        return self.T.shape[-3]
+
+    @property
+    def num_observations(self) -> int:
+        return self.Z.shape[-1]
+
+    @property
+    def batch_shape(self) -> torch.Size:
+        """The broadcast batch shape of all tensors."""
+        return torch.broadcast_shapes(
+            self.T.shape[:-3], self.Z.shape[:-3], self.R.shape[:-2], self.b0.shape[:-1]
+        )
+
+    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> POMDP:
+        """Return a copy with every tensor moved to ``device`` / cast to ``dtype``."""
+        return _tensor_fields_to(self, device, dtype)
+
+
+@dataclass(frozen=True)
+class MOMDP:
+    """A mixed-observability MDP (Ong et al. 2010). See the module docstring for shapes.
+
+    Args:
+        Tx: ``(..., A, X, Y, X)`` observed-part transitions ``P(x2 | x, y, a)``.
+        Ty: ``(..., A, X, Y, X, Y)`` hidden-part transitions ``P(y2 | x, y, a, x2)``, or
+            ``None`` when the hidden value never changes (the human type in the paper).
+        Z: ``(..., A, X, Y, O)`` observation probabilities ``P(o | x2, y2, a)``.
+        R: ``(..., A, X, Y)`` immediate rewards.
+        x0: initial observed value, in ``[0, X)``.
+        b0: ``(..., Y)`` initial belief over the hidden value.
+        discount: discount factor in (0, 1].
+        observed_states, hidden_states, actions, observations: optional names.
+
+    Example:
+        >>> import torch
+        >>> Tx = torch.ones(1, 1, 2, 1, dtype=torch.float64)
+        >>> m = MOMDP(Tx=Tx, Ty=None, Z=torch.ones(1, 1, 2, 1, dtype=torch.float64),
+        ...           R=torch.zeros(1, 1, 2, dtype=torch.float64), x0=0,
+        ...           b0=torch.tensor([0.3, 0.7], dtype=torch.float64), discount=0.9)
+        >>> m.to_pomdp().num_states
+        2
+    """
+
+    Tx: torch.Tensor
+    Ty: torch.Tensor | None
+    Z: torch.Tensor
+    R: torch.Tensor
+    x0: int
+    b0: torch.Tensor
+    discount: float
+    observed_states: tuple[str, ...] | None = None
+    hidden_states: tuple[str, ...] | None = None
+    actions: tuple[str, ...] | None = None
+    observations: tuple[str, ...] | None = None
+    validate_probabilities: bool = field(default=True, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Check shapes, ranges and normalisation; raise :class:`ModelError` if invalid."""
+        Tx = check_tensor("Tx", self.Tx)
+        check_shape("Tx", Tx, (None, None, None, None), "(..., A, X, Y, X)")
+        A, X, Y = Tx.shape[-4], Tx.shape[-3], Tx.shape[-2]
+        if Tx.shape[-1] != X:
+            raise ModelError(
+                f"expected Tx to have shape (..., A, X, Y, X), actual shape = {tuple(Tx.shape)}"
+            )
+        if self.Ty is not None:
+            Ty = check_tensor("Ty", self.Ty)
+            check_shape("Ty", Ty, (A, X, Y, X, Y), f"(..., A={A}, X={X}, Y={Y}, X={X}, Y={Y})")
+        Z = check_tensor("Z", self.Z)
+        check_shape("Z", Z, (A, X, Y, None), f"(..., A={A}, X={X}, Y={Y}, O)")
+        R = check_tensor("R", self.R)
+        check_shape("R", R, (A, X, Y), f"(..., A={A}, X={X}, Y={Y})")
+        b0 = check_tensor("b0", self.b0)
+        check_shape("b0", b0, (Y,), f"(..., Y={Y})")
+        x0 = self.x0.item() if isinstance(self.x0, torch.Tensor) else self.x0
+        if not isinstance(x0, int) or isinstance(x0, bool):
+            raise TypeError(f"expected x0 to be an int, got {type(self.x0).__name__}")
+        if not 0 <= x0 < X:
+            raise ModelError(f"expected x0 in [0, {X}), got {x0}")
+        object.__setattr__(self, "x0", int(x0))
+        object.__setattr__(self, "discount", _check_discount(self.discount))
+        shapes = [Tx.shape[:-4], Z.shape[:-4], R.shape[:-3], b0.shape[:-1]]
+        if self.Ty is not None:
+            shapes.append(self.Ty.shape[:-5])
+        try:
+            torch.broadcast_shapes(*shapes)
+        except RuntimeError:
+            raise ModelError(
+                f"batch dims of Tx, Z, R, b0 (, Ty) do not broadcast: {[tuple(s) for s in shapes]}"
+            ) from None
+        if not torch.isfinite(R).all():
+            raise ModelError("R has non-finite entries")
+        if self.validate_probabilities:
+            check_probabilities("Tx", Tx)
+            if self.Ty is not None:
+                check_probabilities("Ty", self.Ty)
+            check_probabilities("Z", Z)
+            check_probabilities("b0", b0)
+        object.__setattr__(
+            self, "observed_states", _check_names("observed_states", self.observed_states, X)
+        )
+        object.__setattr__(
+            self, "hidden_states", _check_names("hidden_states", self.hidden_states, Y)
+        )
+        object.__setattr__(self, "actions", _check_names("actions", self.actions, A))
+        object.__setattr__(
+            self, "observations", _check_names("observations", self.observations, Z.shape[-1])
+        )
+
+    @property
+    def num_observed(self) -> int:
+        """X, the number of observed state values."""
+        return self.Tx.shape[-3]
+
+    @property
+    def num_hidden(self) -> int:
+        """Y, the number of hidden state values."""
+        return self.Tx.shape[-2]
+
+    @property
+    def num_actions(self) -> int:
+        return self.Tx.shape[-4]
+
+    @property
+    def num_observations(self) -> int:
+        return self.Z.shape[-1]
+
+    @property
+    def static_hidden(self) -> bool:
+        """True when the hidden value never changes (``Ty is None``)."""
+        return self.Ty is None
+
+    @property
+    def batch_shape(self) -> torch.Size:
+        shapes = [self.Tx.shape[:-4], self.Z.shape[:-4], self.R.shape[:-3], self.b0.shape[:-1]]
+        if self.Ty is not None:
+            shapes.append(self.Ty.shape[:-5])
+        return torch.broadcast_shapes(*shapes)
+
+    def hidden_transition(self) -> torch.Tensor:
+        """``Ty`` as a dense tensor ``(..., A, X, Y, X, Y)`` (the identity when static)."""
+        if self.Ty is not None:
+            return self.Ty
+        A, X, Y = self.num_actions, self.num_observed, self.num_hidden
+        eye = torch.eye(Y, dtype=self.Tx.dtype, device=self.Tx.device)
+        return eye.view(1, 1, Y, 1, Y).expand(A, X, Y, X, Y)
+
+    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> MOMDP:
+        """Return a copy with every tensor moved to ``device`` / cast to ``dtype``."""
+        return _tensor_fields_to(self, device, dtype)
+
+    def to_pomdp(self) -> POMDP:
+        """The equivalent flat POMDP over ``S = X * Y`` states and ``X * O`` observations.
+
+        States are numbered ``s = x * Y + y``; flat observations ``x2 * O + o``.
+        ``T[a, (x, y), (x2, y2)] = Tx[a, x, y, x2] * Ty[a, x, y, x2, y2]`` and
+        ``Z[a, (x2, y2), (x3, o)] = [x3 == x2] * Z[a, x2, y2, o]``.
+        """
+        A, X, Y, O = self.num_actions, self.num_observed, self.num_hidden, self.num_observations
+        batch = self.batch_shape
+        Ty = self.hidden_transition()
+        T = self.Tx.unsqueeze(-1) * Ty  # (..., A, X, Y, X, Y)
+        T = T.expand(*batch, A, X, Y, X, Y).reshape(*batch, A, X * Y, X * Y)
+        eye_x = torch.eye(X, dtype=self.Z.dtype, device=self.Z.device)
+        # Zf[..., a, x2, y2, x3, o] = eye[x2, x3] * Z[..., a, x2, y2, o]
+        Zf = eye_x.view(X, 1, X, 1) * self.Z.unsqueeze(-2)
+        Zf = Zf.expand(*batch, A, X, Y, X, O).reshape(*batch, A, X * Y, X * O)
+        R = self.R.expand(*batch, A, X, Y).reshape(*batch, A, X * Y)
+        onehot = torch.zeros(X, dtype=self.b0.dtype, device=self.b0.device)
+        onehot[self.x0] = 1.0
+        b0 = (onehot.unsqueeze(-1) * self.b0.unsqueeze(-2)).expand(*batch, X, Y)
+        states = None
+        if self.observed_states is not None and self.hidden_states is not None:
+            states = tuple(f"{x}|{y}" for x in self.observed_states for y in self.hidden_states)
+        observations = None
+        if self.observed_states is not None and self.observations is not None:
+            observations = tuple(f"{x}|{o}" for x in self.observed_states for o in self.observations)
+        return POMDP(
+            T=T,
+            Z=Zf,
+            R=R,
+            b0=b0.reshape(*batch, X * Y),
+            discount=self.discount,
+            states=states,
+            actions=self.actions,
+            observations=observations,
+            validate_probabilities=False,
+        )

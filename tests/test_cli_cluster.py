@@ -1,0 +1,211 @@
+"""Tests for the ``simulate-demos`` and ``cluster`` commands, through ``torchhrc.cli.main``.
+
+Only this module's two sub-commands are registered (the parser is the real one), so these
+tests do not depend on the other commands' modules.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from torchhrc import cli
+from torchhrc.data import Demonstrations
+from torchhrc.metrics import adjusted_rand_index
+
+
+@pytest.fixture(autouse=True)
+def _only_these_commands(monkeypatch):
+    monkeypatch.setattr(cli, "COMMANDS", ("simulate_demos", "cluster"))
+
+
+def _run(capsys, *argv: str) -> tuple[int, str, str]:
+    code = cli.main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture
+def study(tmp_path, capsys):
+    path = tmp_path / "study.csv"
+    code, out, _ = _run(
+        capsys, "simulate-demos", "--subjects", "6", "--noise", "0", "--out", str(path)
+    )
+    assert code == 0 and "18 sequences" in out
+    return path
+
+
+def test_simulate_demos_writes_the_study(tmp_path, capsys):
+    path = tmp_path / "d.csv"
+    code, out, err = _run(capsys, "simulate-demos", "--out", str(path), "--seed", "3")
+    assert code == 0 and err == ""
+    assert out.strip() == f"wrote 54 sequences (18 subjects x 3; 9 safe, 9 efficient) to {path}"
+    demos = Demonstrations.read_csv(path)
+    from torchhrc.tasks.place_and_drill import simulate_study
+
+    assert demos == simulate_study(seed=3)
+    json_path = tmp_path / "d.json"
+    options = ["--subjects", "5", "--positions", "4", "--strategies", "safe,efficient,pairs"]
+    code, _, _ = _run(capsys, "simulate-demos", *options, "--noise", "0.1", "--out", str(json_path))
+    assert code == 0
+    demos = Demonstrations.read_json(json_path)
+    assert demos.num_symbols == 10 and set(demos.types) == {"safe", "efficient", "pairs"}
+
+
+def test_simulate_demos_refuses_to_overwrite_without_force(study, capsys):
+    before = study.read_text()
+    code, out, err = _run(capsys, "simulate-demos", "--seed", "9", "--out", str(study))
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and "--force" in err and str(study) in err
+    assert study.read_text() == before
+    code, _, _ = _run(capsys, "simulate-demos", "--seed", "9", "--out", str(study), "--force")
+    assert code == 0 and study.read_text() != before
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["--strategies", "safe,lazy"], "unknown strategy 'lazy'"),
+        (["--subjects", "0"], "n_subjects"),
+        (["--noise", "0.3,0.1"], "noise"),
+    ],
+)
+def test_simulate_demos_bad_arguments_exit_2(tmp_path, capsys, argv, match):
+    code, _, err = _run(capsys, "simulate-demos", *argv, "--out", str(tmp_path / "x.csv"))
+    assert code == 2 and err.count("\n") == 1 and match in err
+    assert not (tmp_path / "x.csv").exists()
+
+
+def test_simulate_demos_unparsable_noise_is_a_usage_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as info:
+        cli.main(["simulate-demos", "--noise", "high", "--out", str(tmp_path / "x.csv")])
+    assert info.value.code == 2
+    assert "expected a rate" in capsys.readouterr().err
+
+
+def test_cluster_json_schema_and_values(study, capsys):
+    code, out, err = _run(
+        capsys, "cluster", str(study), "--k-max", "4", "--restarts", "4", "--json"
+    )
+    assert code == 0 and err == ""
+    assert out.count("\n") == 1
+    report = json.loads(out)
+    demos = Demonstrations.read_csv(study)
+    for key in ("k", "bic", "log_likelihood", "per_k", "assignments", "adjusted_rand_index"):
+        assert key in report
+    assert report["k"] == 2
+    assert set(report["per_k"]) == {"2", "3", "4"}
+    for scores in report["per_k"].values():
+        assert {"bic", "log_likelihood"} <= set(scores)
+    best = max(report["per_k"], key=lambda k: report["per_k"][k]["bic"])
+    assert int(best) == report["k"]
+    assert math.isclose(report["per_k"][best]["bic"], report["bic"])
+    assert math.isclose(report["per_k"][best]["log_likelihood"], report["log_likelihood"])
+    assert list(report["assignments"]) == list(demos.keys)
+    assert set(report["assignments"].values()) == {0, 1}
+    assert report["cluster_sizes"] == [
+        list(report["assignments"].values()).count(c) for c in range(2)
+    ]
+    clusters = [report["assignments"][key] for key in demos.keys]
+    assert report["adjusted_rand_index"] == pytest.approx(
+        adjusted_rand_index(demos.types, clusters)
+    )
+    assert report["adjusted_rand_index"] == 1.0  # noiseless study
+
+
+def test_cluster_same_seed_same_output(study, capsys):
+    argv = ["cluster", str(study), "--k-max", "3", "--restarts", "3", "--json", "--seed", "7"]
+    assert _run(capsys, *argv)[1] == _run(capsys, *argv)[1]
+
+
+def test_cluster_readable_report_and_loo(study, capsys):
+    argv = ["cluster", str(study), "--k-max", "3", "--restarts", "3", "--method", "paper"]
+    code, out, _ = _run(capsys, *argv, "--loo")
+    assert code == 0
+    assert "selected k = 2" in out
+    assert "<- selected" in out
+    assert "adjusted Rand index 1.000" in out
+    assert "leave-one-subject-out accuracy (vote): 1.000" in out
+    assert "S01:" in out
+    code, out, _ = _run(capsys, *argv, "--loo", "--json")
+    loo = json.loads(out)["loo"]
+    assert loo["accuracy"] == 1.0 and loo["misclassified"] == []
+    assert set(loo["predictions"]) == {f"S{i:02d}" for i in range(1, 7)}
+
+
+def test_cluster_saves_the_model(study, tmp_path, capsys):
+    from torchhrc.mixture import MarkovChainMixture
+
+    model_path = tmp_path / "model.json"
+    argv = ["cluster", str(study), "--k-max", "3", "--restarts", "2", "--json"]
+    code, out, _ = _run(capsys, *argv, "--save-model", str(model_path))
+    assert code == 0
+    model = MarkovChainMixture.load(model_path)
+    assert model.num_clusters == json.loads(out)["k"] and model.num_symbols == 8
+
+
+def test_cluster_without_types_has_no_ari(tmp_path, capsys):
+    path = tmp_path / "untyped.csv"
+    path.write_text(
+        "subject,sequence,step,actor,action\n"
+        + "".join(
+            f"s{i},0,{t},{'human' if t % 2 == 0 else 'robot'},{'a' if t % 2 == 0 else 'b'}\n"
+            for i in range(4)
+            for t in range(4)
+        )
+    )
+    code, out, _ = _run(capsys, "cluster", str(path), "--k-max", "2", "--restarts", "2", "--json")
+    assert code == 0
+    assert "adjusted_rand_index" not in json.loads(out)
+    code, _, err = _run(capsys, "cluster", str(path), "--loo")
+    assert code == 2 and "type" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    ("content", "argv", "match"),
+    [
+        (None, [], "No such file"),
+        ("", [], ":1: empty file"),
+        ("subject,sequence,step,actor,action\ns,0,0,human,a\ns,0,2,robot,b\n", [], ":3:3: missing"),
+        (
+            "subject,sequence,step,actor,action\ns,0,0,human,a\ns,0,1,robot,b\n",
+            ["--k-min", "3"],
+            "k_min",
+        ),
+        (
+            "subject,sequence,step,actor,action\ns,0,0,human,a\ns,0,1,robot,b\n",
+            ["--k-min", "3", "--k-max", "2"],
+            "k_min <= k_max",
+        ),
+    ],
+)
+def test_cluster_bad_input_exits_2_with_one_line(tmp_path, capsys, content, argv, match):
+    path = tmp_path / "bad.csv"
+    if content is not None:
+        path.write_text(content)
+    code, out, err = _run(capsys, "cluster", str(path), *argv)
+    assert code == 2 and out == ""
+    assert err.startswith("torchhrc cluster: error: ") and err.count("\n") == 1
+    assert match in err
+
+
+def test_real_entry_point_reports_a_bad_file_in_one_line(tmp_path):
+    # Through the installed module, every command registered: no traceback, exit 2.
+    import subprocess
+    import sys
+
+    path = tmp_path / "bad.csv"
+    path.write_text("subject,sequence,step,actor,action\ns,0,0,hmn,a\n")
+    completed = subprocess.run(
+        [sys.executable, "-m", "torchhrc.cli", "cluster", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert completed.returncode == 2 and completed.stdout == ""
+    assert completed.stderr == (
+        f"torchhrc cluster: error: {path}:2:4: unknown actor 'hmn' (expected one of human, robot)\n"
+    )

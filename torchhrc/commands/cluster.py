@@ -1,0 +1,285 @@
+"""``torchhrc cluster``: cluster demonstrations into human types (mixture of Markov chains).
+
+Reads a demonstrations file (CSV of shared/DESIGN.md, or the JSON form for ``.json``),
+runs Select-Best-Model (:func:`torchhrc.mixture.fit_mixture`) and prints the selected ``k``,
+its BIC and log-likelihood, the best BIC and log-likelihood of every ``k`` and the cluster
+of every sequence: one JSON object with ``--json``, a readable report otherwise. When the
+file has a ``type`` column, the adjusted Rand index against it is reported too, and
+``--loo`` adds the leave-one-subject-out type accuracy (the paper's evaluation).
+
+JSON keys: ``k``, ``bic``, ``icl``, ``log_likelihood``, ``method``, ``criterion``,
+``num_sequences``, ``num_subjects``, ``num_symbols``, ``symbols``, ``per_k`` (``"k"`` ->
+``{"bic", "icl", "log_likelihood"}``), ``cluster_sizes``, ``assignments``
+(``"subject/sequence"`` -> cluster), and with types ``adjusted_rand_index`` and
+``matched_accuracy``; with ``--loo`` also ``loo`` (accuracy, k per fold, predictions).
+Non-finite numbers are written as ``null``.
+
+Example:
+    >>> import argparse
+    >>> from torchhrc.commands import cluster
+    >>> sub = argparse.ArgumentParser(prog="torchhrc").add_subparsers()
+    >>> cluster.register(sub)
+    >>> sub.choices["cluster"].parse_args(["d.csv", "--k-max", "4"]).k_max
+    4
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from typing import Any
+
+import torch
+
+from torchhrc.data import Demonstrations
+from torchhrc.errors import ModelError
+
+__all__ = ["cluster_report", "read_demonstrations", "register", "run"]
+
+
+def read_demonstrations(path: str) -> Demonstrations:
+    """Read ``path`` as JSON (``.json``) or CSV (anything else).
+
+    Example:
+        >>> read_demonstrations("missing.csv")
+        Traceback (most recent call last):
+        ...
+        FileNotFoundError: [Errno 2] No such file or directory: 'missing.csv'
+    """
+    if path.lower().endswith(".json"):
+        return Demonstrations.read_json(path)
+    return Demonstrations.read_csv(path)
+
+
+def _finite(value: float) -> float | None:
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``cluster`` sub-command."""
+    parser = subparsers.add_parser(
+        "cluster",
+        help="cluster demonstrations into human types; BIC selects k",
+        description=(
+            "Cluster joint-action demonstrations into human types with a mixture of Markov "
+            "chains; Select-Best-Model picks k in [k-min, k-max] by BIC over restarts."
+        ),
+    )
+    parser.add_argument("demos", metavar="DEMOS", help="demonstrations file (.csv or .json)")
+    parser.add_argument("--k-min", type=int, default=2, help="smallest k (2)")
+    parser.add_argument("--k-max", type=int, default=10, help="largest k (10)")
+    parser.add_argument("--restarts", type=int, default=20, help="EM runs per k (20)")
+    parser.add_argument(
+        "--method",
+        choices=("soft", "paper"),
+        default="soft",
+        help="soft: k-means++ init + smoothed soft EM (default); paper: random init + hard EM",
+    )
+    parser.add_argument(
+        "--criterion", choices=("bic", "icl"), default="bic", help="model selection (bic)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="random seed (0)")
+    parser.add_argument(
+        "--loo",
+        action="store_true",
+        help="also report leave-one-subject-out type accuracy (needs a type column)",
+    )
+    parser.add_argument(
+        "--inference",
+        choices=("vote", "posterior"),
+        default="vote",
+        help="type of a held-out subject for --loo: the paper's vote or the posterior",
+    )
+    parser.add_argument("--save-model", metavar="PATH", help="save the fitted mixture (.json)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.set_defaults(func=run)
+
+
+def cluster_report(
+    demos: Demonstrations,
+    *,
+    k_min: int = 2,
+    k_max: int = 10,
+    restarts: int = 20,
+    method: str = "soft",
+    criterion: str = "bic",
+    seed: int = 0,
+    loo: bool = False,
+    inference: str = "vote",
+    save_model: str | None = None,
+) -> dict[str, Any]:
+    """Fit, score and summarise: the dict that ``--json`` prints.
+
+    Raises:
+        ModelError: ``loo`` without types, or a ``k`` range or ``restarts`` out of range.
+
+    Example:
+        >>> from torchhrc.tasks.place_and_drill import simulate_study
+        >>> r = cluster_report(simulate_study(n_subjects=4, noise=0.0), k_max=3, restarts=2)
+        >>> r["k"], r["adjusted_rand_index"], len(r["assignments"])
+        (2, 1.0, 12)
+    """
+    from torchhrc.metrics import adjusted_rand_index, matched_accuracy
+    from torchhrc.mixture import fit_mixture
+
+    for name, value in (("k_min", k_min), ("k_max", k_max), ("restarts", restarts)):
+        if value < 1:
+            raise ModelError(f"expected {name} >= 1, got {value}")
+    if k_max < k_min:
+        raise ModelError(f"expected k_min <= k_max, got k_min = {k_min} > k_max = {k_max}")
+    if k_min > demos.num_sequences:
+        raise ModelError(
+            f"expected k_min <= the number of sequences ({demos.num_sequences}), got {k_min}"
+        )
+    if loo and demos.types is None:
+        raise ModelError("leave-one-out needs ground-truth types (a 'type' column in the file)")
+    fit = fit_mixture(
+        demos,
+        k_min=k_min,
+        k_max=k_max,
+        restarts=restarts,
+        method=method,  # type: ignore[arg-type]
+        criterion=criterion,  # type: ignore[arg-type]
+        seed=seed,
+    )
+    if save_model is not None:
+        fit.model.save(save_model)
+    assignments = fit.assignments.cpu()
+    sizes = torch.bincount(assignments, minlength=fit.k).tolist()
+    report: dict[str, Any] = {
+        "k": fit.k,
+        "bic": _finite(fit.bic),
+        "icl": _finite(fit.icl),
+        "log_likelihood": _finite(fit.log_likelihood),
+        "method": fit.method,
+        "criterion": fit.criterion,
+        "num_sequences": demos.num_sequences,
+        "num_subjects": len(demos.unique_subjects),
+        "num_symbols": demos.num_symbols,
+        "symbols": list(demos.symbol_names),
+        "per_k": {
+            str(k): {name: _finite(v) for name, v in sorted(scores.items())}
+            for k, scores in sorted(fit.per_k.items())
+        },
+        "cluster_sizes": sizes,
+        "assignments": dict(zip(demos.keys, assignments.tolist())),
+    }
+    # Per-cluster transition counts, for the readable report's summary.
+    counts = demos.transition_counts(per_sequence=True).cpu()  # (N, A, A)
+    by_cluster = torch.zeros(fit.k, *counts.shape[1:], dtype=counts.dtype)
+    by_cluster.index_add_(0, assignments, counts)  # (k, A, A)
+    report["_cluster_counts"] = by_cluster
+    if demos.types is not None:
+        report["adjusted_rand_index"] = adjusted_rand_index(demos.types, assignments)
+        report["matched_accuracy"] = matched_accuracy(demos.types, assignments)
+        table: dict[str, list[int]] = {}
+        for label, c in zip(demos.types, assignments.tolist()):
+            table.setdefault(label, [0] * fit.k)[c] += 1
+        report["type_by_cluster"] = dict(sorted(table.items()))
+    if loo:
+        from torchhrc.experiments.loo import leave_one_subject_out
+
+        result = leave_one_subject_out(
+            demos,
+            k_min=k_min,
+            k_max=k_max,
+            restarts=restarts,
+            method=method,
+            inference=inference,  # type: ignore[arg-type]
+            seed=seed,
+        )
+        report["loo"] = {
+            "accuracy": result.accuracy,
+            "inference": inference,
+            "k_counts": {str(k): v for k, v in result.k_counts.items()},
+            "predictions": result.predictions,
+            "misclassified": [f.subject for f in result.folds if not f.correct],
+        }
+    return report
+
+
+def _print_table(report: dict[str, Any], path: str, out: Any) -> None:
+    w = out.write
+    w(
+        f"{path}: {report['num_sequences']} sequences, {report['num_subjects']} subjects, "
+        f"{report['num_symbols']} symbols; method {report['method']}, "
+        f"criterion {report['criterion']}\n\n"
+    )
+    w(f"{'k':>4} {'BIC':>12} {'ICL':>12} {'log-likelihood':>15}\n")
+
+    def fmt(v: float | None) -> str:
+        return "-inf" if v is None else f"{v:.2f}"
+
+    for k, scores in report["per_k"].items():
+        mark = "  <- selected" if int(k) == report["k"] else ""
+        w(
+            f"{k:>4} {fmt(scores.get('bic')):>12} {fmt(scores.get('icl')):>12} "
+            f"{fmt(scores.get('log_likelihood')):>15}{mark}\n"
+        )
+    w(f"\nselected k = {report['k']}, BIC {fmt(report['bic'])}\n\n")
+    symbols = report["symbols"]
+    counts = report["_cluster_counts"]
+    for c, size in enumerate(report["cluster_sizes"]):
+        total = counts[c].sum(-1, keepdim=True).clamp_min(1)
+        prob = counts[c] / total
+        flat = counts[c].flatten()
+        top = torch.argsort(flat, descending=True, stable=True)[:4].tolist()
+        a = len(symbols)
+        parts = [
+            f"{symbols[i // a]} -> {symbols[i % a]} ({prob[i // a, i % a]:.2f})"
+            for i in top
+            if flat[i] > 0
+        ]
+        w(f"cluster {c}: {size} sequences; most frequent transitions: {', '.join(parts)}\n")
+    if "adjusted_rand_index" in report:
+        w(
+            f"\nagainst the type column: adjusted Rand index {report['adjusted_rand_index']:.3f},"
+            f" matched accuracy {report['matched_accuracy']:.3f}\n"
+        )
+        k = report["k"]
+        width = max(len(t) for t in report["type_by_cluster"])
+        w(f"{'type':<{width}} " + " ".join(f"{c:>5}" for c in range(k)) + "\n")
+        for label, row in report["type_by_cluster"].items():
+            w(f"{label:<{width}} " + " ".join(f"{v:>5}" for v in row) + "\n")
+    if "loo" in report:
+        loo = report["loo"]
+        wrong = loo["misclassified"]
+        w(
+            f"\nleave-one-subject-out accuracy ({loo['inference']}): {loo['accuracy']:.3f}"
+            f"; k per fold {loo['k_counts']}"
+            + (f"; misclassified {', '.join(wrong)}" if wrong else "")
+            + "\n"
+        )
+    w("\nassignments (subject: cluster of each sequence)\n")
+    per_subject: dict[str, list[str]] = {}
+    for key, c in report["assignments"].items():
+        per_subject.setdefault(key.rsplit("/", 1)[0], []).append(str(c))
+    for subject, cs in per_subject.items():
+        w(f"  {subject}: {' '.join(cs)}\n")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Cluster ``args.demos`` and print the report; return the exit status."""
+    demos = read_demonstrations(args.demos)
+    report = cluster_report(
+        demos,
+        k_min=args.k_min,
+        k_max=args.k_max,
+        restarts=args.restarts,
+        method=args.method,
+        criterion=args.criterion,
+        seed=args.seed,
+        loo=args.loo,
+        inference=args.inference,
+        save_model=args.save_model,
+    )
+    if args.json:
+        public = {k: v for k, v in report.items() if not k.startswith("_")}
+        json.dump(public, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        _print_table(report, args.demos, sys.stdout)
+    return 0

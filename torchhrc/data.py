@@ -1,0 +1,964 @@
+"""Joint-action demonstrations: action vocabulary, padded sequences, CSV/JSON IO.
+
+A demonstration is a sequence of steps, each the pair ``(actor, action)`` with ``actor`` in
+``{"human", "robot"}``. The pair is the *symbol* of the step: a human ``wait`` and a robot
+``wait`` are different symbols, so the alphabet is the paper's ``A = A_r ∪ A_h``
+(Nikolaidis et al., section "Clustering of Human Types"). Symbols are numbered by the
+vocabulary, and the ``N`` sequences are stored as one padded tensor::
+
+    sequences: (N, L) int64   sequences[n, t] = symbol index of step t of sequence n
+                              (0 beyond lengths[n]: padding, masked out)
+    lengths:   (N,)   int64   number of steps of each sequence, every one >= 2
+    mask:      (N, L) bool    mask[n, t] = t < lengths[n]
+
+The CSV form (shared/DESIGN.md) has one row per step, header
+``subject,sequence,step,actor,action[,type]``, steps ``0, 1, ...`` in order within each
+(subject, sequence); the optional ``type`` is a ground-truth label used only for scoring.
+
+Example:
+    >>> from torchhrc.data import Demonstrations
+    >>> demos = Demonstrations.from_lists([[("human", "place_A"), ("robot", "drill_A")]])
+    >>> demos.symbol_names, demos.sequences.tolist(), demos.lengths.tolist()
+    (('human:place_A', 'robot:drill_A'), [[0, 1]], [2])
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from torchhrc.errors import ModelError, ParseError
+
+__all__ = ["ACTORS", "CSV_COLUMNS", "Demonstrations", "Step"]
+
+#: The two actors of a joint-action demonstration, in vocabulary order.
+ACTORS: tuple[str, str] = ("human", "robot")
+#: Required CSV columns, in the order :meth:`Demonstrations.write_csv` writes them.
+CSV_COLUMNS: tuple[str, ...] = ("subject", "sequence", "step", "actor", "action")
+_TYPE_COLUMN = "type"
+_JSON_FORMAT = "torchhrc.demonstrations"
+_JSON_VERSION = 1
+
+#: One step of a demonstration: ``(actor, action)``.
+Step = tuple[str, str]
+
+
+def _sorted_vocabulary(symbols: Iterable[Step]) -> tuple[Step, ...]:
+    """Canonical order: human symbols first, then robot; action names sorted."""
+    return tuple(sorted(set(symbols), key=lambda s: (ACTORS.index(s[0]), s[1])))
+
+
+def _check_vocabulary(vocabulary: object) -> tuple[Step, ...]:
+    if isinstance(vocabulary, (str, bytes)) or not isinstance(vocabulary, Iterable):
+        raise TypeError(
+            f"expected vocabulary to be a sequence of (actor, action) pairs, "
+            f"got {type(vocabulary).__name__}"
+        )
+    vocab: list[Step] = []
+    for i, entry in enumerate(vocabulary):
+        if (
+            not isinstance(entry, (tuple, list))
+            or len(entry) != 2
+            or not all(isinstance(part, str) for part in entry)
+        ):
+            raise TypeError(
+                f"expected vocabulary[{i}] to be an (actor, action) pair, got {entry!r}"
+            )
+        actor, action = entry
+        if actor not in ACTORS:
+            raise ModelError(
+                f"vocabulary[{i}] has actor {actor!r}, expected one of {', '.join(ACTORS)}"
+            )
+        if not action:
+            raise ModelError(f"vocabulary[{i}] has an empty action name")
+        vocab.append((actor, action))
+    seen: dict[Step, int] = {}
+    for i, symbol in enumerate(vocab):
+        if symbol in seen:
+            raise ModelError(
+                f"vocabulary[{i}] = {symbol!r} repeats vocabulary[{seen[symbol]}]; "
+                "symbols must be distinct"
+            )
+        seen[symbol] = i
+    return tuple(vocab)
+
+
+def _check_strings(name: str, values: object, size: int) -> tuple[str, ...]:
+    if isinstance(values, (str, bytes)) or not isinstance(values, Iterable):
+        raise TypeError(f"expected {name} to be a sequence of strings, got {type(values).__name__}")
+    out = tuple(values)
+    if len(out) != size:
+        raise ModelError(f"expected {name} to have one entry per sequence ({size}), got {len(out)}")
+    for i, value in enumerate(out):
+        if not isinstance(value, str):
+            raise TypeError(f"expected {name}[{i}] to be a string, got {type(value).__name__}")
+        if not value:
+            raise ModelError(f"{name}[{i}] is an empty string")
+    return out
+
+
+def _atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and ``os.replace``."""
+    target = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=target.parent or ".", prefix=f".{target.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+@dataclass(frozen=True, eq=False)
+class Demonstrations:
+    """A set of joint-action demonstrations, padded into one tensor.
+
+    Args:
+        vocabulary: ``(A,)`` symbols, ``vocabulary[a] = (actor, action)``, actor in
+            ``{"human", "robot"}``; distinct.
+        sequences: ``(N, L)`` int64, ``sequences[n, t]`` the symbol index of step ``t`` of
+            sequence ``n``, padded with 0 beyond ``lengths[n]``.
+        lengths: ``(N,)`` int64, every length in ``[2, L]``.
+        subjects: ``(N,)`` subject id of each sequence.
+        sequence_ids: ``(N,)`` sequence id within its subject; ``(subject, sequence_id)``
+            pairs are distinct.
+        types: ``(N,)`` optional ground-truth type labels (never used for learning).
+
+    Raises:
+        ModelError: shapes, ranges, lengths or ids are inconsistent (the message names
+            the field, what was expected and what was given).
+        TypeError: a field has the wrong type.
+
+    Example:
+        >>> demos = Demonstrations.from_lists(
+        ...     [[("human", "place_A"), ("robot", "wait"), ("robot", "drill_A")]])
+        >>> demos.num_symbols, demos.mask.tolist()
+        (3, [[True, True, True]])
+    """
+
+    vocabulary: tuple[Step, ...]
+    sequences: torch.Tensor
+    lengths: torch.Tensor
+    subjects: tuple[str, ...]
+    sequence_ids: tuple[str, ...]
+    types: tuple[str, ...] | None = None
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Check every field (called once at construction)."""
+        set_ = object.__setattr__
+        vocab = _check_vocabulary(self.vocabulary)
+        set_(self, "vocabulary", vocab)
+        seqs, lengths = self.sequences, self.lengths
+        for name, value in (("sequences", seqs), ("lengths", lengths)):
+            if not isinstance(value, torch.Tensor):
+                raise TypeError(f"expected {name} to be a torch.Tensor, got {type(value).__name__}")
+            if value.dtype != torch.int64:
+                raise TypeError(f"expected {name} to have dtype torch.int64, got {value.dtype}")
+        if seqs.dim() != 2:
+            raise ModelError(
+                f"expected sequences to have shape (N, L), actual shape = {tuple(seqs.shape)}"
+            )
+        n, max_len = seqs.shape
+        if lengths.shape != (n,):
+            raise ModelError(
+                f"expected lengths to have shape (N,) = ({n},), actual shape = "
+                f"{tuple(lengths.shape)}"
+            )
+        if lengths.device != seqs.device:
+            raise ModelError(
+                f"lengths is on {lengths.device} but sequences is on {seqs.device}; "
+                "expected one device"
+            )
+        if n:
+            bad = (lengths < 2) | (lengths > max_len)
+            if bad.any():
+                i = int(torch.nonzero(bad)[0])
+                raise ModelError(
+                    f"lengths[{i}] = {int(lengths[i])}, expected a length in [2, L = {max_len}] "
+                    "(a sequence needs at least one transition)"
+                )
+            num_symbols = len(vocab)
+            real = torch.arange(max_len, device=seqs.device) < lengths[:, None]
+            out_of_range = real & ((seqs < 0) | (seqs >= num_symbols))
+            if out_of_range.any():
+                i, t = (int(v) for v in torch.nonzero(out_of_range)[0])
+                raise ModelError(
+                    f"sequences[{i}, {t}] = {int(seqs[i, t])} is not a symbol index "
+                    f"(expected 0 <= index < A = {num_symbols})"
+                )
+            padded = ~real & (seqs != 0)
+            if padded.any():
+                i, t = (int(v) for v in torch.nonzero(padded)[0])
+                raise ModelError(
+                    f"sequences[{i}, {t}] = {int(seqs[i, t])} lies beyond lengths[{i}] = "
+                    f"{int(lengths[i])}; expected padding 0"
+                )
+        set_(self, "subjects", _check_strings("subjects", self.subjects, n))
+        set_(self, "sequence_ids", _check_strings("sequence_ids", self.sequence_ids, n))
+        if self.types is not None:
+            set_(self, "types", _check_strings("types", self.types, n))
+        seen: dict[tuple[str, str], int] = {}
+        for i, key in enumerate(zip(self.subjects, self.sequence_ids)):
+            if key in seen:
+                raise ModelError(
+                    f"sequence {key[0]}/{key[1]} appears twice (indices {seen[key]} and {i}); "
+                    "(subject, sequence_id) pairs must be distinct"
+                )
+            seen[key] = i
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def mask(self) -> torch.Tensor:
+        """``(N, L)`` bool, ``mask[n, t] = t < lengths[n]`` (True on real steps)."""
+        steps = torch.arange(self.sequences.shape[-1], device=self.sequences.device)
+        return steps < self.lengths[:, None]
+
+    @property
+    def num_symbols(self) -> int:
+        """``A``, the size of the vocabulary."""
+        return len(self.vocabulary)
+
+    @property
+    def num_sequences(self) -> int:
+        """``N``, the number of sequences."""
+        return int(self.sequences.shape[0])
+
+    @property
+    def max_length(self) -> int:
+        """``L``, the padded length."""
+        return int(self.sequences.shape[1])
+
+    @property
+    def symbol_names(self) -> tuple[str, ...]:
+        """``(A,)`` readable symbol names ``"actor:action"``, e.g. ``"human:place_A"``."""
+        return tuple(f"{actor}:{action}" for actor, action in self.vocabulary)
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """``(N,)`` sequence keys ``"subject/sequence_id"`` (used by the CLI's JSON)."""
+        return tuple(f"{s}/{q}" for s, q in zip(self.subjects, self.sequence_ids))
+
+    @property
+    def unique_subjects(self) -> tuple[str, ...]:
+        """The distinct subject ids, in order of first appearance."""
+        return tuple(dict.fromkeys(self.subjects))
+
+    @property
+    def subject_index(self) -> torch.Tensor:
+        """``(N,)`` int64, index of each sequence's subject in :attr:`unique_subjects`."""
+        lookup = {s: i for i, s in enumerate(self.unique_subjects)}
+        return torch.tensor(
+            [lookup[s] for s in self.subjects], dtype=torch.int64, device=self.sequences.device
+        )
+
+    @property
+    def device(self) -> torch.device:
+        """The device of :attr:`sequences`."""
+        return self.sequences.device
+
+    def __len__(self) -> int:
+        return self.num_sequences
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Demonstrations):
+            return NotImplemented
+        return (
+            self.vocabulary == other.vocabulary
+            and self.subjects == other.subjects
+            and self.sequence_ids == other.sequence_ids
+            and self.types == other.types
+            and self.sequences.shape == other.sequences.shape
+            and bool(torch.equal(self.lengths.cpu(), other.lengths.cpu()))
+            and bool(torch.equal(self.sequences.cpu(), other.sequences.cpu()))
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        subjects = len(self.unique_subjects)
+        typed = "" if self.types is None else f", types={sorted(set(self.types))}"
+        return (
+            f"Demonstrations(N={self.num_sequences}, L={self.max_length}, A={self.num_symbols}, "
+            f"subjects={subjects}{typed})"
+        )
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_lists(
+        cls,
+        sequences: Sequence[Sequence[Step]],
+        *,
+        subjects: Sequence[str] | None = None,
+        sequence_ids: Sequence[str] | None = None,
+        types: Sequence[str] | None = None,
+        vocabulary: Sequence[Step] | None = None,
+        device: torch.device | str | None = None,
+    ) -> Demonstrations:
+        """Build from Python lists of ``(actor, action)`` steps.
+
+        Args:
+            sequences: ``N`` lists of steps ``(actor, action)``, each of length >= 2.
+            subjects: ``(N,)`` subject ids; default: each sequence its own subject ``"0"``,
+                ``"1"``, ...
+            sequence_ids: ``(N,)`` ids within the subject; default: the running number of
+                the sequence within its subject (``"0"``, ``"1"``, ...).
+            types: ``(N,)`` optional ground-truth labels.
+            vocabulary: fixed symbol order; default: the symbols present, human symbols
+                first, then robot, action names sorted.
+            device: where to put the tensors.
+
+        Raises:
+            ModelError: a step uses a symbol outside ``vocabulary``, an unknown actor, or a
+                sequence is shorter than 2 steps.
+
+        Example:
+            >>> d = Demonstrations.from_lists([[("human", "a"), ("robot", "b")]] * 2,
+            ...                               subjects=["s1", "s1"])
+            >>> d.keys
+            ('s1/0', 's1/1')
+        """
+        if isinstance(sequences, (str, bytes)) or not isinstance(sequences, Sequence):
+            raise TypeError(
+                f"expected sequences to be a list of lists of (actor, action), "
+                f"got {type(sequences).__name__}"
+            )
+        seqs: list[list[Step]] = []
+        for i, seq in enumerate(sequences):
+            if isinstance(seq, (str, bytes)) or not isinstance(seq, Sequence):
+                raise TypeError(f"expected sequences[{i}] to be a list of steps, got {seq!r}")
+            steps: list[Step] = []
+            for t, step in enumerate(seq):
+                if (
+                    not isinstance(step, (tuple, list))
+                    or len(step) != 2
+                    or not all(isinstance(part, str) for part in step)
+                ):
+                    raise TypeError(
+                        f"expected sequences[{i}][{t}] to be an (actor, action) pair of "
+                        f"strings, got {step!r}"
+                    )
+                if step[0] not in ACTORS:
+                    raise ModelError(
+                        f"sequences[{i}][{t}] has actor {step[0]!r}, expected one of "
+                        f"{', '.join(ACTORS)}"
+                    )
+                steps.append((step[0], step[1]))
+            if len(steps) < 2:
+                raise ModelError(
+                    f"sequences[{i}] has {len(steps)} step(s), expected at least 2 "
+                    "(a sequence needs at least one transition)"
+                )
+            seqs.append(steps)
+        n = len(seqs)
+        if vocabulary is None:
+            vocab = _sorted_vocabulary(step for seq in seqs for step in seq)
+        else:
+            vocab = _check_vocabulary(vocabulary)
+        index = {symbol: a for a, symbol in enumerate(vocab)}
+        if subjects is None:
+            subjects = [str(i) for i in range(n)]
+        subjects = _check_strings("subjects", subjects, n)
+        if sequence_ids is None:
+            counter: dict[str, int] = {}
+            ids = []
+            for s in subjects:
+                ids.append(str(counter.get(s, 0)))
+                counter[s] = counter.get(s, 0) + 1
+            sequence_ids = ids
+        max_len = max((len(seq) for seq in seqs), default=0)
+        table = [[0] * max_len for _ in range(n)]
+        for i, seq in enumerate(seqs):
+            for t, step in enumerate(seq):
+                if step not in index:
+                    raise ModelError(
+                        f"sequences[{i}][{t}] = {step!r} is not in the vocabulary "
+                        f"({len(vocab)} symbols)"
+                    )
+                table[i][t] = index[step]
+        return cls(
+            vocabulary=vocab,
+            sequences=torch.tensor(table, dtype=torch.int64, device=device).reshape(n, max_len),
+            lengths=torch.tensor([len(seq) for seq in seqs], dtype=torch.int64, device=device),
+            subjects=tuple(subjects),
+            sequence_ids=tuple(sequence_ids),
+            types=None if types is None else tuple(types),
+        )
+
+    def to_lists(self) -> list[list[Step]]:
+        """The sequences as lists of ``(actor, action)`` steps (inverse of from_lists)."""
+        rows = self.sequences.cpu().tolist()
+        return [
+            [self.vocabulary[a] for a in row[:length]]
+            for row, length in zip(rows, self.lengths.cpu().tolist())
+        ]
+
+    def to(self, device: torch.device | str) -> Demonstrations:
+        """The same demonstrations with the tensors on ``device``."""
+        return Demonstrations(
+            vocabulary=self.vocabulary,
+            sequences=self.sequences.to(device),
+            lengths=self.lengths.to(device),
+            subjects=self.subjects,
+            sequence_ids=self.sequence_ids,
+            types=self.types,
+        )
+
+    def symbol(self, actor: str, action: str) -> int:
+        """The index of the symbol ``(actor, action)``.
+
+        Raises:
+            KeyError: the symbol is not in the vocabulary.
+        """
+        try:
+            return self.vocabulary.index((actor, action))
+        except ValueError:
+            raise KeyError(
+                f"symbol ({actor!r}, {action!r}) is not in the vocabulary {self.symbol_names}"
+            ) from None
+
+    # ------------------------------------------------------------------ selection
+    def subset(self, indices: Sequence[int] | torch.Tensor) -> Demonstrations:
+        """The sequences at ``indices`` (ints or a ``(N,)`` bool mask), same vocabulary.
+
+        The padded length shrinks to the longest selected sequence.
+
+        Example:
+            >>> d = Demonstrations.from_lists([[("human", "a"), ("robot", "b")]] * 3)
+            >>> d.subset([2, 0]).subjects
+            ('2', '0')
+        """
+        idx = torch.as_tensor(indices, device=torch.device("cpu"))
+        if idx.dtype == torch.bool:
+            if idx.shape != (self.num_sequences,):
+                raise ModelError(
+                    f"expected a bool mask of shape (N,) = ({self.num_sequences},), "
+                    f"got shape {tuple(idx.shape)}"
+                )
+            idx = torch.nonzero(idx).flatten()
+        if idx.numel() == 0:
+            idx = idx.reshape(0).long()
+        if idx.dtype not in (torch.int64, torch.int32, torch.int16, torch.int8, torch.uint8):
+            raise TypeError(f"expected integer indices or a bool mask, got dtype {idx.dtype}")
+        idx = idx.long().flatten()
+        n = self.num_sequences
+        if idx.numel() and (int(idx.min()) < -n or int(idx.max()) >= n):
+            raise IndexError(f"index out of range for {n} sequences: {idx.tolist()}")
+        idx = idx % max(n, 1)
+        picks = idx.tolist()
+        lengths = self.lengths[idx.to(self.device)]
+        max_len = int(lengths.max()) if picks else 0
+        return Demonstrations(
+            vocabulary=self.vocabulary,
+            sequences=self.sequences[idx.to(self.device), :max_len].contiguous(),
+            lengths=lengths,
+            subjects=tuple(self.subjects[i] for i in picks),
+            sequence_ids=tuple(self.sequence_ids[i] for i in picks),
+            types=None if self.types is None else tuple(self.types[i] for i in picks),
+        )
+
+    def select_subjects(self, subjects: Iterable[str], *, exclude: bool = False) -> Demonstrations:
+        """The sequences of the given subjects (or of all others, with ``exclude=True``).
+
+        Raises:
+            ModelError: a named subject has no sequence.
+
+        Example:
+            >>> d = Demonstrations.from_lists([[("human", "a"), ("robot", "b")]] * 3,
+            ...                               subjects=["x", "y", "x"])
+            >>> d.select_subjects(["x"], exclude=True).subjects
+            ('y',)
+        """
+        if isinstance(subjects, str):
+            subjects = [subjects]
+        wanted = set(subjects)
+        missing = sorted(wanted - set(self.subjects))
+        if missing:
+            raise ModelError(f"no sequences for subject(s) {missing}")
+        keep = [(s in wanted) != exclude for s in self.subjects]
+        return self.subset(torch.tensor(keep, dtype=torch.bool).reshape(self.num_sequences))
+
+    # ------------------------------------------------------------------ statistics
+    def transition_counts(self, *, per_sequence: bool = False) -> torch.Tensor:
+        """Counts of transitions ``a -> b`` (paper's ``n_{b|a}``), by one bincount.
+
+        Returns:
+            ``(A, A)`` float64 (or ``(N, A, A)`` with ``per_sequence=True``);
+            ``counts[..., a, b]`` = number of steps ``t`` with ``x_t = a, x_{t+1} = b``.
+
+        Example:
+            >>> d = Demonstrations.from_lists([[("human", "a"), ("robot", "b"), ("human", "a")]])
+            >>> d.transition_counts().tolist()
+            [[0.0, 1.0], [1.0, 0.0]]
+        """
+        num = self.num_symbols
+        n = self.num_sequences
+        prev, nxt = self.sequences[:, :-1], self.sequences[:, 1:]
+        valid = self.mask[:, 1:]  # (N, L-1): transition t -> t+1 is real
+        flat = prev * num + nxt  # (N, L-1)
+        if per_sequence:
+            flat = flat + torch.arange(n, device=self.device)[:, None] * (num * num)
+            size = n * num * num
+        else:
+            size = num * num
+        counts = torch.bincount(flat[valid], minlength=size).to(torch.float64)
+        return counts.reshape((n, num, num) if per_sequence else (num, num))
+
+    # ------------------------------------------------------------------ CSV
+    def to_csv_string(self) -> str:
+        """The CSV text (header ``subject,sequence,step,actor,action[,type]``)."""
+        buffer = io.StringIO()
+        writer = csv.writer(buffer, lineterminator="\n")
+        header = list(CSV_COLUMNS) + ([_TYPE_COLUMN] if self.types is not None else [])
+        writer.writerow(header)
+        for i, steps in enumerate(self.to_lists()):
+            for t, (actor, action) in enumerate(steps):
+                row = [self.subjects[i], self.sequence_ids[i], t, actor, action]
+                if self.types is not None:
+                    row.append(self.types[i])
+                writer.writerow(row)
+        return buffer.getvalue()
+
+    def write_csv(self, path: str | os.PathLike[str]) -> None:
+        """Write the CSV file atomically (temporary file + ``os.replace``).
+
+        Example:
+            >>> import tempfile, os
+            >>> d = Demonstrations.from_lists([[("human", "a"), ("robot", "b")]])
+            >>> path = os.path.join(tempfile.mkdtemp(), "demos.csv")
+            >>> d.write_csv(path); Demonstrations.read_csv(path) == d
+            True
+        """
+        _atomic_write_text(path, self.to_csv_string())
+
+    @classmethod
+    def read_csv(
+        cls,
+        path: str | os.PathLike[str],
+        *,
+        vocabulary: Sequence[Step] | None = None,
+    ) -> Demonstrations:
+        """Read the CSV format of shared/DESIGN.md.
+
+        Rows of one (subject, sequence) are contiguous with steps ``0, 1, ...`` in order;
+        the columns may come in any order; blank lines are ignored; nothing else is skipped.
+
+        Args:
+            path: the file.
+            vocabulary: fixed symbol order (a step outside it is an error); default: the
+                symbols present, in the canonical order of :meth:`from_lists`.
+
+        Raises:
+            ParseError: with file, line and reason, for an empty file, missing, unknown or
+                repeated columns, a wrong number of fields, an empty field, a
+                non-integer, duplicate or missing step, an unknown actor or symbol, a
+                sequence shorter than 2 steps, a sequence id that changes subject within
+                a sequence, rows of one sequence that are not contiguous, or a type label
+                that changes within a sequence.
+            FileNotFoundError: no such file.
+        """
+        name = os.fspath(path)
+        text = _read_text(name, encoding="utf-8-sig")
+        return cls.from_csv_string(text, path=name, vocabulary=vocabulary)
+
+    @classmethod
+    def from_csv_string(
+        cls,
+        text: str,
+        *,
+        path: str = "<string>",
+        vocabulary: Sequence[Step] | None = None,
+    ) -> Demonstrations:
+        """Parse CSV text; see :meth:`read_csv` (``path`` names the source in errors).
+
+        Example:
+            >>> text = "subject,sequence,step,actor,action\\ns,0,0,human,a\\ns,0,1,robot,b\\n"
+            >>> Demonstrations.from_csv_string(text).symbol_names
+            ('human:a', 'robot:b')
+        """
+        return _parse_csv(cls, text, path, vocabulary)
+
+    # ------------------------------------------------------------------ JSON
+    def to_json_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict: format tag, vocabulary and one record per sequence."""
+        records = []
+        for i, steps in enumerate(self.to_lists()):
+            record: dict[str, Any] = {
+                "subject": self.subjects[i],
+                "sequence": self.sequence_ids[i],
+                "steps": [[actor, action] for actor, action in steps],
+            }
+            if self.types is not None:
+                record["type"] = self.types[i]
+            records.append(record)
+        return {
+            "format": _JSON_FORMAT,
+            "version": _JSON_VERSION,
+            "vocabulary": [[actor, action] for actor, action in self.vocabulary],
+            "sequences": records,
+        }
+
+    @classmethod
+    def from_json_dict(cls, data: Mapping[str, Any], *, path: str = "<dict>") -> Demonstrations:
+        """Inverse of :meth:`to_json_dict`; errors name ``path`` and the JSON location."""
+
+        def fail(where: str, reason: str) -> ParseError:
+            return ParseError(f"{where}: {reason}", path=path)
+
+        if not isinstance(data, Mapping):
+            raise fail("$", f"expected a JSON object, got {type(data).__name__}")
+        if data.get("format") != _JSON_FORMAT:
+            raise fail("$.format", f"expected {_JSON_FORMAT!r}, got {data.get('format')!r}")
+        if data.get("version") != _JSON_VERSION:
+            raise fail("$.version", f"expected {_JSON_VERSION}, got {data.get('version')!r}")
+        unknown = sorted(set(data) - {"format", "version", "vocabulary", "sequences"})
+        if unknown:
+            raise fail("$", f"unknown keys {unknown}")
+        raw_vocab = data.get("vocabulary")
+        if not isinstance(raw_vocab, list):
+            raise fail("$.vocabulary", "expected a list of [actor, action] pairs")
+        try:
+            vocab = _check_vocabulary([tuple(v) if isinstance(v, list) else v for v in raw_vocab])
+        except (TypeError, ModelError) as error:
+            raise fail("$.vocabulary", str(error)) from None
+        records = data.get("sequences")
+        if not isinstance(records, list):
+            raise fail("$.sequences", "expected a list of sequence records")
+        seqs: list[list[Step]] = []
+        subjects, ids, types = [], [], []
+        has_types = bool(records) and isinstance(records[0], Mapping) and "type" in records[0]
+        vocab_set = set(vocab)
+        for i, record in enumerate(records):
+            where = f"$.sequences[{i}]"
+            if not isinstance(record, Mapping):
+                raise fail(where, "expected an object")
+            allowed = {"subject", "sequence", "steps"} | ({"type"} if has_types else set())
+            extra = sorted(set(record) - allowed)
+            if extra:
+                if "type" in extra:
+                    reason = "type labels must be given for all sequences or none"
+                else:
+                    reason = f"unknown keys {extra}"
+                raise fail(where, reason)
+            for key in sorted(allowed):
+                if key not in record:
+                    raise fail(where, f"missing key {key!r}")
+            for key in ("subject", "sequence") + (("type",) if has_types else ()):
+                if not isinstance(record[key], str) or not record[key]:
+                    raise fail(
+                        f"{where}.{key}", f"expected a non-empty string, got {record[key]!r}"
+                    )
+            steps = record["steps"]
+            if not isinstance(steps, list):
+                raise fail(f"{where}.steps", "expected a list of [actor, action] pairs")
+            parsed: list[Step] = []
+            for t, step in enumerate(steps):
+                if (
+                    not isinstance(step, list)
+                    or len(step) != 2
+                    or not all(isinstance(part, str) for part in step)
+                ):
+                    raise fail(f"{where}.steps[{t}]", f"expected [actor, action], got {step!r}")
+                if step[0] not in ACTORS:
+                    raise fail(
+                        f"{where}.steps[{t}]",
+                        f"unknown actor {step[0]!r} (expected one of {', '.join(ACTORS)})",
+                    )
+                if (step[0], step[1]) not in vocab_set:
+                    raise fail(f"{where}.steps[{t}]", f"symbol {step!r} is not in the vocabulary")
+                parsed.append((step[0], step[1]))
+            if len(parsed) < 2:
+                raise fail(f"{where}.steps", f"{len(parsed)} step(s), expected at least 2")
+            seqs.append(parsed)
+            subjects.append(record["subject"])
+            ids.append(record["sequence"])
+            if has_types:
+                types.append(record["type"])
+        try:
+            return cls.from_lists(
+                seqs,
+                subjects=subjects,
+                sequence_ids=ids,
+                types=types if has_types else None,
+                vocabulary=vocab,
+            )
+        except ModelError as error:
+            raise fail("$.sequences", str(error)) from None
+
+    def write_json(self, path: str | os.PathLike[str]) -> None:
+        """Write the JSON form atomically (temporary file + ``os.replace``)."""
+        _atomic_write_text(path, json.dumps(self.to_json_dict(), indent=1) + "\n")
+
+    @classmethod
+    def read_json(cls, path: str | os.PathLike[str]) -> Demonstrations:
+        """Read the JSON form written by :meth:`write_json`.
+
+        Raises:
+            ParseError: invalid JSON (with line and column) or an invalid structure (with
+                the JSON location, e.g. ``$.sequences[3].steps[1]``).
+
+        Example:
+            >>> import tempfile, os
+            >>> d = Demonstrations.from_lists([[("human", "a"), ("robot", "b")]], types=["t"])
+            >>> path = os.path.join(tempfile.mkdtemp(), "demos.json")
+            >>> d.write_json(path); Demonstrations.read_json(path) == d
+            True
+        """
+        name = os.fspath(path)
+        text = _read_text(name, encoding="utf-8")
+        if not text.strip():
+            raise ParseError("empty file (expected a JSON object)", path=name, line=1)
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as error:
+            raise ParseError(
+                f"invalid JSON: {error.msg}", path=name, line=error.lineno, column=error.colno
+            ) from None
+        return cls.from_json_dict(data, path=name)
+
+
+def _read_text(path: str, *, encoding: str) -> str:
+    """The file's text; undecodable bytes are a :class:`ParseError` naming the line."""
+    with open(path, "rb") as handle:
+        raw = handle.read()
+    try:
+        return raw.decode(encoding)
+    except UnicodeDecodeError as error:
+        line = raw[: error.start].count(b"\n") + 1
+        raise ParseError(
+            f"not {encoding.split('-sig')[0].upper()} text (byte {error.start})",
+            path=path,
+            line=line,
+        ) from None
+
+
+class _SafeReader:
+    """A ``csv.reader`` whose ``csv.Error`` (e.g. a NUL byte) becomes a ParseError."""
+
+    def __init__(self, reader: Any, path: str) -> None:
+        self._reader = reader
+        self._path = path
+
+    @property
+    def line_num(self) -> int:
+        return self._reader.line_num
+
+    def __iter__(self) -> _SafeReader:
+        return self
+
+    def __next__(self) -> list[str]:
+        try:
+            return next(self._reader)
+        except csv.Error as error:
+            raise ParseError(
+                f"malformed CSV: {error}", path=self._path, line=self._reader.line_num + 1
+            ) from None
+
+
+def _parse_csv(
+    cls: type[Demonstrations],
+    text: str,
+    path: str,
+    vocabulary: Sequence[Step] | None,
+) -> Demonstrations:
+    """The CSV parser behind :meth:`Demonstrations.read_csv` (one pass, strict)."""
+    if text.startswith("\ufeff"):
+        text = text[1:]
+    reader = _SafeReader(csv.reader(io.StringIO(text, newline="")), path)
+    header: list[str] | None = None
+    header_line = 0
+    for row in reader:
+        if row and any(cell.strip() for cell in row):
+            header = [cell.strip() for cell in row]
+            header_line = reader.line_num
+            break
+    if header is None:
+        raise ParseError(
+            "empty file (expected the header subject,sequence,step,actor,action[,type])",
+            path=path,
+            line=1,
+        )
+    for j, col in enumerate(header):
+        if header.index(col) != j:
+            raise ParseError(
+                f"column {col!r} appears twice", path=path, line=header_line, column=j + 1
+            )
+    allowed = set(CSV_COLUMNS) | {_TYPE_COLUMN}
+    unknown = [c for c in header if c not in allowed]
+    if unknown:
+        raise ParseError(
+            f"unknown column {unknown[0]!r} (expected subject,sequence,step,actor,action[,type])",
+            path=path,
+            line=header_line,
+            column=header.index(unknown[0]) + 1,
+        )
+    missing = [c for c in CSV_COLUMNS if c not in header]
+    if missing:
+        raise ParseError(
+            f"missing column(s) {', '.join(missing)} "
+            "(expected subject,sequence,step,actor,action[,type])",
+            path=path,
+            line=header_line,
+        )
+    col = {name: header.index(name) for name in header}
+    has_types = _TYPE_COLUMN in col
+    fixed_vocab = None if vocabulary is None else set(_check_vocabulary(vocabulary))
+
+    seqs: list[list[Step]] = []
+    subjects: list[str] = []
+    ids: list[str] = []
+    types: list[str] = []
+    first_line: list[int] = []
+    done: dict[tuple[str, str], int] = {}  # finished sequence -> its first line
+    current: tuple[str, str] | None = None
+    last_step = -1
+
+    def close_current() -> None:
+        if current is not None and len(seqs[-1]) < 2:
+            raise ParseError(
+                f"sequence {current[0]}/{current[1]} has {len(seqs[-1])} step, expected at "
+                "least 2 (a sequence needs at least one transition)",
+                path=path,
+                line=first_line[-1],
+            )
+
+    for row in reader:
+        line = reader.line_num
+        if not row or not any(cell.strip() for cell in row):
+            continue
+        if len(row) != len(header):
+            raise ParseError(
+                f"expected {len(header)} fields ({','.join(header)}), got {len(row)}",
+                path=path,
+                line=line,
+            )
+        cells = [cell.strip() for cell in row]
+        for name, j in col.items():
+            if not cells[j]:
+                raise ParseError(f"empty {name!r} field", path=path, line=line, column=j + 1)
+        subject, seq_id = cells[col["subject"]], cells[col["sequence"]]
+        actor, action = cells[col["actor"]], cells[col["action"]]
+        raw_step = cells[col["step"]]
+        try:
+            step = int(raw_step)
+        except ValueError:
+            step = -1
+        if step < 0 or not raw_step.lstrip("+").isdigit():
+            raise ParseError(
+                f"step {raw_step!r} is not a non-negative integer",
+                path=path,
+                line=line,
+                column=col["step"] + 1,
+            )
+        if actor not in ACTORS:
+            raise ParseError(
+                f"unknown actor {actor!r} (expected one of {', '.join(ACTORS)})",
+                path=path,
+                line=line,
+                column=col["actor"] + 1,
+            )
+        if fixed_vocab is not None and (actor, action) not in fixed_vocab:
+            raise ParseError(
+                f"symbol {actor}:{action} is not in the given vocabulary",
+                path=path,
+                line=line,
+                column=col["action"] + 1,
+            )
+        key = (subject, seq_id)
+        if key != current:
+            if key in done:
+                raise ParseError(
+                    f"rows of sequence {subject}/{seq_id} are not contiguous (it started at "
+                    f"line {done[key]} and another sequence came in between)",
+                    path=path,
+                    line=line,
+                )
+            if (
+                current is not None
+                and seq_id == current[1]
+                and subject != current[0]
+                and step == last_step + 1
+                and step > 0
+            ):
+                raise ParseError(
+                    f"sequence {seq_id!r} changes subject from {current[0]!r} to {subject!r} "
+                    f"at step {step}",
+                    path=path,
+                    line=line,
+                    column=col["subject"] + 1,
+                )
+            close_current()
+            if step != 0:
+                raise ParseError(
+                    f"sequence {subject}/{seq_id} starts at step {step}; missing step(s) "
+                    f"0..{step - 1}",
+                    path=path,
+                    line=line,
+                    column=col["step"] + 1,
+                )
+            current = key
+            done[key] = line
+            last_step = -1
+            seqs.append([])
+            subjects.append(subject)
+            ids.append(seq_id)
+            first_line.append(line)
+            if has_types:
+                types.append(cells[col[_TYPE_COLUMN]])
+        if step <= last_step:
+            raise ParseError(
+                f"duplicate step {step} in sequence {subject}/{seq_id} "
+                f"(steps must be 0, 1, ... in order)",
+                path=path,
+                line=line,
+                column=col["step"] + 1,
+            )
+        if step != last_step + 1:
+            gap = f"{last_step + 1}" if step == last_step + 2 else f"{last_step + 1}..{step - 1}"
+            raise ParseError(
+                f"missing step(s) {gap} in sequence {subject}/{seq_id} before step {step}",
+                path=path,
+                line=line,
+                column=col["step"] + 1,
+            )
+        if has_types and cells[col[_TYPE_COLUMN]] != types[-1]:
+            raise ParseError(
+                f"type label changes within sequence {subject}/{seq_id}: "
+                f"{types[-1]!r} then {cells[col[_TYPE_COLUMN]]!r}",
+                path=path,
+                line=line,
+                column=col[_TYPE_COLUMN] + 1,
+            )
+        last_step = step
+        seqs[-1].append((actor, action))
+    close_current()
+    if not seqs:
+        raise ParseError(
+            "no data rows after the header (expected one row per step)",
+            path=path,
+            line=header_line + 1,
+        )
+    return cls.from_lists(
+        seqs,
+        subjects=subjects,
+        sequence_ids=ids,
+        types=types if has_types else None,
+        vocabulary=None if vocabulary is None else tuple(vocabulary),
+    )

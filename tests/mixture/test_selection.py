@@ -1,0 +1,175 @@
+import dataclasses
+import math
+
+import pytest
+import torch
+
+from torchhrc.errors import ModelError
+from torchhrc.metrics import adjusted_rand_index
+from torchhrc.mixture import fit_mixture, num_free_parameters, sequence_log_likelihood
+from torchhrc.tasks.place_and_drill import simulate_study
+
+
+@pytest.mark.slow
+def test_paper_like_study_picks_two_types():
+    """18 subjects x 3 demos, 3 positions, noise 0..0.15: k = 2 and ARI >= 0.95.
+
+    Every seed picks k = 2; the ARI is 1.0 on five of these six seeds and 0.786 on seed 3,
+    where a noisy "safe" subject's demonstrations look "efficient" (its three sequences are
+    more likely under the efficient chain even for a model fitted to the true labels), so
+    the ARI is asserted on average over the seeds.
+    """
+    aris = []
+    for seed in range(6):
+        demos = simulate_study(seed=seed)
+        fit = fit_mixture(demos, seed=seed)
+        assert fit.k == 2
+        assert fit.assignments.shape == (54,) and fit.responsibilities.shape == (54, 2)
+        aris.append(adjusted_rand_index(list(demos.types), fit.assignments.tolist()))
+    assert sum(aris) / len(aris) >= 0.95
+    assert sorted(aris)[1] == 1.0
+
+
+@pytest.mark.slow
+def test_paper_method_picks_two_types_on_paper_like_data():
+    for seed in (0, 1):
+        demos = simulate_study(seed=seed)
+        fit = fit_mixture(demos, method="paper", seed=seed)
+        assert fit.k == 2
+        assert adjusted_rand_index(list(demos.types), fit.assignments.tolist()) >= 0.75
+        # BIC = l - K/2 log n with the paper's K = k |A| (|A| - 1), n = 54 sequences
+        A = demos.num_symbols
+        assert fit.bic == pytest.approx(fit.log_likelihood - 2 * A * (A - 1) / 2 * math.log(54))
+        # l is the classification log-likelihood of the returned model and partition
+        ll = sequence_log_likelihood(fit.model, demos.sequences, demos.lengths)
+        own = ll.gather(-1, fit.assignments[:, None]).squeeze(-1)
+        own = own + fit.model.log_weights[fit.assignments]
+        assert own.sum().item() == pytest.approx(fit.log_likelihood)
+
+
+def _harder_study(seed):
+    return simulate_study(
+        n_subjects=150,
+        n_demos=3,
+        n_positions=4,
+        strategies=("safe", "efficient", "pairs"),
+        noise=0.1,
+        seed=seed,
+    )
+
+
+def _position_abstract(demos):
+    """The same demonstrations over (actor, verb) symbols: place_A, place_B, ... -> place."""
+    steps = [(actor, action.split("_")[0]) for actor, action in demos.vocabulary]
+    vocabulary = tuple(dict.fromkeys(steps))
+    lut = torch.tensor([vocabulary.index(step) for step in steps])
+    return dataclasses.replace(demos, vocabulary=vocabulary, sequences=lut[demos.sequences])
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="not reachable by a first-order Markov-chain mixture over position-specific "
+    "symbols: the highest-likelihood 3-partition is not the strategy partition (it keeps "
+    "'efficient' and splits safe + pairs by placement order; 59-113 nats more classification "
+    "log-likelihood than the true partition on seeds 0-4, ARI 0.53-0.55), so no criterion "
+    "for k recovers it; see docs/benchmarks.md, 'Mixture clustering', and the "
+    "position-abstract test below",
+)
+def test_harder_study_default_method_finds_three_strategies():
+    demos = _harder_study(0)
+    fit = fit_mixture(demos, seed=0)
+    assert fit.k == 3
+    assert adjusted_rand_index(list(demos.types), fit.assignments.tolist()) >= 0.9
+
+
+@pytest.mark.slow
+def test_harder_study_position_abstract_default_finds_three_paper_finds_two():
+    """The issue's harder data over (actor, verb) symbols (10 -> 4): the strategies are then
+    the chains (placement orders no longer enter the symbols). The default (k-means++,
+    em-EM, soft EM, BIC) picks k = 3 with ARI 1.0 on seeds 0-4; the paper's random-init
+    hard EM picks k = 2 (ARI 0.57: "pairs" merged into another type) on the same data.
+    """
+    for seed in range(3):
+        demos = _position_abstract(_harder_study(seed))
+        assert demos.num_symbols == 4
+        fit = fit_mixture(demos, seed=seed)
+        assert fit.k == 3
+        assert adjusted_rand_index(list(demos.types), fit.assignments.tolist()) >= 0.9
+        paper = fit_mixture(demos, method="paper", seed=seed)
+        assert paper.k == 2
+
+
+@pytest.mark.parametrize("method", ["soft", "paper"])
+def test_same_seed_same_result(method):
+    demos = simulate_study(n_subjects=8, seed=4)
+    a = fit_mixture(demos, k_max=4, restarts=5, method=method, seed=7)
+    b = fit_mixture(demos, k_max=4, restarts=5, method=method, seed=7)
+    assert a.k == b.k and a.per_k == b.per_k
+    assert torch.equal(a.assignments, b.assignments)
+    assert torch.equal(a.model.log_transition, b.model.log_transition)
+    g = torch.Generator().manual_seed(7)
+    c = fit_mixture(demos, k_max=4, restarts=5, method=method, generator=g)
+    assert c.per_k == a.per_k
+
+
+def test_fit_on_tuple_and_well_separated_chains():
+    # three chains over 3 symbols with disjoint dominant transitions, 30 sequences each
+    g = torch.Generator().manual_seed(0)
+    N, L = 90, 10
+    kind = torch.arange(N) % 3
+    seqs = torch.zeros(N, L, dtype=torch.long)
+    seqs[:, 0] = torch.randint(0, 3, (N,), generator=g)
+    for j in range(1, L):
+        step = torch.stack([seqs[:, j - 1], (seqs[:, j - 1] + 1) % 3, (seqs[:, j - 1] + 2) % 3])
+        nxt = step.gather(0, kind[None]).squeeze(0)
+        noise = torch.rand(N, generator=g) < 0.05
+        seqs[:, j] = torch.where(noise, torch.randint(0, 3, (N,), generator=g), nxt)
+    lengths = torch.full((N,), L)
+    for method, criterion in (("soft", "bic"), ("soft", "icl"), ("paper", "bic")):
+        fit = fit_mixture(
+            (seqs, lengths, 3), k_min=1, k_max=5, restarts=4, method=method, criterion=criterion
+        )
+        assert fit.k == 3
+        assert adjusted_rand_index(kind.tolist(), fit.assignments.tolist()) == 1.0
+        assert set(fit.per_k) == {1, 2, 3, 4, 5}
+        assert torch.isfinite(fit.model.log_weights).all()
+        # clusters are ordered by size, responsibilities are distributions
+        torch.testing.assert_close(fit.responsibilities.sum(-1), torch.ones(N, dtype=torch.float64))
+
+
+def test_num_free_parameters():
+    assert num_free_parameters(3, 7, method="paper") == 3 * 7 * 6
+    assert num_free_parameters(3, 7) == 3 * 7 * 6 + 2
+    assert num_free_parameters(3, 7, initial=True) == 3 * 7 * 6 + 2 + 3 * 6
+
+
+def test_bad_arguments_are_reported():
+    seqs, lengths = torch.tensor([[0, 1, 0]]), torch.tensor([3])
+    with pytest.raises(ValueError, match="k_min <= k_max"):
+        fit_mixture((seqs, lengths, 2), k_min=3, k_max=2)
+    with pytest.raises(ValueError, match="method"):
+        fit_mixture((seqs, lengths, 2), method="hard")
+    with pytest.raises(ValueError, match="restarts"):
+        fit_mixture((seqs, lengths, 2), restarts=0)
+    with pytest.raises(TypeError, match="tuple"):
+        fit_mixture((seqs, lengths))
+    with pytest.raises(ModelError, match="not a symbol"):
+        fit_mixture((seqs, lengths, 1))
+    with pytest.raises(ValueError, match="unit='subject'"):
+        fit_mixture((seqs, lengths, 2), unit="subject")
+    with pytest.raises(ValueError, match="seed or generator"):
+        fit_mixture((seqs, lengths, 2), seed=1, generator=torch.Generator())
+
+
+def test_dtype_and_subject_units_are_respected():
+    demos = simulate_study(n_subjects=6, seed=2)
+    fit = fit_mixture(demos, k_max=3, restarts=3, dtype=torch.float32)
+    assert fit.model.log_transition.dtype == torch.float32
+    assert fit.responsibilities.dtype == torch.float32
+    # unit="auto" with a Demonstrations: one cluster per subject
+    for subject in set(demos.subjects):
+        members = [i for i, s in enumerate(demos.subjects) if s == subject]
+        assert len(set(fit.assignments[members].tolist())) == 1
+    per_sequence = fit_mixture(demos, k_max=3, restarts=3, unit="sequence")
+    assert per_sequence.num_distinct >= fit.num_distinct

@@ -1,0 +1,56 @@
+import torch
+from test_hard_em import _data
+
+from torchhrc.mixture import kmeans_pp_init, sufficient_statistics
+from torchhrc.mixture.selection import _soft_initial_parameters
+from torchhrc.mixture.soft_em import soft_em
+
+
+def _start(seed=0, restarts=4, K=3):
+    seqs, lengths, A = _data(seed)
+    stats = sufficient_statistics(seqs, lengths, A, initial=True)
+    ks = torch.tensor([1, 2, 3, 3])[:restarts]
+    mask = torch.arange(K) < ks[:, None]
+    z0 = kmeans_pp_init(stats, mask, generator=torch.Generator().manual_seed(seed))
+    lt, lw, li = _soft_initial_parameters(stats, z0, mask, 0.1, 1.0, torch.float64)
+    return stats, mask, lt, lw, li
+
+
+def _map_objective(stats, res, alpha, beta):
+    """log-likelihood + log Dirichlet prior (up to constants): what MAP-EM never decreases."""
+    lt, lw, li = res.log_transition, res.log_weights, res.log_initial
+    prior = alpha * lt.sum((-1, -2)) + alpha * li.sum(-1)
+    prior = torch.where(torch.isfinite(lw), prior + beta * lw, torch.zeros_like(prior))
+    return res.log_likelihood + prior.sum(-1)
+
+
+def test_batched_runs_equal_lone_runs():
+    stats, mask, lt, lw, li = _start()
+    res = soft_em(stats, lt, lw, mask, log_initial=li, tol=1e-8)
+    for r in range(mask.shape[0]):
+        one = soft_em(
+            stats,
+            lt[r : r + 1],
+            lw[r : r + 1],
+            mask[r : r + 1],
+            log_initial=li[r : r + 1],
+            tol=1e-8,
+        )
+        assert one.iterations[0] == res.iterations[r]
+        torch.testing.assert_close(one.log_transition[0], res.log_transition[r])
+        torch.testing.assert_close(one.log_likelihood[0], res.log_likelihood[r])
+        assert torch.equal(one.assignments[:, 0], res.assignments[:, r])
+
+
+def test_map_objective_never_decreases():
+    stats, mask, lt, lw, li = _start(seed=1)
+    previous = None
+    for t in range(1, 8):
+        res = soft_em(stats, lt, lw, mask, log_initial=li, max_iterations=t, tol=0.0)
+        obj = _map_objective(stats, res, 0.1, 1.0)
+        if previous is not None:
+            assert (obj >= previous - 1e-9).all()
+        previous = obj
+    assert torch.isfinite(res.log_transition).all()  # smoothing: no zero probability
+    # masked slots carry no weight
+    assert torch.isneginf(res.log_weights[~mask]).all()

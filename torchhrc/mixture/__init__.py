@@ -1,0 +1,58 @@
+"""Mixture of Markov chains: clustering demonstrations into human types.
+
+The paper's section "Clustering of Human Types" (Nikolaidis et al.): each human type is a
+transition matrix over the joint actions; hard EM (Cluster-Transition-Matrices) assigns
+sequences to types, and Select-Best-Model picks the number of types by BIC. This package
+adds soft EM with Dirichlet smoothing and k-means++ initialisation (the default), runs every
+``(k, restart)`` pair as one batched tensor program, infers the type of a new subject, and
+offers a Pyro version of the model.
+
+Example:
+    >>> import torch
+    >>> from torchhrc.mixture import fit_mixture, infer_type
+    >>> seqs = torch.tensor([[0, 1, 0, 1]] * 5 + [[0, 0, 0, 0]] * 5)
+    >>> fit = fit_mixture((seqs, torch.full((10,), 4), 2), k_min=1, k_max=3, restarts=2)
+    >>> probs = infer_type(fit.model, seqs[:2], torch.tensor([4, 4]))
+    >>> fit.k, probs.argmax().item() == fit.assignments[0].item()
+    (2, True)
+"""
+
+from __future__ import annotations
+
+from torchhrc.mixture.counts import (
+    SufficientStatistics,
+    cluster_counts,
+    sufficient_statistics,
+    transition_counts,
+)
+from torchhrc.mixture.hard_em import hard_em
+from torchhrc.mixture.inference import infer_type
+from torchhrc.mixture.init import kmeans_pp_init, random_init
+from torchhrc.mixture.likelihood import (
+    count_log_likelihood,
+    mixture_log_likelihood,
+    sequence_log_likelihood,
+)
+from torchhrc.mixture.model import MarkovChainMixture
+from torchhrc.mixture.selection import MixtureFit, bic, fit_mixture, num_free_parameters
+from torchhrc.mixture.soft_em import soft_em
+
+__all__ = [
+    "MarkovChainMixture",
+    "MixtureFit",
+    "SufficientStatistics",
+    "bic",
+    "cluster_counts",
+    "count_log_likelihood",
+    "fit_mixture",
+    "hard_em",
+    "infer_type",
+    "kmeans_pp_init",
+    "mixture_log_likelihood",
+    "num_free_parameters",
+    "random_init",
+    "sequence_log_likelihood",
+    "soft_em",
+    "sufficient_statistics",
+    "transition_counts",
+]

@@ -13,6 +13,7 @@ import torch
 from torchhrc.errors import ModelError
 
 __all__ = [
+    "check_discount",
     "check_probabilities",
     "check_shape",
     "check_tensor",
@@ -76,9 +77,7 @@ def check_probabilities(
     """
     if not torch.isfinite(value).all():
         bad = torch.nonzero(~torch.isfinite(value))[0]
-        raise ModelError(
-            f"{name}{format_index(bad)} = {value[tuple(bad)].item()} is not finite"
-        )
+        raise ModelError(f"{name}{format_index(bad)} = {value[tuple(bad)].item()} is not finite")
     low = value < -atol
     high = value > 1 + atol
     if low.any() or high.any():
@@ -97,3 +96,14 @@ def check_probabilities(
                 f"{name}{format_index(bad)} {over} sums to {total[tuple(bad)].item():.6g}, "
                 "expected 1 (within tolerance)"
             )
+
+
+def check_discount(discount: object) -> float:
+    """Check a discount factor: a real number in (0, 1]; returns it as a float."""
+    if isinstance(discount, torch.Tensor):
+        discount = discount.item()
+    if not isinstance(discount, (int, float)) or isinstance(discount, bool):
+        raise TypeError(f"expected discount to be a float, got {type(discount).__name__}")
+    if not 0.0 < float(discount) <= 1.0:
+        raise ModelError(f"expected discount in (0, 1], got {discount}")
+    return float(discount)

@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from torchhrc._checks import check_probabilities, check_shape, check_tensor
+from torchhrc._checks import check_discount, check_probabilities, check_shape, check_tensor
 from torchhrc.errors import ModelError
 
 __all__ = ["MOMDP", "POMDP"]
@@ -61,16 +61,6 @@ def _check_names(name: str, names: tuple[str, ...] | None, size: int) -> tuple[s
         dup = next(n for n in names if names.count(n) > 1)
         raise ModelError(f"{name} must be distinct, {dup!r} appears twice")
     return names
-
-
-def _check_discount(discount: object) -> float:
-    if isinstance(discount, torch.Tensor):
-        discount = discount.item()
-    if not isinstance(discount, (int, float)) or isinstance(discount, bool):
-        raise TypeError(f"expected discount to be a float, got {type(discount).__name__}")
-    if not 0.0 < float(discount) <= 1.0:
-        raise ModelError(f"expected discount in (0, 1], got {discount}")
-    return float(discount)
 
 
 def _tensor_fields_to(obj: object, device: torch.device | str | None, dtype: torch.dtype | None):
@@ -120,14 +110,16 @@ class POMDP:
         check_shape("T", T, (None, None, None), "(..., A, S, S)")
         A, S = T.shape[-3], T.shape[-1]
         if T.shape[-2] != S:
-            raise ModelError(f"expected T to have shape (..., A, S, S), actual shape = {tuple(T.shape)}")
+            raise ModelError(
+                f"expected T to have shape (..., A, S, S), actual shape = {tuple(T.shape)}"
+            )
         Z = check_tensor("Z", self.Z)
         check_shape("Z", Z, (A, S, None), f"(..., A={A}, S={S}, O)")
         R = check_tensor("R", self.R)
         check_shape("R", R, (A, S), f"(..., A={A}, S={S})")
         b0 = check_tensor("b0", self.b0)
         check_shape("b0", b0, (S,), f"(..., S={S})")
-        object.__setattr__(self, "discount", _check_discount(self.discount))
+        object.__setattr__(self, "discount", check_discount(self.discount))
         try:
             torch.broadcast_shapes(T.shape[:-3], Z.shape[:-3], R.shape[:-2], b0.shape[:-1])
         except RuntimeError:
@@ -167,7 +159,9 @@ class POMDP:
             self.T.shape[:-3], self.Z.shape[:-3], self.R.shape[:-2], self.b0.shape[:-1]
         )
 
-    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> POMDP:
+    def to(
+        self, device: torch.device | str | None = None, dtype: torch.dtype | None = None
+    ) -> POMDP:
         """Return a copy with every tensor moved to ``device`` / cast to ``dtype``."""
         return _tensor_fields_to(self, device, dtype)
 
@@ -237,7 +231,7 @@ class MOMDP:
         if not 0 <= x0 < X:
             raise ModelError(f"expected x0 in [0, {X}), got {x0}")
         object.__setattr__(self, "x0", int(x0))
-        object.__setattr__(self, "discount", _check_discount(self.discount))
+        object.__setattr__(self, "discount", check_discount(self.discount))
         shapes = [Tx.shape[:-4], Z.shape[:-4], R.shape[:-3], b0.shape[:-1]]
         if self.Ty is not None:
             shapes.append(self.Ty.shape[:-5])
@@ -304,9 +298,119 @@ class MOMDP:
         eye = torch.eye(Y, dtype=self.Tx.dtype, device=self.Tx.device)
         return eye.view(1, 1, Y, 1, Y).expand(A, X, Y, X, Y)
 
-    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> MOMDP:
+    def to(
+        self, device: torch.device | str | None = None, dtype: torch.dtype | None = None
+    ) -> MOMDP:
         """Return a copy with every tensor moved to ``device`` / cast to ``dtype``."""
         return _tensor_fields_to(self, device, dtype)
+
+    @classmethod
+    def from_pomdp(cls, pomdp: POMDP, *, num_hidden: int, atol: float = 1e-9) -> MOMDP:
+        """The MOMDP of a flat POMDP whose state factor ``x`` is observed (reverse of
+        :meth:`to_pomdp`).
+
+        The POMDP must number states ``s = x * Y + y`` (``S = X * Y``) and observations
+        ``o_flat = x2 * O + o`` (``O_flat = X * O``), reveal ``x2`` exactly
+        (``Z[a, (x2, y2), (x3, o)] = 0`` unless ``x3 == x2``), and start at one ``x``.
+        ``Tx[a, x, y, x2] = sum_y2 T[a, (x, y), (x2, y2)]`` and ``Ty = T / Tx`` (uniform where
+        ``Tx = 0``, never reached); ``Ty`` is ``None`` when the hidden value never changes.
+
+        Args:
+            pomdp: the flat POMDP (batch dims allowed; all problems must start at the same x).
+            num_hidden: ``Y``.
+            atol: tolerance of the checks.
+
+        Raises:
+            ModelError: the sizes do not factor, ``Z`` does not reveal ``x2``, or ``b0`` is
+                spread over several ``x``.
+
+        Example:
+            >>> import torch
+            >>> Tx = torch.ones(1, 1, 2, 1, dtype=torch.float64)
+            >>> m = MOMDP(Tx=Tx, Ty=None, Z=torch.ones(1, 1, 2, 1, dtype=torch.float64),
+            ...           R=torch.zeros(1, 1, 2, dtype=torch.float64), x0=0,
+            ...           b0=torch.tensor([0.3, 0.7], dtype=torch.float64), discount=0.9)
+            >>> MOMDP.from_pomdp(m.to_pomdp(), num_hidden=2).b0
+            tensor([0.3000, 0.7000], dtype=torch.float64)
+        """
+        if not isinstance(pomdp, POMDP):
+            raise TypeError(f"expected pomdp to be a POMDP, got {type(pomdp).__name__}")
+        if not isinstance(num_hidden, int) or isinstance(num_hidden, bool) or num_hidden < 1:
+            raise TypeError(f"expected num_hidden to be a positive int, got {num_hidden!r}")
+        S, A, OF = pomdp.num_states, pomdp.num_actions, pomdp.num_observations
+        Y = num_hidden
+        if S % Y:
+            raise ModelError(f"the {S} states do not factor into X * Y with Y = {Y}")
+        X = S // Y
+        if OF % X:
+            raise ModelError(
+                f"the {OF} observations do not factor into X * O with X = {X} (o_flat = x2 * O + o)"
+            )
+        O = OF // X
+        T = pomdp.T.reshape(*pomdp.T.shape[:-3], A, X, Y, X, Y)
+        Tx = T.sum(-1)  # (..., A, X, Y, X)
+        reached = Tx > atol
+        Ty = torch.where(
+            reached.unsqueeze(-1),
+            T / torch.where(reached, Tx, torch.ones_like(Tx)).unsqueeze(-1),
+            torch.full_like(T, 1.0 / Y),
+        )
+        eye_y = torch.eye(Y, dtype=T.dtype, device=T.device).view(1, 1, Y, 1, Y)
+        off_diagonal = (T * (1 - eye_y)).abs()
+        static = bool((off_diagonal <= atol).all())
+        Zf = pomdp.Z.reshape(*pomdp.Z.shape[:-3], A, X, Y, X, O)  # [a, x2, y2, x3, o]
+        eye_x = torch.eye(X, dtype=torch.bool, device=Zf.device).view(X, 1, X, 1)
+        leak = Zf.masked_fill(eye_x, 0.0).abs()
+        if bool((leak > atol).any()):
+            bad = torch.nonzero(leak > atol)[0].tolist()
+            *b, a, x2, y2, x3, o = bad
+            raise ModelError(
+                f"Z does not reveal the observed part: Z[{', '.join(map(str, [*b, a]))}, "
+                f"s2={x2 * Y + y2}, o={x3 * O + o}] = {Zf[tuple(bad)].item():.6g} is the "
+                f"probability of seeing x = {x3} in a state with x = {x2}"
+            )
+        idx = torch.arange(X, device=Zf.device)
+        Z = Zf[..., idx, :, idx, :]  # advanced indices first: (X, ..., A, Y, O)
+        Z = Z.movedim(0, -3)  # (..., A, X, Y, O)
+        b0 = pomdp.b0.reshape(*pomdp.b0.shape[:-1], X, Y)
+        mass = b0.sum(-1)  # (..., X)
+        flat_mass = mass.reshape(-1, X)
+        x0 = flat_mass.argmax(-1)
+        if bool((x0 != x0[0]).any()) or bool(((flat_mass[:, x0[0]] - 1).abs() > 1e-6).any()):
+            raise ModelError(
+                f"b0 must put all its mass on one observed value x, got P(x) = {mass.tolist()}"
+            )
+        x_start = int(x0[0])
+        observed_states = hidden_states = observations = None
+        names = pomdp.states
+        if names is not None and all(n.count("|") == 1 for n in names):
+            parts = [n.split("|") for n in names]
+            xs = tuple(parts[x * Y][0] for x in range(X))
+            ys = tuple(parts[y][1] for y in range(Y))
+            if all(parts[x * Y + y] == [xs[x], ys[y]] for x in range(X) for y in range(Y)):
+                if len(set(xs)) == X and len(set(ys)) == Y:
+                    observed_states, hidden_states = xs, ys
+        if observed_states is not None and pomdp.observations is not None:
+            parts = [n.split("|", 1) for n in pomdp.observations]
+            if all(len(p) == 2 for p in parts):
+                os_ = tuple(parts[o][1] for o in range(O))
+                pairs = ((x, o) for x in range(X) for o in range(O))
+                if all(parts[x * O + o] == [observed_states[x], os_[o]] for x, o in pairs):
+                    observations = os_ if len(set(os_)) == O else None
+        return cls(
+            Tx=Tx,
+            Ty=None if static else Ty,
+            Z=Z,
+            R=pomdp.R.reshape(*pomdp.R.shape[:-2], A, X, Y),
+            x0=x_start,
+            b0=b0[..., x_start, :],
+            discount=pomdp.discount,
+            observed_states=observed_states,
+            hidden_states=hidden_states,
+            actions=pomdp.actions,
+            observations=observations,
+            validate_probabilities=pomdp.validate_probabilities,
+        )
 
     def to_pomdp(self) -> POMDP:
         """The equivalent flat POMDP over ``S = X * Y`` states and ``X * O`` observations.
@@ -333,7 +437,9 @@ class MOMDP:
             states = tuple(f"{x}|{y}" for x in self.observed_states for y in self.hidden_states)
         observations = None
         if self.observed_states is not None and self.observations is not None:
-            observations = tuple(f"{x}|{o}" for x in self.observed_states for o in self.observations)
+            observations = tuple(
+                f"{x}|{o}" for x in self.observed_states for o in self.observations
+            )
         return POMDP(
             T=T,
             Z=Zf,

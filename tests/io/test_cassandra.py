@@ -1,0 +1,404 @@
+"""Tests of torchhrc.io.cassandra: every feature by hand, round trips, corruptions."""
+
+from __future__ import annotations
+
+import os
+import re
+import stat
+from pathlib import Path
+
+import pytest
+import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from torchhrc.errors import ParseError
+from torchhrc.io.cassandra import format_pomdp, parse_pomdp, read_pomdp, write_pomdp
+from torchhrc.pomdp import POMDP
+from torchhrc.sparse import SparsePOMDP
+from torchhrc.tasks.classic import rock_sample, rock_sample_sparse, tag, tiger
+from torchhrc.testing import random_pomdp
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# The Tiger problem in the layout of Cassandra's tiger.aaai.pomdp (matrix forms, keywords).
+TIGER_TEXT = """\
+# Tiger (Kaelbling, Littman, Cassandra 1998)
+discount: 0.95
+values: reward
+states: tiger-left tiger-right
+actions: listen open-left open-right
+observations: tiger-left tiger-right
+
+T: listen
+identity
+
+T: open-left
+uniform
+
+T: open-right
+uniform
+
+O: listen
+0.85 0.15
+0.15 0.85
+
+O: open-left
+uniform
+
+O: open-right
+uniform
+
+R: listen : * : * : * -1
+R: open-left : tiger-left : * : * -100
+R: open-left : tiger-right : * : * 10
+R: open-right : tiger-left : * : * 10
+R: open-right : tiger-right : * : * -100
+"""
+
+# Every feature: comments, cost, names and counts, start include, wildcards, the three forms,
+# uniform, identity, overrides, and rewards depending on s2 and o.
+EVERYTHING = """\
+# a comment line
+discount: 0.9   # a trailing comment
+values: cost
+states: s0 s1 s2
+actions: 2
+observations: left right
+start include: s0 s2
+
+T: * uniform
+T: 0 identity
+T: 1 : s0
+0.0 0.5 0.5
+T: 1 : s1 uniform
+T: 1 : s2 : * 0.0
+T: 1 : s2 : s2 1.0
+
+O: * uniform
+O: 1
+1 0
+0 1
+0.2 0.8
+O: 0 : s2
+0.9 0.1
+O: 0 : s1 : left 0.3
+O: 0:s1:right 0.7
+
+R: * : * : * : * 1.0
+R: 1 : s0 : * : * 5
+R: 0 : s2 : s2 : left 10
+R: 0 : s1 : s1
+2 4
+R: 1 : s1
+1 1
+2 2
+3 3
+"""
+
+
+def _assert_same(a: POMDP, b: POMDP) -> None:
+    assert torch.equal(a.T, b.T)
+    assert torch.equal(a.Z, b.Z)
+    assert torch.equal(a.R, b.R)
+    assert torch.equal(a.b0, b.b0)
+    assert a.discount == b.discount
+
+
+def test_every_feature_parses_to_the_values_worked_by_hand():
+    m = read_pomdp(EVERYTHING)
+    d = torch.float64
+    assert m.discount == 0.9
+    assert m.states == ("s0", "s1", "s2") and m.actions is None
+    assert m.observations == ("left", "right")
+    torch.testing.assert_close(m.b0, torch.tensor([0.5, 0.0, 0.5], dtype=d))
+    torch.testing.assert_close(m.T[0], torch.eye(3, dtype=d))
+    third = 1.0 / 3.0
+    T1 = torch.tensor([[0.0, 0.5, 0.5], [third, third, third], [0.0, 0.0, 1.0]], dtype=d)
+    torch.testing.assert_close(m.T[1], T1)
+    Z0 = torch.tensor([[0.5, 0.5], [0.3, 0.7], [0.9, 0.1]], dtype=d)
+    Z1 = torch.tensor([[1.0, 0.0], [0.0, 1.0], [0.2, 0.8]], dtype=d)
+    torch.testing.assert_close(m.Z, torch.stack([Z0, Z1]))
+    # expected costs: (0, s1) = 0.3 * 2 + 0.7 * 4; (0, s2) = 0.9 * 10 + 0.1 * 1;
+    # (1, s1) = mean over s2 of the matrix rows = 2; (1, s0) = 5; the rest 1. Cost = -reward.
+    cost = torch.tensor([[1.0, 3.4, 9.1], [5.0, 2.0, 1.0]], dtype=d)
+    torch.testing.assert_close(m.R, -cost)
+
+
+@pytest.mark.parametrize(
+    ("start", "expected"),
+    [
+        ("start: uniform", [1 / 3, 1 / 3, 1 / 3]),
+        ("start: b", [0.0, 1.0, 0.0]),
+        ("start: 2", [0.0, 0.0, 1.0]),
+        ("start: 0.2 0.3 0.5", [0.2, 0.3, 0.5]),
+        ("start exclude: a", [0.0, 0.5, 0.5]),
+        ("start include: a 2", [0.5, 0.0, 0.5]),
+        ("", [1 / 3, 1 / 3, 1 / 3]),
+    ],
+)
+def test_start_forms(start, expected):
+    text = f"""discount: 1
+states: a b c
+{start}
+actions: 1
+observations: 1
+T: * identity
+O: * uniform
+"""
+    m = read_pomdp(text)
+    torch.testing.assert_close(m.b0, torch.tensor(expected, dtype=torch.float64))
+    assert m.R.abs().sum() == 0
+
+
+def test_classic_tiger_file_equals_tasks_classic_tiger():
+    _assert_same(read_pomdp(TIGER_TEXT), tiger())
+    assert read_pomdp(TIGER_TEXT).actions == tiger().actions
+    sparse = read_pomdp(TIGER_TEXT, sparse=True)
+    assert isinstance(sparse, SparsePOMDP)
+    _assert_same(sparse.to_dense(), tiger())
+
+
+def test_sparse_reader_refuses_observation_dependent_rewards_and_reads_the_rest():
+    with pytest.raises(ParseError, match="sparse reader supports rewards"):
+        parse_pomdp(EVERYTHING, sparse=True)
+    text = EVERYTHING[: EVERYTHING.index("R: * : * : * : * 1.0")] + "R: 1 : s0 : * : * 5\n"
+    dense, sparse = parse_pomdp(text), parse_pomdp(text, sparse=True)
+    _assert_same(sparse.to_dense(), dense)
+    assert sparse.actions == ("0", "1") and sparse.states == ("s0", "s1", "s2")
+
+
+def test_benchmark_problem_files_match_generators():
+    problems = ROOT / "benchmarks" / "problems"
+    if not (problems / "tiger.pomdp").exists():
+        pytest.skip("benchmarks/problems not generated (make_problems.py)")
+    _assert_same(read_pomdp(problems / "tiger.pomdp"), tiger())
+    _assert_same(read_pomdp(problems / "rocksample_4_4.pomdp"), rock_sample(4, 4))
+    _assert_same(read_pomdp(problems / "tag.pomdp"), tag())
+    hallway2 = problems / "hallway2.pomdp"
+    if hallway2.exists():  # re-written from the published definition (Littman et al. 1995)
+        m = read_pomdp(hallway2)
+        assert (m.num_states, m.num_actions, m.num_observations) == (92, 5, 17)
+        # reward 1 on entering the goal: the expected reward of "forward" next to it is 0.8
+        assert m.discount == 0.95 and m.R.max().item() == pytest.approx(0.8)
+
+
+def _canonical(coo: tuple[torch.Tensor, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    index, prob = coo
+    key = (index[:, 0] * 100_000 + index[:, 1]) * 100_000 + index[:, 2]
+    order = key.argsort()
+    return key[order], prob[order]
+
+
+@pytest.mark.slow
+def test_rocksample_7_8_file_reads_sparse_and_equals_the_generator(tmp_path):
+    # Too large to keep in the repository (11 MB): written here, as make_problems.py does.
+    big = write_pomdp(rock_sample_sparse(7, 8), tmp_path / "rocksample_7_8.pomdp")
+    m = read_pomdp(big, sparse=True)
+    ref = rock_sample_sparse(7, 8)
+    assert (m.num_states, m.num_actions, m.num_observations) == (12545, 13, 3)
+    for got, want in ((m.transitions, ref.transitions), (m.observations_, ref.observations_)):
+        for x, y in zip(_canonical(got), _canonical(want)):
+            assert torch.equal(x, y)
+    assert torch.equal(m.R, ref.R) and torch.equal(m.b0, ref.b0)
+
+
+def test_models_too_large_for_dense_tensors_are_refused():
+    # RockSample(7, 8) (12545 states, 13 actions) would need 2e9 entries of T
+    text = "discount: 0.95\nstates: 12545\nactions: 13\nobservations: 3\nT: * identity\n"
+    with pytest.raises(ParseError, match="too large to hold densely") as info:
+        parse_pomdp(text)
+    assert info.value.line == 5
+
+
+@pytest.mark.parametrize("make", [tiger, lambda: rock_sample(4, 4), tag])
+def test_classic_models_round_trip_exactly(make, tmp_path):
+    m = make()
+    path = write_pomdp(m, tmp_path / "m.pomdp")
+    back = read_pomdp(path)
+    _assert_same(back, m)
+    assert back.states == m.states and back.actions == m.actions
+    assert back.observations == m.observations
+    numbers_only = read_pomdp(format_pomdp(m, names=False))
+    _assert_same(numbers_only, m)
+    assert numbers_only.states is None
+
+
+def test_sparse_model_writes_the_same_file_as_its_dense_form():
+    m = rock_sample(4, 4)
+    assert format_pomdp(SparsePOMDP.from_dense(m)) == format_pomdp(m)
+
+
+def test_write_is_atomic_and_leaves_no_temp_files(tmp_path):
+    target = tmp_path / "t.pomdp"
+    write_pomdp(tiger(), target)
+    write_pomdp(tiger(), target)  # overwrite
+    assert [p.name for p in tmp_path.iterdir()] == ["t.pomdp"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(target.stat().st_mode) == 0o666 & ~umask  # not mkstemp's 0o600
+
+
+def test_batched_models_are_rejected_by_the_writer():
+    with pytest.raises(ValueError, match="one problem at a time"):
+        format_pomdp(random_pomdp(2, 2, 2, batch_shape=(2,)))
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "column", "reason"),
+    [
+        (
+            TIGER_TEXT.replace("R: listen : * : * : * -1", "R: listen : nowhere : * : * -1"),
+            27,
+            13,
+            "unknown state 'nowhere'",
+        ),
+        (TIGER_TEXT.replace("0.15 0.85", "0.15 x85"), 19, 6, "expected 4 numbers"),
+        (TIGER_TEXT.replace("discount: 0.95", "discount: 1.5"), 2, 11, "discount in"),
+        (TIGER_TEXT.replace("values: reward", "values: money"), 3, 9, "'reward' or 'cost'"),
+        (
+            TIGER_TEXT.replace("T: open-left\nuniform", "T: open-left\n0.2 0.2 0.3 0.3"),
+            11,
+            1,
+            "sums to 0.4",
+        ),
+        (TIGER_TEXT.replace("T: listen\n", "Q: listen\n"), 8, 1, "expected 'T:', 'O:' or 'R:'"),
+        (
+            TIGER_TEXT.replace("actions: listen open-left open-right\n", ""),
+            7,
+            1,
+            "missing 'actions:'",
+        ),
+        (TIGER_TEXT + "T: 7 : 0 : 0 1.0\n", 32, 4, "action 7 out of range"),
+        (TIGER_TEXT + "O: listen : 0", 32, 14, "end of file"),
+    ],
+)
+def test_malformed_files_report_line_column_reason(text, line, column, reason):
+    with pytest.raises(ParseError) as info:
+        read_pomdp(text)
+    err = info.value
+    assert reason in err.reason, err.reason
+    assert (err.line, err.column) == (line, column), str(err)
+    assert str(err).startswith(f"<string>:{line}:{column}: ")
+
+
+def test_missing_file_and_path_in_message(tmp_path):
+    with pytest.raises(ParseError, match="cannot read file"):
+        read_pomdp(tmp_path / "absent.pomdp")
+    bad = tmp_path / "bad.pomdp"
+    bad.write_text("discount: 0.9\nstates: 2\nactions: 1\nobservations: 1\nT: 0 : 0 : 5 1\n")
+    with pytest.raises(ParseError) as info:
+        read_pomdp(bad)
+    assert info.value.path == str(bad) and info.value.line == 5
+
+
+def test_unnormalised_row_names_the_entry_line():
+    text = "discount: 0.9\nstates: 2\nactions: 1\nobservations: 1\nT: 0 identity\nO: 0 uniform\n"
+    text += "T: 0 : 1 : 0 0.5\n"
+    with pytest.raises(ParseError, match=r"row for action 0, state 1 sums to 1\.5") as info:
+        read_pomdp(text)
+    assert info.value.line == 7
+
+
+# ----------------------------------------------------------------------------- properties
+
+
+@st.composite
+def models(draw):
+    S = draw(st.integers(1, 5))
+    A = draw(st.integers(1, 3))
+    O = draw(st.integers(1, 3))
+    seed = draw(st.integers(0, 2**31 - 1))
+    sparsity = draw(st.sampled_from([0.0, 0.5]))
+    m = random_pomdp(S, A, O, seed=seed, sparsity=sparsity, discount=draw(st.floats(0.01, 1.0)))
+    if draw(st.booleans()):
+        m = POMDP(
+            T=m.T,
+            Z=m.Z,
+            R=m.R * draw(st.sampled_from([1.0, 1e-7, 1e6])),
+            b0=m.b0,
+            discount=m.discount,
+            states=tuple(f"s{i}" for i in range(S)),
+            actions=tuple(f"act-{i}" for i in range(A)),
+            observations=tuple(f"o_{i}" for i in range(O)),
+        )
+    return m
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(models())
+def test_random_models_round_trip(m):
+    back = read_pomdp(format_pomdp(m))
+    _assert_same(back, m)
+    _assert_same(parse_pomdp(format_pomdp(m), sparse=True).to_dense(), m)
+    assert back.states == m.states and back.observations == m.observations
+    _assert_same(read_pomdp(format_pomdp(back)), m)
+
+
+_JUNK = [
+    ":",
+    "*",
+    "foo",
+    "1e999",
+    "-1",
+    "0.5",
+    "2",
+    "uniform",
+    "identity",
+    "T",
+    "O",
+    "R",
+    "states",
+    "start",
+    "include",
+    "nan",
+    "inf",
+    "#",
+    "99",
+    "-",
+    "0",
+]
+
+
+_BASES = [
+    TIGER_TEXT,
+    EVERYTHING,
+    format_pomdp(random_pomdp(3, 2, 2, seed=1, sparsity=0.5)),
+    format_pomdp(random_pomdp(2, 2, 3, seed=2), names=False),
+]
+
+
+@st.composite
+def corrupted(draw):
+    pieces = re.split(r"(\s+)", draw(st.sampled_from(_BASES)))
+    for _ in range(draw(st.integers(1, 3))):
+        if not pieces:
+            break
+        op = draw(st.sampled_from(["delete", "duplicate", "replace", "truncate"]))
+        k = draw(st.integers(0, len(pieces) - 1))
+        if op == "delete":
+            pieces[k] = ""
+        elif op == "duplicate":
+            pieces[k] = pieces[k] + " " + pieces[k]
+        elif op == "replace":
+            pieces[k] = draw(st.sampled_from(_JUNK))
+        else:
+            pieces = pieces[:k]
+    return "".join(pieces) + draw(st.sampled_from(["", "\n", " :", "\nT"]))
+
+
+@settings(
+    max_examples=400, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow]
+)
+@given(corrupted())
+def test_corrupted_files_raise_parse_error_or_parse_to_a_valid_model(text):
+    for sparse in (False, True):
+        try:
+            m = parse_pomdp(text, sparse=sparse)
+        except ParseError as e:
+            assert e.path == "<string>" and e.reason
+            continue
+        if sparse:
+            m = m.to_dense()
+        m.validate()  # a file that still parses gives a valid model
+        assert torch.isfinite(m.R).all()

@@ -1,0 +1,158 @@
+"""Tests of the QMDP, FIB and blind bounds: ordering against an exact solver, Tiger, batching,
+and factored (MOMDP) == flat through to_pomdp."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+import torch
+from _exact_pomdp import TIGER_OPTIMUM, exact_alpha_vectors, optimal_value_bounds
+
+from torchhrc.errors import ModelError
+from torchhrc.solvers.blind import blind_policy, blind_vectors
+from torchhrc.solvers.fib import fib_backup, fib_policy, fib_vectors
+from torchhrc.solvers.qmdp import mdp_q_values, qmdp_policy, qmdp_vectors
+from torchhrc.solvers.value_iteration import value_iteration
+from torchhrc.tasks.classic import tiger
+from torchhrc.testing import random_belief, random_momdp, random_pomdp
+
+
+def _value(vectors, beliefs):
+    return (beliefs @ vectors.T).amax(-1)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_qmdp_ge_fib_ge_optimal_ge_blind_on_random_pomdps(seed):
+    model = random_pomdp(3, 2, 2, discount=0.5, seed=seed)
+    exact = torch.as_tensor(
+        exact_alpha_vectors(model.T.numpy(), model.Z.numpy(), model.R.numpy(), 0.5, 12)
+    )
+    beliefs = torch.cat([random_belief((40, 3), seed=seed), torch.eye(3, dtype=torch.float64)])
+    tail = 0.5**12 / 0.5 * model.R.abs().max()
+    v_exact = _value(exact, beliefs)
+    q, f, b = qmdp_vectors(model), fib_vectors(model), blind_vectors(model)
+    assert (_value(q, beliefs) >= _value(f, beliefs) - 1e-10).all()
+    assert (_value(f, beliefs) >= v_exact - tail - 1e-9).all()
+    assert (_value(b, beliefs) <= v_exact + tail + 1e-9).all()
+
+
+def test_tiger_bounds_sandwich_the_optimum():
+    model = tiger()
+    b0 = model.b0
+    q = _value(qmdp_vectors(model), b0).item()
+    f = _value(fib_vectors(model), b0).item()
+    low = _value(blind_vectors(model), b0).item()
+    assert q >= f >= TIGER_OPTIMUM >= low
+    assert f < q - 1.0  # FIB is strictly tighter than QMDP with noisy observations
+    # hand check of QMDP at the uniform belief: the MDP knows the tiger's side, so it opens
+    # the right door forever, V = 10 / (1 - 0.95) = 200 in both states; at b0 listening
+    # then gives -1 + 0.95 * 200 = 189 (opening: 0.5 (-100 + 190) + 0.5 (10 + 190) = 145).
+    assert q == pytest.approx(189.0, abs=1e-6)
+    # blind: always listening gives -1 / 0.05 = -20; always opening one door
+    # (10 - 100) / 2 / 0.05 = -900
+    assert low == pytest.approx(-20.0, abs=1e-6)
+
+
+@pytest.mark.slow
+def test_tiger_reference():
+    model = tiger()
+    low, high = optimal_value_bounds(
+        model.T.numpy(), model.Z.numpy(), model.R.numpy(), 0.95, model.b0.numpy(), 300
+    )
+    assert low - 1e-6 <= TIGER_OPTIMUM <= high + 1e-6
+    assert high - low < 1e-3
+
+
+def test_qmdp_matches_value_iteration():
+    model = random_pomdp(4, 3, 2, seed=4)
+    sol = value_iteration(model.T, model.R, model.discount, tol=1e-10)
+    Q, err = mdp_q_values(model, tol=1e-10)
+    torch.testing.assert_close(Q, sol.q_values, atol=1e-8, rtol=0)
+    assert (qmdp_vectors(model) >= sol.q_values - 1e-12).all()
+    assert err < 1e-9
+
+
+@pytest.mark.parametrize("fn", [qmdp_vectors, fib_vectors, blind_vectors])
+@pytest.mark.parametrize("batch", [(2,), (2, 3)])
+def test_batched_equals_loop(fn, batch):
+    model = random_pomdp(3, 2, 2, batch_shape=batch, seed=5)
+    out = fn(model, tol=1e-11)
+    assert out.shape == (*batch, 2, 3)
+    for index in itertools.product(*(range(n) for n in batch)):
+        one = random_pomdp(3, 2, 2, seed=5)
+        one = type(one)(
+            T=model.T[index],
+            Z=model.Z[index],
+            R=model.R[index],
+            b0=model.b0[index],
+            discount=model.discount,
+        )
+        torch.testing.assert_close(out[index], fn(one, tol=1e-11), atol=1e-8, rtol=0)
+
+
+@pytest.mark.parametrize("static", [True, False])
+@pytest.mark.parametrize("fn", [qmdp_vectors, fib_vectors, blind_vectors])
+def test_factored_equals_flat(fn, static):
+    model = random_momdp(3, 2, 2, 2, static=static, discount=0.8, seed=6)
+    factored = fn(model)  # (A, X, Y)
+    flat = fn(model.to_pomdp())  # (A, X * Y)
+    assert factored.shape == (2, 3, 2)
+    torch.testing.assert_close(factored.reshape(2, 6), flat, atol=1e-7, rtol=0)
+
+
+def test_fib_equals_qmdp_when_the_hidden_value_is_static():
+    model = random_momdp(4, 3, 2, 3, static=True, seed=7)
+    torch.testing.assert_close(fib_vectors(model), qmdp_vectors(model), atol=1e-7, rtol=0)
+
+
+def test_fib_backup_worked_by_hand():
+    model = tiger()
+    alpha = torch.zeros(3, 2, dtype=torch.float64)
+    torch.testing.assert_close(fib_backup(model, alpha), model.R)
+    # one step from vectors e_left, e_right for listen (a = 0) in state tiger-left:
+    # sum_o max_a2 T Z alpha_a2 = max(0.85, 0) + max(0.15, 0) ... with alpha_a2 = e_{a2}
+    alpha = torch.tensor([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]], dtype=torch.float64)
+    out = fib_backup(model, alpha)
+    # o = left: max(0.85 * 1, 0.15 * ... ) -> vectors e_left: 0.85, e_right: 0 -> 0.85;
+    # o = right: e_left: 0.15, e_right: 0 -> 0.15; total 1.0, times 0.95, plus R = -1
+    assert out[0, 0].item() == pytest.approx(-1.0 + 0.95 * (0.85 + 0.15))
+
+
+def test_policies_from_bounds():
+    model = random_momdp(3, 2, 2, 2, seed=8)
+    for make in (qmdp_policy, fib_policy, blind_policy):
+        policy = make(model)
+        assert policy.is_momdp and policy.num_vectors == 6
+        v = policy.value(torch.tensor(model.x0), model.b0)
+        assert torch.isfinite(v)
+    flat = tiger()
+    # QMDP listens at the uniform belief (189 > 145) and opens the safe door when certain
+    beliefs = torch.tensor([[0.5, 0.5], [1.0, 0.0], [0.0, 1.0]], dtype=torch.float64)
+    assert qmdp_policy(flat).action(beliefs).tolist() == [0, 2, 1]
+
+
+def test_undiscounted_models_are_rejected():
+    model = random_pomdp(2, 2, 2, discount=1.0, seed=9)
+    with pytest.raises(ModelError, match="discount < 1"):
+        qmdp_vectors(model)
+    with pytest.raises(ModelError, match="discount < 1"):
+        blind_vectors(model)
+
+
+@pytest.mark.parametrize("static", [True, False, None])
+def test_blind_iteration_matches_direct_solve(monkeypatch, static):
+    import torchhrc.solvers._factored as factored
+
+    if static is None:
+        model = random_pomdp(4, 3, 2, discount=0.9, seed=10)
+    else:
+        model = random_momdp(3, 2, 3, 2, static=static, discount=0.9, seed=10)
+    direct = blind_vectors(model)
+    monkeypatch.setattr(factored, "DIRECT_SOLVE_SIZE", 0)  # force the monotone iteration
+    iterated = blind_vectors(model, tol=1e-12)
+    torch.testing.assert_close(iterated, direct, atol=1e-9, rtol=0)
+    assert (iterated <= direct + 1e-12).all()  # iterates from below stay lower bounds
+    # and both are fixed points of alpha_a = R_a + g E_a alpha_a
+    E = factored.Expectation(model)
+    torch.testing.assert_close(model.R + 0.9 * E(direct, per_action=True), direct)

@@ -1,0 +1,75 @@
+"""Tests of Monte Carlo policy evaluation: exact references, determinism, MOMDP == flat."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from torchhrc.errors import ModelError
+from torchhrc.pomdp import POMDP
+from torchhrc.solvers import evaluate_policy, qmdp_policy, value_iteration
+from torchhrc.solvers.blind import blind_policy
+from torchhrc.solvers.policy import AlphaVectorPolicy
+from torchhrc.tasks.classic import tiger
+from torchhrc.testing import random_momdp, random_pomdp
+
+
+def test_always_listening_is_deterministic():
+    result = evaluate_policy(tiger(), blind_policy(tiger()), episodes=50, seed=0)
+    expected = -(1 - 0.95**result.horizon) / (1 - 0.95)
+    assert result.mean == pytest.approx(expected)
+    assert result.std_error == pytest.approx(0.0, abs=1e-12)
+    assert result.truncation <= 1e-3
+    assert result.returns.shape == (50,)
+
+
+def test_fully_observable_pomdp_matches_the_mdp_value():
+    base = random_pomdp(4, 2, 4, discount=0.9, seed=1)
+    eye = torch.eye(4, dtype=torch.float64).expand(2, 4, 4)  # the observation is the state
+    model = POMDP(T=base.T, Z=eye, R=base.R, b0=base.b0, discount=0.9)
+    exact = float(value_iteration(model.T, model.R, 0.9, tol=1e-10).values @ model.b0)
+    result = evaluate_policy(model, qmdp_policy(model), episodes=4000, seed=2)
+    assert result.ci_low - result.std_error <= exact <= result.ci_high + result.std_error
+    assert abs(result.mean - exact) < 5 * result.std_error + result.truncation
+
+
+def test_seeded_and_generator():
+    model, policy = tiger(), qmdp_policy(tiger())
+    a = evaluate_policy(model, policy, episodes=64, horizon=30, seed=3)
+    b = evaluate_policy(model, policy, episodes=64, horizon=30, seed=3)
+    c = evaluate_policy(model, policy, episodes=64, horizon=30, seed=4)
+    assert torch.equal(a.returns, b.returns)
+    assert not torch.equal(a.returns, c.returns)
+    g = torch.Generator().manual_seed(3)
+    assert torch.equal(
+        evaluate_policy(model, policy, episodes=64, horizon=30, generator=g).returns, a.returns
+    )
+
+
+def test_momdp_and_flat_simulations_agree():
+    model = random_momdp(3, 2, 2, 2, static=False, discount=0.8, seed=5)
+    policy = qmdp_policy(model)
+    factored = evaluate_policy(model, policy, episodes=3000, seed=6)
+    # the same policy acting on the flat model: the flat belief is x-one-hot times b_y
+    flat_model = model.to_pomdp()
+
+    def act(belief):
+        b = belief.view(-1, 3, 2)
+        x = b.sum(-1).argmax(-1)
+        return policy.action(x, b[torch.arange(b.shape[0]), x] / b.sum(-1).amax(-1, keepdim=True))
+
+    flat = evaluate_policy(flat_model, act, episodes=3000, seed=7)
+    spread = 5 * (factored.std_error**2 + flat.std_error**2) ** 0.5 + 2 * factored.truncation
+    assert abs(factored.mean - flat.mean) < spread
+
+
+def test_bad_input():
+    with pytest.raises(ModelError, match="batch_shape"):
+        evaluate_policy(random_pomdp(2, 2, 2, batch_shape=(2,), seed=8), qmdp_policy(tiger()))
+    momdp_policy = AlphaVectorPolicy(
+        torch.zeros(1, 2, dtype=torch.float64), torch.tensor([0]), observed=torch.tensor([0])
+    )
+    with pytest.raises(ModelError, match="cannot act in a flat POMDP"):
+        evaluate_policy(tiger(), momdp_policy)
+    with pytest.raises(ValueError, match="episodes"):
+        evaluate_policy(tiger(), qmdp_policy(tiger()), episodes=1)

@@ -1,0 +1,348 @@
+"""Tests of SARSOP (torchhrc.solvers.sarsop) and its belief tree and sawtooth upper bound."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import torch
+from _exact_pomdp import optimal_value_bounds
+
+from torchhrc.belief import momdp_update_all
+from torchhrc.errors import ModelError
+from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.solvers.backup import momdp_point_backup, point_backup
+from torchhrc.solvers.belief_tree import BeliefTree, FactoredModel
+from torchhrc.solvers.evaluate import evaluate_policy
+from torchhrc.solvers.policy import AlphaVectorPolicy
+from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig, fib_corner_values, sarsop
+from torchhrc.solvers.upper_bound import SawtoothUpperBound
+from torchhrc.tasks.classic import tiger
+from torchhrc.testing import random_momdp, random_pomdp
+
+# Tiger (Kaelbling, Littman & Cassandra 1998), discount 0.95: V*(b0) = 19.37 (the value
+# reported for APPL SARSOP; our exact finite-horizon bracket agrees, see test below).
+TIGER_OPTIMUM = 19.3714
+
+LONG = 60.0  # time limits the tests never reach: they stop on precision or iterations
+
+
+def _brute_force_bounds(model: MOMDP, horizon: int) -> tuple[float, float]:
+    """Bracket V*(x0, b0) of a tiny MOMDP by full-width expectimax to ``horizon`` steps.
+
+    Beliefs are expanded level by level with torchhrc.belief.momdp_update_all (the model
+    engineer's update, independent of the solver), then backed up from the leaves.
+    """
+    A, X, O = model.num_actions, model.num_observed, model.num_observations
+    g = model.discount
+    xs = [torch.tensor([model.x0])]
+    bs = [model.b0.unsqueeze(0)]
+    probs = []
+    for _ in range(horizon - 1):
+        upd = momdp_update_all(model, xs[-1], bs[-1])  # belief (N, A, X, O, Y)
+        probs.append(upd.log_normalizer.exp())  # (N, A, X, O)
+        n = bs[-1].shape[0]
+        bs.append(upd.belief.reshape(n * A * X * O, -1))
+        xs.append(torch.arange(X).view(1, 1, X, 1).expand(n, A, X, O).reshape(-1))
+    value = None
+    for h in range(horizon - 1, -1, -1):
+        r = torch.einsum("ny,any->na", bs[h], model.R[:, xs[h], :])  # (N, A)
+        if value is not None:
+            n = bs[h].shape[0]
+            r = r + g * (probs[h] * value.view(n, A, X, O)).sum((-1, -2))
+        value = r.amax(-1)
+    v = float(value[0])
+    tail = g**horizon / (1 - g)
+    return v + tail * min(0.0, float(model.R.min())), v + tail * max(0.0, float(model.R.max()))
+
+
+def _tiger_like(seed: int, discount: float = 0.9) -> POMDP:
+    """A random two-state problem with an informative "listen" action and two resets.
+
+    Random dense POMDPs are usually solved by the initial bounds alone (one action
+    dominates); this family needs many SARSOP iterations, like Tiger.
+    """
+    g = torch.Generator().manual_seed(seed)
+    d = torch.float64
+    u = lambda *shape: torch.rand(*shape, generator=g, dtype=d)  # noqa: E731
+    p = 0.6 + 0.3 * u(())
+    listen = torch.stack([torch.stack([p, 1 - p]), torch.stack([1 - p, p])])
+    reset = u(2, 2) + 0.2
+    reset = reset / reset.sum(-1, keepdim=True)
+    T = torch.stack([torch.eye(2, dtype=d), reset, reset.flip(0)])
+    Z = torch.stack([listen, torch.full((2, 2), 0.5, dtype=d), torch.full((2, 2), 0.5, dtype=d)])
+    big = 5.0 + 10.0 * u(2)
+    R = torch.stack(
+        [-0.5 - u(2), torch.stack([big[0], -4 * big[0]]), torch.stack([-4 * big[1], big[1]])]
+    )
+    b0 = torch.tensor([0.5, 0.5], dtype=d)
+    return POMDP(T=T, Z=Z, R=R, b0=b0, discount=discount)
+
+
+def _assert_history_brackets(history, lo: float, hi: float, tol: float = 1e-9) -> None:
+    assert len(history) >= 2
+    for entry in history:
+        assert entry["lower"] <= hi + tol, (entry, hi)
+        assert entry["upper"] >= lo - tol, (entry, lo)
+        assert entry["lower"] <= entry["upper"] + tol, entry
+    lows = [e["lower"] for e in history]
+    ups = [e["upper"] for e in history]
+    assert all(b >= a - tol for a, b in itertools.pairwise(lows))  # anytime: never worse
+    assert all(b <= a + tol for a, b in itertools.pairwise(ups))
+
+
+# -- invariants against exact references ------------------------------------------------------
+@pytest.mark.parametrize("seed", [0, 2])  # seed 1 works too, but its exact reference takes 30 s
+def test_bounds_bracket_exact_value_every_iteration_flat(seed):
+    model = _tiger_like(seed, discount=0.8)
+    lo, hi = optimal_value_bounds(model.T, model.Z, model.R, model.discount, model.b0, 100)
+    assert hi - lo < 1e-6
+    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-3, max_iterations=300))
+    _assert_history_brackets(sol.history, lo, hi)
+    assert sol.info["stop_reason"] == "precision"
+    assert sol.history[0]["upper"] - sol.history[0]["lower"] > 10.0  # a real search happened
+    # [lower, upper] has width <= 1e-3 and contains V* in [lo, hi]
+    assert lo - 1e-3 <= sol.lower <= sol.upper <= hi + 1e-3
+    # the returned policy achieves the reported lower bound at b0
+    assert float(sol.policy.value(model.b0)) == pytest.approx(sol.lower, abs=1e-9)
+
+
+@pytest.mark.parametrize("seed", [0, 2, 3])
+def test_bounds_bracket_brute_force_every_iteration_momdp(seed):
+    # random MOMDPs whose initial bounds do not meet (static hidden value for seeds 0 and 2)
+    model = random_momdp(2, 2, 2, 2, static=seed % 2 == 0, discount=0.6, concentration=0.3,
+                         seed=seed)  # fmt: skip
+    lo, hi = _brute_force_bounds(model, 7)
+    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-4, max_iterations=300))
+    _assert_history_brackets(sol.history, lo, hi)
+    assert sol.info["stop_reason"] == "precision"
+    assert sol.policy.is_momdp
+    value = sol.policy.value(torch.tensor(model.x0), model.b0)
+    assert float(value) == pytest.approx(sol.lower, abs=1e-9)
+
+
+def test_tiger_known_optimum():
+    model = tiger()
+    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-3))
+    assert sol.info["stop_reason"] == "precision"
+    assert sol.upper - sol.lower <= 1e-3
+    assert abs(sol.lower - TIGER_OPTIMUM) <= 1e-3 * TIGER_OPTIMUM
+    assert abs(sol.upper - TIGER_OPTIMUM) <= 1e-3 * TIGER_OPTIMUM
+    assert int(sol.policy.action(model.b0)) == 0  # listen first
+
+
+def test_momdp_solve_matches_flat_solve():
+    model = random_momdp(3, 2, 2, 2, static=False, discount=0.8, concentration=0.3, seed=5)
+    cfg = SARSOPConfig(time_limit=LONG, precision=1e-3, max_iterations=400)
+    fact = sarsop(model, cfg)
+    flat = sarsop(model.to_pomdp(), cfg)
+    assert fact.info["stop_reason"] == flat.info["stop_reason"] == "precision"
+    # both intervals have width <= 1e-3 and contain V*: they overlap
+    assert fact.lower <= flat.upper + 1e-9 and flat.lower <= fact.upper + 1e-9
+    assert fact.lower == pytest.approx(flat.lower, abs=2e-3)
+    # the factored policy evaluated on the flat belief gives its lower bound
+    assert not flat.policy.is_momdp and fact.policy.is_momdp
+
+
+def test_same_seed_same_result():
+    model = random_pomdp(4, 3, 3, discount=0.95, seed=7)
+    cfg = SARSOPConfig(time_limit=LONG, precision=1e-9, max_iterations=15, seed=3)
+    a, b = sarsop(model, cfg), sarsop(model, cfg)
+    assert [(h["lower"], h["upper"], h["n_alphas"], h["n_beliefs"]) for h in a.history] == [
+        (h["lower"], h["upper"], h["n_alphas"], h["n_beliefs"]) for h in b.history
+    ]
+    assert torch.equal(a.policy.alphas, b.policy.alphas)
+    assert torch.equal(a.policy.actions, b.policy.actions)
+
+
+@pytest.mark.parametrize("kind", ["tiger", "momdp"])
+def test_policy_monte_carlo_value_within_bounds(kind):
+    """The returned policy's simulated return lies in [lower, upper] up to sampling error."""
+    if kind == "tiger":
+        model = tiger()
+    else:
+        model = random_momdp(3, 2, 2, 2, static=False, discount=0.8, concentration=0.3, seed=5)
+    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=0.05))
+    result = evaluate_policy(model, sol.policy, episodes=3000, seed=0)
+    # a 99.9% interval: 3.3 standard errors, plus the truncated tail
+    slack = 3.3 * result.std_error + result.truncation
+    assert sol.lower - slack <= result.mean <= sol.upper + slack
+
+
+def test_keyboard_interrupt_returns_best_so_far():
+    calls = []
+
+    def stop(entry):
+        calls.append(entry)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+
+    sol = sarsop(tiger(), SARSOPConfig(time_limit=LONG, precision=1e-6, callback=stop))
+    assert sol.info["stop_reason"] == "interrupted"
+    assert sol.lower <= TIGER_OPTIMUM + 1e-2 <= sol.upper + 1e-2
+    assert float(sol.policy.value(tiger().b0)) == pytest.approx(sol.lower, abs=1e-9)
+
+
+def test_callback_can_stop_and_time_limit_is_anytime():
+    sol = sarsop(tiger(), SARSOPConfig(time_limit=LONG, precision=1e-9, callback=lambda e: True))
+    assert sol.info["stop_reason"] == "callback" and sol.info["iterations"] == 1
+    sol = sarsop(tiger(), SARSOPConfig(time_limit=0.0, precision=1e-9))
+    assert sol.info["stop_reason"] == "time_limit" and sol.lower <= sol.upper
+
+
+# -- components against references ------------------------------------------------------------
+def test_expand_matches_belief_update_all():
+    model = random_momdp(4, 3, 2, 3, static=False, sparsity=0.4, seed=2)
+    fm = FactoredModel.from_model(model)
+    b = torch.distributions.Dirichlet(torch.ones(3, dtype=torch.float64)).sample((5,))
+    for x in range(4):
+        xs, J = fm.expand(x, b)  # (B, A, K, O, Y)
+        upd = momdp_update_all(model, torch.full((5,), x), b)
+        ref_prob = upd.log_normalizer.exp()[:, :, xs]  # (B, A, K, O)
+        torch.testing.assert_close(J.sum(-1), ref_prob)
+        ref = upd.belief[:, :, xs] * ref_prob.unsqueeze(-1)
+        torch.testing.assert_close(J, ref)
+        # unreachable x2 have zero probability
+        mask = torch.ones(4, dtype=torch.bool)
+        mask[xs] = False
+        assert float(upd.log_normalizer.exp()[:, :, mask].sum()) == 0.0
+
+
+@pytest.mark.parametrize("kind", ["flat", "static", "dynamic"])
+def test_backup_matches_point_backup_kernel(kind):
+    if kind == "flat":
+        model = random_pomdp(5, 3, 3, seed=1)
+    else:
+        model = random_momdp(3, 3, 2, 2, static=kind == "static", sparsity=0.3, seed=1)
+    solver = _SARSOP(model, SARSOPConfig(time_limit=LONG), 0.0)
+    n = solver.alphas.size
+    before = solver.alphas.vectors[:n].clone()
+    policy = AlphaVectorPolicy(
+        before,
+        solver.alphas.actions[:n].clone(),
+        None if kind == "flat" else solver.alphas.observed[:n].clone(),
+    )
+    # back up the root against the initial (blind) vectors with both kernels
+    ev = solver.evaluate(solver.fm.x0, solver.fm.b0.unsqueeze(0))
+    solver.backup(solver.fm.x0, np.array([0]))
+    if kind == "flat":
+        ref = point_backup(model, policy, model.b0.unsqueeze(0))
+    else:
+        ref = momdp_point_backup(model, policy, torch.tensor([model.x0]), model.b0.unsqueeze(0))
+    torch.testing.assert_close(ev.q_low[0], ref.q_values[0])
+    new = solver.alphas.vectors[: solver.alphas.size]
+    best = float((new @ solver.fm.b0).max())
+    assert best == pytest.approx(max(float(ref.values[0]), float((before @ solver.fm.b0).max())))
+
+
+def test_fib_corner_values_bound_and_budget():
+    model = tiger()
+    full = fib_corner_values(model)
+    assert full.shape == (2,)
+    assert float(full[0]) == pytest.approx(9.05 / (1 - 0.95**2), rel=1e-6)  # hand-derived
+    early = fib_corner_values(model, time_limit=0.0)  # QMDP: looser, still an upper bound
+    assert bool((early >= full - 1e-9).all())
+
+
+def _sawtooth_reference(corner, points, b):
+    base = float(b @ corner)
+    best = base
+    for bi, vi in points:
+        support = bi > 0
+        ratio = float((b[support] / bi[support]).min())
+        best = min(best, base + (vi - float(bi @ corner)) * ratio)
+    return best
+
+
+def test_sawtooth_matches_formula_and_is_homogeneous():
+    g = torch.Generator().manual_seed(0)
+    Y = 4
+    corner = torch.rand(1, Y, generator=g, dtype=torch.float64) * 10
+    ub = SawtoothUpperBound(corner, capacity=2)
+    pts = []
+    for i in range(9):
+        b = torch.rand(Y, generator=g, dtype=torch.float64)
+        if i % 3 == 0:
+            b[i % Y] = 0.0
+        b /= b.sum()
+        v = float(b @ corner[0]) - float(torch.rand((), generator=g)) * 3
+        pts.append((b, v))
+        ub.add(
+            b.unsqueeze(0), torch.zeros(1, dtype=torch.long), torch.tensor([v], dtype=torch.float64)
+        )
+    q = torch.rand(20, Y, generator=g, dtype=torch.float64)
+    q[::4, 1] = 0.0
+    q /= q.sum(-1, keepdim=True)
+    got = ub.value(q, torch.zeros(20, dtype=torch.long))
+    want = torch.tensor(
+        [_sawtooth_reference(corner[0], pts, row) for row in q], dtype=torch.float64
+    )
+    torch.testing.assert_close(got, want)
+    torch.testing.assert_close(ub.value(2.5 * q, torch.zeros(20, dtype=torch.long)), 2.5 * want)
+    # at its own points the bound is at most the stored value; pruning keeps the bound valid
+    for b, v in pts:
+        assert float(ub.value(b.unsqueeze(0), torch.zeros(1, dtype=torch.long))) <= v + 1e-12
+    ub.prune()
+    for b, v in pts:
+        assert float(ub.value(b.unsqueeze(0), torch.zeros(1, dtype=torch.long))) <= v + 1e-12
+
+
+def test_sawtooth_per_observed_value_and_corner_update():
+    corner = torch.tensor([[4.0, 4.0], [1.0, 1.0]], dtype=torch.float64)
+    ub = SawtoothUpperBound(corner)
+    half = torch.tensor([[0.5, 0.5]], dtype=torch.float64)
+    ub.add(half, torch.tensor([0]), torch.tensor([2.0], dtype=torch.float64))
+    vals = ub.value(half.expand(2, 2), torch.tensor([0, 1]))
+    assert vals.tolist() == [2.0, 1.0]  # the point of x=0 does not bound x=1
+    ub.add(torch.tensor([[1.0, 0.0]], dtype=torch.float64), torch.tensor([0]),
+           torch.tensor([3.0], dtype=torch.float64))  # fmt: skip
+    assert ub.corner[0].tolist() == [3.0, 4.0] and ub.size == 1
+
+
+def test_belief_tree_grows_and_indexes_children():
+    tree = BeliefTree(torch.tensor([1.0, 0.0], dtype=torch.float64), x=0, capacity=2)
+    ids = [tree.add(torch.tensor([0.5, 0.5], dtype=torch.float64), 1, 0, a, 0) for a in range(5)]
+    assert tree.size == 6 and ids == [1, 2, 3, 4, 5]
+    assert tree.child(0, 3, 1, 0) == 4 and tree.child(0, 3, 0, 0) == -1
+    assert tree.depth[: tree.size].tolist() == [0, 1, 1, 1, 1, 1]
+    grand = tree.add(torch.tensor([0.2, 0.8], dtype=torch.float64), 0, 2, 1, 1)
+    tree.active[2] = False
+    tree.refresh_active()
+    assert not tree.active[grand] and tree.active[1]
+
+
+# -- input validation -------------------------------------------------------------------------
+def test_config_validation():
+    with pytest.raises(TypeError):
+        SARSOPConfig(time_limt=3.0)  # type: ignore[call-arg]
+    with pytest.raises(TypeError):
+        SARSOPConfig(3.0)  # type: ignore[misc]
+    with pytest.raises(ValueError, match="precision"):
+        SARSOPConfig(precision=-1.0)
+    with pytest.raises(ValueError, match="kappa"):
+        SARSOPConfig(kappa=0.0)
+    with pytest.raises(ValueError, match="prediction"):
+        SARSOPConfig(prediction="oracle")  # type: ignore[arg-type]
+
+
+def test_model_validation():
+    with pytest.raises(ModelError, match="batch"):
+        sarsop(random_pomdp(2, 2, 2, batch_shape=(2,), seed=0))
+    m = random_pomdp(2, 2, 2, seed=0)
+    undiscounted = POMDP(T=m.T, Z=m.Z, R=m.R, b0=m.b0, discount=1.0)
+    with pytest.raises(ModelError, match="discount"):
+        sarsop(undiscounted)
+    with pytest.raises(TypeError, match="SARSOPConfig"):
+        sarsop(m, {"time_limit": 1.0})  # type: ignore[arg-type]
+    with pytest.raises(ModelError, match="upper_bound_init"):
+        sarsop(m, SARSOPConfig(upper_bound_init=lambda model: torch.zeros(3, dtype=torch.float64)))
+
+
+def test_solve_dispatches_sarsop_config():
+    from torchhrc.solvers import solve
+
+    cfg = SARSOPConfig(time_limit=LONG, precision=0.05, max_iterations=200)
+    a, b = solve(tiger(), cfg), sarsop(tiger(), cfg)
+    assert a.info["stop_reason"] == "precision"
+    assert (a.lower, a.upper) == (b.lower, b.upper)

@@ -1,0 +1,80 @@
+"""Tests of ``torchhrc solve``: JSON schema and values, policy files, progress, exit 2."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from torchhrc.cli import main
+from torchhrc.io.cassandra import write_pomdp
+from torchhrc.io.policyx import load_policy
+from torchhrc.tasks.classic import tiger
+
+
+@pytest.fixture(scope="module")
+def tiger_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("models") / "tiger.pomdp"
+    write_pomdp(tiger(), path)
+    return path
+
+
+def _run(capsys, *argv):
+    code = main(list(map(str, argv)))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize("solver", ["qmdp", "fib", "pbvi"])
+def test_json_schema_and_bounds(capsys, tiger_file, tmp_path, solver):
+    out_path = tmp_path / "policy.safetensors"
+    code, out, err = _run(
+        capsys,
+        "solve",
+        tiger_file,
+        "--solver",
+        solver,
+        "--time-limit",
+        "5",
+        "--json",
+        "--quiet",
+        "--out",
+        out_path,
+    )
+    assert code == 0 and err == ""
+    report = json.loads(out)  # exactly one JSON object
+    assert {"lower", "upper", "gap", "time_s", "n_alphas"} <= set(report)
+    assert report["lower"] <= 19.3711 <= report["upper"]
+    assert report["gap"] == pytest.approx(report["upper"] - report["lower"])
+    assert report["time_s"] > 0 and report["n_alphas"] >= 1
+    policy = load_policy(out_path)
+    assert policy.num_vectors == report["n_alphas"]
+    if solver == "qmdp":
+        assert report["upper"] == pytest.approx(189.0)
+
+
+def test_policyx_output_and_progress(capsys, tiger_file, tmp_path):
+    out_path = tmp_path / "tiger.policyx"
+    code, out, err = _run(
+        capsys, "solve", tiger_file, "--solver", "pbvi", "--time-limit", "2", "--out", out_path
+    )
+    assert code == 0
+    assert "lower" in out and "upper" in out and str(out_path) in out
+    assert "lower" in err and "upper" in err  # progress on stderr
+    assert load_policy(out_path).num_vectors >= 1
+
+
+def test_bad_input_exits_2_with_one_line(capsys, tmp_path):
+    bad = tmp_path / "bad.pomdp"
+    bad.write_text("discount: 0.9\nstates: 2\nactions: 1\nobservations: 1\nT: 0 : 0 : 5 0.5\n")
+    code, out, err = _run(capsys, "solve", bad)
+    assert code == 2 and out == ""
+    assert len(err.strip().splitlines()) == 1 and "bad.pomdp" in err
+    code, _, err = _run(capsys, "solve", tmp_path / "missing.pomdp")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    with pytest.raises(SystemExit) as exit_info:
+        main(["solve", str(bad), "--out", str(tmp_path / "p.txt")])
+    assert exit_info.value.code == 2
+    with pytest.raises(SystemExit) as exit_info:
+        main(["solve", str(bad), "--time-limit", "-1"])
+    assert exit_info.value.code == 2

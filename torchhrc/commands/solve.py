@@ -1,0 +1,179 @@
+"""``torchhrc solve``: solve a Cassandra ``.pomdp`` file and report the bounds.
+
+Reads the model (:func:`torchhrc.io.cassandra.read_pomdp`), solves it with SARSOP (default),
+PBVI, QMDP or FIB through :func:`torchhrc.solvers.solve`, prints the lower and upper bounds
+on the optimal value at the initial belief, and optionally writes the policy
+(``.policyx``, APPL's format, or ``.safetensors``). Progress (bounds over time) goes to
+stderr unless ``--quiet``. With ``--json`` one JSON object is printed with the keys
+``lower``, ``upper``, ``gap``, ``time_s``, ``n_alphas``, ``solver``, ``stop_reason``,
+``iterations`` and ``policy`` (the written path or null).
+
+Example:
+    >>> import argparse
+    >>> from torchhrc.commands import solve
+    >>> sub = argparse.ArgumentParser(prog="torchhrc").add_subparsers()
+    >>> solve.register(sub)
+    >>> sub.choices["solve"].parse_args(["m.pomdp", "--solver", "pbvi"]).solver
+    'pbvi'
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+__all__ = ["make_config", "register", "run"]
+
+SOLVERS = ("sarsop", "pbvi", "qmdp", "fib")
+POLICY_SUFFIXES = (".policyx", ".policy", ".xml", ".safetensors")
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value > 0 or not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value >= 0 or not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a non-negative number, got {text!r}")
+    return value
+
+
+def _out_path(text: str) -> str:
+    if Path(text).suffix.lower() not in POLICY_SUFFIXES:
+        raise argparse.ArgumentTypeError(f"expected a .policyx or .safetensors path, got {text!r}")
+    return text
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``solve`` sub-command."""
+    parser = subparsers.add_parser(
+        "solve",
+        help="solve a .pomdp file (SARSOP, PBVI, QMDP, FIB) and report the bounds",
+        description=(
+            "Solve a POMDP in Cassandra's .pomdp format; print lower and upper bounds on the "
+            "optimal value at the initial belief, and optionally write the policy."
+        ),
+    )
+    parser.add_argument("model", metavar="FILE.pomdp", help="the model (Cassandra format)")
+    parser.add_argument("--solver", choices=SOLVERS, default="sarsop", help="solver (sarsop)")
+    parser.add_argument(
+        "--time-limit", type=_positive, default=10.0, help="seconds (10; PBVI and SARSOP)"
+    )
+    parser.add_argument(
+        "--precision", type=_non_negative, default=1e-3, help="target gap upper - lower (1e-3)"
+    )
+    parser.add_argument(
+        "--out", type=_out_path, default=None, help="write the policy (.policyx / .safetensors)"
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (0)")
+    parser.set_defaults(func=run)
+
+
+def make_config(args: argparse.Namespace, callback: Any = None) -> Any:
+    """The solver configuration the command-line options describe.
+
+    Example:
+        >>> ns = argparse.Namespace(solver="pbvi", time_limit=2.0, precision=0.1, seed=3)
+        >>> make_config(ns).time_limit
+        2.0
+    """
+    from torchhrc import solvers
+
+    if args.solver == "qmdp":
+        return solvers.QMDPConfig()
+    if args.solver == "fib":
+        return solvers.FIBConfig()
+    if args.solver == "pbvi":
+        return solvers.PBVIConfig(
+            time_limit=args.time_limit,
+            precision=args.precision,
+            seed=args.seed,
+            callback=callback,
+        )
+    return solvers.SARSOPConfig(
+        time_limit=args.time_limit, precision=args.precision, seed=args.seed, callback=callback
+    )
+
+
+class _Progress:
+    """Prints the bounds to stderr at most every ``interval`` seconds."""
+
+    def __init__(self, interval: float = 0.5) -> None:
+        self.interval = interval
+        self.last = -math.inf
+
+    def __call__(self, entry: dict[str, Any]) -> None:
+        now = time.perf_counter()
+        if now - self.last < self.interval:
+            return None
+        self.last = now
+        lower, upper = entry.get("lower", math.nan), entry.get("upper", math.nan)
+        print(
+            f"  {entry.get('time_s', 0.0):8.2f}s  lower {lower:.6g}  upper {upper:.6g}  "
+            f"gap {upper - lower:.4g}  "
+            f"alphas {entry.get('n_alphas', '-')}  beliefs {entry.get('n_beliefs', '-')}",
+            file=sys.stderr,
+        )
+        return None
+
+
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
+def run(args: argparse.Namespace) -> int:
+    """Read, solve, print and write; return the exit status."""
+    from torchhrc.io.cassandra import read_pomdp
+    from torchhrc.solvers import solve
+
+    model = read_pomdp(args.model)
+    callback = None if args.quiet else _Progress()
+    config = make_config(args, callback)
+    start = time.perf_counter()
+    solution = solve(model, config)
+    elapsed = time.perf_counter() - start
+    written = None
+    if args.out is not None:
+        from torchhrc.io.policyx import save_policy
+
+        written = str(save_policy(solution.policy, args.out))
+    report = {
+        "lower": _finite(solution.lower),
+        "upper": _finite(solution.upper),
+        "gap": _finite(solution.gap),
+        "time_s": elapsed,
+        "n_alphas": solution.policy.num_vectors,
+        "solver": args.solver,
+        "stop_reason": solution.info.get("stop_reason"),
+        "iterations": solution.info.get("iterations"),
+        "policy": written,
+    }
+    if args.json:
+        print(json.dumps(report))
+    else:
+        print(f"solver     {args.solver}")
+        print(f"lower      {solution.lower:.6g}")
+        print(f"upper      {solution.upper:.6g}")
+        print(f"gap        {solution.gap:.6g}")
+        print(f"time_s     {elapsed:.3f}")
+        print(f"n_alphas   {solution.policy.num_vectors}")
+        if written is not None:
+            print(f"policy     {written}")
+    return 0

@@ -1,0 +1,146 @@
+"""Pruning of alpha-vector sets: pointwise dominance and belief-point dominance.
+
+Alpha vectors ``alphas: (N, S)`` represent the piecewise-linear convex value function
+``V(b) = max_n alphas[n] . b``. A vector can be dropped without changing ``V`` when another
+vector is at least as large at every state (pointwise dominance, Cassandra et al. 1997);
+point-based solvers also drop vectors that are not the maximum at any belief of a finite set
+(Pineau et al. 2003; SARSOP's "delayed" pruning, Kurniawati et al. 2008), which changes ``V``
+only away from those beliefs.
+
+For MOMDP policies (Ong et al. 2010) vectors are grouped by the observed value ``x`` they
+belong to (``groups: (N,)``); comparisons happen only inside a group.
+
+Both functions return a boolean ``keep: (N,)`` mask and never drop every vector of a
+non-empty group.
+
+Example:
+    >>> import torch
+    >>> alphas = torch.tensor([[1.0, 1.0], [0.0, 0.5], [2.0, -1.0]])
+    >>> prune_dominated(alphas).tolist()
+    [True, False, True]
+"""
+
+from __future__ import annotations
+
+import torch
+
+from torchhrc._checks import check_shape, check_tensor
+from torchhrc.errors import ModelError
+
+__all__ = ["prune_by_beliefs", "prune_dominated"]
+
+_CHUNK_ELEMENTS = 1 << 24  # booleans of the (chunk, N, S) comparison tensor held at once
+
+
+def _check_alphas(alphas: object, groups: object) -> tuple[torch.Tensor, torch.Tensor | None]:
+    alphas = check_tensor("alphas", alphas)
+    if alphas.dim() != 2:
+        raise ModelError(
+            f"expected alphas to have shape (N, S), actual shape = {tuple(alphas.shape)}"
+        )
+    if groups is not None:
+        groups = check_tensor("groups", groups, floating=False)
+        if groups.shape != alphas.shape[:1]:
+            raise ModelError(
+                f"expected groups to have shape (N={alphas.shape[0]},), "
+                f"actual shape = {tuple(groups.shape)}"
+            )
+    return alphas, groups
+
+
+def prune_dominated(
+    alphas: torch.Tensor, groups: torch.Tensor | None = None, *, atol: float = 0.0
+) -> torch.Tensor:
+    """Mask of the vectors that no other vector (of the same group) pointwise dominates.
+
+    Vector ``i`` is dropped when some ``j != i`` has ``alphas[j] >= alphas[i] - atol`` at every
+    state, and either ``i`` does not dominate ``j`` back or ``j < i`` (of equal vectors the
+    first is kept). Computed as batched comparisons, in chunks of rows to bound memory.
+
+    Args:
+        alphas: ``(N, S)`` alpha vectors (``(N, Y)`` for a MOMDP policy).
+        groups: optional ``(N,)`` int64 group of each vector (the observed ``x``).
+        atol: tolerance of the comparison.
+
+    Returns:
+        ``(N,)`` bool, True for the vectors to keep.
+
+    Example:
+        >>> a = torch.tensor([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+        >>> prune_dominated(a, torch.tensor([0, 0, 1])).tolist()
+        [True, False, True]
+    """
+    alphas, groups = _check_alphas(alphas, groups)
+    N, S = alphas.shape
+    keep = torch.ones(N, dtype=torch.bool, device=alphas.device)
+    if N <= 1:
+        return keep
+    index = torch.arange(N, device=alphas.device)
+    chunk = max(1, _CHUNK_ELEMENTS // max(1, N * S))
+    for start in range(0, N, chunk):
+        rows = alphas[start : start + chunk]  # (C, S)
+        # ge[c, j]: alphas[j] >= rows[c] - atol everywhere;  le[c, j]: rows[c] >= alphas[j] - atol
+        ge = (alphas.unsqueeze(0) >= rows.unsqueeze(1) - atol).all(-1)  # (C, N)
+        le = (rows.unsqueeze(1) >= alphas.unsqueeze(0) - atol).all(-1)  # (C, N)
+        i = index[start : start + chunk].unsqueeze(1)  # (C, 1)
+        j = index.unsqueeze(0)  # (1, N)
+        dominated_by = ge & (j != i) & (~le | (j < i))
+        if groups is not None:
+            dominated_by &= groups[start : start + chunk].unsqueeze(1) == groups.unsqueeze(0)
+        keep[start : start + chunk] = ~dominated_by.any(-1)
+    return keep
+
+
+def prune_by_beliefs(
+    alphas: torch.Tensor,
+    beliefs: torch.Tensor,
+    groups: torch.Tensor | None = None,
+    belief_groups: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Mask of the vectors that are the maximum at one or more of the given beliefs.
+
+    Args:
+        alphas: ``(N, S)`` alpha vectors.
+        beliefs: ``(M, S)`` belief points (rows need not be normalised).
+        groups: optional ``(N,)`` group (observed ``x``) of each vector.
+        belief_groups: ``(M,)`` group of each belief; required with ``groups``.
+
+    Returns:
+        ``(N,)`` bool, True for vectors that win at some belief of their group. Groups with
+        vectors but no belief keep all their vectors.
+
+    Example:
+        >>> a = torch.tensor([[1.0, 0.0], [0.0, 1.0], [0.4, 0.4]])
+        >>> prune_by_beliefs(a, torch.tensor([[0.9, 0.1], [0.2, 0.8]])).tolist()
+        [True, True, False]
+    """
+    alphas, groups = _check_alphas(alphas, groups)
+    beliefs = check_tensor("beliefs", beliefs)
+    check_shape("beliefs", beliefs, (alphas.shape[1],), f"(M, S={alphas.shape[1]})")
+    if beliefs.dim() != 2:
+        raise ModelError(
+            f"expected beliefs to have shape (M, S), actual shape = {tuple(beliefs.shape)}"
+        )
+    N = alphas.shape[0]
+    keep = torch.zeros(N, dtype=torch.bool, device=alphas.device)
+    if N == 0:
+        return keep
+    scores = beliefs.to(alphas.dtype) @ alphas.T  # (M, N)
+    if groups is not None:
+        if belief_groups is None:
+            raise ModelError("belief_groups is required when groups is given")
+        belief_groups = check_tensor("belief_groups", belief_groups, floating=False)
+        if belief_groups.shape != beliefs.shape[:1]:
+            raise ModelError(
+                f"expected belief_groups to have shape (M={beliefs.shape[0]},), "
+                f"actual shape = {tuple(belief_groups.shape)}"
+            )
+        same = belief_groups.unsqueeze(1) == groups.unsqueeze(0)  # (M, N)
+        scores = scores.masked_fill(~same, -torch.inf)
+        has_vector = same.any(-1)
+        best = scores.argmax(-1)[has_vector]
+        keep[best] = True
+        keep |= ~same.any(0)  # groups without any belief keep everything
+    else:
+        keep[scores.argmax(-1)] = True
+    return keep

@@ -1,0 +1,139 @@
+"""Batched simulation steps shared by belief expansion and Monte Carlo evaluation.
+
+One call advances many (state, belief) pairs by one step at once: sample the successor state
+and the observation from the model, then update the belief with :mod:`torchhrc.belief`.
+All randomness comes from an explicit ``torch.Generator``.
+
+Example:
+    >>> import torch
+    >>> from torchhrc.tasks.classic import tiger
+    >>> m = tiger()
+    >>> g = torch.Generator().manual_seed(0)
+    >>> step = flat_step(m, torch.tensor([0, 1]), m.b0.expand(2, 2), torch.tensor([0, 0]), g)
+    >>> step.belief.shape, step.reward.tolist()
+    (torch.Size([2, 2]), [-1.0, -1.0])
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+
+from torchhrc.belief import momdp_update, update
+from torchhrc.pomdp import MOMDP, POMDP
+
+__all__ = ["FlatStep", "MOMDPStep", "flat_step", "momdp_step", "sample_categorical"]
+
+
+def sample_categorical(probs: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+    """One draw per row of ``probs (..., K)`` (rows need not be normalised): int64 ``(...)``.
+
+    Example:
+        >>> sample_categorical(torch.tensor([[0.0, 1.0], [1.0, 0.0]]),
+        ...                    torch.Generator().manual_seed(0)).tolist()
+        [1, 0]
+    """
+    shape = probs.shape[:-1]
+    flat = probs.reshape(-1, probs.shape[-1])
+    if flat.shape[0] == 0:
+        return torch.zeros(shape, dtype=torch.long, device=probs.device)
+    # inverse-CDF sampling: one uniform per row, deterministic given the generator
+    cdf = flat.cumsum(-1)
+    u = torch.rand(flat.shape[0], 1, generator=generator, dtype=flat.dtype, device=flat.device)
+    u = u * cdf[:, -1:]
+    draws = torch.searchsorted(cdf, u, right=True).clamp_(max=flat.shape[-1] - 1)
+    # never return a zero-probability index (u exactly at a flat part of the cdf)
+    zero = flat.gather(1, draws) <= 0
+    if bool(zero.any()):
+        draws[zero] = flat[zero.squeeze(1)].argmax(-1)
+    return draws.reshape(shape)
+
+
+class FlatStep(NamedTuple):
+    """One simulated step of a flat POMDP, for ``E`` episodes at once.
+
+    Attributes:
+        state: ``(E,)`` next state.
+        observation: ``(E,)`` observation received.
+        belief: ``(E, S)`` updated belief.
+        reward: ``(E,)`` reward of the action in the current state.
+    """
+
+    state: torch.Tensor
+    observation: torch.Tensor
+    belief: torch.Tensor
+    reward: torch.Tensor
+
+
+class MOMDPStep(NamedTuple):
+    """One simulated step of a MOMDP, for ``E`` episodes at once.
+
+    Attributes:
+        x: ``(E,)`` next observed value.
+        y: ``(E,)`` next hidden value.
+        observation: ``(E,)`` observation received.
+        belief: ``(E, Y)`` updated belief over the hidden value.
+        reward: ``(E,)`` reward of the action in the current state.
+    """
+
+    x: torch.Tensor
+    y: torch.Tensor
+    observation: torch.Tensor
+    belief: torch.Tensor
+    reward: torch.Tensor
+
+
+def flat_step(
+    model: POMDP,
+    state: torch.Tensor,
+    belief: torch.Tensor,
+    action: torch.Tensor,
+    generator: torch.Generator,
+) -> FlatStep:
+    """Advance ``E`` episodes of an unbatched POMDP by one step.
+
+    Args:
+        model: the POMDP (``T (A, S, S)``, ``Z (A, S, O)``, ``R (A, S)``).
+        state: ``(E,)`` int64 current states.
+        belief: ``(E, S)`` current beliefs.
+        action: ``(E,)`` int64 actions.
+        generator: the randomness.
+
+    Returns:
+        :class:`FlatStep`.
+    """
+    reward = model.R[action, state]
+    s2 = sample_categorical(model.T[action, state], generator)
+    o = sample_categorical(model.Z[action, s2], generator)
+    new = update(model, belief, action, o, on_zero="ninf").belief
+    return FlatStep(s2, o, new, reward)
+
+
+def momdp_step(
+    model: MOMDP,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    belief: torch.Tensor,
+    action: torch.Tensor,
+    generator: torch.Generator,
+) -> MOMDPStep:
+    """Advance ``E`` episodes of an unbatched MOMDP by one step (paper Eq. 3 for the belief).
+
+    Args:
+        model: the MOMDP.
+        x: ``(E,)`` int64 observed values.
+        y: ``(E,)`` int64 hidden values.
+        belief: ``(E, Y)`` beliefs over the hidden value.
+        action: ``(E,)`` int64 actions.
+        generator: the randomness.
+
+    Returns:
+        :class:`MOMDPStep`.
+    """
+    reward = model.R[action, x, y]
+    x2 = sample_categorical(model.Tx[action, x, y], generator)
+    y2 = y if model.Ty is None else sample_categorical(model.Ty[action, x, y, x2], generator)
+    o = sample_categorical(model.Z[action, x2, y2], generator)
+    new = momdp_update(model, x, belief, action, x2, o, on_zero="ninf").belief
+    return MOMDPStep(x2, y2, o, new, reward)

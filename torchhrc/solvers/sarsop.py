@@ -1,0 +1,986 @@
+"""SARSOP (Kurniawati, Hsu & Lee 2008) with the MOMDP factoring (Ong et al. 2010).
+
+SARSOP ("successive approximations of the reachable space under optimal policies") grows a
+tree of beliefs reachable from ``b0``, sampling the parts an optimal policy would visit, and
+keeps two bounds on the optimal value function ``V*``:
+
+* the lower bound, a set of alpha vectors ``V_low(b) = max_n alphas[n] . b`` (each the value
+  of a conditional plan), initialised by the blind policies ("always do ``a``") and improved
+  by point-based backups of the sampled beliefs;
+* the upper bound, the sawtooth interpolation over corner values and belief points
+  (:class:`~torchhrc.solvers.upper_bound.SawtoothUpperBound`), initialised by the Fast
+  Informed Bound (Hauskrecht 2000) and improved by Bellman backups at the sampled beliefs.
+
+One iteration samples a path from ``b0`` (Algorithm "SamplePoints" of the paper): at belief
+``b`` at depth ``t`` it stops when the predicted optimal value ``V_hat(b)`` (learned online by
+binning beliefs on their upper bound and entropy) cannot raise the root's lower bound past the
+target ``L`` and ``V_up(b) <= max(U, V_low(b) + eps * gamma^-t)``; otherwise it takes the
+action with the highest upper bound ``a* = argmax_a Q_up(b, a)`` and the observation with the
+largest weighted excess uncertainty
+``o* = argmax_o P(o | b, a*) (V_up - V_low)(tau(b, a*, o)) - eps gamma^-(t+1)``, passing down
+the targets ``L_t``, ``U_t`` solved from
+``L' = R(b, a*) + gamma (P(o*) L_t + sum_{o != o*} P(o) V_low(tau(b, a*, o)))`` with
+``L' = max(L, max_a Q_low(b, a))`` and ``U' = max(U, max_a Q_low(b, a) + eps gamma^-t)`` (and
+the same with ``V_up`` for ``U_t``). The path is then backed up leaf to root. Dominated alpha
+vectors, alpha vectors that win at no tree belief, redundant upper-bound points and belief
+nodes reached by sub-optimal actions (``Q_up(b, a) < max_a' Q_low(b, a')``) are pruned.
+
+MOMDP (Ong et al. 2010): beliefs are ``(x, b_y)``; alpha vectors belong to one observed value
+and live over ``Y``; the upper-bound points too; every expansion only touches the next
+observed values reachable from ``x`` (see :class:`~torchhrc.solvers.belief_tree.FactoredModel`),
+so a factored backup costs about ``Y / S = 1 / X`` of the flat one's flops (at small sizes the
+per-op overhead dominates instead; see docs/benchmarks.md). A flat POMDP runs through the
+same code with ``X = 1``.
+
+Every tensor computation at a belief is batched over all ``(a, x2, o)`` children at once (one
+expansion, one matrix product against all alpha vectors, one sawtooth evaluation against all
+points); :attr:`SARSOPConfig.sweep_interval` also backs up all active tree beliefs of an
+observed value together as one batched backup.
+
+Batched models (leading batch dims) are not solved together: the tree search is sequential
+per problem, so :func:`sarsop` raises for them; solve ``model`` per batch index.
+
+Example:
+    >>> from torchhrc.tasks.classic import tiger
+    >>> sol = sarsop(tiger(), SARSOPConfig(time_limit=60.0, precision=0.5))
+    >>> sol.info["stop_reason"], sol.upper - sol.lower <= 0.5, sol.policy.action(tiger().b0).item()
+    ('precision', True, 0)
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from torchhrc.errors import ModelError
+from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.solvers.belief_tree import BeliefTree, FactoredModel
+from torchhrc.solvers.blind import blind_policy
+from torchhrc.solvers.fib import fib_backup
+from torchhrc.solvers.policy import AlphaVectorPolicy
+from torchhrc.solvers.pruning import prune_by_beliefs, prune_dominated
+from torchhrc.solvers.qmdp import qmdp_vectors
+from torchhrc.solvers.solution import Solution
+from torchhrc.solvers.upper_bound import SawtoothUpperBound
+
+__all__ = ["SARSOPConfig", "fib_corner_values", "sarsop"]
+
+LowerInit = Callable[[POMDP | MOMDP], AlphaVectorPolicy]
+UpperInit = Callable[[POMDP | MOMDP], torch.Tensor]
+
+
+def fib_corner_values(model: POMDP | MOMDP, *, tol: float = 1e-8, time_limit: float = math.inf,
+                      max_iterations: int = 100_000) -> torch.Tensor:  # fmt: skip
+    """Fast Informed Bound corner values with a time budget (SARSOP's default upper init).
+
+    Iterates :func:`~torchhrc.solvers.fib.fib_backup` from the QMDP vectors; the operator is
+    monotone and QMDP is an upper bound it maps below itself, so every iterate is an upper
+    bound and stopping on ``time_limit`` is safe (Hauskrecht 2000).
+
+    Args:
+        model: an unbatched POMDP or MOMDP.
+        tol: stop when the largest change is below ``tol``.
+        time_limit: seconds allowed for the FIB iterations after QMDP.
+        max_iterations: cap on the FIB iterations.
+
+    Returns:
+        ``(S,)`` (flat) or ``(X, Y)`` (MOMDP) corner values ``max_a alpha_a``.
+
+    Example:
+        >>> from torchhrc.tasks.classic import tiger
+        >>> round(float(fib_corner_values(tiger())[0]), 2)  # FIB ignores listening noise
+        92.82
+    """
+    start = time.perf_counter()
+    step = _sparse_fib_step(model) if isinstance(model, POMDP) else _factored_fib_step(model)
+    # the sparse flat MDP iteration pays; the per-x loop of the MOMDP one does not
+    sparse_qmdp = step is not None and step.fm is None
+    alpha = step.qmdp(tol) if sparse_qmdp else qmdp_vectors(model, tol=tol)
+    for _ in range(max_iterations):
+        if time.perf_counter() - start > time_limit:
+            break
+        new = torch.minimum(fib_backup(model, alpha) if step is None else step.fib(alpha), alpha)
+        change = float((alpha - new).abs().max())
+        alpha = new
+        if change < tol:
+            break
+    return alpha.amax(0)
+
+
+class _FIBStep:
+    """FIB and QMDP operators of one unbatched CPU model, using its sparse structure.
+
+    Flat (Hauskrecht 2000)::
+
+        fib(alpha)[a, s] = R[a, s] + gamma sum_o max_a2 sum_s2 T[a, s, s2] Z[a, s2, o] alpha[a2, s2]
+
+    as one sparse ``(S, S) x (S, O A)`` product per action (Tag, RockSample: a few successors
+    per state). MOMDP (Ong et al. 2010): ``(x2, o)`` is the observation, and only the
+    ``x2`` reachable from ``x`` (:class:`~torchhrc.solvers.belief_tree.FactoredModel`) are
+    summed, one batched ``(A, K, Y, Y2) x (A, K, Y2, O A)`` product per ``x``. The values
+    equal :func:`~torchhrc.solvers.fib.fib_backup`'s; ``qmdp`` is value iteration on the
+    underlying MDP from the upper bound ``max R / (1 - gamma)`` (monotone, so every iterate
+    is an upper bound; stops when the change is below ``tol``), used for flat models.
+    """
+
+    def __init__(self, model: POMDP | MOMDP, fm: FactoredModel | None) -> None:
+        self.model, self.fm = model, fm
+        self.g = float(model.discount)
+        if fm is None:
+            assert isinstance(model, POMDP)
+            T = model.T
+            with warnings.catch_warnings():  # "sparse CSR support is in beta"
+                warnings.simplefilter("ignore", UserWarning)
+                self.Ts = [T[a].to_sparse_csr() for a in range(T.shape[0])]
+
+    def _mdp(self, V: torch.Tensor) -> torch.Tensor:
+        """``Q[a, ...] = R + gamma E[V(next)]`` for ``V (S,)`` / ``(X, Y)``."""
+        if self.fm is None:
+            return self.model.R + self.g * torch.stack([t @ V for t in self.Ts])
+        fm = self.fm
+        out = []
+        for x in range(fm.num_observed):
+            Vk = V[fm.reach[x]]  # (K, Y2)
+            tx = fm._tx[x]  # (A, Y, K)
+            tyk = fm._tyk[x]
+            if tyk is None:
+                nxt = (tx * Vk.T.unsqueeze(0)).sum(-1)  # (A, Y)
+            else:  # sum_k tx[a, y, k] sum_y2 ty[a, k, y, y2] V[k, y2]
+                inner = (tyk @ Vk.unsqueeze(-1)).squeeze(-1)  # (A, K, Y)
+                nxt = (tx * inner.transpose(-1, -2)).sum(-1)
+            out.append(nxt)
+        return fm.R + self.g * torch.stack(out, 1)  # (A, X, Y)
+
+    def qmdp(self, tol: float) -> torch.Tensor:
+        R = self.model.R
+        V = torch.full_like(R[0], float(R.max()) / (1.0 - self.g))
+        Q = self._mdp(V)
+        for _ in range(100_000):
+            new = Q.amax(0)
+            change = float((V - new).abs().max())
+            V = new
+            Q = torch.minimum(self._mdp(V), Q)
+            if change < tol:
+                break
+        return Q
+
+    def fib(self, alpha: torch.Tensor) -> torch.Tensor:
+        if self.fm is None:
+            Z, R = self.model.Z, self.model.R
+            A, S, O = Z.shape
+            # Yv[a, s2, o, a2] = Z[a, s2, o] * alpha[a2, s2]
+            Yv = Z.unsqueeze(-1) * alpha.T.unsqueeze(1).unsqueeze(0)  # (A, S, O, A2)
+            G = torch.stack([self.Ts[a] @ Yv[a].reshape(S, O * A) for a in range(A)])
+            return R + self.g * G.view(A, S, O, A).amax(-1).sum(-1)
+        fm = self.fm
+        out = []
+        for x in range(fm.num_observed):
+            k = fm.reach[x]
+            z = fm._z[x]  # (A, K, O, Y2)
+            A, K, O, Y = z.shape
+            # Kt[a, k, y2, o, a2] = Z[a, x2_k, y2, o] alpha[a2, x2_k, y2]
+            Kt = (
+                z.permute(0, 1, 3, 2).unsqueeze(-1) * alpha[:, k].permute(1, 2, 0)[None, :, :, None]
+            )
+            tx = fm._tx[x].permute(0, 2, 1).unsqueeze(-1)  # (A, K, Y, 1)
+            if fm._tyk[x] is None:  # y2 = y
+                G = tx * Kt.reshape(A, K, Y, O * A)  # (A, K, Y, O A)
+            else:
+                G = (tx * fm._tyk[x]) @ Kt.reshape(A, K, Y, O * A)  # (A, K, Y, O A)
+            out.append(G.view(A, K, Y, O, A).amax(-1).sum((1, 3)))  # (A, Y)
+        return fm.R + self.g * torch.stack(out, 1)
+
+
+def _sparse_fib_step(model: POMDP) -> _FIBStep | None:
+    """The sparse flat FIB operator (CPU, unbatched, ``T`` under 10 % dense), or None."""
+    T = model.T
+    if T.dim() != 3 or T.device.type != "cpu":
+        return None
+    if int((T != 0).sum()) * 10 > T.numel() or T.shape[-1] < 64:
+        return None
+    return _FIBStep(model, None)
+
+
+def _factored_fib_step(model: POMDP | MOMDP) -> _FIBStep | None:
+    """The reachable-``x2`` MOMDP FIB operator (CPU, unbatched), or None."""
+    if not isinstance(model, MOMDP) or len(model.batch_shape) > 0 or model.Tx.device.type != "cpu":
+        return None
+    return _FIBStep(model, FactoredModel.from_model(model, dtype=model.R.dtype))
+
+
+@dataclass(frozen=True, kw_only=True)
+class SARSOPConfig:
+    """Settings of :func:`sarsop` (keyword-only; a typo is a TypeError).
+
+    Attributes:
+        time_limit: wall-clock budget in seconds, including the bound initialisation
+            (default 10). The solver is anytime: it returns the best policy so far.
+        precision: target gap ``upper - lower`` at ``b0``, absolute (as APPL's ``pomdpsol
+            --precision``; default 1e-3). The solve stops once the gap is at most this.
+        max_iterations: cap on the number of sampling iterations (None: no cap).
+        seed: seed of the tie-breaking among actions with equal upper bound.
+        kappa: a trial's ``eps`` is ``kappa * gap(b0)`` (default 0.5).
+        max_depth: cap on the depth of a trial (default: where ``gamma^t`` times the reward
+            span over ``1 - gamma`` falls below the precision).
+        prediction: ``"binning"`` (SARSOP's learned ``V_hat``) or ``"upper"`` (``V_hat = V_up``,
+            i.e. a pure gap-driven search, as HSVI).
+        bins: number of bins per axis (upper bound, entropy) of the ``V_hat`` predictor.
+        lower_bound_init: ``model -> AlphaVectorPolicy`` whose vectors are lower bounds
+            (flat ``(N, S)``; MOMDP ``(N, Y)`` with ``observed`` covering every ``x``), e.g. a
+            PBVI solution's policy; default :func:`~torchhrc.solvers.blind.blind_policy`.
+        upper_bound_init: ``model -> corner values`` ``(S,)`` / ``(X, Y)``, or per-action
+            upper-bound vectors ``(A, S)`` / ``(A, X, Y)`` (maximised over ``A``); default
+            :func:`fib_corner_values` (FIB from QMDP, within the time budget).
+        init_time_fraction: share of ``time_limit`` the default initialisers may use.
+        prune_alphas: prune dominated alpha vectors and those that win at no tree belief.
+        prune_growth: prune when the number of alpha vectors (or upper-bound points) has
+            grown by this factor since the last pruning.
+        prune_nodes: deactivate tree nodes reached by sub-optimal actions.
+        sweep_interval: every this many iterations, back up all active tree beliefs at once
+            (grouped by observed value; 0 disables).
+        callback: called after each iteration with the history entry (a dict); returning
+            True stops the solve.
+        dtype: floating dtype of the solve (default float64).
+    """
+
+    time_limit: float = 10.0
+    precision: float = 1e-3
+    max_iterations: int | None = None
+    seed: int = 0
+    kappa: float = 0.5
+    max_depth: int | None = None
+    prediction: Literal["binning", "upper"] = "binning"
+    bins: int = 10
+    lower_bound_init: LowerInit | None = None
+    upper_bound_init: UpperInit | None = None
+    init_time_fraction: float = 0.25
+    prune_alphas: bool = True
+    prune_growth: float = 2.0
+    prune_nodes: bool = True
+    sweep_interval: int = 0
+    callback: Callable[[dict[str, Any]], bool | None] | None = None
+    dtype: torch.dtype = torch.float64
+
+    def __post_init__(self) -> None:
+        for name in ("time_limit", "precision", "kappa", "prune_growth", "init_time_fraction"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
+                raise ValueError(f"expected {name} to be a non-negative number, got {value!r}")
+        if not 0.0 < self.kappa <= 1.0:
+            raise ValueError(f"expected kappa in (0, 1], got {self.kappa}")
+        if self.prune_growth <= 1.0:
+            raise ValueError(f"expected prune_growth > 1, got {self.prune_growth}")
+        for name in ("max_iterations", "max_depth"):
+            value = getattr(self, name)
+            if value is not None and (not isinstance(value, int) or value < 0):
+                raise ValueError(f"expected {name} to be None or an int >= 0, got {value!r}")
+        if self.prediction not in ("binning", "upper"):
+            raise ValueError(f"expected prediction 'binning' or 'upper', got {self.prediction!r}")
+        if not isinstance(self.bins, int) or self.bins < 1:
+            raise ValueError(f"expected bins to be an int >= 1, got {self.bins!r}")
+        if not isinstance(self.sweep_interval, int) or self.sweep_interval < 0:
+            raise ValueError(
+                f"expected sweep_interval to be an int >= 0, got {self.sweep_interval!r}"
+            )
+        if not isinstance(self.dtype, torch.dtype) or not self.dtype.is_floating_point:
+            raise TypeError(f"expected dtype to be a floating torch.dtype, got {self.dtype!r}")
+
+
+class _AlphaSet:
+    """Alpha vectors ``(N, Y)`` with their action and observed value, grown geometrically."""
+
+    def __init__(self, alphas: torch.Tensor, actions: torch.Tensor, observed: torch.Tensor):
+        n = alphas.shape[0]
+        cap = max(64, 2 * n)
+        self.vectors = alphas.new_zeros(cap, alphas.shape[1])
+        self.actions = torch.zeros(cap, dtype=torch.long, device=alphas.device)
+        self.observed = torch.zeros(cap, dtype=torch.long, device=alphas.device)
+        self.vectors[:n], self.actions[:n], self.observed[:n] = alphas, actions, observed
+        self.size = n
+        self._views()
+
+    def _views(self) -> None:
+        """Numpy views of the storage (CPU only; refreshed after every reallocation)."""
+        cpu = self.vectors.device.type == "cpu"
+        self.np_vectors = self.vectors.numpy() if cpu else None
+        self.np_actions = self.actions.numpy() if cpu else None
+        self.np_observed = self.observed.numpy() if cpu else None
+
+    def add_np(self, alpha: np.ndarray, action: int, observed: int) -> None:
+        """Add one vector ``alpha (Y,)`` from numpy (CPU storage only)."""
+        if self.size == self.vectors.shape[0]:
+            self._reserve(self.size + 1)
+        assert self.np_vectors is not None
+        assert self.np_actions is not None and self.np_observed is not None
+        n = self.size
+        self.np_vectors[n] = alpha
+        self.np_actions[n] = action
+        self.np_observed[n] = observed
+        self.size = n + 1
+
+    def _reserve(self, need: int) -> None:
+        cap = self.vectors.shape[0]
+        while cap < need:
+            cap *= 2
+        for name in ("vectors", "actions", "observed"):
+            old = getattr(self, name)
+            new = old.new_zeros(cap, *old.shape[1:])
+            new[: self.size] = old[: self.size]
+            setattr(self, name, new)
+        self._views()
+
+    def add(self, alphas: torch.Tensor, actions: torch.Tensor, observed: torch.Tensor) -> None:
+        m = alphas.shape[0]
+        if self.size + m > self.vectors.shape[0]:
+            self._reserve(self.size + m)
+        s = slice(self.size, self.size + m)
+        self.vectors[s], self.actions[s], self.observed[s] = alphas, actions, observed
+        self.size += m
+
+    def keep(self, mask: torch.Tensor) -> None:
+        idx = mask.nonzero().squeeze(-1)
+        n = idx.numel()
+        self.vectors[:n] = self.vectors[idx]
+        self.actions[:n] = self.actions[idx]
+        self.observed[:n] = self.observed[idx]
+        self.size = n
+
+
+@dataclass
+class _Evaluation:
+    """Bounds at ``B`` beliefs of one observed value and at all their children."""
+
+    xs: torch.Tensor  # (K,) reachable next observed values
+    J: torch.Tensor  # (B, A, K, O, Y) unnormalised children
+    prob: torch.Tensor  # (B, A, K, O) P(x2, o | x, b, a)
+    low: torch.Tensor  # (B, A, K, O) P * V_low(child)
+    best: torch.Tensor  # (B, A, K, O) index of the best alpha vector at each child
+    up: torch.Tensor  # (B, A, K, O) P * V_up(child)
+    q_low: torch.Tensor  # (B, A)
+    q_up: torch.Tensor  # (B, A)
+    self_low: torch.Tensor  # (B,) V_low(b) under the current alpha vectors
+    self_up: torch.Tensor  # (B,) V_up(b) under the current sawtooth
+
+
+class _Bins:
+    """SARSOP's lower-bound predictor: mean lower bound of beliefs binned by (upper, entropy)."""
+
+    def __init__(self, lo: float, hi: float, max_entropy: float, n: int) -> None:
+        self.lo, self.span = lo, max(hi - lo, 1e-12)
+        self.max_entropy = max(max_entropy, 1e-12)
+        self.n = n
+        self.total = np.zeros((n, n))
+        self.count = np.zeros((n, n))
+        self.contribution: dict[int, tuple[int, int, float]] = {}
+
+    def _key(self, upper: float, entropy: float) -> tuple[int, int]:
+        i = int(min(self.n - 1, max(0.0, (upper - self.lo) / self.span * self.n)))
+        j = int(min(self.n - 1, max(0.0, entropy / self.max_entropy * self.n)))
+        return i, j
+
+    def update(self, node: int, upper: float, entropy: float, lower: float) -> None:
+        old = self.contribution.get(node)
+        if old is not None:
+            self.total[old[0], old[1]] -= old[2]
+            self.count[old[0], old[1]] -= 1
+        i, j = self._key(upper, entropy)
+        self.total[i, j] += lower
+        self.count[i, j] += 1
+        self.contribution[node] = (i, j, lower)
+
+    def predict(self, upper: float, entropy: float, lower: float) -> float:
+        i, j = self._key(upper, entropy)
+        if self.count[i, j] <= 0:
+            return lower  # no data yet: predict no improvement at this belief
+        return float(self.total[i, j] / self.count[i, j])
+
+
+class _SARSOP:
+    def __init__(self, model: POMDP | MOMDP, cfg: SARSOPConfig, start: float) -> None:
+        self.cfg = cfg
+        self.start = start
+        self.fm = fm = FactoredModel.from_model(model, dtype=cfg.dtype)
+        if fm.discount >= 1.0:
+            raise ModelError(f"SARSOP needs discount < 1, got {fm.discount}")
+        self.gamma = fm.discount
+        self.X, self.Y = fm.num_observed, fm.num_hidden
+        self.rng = np.random.default_rng(int(cfg.seed))
+        self.device = fm.b0.device
+        budget = cfg.time_limit * cfg.init_time_fraction
+        work = model.to(dtype=cfg.dtype)
+        # lower bound: alpha vectors of a policy (blind policies by default)
+        if cfg.lower_bound_init is None:
+            # every iterate of the blind evaluation is a lower bound: stop once the discounted
+            # tail is below 1e-3 of the first step's (gamma^k <= 1e-3)
+            k = int(min(1000, math.ceil(math.log(1e-3) / math.log(self.gamma))))
+            policy = blind_policy(work, max_iterations=k)
+        else:
+            policy = cfg.lower_bound_init(work)
+        if not isinstance(policy, AlphaVectorPolicy):
+            raise TypeError(
+                "expected lower_bound_init to return an AlphaVectorPolicy, "
+                f"got {type(policy).__name__}"
+            )
+        if policy.alphas.shape[-1] != self.Y or policy.is_momdp == fm.flat:
+            kind = "flat (N, S)" if fm.flat else "MOMDP (N, Y) with observed"
+            raise ModelError(
+                f"expected lower_bound_init to return a {kind} policy over {self.Y} values, "
+                f"got alphas {tuple(policy.alphas.shape)} (is_momdp={policy.is_momdp})"
+            )
+        observed = torch.zeros_like(policy.actions) if policy.observed is None else policy.observed
+        if self.X > 1 and int(torch.bincount(observed, minlength=self.X).min()) == 0:
+            raise ModelError("lower_bound_init's policy must have a vector for every observed x")
+        self.alphas = _AlphaSet(policy.alphas.to(cfg.dtype), policy.actions.long(), observed.long())
+        n = self.alphas.size
+        self.alphas.keep(prune_dominated(self.alphas.vectors[:n], self.alphas.observed[:n]))
+        # upper bound: corner values (FIB by default)
+        if cfg.upper_bound_init is None:
+            corner = fib_corner_values(work, time_limit=budget)
+        else:
+            corner = cfg.upper_bound_init(work)
+        corner = corner.to(dtype=cfg.dtype)
+        if corner.dim() == (2 if fm.flat else 3):  # per-action vectors
+            corner = corner.amax(0)
+        if fm.flat and corner.dim() == 1:
+            corner = corner.unsqueeze(0)
+        if corner.shape != (self.X, self.Y):
+            raise ModelError(
+                f"expected upper_bound_init to return corner values "
+                f"{'(S,)' if fm.flat else '(X, Y)'} or per-action vectors, "
+                f"got {tuple(corner.shape)}"
+            )
+        self.ub = SawtoothUpperBound(corner)
+        self.tree = BeliefTree(fm.b0, fm.x0)
+        self._child_x: dict[tuple[int, int], torch.Tensor] = {}
+        self._cache: dict[int, tuple[np.ndarray, ...]] = {}
+        self._default: torch.Tensor | None = None
+        self._RT = [fm.R[:, x, :].T.contiguous() for x in range(self.X)]  # (Y, A) per x
+        self.entropy = np.zeros(1024)
+        self.entropy[0] = float(self._entropy(fm.b0.unsqueeze(0))[0])
+        self.children: dict[int, list[int]] = {}
+        span = float(fm.R.max() - fm.R.min()) / (1.0 - self.gamma)
+        if cfg.max_depth is not None:
+            self.max_depth = cfg.max_depth
+        else:
+            target = max(cfg.precision, 1e-6 * max(span, 1.0))
+            depth = math.log(target / max(span, 1e-12)) / math.log(self.gamma) if span > 0 else 1
+            self.max_depth = int(min(max(math.ceil(depth), 1), 1000))
+        self.bins = _Bins(float(corner.min()), float(corner.max()), math.log(self.Y), cfg.bins)
+        self.last_alpha_prune = self.alphas.size
+        self.last_point_prune = 1
+        self.history: list[dict[str, Any]] = []
+        self.backups = 0
+        # numpy views of the model (CPU): the sequential one-belief path runs in numpy, whose
+        # per-op overhead at these sizes is several times below torch's dispatch
+        self._np = self.device.type == "cpu"
+        if self._np:
+            self._npT = None if fm._T is None else fm._T.numpy()  # (A, S, S)
+            self._nptx = [t.numpy() for t in fm._tx]  # (A, Y, K) per x
+            self._nptyk = [None if t is None else t.numpy() for t in fm._tyk]  # (A, K, Y, Y2)
+            self._npz = [t.numpy() for t in fm._z]  # (A, K, O, Y) per x
+            self._npR = fm.R.contiguous().numpy()  # (A, X, Y)
+            self._npRT = [t.numpy() for t in self._RT]  # (Y, A) per x
+            self._npreach = [t.numpy() for t in fm.reach]  # (K,) per x
+            self._npcx: dict[int, np.ndarray] = {}
+            self._npzt: dict[int, np.ndarray] = {}
+            self._default_np: tuple[torch.Tensor, np.ndarray] | None = None
+        lo, up = self._root_bounds()
+        self.tree.lower[0], self.tree.upper[0] = lo, up
+
+    # -- bounds ----------------------------------------------------------------------------
+    def lower_value(
+        self, beliefs: torch.Tensor, x: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(B,)`` max alpha . b over the vectors of each ``x``, and the argmax index."""
+        n = self.alphas.size
+        scores = beliefs @ self.alphas.vectors[:n].T  # (B, N)
+        if self.X > 1:
+            scores = scores.masked_fill(x.unsqueeze(-1) != self.alphas.observed[:n], -torch.inf)
+        return scores.max(-1)
+
+    def evaluate(self, x: int, beliefs: torch.Tensor) -> _Evaluation:
+        """Expand ``B`` beliefs of observed value ``x``; bound them and all their children.
+
+        One expansion, one matrix product against the alpha vectors and one sawtooth
+        evaluation cover the ``B * A * K * O`` children and the ``B`` beliefs themselves.
+        """
+        fm = self.fm
+        xs, J = fm.expand(x, beliefs)  # (B, A, K, O, Y)
+        B, A, K, O, Y = J.shape
+        C = B * A * K * O
+        key = (x, B)
+        cx = self._child_x.get(key)
+        if cx is None:
+            cx = torch.cat([xs.view(1, 1, K, 1).expand(B, A, K, O).reshape(-1),
+                            xs.new_full((B,), x)])  # fmt: skip
+            self._child_x[key] = cx
+        prob = J.sum(-1)  # (B, A, K, O)
+        nz = prob.reshape(-1).nonzero().squeeze(-1)
+        shape = (B, A, K, O)
+        if nz.numel() * 4 < C * 3:
+            # most children are impossible (deterministic moves, observations tied to the
+            # state): bound only the possible ones; the others weigh 0 (the bounds are
+            # homogeneous) and take any vector of their x2 in a backup
+            rows = torch.cat([J.reshape(C, Y)[nz], beliefs])
+            rows_x = torch.cat([cx[nz], cx[C:]])
+            low_r, best_r = self.lower_value(rows, rows_x)
+            up_r = self.ub.value(rows, rows_x)
+            m = nz.numel()
+            low_c = J.new_zeros(C).index_copy_(0, nz, low_r[:m]).view(shape)
+            up_c = J.new_zeros(C).index_copy_(0, nz, up_r[:m]).view(shape)
+            best_c = self._default_alpha()[cx[:C]].index_copy_(0, nz, best_r[:m]).view(shape)
+            self_low, self_up = low_r[m:], up_r[m:]
+        else:
+            flat = torch.cat([J.reshape(C, Y), beliefs])  # (C + B, Y)
+            low, best = self.lower_value(flat, cx)
+            up = self.ub.value(flat, cx)
+            low_c, best_c, up_c = low[:C].view(shape), best[:C].view(shape), up[:C].view(shape)
+            self_low, self_up = low[C:], up[C:]
+        reward = beliefs @ self._RT[x]  # (B, A)
+        q_low = reward + self.gamma * low_c.sum((-1, -2))
+        q_up = reward + self.gamma * up_c.sum((-1, -2))
+        return _Evaluation(xs, J, prob, low_c, best_c, up_c, q_low, q_up, self_low, self_up)
+
+    def _default_alpha(self) -> torch.Tensor:
+        """``(X,)`` the index of one alpha vector of each observed value (kept up to date)."""
+        if self._default is None:
+            n = self.alphas.size
+            dev = self.alphas.observed.device
+            d = torch.zeros(self.X, dtype=torch.long, device=dev)
+            d.scatter_(0, self.alphas.observed[:n], torch.arange(n, device=dev))
+            self._default = d
+        return self._default
+
+    # -- numpy path (CPU, one belief) -------------------------------------------------------
+    def _predict_np(self, x: int, b: np.ndarray) -> np.ndarray:
+        """``(A, K, Y)`` ``P(x2_k, y2 | x, b, a)`` of one belief ``b (Y,)`` (before ``Z``)."""
+        T = self._npT
+        if T is not None:  # flat: only the rows of T on the support of b
+            supp = np.flatnonzero(b)
+            if supp.size * 4 <= b.shape[0]:
+                return (b[supp] @ T[:, supp, :])[:, None, :]  # (A, 1, S)
+            return (b @ T)[:, None, :]
+        w = (b[None, :, None] * self._nptx[x]).transpose(0, 2, 1)  # (A, K, Y)
+        tyk = self._nptyk[x]
+        return w if tyk is None else np.matmul(w[:, :, None, :], tyk)[:, :, 0, :]
+
+    def _child_np(self, x: int, b: np.ndarray, a: int, k: int, o: int) -> np.ndarray:
+        """``(Y,)`` the unnormalised child ``J[a, k, o]`` of one belief (one row only)."""
+        z = self._npz[x][a, k, o]
+        T = self._npT
+        if T is not None:
+            supp = np.flatnonzero(b)
+            return (b[supp] @ T[a][supp]) * z
+        w = b * self._nptx[x][a, :, k]
+        tyk = self._nptyk[x]
+        return (w if tyk is None else w @ tyk[a, k]) * z
+
+    def _lower_np(self, rows: np.ndarray, rows_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(B,)`` max alpha . b over the vectors of each ``x`` and the argmax (numpy)."""
+        n = self.alphas.size
+        V = self.alphas.np_vectors[:n]
+        cols = np.flatnonzero(rows.any(0))
+        if cols.size * 2 <= rows.shape[1]:  # sparse beliefs: only their support matters
+            scores = rows[:, cols] @ V[:, cols].T  # (B, N)
+        else:
+            scores = rows @ V.T  # (B, N)
+        if self.X > 1:
+            obs = self.alphas.np_observed[:n]
+            scores = np.where(rows_x[:, None] == obs[None, :], scores, -np.inf)
+        best = scores.argmax(-1)
+        return scores[np.arange(scores.shape[0]), best], best
+
+    def _evaluate_np(self, x: int, b: np.ndarray) -> tuple[np.ndarray, ...]:
+        """:meth:`evaluate` for one belief ``b (Y,)`` in numpy.
+
+        Returns ``q_low (A,)``, ``q_up (A,)``, ``prob``, ``low``, ``up`` (``(A, K, O)``
+        each, as :class:`_Evaluation`), ``best (A, K, O)``, ``V_low(b)``, ``V_up(b)``.
+        """
+        pred = self._predict_np(x, b)  # (A, K, Y)
+        z = self._npz[x]  # (A, K, O, Y)
+        A, K, O, _ = z.shape
+        C = A * K * O
+        cx = self._npcx.get(x)
+        if cx is None:
+            cx = np.broadcast_to(self._npreach[x][None, :, None], (A, K, O)).reshape(-1).copy()
+            self._npcx[x] = cx
+            self._npzt[x] = np.ascontiguousarray(z.transpose(0, 1, 3, 2))  # (A, K, Y, O)
+        prob = np.matmul(pred[:, :, None, :], self._npzt[x])[:, :, 0, :]  # (A, K, O)
+        nz = np.flatnonzero(prob)
+        # impossible children weigh 0 (the bounds are homogeneous): bound the possible ones;
+        # J[a, k, o] = pred[a, k] * z[a, k, o] is formed only for them
+        ia, ik, io = np.unravel_index(nz, (A, K, O))
+        rows = np.concatenate([pred[ia, ik] * z[ia, ik, io], b[None]])
+        rows_x = np.append(cx[nz], x)
+        low_r, best_r = self._lower_np(rows, rows_x)
+        up_r = self.ub.value_np(rows, rows_x)
+        m = nz.size
+        low = np.zeros(C, dtype=b.dtype)
+        low[nz] = low_r[:m]
+        up = np.zeros(C, dtype=b.dtype)
+        up[nz] = up_r[:m]
+        d = self._default_alpha()
+        if self._default_np is None or self._default_np[0] is not d:
+            self._default_np = (d, d.numpy())
+        best = self._default_np[1][cx]
+        best[nz] = best_r[:m]
+        reward = b @ self._npRT[x]  # (A,)
+        q_low = reward + self.gamma * low.reshape(A, K * O).sum(-1)
+        q_up = reward + self.gamma * up.reshape(A, K * O).sum(-1)
+        shape = (A, K, O)
+        return (q_low, q_up, prob, low.reshape(shape), up.reshape(shape), best.reshape(shape),
+                float(low_r[m]), float(up_r[m]))  # fmt: skip
+
+    def _backup_one_np(self, x: int, node: int) -> None:
+        """:meth:`backup` of one node in numpy (the sequential path of a trial)."""
+        tree = self.tree
+        b = tree.beliefs_np[node]
+        q_low, q_up, prob, low_c, up_c, best, lo, cu = self._evaluate_np(x, b)
+        a = int(q_low.argmax())
+        W = self.alphas.np_vectors[best[a]]  # (K, O, Y)
+        vals = (self._npz[x][a] * W).sum(1)  # (K, Y)
+        if self._npT is not None:
+            nxt = self._npT[a] @ vals[0]
+        else:
+            tx = self._nptx[x][a]  # (Y, K)
+            tyk = self._nptyk[x]
+            if tyk is not None:  # inner[k, y] = sum_y2 ty[a, y, k, y2] vals[k, y2]
+                vals = np.matmul(tyk[a], vals[:, :, None])[:, :, 0].T  # (Y, K)
+            else:
+                vals = vals.T
+            nxt = (tx * vals).sum(-1)
+        alpha = self._npR[a, x] + self.gamma * nxt  # (Y,)
+        nl = float(alpha @ b)
+        nu = float(q_up.max())
+        self._cache[node] = (q_low, q_up, prob, low_c, up_c)
+        if nl > lo + 1e-10 * max(abs(nl), 1.0):
+            self.alphas.add_np(alpha, a, x)
+        if nu < cu - 1e-10 * max(abs(cu), 1.0):
+            self.ub.add_np(b, x, nu)
+        low, up = max(lo, nl), min(cu, nu)
+        tree.lower[node], tree.upper[node] = low, up
+        self.backups += 1
+        if self.cfg.prune_nodes:
+            bad = q_up < q_low.max()  # (A,)
+            if bad.any():
+                for c in self.children.get(node, ()):
+                    if bad[tree.action[c]]:
+                        tree.active[c] = False
+        if self.cfg.prediction == "binning":
+            self.bins.update(node, up, float(self.entropy[node]), low)
+
+    def _root_bounds(self) -> tuple[float, float]:
+        if self._np:
+            b = self.fm.b0.numpy()[None]
+            x = np.array([self.fm.x0])
+            return float(self._lower_np(b, x)[0][0]), float(self.ub.value_np(b, x)[0])
+        b = self.fm.b0.unsqueeze(0)
+        x = torch.tensor([self.fm.x0], device=b.device)
+        lo = float(self.lower_value(b, x)[0][0])
+        up = float(self.ub.value(b, x)[0])
+        return lo, up
+
+    # -- backup ----------------------------------------------------------------------------
+    def backup(self, x: int, nodes: np.ndarray) -> None:
+        """Point-based backup of tree nodes sharing observed value ``x``, all at once.
+
+        Lower bound: for the action ``a`` maximising ``Q_low(b, a)``, the alpha vector
+        ``alpha(y) = R(a, x, y) + gamma sum_{x2, o, y2} Tx Ty Z(a, x2, y2, o) alpha_{x2, o}(y2)``
+        with ``alpha_{x2, o}`` the best vector at ``tau(b, a, x2, o)`` (Pineau et al. 2003); it
+        is added when it raises ``V_low(b)``. Upper bound: the point
+        ``(b, max_a Q_up(b, a))`` is added when below the sawtooth at ``b``.
+        """
+        if self._np and len(nodes) == 1:
+            self._backup_one_np(x, int(nodes[0]))
+            return
+        tree, fm = self.tree, self.fm
+        B = len(nodes)
+        beliefs = (
+            tree.beliefs[torch.from_numpy(nodes).to(self.device)]
+            if B > 1
+            else tree.beliefs[int(nodes[0])][None]
+        )
+        ev = self.evaluate(x, beliefs)
+        a = ev.q_low.argmax(-1)  # (B,)
+        sel = ev.best[torch.arange(B, device=self.device), a]  # (B, K, O) alpha index per child
+        W = self.alphas.vectors[sel]  # (B, K, O, Y)
+        z = fm.observation_slice(x, a)  # (B, K, O, Y)
+        alpha = fm.R[a, x, :] + self.gamma * fm.backproject(x, a, (z * W).sum(2))  # (B, Y)
+        new_low = (alpha * beliefs).sum(-1)
+        new_up = ev.q_up.amax(-1)
+        cur_low, cur_up = ev.self_low, ev.self_up
+        xb = self._child_x[(x, B)][-B:]
+        for i, node in enumerate(nodes.tolist()):
+            self._store(node, ev, i)
+        if B == 1:
+            lo, nl, cu, nu = cur_low.item(), new_low.item(), cur_up.item(), new_up.item()
+            if nl > lo + 1e-10 * max(abs(nl), 1.0):
+                self.alphas.add(alpha, a, xb)
+            if nu < cu - 1e-10 * max(abs(cu), 1.0):
+                self.ub.add(beliefs, xb, new_up)
+            tree.lower[nodes[0]], tree.upper[nodes[0]] = max(lo, nl), min(cu, nu)
+            low, up = np.array([max(lo, nl)]), np.array([min(cu, nu)])
+        else:
+            better = new_low > cur_low + 1e-10 * new_low.abs().clamp(min=1.0)
+            if better.any():
+                keep = better.nonzero().squeeze(-1)
+                self.alphas.add(alpha[keep], a[keep], xb[keep])
+            improve = new_up < cur_up - 1e-10 * cur_up.abs().clamp(min=1.0)
+            if improve.any():
+                keep = improve.nonzero().squeeze(-1)
+                self.ub.add(beliefs[keep], xb[keep], new_up[keep])
+            low = torch.maximum(new_low, cur_low).cpu().numpy()
+            up = torch.minimum(new_up, cur_up).cpu().numpy()
+            tree.lower[nodes], tree.upper[nodes] = low, up
+        self.backups += B
+        # sub-optimal action pruning: children reached by a with Q_up(b, a) < max Q_low(b, .)
+        if self.cfg.prune_nodes:
+            bad = (ev.q_up < ev.q_low.amax(-1, keepdim=True)).cpu().numpy()  # (B, A)
+            for i, n in enumerate(nodes.tolist()):
+                for c in self.children.get(n, ()):
+                    if bad[i, tree.action[c]]:
+                        tree.active[c] = False
+        if self.cfg.prediction == "binning":
+            ent = self.entropy[nodes]
+            for n, u, e, lo in zip(nodes.tolist(), up.tolist(), ent.tolist(), low.tolist()):
+                self.bins.update(n, u, e, lo)
+
+    @staticmethod
+    def _entropy(beliefs: torch.Tensor) -> torch.Tensor:
+        p = beliefs.clamp(min=0)
+        return -(torch.where(p > 0, p * p.clamp(min=1e-300).log(), p.new_zeros(()))).sum(-1)
+
+    # -- sampling --------------------------------------------------------------------------
+    def sample(self, eps: float) -> list[int]:
+        tree, g = self.tree, self.gamma
+        node, t = 0, 0
+        L = float(tree.lower[0])
+        U = L + eps
+        path = [0]
+        while t < self.max_depth:
+            lo, up = float(tree.lower[node]), float(tree.upper[node])
+            if self.cfg.prediction == "binning":
+                v_hat = self.bins.predict(up, float(self.entropy[node]), lo)
+            else:
+                v_hat = up
+            if v_hat <= L and up <= max(U, lo + eps * g ** (-t)):
+                break
+            x = int(tree.x[node])
+            cached = self._cache.get(node)
+            if cached is None:
+                if self._np:
+                    cached = self._evaluate_np(x, tree.beliefs_np[node])[:5]
+                    self._cache[node] = cached
+                else:
+                    ev = self.evaluate(x, tree.beliefs[node].unsqueeze(0))
+                    cached = self._store(node, ev, 0)
+            q_low, q_up, prob_all, low_all, up_all = cached
+            q_low_max = float(q_low.max())
+            L1 = max(L, q_low_max)
+            U1 = max(U, q_low_max + eps * g ** (-t))
+            a = self._argmax_tie(q_up)
+            prob, up_a, low_a = prob_all[a], up_all[a], low_all[a]  # (K, O) each
+            excess = np.where(prob > 0, (up_a - low_a) - eps * g ** (-(t + 1)) * prob, -np.inf)
+            k, o = np.unravel_index(int(excess.argmax()), prob.shape)
+            k, o = int(k), int(o)
+            p = float(prob[k, o])
+            if p <= 0:
+                break
+            low_c, up_c = float(low_a[k, o]), float(up_a[k, o])
+            L = (L1 - float(q_low[a]) + g * low_c) / (g * p)
+            U = (U1 - float(q_up[a]) + g * up_c) / (g * p)
+            x2 = int(self._npreach[x][k]) if self._np else int(self.fm.reach[x][k])
+            child = tree.child(node, a, x2, o)
+            if child < 0:
+                if self._np:
+                    row = self._child_np(x, tree.beliefs_np[node], a, k, o) / p
+                    child = self._add_node(torch.from_numpy(row), x2, node, a, o)
+                else:
+                    _, J = self.fm.expand(x, tree.beliefs[node].unsqueeze(0))
+                    child = self._add_node(J[0, a, k, o] / p, x2, node, a, o)
+                tree.lower[child] = low_c / p
+                tree.upper[child] = up_c / p
+            node = child
+            t += 1
+            path.append(node)
+        return path
+
+    def _store(self, node: int, ev: _Evaluation, i: int) -> tuple[np.ndarray, ...]:
+        """Cache a node's action and child bounds (row ``i`` of ``ev``) for the sampling.
+
+        As in APPL, sampling reads the bounds of a node's last backup; they stay valid bounds
+        (upper bounds only decrease and lower bounds only increase afterwards).
+        """
+        entry = tuple(t[i].cpu().numpy() for t in (ev.q_low, ev.q_up, ev.prob, ev.low, ev.up))
+        self._cache[node] = entry
+        return entry
+
+    def _add_node(self, belief: torch.Tensor, x: int, parent: int, action: int, obs: int) -> int:
+        node = self.tree.add(belief, x, parent, action, obs)
+        if node >= self.entropy.shape[0]:
+            grown = np.zeros(2 * self.entropy.shape[0])
+            grown[: self.entropy.shape[0]] = self.entropy
+            self.entropy = grown
+        if self._np:
+            p = belief.numpy()
+            p = p[p > 0]
+            self.entropy[node] = float(-(p * np.log(p)).sum())
+        else:
+            self.entropy[node] = float(self._entropy(belief.unsqueeze(0))[0])
+        self.children.setdefault(parent, []).append(node)
+        return node
+
+    def _argmax_tie(self, q: np.ndarray) -> int:
+        top = float(q.max())
+        ties = np.flatnonzero(q >= top - 1e-12 * max(1.0, abs(top)))
+        if ties.size == 1:
+            return int(ties[0])
+        return int(ties[self.rng.integers(ties.size)])
+
+    # -- pruning ---------------------------------------------------------------------------
+    def prune(self) -> None:
+        cfg = self.cfg
+        if cfg.prune_alphas and self.alphas.size > cfg.prune_growth * max(
+            self.last_alpha_prune, 16
+        ):
+            n = self.alphas.size
+            vec, obs = self.alphas.vectors[:n], self.alphas.observed[:n]
+            groups = obs if self.X > 1 else None
+            act = np.flatnonzero(self.tree.active[: self.tree.size])
+            beliefs = self.tree.beliefs[torch.from_numpy(act).to(self.device)]
+            bgroups = torch.from_numpy(self.tree.x[act]).to(self.device) if self.X > 1 else None
+            keep = prune_by_beliefs(vec, beliefs, groups, bgroups)
+            # the quadratic dominance test only on the survivors of the cheap belief test
+            # (both keep the maximum at every tree belief)
+            idx = keep.nonzero().squeeze(-1)
+            keep[idx] = prune_dominated(vec[idx], None if groups is None else groups[idx])
+            self.alphas.keep(keep)
+            self._default = None
+            self.last_alpha_prune = self.alphas.size
+        if self.ub.size > cfg.prune_growth * max(self.last_point_prune, 64):
+            self.ub.prune()
+            self.last_point_prune = self.ub.size
+        if cfg.prune_nodes:
+            self.tree.refresh_active()
+
+    def sweep(self) -> None:
+        """Back up every active tree node, one batched backup per observed value."""
+        tree = self.tree
+        act = np.flatnonzero(tree.active[: tree.size])
+        xs = tree.x[act]
+        for x in np.unique(xs).tolist():
+            nodes = act[xs == x]
+            # deepest first within the batch order does not matter: one batched backup
+            for start in range(0, nodes.size, 256):
+                self.backup(int(x), nodes[start : start + 256])
+
+    # -- main loop -------------------------------------------------------------------------
+    def record(self, iteration: int) -> dict[str, Any]:
+        lo, up = self._root_bounds()
+        tree = self.tree
+        lo = max(lo, self.history[-1]["lower"] if self.history else -math.inf)
+        up = min(up, float(tree.upper[0]))
+        tree.lower[0], tree.upper[0] = lo, up
+        entry = {
+            "time_s": time.perf_counter() - self.start,
+            "lower": lo,
+            "upper": up,
+            "n_alphas": self.alphas.size,
+            "n_beliefs": tree.size,
+            "n_points": self.ub.size,
+            "iteration": iteration,
+        }
+        self.history.append(entry)
+        return entry
+
+    def run(self) -> Solution:
+        cfg = self.cfg
+        entry = self.record(0)
+        reason = "time_limit"
+        iteration = 0
+        try:
+            while True:
+                if entry["upper"] - entry["lower"] <= cfg.precision:
+                    reason = "precision"
+                    break
+                if cfg.max_iterations is not None and iteration >= cfg.max_iterations:
+                    reason = "max_iterations"
+                    break
+                if time.perf_counter() - self.start >= cfg.time_limit:
+                    reason = "time_limit"
+                    break
+                iteration += 1
+                eps = cfg.kappa * (entry["upper"] - entry["lower"])
+                path = self.sample(eps)
+                for node in reversed(path):
+                    self.backup(int(self.tree.x[node]), np.array([node]))
+                if cfg.sweep_interval and iteration % cfg.sweep_interval == 0:
+                    self.sweep()
+                self.prune()
+                entry = self.record(iteration)
+                if cfg.callback is not None and cfg.callback(dict(entry)):
+                    reason = "callback"
+                    break
+        except KeyboardInterrupt:
+            reason = "interrupted"
+            entry = self.record(iteration)
+        return self.solution(reason, iteration)
+
+    def solution(self, reason: str, iterations: int) -> Solution:
+        n = self.alphas.size
+        alphas = self.alphas.vectors[:n].clone()
+        actions = self.alphas.actions[:n].clone()
+        observed = None if self.fm.flat else self.alphas.observed[:n].clone()
+        policy = AlphaVectorPolicy(alphas, actions, observed)
+        last = self.history[-1]
+        info = {
+            "stop_reason": reason,
+            "iterations": iterations,
+            "backups": self.backups,
+            "n_beliefs": self.tree.size,
+            "n_points": self.ub.size,
+        }
+        return Solution(policy, lower=last["lower"], upper=last["upper"],
+                        history=self.history, info=info)  # fmt: skip
+
+
+def sarsop(model: POMDP | MOMDP, config: SARSOPConfig | None = None) -> Solution:
+    """Solve a POMDP or MOMDP with SARSOP; anytime, stops on ``time_limit`` or ``precision``.
+
+    Args:
+        model: an unbatched :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`
+            with ``discount < 1``.
+        config: the settings (default :class:`SARSOPConfig()`).
+
+    Returns:
+        :class:`~torchhrc.solvers.solution.Solution`: an
+        :class:`~torchhrc.solvers.policy.AlphaVectorPolicy` (MOMDP: vectors over ``Y`` tagged
+        with ``observed``), ``lower <= V*(b0) <= upper``, and ``history``, one dict per
+        iteration with ``time_s``, ``lower``, ``upper``, ``n_alphas``, ``n_beliefs``,
+        ``n_points``, ``iteration``. ``info["stop_reason"]`` is ``"precision"``,
+        ``"time_limit"``, ``"max_iterations"``, ``"callback"`` or ``"interrupted"``
+        (KeyboardInterrupt: the best policy so far is returned).
+
+    Raises:
+        ModelError: a batched model, ``discount >= 1``, or an initialiser of the wrong shape.
+        TypeError: ``model`` or ``config`` of the wrong type.
+
+    Example:
+        >>> from torchhrc.testing import random_momdp
+        >>> sol = sarsop(random_momdp(3, 2, 2, 2, seed=0), SARSOPConfig(time_limit=2.0))
+        >>> sol.lower <= sol.upper and sol.policy.is_momdp
+        True
+    """
+    start = time.perf_counter()
+    if config is None:
+        config = SARSOPConfig()
+    if not isinstance(config, SARSOPConfig):
+        raise TypeError(f"expected config to be a SARSOPConfig, got {type(config).__name__}")
+    return _SARSOP(model, config, start).run()

@@ -1,0 +1,326 @@
+"""Tests of torchhrc.kinematics: FK against pinocchio and pytorch-kinematics, IK, reach, comfort."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("pytorch_kinematics")
+
+from torchhrc.errors import ModelError
+from torchhrc.kinematics import (
+    BoxGeometry,
+    PersonModel,
+    SerialArm,
+    asset_path,
+    comfort_check,
+    feasible_box_configurations,
+    human_arm_urdf,
+    matrix_to_pose,
+    pose_to_matrix,
+    reach_check,
+)
+
+D = torch.float64
+
+
+@pytest.fixture(scope="module")
+def panda() -> SerialArm:
+    return SerialArm.panda()
+
+
+@pytest.fixture(scope="module")
+def human() -> SerialArm:
+    return SerialArm.human_arm()
+
+
+def _random_q(arm: SerialArm, n: int, seed: int) -> torch.Tensor:
+    gen = torch.Generator().manual_seed(seed)
+    u = torch.rand(n, arm.dof, generator=gen, dtype=D)
+    return arm.lower + (arm.upper - arm.lower) * u
+
+
+# ------------------------------------------------------------------ forward kinematics
+@pytest.mark.parametrize(
+    ("asset", "end"), [("panda/panda.urdf", "panda_hand_tcp"), ("human_arm/human_arm.urdf", "palm")]
+)
+def test_forward_kinematics_matches_pinocchio(asset, end):
+    pin = pytest.importorskip("pinocchio")
+    arm = SerialArm(asset_path(asset), end)
+    model = pin.buildModelFromUrdf(str(asset_path(asset)))
+    data = model.createData()
+    frame = model.getFrameId(end)
+    names = [model.names[i] for i in range(1, model.njoints)]
+    assert tuple(names) == arm.joint_names
+    q = _random_q(arm, 25, seed=0)
+    ours = arm.forward(q)
+    for n in range(q.shape[0]):
+        pin.forwardKinematics(model, data, q[n].numpy())
+        pin.updateFramePlacements(model, data)
+        ref = torch.from_numpy(np.array(data.oMf[frame].homogeneous))
+        assert torch.allclose(ours[n, :3, 3], ref[:3, 3], atol=1e-6)  # positions
+        assert torch.allclose(ours[n, :3, :3], ref[:3, :3], atol=1e-6)  # orientations
+
+
+def test_forward_kinematics_and_jacobian_match_pytorch_kinematics(panda):
+    q = _random_q(panda, 50, seed=1)
+    ref = panda.chain.forward_kinematics(q).get_matrix()
+    assert torch.allclose(panda.forward(q), ref, atol=1e-12)
+    assert torch.allclose(panda.jacobian(q), panda.chain.jacobian(q), atol=1e-12)
+
+
+def test_jacobian_matches_finite_differences(panda):
+    q = _random_q(panda, 3, seed=2)
+    jac = panda.jacobian(q)
+    eps = 1e-6
+    for i in range(panda.dof):
+        dq = torch.zeros(panda.dof, dtype=D)
+        dq[i] = eps
+        plus, minus = panda.forward(q + dq), panda.forward(q - dq)
+        lin = (plus[:, :3, 3] - minus[:, :3, 3]) / (2 * eps)
+        # angular velocity from dR R^T (a skew matrix)
+        dr = (plus[:, :3, :3] - minus[:, :3, :3]) / (2 * eps)
+        w = dr @ panda.forward(q)[:, :3, :3].transpose(-1, -2)
+        ang = torch.stack([w[:, 2, 1], w[:, 0, 2], w[:, 1, 0]], dim=-1)
+        assert torch.allclose(
+            jac[:, :3, i], lin, atol=1e-7
+        )  # central differences: O(eps^2) + roundoff
+        assert torch.allclose(jac[:, 3:, i], ang, atol=1e-7)
+
+
+@pytest.mark.parametrize("batch", [(), (4,), (2, 3)])
+def test_forward_is_batched(panda, batch):
+    q = _random_q(panda, int(np.prod(batch)) if batch else 1, seed=3).reshape(*batch, 7)
+    out = panda.forward(q)
+    assert out.shape == (*batch, 4, 4)
+    flat = out.reshape(-1, 4, 4)
+    for n, qn in enumerate(q.reshape(-1, 7)):
+        assert torch.allclose(flat[n], panda.forward(qn), atol=1e-14)
+
+
+def test_pose_conversions_round_trip():
+    gen = torch.Generator().manual_seed(4)
+    pose = torch.randn(20, 7, generator=gen, dtype=D)
+    pose[:, 3:] = pose[:, 3:] / pose[:, 3:].norm(dim=-1, keepdim=True)
+    pose[:, 3:] = torch.where(pose[:, 3:4] < 0, -pose[:, 3:], pose[:, 3:])
+    mats = pose_to_matrix(pose)
+    rot = mats[:, :3, :3]
+    assert torch.allclose(
+        rot @ rot.transpose(-1, -2), torch.eye(3, dtype=D).expand(20, 3, 3), atol=1e-12
+    )
+    assert torch.allclose(matrix_to_pose(mats), pose, atol=1e-12)
+    # worked by hand: 90 deg about z
+    q = torch.tensor(
+        [0.0, 0.0, 0.0, math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)], dtype=D
+    )
+    expected = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=D)
+    assert torch.allclose(pose_to_matrix(q)[:3, :3], expected, atol=1e-15)
+
+
+def test_bad_inputs_are_rejected(panda):
+    with pytest.raises(ModelError, match=r"DOF=7"):
+        panda.forward(torch.zeros(6, dtype=D))
+    with pytest.raises(ModelError, match=r"\(\.\.\., 4, 4\) or \(\.\.\., 7\)"):
+        reach_check(torch.zeros(3, 5, dtype=D), arm=panda)
+    with pytest.raises(ModelError, match="end_link"):
+        SerialArm(asset_path("panda/panda.urdf"), "no_such_link")
+    with pytest.raises(FileNotFoundError):
+        asset_path("nothing/here.urdf")
+    with pytest.raises(ModelError, match="side"):
+        BoxGeometry().work_points("top")
+
+
+# ------------------------------------------------------------------ inverse kinematics
+def test_ik_solutions_reach_their_targets_within_limits(panda):
+    q = _random_q(panda, 60, seed=5)
+    # keep away from the limits' corners, where a random start rarely converges
+    q = panda.lower + (q - panda.lower) * 0.8 + 0.1 * (panda.upper - panda.lower)
+    targets = panda.forward(q)
+    res = panda.inverse(targets, seed=0)
+    assert res.success.float().mean() >= 0.95
+    ok = res.success
+    fk = panda.forward(res.joints[ok])
+    assert torch.allclose(fk[:, :3, 3], targets[ok, :3, 3], atol=1e-4)
+    cos = ((fk[:, :3, :3] * targets[ok, :3, :3]).sum((-2, -1)) - 1) / 2
+    assert (torch.acos(cos.clamp(-1, 1)) <= 1e-3 + 1e-9).all()
+    assert ((res.joints >= panda.lower) & (res.joints <= panda.upper)).all()
+    assert (res.position_error[ok] <= 1e-4).all()
+
+
+def test_ik_accepts_pose_vectors_and_positions(panda):
+    q = torch.tensor([0.2, -0.4, 0.1, -2.1, 0.2, 1.9, 0.3], dtype=D)
+    target = panda.forward(q)
+    res = panda.inverse(matrix_to_pose(target))
+    assert bool(res.success)
+    pos = panda.inverse(target[:3, 3], position_only=True)
+    assert bool(pos.success) and float(pos.rotation_error) == 0.0
+    assert torch.allclose(panda.forward(pos.joints)[:3, 3], target[:3, 3], atol=1e-4)
+
+
+def test_ik_batched_equals_one_at_a_time(panda):
+    g = BoxGeometry(horizontal=(-0.4, 0.0, 0.6), vertical=(0.05, 0.45), tilt=(0.0, math.pi / 3))
+    poses = g.grip_poses().reshape(-1, 4, 4)
+    batched = reach_check(poses, arm=panda, seed=3)
+    for n in range(poses.shape[0]):
+        one = reach_check(poses[n : n + 1], arm=panda, seed=3)
+        assert bool(one.reachable[0]) == bool(batched.reachable[n])
+        assert torch.allclose(one.joints[0], batched.joints[n], atol=1e-9)
+        assert float(one.error[0]) == pytest.approx(float(batched.error[n]), abs=1e-9)
+
+
+def test_far_poses_are_unreachable_and_near_ones_reachable(panda):
+    home = torch.tensor([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8], dtype=D)
+    reachable = panda.forward(home)
+    far = reachable.clone()
+    far[:3, 3] = torch.tensor([2.0, 1.0, 0.5], dtype=D)  # 2.2 m away: outside the workspace
+    inside_but_wrong = reachable.clone()
+    inside_but_wrong[:3, 3] = torch.tensor([0.0, 0.0, -0.5], dtype=D)  # below the base
+    res = reach_check(torch.stack([reachable, far, inside_but_wrong]), arm=panda)
+    assert res.reachable.tolist() == [True, False, False]
+    assert float(res.error[1]) > 1.0
+    assert res.joints.shape == (3, 7)
+
+
+def test_seeded_restarts_are_deterministic(panda):
+    poses = BoxGeometry().grip_poses().reshape(-1, 4, 4)[::10]
+    a = reach_check(poses, arm=panda, seed=7)
+    b = reach_check(poses, arm=panda, seed=7)
+    assert torch.equal(a.joints, b.joints) and torch.equal(a.reachable, b.reachable)
+
+
+# ----------------------------------------------------------------- box geometry
+def test_box_and_grip_poses_follow_the_documented_geometry():
+    g = BoxGeometry()
+    box = g.box_poses()
+    grip = g.grip_poses()
+    h, v, t = 1, 2, 4
+    assert torch.allclose(
+        box[h, v, t, :3, 3], torch.tensor([g.forward, g.horizontal[h], g.vertical[v]], dtype=D)
+    )
+    # the gripper approaches along +x of the base, from the box's back face
+    assert torch.allclose(grip[h, v, t, :3, 2], torch.tensor([1.0, 0.0, 0.0], dtype=D), atol=1e-12)
+    assert torch.allclose(
+        grip[h, v, t, :3, 3], box[h, v, t, :3, 3] - torch.tensor([g.size[0] / 2, 0, 0], dtype=D)
+    )
+    # positive tilt raises the left (+y) side surface by width/2 * sin(tilt)
+    left, right = g.work_points("left"), g.work_points("right")
+    rise = g.size[1] / 2 * math.sin(g.tilt[t])
+    assert left[h, v, t, 2].item() == pytest.approx(g.vertical[v] + rise)
+    assert right[h, v, t, 2].item() == pytest.approx(g.vertical[v] - rise)
+    assert g.index(1, 2, 4) == (1 * 4 + 2) * 5 + 4
+
+
+# ---------------------------------------------------------------- human comfort
+def test_shipped_human_arm_is_the_generator_output():
+    assert asset_path("human_arm/human_arm.urdf").read_text() == human_arm_urdf()
+
+
+def test_human_arm_lengths_follow_winter(human):
+    # arm hanging: the palm is below the shoulder by upper arm + forearm + half a hand
+    # = (0.186 + 0.146 + 0.054) H, at shoulder height 0.818 H
+    pose = human.forward(torch.zeros(human.dof, dtype=D))
+    H = 1.75
+    assert pose[2, 3].item() == pytest.approx(
+        (0.818 - 0.186 - 0.146 - 0.054) * H, abs=1e-6
+    )  # the URDF has 6 digits
+    assert pose[1, 3].item() == pytest.approx(-0.259 * H / 2, abs=1e-6)
+
+
+def test_comfort_check_rules(human):
+    person = PersonModel()
+    front_x = 0.75
+    body_x = front_x + person.standoff
+    elbow = person.elbow_height - person.floor_height  # elbow height in the robot base frame
+    pts = torch.tensor(
+        [
+            [body_x - 0.40, 0.0, elbow - 0.15],  # in the band, 40 cm ahead: comfortable
+            [body_x - 0.40, 0.0, elbow + 0.30],  # above the band
+            [body_x - 0.40, 0.0, elbow - 0.60],  # below the band
+            [body_x - 0.80, 0.0, elbow - 0.15],  # beyond the arm's reach (0.67 m)
+        ],
+        dtype=D,
+    )
+    r = comfort_check(pts, front_x=front_x, person=person, human=human)
+    assert r.height_ok.tolist() == [True, False, False, True]
+    assert r.reach_ok[0] and not r.reach_ok[3]
+    assert r.comfortable.tolist() == [True, False, False, False]
+    # the comfortable solution keeps the upper arm at or below 90 degrees
+    names = human.joint_names
+    q = r.joints[0]
+    assert q[names.index("shoulder_flexion")] <= math.pi / 2 + 1e-9
+    palm = human.forward(q)[:3, 3]
+    assert palm[0].item() == pytest.approx(0.40, abs=0.011)
+
+
+def test_feasible_configurations_combine_reach_and_comfort(panda):
+    g = BoxGeometry(horizontal=(0.0, 0.9), vertical=(0.05, 0.45, 1.2), tilt=(0.0,))
+    f = feasible_box_configurations(g, arm=panda)
+    assert f.mask.shape == (2, 3, 1) and f.comfortable.shape == (2, 3, 1, 2)
+    # 0.9 m to the side or 1.2 m up is beyond the Panda's reach (0.855 m from the shoulder)
+    assert not f.reachable[1].any() and not f.reachable[:, 2].any()
+    assert f.reachable[0, 0, 0] and f.reachable[0, 1, 0]
+    assert torch.equal(f.mask, f.reachable & f.comfortable.any(-1))
+    # the solutions of reachable configurations put the box where it should be
+    fk = panda.forward(f.joints[f.reachable])
+    assert torch.allclose(fk[:, :3, 3], g.grip_poses()[f.reachable][:, :3, 3], atol=1e-3)
+    assert 0.0 <= f.fraction <= 1.0
+
+
+# ------------------------------------------------------------ fast paths of reach_check
+def test_wrist_bound_is_the_exact_maximum_for_the_panda(panda):
+    # |p_5 - p_0| depends only on joint 4 (index 3) for the Panda: sweep it (no limits).
+    q = torch.zeros(4001, 7, dtype=D)
+    q[:, 3] = torch.linspace(-math.pi, math.pi, 4001, dtype=D)
+    frames, _ = panda._frames(q)
+    reach = (frames[:, 5, :3, 3] - frames[:, 0, :3, 3]).norm(dim=-1)
+    bound = panda._wrist[0]
+    assert float(reach.max()) <= bound + 1e-12
+    assert float(reach.max()) == pytest.approx(bound, abs=1e-6)  # tight
+    assert bound < panda.max_reach - 0.3  # much tighter than the sum of all the links
+
+
+def test_wrist_precheck_never_rejects_a_pose_the_arm_reaches(panda):
+    # Joint vectors well beyond the limits too: the pre-check ignores limits.
+    gen = torch.Generator().manual_seed(11)
+    q = (torch.rand(4000, 7, generator=gen, dtype=D) * 2 - 1) * 3.5
+    poses = panda.forward(q)
+    assert not panda._provably_unreachable(poses, 0.0, 0.0).any()
+    # a pose within the tolerances of a reachable one is not rejected either
+    shifted = poses.clone()
+    shifted[:, :3, 3] += 1e-3 * torch.nn.functional.normalize(
+        torch.randn(4000, 3, generator=gen, dtype=D), dim=-1
+    )
+    assert not panda._provably_unreachable(shifted, 1e-3, 1e-2).any()
+
+
+def test_fast_reach_check_agrees_with_full_ik(panda):
+    # A wide grid, most of it out of reach: the pre-check may only drop poses that the full
+    # IK (same starts and tolerances, no pre-check) cannot reach either.
+    g = BoxGeometry(
+        horizontal=(-0.9, -0.45, 0.0, 0.45, 0.9),
+        vertical=(-0.2, 0.3, 0.8),
+        tilt=(-math.pi / 2, 0.0, math.pi / 3),
+    )
+    poses = g.grip_poses().reshape(-1, 4, 4)
+    fast = reach_check(poses, arm=panda, seed=1)
+    full = panda.inverse(poses, position_tolerance=1e-3, rotation_tolerance=1e-2, seed=1)
+    rejected = panda._provably_unreachable(poses, 1e-3, 1e-2)
+    assert rejected.sum() >= 10 and fast.reachable.sum() >= 5
+    assert torch.equal(fast.reachable, full.success)
+    assert not full.success[rejected].any()
+
+
+def test_staged_restarts_find_the_same_reachable_poses(panda, monkeypatch):
+    import torchhrc.kinematics as kin
+
+    g = BoxGeometry(horizontal=(-0.6, 0.0, 0.6), vertical=(0.0, 0.5), tilt=(-1.2, 0.0, 1.2))
+    poses = g.grip_poses().reshape(-1, 4, 4)
+    staged = panda.inverse(poses, position_tolerance=1e-3, rotation_tolerance=1e-2, seed=2)
+    monkeypatch.setattr(kin, "_RESTART_STAGES", ())  # every restart at once
+    at_once = panda.inverse(poses, position_tolerance=1e-3, rotation_tolerance=1e-2, seed=2)
+    assert torch.equal(staged.success, at_once.success)
+    ok = staged.success
+    assert (staged.position_error[ok] <= 1e-3).all() and (staged.rotation_error[ok] <= 1e-2).all()

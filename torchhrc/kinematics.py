@@ -1,0 +1,1327 @@
+"""Arm kinematics for the hand-finishing task: robot reach checks and human comfort checks.
+
+The robot (a Franka Emika Panda, URDF shipped in ``torchhrc/assets/panda``) holds a large box
+for a person who refinishes its side surfaces by hand (paper, "Online estimation of human
+type": the robot "can move the box along the horizontal and vertical axis and rotate it in
+the tilt direction" and should move it "to a reachable, ergonomically friendly position").
+This module decides which box configurations the robot can reach and hold (inverse
+kinematics within joint limits) and which are comfortable for the person (a human-arm model
+with anthropometric segment lengths, ``torchhrc/assets/human_arm``); the task removes the
+others from its MOMDP.
+
+Kinematic chains are read from URDF by pytorch-kinematics (the ``full`` extra) and compiled
+into a flat serial chain (one fixed transform per joint and the joint axes) whose forward
+kinematics and geometric Jacobian are a few batched tensor products; this is what makes the
+batched inverse kinematics fast (tests compare it with pytorch-kinematics and pinocchio).
+
+Frames and units: metres and radians; the robot base frame has x forward (towards the
+person), y to the robot's left, z up. Poses are ``(..., 4, 4)`` homogeneous matrices or
+``(..., 7)`` vectors ``(x, y, z, qw, qx, qy, qz)`` (unit quaternion, scalar first).
+
+Box configurations (:class:`BoxGeometry`), a grid ``H x V x T``:
+
+* horizontal index ``h``: the box centre's ``y`` in the base frame, ``geometry.horizontal[h]``;
+* vertical index ``v``: the box centre's height ``z`` above the base, ``geometry.vertical[v]``;
+* tilt index ``t``: the box's rotation about the base ``x`` axis (the axis pointing at the
+  person), ``geometry.tilt[t]`` radians, positive raising the box's left (``+y``) side;
+* the box centre's ``x`` is ``geometry.forward``; the hand grips the middle of the box's back
+  face (the face towards the robot) with its approach axis (TCP ``z``) along base ``x``.
+
+Example:
+    >>> arm = SerialArm.panda()
+    >>> arm.dof, arm.forward(torch.zeros(7, dtype=torch.float64)).shape
+    (7, torch.Size([4, 4]))
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import torch
+
+from torchhrc._checks import check_shape, check_tensor
+from torchhrc.errors import ModelError
+
+__all__ = [
+    "BoxFeasibility",
+    "BoxGeometry",
+    "ComfortResult",
+    "IKResult",
+    "PersonModel",
+    "ReachResult",
+    "SerialArm",
+    "asset_path",
+    "comfort_check",
+    "feasible_box_configurations",
+    "human_arm_urdf",
+    "matrix_to_pose",
+    "pose_to_matrix",
+    "reach_check",
+]
+
+_FULL_EXTRA = "pip install torchhrc[full]"
+# Joint vectors in the table of inverse-kinematics starts (see SerialArm._nearest_seeds).
+_SEED_TABLE_SIZE = 4096
+# Targets per block when looking up their nearest table entries (keeps the block in cache).
+_NEAREST_BLOCK = 128
+# Starts per stage of the IK restarts after the first (the rest run in a last stage).
+_RESTART_STAGES = (2,)
+
+
+def _import_pk():
+    try:
+        import pytorch_kinematics as pk
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise ImportError(f"torchhrc.kinematics needs pytorch-kinematics: {_FULL_EXTRA}") from exc
+    return pk
+
+
+def asset_path(name: str) -> Path:
+    """Path of a file shipped under ``torchhrc/assets`` (package data).
+
+    Args:
+        name: relative name, e.g. ``"panda/panda.urdf"``.
+
+    Returns:
+        The file's path.
+
+    Raises:
+        FileNotFoundError: no such asset.
+
+    Example:
+        >>> asset_path("panda/panda.urdf").name
+        'panda.urdf'
+    """
+    path = Path(str(resources.files("torchhrc").joinpath("assets", *name.split("/"))))
+    if not path.is_file():
+        raise FileNotFoundError(f"no asset {name!r} under {path.parent}")
+    return path
+
+
+# --------------------------------------------------------------------------- poses
+def pose_to_matrix(pose: torch.Tensor) -> torch.Tensor:
+    """``(..., 7)`` poses ``(x, y, z, qw, qx, qy, qz)`` to ``(..., 4, 4)`` matrices.
+
+    The quaternion is normalised first.
+
+    Example:
+        >>> pose_to_matrix(torch.tensor([1.0, 2.0, 3.0, 1.0, 0.0, 0.0, 0.0]))[:3, 3].tolist()
+        [1.0, 2.0, 3.0]
+    """
+    pose = check_tensor("pose", pose)
+    check_shape("pose", pose, (7,), "(..., 7)")
+    q = pose[..., 3:]
+    norm = q.norm(dim=-1, keepdim=True)
+    if not (norm > 0).all():
+        raise ModelError("pose has a zero quaternion")
+    w, x, y, z = (q / norm).unbind(-1)
+    rot = torch.stack(
+        [
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
+        ],
+        dim=-1,
+    ).reshape(*pose.shape[:-1], 3, 3)
+    out = pose.new_zeros(*pose.shape[:-1], 4, 4)
+    out[..., :3, :3] = rot
+    out[..., :3, 3] = pose[..., :3]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def matrix_to_pose(matrix: torch.Tensor) -> torch.Tensor:
+    """``(..., 4, 4)`` matrices to ``(..., 7)`` poses ``(x, y, z, qw, qx, qy, qz)``, ``qw >= 0``.
+
+    Example:
+        >>> matrix_to_pose(torch.eye(4)).tolist()
+        [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+    """
+    matrix = check_tensor("matrix", matrix)
+    check_shape("matrix", matrix, (4, 4), "(..., 4, 4)")
+    r = matrix[..., :3, :3]
+    # Shepperd's method: pick the largest of 4 q_i^2 candidates for stability.
+    tr = r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2]
+    cands = torch.stack(
+        [
+            1 + tr,
+            1 + r[..., 0, 0] - r[..., 1, 1] - r[..., 2, 2],
+            1 - r[..., 0, 0] + r[..., 1, 1] - r[..., 2, 2],
+            1 - r[..., 0, 0] - r[..., 1, 1] + r[..., 2, 2],
+        ],
+        dim=-1,
+    )
+    best = cands.argmax(-1, keepdim=True)
+    s = 2 * cands.gather(-1, best).clamp_min(1e-30).sqrt().squeeze(-1)  # 4 |q_best|
+    w_, x_, y_, z_ = (
+        torch.stack(
+            [
+                s / 4,
+                (r[..., 2, 1] - r[..., 1, 2]) / s,
+                (r[..., 0, 2] - r[..., 2, 0]) / s,
+                (r[..., 1, 0] - r[..., 0, 1]) / s,
+            ],
+            -1,
+        ),
+        torch.stack(
+            [
+                (r[..., 2, 1] - r[..., 1, 2]) / s,
+                s / 4,
+                (r[..., 0, 1] + r[..., 1, 0]) / s,
+                (r[..., 0, 2] + r[..., 2, 0]) / s,
+            ],
+            -1,
+        ),
+        torch.stack(
+            [
+                (r[..., 0, 2] - r[..., 2, 0]) / s,
+                (r[..., 0, 1] + r[..., 1, 0]) / s,
+                s / 4,
+                (r[..., 1, 2] + r[..., 2, 1]) / s,
+            ],
+            -1,
+        ),
+        torch.stack(
+            [
+                (r[..., 1, 0] - r[..., 0, 1]) / s,
+                (r[..., 0, 2] + r[..., 2, 0]) / s,
+                (r[..., 1, 2] + r[..., 2, 1]) / s,
+                s / 4,
+            ],
+            -1,
+        ),
+    )
+    q = torch.stack([w_, x_, y_, z_], dim=-2)  # (..., 4 candidates, 4 components)
+    q = q.gather(-2, best.unsqueeze(-1).expand(*best.shape[:-1], 1, 4)).squeeze(-2)
+    q = torch.where(q[..., :1] < 0, -q, q)
+    return torch.cat([matrix[..., :3, 3], q / q.norm(dim=-1, keepdim=True)], dim=-1)
+
+
+def _as_matrices(name: str, poses: torch.Tensor) -> torch.Tensor:
+    poses = check_tensor(name, poses)
+    if poses.dim() >= 2 and poses.shape[-2:] == (4, 4):
+        return poses
+    if poses.shape[-1:] == (7,):
+        return pose_to_matrix(poses)
+    raise ModelError(
+        f"expected {name} to have shape (..., 4, 4) or (..., 7), "
+        f"actual shape = {tuple(poses.shape)}"
+    )
+
+
+def _frame_with_z(axis: torch.Tensor) -> torch.Tensor:
+    """A ``(4, 4)`` rotation whose ``z`` column is the unit ``axis (3,)``."""
+    out = torch.eye(4, dtype=axis.dtype, device=axis.device)
+    if float(axis[2]) > 1 - 1e-12:  # already z: keep the frame as it is
+        return out
+    helper = torch.zeros_like(axis)
+    helper[int(axis.abs().argmin())] = 1.0
+    x = torch.linalg.cross(helper, axis)
+    x = x / x.norm()
+    y = torch.linalg.cross(axis, x)
+    out[:3, :3] = torch.stack([x, y, axis], dim=-1)
+    return out
+
+
+def _rotation_angle(r_target: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """Geodesic angle ``(...)`` between rotation matrices ``(..., 3, 3)``."""
+    cos = ((r_target * r).sum(dim=(-2, -1)) - 1) / 2
+    return torch.acos(cos.clamp(-1.0, 1.0))
+
+
+def _dls_step(jac: torch.Tensor, e: torch.Tensor, eye: torch.Tensor) -> torch.Tensor:
+    """Damped least-squares step ``J^T (J J^T + lambda^2 I)^-1 e`` ``(n, DOF)`` for Jacobians
+    ``jac (n, rows, DOF)``, errors ``e (n, rows)`` and ``eye = lambda^2 I (rows, rows)``."""
+    jjt = jac @ jac.transpose(-1, -2) + eye  # (n, rows, rows)
+    return (jac.transpose(-1, -2) @ torch.linalg.solve(jjt, e.unsqueeze(-1))).squeeze(-1)
+
+
+# ------------------------------------------------------------------------- the arm
+@dataclass(frozen=True)
+class IKResult:
+    """Result of :meth:`SerialArm.inverse` (batch shape ``(...)`` of the targets).
+
+    Attributes:
+        joints: ``(..., DOF)`` the best joint vector found (within the joint limits).
+        position_error: ``(...)`` distance between the reached and target origin (m).
+        rotation_error: ``(...)`` geodesic angle between reached and target orientation
+            (rad; zero for position-only targets).
+        success: ``(...)`` bool, both errors within the tolerances.
+    """
+
+    joints: torch.Tensor
+    position_error: torch.Tensor
+    rotation_error: torch.Tensor
+    success: torch.Tensor
+
+
+class SerialArm:
+    """A serial kinematic chain with batched forward kinematics, Jacobian and inverse kinematics.
+
+    Built from a URDF with pytorch-kinematics, then compiled into ``DOF`` joint transforms
+    ``F_i`` and axes ``a_i`` so that ``FK(q) = F_0 Rot(a_0, q_0) F_1 ... Rot(a_{n-1}, q_{n-1})
+    F_n`` (revolute joints; prismatic joints translate along ``a_i``).
+
+    Args:
+        urdf: URDF text or a path to a URDF file.
+        end_link: the end-effector link.
+        root_link: the chain's root link (default: the URDF's root).
+        dtype: float dtype of the compiled chain (float64 default).
+        device: its device.
+
+    Raises:
+        ImportError: pytorch-kinematics is missing (``pip install torchhrc[full]``).
+
+    Example:
+        >>> arm = SerialArm.panda()
+        >>> arm.joint_names[0], arm.lower.shape
+        ('panda_joint1', torch.Size([7]))
+    """
+
+    def __init__(
+        self,
+        urdf: str | Path,
+        end_link: str,
+        *,
+        root_link: str = "",
+        dtype: torch.dtype = torch.float64,
+        device: torch.device | str | None = None,
+    ) -> None:
+        pk = _import_pk()
+        text = (
+            Path(urdf).read_text()
+            if isinstance(urdf, Path) or not str(urdf).lstrip().startswith("<")
+            else str(urdf)
+        )
+        try:
+            chain = pk.build_serial_chain_from_urdf(text.encode(), end_link, root_link)
+        except (KeyError, ValueError, AttributeError) as exc:
+            raise ModelError(f"cannot build a chain to end_link {end_link!r}: {exc}") from exc
+        self.chain = chain.to(dtype=dtype, device=device)
+        self.dtype, self.device = dtype, torch.device(device or "cpu")
+        eye = torch.eye(4, dtype=dtype, device=self.device)
+        fixed: list[torch.Tensor] = []
+        axes: list[torch.Tensor] = []
+        kinds: list[bool] = []  # True: revolute
+        names: list[str] = []
+        lower: list[float] = []
+        upper: list[float] = []
+        current = eye
+        for frame in chain._serial_frames:  # the path from root to end link, in order
+            joint = frame.joint
+            lo = eye if frame.link.offset is None else frame.link.offset.get_matrix()[0]
+            jo = eye if joint.offset is None else joint.offset.get_matrix()[0]
+            current = (
+                current
+                @ lo.to(dtype=dtype, device=self.device)
+                @ jo.to(dtype=dtype, device=self.device)
+            )
+            if joint.joint_type in ("revolute", "continuous", "prismatic"):
+                fixed.append(current)
+                current = eye
+                axis = joint.axis.to(dtype=dtype, device=self.device)
+                axes.append(axis / axis.norm())
+                kinds.append(joint.joint_type != "prismatic")
+                names.append(joint.name)
+                lim = joint.limits if joint.limits is not None else (-math.inf, math.inf)
+                if joint.joint_type == "continuous":
+                    lim = (-math.inf, math.inf)
+                lower.append(float(lim[0]))
+                upper.append(float(lim[1]))
+        fixed.append(current)
+        if not axes:
+            raise ModelError(f"the chain to {end_link!r} has no movable joint")
+        # Fold a rotation P_i with P_i e_z = a_i into the fixed transforms around each joint
+        # (F_i <- F_i P_i, F_i+1 <- P_i^T F_i+1), so that every joint moves about / along its
+        # local z axis: T @ Rot_z(q) only mixes two columns of T (no matrix product).
+        folded = [f.clone() for f in fixed]
+        for i, axis in enumerate(axes):
+            frame = _frame_with_z(axis / axis.norm())
+            folded[i] = folded[i] @ frame
+            folded[i + 1] = frame.transpose(-1, -2) @ folded[i + 1]
+        self._fixed = torch.stack(folded)  # (DOF + 1, 4, 4)
+        # Nonzero entries (row, value) of each column of F_1 .. F_DOF, for _frames.
+        self._terms = tuple(
+            tuple(
+                tuple((k, float(f[k, j])) for k in range(4) if float(f[k, j]) != 0.0)
+                for j in range(4)
+            )
+            for f in self._fixed[1:].double().cpu()
+        )
+        self._revolute = torch.tensor(kinds, device=self.device)
+        self._kinds: tuple[bool, ...] = tuple(kinds)
+        self.joint_names: tuple[str, ...] = tuple(names)
+        self.end_link = end_link
+        self.lower = torch.tensor(lower, dtype=dtype, device=self.device)  # (DOF,)
+        self.upper = torch.tensor(upper, dtype=dtype, device=self.device)  # (DOF,)
+        # An upper bound of the distance from the first joint to the end effector: the sum of
+        # the translations between joints (triangle inequality); a cheap reach pre-check.
+        self._first_joint = self._fixed[0]
+        self.max_reach = float(self._fixed[1:, :3, 3].norm(dim=-1).sum())
+        self._wrist = self._wrist_constants() if all(kinds) and len(kinds) >= 2 else None
+
+    def _wrist_constants(self) -> tuple[float, float, float, float]:
+        """Constants of the exact wrist pre-check (all-revolute chains, see
+        :meth:`_provably_unreachable`): ``(bound, h, rho, tcp_offset)``.
+
+        With ``p_i`` the origin of joint ``i`` and ``t_k`` the translation of ``F_k``, the last
+        joint's origin ``p_{n-1}`` is fixed by the end-effector pose (a revolute joint does not
+        move the points of its axis) and ``p_{n-2}`` lies on a circle about the last axis
+        (axial offset ``h``, radius ``rho``). ``bound`` is an upper bound of ``|p_{n-2} - p_0|``
+        over all joint values: the triangle inequality over the segments ``t_1 .. t_{n-2}``,
+        where two consecutive segments around joint ``k`` may be taken together with their
+        exact maximum ``max_q |u + Rot_z(q) w|^2 = |u|^2 + |w|^2 + 2 (u_z w_z + |u_xy| |w_xy|)``
+        (``u = R_k^T t_k``, ``w = t_{k+1}``), the best split chosen by dynamic programming.
+        """
+        fixed = self._fixed.double().cpu()
+        n = self.dof
+        t = fixed[:, :3, 3]  # (DOF + 1, 3)
+        best = [0.0, 0.0]  # best[i]: bound over the segments t_1 .. t_{i - 1}
+        for i in range(1, n - 1):  # add segment t_i
+            single = best[-1] + float(t[i].norm())
+            if i >= 2:
+                u, w = fixed[i - 1, :3, :3].T @ t[i - 1], t[i]
+                pair2 = (
+                    u.dot(u) + w.dot(w) + 2 * (u[2] * w[2] + u[:2].norm() * w[:2].norm())
+                ).clamp_min(0)
+                single = min(single, best[-2] + float(pair2.sqrt()))
+            best.append(single)
+        v = fixed[n - 1, :3, :3].T @ t[n - 1]  # p_{n-2} - p_{n-1} in the last joint's frame
+        return best[-1], float(v[2]), float(v[:2].norm()), float(t[n].norm())
+
+    def _provably_unreachable(
+        self, mats: torch.Tensor, position_tolerance: float, rotation_tolerance: float
+    ) -> torch.Tensor:
+        """``(N,)`` bool: end-effector poses ``(N, 4, 4)`` that no joint vector (even ignoring
+        the joint limits) reaches within the tolerances; an exact necessary condition, no IK.
+
+        Rejects a pose when the nearest point of the circle on which ``p_{n-2}`` must lie is
+        farther from ``p_0`` than ``bound`` (:meth:`_wrist_constants`) plus a margin for the
+        tolerances: a pose within ``position_tolerance`` and ``rotation_tolerance`` moves that
+        circle by at most ``ptol + rtol (tcp_offset + |h| + rho)``.
+        """
+        origin = self._fixed[0, :3, 3]
+        far = (mats[:, :3, 3] - origin).norm(dim=-1) > self.max_reach + position_tolerance
+        if self._wrist is None:
+            return far
+        bound, h, rho, offset = self._wrist
+        last = self._fixed[-1]  # (4, 4): TCP in the last joint's frame
+        rot = mats[:, :3, :3] @ last[:3, :3].T  # (N, 3, 3) the last joint's frame
+        p = mats[:, :3, 3] - rot @ last[:3, 3]  # (N, 3) its origin
+        axis = rot[..., 2]  # (N, 3)
+        w = origin - (p - h * axis)  # (N, 3) from the circle's centre to p_0
+        along = (w * axis).sum(-1)
+        radial = (w - along[:, None] * axis).norm(dim=-1)
+        nearest = torch.hypot(along, radial - rho)  # (N,) p_0 to the circle
+        eps = 1e-6 if mats.dtype == torch.float64 else 1e-4
+        margin = position_tolerance + rotation_tolerance * (offset + abs(h) + rho) + eps
+        return far | (nearest > bound + margin)
+
+    @classmethod
+    def panda(
+        cls, *, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
+    ) -> SerialArm:
+        """The shipped Franka Emika Panda, base ``panda_link0`` to ``panda_hand_tcp``."""
+        return cls(asset_path("panda/panda.urdf"), "panda_hand_tcp", dtype=dtype, device=device)
+
+    @classmethod
+    def human_arm(
+        cls,
+        *,
+        height: float = 1.75,
+        dtype: torch.dtype = torch.float64,
+        device: torch.device | str | None = None,
+    ) -> SerialArm:
+        """The anthropometric human right arm (:func:`human_arm_urdf`), ``body`` to ``palm``."""
+        return cls(human_arm_urdf(height=height), "palm", dtype=dtype, device=device)
+
+    @property
+    def dof(self) -> int:
+        """The number of movable joints."""
+        return len(self._kinds)
+
+    def _check_q(self, q: torch.Tensor) -> torch.Tensor:
+        q = check_tensor("q", q)
+        check_shape("q", q, (self.dof,), f"(..., DOF={self.dof})")
+        return q.to(dtype=self.dtype, device=self.device)
+
+    def _frames(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Joint frames ``(..., DOF, 3, 4)`` (the top rows of each joint's frame before its
+        motion; the joint moves about / along its ``z`` column) and the end-effector pose
+        ``(..., 3, 4)``."""
+        batch = q.shape[:-1]
+        c, s = torch.cos(q), torch.sin(q)
+        frames = []
+        t = self._fixed[0, :3].expand(*batch, 3, 4)
+        for i, revolute in enumerate(self._kinds):  # DOF (~7) steps along the chain
+            frames.append(t)
+            col = t.unbind(-1)
+            if revolute:  # T @ Rot_z(q): x' = c x + s y, y' = -s x + c y
+                ci, si = c[..., i, None], s[..., i, None]
+                moved = (ci * col[0] + si * col[1], ci * col[1] - si * col[0], col[2], col[3])
+            else:  # T @ Trans_z(q)
+                moved = (col[0], col[1], col[2], col[3] + q[..., i, None] * col[2])
+            # (..., 3, 4) @ F_{i+1}, column by column over F's nonzero entries (mostly 0 / +-1
+            # after folding: a few adds, much cheaper than a GEMM with K = N = 4 on CPU)
+            out = []
+            for terms in self._terms[i]:
+                acc = torch.zeros_like(moved[0]) if not terms else None
+                for k, coef in terms:
+                    if acc is None:
+                        acc = moved[k] if coef == 1.0 else moved[k] * coef
+                    elif coef == 1.0:
+                        acc = acc + moved[k]
+                    elif coef == -1.0:
+                        acc = acc - moved[k]
+                    else:
+                        acc = acc + moved[k] * coef
+                out.append(acc)
+            t = torch.stack(out, dim=-1)
+        return torch.stack(frames, dim=-3), t
+
+    def _homogeneous(self, top: torch.Tensor) -> torch.Tensor:
+        bottom = torch.zeros_like(top[..., :1, :])
+        bottom[..., 0, 3] = 1.0
+        return torch.cat([top, bottom], dim=-2)
+
+    def forward(self, q: torch.Tensor) -> torch.Tensor:
+        """End-effector poses ``(..., 4, 4)`` in the base frame for joints ``q (..., DOF)``."""
+        return self._homogeneous(self._frames(self._check_q(q))[1])
+
+    def forward_and_jacobian(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Poses ``(..., 4, 4)`` and geometric Jacobians ``(..., 6, DOF)`` (rows: linear
+        velocity of the end-effector origin, then angular velocity, both in the base frame)."""
+        q = self._check_q(q)
+        frames, end = self._frames(q)
+        z = frames[..., :3, 2]  # (..., DOF, 3) joint axes in the base frame
+        p = frames[..., :3, 3]  # (..., DOF, 3) joint origins
+        lever = end[..., None, :3, 3] - p
+        rev = self._revolute.unsqueeze(-1)
+        lin = torch.where(rev, torch.linalg.cross(z, lever, dim=-1), z)
+        ang = torch.where(rev, z, torch.zeros_like(z))
+        return self._homogeneous(end), torch.cat([lin, ang], dim=-1).transpose(-1, -2)
+
+    def jacobian(self, q: torch.Tensor) -> torch.Tensor:
+        """Geometric Jacobians ``(..., 6, DOF)``; see :meth:`forward_and_jacobian`."""
+        return self.forward_and_jacobian(q)[1]
+
+    def inverse(
+        self,
+        targets: torch.Tensor,
+        *,
+        position_only: bool = False,
+        restarts: int = 8,
+        iterations: int = 30,
+        damping: float = 0.02,
+        position_tolerance: float = 1e-4,
+        rotation_tolerance: float = 1e-3,
+        initial: torch.Tensor | None = None,
+        lower: torch.Tensor | None = None,
+        upper: torch.Tensor | None = None,
+        seed: int = 0,
+    ) -> IKResult:
+        """Batched inverse kinematics by damped least squares with restarts.
+
+        Each iteration solves ``dq = J^T (J J^T + lambda^2 I)^-1 e`` (Wampler 1986;
+        Buss 2004, "Introduction to inverse kinematics with Jacobian transpose, pseudoinverse
+        and damped least squares methods"), with ``e`` the position error and the
+        orientation error ``1/2 sum_k r_k x r*_k`` over the columns of the current and target
+        rotations (Luh, Walker, Paul 1980), a step of at most 0.5 rad, and projection onto
+        the joint limits (joints at a limit pushed outward are frozen for the step). A row
+        stops when it converges or stalls (error down by less than 1 % in 5 iterations).
+        Starts: a table of 4096 scrambled-Sobol joint vectors (seeded, cached) is mapped
+        through forward kinematics once; each target starts from the table entries whose
+        poses are nearest to it. Round 1 runs every target from its nearest entry (or
+        ``initial``); round 2 runs the unsolved ones from their next ``restarts - 1``
+        entries, nearest first, in stages (the next 2 starts at once, then the rest at once
+        for the targets still unsolved); a target leaves a stage as soon as one of its
+        starts converges, and a converged start is preferred to any unconverged one. A
+        target's result does not depend on the other targets in the batch.
+
+        Args:
+            targets: ``(..., 4, 4)`` or ``(..., 7)`` poses, or ``(..., 3)`` positions with
+                ``position_only=True``.
+            position_only: ignore the orientation.
+            restarts: number of starts per target (>= 1).
+            iterations: DLS iterations per start (at most).
+            damping: ``lambda``.
+            position_tolerance: success threshold on the position error (m).
+            rotation_tolerance: success threshold on the rotation error (rad).
+            initial: ``(DOF,)`` or ``(..., DOF)`` first start (default: the nearest table entry).
+            lower, upper: ``(DOF,)`` joint limits to use instead of the URDF's.
+            seed: seed of the table of starts.
+
+        Returns:
+            :class:`IKResult` with batch shape ``(...)``.
+
+        Example:
+            >>> arm = SerialArm.panda()
+            >>> q = torch.tensor([0.1, -0.3, 0.2, -2.0, 0.1, 1.8, 0.5], dtype=torch.float64)
+            >>> bool(arm.inverse(arm.forward(q)).success)
+            True
+        """
+        if not isinstance(restarts, int) or restarts < 1:
+            raise ModelError(f"expected restarts to be a positive int, got {restarts!r}")
+        targets = check_tensor("targets", targets).to(dtype=self.dtype, device=self.device)
+        if position_only:
+            check_shape("targets", targets, (3,), "(..., 3) positions")
+            batch = targets.shape[:-1]
+            tgt = targets.reshape(-1, 3)
+            t_pos, t_rot = tgt, None
+        else:
+            mats = _as_matrices("targets", targets)
+            batch = mats.shape[:-2]
+            mats = mats.reshape(-1, 4, 4)
+            t_pos, t_rot = mats[:, :3, 3], mats[:, :3, :3]
+        n = t_pos.shape[0]
+        lo = self.lower if lower is None else lower.to(dtype=self.dtype, device=self.device)
+        hi = self.upper if upper is None else upper.to(dtype=self.dtype, device=self.device)
+        start0 = None
+        if initial is not None:
+            start0 = self._check_q(initial).expand(*batch, self.dof).reshape(n, self.dof)
+        tol = (position_tolerance, rotation_tolerance)
+        seeds = self._nearest_seeds(t_pos, t_rot, lo, hi, restarts, int(seed))  # (n, R, DOF)
+        first = seeds[:, 0] if initial is None else start0
+        # Round 1: every target from its first start.
+        best_q, best_p, best_r = self._dls(t_pos, t_rot, first, lo, hi, iterations, damping, tol)
+        solved = (best_p <= position_tolerance) & (best_r <= rotation_tolerance)
+        # Round 2: the unsolved targets from their other starts, nearest first, in stages
+        # of _RESTART_STAGES starts at once (n_todo * K rows; a target leaves a stage as soon
+        # as one of its starts converges, and later stages only run the still unsolved ones).
+        cols = list(range(1 if initial is None else 0, restarts))
+        stages = []
+        for size in _RESTART_STAGES:
+            stages.append(cols[:size])
+            cols = cols[size:]
+        for stage in [st for st in [*stages, cols] if st]:
+            todo = torch.nonzero(~solved).squeeze(-1)
+            if not todo.numel():
+                break
+            k = len(stage)
+            q0 = seeds[todo][:, stage].reshape(-1, self.dof)
+            rep = todo.repeat_interleave(k)
+            q, perr, rerr = self._dls(
+                t_pos[rep],
+                None if t_rot is None else t_rot[rep],
+                q0,
+                lo,
+                hi,
+                iterations,
+                damping,
+                tol,
+                groups=torch.arange(todo.numel(), device=self.device).repeat_interleave(k),
+            )
+            # A converged start beats any other; then the smaller scaled error.
+            score = (perr / position_tolerance + rerr / rotation_tolerance).reshape(-1, k)
+            miss = (perr > position_tolerance) | (rerr > rotation_tolerance)
+            score = score + 1e6 * miss.reshape(-1, k)
+            pick = score.argmin(-1)  # (n_todo,) best start of each target
+            rows = torch.arange(todo.numel(), device=self.device) * k + pick
+            old = best_p[todo] / position_tolerance + best_r[todo] / rotation_tolerance + 1e6
+            better = score.gather(-1, pick[:, None]).squeeze(-1) < old
+            idx, rows = todo[better], rows[better]
+            best_q[idx], best_p[idx], best_r[idx] = q[rows], perr[rows], rerr[rows]
+            solved = (best_p <= position_tolerance) & (best_r <= rotation_tolerance)
+        return IKResult(
+            joints=best_q.reshape(*batch, self.dof),
+            position_error=best_p.reshape(batch),
+            rotation_error=best_r.reshape(batch),
+            success=solved.reshape(batch),
+        )
+
+    def _seed_table(
+        self, lo: torch.Tensor, hi: torch.Tensor, seed: int
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """A cached table of ``M`` scrambled-Sobol joint vectors in the limits and their poses
+        ``(M, 3, 4)``."""
+        key = (tuple(lo.tolist()), tuple(hi.tolist()), seed)
+        cache = self.__dict__.setdefault("_tables", {})
+        if key not in cache:
+            box_lo = torch.where(torch.isfinite(lo), lo, torch.full_like(lo, -math.pi))
+            box_hi = torch.where(torch.isfinite(hi), hi, torch.full_like(hi, math.pi))
+            sobol = torch.quasirandom.SobolEngine(self.dof, scramble=True, seed=seed)
+            u = sobol.draw(_SEED_TABLE_SIZE, dtype=self.dtype).to(self.device)
+            q = box_lo + (box_hi - box_lo) * u
+            cache[key] = (q, self._frames(q)[1])
+        return cache[key]
+
+    def _nearest_seeds(
+        self,
+        t_pos: torch.Tensor,
+        t_rot: torch.Tensor | None,
+        lo: torch.Tensor,
+        hi: torch.Tensor,
+        k: int,
+        seed: int,
+    ) -> torch.Tensor:
+        """``(n, k, DOF)`` starts: the table entries whose poses are nearest each target
+        (distance ``|dp| + 0.3 m * |dR|_F``), nearest first."""
+        table_q, table_pose = self._seed_table(lo, hi, seed)
+        k = min(k, table_q.shape[0])
+        # Float64 tables are searched in float32 for k + 8 candidates, which are then ranked
+        # by their exact distances: float32 rounding (~1e-6) only matters between candidates.
+        coarse = table_pose.dtype == torch.float64
+        m = min(k + 8, table_q.shape[0]) if coarse else k
+        table_pose_c = table_pose.float() if coarse else table_pose
+        # |t - p|^2 = [t, 1, |t|^2] . [-2 p, |p|^2, 1] and 6 - 2 tr(R_t^T R) = [R_t, 1] . [-2 R, 6]:
+        # one small GEMM each per block of targets.
+        pos = table_pose_c[:, :, 3]  # (M, 3)
+        table_pos = torch.cat(
+            [-2 * pos, pos.square().sum(-1, keepdim=True), torch.ones_like(pos[:, :1])], -1
+        ).T  # (5, M)
+        t_pos_c = t_pos.to(pos.dtype)
+        t_pos_c = torch.cat(
+            [t_pos_c, torch.ones_like(t_pos_c[:, :1]), t_pos_c.square().sum(-1, keepdim=True)], -1
+        )
+        if t_rot is not None:
+            rot = table_pose_c[:, :, :3].reshape(-1, 9)
+            table_rot = torch.cat([-2 * rot, torch.full_like(rot[:, :1], 6.0)], -1).T  # (10, M)
+            t_rot_c = t_rot.reshape(-1, 9).to(pos.dtype)
+            t_rot_c = torch.cat([t_rot_c, torch.ones_like(t_rot_c[:, :1])], -1)  # (n, 10)
+        idx = torch.empty(t_pos.shape[0], m, dtype=torch.long, device=t_pos.device)
+        # In blocks of targets so that the (block, M) distances stay in cache; in place.
+        for start in range(0, t_pos.shape[0], _NEAREST_BLOCK):
+            stop = start + _NEAREST_BLOCK
+            dist = (t_pos_c[start:stop] @ table_pos).clamp_min_(0).sqrt_()  # (block, M)
+            if t_rot is not None:
+                rot_dist = (t_rot_c[start:stop] @ table_rot).clamp_min_(0).sqrt_()
+                dist.add_(rot_dist, alpha=0.3)
+            idx[start:stop] = dist.topk(m, dim=-1, largest=False).indices
+        if coarse:
+            cand = table_pose[idx]  # (n, m, 3, 4)
+            dist = (cand[..., 3] - t_pos[:, None]).norm(dim=-1)  # (n, m)
+            if t_rot is not None:
+                tr = (cand[..., :3] * t_rot[:, None]).sum((-2, -1))
+                dist = dist + 0.3 * (6 - 2 * tr).clamp_min(0).sqrt()
+            idx = idx.gather(-1, dist.topk(k, dim=-1, largest=False).indices)
+        return table_q[idx]
+
+    def _dls(
+        self,
+        t_pos: torch.Tensor,
+        t_rot: torch.Tensor | None,
+        q: torch.Tensor,
+        lo: torch.Tensor,
+        hi: torch.Tensor,
+        iterations: int,
+        damping: float,
+        tol: tuple[float, float],
+        groups: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Damped least squares from ``q (n, DOF)``; returns final joints and errors ``(n,)``.
+
+        A row leaves the active set when it converges, or when it stalls (its error fell by
+        less than 1 % over the last 5 iterations: a joint limit or an unreachable target),
+        so the work shrinks as targets are settled. With ``groups (n,)`` (ids of the target
+        of each row, several starts per target), all rows of a target leave as soon as one of
+        them converges.
+        """
+        ptol, rtol = tol
+        n = q.shape[0]
+        q = q.clone()
+        out_q, out_p, out_r = q.clone(), q.new_full((n,), math.inf), q.new_zeros(n)
+        active = torch.arange(n, device=q.device)
+        rows = 3 if t_rot is None else 6
+        eye = torch.eye(rows, dtype=q.dtype, device=q.device) * damping**2
+        tp, tr = t_pos, t_rot
+        checkpoint = q.new_full((n,), math.inf)
+        for it in range(iterations + 1):
+            frames, end = self._frames(q)
+            e_pos = tp - end[:, :, 3]
+            perr = e_pos.norm(dim=-1)
+            if tr is None:
+                rerr = torch.zeros_like(perr)
+                e = e_pos
+            else:
+                rot = end[:, :, :3]
+                rerr = _rotation_angle(tr, rot)
+                e = torch.cat([e_pos, 0.5 * torch.linalg.cross(rot, tr, dim=-2).sum(-1)], dim=-1)
+            done = (perr <= ptol) & (rerr <= rtol)
+            if groups is not None and done.any():
+                solved = torch.zeros(int(groups.max()) + 1, dtype=torch.bool, device=q.device)
+                done = done | solved.index_fill_(0, groups[done], True)[groups]
+            if it == iterations:
+                done = torch.ones_like(done)
+            elif it % 5 == 0 and it > 0:
+                score = perr / ptol + rerr / rtol
+                done = done | (score > 0.99 * checkpoint)
+                checkpoint = score
+            if done.any():
+                idx = active[done]
+                out_q[idx], out_p[idx], out_r[idx] = q[done], perr[done], rerr[done]
+                keep = ~done
+                active, q, tp, e = active[keep], q[keep], tp[keep], e[keep]
+                groups = None if groups is None else groups[keep]
+                frames, end, checkpoint = frames[keep], end[keep], checkpoint[keep]
+                tr = None if tr is None else tr[keep]
+                if active.numel() == 0:
+                    break
+            z = frames[..., 2]  # (n, DOF, 3) joint axes
+            lin = torch.linalg.cross(z, end[:, None, :, 3] - frames[..., 3], dim=-1)
+            ang = z
+            if not all(self._kinds):  # prismatic joints: linear part z, no angular part
+                rev = self._revolute.unsqueeze(-1)
+                lin, ang = torch.where(rev, lin, z), torch.where(rev, z, 0.0)
+            jac = lin if tr is None else torch.cat([lin, ang], dim=-1)
+            jac = jac.transpose(-1, -2)  # (n, rows, DOF)
+            dq = _dls_step(jac, e, eye)
+            # Joints at a limit that the step pushes outward are frozen for this step (their
+            # Jacobian columns zeroed) and the step recomputed (Baerlocher & Boulic 2004).
+            blocked = ((q <= lo) & (dq < 0)) | ((q >= hi) & (dq > 0))
+            hit = torch.nonzero(blocked.any(-1)).squeeze(-1)
+            if hit.numel():
+                jac_hit = jac[hit] * (~blocked[hit]).unsqueeze(-2)
+                dq[hit] = _dls_step(jac_hit, e[hit], eye)
+            step = dq.abs().amax(-1, keepdim=True).clamp_min(0.5) / 0.5
+            q = torch.minimum(torch.maximum(q + dq / step, lo), hi)
+        return out_q, out_p, out_r
+
+
+# ------------------------------------------------------------------- reach checks
+@dataclass(frozen=True)
+class ReachResult:
+    """Result of :func:`reach_check` for ``N`` poses.
+
+    Attributes:
+        reachable: ``(N,)`` bool, an IK solution within the joint limits reaches the pose.
+        joints: ``(N, DOF)`` the solutions (the best attempt where unreachable; the
+            mid-range for poses rejected by the pre-check of :func:`reach_check`).
+        error: ``(N,)`` position error of the best attempt (m).
+        rotation_error: ``(N,)`` rotation error of the best attempt (rad).
+    """
+
+    reachable: torch.Tensor
+    joints: torch.Tensor
+    error: torch.Tensor
+    rotation_error: torch.Tensor
+
+
+def reach_check(
+    poses: torch.Tensor,
+    *,
+    arm: SerialArm | None = None,
+    restarts: int = 8,
+    iterations: int = 30,
+    position_tolerance: float = 1e-3,
+    rotation_tolerance: float = 1e-2,
+    seed: int = 0,
+) -> ReachResult:
+    """Which end-effector poses the arm can reach within its joint limits (batched IK).
+
+    Poses that no joint vector reaches within the tolerances, by an exact necessary condition
+    (the wrist pre-check: for an all-revolute chain the last joint's origin is fixed by the
+    pose and the one before lies on a circle around the last axis, which must come within the
+    largest possible distance from the first joint, plus a margin for the tolerances; see
+    ``SerialArm._provably_unreachable``), are rejected without IK (their ``joints`` are the
+    mid-range and ``error`` its position error); the others run :meth:`SerialArm.inverse`
+    with restarts. The pre-check drops no pose that the IK reaches.
+
+    Args:
+        poses: ``(N, 4, 4)`` or ``(N, 7)`` target poses of the end effector in the base frame.
+        arm: the arm (default: the shipped Panda, float64).
+        restarts, iterations: IK effort per pose.
+        position_tolerance: reach tolerance on the position (m, default 1 mm).
+        rotation_tolerance: reach tolerance on the orientation (rad, default 0.01).
+        seed: seed of the IK restarts.
+
+    Returns:
+        :class:`ReachResult`.
+
+    Example:
+        >>> arm = SerialArm.panda()
+        >>> far = torch.eye(4, dtype=torch.float64).clone(); far[0, 3] = 3.0
+        >>> reach_check(torch.stack([arm.forward(torch.zeros(7, dtype=torch.float64)), far]),
+        ...             arm=arm).reachable.tolist()
+        [True, False]
+    """
+    arm = SerialArm.panda() if arm is None else arm
+    mats = _as_matrices("poses", poses).to(dtype=arm.dtype, device=arm.device)
+    if mats.dim() != 3:
+        raise ModelError(
+            f"expected poses to have shape (N, 4, 4) or (N, 7), actual shape = {tuple(poses.shape)}"
+        )
+    if not torch.isfinite(mats).all():
+        raise ModelError("poses has non-finite entries")
+    n = mats.shape[0]
+    within = ~arm._provably_unreachable(mats, position_tolerance, rotation_tolerance)
+    joints = ((arm.lower + arm.upper) / 2).nan_to_num(0.0).expand(n, arm.dof).clone()
+    err = (mats[:, :3, 3] - arm.forward(joints[:1])[0, :3, 3]).norm(dim=-1)
+    rot_err = torch.full((n,), math.pi, dtype=arm.dtype, device=arm.device)
+    reachable = torch.zeros(n, dtype=torch.bool, device=arm.device)
+    idx = torch.nonzero(within).squeeze(-1)
+    if idx.numel():
+        res = arm.inverse(
+            mats[idx],
+            restarts=restarts,
+            iterations=iterations,
+            position_tolerance=position_tolerance,
+            rotation_tolerance=rotation_tolerance,
+            seed=seed,
+        )
+        joints[idx], err[idx], rot_err[idx], reachable[idx] = (
+            res.joints,
+            res.position_error,
+            res.rotation_error,
+            res.success,
+        )
+    return ReachResult(reachable=reachable, joints=joints, error=err, rotation_error=rot_err)
+
+
+# ------------------------------------------------------------------ the human arm
+def human_arm_urdf(*, height: float = 1.75, mass: float = 75.0) -> str:
+    """URDF text of an anthropometric human right arm for a person of the given height.
+
+    Segment lengths and heights as fractions of body height ``H``, masses of body mass ``M``
+    (Winter 2009, "Biomechanics and Motor Control of Human Movement", Fig. 4.1, Table 4.1):
+    shoulder height ``0.818 H``, biacromial width ``0.259 H``, upper arm ``0.186 H``, forearm
+    ``0.146 H``, hand ``0.108 H`` (the ``palm`` frame half a hand past the wrist). Joint
+    ranges: adult active ranges of motion (AAOS 1965). ``body`` stands on the floor, x
+    forward, y left, z up. ``torchhrc/assets/human_arm/human_arm.urdf`` is this function's
+    output for the defaults.
+
+    Example:
+        >>> "upper_arm" in human_arm_urdf(height=1.6)
+        True
+    """
+    if not 0.5 < height < 2.5:
+        raise ModelError(f"expected height in metres in (0.5, 2.5), got {height}")
+    if not mass > 0:
+        raise ModelError(f"expected mass > 0 (kg), got {mass}")
+    h, m = float(height), float(mass)
+    ua, fa, hd = 0.186 * h, 0.146 * h, 0.108 * h
+    sh_z, half_w = 0.818 * h, 0.259 * h / 2
+    d = math.radians
+
+    def inertia(mass_: float, length: float, radius: float = 0.04) -> str:
+        ixx = mass_ * (3 * radius * radius + length * length) / 12
+        izz = mass_ * radius * radius / 2
+        return f'ixx="{ixx:.6g}" ixy="0" ixz="0" iyy="{ixx:.6g}" iyz="0" izz="{izz:.6g}"'
+
+    def link(name: str, mass_: float | None = None, com: float = 0.0, length: float = 0.0) -> str:
+        if mass_ is None:
+            body = (
+                '      <origin xyz="0 0 0" rpy="0 0 0"/>\n      <mass value="0.001"/>\n'
+                '      <inertia ixx="1e-6" ixy="0" ixz="0" iyy="1e-6" iyz="0" izz="1e-6"/>'
+            )
+        else:
+            body = (
+                f'      <origin xyz="0 0 {-com:.6g}" rpy="0 0 0"/>\n'
+                f'      <mass value="{mass_:.6g}"/>\n      <inertia {inertia(mass_, length)}/>'
+            )
+        return f'  <link name="{name}">\n    <inertial>\n{body}\n    </inertial>\n  </link>'
+
+    def joint(
+        name: str,
+        parent: str,
+        child: str,
+        xyz: str,
+        axis: str = "",
+        lo: float = 0.0,
+        hi: float = 0.0,
+    ) -> str:
+        kind = "revolute" if axis else "fixed"
+        extra = (
+            f'\n    <axis xyz="{axis}"/>\n'
+            f'    <limit lower="{lo:.4f}" upper="{hi:.4f}" effort="50" velocity="3"/>'
+            if axis
+            else ""
+        )
+        return (
+            f'  <joint name="{name}" type="{kind}">\n    <parent link="{parent}"/>\n'
+            f'    <child link="{child}"/>\n    <origin xyz="{xyz}" rpy="0 0 0"/>{extra}\n  </joint>'
+        )
+
+    parts = [
+        link("body"),
+        joint("shoulder_mount", "body", "shoulder", f"0 {-half_w:.6g} {sh_z:.6g}"),
+        link("shoulder"),
+        joint(
+            "shoulder_flexion",
+            "shoulder",
+            "shoulder_flexion_link",
+            "0 0 0",
+            "0 -1 0",
+            -d(60),
+            d(180),
+        ),
+        link("shoulder_flexion_link"),
+        joint(
+            "shoulder_abduction",
+            "shoulder_flexion_link",
+            "shoulder_abduction_link",
+            "0 0 0",
+            "-1 0 0",
+            -d(50),
+            d(180),
+        ),
+        link("shoulder_abduction_link"),
+        joint(
+            "shoulder_rotation",
+            "shoulder_abduction_link",
+            "upper_arm",
+            "0 0 0",
+            "0 0 1",
+            -d(70),
+            d(90),
+        ),
+        link("upper_arm", 0.028 * m, 0.436 * ua, ua),
+        joint("elbow_flexion", "upper_arm", "elbow_link", f"0 0 {-ua:.6g}", "0 -1 0", 0.0, d(150)),
+        link("elbow_link"),
+        joint("forearm_pronation", "elbow_link", "forearm", "0 0 0", "0 0 1", -d(80), d(80)),
+        link("forearm", 0.016 * m, 0.430 * fa, fa),
+        joint("wrist_flexion", "forearm", "hand", f"0 0 {-fa:.6g}", "0 -1 0", -d(70), d(80)),
+        link("hand", 0.006 * m, 0.506 * hd, hd),
+        joint("palm_joint", "hand", "palm", f"0 0 {-0.5 * hd:.6g}"),
+        link("palm"),
+    ]
+    header = _HUMAN_HEADER.format(height=h, mass=m)
+    return header + "\n".join(parts) + "\n</robot>\n"
+
+
+_HUMAN_HEADER = """<?xml version="1.0"?>
+<!-- A simple right human arm for reach and comfort checks, written for torchhrc (MIT).
+     Generated by torchhrc.kinematics.human_arm_urdf(height={height}, mass={mass}).
+
+     Person of height H = {height} m and mass M = {mass} kg standing upright; frame "body" on
+     the floor between the feet, x forward (the facing direction), y to the person's left,
+     z up. Segment lengths and heights as fractions of H, segment masses as fractions of M,
+     centres of mass as fractions of segment length from the proximal joint: D. A. Winter,
+     "Biomechanics and Motor Control of Human Movement", 4th ed., Wiley 2009, Fig. 4.1 and
+     Table 4.1 (after Drillis & Contini 1966 and Dempster 1955):
+       shoulder height 0.818 H, shoulder width (biacromial) 0.259 H,
+       upper arm 0.186 H, forearm 0.146 H, hand (wrist to fingertip) 0.108 H;
+       masses 0.028 M, 0.016 M, 0.006 M; centres of mass 0.436, 0.430, 0.506.
+     The palm frame (the point that touches the work surface) is half a hand length past the
+     wrist. Joint ranges are average active ranges of motion of adults, American Academy of
+     Orthopaedic Surgeons, "Joint Motion: Method of Measuring and Recording" (1965):
+       shoulder flexion 180 deg / extension 60, abduction 180 / adduction 50,
+       external rotation 90 / internal 70, elbow flexion 150, pronation/supination 80,
+       wrist flexion 80 / extension 70.
+     Link inertias are solid cylinders of radius 4 cm (only reach matters here). With the arm
+     hanging, all joints are zero and the arm points down (-z). -->
+<robot name="human_right_arm">
+"""
+
+
+@dataclass(frozen=True)
+class PersonModel:
+    """The person who finishes the box, for the comfort check.
+
+    Comfort rules (both must hold):
+
+    * working height: the work point is between ``elbow_height - 0.40 m`` and
+      ``elbow_height + 0.10 m`` (Grandjean 1988, "Fitting the Task to the Man", 4th ed.,
+      working heights for standing work: precision work up to 5-10 cm above elbow height,
+      light work 10-15 cm below, heavy work 15-40 cm below); ``elbow_height = 0.630 H``
+      (Winter 2009);
+    * reach: the right arm (:func:`human_arm_urdf`) reaches the point (IK within
+      ``reach_tolerance``) with the upper arm raised at most ``max_elevation`` (default 90
+      deg: RULA, McAtamney & Corlett 1993, gives its worst upper-arm score above 90 deg) in
+      flexion and in abduction, the other joints within their ranges of motion.
+
+    The person stands facing the robot (facing ``-x`` of the robot base), with the right
+    shoulder level with the work point sideways (they walk along the box), their body frame
+    ``standoff`` metres beyond the box's front face.
+
+    Attributes:
+        height: body height ``H`` (m).
+        floor_height: height of the robot base above the floor (m); the robot is mounted
+            on a table.
+        standoff: horizontal distance from the box's front face to the person's body frame (m).
+        band_below, band_above: the working-height band around the elbow (m).
+        max_elevation: largest comfortable shoulder flexion / abduction (rad).
+        reach_tolerance: IK tolerance on the palm position (m).
+    """
+
+    height: float = 1.75
+    floor_height: float = 0.75
+    standoff: float = 0.25
+    band_below: float = 0.40
+    band_above: float = 0.10
+    max_elevation: float = math.pi / 2
+    reach_tolerance: float = 0.01
+
+    @property
+    def elbow_height(self) -> float:
+        """Elbow height above the floor, ``0.630 H`` (Winter 2009)."""
+        return 0.630 * self.height
+
+
+# -------------------------------------------------------------- box configurations
+@dataclass(frozen=True)
+class BoxGeometry:
+    """The grid of box configurations and the box, in the robot base frame (see module doc).
+
+    Attributes:
+        horizontal: ``(H,)`` box-centre ``y`` values (m).
+        vertical: ``(V,)`` box-centre heights ``z`` above the robot base (m).
+        tilt: ``(T,)`` rotations about the base ``x`` axis (rad).
+        forward: box-centre ``x`` (m).
+        size: box extent ``(depth along x, width along y, height along z)`` (m).
+
+    Example:
+        >>> g = BoxGeometry()
+        >>> g.shape, g.grip_poses().shape
+        ((5, 4, 5), torch.Size([5, 4, 5, 4, 4]))
+    """
+
+    horizontal: tuple[float, ...] = (-0.6, -0.3, 0.0, 0.3, 0.6)
+    vertical: tuple[float, ...] = (0.0, 0.2, 0.4, 0.6)
+    tilt: tuple[float, ...] = (-math.pi / 3, -math.pi / 6, 0.0, math.pi / 6, math.pi / 3)
+    forward: float = 0.75
+    size: tuple[float, float, float] = (0.3, 0.5, 0.3)
+
+    def __post_init__(self) -> None:
+        for name in ("horizontal", "vertical", "tilt"):
+            values = tuple(float(v) for v in getattr(self, name))
+            if not values:
+                raise ModelError(f"expected {name} to have at least one value")
+            object.__setattr__(self, name, values)
+        if len(self.size) != 3 or min(self.size) <= 0:
+            raise ModelError(f"expected size to be three positive lengths, got {self.size!r}")
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """``(H, V, T)``."""
+        return (len(self.horizontal), len(self.vertical), len(self.tilt))
+
+    def box_poses(
+        self, *, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
+    ) -> torch.Tensor:
+        """``(H, V, T, 4, 4)`` poses of the box centre: ``Trans(forward, h, v) Rot_x(tilt)``."""
+        H, V, T = self.shape
+        hy = torch.tensor(self.horizontal, dtype=dtype, device=device)
+        vz = torch.tensor(self.vertical, dtype=dtype, device=device)
+        th = torch.tensor(self.tilt, dtype=dtype, device=device)
+        c, s = torch.cos(th), torch.sin(th)
+        one, zero = torch.ones_like(th), torch.zeros_like(th)
+        rot = torch.stack([one, zero, zero, zero, c, -s, zero, s, c], -1).reshape(T, 3, 3)
+        out = torch.zeros(H, V, T, 4, 4, dtype=dtype, device=device)
+        out[..., :3, :3] = rot
+        out[..., 0, 3] = self.forward
+        out[..., 1, 3] = hy.view(H, 1, 1)
+        out[..., 2, 3] = vz.view(1, V, 1)
+        out[..., 3, 3] = 1.0
+        return out
+
+    def grip_transform(
+        self, *, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
+    ) -> torch.Tensor:
+        """``(4, 4)`` pose of the gripper (TCP) in the box frame: the middle of the back face,
+        approach axis ``z`` along the box's ``x``: ``Trans(-depth/2, 0, 0) Rot_y(pi/2)``."""
+        t = torch.zeros(4, 4, dtype=dtype, device=device)
+        t[:3, :3] = torch.tensor([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]], dtype=dtype)
+        t[0, 3] = -self.size[0] / 2
+        t[3, 3] = 1.0
+        return t
+
+    def grip_poses(
+        self, *, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
+    ) -> torch.Tensor:
+        """``(H, V, T, 4, 4)`` end-effector (TCP) targets: ``box_pose @ grip_transform``."""
+        return self.box_poses(dtype=dtype, device=device) @ self.grip_transform(
+            dtype=dtype, device=device
+        )
+
+    def work_points(
+        self,
+        side: str,
+        *,
+        dtype: torch.dtype = torch.float64,
+        device: torch.device | str | None = None,
+    ) -> torch.Tensor:
+        """``(H, V, T, 3)`` centre of the box's ``"left"`` (``+y``) or ``"right"`` (``-y``)
+        side surface, the surface the person refinishes, in the base frame."""
+        if side not in ("left", "right"):
+            raise ModelError(f"expected side 'left' or 'right', got {side!r}")
+        sign = 1.0 if side == "left" else -1.0
+        local = torch.tensor([0.0, sign * self.size[1] / 2, 0.0, 1.0], dtype=dtype, device=device)
+        return (self.box_poses(dtype=dtype, device=device) @ local)[..., :3]
+
+    def index(self, horizontal: int, vertical: int, tilt: int) -> int:
+        """Flat configuration index ``(h * V + v) * T + t``."""
+        H, V, T = self.shape
+        if not (0 <= horizontal < H and 0 <= vertical < V and 0 <= tilt < T):
+            raise ModelError(
+                f"expected indices in [0, {H}) x [0, {V}) x [0, {T}), "
+                f"got ({horizontal}, {vertical}, {tilt})"
+            )
+        return (horizontal * V + vertical) * T + tilt
+
+
+# ------------------------------------------------------------------- comfort check
+@dataclass(frozen=True)
+class ComfortResult:
+    """Result of :func:`comfort_check` for points of batch shape ``(...)``.
+
+    Attributes:
+        comfortable: ``(...)`` bool, both rules hold.
+        height_ok: ``(...)`` bool, within the working-height band.
+        reach_ok: ``(...)`` bool, the arm reaches it within the comfortable ranges.
+        height: ``(...)`` height of the point above the floor (m).
+        joints: ``(..., 6)`` the arm's IK solution.
+    """
+
+    comfortable: torch.Tensor
+    height_ok: torch.Tensor
+    reach_ok: torch.Tensor
+    height: torch.Tensor
+    joints: torch.Tensor
+
+
+def comfort_check(
+    points: torch.Tensor,
+    *,
+    front_x: float,
+    person: PersonModel | None = None,
+    human: SerialArm | None = None,
+    seed: int = 0,
+) -> ComfortResult:
+    """Whether a person can comfortably work at points ``(..., 3)`` of the robot base frame.
+
+    The rules are those of :class:`PersonModel`. The person faces ``-x``; their body frame is
+    at ``x = front_x + standoff`` on the floor (``z = -floor_height``), shifted sideways so
+    that the right shoulder is level with each point.
+
+    Args:
+        points: ``(..., 3)`` work points in the robot base frame.
+        front_x: ``x`` of the box's front face (the face towards the person).
+        person: the person (default :class:`PersonModel`).
+        human: the arm model (default ``SerialArm.human_arm(height=person.height)``).
+        seed: seed of the IK restarts.
+
+    Returns:
+        :class:`ComfortResult`.
+
+    Example:
+        >>> r = comfort_check(torch.tensor([[0.6, 0.0, 0.3], [0.6, 0.0, 1.5]],
+        ...                   dtype=torch.float64), front_x=0.75)
+        >>> r.comfortable.tolist()
+        [True, False]
+    """
+    person = PersonModel() if person is None else person
+    human = SerialArm.human_arm(height=person.height) if human is None else human
+    points = check_tensor("points", points).to(dtype=human.dtype, device=human.device)
+    check_shape("points", points, (3,), "(..., 3)")
+    batch = points.shape[:-1]
+    pts = points.reshape(-1, 3)
+    height = pts[:, 2] + person.floor_height
+    elbow = person.elbow_height
+    height_ok = (height >= elbow - person.band_below) & (height <= elbow + person.band_above)
+    # Into the person's body frame: facing -x of the base is a rotation by pi about z.
+    # Body frame: x_body = -x_base, y_body = -y_base; the person steps sideways so that the
+    # right shoulder (y_body = shoulder_y) is level with the point.
+    shoulder_y = float(human._fixed[0][1, 3])
+    local = torch.stack(
+        [front_x + person.standoff - pts[:, 0], torch.full_like(height, shoulder_y), height], dim=-1
+    )
+    lower = human.lower.clone()
+    upper = human.upper.clone()
+    names = human.joint_names
+    for joint in ("shoulder_flexion", "shoulder_abduction"):
+        if joint in names:
+            upper[names.index(joint)] = min(float(upper[names.index(joint)]), person.max_elevation)
+    res = human.inverse(
+        local,
+        position_only=True,
+        restarts=4,
+        iterations=30,
+        lower=lower,
+        upper=upper,
+        position_tolerance=person.reach_tolerance,
+        seed=seed,
+    )
+    reach_ok = res.success
+    return ComfortResult(
+        comfortable=(height_ok & reach_ok).reshape(batch),
+        height_ok=height_ok.reshape(batch),
+        reach_ok=reach_ok.reshape(batch),
+        height=height.reshape(batch),
+        joints=res.joints.reshape(*batch, human.dof),
+    )
+
+
+@dataclass(frozen=True)
+class BoxFeasibility:
+    """Which box configurations the task keeps (shapes over the ``H x V x T`` grid).
+
+    Attributes:
+        reachable: ``(H, V, T)`` bool, the robot reaches and holds the grip pose.
+        comfortable: ``(H, V, T, 2)`` bool, comfortable for the person working on the
+            ``[left, right]`` side surface.
+        mask: ``(H, V, T)`` bool, ``reachable & comfortable.any(-1)``: the configurations
+            kept in the MOMDP.
+        joints: ``(H, V, T, DOF)`` the robot's joint solutions (drive targets for the sim).
+        position_error: ``(H, V, T)`` the robot IK's position error (m).
+    """
+
+    reachable: torch.Tensor
+    comfortable: torch.Tensor
+    mask: torch.Tensor
+    joints: torch.Tensor
+    position_error: torch.Tensor = field(repr=False)
+
+    @property
+    def fraction(self) -> float:
+        """Fraction of configurations kept."""
+        return float(self.mask.double().mean())
+
+
+def feasible_box_configurations(
+    geometry: BoxGeometry | None = None,
+    *,
+    arm: SerialArm | None = None,
+    person: PersonModel | None = None,
+    restarts: int = 8,
+    seed: int = 0,
+) -> BoxFeasibility:
+    """Reach and comfort of every box configuration of the hand-finishing task.
+
+    Args:
+        geometry: the configuration grid and box (default :class:`BoxGeometry`).
+        arm: the robot (default the shipped Panda).
+        person: the person (default :class:`PersonModel`).
+        restarts: IK restarts per configuration.
+        seed: seed of the IK restarts.
+
+    Returns:
+        :class:`BoxFeasibility`; ``mask.flatten()`` is indexed by
+        :meth:`BoxGeometry.index`.
+
+    Example:
+        >>> f = feasible_box_configurations(BoxGeometry(horizontal=(0.0,), vertical=(0.2,),
+        ...                                             tilt=(0.0,)))
+        >>> f.reachable.tolist(), f.mask.shape
+        ([[[True]]], torch.Size([1, 1, 1]))
+    """
+    geometry = BoxGeometry() if geometry is None else geometry
+    arm = SerialArm.panda() if arm is None else arm
+    H, V, T = geometry.shape
+    grips = geometry.grip_poses(dtype=arm.dtype, device=arm.device).reshape(-1, 4, 4)
+    reach = reach_check(grips, arm=arm, restarts=restarts, seed=seed)
+    front_x = geometry.forward + geometry.size[0] / 2
+    sides = torch.stack(
+        [
+            geometry.work_points("left", dtype=arm.dtype),
+            geometry.work_points("right", dtype=arm.dtype),
+        ],
+        dim=-2,
+    )  # (H, V, T, 2, 3)
+    comfort = comfort_check(sides, front_x=front_x, person=person, seed=seed)
+    reachable = reach.reachable.reshape(H, V, T)
+    return BoxFeasibility(
+        reachable=reachable,
+        comfortable=comfort.comfortable,
+        mask=reachable & comfort.comfortable.any(-1),
+        joints=reach.joints.reshape(H, V, T, arm.dof),
+        position_error=reach.error.reshape(H, V, T),
+    )

@@ -31,7 +31,13 @@ COMMANDS: tuple[str, ...] = (
     "reproduce",
 )
 
-USER_ERRORS = (TorchHRCError, FileNotFoundError, IsADirectoryError, PermissionError, FileExistsError)
+USER_ERRORS = (
+    TorchHRCError,
+    FileNotFoundError,
+    IsADirectoryError,
+    PermissionError,
+    FileExistsError,
+)
 
 
 class _Parser(argparse.ArgumentParser):

@@ -33,7 +33,7 @@ batch dims. The result is a :class:`BeliefUpdate` ``(belief, log_normalizer)``, 
 
 An observation of probability zero under the belief raises :class:`~torchhrc.errors.ModelError`
 naming the action and observation (``on_zero="raise"``, the default of the single updates), or
-returns ``log_normalizer = -inf`` with a uniform placeholder belief (``on_zero="ninf"``, the
+returns ``log_normalizer = -inf`` with a uniform stand-in belief (``on_zero="ninf"``, the
 default of the ``*_all`` functions, where impossible observations are routine). Never NaN, in
 values or gradients.
 
@@ -436,7 +436,7 @@ def update_all(model: POMDP, belief: torch.Tensor, *, on_zero: OnZero = "ninf") 
         model: the POMDP.
         belief: ``(..., S)`` belief.
         on_zero: ``"ninf"`` (default: impossible observations get ``-inf`` and a uniform
-            placeholder belief) or ``"raise"``.
+            stand-in belief) or ``"raise"``.
 
     Returns:
         :class:`BeliefUpdate` with ``belief (..., A, O, S)`` (the updated belief after action

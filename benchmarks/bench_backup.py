@@ -19,27 +19,16 @@ Prints a Markdown table (times are medians over the repeats).
 from __future__ import annotations
 
 import argparse
-import statistics
 import time
-from collections.abc import Callable
 
 import torch
+from _timing import median_time
 
 from torchhrc.solvers import PBVIConfig, pbvi
 from torchhrc.solvers.backup import momdp_point_backup, point_backup
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.tasks.classic import rock_sample_momdp, tiger
 from torchhrc.testing import random_pomdp
-
-
-def _time(fn: Callable[[], object], repeats: int) -> float:
-    fn()  # warm up
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def batched_vs_loop(repeats: int, M: int) -> list[tuple[str, int, int, float, float]]:
@@ -64,8 +53,8 @@ def batched_vs_loop(repeats: int, M: int) -> list[tuple[str, int, int, float, fl
         def loop_calls(m=model, b=beliefs, p=policy):
             return [point_backup(m, p, b[i : i + 1]) for i in range(M)]
 
-        batched = _time(one_call, repeats)
-        loop = _time(loop_calls, repeats)
+        batched = median_time(one_call, repeats)
+        loop = median_time(loop_calls, repeats)
         rows.append((name, S, M, batched, loop))
     return rows
 
@@ -85,8 +74,8 @@ def factored_vs_flat(repeats: int, expansions: int) -> list[tuple[str, str, str]
     embedded = torch.full((policy.num_vectors, X, Y), -1e4, dtype=torch.float64)
     embedded[torch.arange(policy.num_vectors), policy.observed] = policy.alphas
     flat_policy = AlphaVectorPolicy(embedded.reshape(-1, X * Y), policy.actions)
-    factored = _time(lambda: momdp_point_backup(momdp, policy, x, b_y), repeats)
-    flat = _time(lambda: point_backup(flat_model, flat_policy, flat_beliefs), repeats)
+    factored = median_time(lambda: momdp_point_backup(momdp, policy, x, b_y), repeats)
+    flat = median_time(lambda: point_backup(flat_model, flat_policy, flat_beliefs), repeats)
     rows = [
         (
             f"one backup sweep: {M} beliefs, {policy.num_vectors} vectors",

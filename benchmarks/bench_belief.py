@@ -20,26 +20,15 @@ Prints a Markdown table (times are medians over the repeats).
 from __future__ import annotations
 
 import argparse
-import statistics
 import time
-from collections.abc import Callable
 
 import numpy as np
 import torch
+from _timing import median_time
 
 from torchhrc.belief import momdp_update_all, update, update_all
 from torchhrc.pomdp import POMDP
 from torchhrc.tasks.classic import rock_sample, rock_sample_momdp, tag, tag_momdp, tiger
-
-
-def _time(fn: Callable[[], object], repeats: int) -> float:
-    fn()  # warm up
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def _pomdp_py_update(model: POMDP, belief: np.ndarray, action: int, observation: int):
@@ -98,7 +87,9 @@ def main(argv: list[str] | None = None) -> int:
     for name, model in problems.items():
         beliefs = _beliefs(model, M, seed=0)
         a, o = _sample_steps(model, beliefs, seed=10)
-        ours = _time(lambda m=model, b=beliefs, a=a, o=o: update(m, b, a, o), args.repeats) / M
+        ours = (
+            median_time(lambda m=model, b=beliefs, a=a, o=o: update(m, b, a, o), args.repeats) / M
+        )
         n = min(args.pomdp_py_updates, M)
         _pomdp_py_update(model, beliefs[0].numpy(), int(a[0]), int(o[0]))  # warm up (import)
         start = time.perf_counter()
@@ -114,9 +105,9 @@ def main(argv: list[str] | None = None) -> int:
     for name, model in problems.items():
         beliefs = _beliefs(model, M, seed=1)
         a, o = _sample_steps(model, beliefs, seed=11)
-        batched = _time(lambda m=model, b=beliefs, a=a, o=o: update(m, b, a, o), args.repeats)
+        batched = median_time(lambda m=model, b=beliefs, a=a, o=o: update(m, b, a, o), args.repeats)
         pairs = list(zip(beliefs, a.tolist(), o.tolist()))
-        loop = _time(lambda m=model, p=pairs: [update(m, b, ai, oi) for b, ai, oi in p], 1)
+        loop = median_time(lambda m=model, p=pairs: [update(m, b, ai, oi) for b, ai, oi in p], 1)
         print(f"| {name} | {batched:.3e} | {loop:.3e} | {loop / batched:.0f}x |")
 
     print("\n| problem | momdp_update_all s | update_all on to_pomdp() s | ratio |")
@@ -131,8 +122,8 @@ def main(argv: list[str] | None = None) -> int:
         )
         onehot = torch.nn.functional.one_hot(x, mm.num_observed).double()
         b_flat = (onehot[:, :, None] * by[:, None]).reshape(m, -1)
-        fact = _time(lambda mm=mm, x=x, by=by: momdp_update_all(mm, x, by), args.repeats)
-        flat_t = _time(lambda f=flat, b=b_flat: update_all(f, b), args.repeats)
+        fact = median_time(lambda mm=mm, x=x, by=by: momdp_update_all(mm, x, by), args.repeats)
+        flat_t = median_time(lambda f=flat, b=b_flat: update_all(f, b), args.repeats)
         print(f"| {name} ({m} beliefs) | {fact:.3e} | {flat_t:.3e} | {flat_t / fact:.1f}x |")
     return 0
 

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import torch
 
-from torchhrc.experiments.place_and_drill import type_policy_lower_bound
 from torchhrc.mixture import fit_mixture, infer_type
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
+from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.place_and_drill.demos import simulate_study
 from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask, build_learned_model
 from torchhrc.tasks.place_and_drill.simulate import MOMDPController, run_executions

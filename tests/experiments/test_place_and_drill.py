@@ -12,9 +12,9 @@ from torchhrc.experiments.place_and_drill import (
     StudySettings,
     prepare_output_dir,
     reproduce_place_and_drill,
-    type_policy_lower_bound,
 )
 from torchhrc.experiments.report import check_metrics
+from torchhrc.solvers.type_policies import type_policy_lower_bound
 
 
 @pytest.fixture(scope="module")

@@ -6,10 +6,10 @@ import torch
 from torchhrc.belief import momdp_update
 from torchhrc.errors import ModelError
 from torchhrc.experiments.hand_finishing import cluster_preferences, observation_grid
-from torchhrc.experiments.place_and_drill import type_policy_lower_bound
 from torchhrc.kinematics import BoxGeometry
 from torchhrc.mixture import fit_mixture
 from torchhrc.solvers import SARSOPConfig, solve
+from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.hand_finishing import ACTIONS, HandFinishingTask, count_states
 from torchhrc.tasks.hand_finishing.person import simulate_demonstrations, simulate_episodes
 

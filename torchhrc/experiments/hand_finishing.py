@@ -34,10 +34,11 @@ from typing import Any
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.experiments.place_and_drill import prepare_output_dir, type_policy_lower_bound
+from torchhrc.experiments.place_and_drill import prepare_output_dir
 from torchhrc.experiments.report import _pyplot, _save, write_json_atomic, write_text_atomic
 from torchhrc.kinematics import BoxGeometry
 from torchhrc.observation import ObservationGrid, fit_observation_model, simulate_tracks
+from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.hand_finishing.model import SIDES, HandFinishingTask
 from torchhrc.tasks.hand_finishing.person import (
     Episodes,

@@ -60,7 +60,7 @@ from torchhrc.experiments.robustness import (
     simulate_subject,
 )
 from torchhrc.pomdp import MOMDP
-from torchhrc.solvers.policy import AlphaVectorPolicy
+from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.place_and_drill.model import build_learned_model
 from torchhrc.tasks.place_and_drill.simulate import demonstrated_orders
 
@@ -71,7 +71,6 @@ __all__ = [
     "prepare_output_dir",
     "reproduce_place_and_drill",
     "run_study",
-    "type_policy_lower_bound",
 ]
 
 logger = logging.getLogger(__name__)
@@ -149,39 +148,6 @@ def prepare_output_dir(out_dir: str | os.PathLike[str], *, force: bool = False) 
         )
     path.mkdir(parents=True, exist_ok=True)
     return path
-
-
-def type_policy_lower_bound(model: MOMDP) -> AlphaVectorPolicy:
-    """Lower-bound alpha vectors of a static-type MOMDP from its per-type MDP policies.
-
-    For each type ``y`` let ``pi_y`` be the optimal policy of the MDP ``(Tx[:, :, y], R[..., y])``.
-    Following ``pi_y`` needs only ``x``, so its value under every true type ``y2``,
-    ``V^{pi_y}_{y2}(x)`` (exact policy evaluation), is achievable from ``(x, b)``: the vector
-    ``alpha_{y, x} = (V^{pi_y}_{y2}(x))_{y2}`` with action ``pi_y(x)`` is a valid lower bound
-    (the value of a conditional plan). SARSOP starts from these ``Y * X`` vectors instead of
-    the blind policies, which on this task are far below (waiting forever costs every step).
-
-    Args:
-        model: an unbatched MOMDP with ``Ty is None``.
-
-    Returns:
-        A MOMDP :class:`~torchhrc.solvers.policy.AlphaVectorPolicy` with ``Y * X`` vectors.
-    """
-    from torchhrc.solvers.policy import AlphaVectorPolicy
-    from torchhrc.solvers.value_iteration import policy_evaluation, value_iteration
-
-    if model.Ty is not None or model.batch_shape != torch.Size([]):
-        raise ModelError("type_policy_lower_bound needs an unbatched MOMDP with a static type")
-    T = model.Tx.permute(2, 0, 1, 3)  # (Y, A, X, X)
-    R = model.R.permute(2, 0, 1)  # (Y, A, X)
-    Y, X = T.shape[0], T.shape[-1]
-    policies = value_iteration(T, R, model.discount).policy  # (Y, X)
-    # values[y, y2, x] = value of following pi_y when the true type is y2
-    values = policy_evaluation(T.unsqueeze(0), R.unsqueeze(0), model.discount,
-                               policies.unsqueeze(1).expand(Y, Y, X))  # fmt: skip
-    alphas = values.permute(0, 2, 1).reshape(Y * X, Y)
-    observed = torch.arange(X).repeat(Y)
-    return AlphaVectorPolicy(alphas, policies.reshape(Y * X), observed=observed)
 
 
 def _solve(model: MOMDP, settings: StudySettings) -> Any:

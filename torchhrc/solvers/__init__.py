@@ -34,6 +34,7 @@ from torchhrc.solvers.pruning import prune_by_beliefs, prune_dominated
 from torchhrc.solvers.qmdp import QMDPConfig, qmdp, qmdp_policy, qmdp_vectors
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
 from torchhrc.solvers.solution import Solution
+from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.solvers.value_iteration import MDPSolution, policy_evaluation, value_iteration
 
 __all__ = [
@@ -64,6 +65,7 @@ __all__ = [
     "register_solver",
     "sarsop",
     "solve",
+    "type_policy_lower_bound",
     "value_iteration",
 ]
 

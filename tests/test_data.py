@@ -316,3 +316,27 @@ def test_undecodable_bytes_and_csv_errors_are_parse_errors(tmp_path):
     path.write_bytes(b'{"format": "caf\xe9"}')
     with pytest.raises(ParseError, match="not UTF-8"):
         Demonstrations.read_json(path)
+
+
+def test_map_actions_merges_symbols_and_keeps_every_step():
+    d = Demonstrations.from_lists(
+        [
+            [("human", "place_A"), ("robot", "drill_A"), ("human", "place_B")],
+            [("human", "place_B"), ("robot", "wait")],
+        ]
+    )
+    merged = d.map_actions(lambda actor, action: action.split("_")[0])
+    assert merged.symbol_names == ("human:place", "robot:drill", "robot:wait")
+    assert merged.to_lists() == [
+        [("human", "place"), ("robot", "drill"), ("human", "place")],
+        [("human", "place"), ("robot", "wait")],
+    ]
+    assert torch.equal(merged.lengths, d.lengths)
+    # a dict renames only the names it has; the padding stays 0
+    renamed = d.map_actions({"wait": "idle"})
+    assert ("robot", "idle") in renamed.vocabulary and renamed.num_symbols == d.num_symbols
+    assert int(renamed.sequences[1, 2]) == 0
+    with pytest.raises(ModelError, match="expected an action name"):
+        d.map_actions(lambda actor, action: "")
+    with pytest.raises(TypeError, match="callable or a dict"):
+        d.map_actions(3)

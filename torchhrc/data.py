@@ -25,11 +25,12 @@ Example:
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import os
 import tempfile
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -494,6 +495,50 @@ class Demonstrations:
             raise ModelError(f"no sequences for subject(s) {missing}")
         keep = [(s in wanted) != exclude for s in self.subjects]
         return self.subset(torch.tensor(keep, dtype=torch.bool).reshape(self.num_sequences))
+
+    def map_actions(self, mapping: Callable[[str, str], str] | Mapping[str, str]) -> Demonstrations:
+        """The same demonstrations with action names mapped; symbols that meet are merged.
+
+        Ties the parameters of symbols a user considers equivalent, e.g. every placement
+        position: ``place_A, place_B, ... -> place``. The actor of a step never changes.
+
+        Args:
+            mapping: ``mapping(actor, action) -> new action``, or a dict from old to new
+                action names (names it lacks stay as they are).
+
+        Returns:
+            Demonstrations over the merged vocabulary (canonical order), same steps.
+
+        Example:
+            >>> d = Demonstrations.from_lists([[("human", "place_A"), ("human", "place_B")]])
+            >>> d.map_actions(lambda actor, action: action.split("_")[0]).symbol_names
+            ('human:place',)
+        """
+        if isinstance(mapping, Mapping):
+            table = dict(mapping)
+
+            def rename(actor: str, action: str) -> str:
+                return table.get(action, action)
+
+        elif callable(mapping):
+            rename = mapping
+        else:
+            raise TypeError(
+                f"expected mapping to be a callable or a dict, got {type(mapping).__name__}"
+            )
+        steps = []
+        for actor, action in self.vocabulary:
+            new = rename(actor, action)
+            if not isinstance(new, str) or not new:
+                raise ModelError(
+                    f"mapping({actor!r}, {action!r}) returned {new!r}; expected an action name"
+                )
+            steps.append((actor, new))
+        vocabulary = _sorted_vocabulary(steps)
+        lut = torch.tensor([vocabulary.index(s) for s in steps], device=self.device)
+        return dataclasses.replace(
+            self, vocabulary=vocabulary, sequences=torch.where(self.mask, lut[self.sequences], 0)
+        )
 
     # ------------------------------------------------------------------ statistics
     def transition_counts(self, *, per_sequence: bool = False) -> torch.Tensor:

@@ -1,4 +1,3 @@
-import dataclasses
 import math
 
 import pytest
@@ -60,10 +59,7 @@ def _harder_study(seed):
 
 def _position_abstract(demos):
     """The same demonstrations over (actor, verb) symbols: place_A, place_B, ... -> place."""
-    steps = [(actor, action.split("_")[0]) for actor, action in demos.vocabulary]
-    vocabulary = tuple(dict.fromkeys(steps))
-    lut = torch.tensor([vocabulary.index(step) for step in steps])
-    return dataclasses.replace(demos, vocabulary=vocabulary, sequences=lut[demos.sequences])
+    return demos.map_actions(lambda actor, action: action.split("_")[0])
 
 
 @pytest.mark.slow

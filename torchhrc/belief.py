@@ -211,6 +211,19 @@ def _handle_zero(
         )
 
 
+def _grid_labels(device: torch.device, **sizes: int) -> dict[str, torch.Tensor]:
+    """Index tensors of a grid of outcomes, broadcastable against each other in order.
+
+    ``_grid_labels(d, action=A, observation=O)`` gives ``action (A, 1)`` and
+    ``observation (O,)``: the labels an error message uses for the offending entry.
+    """
+    names = list(sizes)
+    return {
+        name: torch.arange(sizes[name], device=device).view(-1, *[1] * (len(names) - i - 1))
+        for i, name in enumerate(names)
+    }
+
+
 def _normalize(
     joint: torch.Tensor, on_zero: str, what: str, labels: dict[str, torch.Tensor]
 ) -> BeliefUpdate:
@@ -450,11 +463,9 @@ def update_all(model: POMDP, belief: torch.Tensor, *, on_zero: OnZero = "ninf") 
     """
     predicted = predict_all(model, belief)  # (..., A, S)
     joint = predicted.unsqueeze(-2) * model.Z.transpose(-1, -2)  # (..., A, O, S)
-    A, O = model.num_actions, model.num_observations
-    labels = {
-        "action": torch.arange(A, device=joint.device).view(A, 1),
-        "observation": torch.arange(O, device=joint.device),
-    }
+    labels = _grid_labels(
+        joint.device, action=model.num_actions, observation=model.num_observations
+    )
     return _normalize(joint, on_zero, "observation", labels)
 
 
@@ -516,11 +527,9 @@ def log_update_all(
     log_belief = _check_belief("log_belief", log_belief, model.num_states, "(..., S)")
     log_pred = _log_linear(log_belief, lambda p: predict_all(model, p), 1)  # (..., A, S)
     log_joint = log_pred.unsqueeze(-2) + _safe_log(model.Z.transpose(-1, -2))  # (..., A, O, S)
-    A, O = model.num_actions, model.num_observations
-    labels = {
-        "action": torch.arange(A, device=log_joint.device).view(A, 1),
-        "observation": torch.arange(O, device=log_joint.device),
-    }
+    labels = _grid_labels(
+        log_joint.device, action=model.num_actions, observation=model.num_observations
+    )
     return _log_normalize(log_joint, on_zero, "observation", labels)
 
 
@@ -714,12 +723,7 @@ def momdp_update_all(
     predicted = momdp_predict_all(model, x, belief_y)  # (..., A, X, Y)
     joint = predicted.unsqueeze(-2) * model.Z.transpose(-1, -2)  # (..., A, X, O, Y)
     A, X, O = model.num_actions, model.num_observed, model.num_observations
-    dev = joint.device
-    labels = {
-        "action": torch.arange(A, device=dev).view(A, 1, 1),
-        "x_next": torch.arange(X, device=dev).view(X, 1),
-        "observation": torch.arange(O, device=dev),
-    }
+    labels = _grid_labels(joint.device, action=A, x_next=X, observation=O)
     return _normalize(joint, on_zero, "(x_next, observation)", labels)
 
 
@@ -775,10 +779,5 @@ def momdp_log_update_all(
     log_pred = _log_linear(log_belief_y, lambda p: momdp_predict_all(model, x, p), 2)
     log_joint = log_pred.unsqueeze(-2) + _safe_log(model.Z.transpose(-1, -2))
     A, X, O = model.num_actions, model.num_observed, model.num_observations
-    dev = log_joint.device
-    labels = {
-        "action": torch.arange(A, device=dev).view(A, 1, 1),
-        "x_next": torch.arange(X, device=dev).view(X, 1),
-        "observation": torch.arange(O, device=dev),
-    }
+    labels = _grid_labels(log_joint.device, action=A, x_next=X, observation=O)
     return _log_normalize(log_joint, on_zero, "(x_next, observation)", labels)

@@ -36,6 +36,7 @@ Example:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -43,7 +44,11 @@ import torch
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
 
-__all__ = ["BeliefTree", "FactoredModel"]
+if TYPE_CHECKING:
+    from torchhrc.solvers.sparse_model import SparseFlatModel
+    from torchhrc.sparse import SparsePOMDP
+
+__all__ = ["BeliefTree", "FactoredModel", "SparseBeliefTree"]
 
 
 @dataclass
@@ -77,6 +82,7 @@ class FactoredModel:
     _tyk: list[torch.Tensor | None]
     _z: list[torch.Tensor]
     _T: torch.Tensor | None
+    sparse: SparseFlatModel | None = None
 
     @classmethod
     def from_model(cls, model: POMDP | MOMDP, *, dtype: torch.dtype | None = None) -> FactoredModel:
@@ -122,6 +128,39 @@ class FactoredModel:
             _T=Ty[:, 0, :, 0, :].contiguous() if flat else None,
         )  # fmt: skip
 
+    @classmethod
+    def from_sparse(
+        cls, model: SparsePOMDP | SparseFlatModel, *, dtype: torch.dtype | None = None
+    ) -> FactoredModel:
+        """The factored view of a flat model with sparse transitions (``X = 1``).
+
+        ``T`` stays sparse (:class:`~torchhrc.solvers.sparse_model.SparseFlatModel`, in
+        :attr:`sparse`); :meth:`expand` and :meth:`backproject` use it. ``Tx`` is the
+        ``(A, 1, S, 1)`` ones and ``Ty`` is None (never read on this path).
+
+        Example:
+            >>> from torchhrc.sparse import SparsePOMDP
+            >>> from torchhrc.tasks.classic import tiger
+            >>> fm = FactoredModel.from_sparse(SparsePOMDP.from_dense(tiger()))
+            >>> fm.expand(0, fm.b0.unsqueeze(0))[1].shape  # (B, A, K, O, Y)
+            torch.Size([1, 3, 1, 2, 2])
+        """
+        from torchhrc.solvers.sparse_model import SparseFlatModel
+
+        dt = dtype or torch.float64
+        if not isinstance(model, SparseFlatModel) or model.dtype != dt:
+            model = SparseFlatModel.from_model(model, dtype=dt)  # type: ignore[arg-type]
+        A, S, O = model.num_actions, model.num_states, model.num_observations
+        Tx = model.R.new_ones(A, 1, S, 1)
+        reach = [torch.zeros(1, dtype=torch.long)]
+        return cls(
+            Tx=Tx, Ty=None, Z=model.Z.reshape(A, 1, S, O), R=model.R.reshape(A, 1, S), x0=0,
+            b0=model.b0, discount=model.discount, flat=True, reach=reach,
+            reach_mask=torch.ones(1, 1, dtype=torch.bool), _tx=[Tx[:, 0]], _ty=[None],
+            _tyk=[None], _z=[model.Z.permute(0, 2, 1).unsqueeze(1).contiguous()], _T=None,
+            sparse=model,
+        )  # fmt: skip
+
     @property
     def num_actions(self) -> int:
         return self.Tx.shape[0]
@@ -151,7 +190,9 @@ class FactoredModel:
             tau(b_i, a, xs[k], o)[y2]`` (the formula of the module docstring).
         """
         z = self._z[x]
-        if self._T is not None:  # flat: one (B, S) x (A, S, S) product
+        if self.sparse is not None:  # flat, sparse T: one (A S, S) x (S, B) sparse product
+            pred = self.sparse.predict(beliefs).unsqueeze(2)  # (B, A, 1, S)
+        elif self._T is not None:  # flat: one (B, S) x (A, S, S) product
             S = beliefs.shape[-1]
             if beliefs.shape[0] == 1 and S >= 64:
                 # one belief: only the rows of T on its support matter (beliefs of structured
@@ -182,6 +223,8 @@ class FactoredModel:
         Returns:
             ``(B, Y)`` the expected next-step value per current hidden value.
         """
+        if self.sparse is not None:  # flat, sparse T
+            return self.sparse.backproject(actions, values[:, 0, :])
         if self._T is not None:  # flat: T[a] @ values
             if actions.numel() == 1:  # a view of T[a], no (S, S) copy
                 return torch.mv(self._T[int(actions[0])], values[0, 0]).unsqueeze(0)
@@ -223,8 +266,7 @@ class BeliefTree:
 
     def __init__(self, belief: torch.Tensor, x: int, *, capacity: int = 1024) -> None:
         cap = max(int(capacity), 2)
-        Y = belief.shape[-1]
-        self._beliefs = belief.new_zeros(cap, Y)
+        self._init_beliefs(belief, cap)
         self.x = np.zeros(cap, dtype=np.int64)
         self.parent = np.full(cap, -1, dtype=np.int64)
         self.action = np.full(cap, -1, dtype=np.int64)
@@ -238,6 +280,9 @@ class BeliefTree:
         self.size = 0
         self.add(belief, x, -1, -1, -1)
 
+    def _init_beliefs(self, belief: torch.Tensor, cap: int) -> None:
+        self._beliefs = belief.new_zeros(cap, belief.shape[-1])
+
     @property
     def beliefs_np(self) -> np.ndarray:
         """``(capacity, Y)`` a numpy view of the belief storage (CPU only; rows ``< size``)."""
@@ -250,12 +295,18 @@ class BeliefTree:
         """``(N, Y)`` the node beliefs."""
         return self._beliefs[: self.size]
 
-    def _grow(self) -> None:
-        cap = self._beliefs.shape[0] * 2
+    def _grow_beliefs(self, cap: int) -> None:
         new = self._beliefs.new_zeros(cap, self._beliefs.shape[1])
         new[: self.size] = self._beliefs[: self.size]
         self._beliefs = new
         self._np_beliefs = None
+
+    def _set_belief(self, n: int, belief: torch.Tensor) -> None:
+        self._beliefs[n] = belief
+
+    def _grow(self) -> None:
+        cap = self.x.shape[0] * 2
+        self._grow_beliefs(cap)
         for name, fill in (
             ("x", 0), ("parent", -1), ("action", -1), ("observation", -1),
             ("depth", 0), ("lower", -np.inf), ("upper", np.inf), ("active", True),
@@ -270,10 +321,10 @@ class BeliefTree:
 
         Returns the new node's id (the root, with ``parent = -1``, is node 0).
         """
-        if self.size == self._beliefs.shape[0]:
+        if self.size == self.x.shape[0]:
             self._grow()
         n = self.size
-        self._beliefs[n] = belief
+        self._set_belief(n, belief)
         self.x[n] = x
         self.parent[n] = parent
         self.action[n] = action
@@ -299,3 +350,86 @@ class BeliefTree:
         for d in range(1, int(self.depth[:n].max()) + 1):
             nodes = order[self.depth[order] == d]
             act[nodes] &= act[parent[nodes]]
+
+
+class _DenseRows:
+    """``rows[n]``: the dense ``(S,)`` numpy row of node ``n`` of a :class:`SparseBeliefTree`."""
+
+    def __init__(self, tree: SparseBeliefTree) -> None:
+        self.tree = tree
+
+    def __getitem__(self, n: int) -> np.ndarray:
+        return self.tree.dense_np(int(n))
+
+
+class SparseBeliefTree(BeliefTree):
+    """A :class:`BeliefTree` that stores each belief as its support (indices and values).
+
+    For flat models with many states whose reachable beliefs are sparse (RockSample(7, 8):
+    12545 states, the robot's position known, at most 256 rock states possible): a node costs
+    its support, not ``S`` floats. ``beliefs_np[n]`` returns node ``n``'s dense ``(S,)`` numpy
+    row, built on demand; :meth:`csr` gives rows as a sparse CSR tensor and :attr:`beliefs` the
+    dense ``(N, S)`` tensor (for small trees and tests only).
+
+    Example:
+        >>> import torch
+        >>> tree = SparseBeliefTree(torch.tensor([0.5, 0.0, 0.5], dtype=torch.float64), x=0)
+        >>> tree.beliefs_np[0].tolist(), tree.support_sizes().tolist()
+        ([0.5, 0.0, 0.5], [2])
+    """
+
+    def _init_beliefs(self, belief: torch.Tensor, cap: int) -> None:
+        self._S = int(belief.shape[-1])
+        self._dtype = belief.dtype
+        self._support: list[np.ndarray] = []
+        self._values: list[np.ndarray] = []
+
+    def _grow_beliefs(self, cap: int) -> None:
+        pass
+
+    def _set_belief(self, n: int, belief: torch.Tensor) -> None:
+        row = belief.detach().cpu().numpy()
+        idx = np.flatnonzero(row)
+        if n == len(self._support):
+            self._support.append(idx)
+            self._values.append(row[idx].copy())
+        else:
+            self._support[n], self._values[n] = idx, row[idx].copy()
+
+    def dense_np(self, n: int) -> np.ndarray:
+        """``(S,)`` the dense numpy belief of node ``n``."""
+        row = np.zeros(self._S, dtype=self._values[n].dtype)
+        row[self._support[n]] = self._values[n]
+        return row
+
+    @property
+    def beliefs_np(self) -> _DenseRows:  # type: ignore[override]
+        """``rows[n]``: node ``n``'s dense ``(S,)`` numpy belief (built on demand)."""
+        return _DenseRows(self)
+
+    @property
+    def beliefs(self) -> torch.Tensor:
+        """``(N, S)`` the dense node beliefs (allocates ``N S`` floats: small trees only)."""
+        return self.csr(np.arange(self.size)).to_dense()
+
+    def support_sizes(self) -> np.ndarray:
+        """``(N,)`` the number of nonzeros of each node's belief."""
+        return np.array([s.size for s in self._support[: self.size]], dtype=np.int64)
+
+    def csr(self, nodes: np.ndarray) -> torch.Tensor:
+        """``(len(nodes), S)`` sparse CSR tensor of the given nodes' beliefs."""
+        sup = [self._support[int(n)] for n in nodes]
+        val = [self._values[int(n)] for n in nodes]
+        lens = np.array([s.size for s in sup], dtype=np.int64)
+        indptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
+        cols = np.concatenate(sup) if sup else np.zeros(0, dtype=np.int64)
+        vals = np.concatenate(val) if val else np.zeros(0)
+        import warnings
+
+        with warnings.catch_warnings():  # "sparse CSR support is in beta"
+            warnings.simplefilter("ignore", UserWarning)
+            return torch.sparse_csr_tensor(
+                torch.from_numpy(indptr), torch.from_numpy(cols.astype(np.int64)),
+                torch.from_numpy(vals.astype(np.float64, copy=False)).to(self._dtype),
+                size=(len(sup), self._S),
+            )  # fmt: skip

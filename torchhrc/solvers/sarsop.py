@@ -61,14 +61,16 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
-from torchhrc.solvers.belief_tree import BeliefTree, FactoredModel
+from torchhrc.solvers.belief_tree import BeliefTree, FactoredModel, SparseBeliefTree
 from torchhrc.solvers.blind import blind_policy
 from torchhrc.solvers.fib import fib_backup
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.pruning import prune_by_beliefs, prune_dominated
 from torchhrc.solvers.qmdp import qmdp_vectors
 from torchhrc.solvers.solution import Solution
+from torchhrc.solvers.sparse_model import SparseFlatModel, sparse_blind_policy
 from torchhrc.solvers.upper_bound import SawtoothUpperBound
+from torchhrc.sparse import SparsePOMDP
 
 __all__ = ["SARSOPConfig", "fib_corner_values", "sarsop"]
 
@@ -76,7 +78,7 @@ LowerInit = Callable[[POMDP | MOMDP], AlphaVectorPolicy]
 UpperInit = Callable[[POMDP | MOMDP], torch.Tensor]
 
 
-def fib_corner_values(model: POMDP | MOMDP, *, tol: float = 1e-8, time_limit: float = math.inf,
+def fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, *, tol: float = 1e-8, time_limit: float = math.inf,
                       max_iterations: int = 100_000) -> torch.Tensor:  # fmt: skip
     """Fast Informed Bound corner values with a time budget (SARSOP's default upper init).
 
@@ -85,7 +87,9 @@ def fib_corner_values(model: POMDP | MOMDP, *, tol: float = 1e-8, time_limit: fl
     bound and stopping on ``time_limit`` is safe (Hauskrecht 2000).
 
     Args:
-        model: an unbatched POMDP or MOMDP.
+        model: an unbatched POMDP or MOMDP, or a flat model with sparse transitions
+            (:class:`~torchhrc.sparse.SparsePOMDP` or
+            :class:`~torchhrc.solvers.sparse_model.SparseFlatModel`).
         tol: stop when the largest change is below ``tol``.
         time_limit: seconds allowed for the FIB iterations after QMDP.
         max_iterations: cap on the FIB iterations.
@@ -99,14 +103,21 @@ def fib_corner_values(model: POMDP | MOMDP, *, tol: float = 1e-8, time_limit: fl
         92.82
     """
     start = time.perf_counter()
-    step = _sparse_fib_step(model) if isinstance(model, POMDP) else _factored_fib_step(model)
+    if isinstance(model, SparsePOMDP):
+        model = SparseFlatModel.from_model(model, dtype=model.R.dtype)
+    if isinstance(model, SparseFlatModel):
+        step: _FIBStep | None = _FIBStep(model, None)
+    elif isinstance(model, POMDP):
+        step = _sparse_fib_step(model)
+    else:
+        step = _factored_fib_step(model)
     # the sparse flat MDP iteration pays; the per-x loop of the MOMDP one does not
     sparse_qmdp = step is not None and step.fm is None
-    alpha = step.qmdp(tol) if sparse_qmdp else qmdp_vectors(model, tol=tol)
+    alpha = step.qmdp(tol) if sparse_qmdp else qmdp_vectors(model, tol=tol)  # type: ignore
     for _ in range(max_iterations):
         if time.perf_counter() - start > time_limit:
             break
-        new = torch.minimum(fib_backup(model, alpha) if step is None else step.fib(alpha), alpha)
+        new = torch.minimum(fib_backup(model, alpha) if step is None else step.fib(alpha), alpha)  # type: ignore
         change = float((alpha - new).abs().max())
         alpha = new
         if change < tol:
@@ -130,10 +141,12 @@ class _FIBStep:
     is an upper bound; stops when the change is below ``tol``), used for flat models.
     """
 
-    def __init__(self, model: POMDP | MOMDP, fm: FactoredModel | None) -> None:
+    def __init__(self, model: POMDP | MOMDP | SparseFlatModel, fm: FactoredModel | None) -> None:
         self.model, self.fm = model, fm
         self.g = float(model.discount)
-        if fm is None:
+        if isinstance(model, SparseFlatModel):  # T is already per-action CSR
+            self.Ts = model.T_csr
+        elif fm is None:
             assert isinstance(model, POMDP)
             T = model.T
             with warnings.catch_warnings():  # "sparse CSR support is in beta"
@@ -403,10 +416,17 @@ class _Bins:
 
 
 class _SARSOP:
-    def __init__(self, model: POMDP | MOMDP, cfg: SARSOPConfig, start: float) -> None:
+    def __init__(
+        self, model: POMDP | MOMDP | SparsePOMDP, cfg: SARSOPConfig, start: float
+    ) -> None:
         self.cfg = cfg
         self.start = start
-        self.fm = fm = FactoredModel.from_model(model, dtype=cfg.dtype)
+        sparse = isinstance(model, SparsePOMDP)
+        if sparse:  # the sparse flat path: sparse T, beliefs stored by their support
+            self.fm = fm = FactoredModel.from_sparse(model, dtype=cfg.dtype)
+        else:
+            self.fm = fm = FactoredModel.from_model(model, dtype=cfg.dtype)
+        self._sp = fm.sparse
         if fm.discount >= 1.0:
             raise ModelError(f"SARSOP needs discount < 1, got {fm.discount}")
         self.gamma = fm.discount
@@ -414,15 +434,17 @@ class _SARSOP:
         self.rng = np.random.default_rng(int(cfg.seed))
         self.device = fm.b0.device
         budget = cfg.time_limit * cfg.init_time_fraction
-        work = model.to(dtype=cfg.dtype)
+        work = fm.sparse if sparse else model.to(dtype=cfg.dtype)  # type: ignore[union-attr]
         # lower bound: alpha vectors of a policy (blind policies by default)
-        if cfg.lower_bound_init is None:
+        if cfg.lower_bound_init is None and self._sp is not None:
+            policy = sparse_blind_policy(self._sp)
+        elif cfg.lower_bound_init is None:
             # every iterate of the blind evaluation is a lower bound: stop once the discounted
             # tail is below 1e-3 of the first step's (gamma^k <= 1e-3)
             k = int(min(1000, math.ceil(math.log(1e-3) / math.log(self.gamma))))
             policy = blind_policy(work, max_iterations=k)
         else:
-            policy = cfg.lower_bound_init(work)
+            policy = cfg.lower_bound_init(model if sparse else work)
         if not isinstance(policy, AlphaVectorPolicy):
             raise TypeError(
                 "expected lower_bound_init to return an AlphaVectorPolicy, "
@@ -444,7 +466,7 @@ class _SARSOP:
         if cfg.upper_bound_init is None:
             corner = fib_corner_values(work, time_limit=budget)
         else:
-            corner = cfg.upper_bound_init(work)
+            corner = cfg.upper_bound_init(model if sparse else work)
         corner = corner.to(dtype=cfg.dtype)
         if corner.dim() == (2 if fm.flat else 3):  # per-action vectors
             corner = corner.amax(0)
@@ -457,7 +479,7 @@ class _SARSOP:
                 f"got {tuple(corner.shape)}"
             )
         self.ub = SawtoothUpperBound(corner)
-        self.tree = BeliefTree(fm.b0, fm.x0)
+        self.tree = SparseBeliefTree(fm.b0, fm.x0) if sparse else BeliefTree(fm.b0, fm.x0)
         self._child_x: dict[tuple[int, int], torch.Tensor] = {}
         self._cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._default: torch.Tensor | None = None
@@ -561,6 +583,8 @@ class _SARSOP:
     # -- numpy path (CPU, one belief) -------------------------------------------------------
     def _predict_np(self, x: int, b: np.ndarray) -> np.ndarray:
         """``(A, K, Y)`` ``P(x2_k, y2 | x, b, a)`` of one belief ``b (Y,)`` (before ``Z``)."""
+        if self._sp is not None:  # flat, sparse T
+            return self._sp.predict_np(b)[:, None, :]  # (A, 1, S)
         T = self._npT
         if T is not None:  # flat: only the rows of T on the support of b
             supp = np.flatnonzero(b)
@@ -574,6 +598,8 @@ class _SARSOP:
     def _child_np(self, x: int, b: np.ndarray, a: int, k: int, o: int) -> np.ndarray:
         """``(Y,)`` the unnormalised child ``J[a, k, o]`` of one belief (one row only)."""
         z = self._npz[x][a, k, o]
+        if self._sp is not None:
+            return self._sp.predict_action_np(b, a) * z
         T = self._npT
         if T is not None:
             supp = np.flatnonzero(b)
@@ -646,7 +672,9 @@ class _SARSOP:
         a = int(q_low.argmax())
         W = self.alphas.np_vectors[best[a]]  # (K, O, Y)
         vals = (self._npz[x][a] * W).sum(1)  # (K, Y)
-        if self._npT is not None:
+        if self._sp is not None:
+            nxt = self._sp.backproject_np(a, vals[0])
+        elif self._npT is not None:
             nxt = self._npT[a] @ vals[0]
         else:
             tx = self._nptx[x][a]  # (Y, K)
@@ -697,8 +725,10 @@ class _SARSOP:
         is added when it raises ``V_low(b)``. Upper bound: the point
         ``(b, max_a Q_up(b, a))`` is added when below the sawtooth at ``b``.
         """
-        if self._np and len(nodes) == 1:
-            self._backup_one_np(x, int(nodes[0]))
+        if self._np and (len(nodes) == 1 or self._sp is not None):
+            # sparse models: one node at a time (a batch would hold B A O dense children)
+            for node in nodes.tolist():
+                self._backup_one_np(x, int(node))
             return
         tree, fm = self.tree, self.fm
         B = len(nodes)
@@ -854,6 +884,9 @@ class _SARSOP:
             vec, obs = self.alphas.vectors[:n], self.alphas.observed[:n]
             groups = obs if self.X > 1 else None
             act = np.flatnonzero(self.tree.active[: self.tree.size])
+            if isinstance(self.tree, SparseBeliefTree):
+                self._prune_sparse(vec, act)
+                return self._prune_points()
             beliefs = self.tree.beliefs[torch.from_numpy(act).to(self.device)]
             bgroups = torch.from_numpy(self.tree.x[act]).to(self.device) if self.X > 1 else None
             keep = prune_by_beliefs(vec, beliefs, groups, bgroups)
@@ -864,11 +897,30 @@ class _SARSOP:
             self.alphas.keep(keep)
             self._default = None
             self.last_alpha_prune = self.alphas.size
+        self._prune_points()
+
+    def _prune_points(self) -> None:
+        cfg = self.cfg
         if self.ub.size > cfg.prune_growth * max(self.last_point_prune, 64):
             self.ub.prune()
             self.last_point_prune = self.ub.size
         if cfg.prune_nodes:
             self.tree.refresh_active()
+
+    def _prune_sparse(self, vec: torch.Tensor, act: np.ndarray) -> None:
+        """Belief pruning on a :class:`SparseBeliefTree`: keep the vectors that win at some
+        active tree belief (one sparse ``(M, S) x (S, N)`` product).
+
+        The pointwise-dominance test is skipped: it costs ``N^2 S`` comparisons (large ``S``
+        is why this path exists), and a dominated vector never wins at a belief unless tied.
+        """
+        assert isinstance(self.tree, SparseBeliefTree)
+        scores = self.tree.csr(act) @ vec.T.contiguous()  # (M, N)
+        keep = torch.zeros(vec.shape[0], dtype=torch.bool)
+        keep[scores.argmax(-1)] = True
+        self.alphas.keep(keep)
+        self._default = None
+        self.last_alpha_prune = self.alphas.size
 
     def sweep(self) -> None:
         """Back up every active tree node, one batched backup per observed value."""
@@ -951,7 +1003,7 @@ class _SARSOP:
                         history=self.history, info=info)  # fmt: skip
 
 
-def sarsop(model: POMDP | MOMDP, config: SARSOPConfig | None = None) -> Solution:
+def sarsop(model: POMDP | MOMDP | SparsePOMDP, config: SARSOPConfig | None = None) -> Solution:
     """Solve a POMDP or MOMDP with SARSOP; anytime, stops on ``time_limit`` or ``precision``.
 
     Args:

@@ -1,0 +1,293 @@
+"""Sparse flat transitions for the solvers: the operations SARSOP needs, without a dense ``T``.
+
+RockSample(7, 8) has ``S = 12545`` states and ``A = 13`` actions: a dense ``T (A, S, S)``
+would hold 2e9 entries (16 GB in float64), but only 163085 are nonzero (each move or check
+leads to one or two states). :class:`SparseFlatModel` keeps ``T`` as its nonzeros sorted by
+``(a, s)`` (per-action CSR) and by ``(a, s2)`` (the transposes, stacked), with ``Z (A, S, O)``
+and ``R (A, S)`` dense (``A S O`` entries are few), and implements the operations of a
+point-based solver on them:
+
+* prediction (paper Eq. 3 before the observation; Kurniawati et al. 2008, belief expansion)::
+
+      pred[a, s2] = sum_s T[a, s, s2] b[s]            visiting only the support of b
+
+* back-projection of the backup (Pineau et al. 2003)::
+
+      g[s] = sum_s2 T[a, s, s2] v[s2]                 v = sum_o Z[a, ., o] alpha_o
+
+* the blind-policy lower bound ``alpha_a = R_a + gamma T_a alpha_a`` (Hauskrecht 2000) and the
+  MDP and FIB operators (via :func:`torchhrc.solvers.sarsop.fib_corner_values`).
+
+Every nonzero of ``T`` is touched at most once per operation; beliefs with a small support
+(RockSample: the robot's position is known) touch only the rows on it. The numpy methods
+(``*_np``) serve the sequential one-belief path of SARSOP; the torch ones (sparse CSR tensors)
+the batched path. Alpha vectors stay dense ``(S,)``.
+
+Example:
+    >>> from torchhrc.sparse import SparsePOMDP
+    >>> from torchhrc.tasks.classic import tiger
+    >>> sm = SparseFlatModel.from_model(SparsePOMDP.from_dense(tiger()))
+    >>> sm.predict_np(sm.b0.numpy()).shape  # (A, S)
+    (3, 2)
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import torch
+
+from torchhrc.errors import ModelError
+from torchhrc.pomdp import POMDP
+from torchhrc.solvers._factored import DIRECT_SOLVE_SIZE
+from torchhrc.solvers.policy import AlphaVectorPolicy
+from torchhrc.sparse import SparsePOMDP
+
+__all__ = ["SparseFlatModel", "sparse_blind_policy", "sparse_blind_vectors"]
+
+
+def _csr(
+    indptr: np.ndarray, indices: np.ndarray, values: np.ndarray, shape: tuple[int, int]
+) -> torch.Tensor:
+    with warnings.catch_warnings():  # "sparse CSR support is in beta"
+        warnings.simplefilter("ignore", UserWarning)
+        return torch.sparse_csr_tensor(
+            torch.from_numpy(indptr.astype(np.int64)),
+            torch.from_numpy(indices.astype(np.int64)),
+            torch.from_numpy(values),
+            size=shape,
+        )
+
+
+class SparseFlatModel:
+    """A flat POMDP with sparse ``T``, dense ``Z`` and ``R``, prepared for the solvers.
+
+    Attributes:
+        Z: ``(A, S, O)`` dense, ``Z[a, s2, o] = P(o | s2, a)``.
+        R: ``(A, S)`` rewards.
+        b0: ``(S,)`` initial belief.
+        discount: the discount factor.
+        T_csr: per action the ``(S, S)`` sparse CSR tensor ``T[a]`` (rows ``s``).
+        Tt_stacked: ``(A S, S)`` sparse CSR, row ``a S + s2`` holds ``T[a, :, s2]``.
+        nnz: number of stored nonzeros of ``T``.
+
+    Args:
+        index: ``(M, 3)`` int64 ``[a, s, s2]`` of the nonzeros of ``T``.
+        prob: ``(M,)`` their probabilities (duplicates are summed).
+        Z, R, b0, discount: as the attributes.
+        dtype: the floating dtype of every tensor (default float64).
+    """
+
+    def __init__(
+        self,
+        index: torch.Tensor,
+        prob: torch.Tensor,
+        Z: torch.Tensor,
+        R: torch.Tensor,
+        b0: torch.Tensor,
+        discount: float,
+        *,
+        dtype: torch.dtype = torch.float64,
+    ) -> None:
+        A, S, O = Z.shape
+        self.num_actions, self.num_states, self.num_observations = A, S, O
+        self.discount = float(discount)
+        self.dtype = dtype
+        self.Z = Z.to("cpu", dtype).contiguous()
+        self.R = R.to("cpu", dtype).expand(A, S).contiguous()
+        self.b0 = b0.to("cpu", dtype).contiguous()
+        idx = index.cpu().numpy().astype(np.int64)
+        p = prob.cpu().to(dtype).numpy()
+        a, s, s2 = idx[:, 0], idx[:, 1], idx[:, 2]
+        # sum duplicates: one entry per (a, s, s2), sorted by (a, s, s2)
+        key = (a * S + s) * S + s2
+        uniq, inv = np.unique(key, return_inverse=True)
+        vals = np.bincount(inv, weights=p, minlength=uniq.size).astype(p.dtype)
+        keep = vals != 0
+        uniq, vals = uniq[keep], vals[keep]
+        row = uniq // S  # a S + s
+        self._col = (uniq % S).astype(np.int64)  # s2
+        self._val = vals
+        self._row = row
+        self._ptr = np.searchsorted(row, np.arange(A * S + 1))  # (A S + 1,) CSR over (a, s)
+        self._act = (row // S).astype(np.int64)
+        self._src = (row % S).astype(np.int64)
+        self.nnz = int(vals.size)
+        # torch CSR: T[a] (S, S) per action and the stacked transposes (A S, S)
+        self.T_csr = [
+            _csr(
+                self._ptr[a * S : (a + 1) * S + 1] - self._ptr[a * S],
+                self._col[self._ptr[a * S] : self._ptr[(a + 1) * S]],
+                self._val[self._ptr[a * S] : self._ptr[(a + 1) * S]],
+                (S, S),
+            )
+            for a in range(A)
+        ]
+        trow = self._act * S + self._col  # a S + s2
+        order = np.argsort(trow * S + self._src, kind="stable")
+        tptr = np.searchsorted(trow[order], np.arange(A * S + 1))
+        self.Tt_stacked = _csr(tptr, self._src[order], self._val[order], (A * S, S))
+
+    @classmethod
+    def from_model(
+        cls, model: SparsePOMDP | POMDP, *, dtype: torch.dtype = torch.float64
+    ) -> SparseFlatModel:
+        """Build from a :class:`~torchhrc.sparse.SparsePOMDP` or an unbatched dense POMDP.
+
+        Raises:
+            ModelError: a batched dense model, or ``Z`` too large to hold densely.
+            TypeError: ``model`` of another type.
+        """
+        if isinstance(model, POMDP):
+            if len(model.batch_shape):
+                raise ModelError(
+                    f"expected an unbatched POMDP, got batch shape {tuple(model.batch_shape)}"
+                )
+            index = torch.nonzero(model.T)
+            A, S, O = model.num_actions, model.num_states, model.num_observations
+            return cls(index, model.T[tuple(index.T)], model.Z.expand(A, S, O),
+                       model.R, model.b0, model.discount, dtype=dtype)  # fmt: skip
+        if not isinstance(model, SparsePOMDP):
+            raise TypeError(
+                f"expected a SparsePOMDP or POMDP, got {type(model).__name__}"
+            )
+        A, S, O = model.num_actions, model.num_states, model.num_observations
+        from torchhrc.sparse import check_dense_size
+
+        check_dense_size("Z", A * S * O, hint="too many observations for the sparse solver")
+        Z = torch.zeros(A, S, O, dtype=dtype)
+        zi, zp = model.observations_
+        Z.index_put_((zi[:, 0], zi[:, 1], zi[:, 2]), zp.to(dtype), accumulate=True)
+        idx, p = model.transitions
+        return cls(idx, p, Z, model.R, model.b0, model.discount, dtype=dtype)
+
+    # -- numpy, one belief ---------------------------------------------------------------------
+    def _entries(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions of the nonzeros of the ``(a, s)`` rows ``rows`` (flattened ``a S + s``),
+        and for each the index into ``rows`` it came from."""
+        start, stop = self._ptr[rows], self._ptr[rows + 1]
+        lens = stop - start
+        total = int(lens.sum())
+        owner = np.repeat(np.arange(rows.size), lens)
+        offset = np.arange(total) - np.repeat(np.cumsum(lens) - lens, lens)
+        return start[owner] + offset, owner
+
+    def predict_np(self, b: np.ndarray) -> np.ndarray:
+        """``(A, S)`` ``pred[a, s2] = sum_s T[a, s, s2] b[s]`` for one belief ``b (S,)``.
+
+        Only the rows of ``T`` on the support of ``b`` are visited.
+        """
+        A, S = self.num_actions, self.num_states
+        supp = np.flatnonzero(b)
+        rows = (np.arange(A)[:, None] * S + supp[None, :]).reshape(-1)  # (A w,)
+        pos, owner = self._entries(rows)
+        w = b[supp][owner % supp.size] * self._val[pos]
+        out = np.bincount(self._act[pos] * S + self._col[pos], weights=w, minlength=A * S)
+        return out.astype(b.dtype, copy=False).reshape(A, S)
+
+    def predict_action_np(self, b: np.ndarray, a: int) -> np.ndarray:
+        """``(S,)`` the prediction of one action ``a`` (the row ``a`` of :meth:`predict_np`)."""
+        S = self.num_states
+        supp = np.flatnonzero(b)
+        pos, owner = self._entries(a * S + supp)
+        w = b[supp][owner] * self._val[pos]
+        return np.bincount(self._col[pos], weights=w, minlength=S).astype(b.dtype, copy=False)
+
+    def backproject_np(self, a: int, v: np.ndarray) -> np.ndarray:
+        """``(S,)`` ``g[s] = sum_s2 T[a, s, s2] v[s2]`` for one action and ``v (S,)``."""
+        S = self.num_states
+        lo, hi = self._ptr[a * S], self._ptr[(a + 1) * S]
+        w = self._val[lo:hi] * v[self._col[lo:hi]]
+        return np.bincount(self._src[lo:hi], weights=w, minlength=S).astype(v.dtype, copy=False)
+
+    # -- torch, batched --------------------------------------------------------------------------
+    def predict(self, beliefs: torch.Tensor) -> torch.Tensor:
+        """``(B, A, S)`` the predictions of beliefs ``(B, S)`` under every action."""
+        B, S = beliefs.shape
+        out = self.Tt_stacked @ beliefs.T.to(self.dtype).contiguous()  # (A S, B)
+        return out.T.reshape(B, self.num_actions, S)
+
+    def backproject(self, actions: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        """``(B, S)``: ``g[i] = T[actions[i]] @ values[i]`` for ``values (B, S)``."""
+        out = torch.empty_like(values)
+        acts = actions.tolist()
+        for a in sorted(set(acts)):
+            rows = torch.tensor([i for i, ai in enumerate(acts) if ai == a])
+            out[rows] = (self.T_csr[a] @ values[rows].T.contiguous()).T
+        return out
+
+    def expect(self, V: torch.Tensor) -> torch.Tensor:
+        """``(A, S)`` ``sum_s2 T[a, s, s2] V[s2]`` for ``V (S,)``, or per action ``V (A, S)``."""
+        if V.dim() == 1:
+            return torch.stack([t @ V for t in self.T_csr])
+        return torch.stack([t @ V[a] for a, t in enumerate(self.T_csr)])
+
+    def dense_T(self) -> torch.Tensor:
+        """``(A, S, S)`` the dense transitions (for small models and tests only)."""
+        A, S = self.num_actions, self.num_states
+        from torchhrc.sparse import check_dense_size
+
+        check_dense_size("T", A * S * S)
+        T = torch.zeros(A * S * S, dtype=self.dtype)
+        T[torch.from_numpy(self._row * S + self._col)] = torch.from_numpy(self._val)
+        return T.view(A, S, S)
+
+
+def sparse_blind_vectors(
+    model: SparseFlatModel, *, tol: float = 1e-8, max_iterations: int = 100_000
+) -> torch.Tensor:
+    """Blind-policy lower-bound vectors ``(A, S)`` of a sparse model (Hauskrecht 2000).
+
+    ``alpha_a = R_a + gamma T_a alpha_a``, iterated from ``min R / (1 - gamma)`` with
+    ``max(new, old)`` (monotone, so every iterate is a lower bound, as
+    :func:`~torchhrc.solvers.blind.blind_vectors`); up to 2048 states solved exactly by LU,
+    as the dense function does.
+
+    Example:
+        >>> from torchhrc.tasks.classic import tiger
+        >>> from torchhrc.sparse import SparsePOMDP
+        >>> sm = SparseFlatModel.from_model(SparsePOMDP.from_dense(tiger()))
+        >>> sparse_blind_vectors(sm).shape
+        torch.Size([3, 2])
+    """
+    g = model.discount
+    if g >= 1.0:
+        raise ModelError(f"the blind lower bound needs discount < 1, got {g}")
+    R = model.R
+    S = model.num_states
+    if S <= DIRECT_SOLVE_SIZE:
+        eye = torch.eye(S, dtype=R.dtype)
+        return torch.linalg.solve(eye - g * model.dense_T(), R.unsqueeze(-1)).squeeze(-1)
+    alpha = torch.full_like(R, float(R.min()) / (1.0 - g))
+    for _ in range(max_iterations):
+        new = torch.maximum(R + g * model.expect(alpha), alpha)
+        change = float((new - alpha).abs().max())
+        alpha = new
+        if change < tol * (1.0 - g):
+            break
+    return alpha
+
+
+def sparse_blind_policy(
+    model: SparseFlatModel | SparsePOMDP, *, tol: float = 1e-8, max_iterations: int | None = None
+) -> AlphaVectorPolicy:
+    """The blind policies of a sparse model as an :class:`AlphaVectorPolicy` (flat).
+
+    ``max_iterations`` defaults to the ``k`` with ``gamma^k <= 1e-3`` (at most 1000), where
+    the discounted tail is below 1e-3 of the first step's (as SARSOP's default).
+
+    Example:
+        >>> from torchhrc.tasks.classic import tiger
+        >>> from torchhrc.sparse import SparsePOMDP
+        >>> sparse_blind_policy(SparsePOMDP.from_dense(tiger())).num_vectors
+        3
+    """
+    if not isinstance(model, SparseFlatModel):
+        model = SparseFlatModel.from_model(model)
+    if max_iterations is None:
+        g = model.discount
+        max_iterations = int(min(1000, math.ceil(math.log(1e-3) / math.log(g)))) if g > 0 else 1
+    vectors = sparse_blind_vectors(model, tol=tol, max_iterations=max_iterations)
+    return AlphaVectorPolicy.from_action_vectors(vectors, momdp=False)

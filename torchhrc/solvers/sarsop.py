@@ -513,6 +513,8 @@ class _SARSOP:
             self._npcx: dict[int, np.ndarray] = {}
             self._npzt: dict[int, np.ndarray] = {}
             self._default_np: tuple[torch.Tensor, np.ndarray] | None = None
+            if self._sp is not None:
+                self._spZ = self._sp.Z.numpy()  # (A, S, O)
         lo, up = self._root_bounds()
         self.tree.lower[0], self.tree.upper[0] = lo, up
 
@@ -629,6 +631,8 @@ class _SARSOP:
         Returns ``q_low (A,)``, ``q_up (A,)``, ``prob``, ``low``, ``up`` (``(A, K, O)``
         each, as :class:`_Evaluation`), ``best (A, K, O)``, ``V_low(b)``, ``V_up(b)``.
         """
+        if self._sp is not None:
+            return self._evaluate_sparse_np(b)
         pred = self._predict_np(x, b)  # (A, K, Y)
         z = self._npz[x]  # (A, K, O, Y)
         A, K, O, _ = z.shape
@@ -663,6 +667,41 @@ class _SARSOP:
         shape = (A, K, O)
         return (q_low, q_up, prob, low.reshape(shape), up.reshape(shape), best.reshape(shape),
                 float(low_r[m]), float(up_r[m]))  # fmt: skip
+
+    def _evaluate_sparse_np(self, b: np.ndarray) -> tuple[Any, ...]:
+        """:meth:`_evaluate_np` of the sparse flat path (``K = 1``).
+
+        Every child and ``b`` itself are formed only on ``cols``, the union of the supports
+        of the predictions and of ``b`` (RockSample(7, 8): about a thousand of 12545 states),
+        and bounded there: the alpha vectors restricted to ``cols``, the sawtooth through
+        :meth:`~torchhrc.solvers.upper_bound.SawtoothUpperBound.value_np` with ``columns``.
+        """
+        assert self._sp is not None
+        cols, pred = self._sp.predict_columns_np(b)  # (C,), (A, C)
+        zc = self._spZ[:, cols, :]  # (A, C, O)
+        A, C, O = zc.shape
+        prob = np.matmul(pred[:, None, :], zc)[:, 0, :]  # (A, O)
+        nz = np.flatnonzero(prob)
+        ia, io = np.unravel_index(nz, (A, O))
+        rows = np.concatenate([pred[ia] * zc[ia, :, io], b[cols][None]])  # (m + 1, C)
+        n = self.alphas.size
+        scores = rows @ self.alphas.np_vectors[:n][:, cols].T  # (m + 1, N)
+        best_r = scores.argmax(-1)
+        low_r = scores[np.arange(scores.shape[0]), best_r]
+        up_r = self.ub.value_np(rows, np.zeros(rows.shape[0], dtype=np.int64), cols)
+        m = nz.size
+        low = np.zeros(A * O, dtype=b.dtype)
+        low[nz] = low_r[:m]
+        up = np.zeros(A * O, dtype=b.dtype)
+        up[nz] = up_r[:m]
+        best = np.full(A * O, int(self._default_alpha()[0]), dtype=np.int64)
+        best[nz] = best_r[:m]
+        reward = b[cols] @ self._npRT[0][cols]  # (A,)
+        q_low = reward + self.gamma * low.reshape(A, O).sum(-1)
+        q_up = reward + self.gamma * up.reshape(A, O).sum(-1)
+        shape = (A, 1, O)
+        return (q_low, q_up, prob.reshape(shape), low.reshape(shape), up.reshape(shape),
+                best.reshape(shape), float(low_r[m]), float(up_r[m]))  # fmt: skip
 
     def _backup_one_np(self, x: int, node: int) -> None:
         """:meth:`backup` of one node in numpy (the sequential path of a trial)."""

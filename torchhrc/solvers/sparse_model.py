@@ -187,6 +187,22 @@ class SparseFlatModel:
         out = np.bincount(self._act[pos] * S + self._col[pos], weights=w, minlength=A * S)
         return out.astype(b.dtype, copy=False).reshape(A, S)
 
+    def predict_columns_np(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The prediction on its support: ``cols (C,)`` sorted, the union of the successors of
+        ``supp(b)`` under every action and of ``supp(b)`` itself, and ``pred (A, C)`` with
+        ``pred[a, j] = sum_s T[a, s, cols[j]] b[s]``."""
+        A, S = self.num_actions, self.num_states
+        supp = np.flatnonzero(b)
+        rows = (np.arange(A)[:, None] * S + supp[None, :]).reshape(-1)  # (A w,)
+        pos, owner = self._entries(rows)
+        col = self._col[pos]
+        cols = np.union1d(col, supp)
+        C = cols.size
+        w = b[supp][owner % supp.size] * self._val[pos]
+        key = self._act[pos] * C + np.searchsorted(cols, col)
+        out = np.bincount(key, weights=w, minlength=A * C)
+        return cols, out.astype(b.dtype, copy=False).reshape(A, C)
+
     def predict_action_np(self, b: np.ndarray, a: int) -> np.ndarray:
         """``(S,)`` the prediction of one action ``a`` (the row ``a`` of :meth:`predict_np`)."""
         S = self.num_states

@@ -6,7 +6,12 @@ on the optimal value at the initial belief, and optionally writes the policy
 (``.policyx``, APPL's format, or ``.safetensors``). Progress (bounds over time) goes to
 stderr unless ``--quiet``. With ``--json`` one JSON object is printed with the keys
 ``lower``, ``upper``, ``gap``, ``time_s``, ``n_alphas``, ``solver``, ``stop_reason``,
-``iterations`` and ``policy`` (the written path or null).
+``iterations``, ``policy`` (the written path or null) and ``sparse``.
+
+With ``--solver sarsop`` (the default), a model whose dense ``T (A, S, S)`` or ``Z (A, S, O)``
+would exceed :data:`torchhrc.sparse.MAX_DENSE_ENTRIES` (2e8 entries, 1.6 GB in float64;
+RockSample(7, 8): 2e9) is read as a :class:`~torchhrc.sparse.SparsePOMDP` and solved by
+SARSOP's sparse path (``"sparse": true``); the other solvers need the dense model.
 
 Example:
     >>> import argparse
@@ -142,8 +147,12 @@ def run(args: argparse.Namespace) -> int:
     """Read, solve, print and write; return the exit status."""
     from torchhrc.io.cassandra import read_pomdp
     from torchhrc.solvers import solve
+    from torchhrc.sparse import SparsePOMDP
 
-    model = read_pomdp(args.model)
+    # SARSOP has a sparse path: a model whose dense T (A, S, S) or Z would exceed
+    # MAX_DENSE_ENTRIES (2e8 entries, 1.6 GB) is read and solved sparsely
+    model = read_pomdp(args.model, sparse="auto" if args.solver == "sarsop" else False)
+    sparse = isinstance(model, SparsePOMDP)
     callback = None if args.quiet else _Progress()
     config = make_config(args, callback)
     start = time.perf_counter()
@@ -164,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
         "stop_reason": solution.info.get("stop_reason"),
         "iterations": solution.info.get("iterations"),
         "policy": written,
+        "sparse": sparse,
     }
     if args.json:
         print(json.dumps(report))
@@ -174,6 +184,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"gap        {solution.gap:.6g}")
         print(f"time_s     {elapsed:.3f}")
         print(f"n_alphas   {solution.policy.num_vectors}")
+        if sparse:
+            print("model      sparse (dense T would exceed 2e8 entries)")
         if written is not None:
             print(f"policy     {written}")
     return 0

@@ -46,7 +46,7 @@ import os
 import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -245,7 +245,7 @@ def _read_text(source: str | os.PathLike[str]) -> tuple[str, str]:
 def read_pomdp(
     source: str | os.PathLike[str],
     *,
-    sparse: bool = False,
+    sparse: bool | Literal["auto"] = False,
     dtype: torch.dtype = torch.float64,
     device: torch.device | str | None = None,
 ) -> Any:
@@ -255,7 +255,9 @@ def read_pomdp(
         source: a path (``str`` without newlines or ``:``, or ``os.PathLike``) or the text.
         sparse: return a :class:`~torchhrc.sparse.SparsePOMDP` (coordinate lists; for models
             too large to hold densely, e.g. RockSample(7, 8); rewards must then be given as
-            ``R: a : s : * : * v``).
+            ``R: a : s : * : * v``); ``"auto"``: sparse only when the dense ``T (A, S, S)`` or
+            ``Z (A, S, O)`` would exceed :data:`~torchhrc.sparse.MAX_DENSE_ENTRIES` entries
+            (2e8, 1.6 GB in float64), else dense.
         dtype, device: of the returned tensors (a sparse model stays on the CPU).
 
     Returns:
@@ -280,7 +282,7 @@ def parse_pomdp(
     text: str,
     *,
     path: str = "<string>",
-    sparse: bool = False,
+    sparse: bool | Literal["auto"] = False,
     dtype: torch.dtype = torch.float64,
     device: torch.device | str | None = None,
 ) -> Any:
@@ -304,7 +306,11 @@ def parse_pomdp(
 
 
 def _parse(
-    p: _Parser, *, sparse: bool, dtype: torch.dtype, device: torch.device | str | None
+    p: _Parser,
+    *,
+    sparse: bool | Literal["auto"],
+    dtype: torch.dtype,
+    device: torch.device | str | None,
 ) -> Any:
     discount: float | None = None
     sign = 1.0
@@ -347,6 +353,8 @@ def _parse(
     if discount is None:
         raise p.error("missing 'discount:' in the preamble")
     S, A, O = sizes["states"], sizes["actions"], sizes["observations"]
+    if sparse == "auto":
+        sparse = A * S * S > MAX_DENSE_ENTRIES or A * S * O > MAX_DENSE_ENTRIES
     if not sparse and (A * S * S > MAX_DENSE_ENTRIES or A * S * O > MAX_DENSE_ENTRIES):
         raise p.error(
             f"model too large to hold densely (A={A}, S={S}, O={O}: {A * S * S:.3g} entries "

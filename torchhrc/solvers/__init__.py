@@ -23,6 +23,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers.backup import BackupResult, momdp_point_backup, point_backup
 from torchhrc.solvers.blind import blind_policy, blind_vectors
@@ -36,6 +37,7 @@ from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
 from torchhrc.solvers.solution import Solution
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.solvers.value_iteration import MDPSolution, policy_evaluation, value_iteration
+from torchhrc.sparse import SparsePOMDP
 
 __all__ = [
     "AlphaVectorPolicy",
@@ -93,11 +95,12 @@ def register_solver(config_type: type, function: SolverFunction) -> None:
     _SOLVERS[config_type] = function
 
 
-def solve(model: POMDP | MOMDP, config: Any) -> Solution:
+def solve(model: POMDP | MOMDP | SparsePOMDP, config: Any) -> Solution:
     """Solve ``model`` with the solver that ``config``'s type names.
 
     Args:
-        model: an unbatched :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`.
+        model: an unbatched :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`,
+            or (SARSOP only) a :class:`~torchhrc.sparse.SparsePOMDP`.
         config: a solver configuration (``QMDPConfig``, ``FIBConfig``, ``PBVIConfig``,
             ``SARSOPConfig`` or a registered type).
 
@@ -107,12 +110,20 @@ def solve(model: POMDP | MOMDP, config: Any) -> Solution:
 
     Raises:
         TypeError: ``config``'s type has no registered solver.
+        ModelError: a ``SparsePOMDP`` with a solver other than SARSOP.
 
     Example:
         >>> from torchhrc.tasks.classic import tiger
         >>> round(solve(tiger(), QMDPConfig()).upper, 6)
         189.0
     """
+    if isinstance(model, SparsePOMDP):  # only SARSOP has a sparse path
+        if not isinstance(config, SARSOPConfig):
+            raise ModelError(
+                f"a SparsePOMDP (sparse transitions) is solved by SARSOP only, got a "
+                f"{type(config).__name__}; pass a SARSOPConfig or a dense POMDP"
+            )
+        return sarsop(model, config)
     if not isinstance(model, (POMDP, MOMDP)):
         raise TypeError(f"expected model to be a POMDP or MOMDP, got {type(model).__name__}")
     for config_type in type(config).__mro__:

@@ -35,6 +35,7 @@ Example:
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -65,6 +66,9 @@ class FactoredModel:
         flat: True when built from a flat POMDP (then ``X = 1``).
         reach: per ``x``, the ``(K_x,)`` long tensor of reachable next observed values.
         reach_mask: ``(X, X)`` bool, ``reach_mask[x, x2]`` iff ``x2`` is reachable from ``x``.
+        sparse: for a flat model built by :meth:`from_sparse`, its
+            :class:`~torchhrc.solvers.sparse_model.SparseFlatModel` (``T`` as per-action CSR;
+            ``Ty`` is then None and unused); None otherwise.
     """
 
     Tx: torch.Tensor
@@ -424,8 +428,6 @@ class SparseBeliefTree(BeliefTree):
         indptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
         cols = np.concatenate(sup) if sup else np.zeros(0, dtype=np.int64)
         vals = np.concatenate(val) if val else np.zeros(0)
-        import warnings
-
         with warnings.catch_warnings():  # "sparse CSR support is in beta"
             warnings.simplefilter("ignore", UserWarning)
             return torch.sparse_csr_tensor(

@@ -150,9 +150,7 @@ class SparseFlatModel:
             return cls(index, model.T[tuple(index.T)], model.Z.expand(A, S, O),
                        model.R, model.b0, model.discount, dtype=dtype)  # fmt: skip
         if not isinstance(model, SparsePOMDP):
-            raise TypeError(
-                f"expected a SparsePOMDP or POMDP, got {type(model).__name__}"
-            )
+            raise TypeError(f"expected a SparsePOMDP or POMDP, got {type(model).__name__}")
         A, S, O = model.num_actions, model.num_states, model.num_observations
         from torchhrc.sparse import check_dense_size
 

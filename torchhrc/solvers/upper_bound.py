@@ -250,7 +250,9 @@ class SawtoothUpperBound:
         n = self.size
         if n == 0 or B == 0:
             return base
-        local = np.full(self.num_hidden + 1, C, dtype=np.int64)  # Y (padding) -> C (+inf)
+        # global -> local column: outside ``columns`` -> C (b = 0), padding Y -> C + 1 (+inf)
+        local = np.full(self.num_hidden + 1, C, dtype=np.int64)
+        local[self.num_hidden] = C + 1
         local[columns] = np.arange(C)
         pos = np.concatenate([beliefs > 0, np.zeros((B, 1), dtype=bool)], axis=1)  # (B, C+1)
         wr = pos.sum(-1)
@@ -274,7 +276,9 @@ class SawtoothUpperBound:
             return base
         p = sel[j]
         K = int(ws.max())
-        ext = np.concatenate([beliefs, np.full((B, 1), np.inf, dtype=beliefs.dtype)], axis=1)
+        pad = np.zeros((B, 2), dtype=beliefs.dtype)
+        pad[:, 1] = np.inf
+        ext = np.concatenate([beliefs, pad], axis=1)  # (B, C + 2)
         M = r.size
         term = np.empty(M, dtype=beliefs.dtype)
         step = max(1, _CHUNK // K)

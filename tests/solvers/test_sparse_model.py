@@ -1,0 +1,261 @@
+"""Tests of the sparse flat path of the solvers (torchhrc.solvers.sparse_model and the sparse
+hooks of belief_tree, upper_bound and sarsop): every sparse operation equals its dense
+counterpart, and the sparse SARSOP solve equals the dense one under deterministic settings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from torchhrc.errors import ModelError
+from torchhrc.pomdp import POMDP
+from torchhrc.solvers import PBVIConfig, solve
+from torchhrc.solvers import sparse_model as sparse_module
+from torchhrc.solvers.belief_tree import FactoredModel, SparseBeliefTree
+from torchhrc.solvers.blind import blind_vectors
+from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig, fib_corner_values, sarsop
+from torchhrc.solvers.sparse_model import (
+    SparseFlatModel,
+    sparse_blind_policy,
+    sparse_blind_vectors,
+)
+from torchhrc.solvers.upper_bound import SawtoothUpperBound
+from torchhrc.sparse import SparsePOMDP
+from torchhrc.tasks.classic import rock_sample, tiger
+from torchhrc.testing import random_pomdp
+
+TIGER_OPTIMUM = 19.3714  # Tiger, discount 0.95 (see tests/solvers/test_sarsop.py)
+
+
+def _sparse_random(S: int = 12, A: int = 3, O: int = 2, seed: int = 0) -> POMDP:
+    """A random POMDP whose T has about two successors per (a, s) (a sparse structure)."""
+    g = torch.Generator().manual_seed(seed)
+    m = random_pomdp(S, A, O, seed=seed)
+    keep = torch.rand(A, S, S, generator=g, dtype=torch.float64) < 2.0 / S
+    keep[:, torch.arange(S), (torch.arange(S) + 1) % S] = True  # every row nonzero
+    T = torch.where(keep, m.T, 0.0)
+    T = T / T.sum(-1, keepdim=True)
+    b0 = torch.zeros(S, dtype=torch.float64)
+    b0[:3] = torch.tensor([0.5, 0.3, 0.2], dtype=torch.float64)
+    return POMDP(T=T, Z=m.Z, R=m.R, b0=b0, discount=0.9)
+
+
+@pytest.fixture(scope="module")
+def rs44() -> POMDP:
+    return rock_sample(4, 4)
+
+
+@pytest.mark.parametrize("build", [tiger, _sparse_random, lambda: rock_sample(4, 4)])
+def test_prediction_and_backprojection_equal_dense(build) -> None:
+    model = build()
+    sm = SparseFlatModel.from_model(SparsePOMDP.from_dense(model))
+    T = model.T
+    assert torch.equal(sm.dense_T(), T)
+    A, S, _ = T.shape
+    g = torch.Generator().manual_seed(1)
+    beliefs = torch.rand(4, S, generator=g, dtype=torch.float64)
+    beliefs[0] = model.b0
+    beliefs[1, S // 2 :] = 0.0  # a sparse belief
+    beliefs = beliefs / beliefs.sum(-1, keepdim=True)
+    dense_pred = torch.einsum("bs,ast->bat", beliefs, T)  # (B, A, S)
+    torch.testing.assert_close(sm.predict(beliefs), dense_pred)
+    for i in range(beliefs.shape[0]):
+        b = beliefs[i].numpy()
+        np.testing.assert_allclose(sm.predict_np(b), dense_pred[i].numpy(), atol=1e-14)
+        cols, pred = sm.predict_columns_np(b)
+        full = np.zeros((A, S))
+        full[:, cols] = pred
+        np.testing.assert_allclose(full, dense_pred[i].numpy(), atol=1e-14)
+        # the columns cover every successor and the belief's own support
+        assert set(np.flatnonzero(b)) <= set(cols.tolist())
+        assert set(np.flatnonzero(dense_pred[i].sum(0).numpy())) <= set(cols.tolist())
+        for a in range(A):
+            np.testing.assert_allclose(sm.predict_action_np(b, a), full[a], atol=1e-14)
+    values = torch.randn(5, S, generator=g, dtype=torch.float64)
+    actions = torch.tensor([0, A - 1, 0, 1 % A, A - 1])
+    dense_back = torch.einsum("bst,bt->bs", T[actions], values)
+    torch.testing.assert_close(sm.backproject(actions, values), dense_back)
+    for i in range(5):
+        np.testing.assert_allclose(
+            sm.backproject_np(int(actions[i]), values[i].numpy()), dense_back[i].numpy()
+        )
+    torch.testing.assert_close(sm.expect(values[0]), T @ values[0])
+
+
+def test_duplicate_coordinates_are_summed_and_dense_models_accepted() -> None:
+    model = tiger()
+    sp = SparsePOMDP.from_dense(model)
+    idx, p = sp.transitions
+    doubled = SparsePOMDP(
+        transitions=(torch.cat([idx, idx]), torch.cat([p, p]) / 2),
+        observations_=sp.observations_, R=sp.R, b0=sp.b0, discount=sp.discount,
+        states=sp.states, actions=sp.actions, observations=sp.observations,
+    )  # fmt: skip
+    assert torch.equal(SparseFlatModel.from_model(doubled).dense_T(), model.T)
+    assert torch.equal(SparseFlatModel.from_model(model).dense_T(), model.T)
+    with pytest.raises(TypeError, match="SparsePOMDP or POMDP"):
+        SparseFlatModel.from_model("tiger")  # type: ignore[arg-type]
+
+
+def test_factored_model_from_sparse_expands_and_backprojects_as_dense(rs44: POMDP) -> None:
+    dense = FactoredModel.from_model(rs44)
+    sparse = FactoredModel.from_sparse(SparsePOMDP.from_dense(rs44))
+    g = torch.Generator().manual_seed(0)
+    beliefs = torch.rand(3, rs44.num_states, generator=g, dtype=torch.float64)
+    beliefs[0] = rs44.b0
+    xs_d, J_d = dense.expand(0, beliefs)
+    xs_s, J_s = sparse.expand(0, beliefs)
+    assert torch.equal(xs_d, xs_s)
+    torch.testing.assert_close(J_s, J_d)
+    actions = torch.tensor([0, 5, 7])
+    values = torch.randn(3, 1, rs44.num_states, generator=g, dtype=torch.float64)
+    torch.testing.assert_close(
+        sparse.backproject(0, actions, values), dense.backproject(0, actions, values)
+    )
+
+
+def test_blind_vectors_equal_dense_and_iterates_are_lower_bounds(
+    rs44: POMDP, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    sm = SparseFlatModel.from_model(rs44)
+    exact = blind_vectors(rs44)
+    torch.testing.assert_close(sparse_blind_vectors(sm), exact)
+    # force the iterative path (the one large models take): monotone from below
+    monkeypatch.setattr(sparse_module, "DIRECT_SOLVE_SIZE", 0)
+    few = sparse_blind_vectors(sm, max_iterations=5)
+    many = sparse_blind_vectors(sm, max_iterations=2000, tol=1e-12)
+    assert (few <= many + 1e-12).all() and (many <= exact + 1e-9).all()
+    torch.testing.assert_close(many, exact, atol=1e-6, rtol=0)
+    policy = sparse_blind_policy(SparsePOMDP.from_dense(rs44))
+    assert policy.num_vectors == rs44.num_actions and not policy.is_momdp
+
+
+@pytest.mark.parametrize("build", [tiger, _sparse_random, lambda: rock_sample(4, 4)])
+def test_fib_corner_values_sparse_equal_dense(build) -> None:
+    model = build()
+    dense = fib_corner_values(model)
+    sparse = fib_corner_values(SparsePOMDP.from_dense(model))
+    torch.testing.assert_close(sparse, dense, atol=1e-6, rtol=0)
+
+
+def test_sawtooth_on_columns_equals_full_rows() -> None:
+    g = torch.Generator().manual_seed(3)
+    Y = 40
+    ub = SawtoothUpperBound(10.0 + torch.rand(1, Y, generator=g, dtype=torch.float64))
+    for _ in range(30):  # points with supports of 2..6 states
+        w = int(torch.randint(2, 7, (1,), generator=g))
+        idx = torch.randperm(Y, generator=g)[:w]
+        b = torch.zeros(Y, dtype=torch.float64)
+        b[idx] = torch.rand(w, generator=g, dtype=torch.float64) + 0.1
+        b = b / b.sum()
+        ub.add_np(b.numpy(), 0, float((b * ub.corner[0]).sum()) - 3.0)
+    rng = np.random.default_rng(0)
+    cols = np.sort(rng.choice(Y, 15, replace=False))
+    rows = np.zeros((8, Y))
+    rows[:, cols] = rng.random((8, 15)) * (rng.random((8, 15)) < 0.7)
+    # some queries covering the support of a stored point exactly (the point is active)
+    for i in range(3):
+        pts = ub.points[0][i].numpy()
+        rows[i] = pts
+        cols = np.union1d(cols, np.flatnonzero(pts))
+    x = np.zeros(8, dtype=np.int64)
+    full = ub.value_np(rows, x)
+    compact = ub.value_np(rows[:, cols], x, cols)
+    np.testing.assert_allclose(compact, full, rtol=1e-12, atol=1e-12)
+    assert (full[:3] < (rows[:3] * ub.corner[0].numpy()).sum(-1) - 1.0).all()
+
+
+def test_sparse_belief_tree_stores_supports() -> None:
+    g = torch.Generator().manual_seed(0)
+    S = 30
+    root = torch.zeros(S, dtype=torch.float64)
+    root[[1, 4]] = 0.5
+    tree = SparseBeliefTree(root, x=0, capacity=2)
+    dense = [root]
+    for i in range(9):  # grows past the initial capacity
+        b = torch.rand(S, generator=g, dtype=torch.float64) * (torch.rand(S, generator=g) < 0.2)
+        b[i] += 0.1
+        b = b / b.sum()
+        tree.add(b, 0, i // 2, i % 3, i % 2)
+        dense.append(b)
+    stacked = torch.stack(dense)
+    assert tree.size == 10
+    torch.testing.assert_close(tree.beliefs, stacked)
+    for n in range(10):
+        np.testing.assert_array_equal(tree.beliefs_np[n], stacked[n].numpy())
+    nodes = np.array([7, 2, 0])
+    torch.testing.assert_close(tree.csr(nodes).to_dense(), stacked[nodes])
+    assert tree.support_sizes().tolist() == [int((r > 0).sum()) for r in stacked]
+    assert tree.child(4, 2, 0, 0) == 9 and int(tree.depth[9]) == 3
+
+
+def _solve_both(model: POMDP, **kw) -> tuple:
+    cfg = SARSOPConfig(time_limit=1e9, precision=1e-9, **kw)
+    return sarsop(model, cfg), sarsop(SparsePOMDP.from_dense(model), cfg)
+
+
+@pytest.mark.parametrize(
+    ("build", "iterations"), [(tiger, 20), (_sparse_random, 20), (lambda: rock_sample(4, 4), 40)]
+)
+def test_sparse_sarsop_equals_dense(build, iterations: int) -> None:
+    model = build()
+    dense, sparse = _solve_both(model, max_iterations=iterations)
+    assert sparse.info == dense.info
+    assert sparse.lower == pytest.approx(dense.lower, abs=1e-9)
+    assert sparse.upper == pytest.approx(dense.upper, abs=1e-6)  # FIB's tolerance
+    assert [h["n_alphas"] for h in sparse.history] == [h["n_alphas"] for h in dense.history]
+    torch.testing.assert_close(sparse.policy.alphas, dense.policy.alphas)
+    assert torch.equal(sparse.policy.actions, dense.policy.actions)
+    assert sparse.policy.action(model.b0).item() == dense.policy.action(model.b0).item()
+
+
+def test_sparse_sarsop_tree_beliefs_equal_dense_belief_updates(rs44: POMDP) -> None:
+    cfg = SARSOPConfig(time_limit=1e9, precision=1e-9, max_iterations=25)
+    dense = _SARSOP(rs44, cfg, 0.0)
+    dense.run()
+    sparse = _SARSOP(SparsePOMDP.from_dense(rs44), cfg, 0.0)
+    sparse.run()
+    assert isinstance(sparse.tree, SparseBeliefTree) and sparse.tree.size == dense.tree.size
+    torch.testing.assert_close(sparse.tree.beliefs, dense.tree.beliefs)
+    # each child is the Bayes update of its parent (paper Eq. 3, flat)
+    tree = sparse.tree
+    for n in range(1, tree.size):
+        parent, a, o = int(tree.parent[n]), int(tree.action[n]), int(tree.observation[n])
+        b = torch.from_numpy(tree.beliefs_np[parent])
+        upd = (b @ rs44.T[a]) * rs44.Z[a, :, o]
+        torch.testing.assert_close(torch.from_numpy(tree.beliefs_np[n]), upd / upd.sum())
+
+
+def test_sparse_sarsop_brackets_and_converges_on_tiger() -> None:
+    sol = sarsop(SparsePOMDP.from_dense(tiger()), SARSOPConfig(time_limit=1e9, precision=1e-3))
+    assert sol.info["stop_reason"] == "precision"
+    assert sol.lower <= TIGER_OPTIMUM + 1e-3 and sol.upper >= TIGER_OPTIMUM - 1e-3
+    lows = [h["lower"] for h in sol.history]
+    ups = [h["upper"] for h in sol.history]
+    assert all(lo <= up + 1e-9 for lo, up in zip(lows, ups))
+    assert lows == sorted(lows) and ups == sorted(ups, reverse=True)
+
+
+def test_sparse_sarsop_with_sweeps_and_custom_initialisers(rs44: POMDP) -> None:
+    sp = SparsePOMDP.from_dense(rs44)
+    seen = []
+
+    def lower(model):
+        seen.append(type(model).__name__)
+        return sparse_blind_policy(model)
+
+    cfg = SARSOPConfig(time_limit=1e9, precision=1e-9, max_iterations=20, sweep_interval=5,
+                       lower_bound_init=lower)  # fmt: skip
+    sol = sarsop(sp, cfg)
+    assert seen == ["SparsePOMDP"]
+    ref = sarsop(rs44, SARSOPConfig(time_limit=1e9, precision=1e-3, max_iterations=60))
+    assert sol.lower <= ref.upper + 1e-9 and ref.lower <= sol.upper + 1e-9
+
+
+def test_solve_dispatches_sparse_models_to_sarsop_only() -> None:
+    sp = SparsePOMDP.from_dense(tiger())
+    sol = solve(sp, SARSOPConfig(time_limit=1e9, precision=0.5))
+    assert sol.upper - sol.lower <= 0.5
+    with pytest.raises(ModelError, match="SARSOP only"):
+        solve(sp, PBVIConfig(time_limit=1.0))

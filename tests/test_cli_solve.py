@@ -78,3 +78,21 @@ def test_bad_input_exits_2_with_one_line(capsys, tmp_path):
     with pytest.raises(SystemExit) as exit_info:
         main(["solve", str(bad), "--time-limit", "-1"])
     assert exit_info.value.code == 2
+
+
+def test_sarsop_reads_and_solves_sparsely_above_the_dense_threshold(
+    capsys, tiger_file, monkeypatch
+):
+    import torchhrc.io.cassandra as cassandra
+
+    code, out, _ = _run(capsys, "solve", tiger_file, "--precision", "0.5", "--json", "--quiet")
+    assert code == 0 and json.loads(out)["sparse"] is False
+    # Tiger's dense T has 12 entries: above a threshold of 4 it is read and solved sparsely
+    monkeypatch.setattr(cassandra, "AUTO_SPARSE_ENTRIES", 4)
+    code, out, _ = _run(capsys, "solve", tiger_file, "--precision", "0.5", "--json", "--quiet")
+    report = json.loads(out)
+    assert code == 0 and report["sparse"] is True and report["solver"] == "sarsop"
+    assert report["lower"] <= 19.3711 <= report["upper"] and report["gap"] <= 0.5
+    # the other solvers read the dense model whatever its size
+    code, out, _ = _run(capsys, "solve", tiger_file, "--solver", "qmdp", "--json", "--quiet")
+    assert code == 0 and json.loads(out)["sparse"] is False

@@ -56,7 +56,11 @@ from torchhrc.io._atomic import atomic_write_bytes
 from torchhrc.pomdp import POMDP
 from torchhrc.sparse import MAX_DENSE_ENTRIES, SparsePOMDP
 
-__all__ = ["format_pomdp", "parse_pomdp", "read_pomdp", "write_pomdp"]
+__all__ = ["AUTO_SPARSE_ENTRIES", "format_pomdp", "parse_pomdp", "read_pomdp", "write_pomdp"]
+
+#: ``read_pomdp(..., sparse="auto")`` reads a model sparsely when its dense ``T (A, S, S)`` or
+#: ``Z (A, S, O)`` would have more entries than this (``torchhrc solve`` with SARSOP uses it).
+AUTO_SPARSE_ENTRIES = MAX_DENSE_ENTRIES
 
 _TOKEN = re.compile(r"#[^\n]*|([^\s:#]+|:)")
 _NAME = re.compile(r"[A-Za-z][A-Za-z0-9_\-]*\Z")
@@ -256,8 +260,8 @@ def read_pomdp(
         sparse: return a :class:`~torchhrc.sparse.SparsePOMDP` (coordinate lists; for models
             too large to hold densely, e.g. RockSample(7, 8); rewards must then be given as
             ``R: a : s : * : * v``); ``"auto"``: sparse only when the dense ``T (A, S, S)`` or
-            ``Z (A, S, O)`` would exceed :data:`~torchhrc.sparse.MAX_DENSE_ENTRIES` entries
-            (2e8, 1.6 GB in float64), else dense.
+            ``Z (A, S, O)`` would exceed :data:`AUTO_SPARSE_ENTRIES` entries (by default
+            :data:`~torchhrc.sparse.MAX_DENSE_ENTRIES`, 2e8: 1.6 GB in float64), else dense.
         dtype, device: of the returned tensors (a sparse model stays on the CPU).
 
     Returns:
@@ -354,7 +358,7 @@ def _parse(
         raise p.error("missing 'discount:' in the preamble")
     S, A, O = sizes["states"], sizes["actions"], sizes["observations"]
     if sparse == "auto":
-        sparse = A * S * S > MAX_DENSE_ENTRIES or A * S * O > MAX_DENSE_ENTRIES
+        sparse = max(A * S * S, A * S * O) > AUTO_SPARSE_ENTRIES
     if not sparse and (A * S * S > MAX_DENSE_ENTRIES or A * S * O > MAX_DENSE_ENTRIES):
         raise p.error(
             f"model too large to hold densely (A={A}, S={S}, O={O}: {A * S * S:.3g} entries "

@@ -93,7 +93,8 @@ def fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, *,
             (:class:`~torchhrc.sparse.SparsePOMDP` or
             :class:`~torchhrc.solvers.sparse_model.SparseFlatModel`).
         tol: stop when the largest change is below ``tol``.
-        time_limit: seconds allowed for the FIB iterations after QMDP.
+        time_limit: seconds allowed for the FIB iterations after QMDP (for a sparse model,
+            for QMDP and FIB together: every QMDP iterate is an upper bound too).
         max_iterations: cap on the FIB iterations.
 
     Returns:
@@ -115,11 +116,19 @@ def fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, *,
         step = _factored_fib_step(model)
     # the sparse flat MDP iteration pays; the per-x loop of the MOMDP one does not
     sparse_qmdp = step is not None and step.fm is None
-    alpha = step.qmdp(tol) if sparse_qmdp else qmdp_vectors(model, tol=tol)  # type: ignore
+    if isinstance(model, SparseFlatModel):  # large: QMDP shares the time budget
+        assert step is not None
+        alpha = step.qmdp(tol, deadline=start + time_limit)
+    elif sparse_qmdp:
+        assert step is not None
+        alpha = step.qmdp(tol)
+    else:
+        alpha = qmdp_vectors(model, tol=tol)  # type: ignore[arg-type]
     for _ in range(max_iterations):
         if time.perf_counter() - start > time_limit:
             break
-        new = torch.minimum(fib_backup(model, alpha) if step is None else step.fib(alpha), alpha)  # type: ignore
+        nxt = fib_backup(model, alpha) if step is None else step.fib(alpha)  # type: ignore[arg-type]
+        new = torch.minimum(nxt, alpha)
         change = float((alpha - new).abs().max())
         alpha = new
         if change < tol:
@@ -146,9 +155,9 @@ class _FIBStep:
     def __init__(self, model: POMDP | MOMDP | SparseFlatModel, fm: FactoredModel | None) -> None:
         self.model, self.fm = model, fm
         self.g = float(model.discount)
-        if isinstance(model, SparseFlatModel):  # T is already per-action CSR
-            self.Ts = model.T_csr
-        elif fm is None:
+        # a SparseFlatModel keeps T as sorted nonzeros: the numpy operators below
+        self.sparse = model if isinstance(model, SparseFlatModel) else None
+        if self.sparse is None and fm is None:
             assert isinstance(model, POMDP)
             T = model.T
             with warnings.catch_warnings():  # "sparse CSR support is in beta"
@@ -157,6 +166,8 @@ class _FIBStep:
 
     def _mdp(self, V: torch.Tensor) -> torch.Tensor:
         """``Q[a, ...] = R + gamma E[V(next)]`` for ``V (S,)`` / ``(X, Y)``."""
+        if self.sparse is not None:
+            return self.model.R + self.g * torch.from_numpy(self.sparse.expect_np(V.numpy()))
         if self.fm is None:
             return self.model.R + self.g * torch.stack([t @ V for t in self.Ts])
         fm = self.fm
@@ -173,11 +184,13 @@ class _FIBStep:
             out.append(nxt)
         return fm.R + self.g * torch.stack(out, 1)  # (A, X, Y)
 
-    def qmdp(self, tol: float) -> torch.Tensor:
+    def qmdp(self, tol: float, deadline: float = math.inf) -> torch.Tensor:
         R = self.model.R
         V = torch.full_like(R[0], float(R.max()) / (1.0 - self.g))
         Q = self._mdp(V)
         for _ in range(100_000):
+            if time.perf_counter() > deadline:  # every iterate is an upper bound
+                break
             new = Q.amax(0)
             change = float((V - new).abs().max())
             V = new
@@ -187,6 +200,8 @@ class _FIBStep:
         return Q
 
     def fib(self, alpha: torch.Tensor) -> torch.Tensor:
+        if self.sparse is not None:
+            return torch.from_numpy(self.sparse.fib_np(alpha.numpy()))
         if self.fm is None:
             Z, R = self.model.Z, self.model.R
             A, S, O = Z.shape

@@ -94,6 +94,8 @@ def test_duplicate_coordinates_are_summed_and_dense_models_accepted() -> None:
     )  # fmt: skip
     assert torch.equal(SparseFlatModel.from_model(doubled).dense_T(), model.T)
     assert torch.equal(SparseFlatModel.from_model(model).dense_T(), model.T)
+    assert not SparseFlatModel.from_model(model).deterministic  # listening keeps the state
+    assert SparseFlatModel.from_model(rock_sample(4, 4)).deterministic
     with pytest.raises(TypeError, match="SparsePOMDP or POMDP"):
         SparseFlatModel.from_model("tiger")  # type: ignore[arg-type]
 

@@ -117,8 +117,9 @@ def fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, *,
     # the sparse flat MDP iteration pays; the per-x loop of the MOMDP one does not
     sparse_qmdp = step is not None and step.fm is None
     if isinstance(model, SparseFlatModel):  # large: QMDP shares the time budget
-        assert step is not None
-        alpha = step.qmdp(tol, deadline=start + time_limit)
+        alpha = torch.from_numpy(model.qmdp_np(tol, deadline=start + time_limit))
+        if model.deterministic:  # FIB = QMDP (one successor per (a, s))
+            return alpha.amax(0)
     elif sparse_qmdp:
         assert step is not None
         alpha = step.qmdp(tol)

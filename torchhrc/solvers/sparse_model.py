@@ -115,6 +115,9 @@ class SparseFlatModel:
         self._act = (row // S).astype(np.int64)
         self._src = (row % S).astype(np.int64)
         self._acol = self._act * S + self._col  # a S + s2: the (a, s2) cell of each nonzero
+        # deterministic transitions (RockSample, Tag's robot): one nonzero per (a, s) row,
+        # so row sums are plain gathers
+        self._one_per_row = vals.size == A * S and bool((np.diff(self._ptr) == 1).all())
         self.nnz = int(vals.size)
         # torch CSR: T[a] (S, S) per action and the stacked transposes (A S, S)
         self.T_csr = [
@@ -215,6 +218,8 @@ class SparseFlatModel:
         S = self.num_states
         lo, hi = self._ptr[a * S], self._ptr[(a + 1) * S]
         w = self._val[lo:hi] * v[self._col[lo:hi]]
+        if self._one_per_row:
+            return w.astype(v.dtype, copy=False)
         return np.bincount(self._src[lo:hi], weights=w, minlength=S).astype(v.dtype, copy=False)
 
     def expect_np(self, V: np.ndarray) -> np.ndarray:
@@ -222,8 +227,38 @@ class SparseFlatModel:
         (``V[a, s2]``); one pass over the nonzeros of every action."""
         A, S = self.num_actions, self.num_states
         flat = V[self._col] if V.ndim == 1 else V.reshape(-1)[self._acol]
+        if self._one_per_row:
+            return (self._val * flat).astype(V.dtype, copy=False).reshape(A, S)
         out = np.bincount(self._row, weights=self._val * flat, minlength=A * S)
         return out.astype(V.dtype, copy=False).reshape(A, S)
+
+    @property
+    def deterministic(self) -> bool:
+        """True when every ``(a, s)`` has exactly one successor (then FIB equals QMDP:
+        ``sum_o max_a2 Z[a, s2, o] alpha[a2, s2] = max_a2 alpha[a2, s2]`` for the one ``s2``)."""
+        return self._one_per_row
+
+    def qmdp_np(self, tol: float = 1e-8, deadline: float = math.inf) -> np.ndarray:
+        """``(A, S)`` QMDP vectors by value iteration on the underlying MDP (Littman et al.
+        1995) from the upper bound ``max R / (1 - gamma)``; the operator is monotone, so every
+        iterate is an upper bound and stopping at ``deadline`` (``time.perf_counter()``) is
+        safe. Stops when the largest change is below ``tol``."""
+        import time
+
+        R = self.R.numpy()
+        g = self.discount
+        V = np.full(self.num_states, float(R.max()) / (1.0 - g), dtype=R.dtype)
+        Q = R + g * self.expect_np(V)
+        for _ in range(100_000):
+            if time.perf_counter() > deadline:
+                break
+            new = Q.max(0)
+            change = float(np.abs(V - new).max())
+            V = new
+            np.minimum(R + g * self.expect_np(V), Q, out=Q)
+            if change < tol:
+                break
+        return Q
 
     def fib_np(self, alpha: np.ndarray) -> np.ndarray:
         """``(A, S)`` one Fast Informed Bound step (Hauskrecht 2000) from ``alpha (A2, S)``::
@@ -237,10 +272,13 @@ class SparseFlatModel:
         Yv = Z[:, :, :, None] * alpha.T[None, :, None, :]  # (A, S2, O, A2)
         Yv = Yv.reshape(A * S, O * A)
         G = Yv[self._acol] * self._val[:, None]  # (nnz, O A2)
-        rows = np.zeros((A * S, O * A), dtype=alpha.dtype)
-        starts = self._ptr[:-1]
-        nonempty = self._ptr[1:] > starts
-        rows[nonempty] = np.add.reduceat(G, starts[nonempty], axis=0)
+        if self._one_per_row:
+            rows = G
+        else:
+            rows = np.zeros((A * S, O * A), dtype=alpha.dtype)
+            starts = self._ptr[:-1]
+            nonempty = self._ptr[1:] > starts
+            rows[nonempty] = np.add.reduceat(G, starts[nonempty], axis=0)
         best = rows.reshape(A, S, O, A).max(-1).sum(-1)
         return self.R.numpy() + self.discount * best
 

@@ -275,17 +275,26 @@ class SawtoothUpperBound:
         if r.size == 0:
             return base
         p = sel[j]
-        K = int(ws.max())
+        wp = ws[j]
+        K = int(wp.max())
         pad = np.zeros((B, 2), dtype=beliefs.dtype)
         pad[:, 1] = np.inf
         ext = np.concatenate([beliefs, pad], axis=1)  # (B, C + 2)
         M = r.size
         term = np.empty(M, dtype=beliefs.dtype)
-        step = max(1, _CHUNK // K)
-        for start in range(0, M, step):
-            rr, pp = r[start : start + step], p[start : start + step]
-            g = ext[rr[:, None], local[idx[pp, :K]]]  # (m, K)
-            term[start : start + step] = (g * inv[pp, :K]).min(-1) * gain[pp]
+        # pairs bucketed by point width, so narrow points are not padded to the widest
+        edges = (0, 16, 64, 256, K) if K > 64 else (0, K)
+        for lo, hi in itertools.pairwise(edges):
+            ids = np.flatnonzero((wp > lo) & (wp <= hi)) if len(edges) > 2 else np.arange(M)
+            if ids.size == 0:
+                continue
+            Kb = int(wp[ids].max())
+            step = max(1, _CHUNK // Kb)
+            for start in range(0, ids.size, step):
+                sub = ids[start : start + step]
+                rr, pp = r[sub], p[sub]
+                g = ext[rr[:, None], local[idx[pp, :Kb]]]  # (m, Kb)
+                term[sub] = (g * inv[pp, :Kb]).min(-1) * gain[pp]
         starts = np.flatnonzero(np.concatenate([[True], r[1:] != r[:-1]]))
         best = np.zeros(B, dtype=beliefs.dtype)
         best[r[starts]] = np.minimum(np.minimum.reduceat(term, starts), 0.0)

@@ -335,7 +335,18 @@ class _AlphaSet:
         self.observed = torch.zeros(cap, dtype=torch.long, device=alphas.device)
         self.vectors[:n], self.actions[:n], self.observed[:n] = alphas, actions, observed
         self.size = n
+        self.columns: np.ndarray | None = None  # (Y, capacity) transposed copy, see below
         self._views()
+
+    def keep_columns(self) -> None:
+        """Also keep a ``(Y, capacity)`` transposed numpy copy, ``columns[:, :size]`` (CPU).
+
+        The sparse flat path bounds children given on a few hundred of ``Y`` columns:
+        ``columns[cols, :size]`` is then a gather of contiguous rows instead of a strided
+        gather from every vector.
+        """
+        assert self.np_vectors is not None
+        self.columns = np.ascontiguousarray(self.np_vectors.T)
 
     def _views(self) -> None:
         """Numpy views of the storage (CPU only; refreshed after every reallocation)."""
@@ -354,6 +365,8 @@ class _AlphaSet:
         self.np_vectors[n] = alpha
         self.np_actions[n] = action
         self.np_observed[n] = observed
+        if self.columns is not None:
+            self.columns[:, n] = alpha
         self.size = n + 1
 
     def _reserve(self, need: int) -> None:
@@ -366,6 +379,8 @@ class _AlphaSet:
             new[: self.size] = old[: self.size]
             setattr(self, name, new)
         self._views()
+        if self.columns is not None:
+            self.keep_columns()
 
     def add(self, alphas: torch.Tensor, actions: torch.Tensor, observed: torch.Tensor) -> None:
         m = alphas.shape[0]
@@ -373,6 +388,8 @@ class _AlphaSet:
             self._reserve(self.size + m)
         s = slice(self.size, self.size + m)
         self.vectors[s], self.actions[s], self.observed[s] = alphas, actions, observed
+        if self.columns is not None:
+            self.columns[:, s] = alphas.numpy().T
         self.size += m
 
     def keep(self, mask: torch.Tensor) -> None:
@@ -381,6 +398,8 @@ class _AlphaSet:
         self.vectors[:n] = self.vectors[idx]
         self.actions[:n] = self.actions[idx]
         self.observed[:n] = self.observed[idx]
+        if self.columns is not None:
+            self.columns[:, :n] = self.columns[:, idx.numpy()]
         self.size = n
 
 
@@ -478,6 +497,8 @@ class _SARSOP:
         self.alphas = _AlphaSet(policy.alphas.to(cfg.dtype), policy.actions.long(), observed.long())
         n = self.alphas.size
         self.alphas.keep(prune_dominated(self.alphas.vectors[:n], self.alphas.observed[:n]))
+        if self._sp is not None:
+            self.alphas.keep_columns()
         # upper bound: corner values (FIB by default)
         if cfg.upper_bound_init is None:
             corner = fib_corner_values(work, time_limit=budget)
@@ -701,7 +722,8 @@ class _SARSOP:
         ia, io = np.unravel_index(nz, (A, O))
         rows = np.concatenate([pred[ia] * zc[ia, :, io], b[cols][None]])  # (m + 1, C)
         n = self.alphas.size
-        scores = rows @ self.alphas.np_vectors[:n][:, cols].T  # (m + 1, N)
+        assert self.alphas.columns is not None
+        scores = rows @ self.alphas.columns[cols, :n]  # (m + 1, N)
         best_r = scores.argmax(-1)
         low_r = scores[np.arange(scores.shape[0]), best_r]
         up_r = self.ub.value_np(rows, np.zeros(rows.shape[0], dtype=np.int64), cols)

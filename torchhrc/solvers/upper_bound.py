@@ -246,7 +246,10 @@ class SawtoothUpperBound:
         assert self._np is not None
         corner, idx, inv, px, _, gain, wid = self._np
         B, C = beliefs.shape
-        base = (beliefs * corner[x][:, columns]).sum(-1)  # (B,)
+        if self.num_observed == 1:
+            base = beliefs @ corner[0, columns]  # (B,)
+        else:
+            base = (beliefs * corner[x[:, None], columns[None, :]]).sum(-1)
         n = self.size
         if n == 0 or B == 0:
             return base

@@ -35,6 +35,7 @@ from torchhrc.solvers.pruning import prune_by_beliefs, prune_dominated
 from torchhrc.solvers.qmdp import QMDPConfig, qmdp, qmdp_policy, qmdp_vectors
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
 from torchhrc.solvers.solution import Solution
+from torchhrc.solvers.sparse_model import SparseFlatModel, sparse_blind_policy, sparse_blind_vectors
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.solvers.value_iteration import MDPSolution, policy_evaluation, value_iteration
 from torchhrc.sparse import SparsePOMDP
@@ -49,6 +50,7 @@ __all__ = [
     "QMDPConfig",
     "SARSOPConfig",
     "Solution",
+    "SparseFlatModel",
     "blind_policy",
     "blind_vectors",
     "evaluate_policy",
@@ -67,6 +69,8 @@ __all__ = [
     "register_solver",
     "sarsop",
     "solve",
+    "sparse_blind_policy",
+    "sparse_blind_vectors",
     "type_policy_lower_bound",
     "value_iteration",
 ]

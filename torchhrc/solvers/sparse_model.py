@@ -34,6 +34,7 @@ Example:
 from __future__ import annotations
 
 import math
+import time
 import warnings
 
 import numpy as np
@@ -43,7 +44,7 @@ from torchhrc.errors import ModelError
 from torchhrc.pomdp import POMDP
 from torchhrc.solvers._factored import DIRECT_SOLVE_SIZE
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.sparse import SparsePOMDP
+from torchhrc.sparse import SparsePOMDP, check_dense_size
 
 __all__ = ["SparseFlatModel", "sparse_blind_policy", "sparse_blind_vectors"]
 
@@ -156,8 +157,6 @@ class SparseFlatModel:
         if not isinstance(model, SparsePOMDP):
             raise TypeError(f"expected a SparsePOMDP or POMDP, got {type(model).__name__}")
         A, S, O = model.num_actions, model.num_states, model.num_observations
-        from torchhrc.sparse import check_dense_size
-
         check_dense_size("Z", A * S * O, hint="too many observations for the sparse solver")
         Z = torch.zeros(A, S, O, dtype=dtype)
         zi, zp = model.observations_
@@ -243,8 +242,6 @@ class SparseFlatModel:
         1995) from the upper bound ``max R / (1 - gamma)``; the operator is monotone, so every
         iterate is an upper bound and stopping at ``deadline`` (``time.perf_counter()``) is
         safe. Stops when the largest change is below ``tol``."""
-        import time
-
         R = self.R.numpy()
         g = self.discount
         V = np.full(self.num_states, float(R.max()) / (1.0 - g), dtype=R.dtype)
@@ -307,8 +304,6 @@ class SparseFlatModel:
     def dense_T(self) -> torch.Tensor:
         """``(A, S, S)`` the dense transitions (for small models and tests only)."""
         A, S = self.num_actions, self.num_states
-        from torchhrc.sparse import check_dense_size
-
         check_dense_size("T", A * S * S)
         T = torch.zeros(A * S * S, dtype=self.dtype)
         T[torch.from_numpy(self._row * S + self._col)] = torch.from_numpy(self._val)

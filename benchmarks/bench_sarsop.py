@@ -158,13 +158,16 @@ def _time_to_gap(history: list[dict], gap: float) -> float | None:
     return None
 
 
-def momdp_table(limit: float, precision: float) -> None:
+def momdp_table(limit: float, precision: float, sizes: list[int] | None = None) -> None:
+    """Time to the same gap: the flat solve runs ``limit`` seconds, the factored one to the gap
+    the flat one reached (at most ``limit`` seconds); both with SARSOP's default initialisers."""
     print("\n## MOMDP-factored vs flat SARSOP on RockSample (robot position observed)")
     head = (f"{'problem':<16}{'target gap':>11}{'flat s':>9}{'MOMDP s':>9}{'ratio':>8}"
             f"{'flat low':>10}{'MOMDP low':>10}")  # fmt: skip
     print(head)
     print("-" * len(head))
-    for n, k in [(4, 4), (5, 5)]:
+    for n in sizes or [4, 5]:
+        k = n
         flat = sarsop(rock_sample(n, k), SARSOPConfig(time_limit=limit, precision=precision))
         target = max(flat.upper - flat.lower, precision)
         t_flat = _time_to_gap(flat.history, target)
@@ -205,17 +208,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--problems", nargs="+", choices=list(PROBLEMS), default=list(PROBLEMS))
     parser.add_argument("--appl", default=None, help="path of APPL's pomdpsol binary")
     parser.add_argument("--precision", type=float, default=1e-3)
+    parser.add_argument("--no-quality", action="store_true", help="skip the APPL table")
     parser.add_argument("--no-momdp", action="store_true")
     parser.add_argument("--no-batch", action="store_true")
+    parser.add_argument(
+        "--momdp-sizes", type=int, nargs="+", default=[4, 5], help="RockSample(n, n) sizes"
+    )
+    parser.add_argument("--repeats", type=int, default=1, help="repeats of the MOMDP table")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)  # the tree search is sequential; APPL is single-threaded too
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, limits {args.limits}")
     print(f"load average before: {os.getloadavg()}")
-    quality_table(args.problems, args.limits, args.appl, args.precision)
+    if not args.no_quality:
+        quality_table(args.problems, args.limits, args.appl, args.precision)
     print(f"load average after: {os.getloadavg()}; peak RSS of this process "
           f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")  # fmt: skip
     if not args.no_momdp:
-        momdp_table(min(args.limits), args.precision)
+        for _ in range(args.repeats):
+            momdp_table(min(args.limits), args.precision, args.momdp_sizes)
     if not args.no_batch:
         batch_table(min(args.limits))
     return 0

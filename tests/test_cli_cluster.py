@@ -120,6 +120,20 @@ def test_cluster_same_seed_same_output(study, capsys):
     assert _run(capsys, *argv)[1] == _run(capsys, *argv)[1]
 
 
+def test_cluster_relabel_objects_reports_relabelled_symbols(tmp_path, capsys):
+    path = tmp_path / "three.csv"
+    argv = ["simulate-demos", "--subjects", "60", "--positions", "4", "--noise", "0"]
+    argv += ["--strategies", "safe,efficient,pairs", "--out", str(path)]
+    assert _run(capsys, *argv)[0] == 0
+    argv = ["cluster", str(path), "--k-max", "4", "--restarts", "4", "--json"]
+    code, out, _ = _run(capsys, *argv, "--relabel-objects")
+    report = json.loads(out)
+    assert code == 0
+    assert "human:place_1" in report["symbols"] and "human:place_A" not in report["symbols"]
+    assert report["num_symbols"] == Demonstrations.read_csv(path).relabel_objects().num_symbols
+    assert report["k"] == 3 and report["adjusted_rand_index"] == 1.0
+
+
 def test_cluster_readable_report_and_loo(study, capsys):
     argv = ["cluster", str(study), "--k-max", "3", "--restarts", "3", "--method", "paper"]
     code, out, _ = _run(capsys, *argv, "--loo")

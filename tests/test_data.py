@@ -340,3 +340,54 @@ def test_map_actions_merges_symbols_and_keeps_every_step():
         d.map_actions(lambda actor, action: "")
     with pytest.raises(TypeError, match="callable or a dict"):
         d.map_actions(3)
+
+
+def _relabel_reference(steps, separator="_"):
+    """Per-step loop: objects renamed 1, 2, ... in order of first appearance."""
+    seen: dict[str, int] = {}
+    out = []
+    for actor, action in steps:
+        verb, sep, obj = action.rpartition(separator)
+        if sep and verb and obj:
+            seen.setdefault(obj, len(seen) + 1)
+            out.append((actor, f"{verb}{separator}{seen[obj]}"))
+        else:
+            out.append((actor, action))
+    return out
+
+
+def test_relabel_objects_matches_a_per_step_loop_on_random_sequences():
+    g = torch.Generator().manual_seed(0)
+    actions = [(H, f"place_{p}") for p in "ABCD"] + [(R, f"drill_{p}") for p in "ABCD"]
+    actions += [(H, "wait"), (R, "wait"), (R, "drill_all")]
+    seqs = []
+    for _ in range(40):
+        length = int(torch.randint(2, 12, (1,), generator=g))
+        idx = torch.randint(len(actions), (length,), generator=g).tolist()
+        seqs.append([actions[i] for i in idx])
+    d = Demonstrations.from_lists(seqs, types=["t"] * len(seqs))
+    r = d.relabel_objects()
+    assert r.to_lists() == [_relabel_reference(s) for s in seqs]
+    assert torch.equal(r.lengths, d.lengths) and r.types == d.types
+    assert not r.sequences[~r.mask].any()  # padding stays 0
+
+
+def test_relabel_objects_is_invariant_to_renaming_the_objects():
+    rename = {"A": "C", "B": "A", "C": "B"}
+    seqs = [[(H, "place_A"), (R, "drill_A"), (H, "place_C"), (H, "wait"), (R, "drill_C")]]
+    renamed = [[(a, n[:-1] + rename[n[-1]]) if "_" in n else (a, n) for a, n in s] for s in seqs]
+    one = Demonstrations.from_lists(seqs).relabel_objects()
+    two = Demonstrations.from_lists(renamed).relabel_objects()
+    assert one.to_lists() == two.to_lists()
+    assert one.to_lists()[0] == [
+        (H, "place_1"),
+        (R, "drill_1"),
+        (H, "place_2"),
+        (H, "wait"),
+        (R, "drill_2"),
+    ]
+    # another separator; a name that is only a separator part stays as it is
+    d = Demonstrations.from_lists([[(H, "pick:x"), (H, "_"), (R, "pick:y")]])
+    assert d.relabel_objects(separator=":").to_lists() == [[(H, "pick:1"), (H, "_"), (R, "pick:2")]]
+    with pytest.raises(TypeError, match="separator"):
+        d.relabel_objects(separator="")

@@ -540,6 +540,77 @@ class Demonstrations:
             self, vocabulary=vocabulary, sequences=torch.where(self.mask, lut[self.sequences], 0)
         )
 
+    def relabel_objects(self, *, separator: str = "_") -> Demonstrations:
+        """The same demonstrations with interchangeable objects renamed in order of first use.
+
+        An action ``<verb><separator><object>`` (split at the last separator, e.g.
+        ``place_A``) acts on an object; actions without the separator (``wait``) act on none.
+        In every sequence the objects are renamed ``1, 2, ...`` in the order the sequence first
+        touches them (objects it never touches follow in vocabulary order), so
+        ``place_B drill_B place_A drill_A`` and ``place_A drill_A place_B drill_B`` both become
+        ``place_1 drill_1 place_2 drill_2``. The relation between steps (same object as
+        before, a new one, the one touched first) is kept; which physical object it was is
+        dropped.
+
+        This is the model assumption that the objects are exchangeable, as the paper's study
+        found for the screw positions ("the order of screw placement did not affect the
+        clustering"): a type is then a strategy, not a strategy times a placement order. A
+        first-order chain over position-specific symbols cannot express that: on data where
+        every subject keeps its own placement order, partitions by placement order explain
+        those symbols better than the strategies do (see ``docs/clustering.md``).
+
+        Args:
+            separator: the string between verb and object in an action name (non-empty).
+
+        Returns:
+            Demonstrations over the relabelled vocabulary (canonical order), same steps,
+            subjects, ids and types.
+
+        Example:
+            >>> d = Demonstrations.from_lists([
+            ...     [("human", "place_B"), ("robot", "drill_B"), ("human", "place_A")]])
+            >>> r = d.relabel_objects()
+            >>> [r.symbol_names[i] for i in r.sequences[0].tolist()]
+            ['human:place_1', 'robot:drill_1', 'human:place_2']
+        """
+        if not isinstance(separator, str) or not separator:
+            raise TypeError(f"expected separator to be a non-empty str, got {separator!r}")
+        split = [a.rpartition(separator) for _, a in self.vocabulary]
+        objects = sorted({obj for verb, sep, obj in split if sep and verb and obj})
+        n_obj = max(len(objects), 1)
+        # Each symbol: its (actor, verb) group and object index, or its own group and -1.
+        groups: dict[tuple[str, str], int] = {}
+        sym_group, sym_obj = [], []
+        for (actor, action), (verb, sep, obj) in zip(self.vocabulary, split, strict=True):
+            acts_on = bool(sep and verb and obj)
+            key = (actor, verb) if acts_on else (actor, action + "\0")
+            sym_group.append(groups.setdefault(key, len(groups)))
+            sym_obj.append(objects.index(obj) if acts_on else -1)
+        group_t = torch.tensor(sym_group, device=self.device)  # (A,)
+        obj_t = torch.tensor(sym_obj, device=self.device)  # (A,)
+        N, L = self.sequences.shape
+        obj = torch.where(self.mask, obj_t[self.sequences], -1)  # (N, L)
+        # First step at which each sequence touches each object (L: never).
+        first = torch.full((N, n_obj + 1), L, dtype=torch.long, device=self.device)
+        steps = torch.arange(L, device=self.device).expand(N, L)
+        first.scatter_reduce_(1, obj + 1, steps, reduce="amin")  # column 0: no object
+        first = first[:, 1:]  # (N, n_obj)
+        key = first * n_obj + torch.arange(n_obj, device=self.device)  # ties: vocabulary order
+        rank = key.argsort(-1).argsort(-1)  # (N, n_obj): rank[n, o] = new name of o - 1
+        new_obj = torch.where(obj >= 0, rank.gather(1, obj.clamp(min=0)), -1)  # (N, L)
+        code = group_t[self.sequences] * (n_obj + 1) + new_obj + 1  # (N, L)
+        used, inverse = torch.unique(code[self.mask], return_inverse=True)
+        names = {g: k for k, g in groups.items()}
+        steps_new: list[Step] = []
+        for c in used.tolist():
+            (actor, verb), r = names[c // (n_obj + 1)], c % (n_obj + 1)
+            steps_new.append((actor, f"{verb}{separator}{r}") if r else (actor, verb[:-1]))
+        vocabulary = _sorted_vocabulary(steps_new)
+        lut = torch.tensor([vocabulary.index(s) for s in steps_new], device=self.device)
+        sequences = torch.zeros_like(self.sequences)
+        sequences[self.mask] = lut[inverse]
+        return dataclasses.replace(self, vocabulary=vocabulary, sequences=sequences)
+
     # ------------------------------------------------------------------ statistics
     def transition_counts(self, *, per_sequence: bool = False) -> torch.Tensor:
         """Counts of transitions ``a -> b`` (paper's ``n_{b|a}``), by one bincount.

@@ -156,3 +156,50 @@ def test_blind_iteration_matches_direct_solve(monkeypatch, static):
     # and both are fixed points of alpha_a = R_a + g E_a alpha_a
     E = factored.Expectation(model)
     torch.testing.assert_close(model.R + 0.9 * E(direct, per_action=True), direct)
+
+
+# -- the row-sparse transition operator ------------------------------------------------------
+def _sparse_models():
+    from torchhrc.tasks.classic import rock_sample, rock_sample_momdp
+
+    return [
+        rock_sample(4, 4),  # flat, deterministic moves
+        rock_sample_momdp(4, 4),  # joint Ty (a sampled rock turns bad)
+        random_momdp(40, 3, 3, 2, static=True, sparsity=0.95, discount=0.9, seed=0),
+        random_momdp(40, 3, 3, 2, static=False, sparsity=0.95, discount=0.9, seed=1),
+    ]
+
+
+@pytest.mark.parametrize("index", range(4))
+def test_sparse_expectation_matches_einsum_reference(index):
+    import torchhrc.solvers._factored as factored
+
+    model = _sparse_models()[index]
+    E = factored.Expectation(model)
+    assert E.sparse is not None  # these models take the row-sparse path
+    g = torch.Generator().manual_seed(index)
+    shape = tuple(model.R.shape[1:])
+    for lead in [(), (3,), (2, 2)]:
+        V = torch.randn(*lead, *shape, generator=g, dtype=torch.float64)
+        want = torch.stack([factored.expect(model, v) for v in V.reshape(-1, *shape)])
+        torch.testing.assert_close(E(V), want.reshape(*lead, *model.R.shape))
+        Vp = torch.randn(*lead, *model.R.shape, generator=g, dtype=torch.float64)
+        want = torch.stack(
+            [factored.expect(model, v, per_action=True) for v in Vp.reshape(-1, *model.R.shape)]
+        )
+        torch.testing.assert_close(E(Vp, per_action=True), want.reshape(*lead, *model.R.shape))
+
+
+@pytest.mark.parametrize("index", range(4))
+def test_sparse_blind_iteration_matches_the_direct_solve(monkeypatch, index):
+    import torchhrc.solvers._factored as factored
+
+    model = _sparse_models()[index]
+    monkeypatch.setattr(factored, "SPARSE_DIRECT_SOLVE_SIZE", 10**6)  # densify, then LU
+    direct = blind_vectors(model)
+    monkeypatch.setattr(factored, "SPARSE_DIRECT_SOLVE_SIZE", 0)  # iterate the sparse product
+    iterated = blind_vectors(model, tol=1e-12)
+    torch.testing.assert_close(iterated, direct, atol=1e-8, rtol=0)
+    assert (iterated <= direct + 1e-9).all()
+    ref = model.R + model.discount * factored.expect(model, direct, per_action=True)
+    torch.testing.assert_close(ref, direct, atol=1e-8, rtol=0)

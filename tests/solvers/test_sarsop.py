@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import itertools
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -215,7 +217,7 @@ def test_backup_matches_point_backup_kernel(kind):
         model = random_pomdp(5, 3, 3, seed=1)
     else:
         model = random_momdp(3, 3, 2, 2, static=kind == "static", sparsity=0.3, seed=1)
-    solver = _SARSOP(model, SARSOPConfig(time_limit=LONG), 0.0)
+    solver = _SARSOP(model, SARSOPConfig(time_limit=LONG), time.perf_counter())
     n = solver.alphas.size
     before = solver.alphas.vectors[:n].clone()
     policy = AlphaVectorPolicy(
@@ -324,6 +326,10 @@ def test_config_validation():
         SARSOPConfig(kappa=0.0)
     with pytest.raises(ValueError, match="prediction"):
         SARSOPConfig(prediction="oracle")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="init_tol"):
+        SARSOPConfig(init_tol=0.0)
+    with pytest.raises(ValueError, match="init_max_iterations"):
+        SARSOPConfig(init_max_iterations=-1)
 
 
 def test_model_validation():
@@ -346,3 +352,197 @@ def test_solve_dispatches_sarsop_config():
     a, b = solve(tiger(), cfg), sarsop(tiger(), cfg)
     assert a.info["stop_reason"] == "precision"
     assert (a.lower, a.upper) == (b.lower, b.upper)
+
+
+# -- reproducibility and the time limit ---------------------------------------------------------
+@pytest.mark.parametrize("kind", ["flat", "momdp"])
+def test_fixed_max_iterations_gives_bit_identical_solves(kind):
+    """Only a real timeout makes a solve depend on the clock: the FIB initialisation stops on
+    its tolerance, so two solves with the same ``max_iterations`` are bit-identical."""
+    if kind == "flat":
+        model = _tiger_like(4)
+    else:
+        model = random_momdp(4, 3, 3, 3, static=False, discount=0.95, concentration=0.3, seed=4)
+    cfg = SARSOPConfig(time_limit=LONG, precision=1e-9, max_iterations=12)
+    a, b = sarsop(model, cfg), sarsop(model, cfg)
+    init = a.info["init"]
+    assert init["upper_stop"] == "converged" and init["upper_iterations"] > 1  # FIB iterated
+    assert init["upper_iterations"] == b.info["init"]["upper_iterations"]
+    assert a.info["stop_reason"] == b.info["stop_reason"] == "max_iterations"
+    keys = ("lower", "upper", "n_alphas", "n_beliefs", "n_points", "iteration")
+    assert [[h[k] for k in keys] for h in a.history] == [[h[k] for k in keys] for h in b.history]
+    assert (a.lower, a.upper) == (b.lower, b.upper)
+    assert torch.equal(a.policy.alphas, b.policy.alphas)
+    assert torch.equal(a.policy.actions, b.policy.actions)
+    if kind == "momdp":
+        assert torch.equal(a.policy.observed, b.policy.observed)
+
+
+def test_fib_initialisation_stops_on_its_tolerance_not_the_clock():
+    from torchhrc.solvers.fib import fib_backup
+    from torchhrc.solvers.qmdp import qmdp_vectors
+
+    model = random_momdp(4, 3, 3, 3, static=False, discount=0.95, concentration=0.3, seed=4)
+    tol = 1e-6
+    # reference: the plain loop, no clock
+    alpha = qmdp_vectors(model, tol=tol)
+    for _ in range(10_000):
+        new = torch.minimum(fib_backup(model, alpha), alpha)
+        change = float((alpha - new).abs().max())
+        alpha = new
+        if change < tol:
+            break
+    got = fib_corner_values(model, tol=tol, time_limit=LONG)
+    torch.testing.assert_close(got, alpha.amax(0), atol=1e-12, rtol=0)
+    # a static hidden value: FIB is QMDP, no iteration at all
+    static = random_momdp(4, 3, 3, 3, static=True, seed=4)
+    torch.testing.assert_close(
+        fib_corner_values(static, time_limit=0.0), qmdp_vectors(static).amax(0)
+    )
+    # no time for the FIB iterations: the solve reports it (a time-dependent start)
+    sol = sarsop(model, SARSOPConfig(time_limit=LONG, max_iterations=1, init_time_fraction=0.0))
+    assert sol.info["init"]["upper_stop"] == "time_limit"
+    assert sol.info["init"]["upper_iterations"] == 0
+
+
+class _JumpingClock:
+    """``time`` stand-in: the real ``perf_counter`` plus an ``offset`` the test can jump."""
+
+    def __init__(self) -> None:
+        self.offset = 0.0
+
+    def perf_counter(self) -> float:
+        return time.perf_counter() + self.offset
+
+
+def test_time_limit_is_checked_inside_an_iteration(monkeypatch):
+    """A trial that runs past the time limit is cut short (the solver stays anytime)."""
+    from torchhrc.tasks.classic import rock_sample_momdp
+
+    sarsop_module = sys.modules[_SARSOP.__module__]  # the module (the package re-exports sarsop)
+    model = rock_sample_momdp(4, 4)
+    cfg = SARSOPConfig(time_limit=100.0, precision=1e-9, max_iterations=1)
+    full = sarsop(model, cfg)  # one whole trial
+    assert full.info["n_beliefs"] > 5
+    clock = _JumpingClock()
+    monkeypatch.setattr(sarsop_module, "time", clock)
+    add_node = sarsop_module._SARSOP._add_node
+
+    def add_then_jump(self, *args):
+        node = add_node(self, *args)
+        if node == 3:  # the trial's third new belief: the time limit passes
+            clock.offset = 1000.0
+        return node
+
+    monkeypatch.setattr(sarsop_module._SARSOP, "_add_node", add_then_jump)
+    cut = sarsop(model, SARSOPConfig(time_limit=100.0, precision=1e-9))
+    assert cut.info["stop_reason"] == "time_limit" and cut.info["iterations"] == 1
+    assert cut.info["n_beliefs"] == 4  # root + 3: the trial stopped at the next step
+    assert cut.history[-1]["time_s"] >= 100.0  # the clock says it is late, and it stopped
+    assert cut.lower <= full.upper + 1e-9 and full.lower <= cut.upper + 1e-9
+
+
+def test_tiny_time_limit_returns_soon_with_valid_bounds():
+    from torchhrc.tasks.classic import rock_sample_momdp
+
+    model = rock_sample_momdp(4, 4)
+    exact = sarsop(model, SARSOPConfig(time_limit=LONG, precision=0.5))
+    sol = sarsop(model, SARSOPConfig(time_limit=0.3, precision=1e-9))
+    assert sol.info["stop_reason"] == "time_limit"
+    # generous: the limit is checked at every trial step, a step takes milliseconds
+    assert sol.history[-1]["time_s"] < 0.3 + 5.0
+    assert sol.lower <= exact.upper + 1e-9 and exact.lower <= sol.upper + 1e-9
+
+
+# -- the per-x grouped lower and upper bounds (Ong et al. 2010) ---------------------------------
+def test_alpha_groups_follow_the_flat_storage():
+    from torchhrc.solvers.sarsop import _AlphaSet
+
+    g = torch.Generator().manual_seed(0)
+    X, Y = 5, 3
+    vec = torch.randn(20, Y, generator=g, dtype=torch.float64)
+    obs = torch.randint(0, X, (20,), generator=g)
+    acts = torch.randint(0, 4, (20,), generator=g)
+    s = _AlphaSet(vec, acts, obs, X)
+    for i in range(100):  # grow past every group's capacity, both add paths
+        v = torch.randn(2, Y, generator=g, dtype=torch.float64)
+        x = torch.randint(0, X, (2,), generator=g)
+        if i % 2:
+            s.add(v, torch.zeros(2, dtype=torch.long), x)
+        else:
+            s.add_np(v[0].numpy(), 0, int(x[0]))
+            s.add_np(v[1].numpy(), 1, int(x[1]))
+        if i == 60:
+            s.keep(torch.rand(s.size, generator=g) < 0.7)
+
+    n = s.size
+    for x in range(X):
+        V, ids = s.group(x)
+        want = (s.observed[:n] == x).nonzero().squeeze(-1)
+        assert ids.tolist() == want.tolist()  # ascending flat indices
+        np.testing.assert_array_equal(V, s.vectors[want].numpy())
+
+
+def test_grouped_lower_bound_matches_a_scan_of_all_vectors():
+    model = random_momdp(6, 3, 4, 3, static=False, seed=3)
+    solver = _SARSOP(model, SARSOPConfig(time_limit=LONG, max_iterations=20), time.perf_counter())
+    solver.run()
+    g = torch.Generator().manual_seed(1)
+    rows = torch.rand(50, 3, generator=g, dtype=torch.float64)
+    rows[rows < 0.2] = 0
+    xs = torch.randint(0, 6, (50,), generator=g)
+    value, best = solver._lower_np(rows.numpy(), xs.numpy())
+    ref_value, _ = solver.lower_value(rows, xs)  # masked scan of all N vectors
+    np.testing.assert_allclose(value, ref_value.numpy(), atol=1e-12, rtol=0)
+    assert solver.alphas.observed[torch.from_numpy(best)].tolist() == xs.tolist()
+    for x in range(6):  # each x on its own
+        sel = (xs == x).numpy()
+        if sel.any():
+            v, _ = solver._lower_np(rows.numpy()[sel], xs.numpy()[sel])
+            np.testing.assert_allclose(v, ref_value.numpy()[sel], atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize("Y", [3, 300])  # dense per-x tables, and the sparse pair path
+def test_sawtooth_numpy_paths_match_the_formula_per_observed_value(Y):
+    g = torch.Generator().manual_seed(Y)
+    X = 4
+    corner = 5.0 + torch.rand(X, Y, generator=g, dtype=torch.float64)
+    ub = SawtoothUpperBound(corner.clone())
+    assert ub._dense == (Y <= 256)
+    points = {x: [] for x in range(X)}
+    for _ in range(120):
+        x = int(torch.randint(0, X, (1,), generator=g))
+        w = int(torch.randint(1, min(Y, 6) + 1, (1,), generator=g))
+        b = torch.zeros(Y, dtype=torch.float64)
+        b[torch.randperm(Y, generator=g)[:w]] = torch.rand(w, generator=g, dtype=torch.float64)
+        b = b / b.sum()
+        v = float(b @ ub.corner[x]) - 2.0 * float(torch.rand((), generator=g))
+        ub.add_np(b.numpy(), x, v)  # a one-hot b lowers a corner instead
+        if w > 1:
+            points[x].append((b, v))
+    q = torch.rand(40, Y, generator=g, dtype=torch.float64)
+    q[q < 0.3] = 0.0
+    q[0] = 0.0
+    q[0, :2] = 0.5
+    xs = torch.randint(0, X, (40,), generator=g)
+    got = ub.value_np(q.numpy(), xs.numpy())
+    for i in range(40):
+        x = int(xs[i])
+        want = _sawtooth_reference(ub.corner[x], points[x], q[i])
+        assert got[i] == pytest.approx(want, abs=1e-9)
+    torch.testing.assert_close(torch.from_numpy(got), ub.value(q, xs))
+    ub.prune()  # drops points, rebuilds the per-x tables: the bound must not move
+    torch.testing.assert_close(torch.from_numpy(ub.value_np(q.numpy(), xs.numpy())),
+                               torch.from_numpy(got), atol=1e-9, rtol=0)  # fmt: skip
+
+
+def test_factored_model_slices_are_built_lazily():
+    model = random_momdp(6, 3, 2, 3, static=False, sparsity=0.4, seed=2)
+    fm = FactoredModel.from_model(model)
+    assert all(item is None for item in fm.reach._cache._items)  # nothing built yet
+    k = fm.reach[2]
+    assert torch.equal(k, (model.Tx[:, 2].sum((0, 1)) > 0).nonzero().squeeze(-1))
+    torch.testing.assert_close(fm._tx[2], model.Tx[:, 2][:, :, k])
+    torch.testing.assert_close(fm._tyk[2], model.Ty[:, 2][:, :, k].permute(0, 2, 1, 3))
+    built = [item is not None for item in fm.reach._cache._items]
+    assert built == [False, False, True, False, False, False]

@@ -93,6 +93,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default="vote",
         help="type of a held-out subject for --loo: the paper's vote or the posterior",
     )
+    parser.add_argument(
+        "--relabel-objects",
+        action="store_true",
+        help="treat the objects of verb_object actions as exchangeable: rename them 1, 2, ... "
+        "by first use in each sequence (types become strategies, not placement orders)",
+    )
     parser.add_argument("--save-model", metavar="PATH", help="save the fitted mixture (.json)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(func=run)
@@ -110,8 +116,13 @@ def cluster_report(
     loo: bool = False,
     inference: str = "vote",
     save_model: str | None = None,
+    relabel_objects: bool = False,
 ) -> dict[str, Any]:
     """Fit, score and summarise: the dict that ``--json`` prints.
+
+    With ``relabel_objects`` the demonstrations are first passed through
+    :meth:`~torchhrc.data.Demonstrations.relabel_objects` (symbols, counts and the model are
+    then over the relabelled vocabulary).
 
     Raises:
         ModelError: ``loo`` without types, or a ``k`` range or ``restarts`` out of range.
@@ -136,6 +147,8 @@ def cluster_report(
         )
     if loo and demos.types is None:
         raise ModelError("leave-one-out needs ground-truth types (a 'type' column in the file)")
+    if relabel_objects:
+        demos = demos.relabel_objects()
     fit = fit_mixture(
         demos,
         k_min=k_min,
@@ -275,6 +288,7 @@ def run(args: argparse.Namespace) -> int:
         loo=args.loo,
         inference=args.inference,
         save_model=args.save_model,
+        relabel_objects=args.relabel_objects,
     )
     if args.json:
         public = {k: v for k, v in report.items() if not k.startswith("_")}

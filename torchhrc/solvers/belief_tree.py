@@ -36,8 +36,9 @@ Example:
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -52,6 +53,38 @@ if TYPE_CHECKING:
 __all__ = ["BeliefTree", "FactoredModel", "SparseBeliefTree"]
 
 
+class _PerX:
+    """Per-observed-value tuples ``build(x)``, computed on first use and cached."""
+
+    def __init__(self, n: int, build: Callable[[int], tuple[Any, ...]]) -> None:
+        self._build = build
+        self._items: list[tuple[Any, ...] | None] = [None] * n
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def get(self, x: int) -> tuple[Any, ...]:
+        item = self._items[x]
+        if item is None:
+            item = self._items[x] = self._build(x)
+        return item
+
+
+class _PerXView(Sequence[Any]):
+    """Field ``i`` of a :class:`_PerX`, indexed by the observed value ``x``."""
+
+    def __init__(self, cache: _PerX, i: int) -> None:
+        self._cache, self._i = cache, i
+
+    def __len__(self) -> int:
+        return len(self._cache)
+
+    def __getitem__(self, x: int) -> Any:  # type: ignore[override]
+        if not isinstance(x, (int, np.integer)):
+            raise TypeError(f"expected an int observed value, got {type(x).__name__}")
+        return self._cache.get(int(x))[self._i]
+
+
 @dataclass
 class FactoredModel:
     """A POMDP or MOMDP as ``(Tx, Ty, Z, R)`` over observed ``x`` and hidden ``y``.
@@ -64,7 +97,8 @@ class FactoredModel:
         x0: initial observed value; b0: ``(Y,)`` initial belief over the hidden value.
         discount: the discount factor.
         flat: True when built from a flat POMDP (then ``X = 1``).
-        reach: per ``x``, the ``(K_x,)`` long tensor of reachable next observed values.
+        reach: per ``x``, the ``(K_x,)`` long tensor of reachable next observed values
+            (this and the per-``x`` slices below are built on first access).
         reach_mask: ``(X, X)`` bool, ``reach_mask[x, x2]`` iff ``x2`` is reachable from ``x``.
         sparse: for a flat model built by :meth:`from_sparse`, its
             :class:`~torchhrc.solvers.sparse_model.SparseFlatModel` (``T`` as per-action CSR;
@@ -79,12 +113,12 @@ class FactoredModel:
     b0: torch.Tensor
     discount: float
     flat: bool
-    reach: list[torch.Tensor]
+    reach: Sequence[torch.Tensor]
     reach_mask: torch.Tensor
-    _tx: list[torch.Tensor]
-    _ty: list[torch.Tensor | None]
-    _tyk: list[torch.Tensor | None]
-    _z: list[torch.Tensor]
+    _tx: Sequence[torch.Tensor]
+    _ty: Sequence[torch.Tensor | None]
+    _tyk: Sequence[torch.Tensor | None]
+    _z: Sequence[torch.Tensor]
     _T: torch.Tensor | None
     sparse: SparseFlatModel | None = None
 
@@ -117,18 +151,25 @@ class FactoredModel:
             Ty = None if model.Ty is None else model.Ty.to(dt)
             x0, b0, flat = model.x0, model.b0.to(dt), False
         reach_mask = Tx.sum(dim=(0, 2)) > 0  # (X, X2)
-        reach, txs, tys, tyks, zs = [], [], [], [], []
-        for x in range(Tx.shape[1]):
+
+        def slices(x: int) -> tuple[torch.Tensor, ...]:
             k = reach_mask[x].nonzero().squeeze(-1)
-            reach.append(k)
-            txs.append(Tx[:, x][:, :, k].contiguous())  # (A, Y, K)
-            tys.append(None if Ty is None else Ty[:, x][:, :, k].contiguous())  # (A, Y, K, Y)
-            # (A, K, Y, Y2): the per-(a, x2) hidden transition matrices, for batched matmuls
-            tyks.append(None if Ty is None else Ty[:, x][:, :, k].permute(0, 2, 1, 3).contiguous())
-            zs.append(Z[:, k].permute(0, 1, 3, 2).contiguous())  # (A, K, O, Y)
+            tx = Tx[:, x][:, :, k].contiguous()  # (A, Y, K)
+            ty = tyk = None
+            if Ty is not None:
+                ty = Ty[:, x][:, :, k].contiguous()  # (A, Y, K, Y2)
+                # (A, K, Y, Y2): the per-(a, x2) hidden transition matrices, for batched matmuls
+                tyk = ty.permute(0, 2, 1, 3).contiguous()
+            z = Z[:, k].permute(0, 1, 3, 2).contiguous()  # (A, K, O, Y)
+            return k, tx, ty, tyk, z
+
+        # the slices of an observed value are built when the solver first reaches it (a
+        # search usually visits a small part of a large X)
+        cache = _PerX(Tx.shape[1], slices)
         return cls(
             Tx=Tx, Ty=Ty, Z=Z, R=R, x0=int(x0), b0=b0, discount=float(model.discount), flat=flat,
-            reach=reach, reach_mask=reach_mask, _tx=txs, _ty=tys, _tyk=tyks, _z=zs,
+            reach=_PerXView(cache, 0), reach_mask=reach_mask, _tx=_PerXView(cache, 1),
+            _ty=_PerXView(cache, 2), _tyk=_PerXView(cache, 3), _z=_PerXView(cache, 4),
             _T=Ty[:, 0, :, 0, :].contiguous() if flat else None,
         )  # fmt: skip
 

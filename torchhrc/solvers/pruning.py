@@ -75,6 +75,15 @@ def prune_dominated(
     keep = torch.ones(N, dtype=torch.bool, device=alphas.device)
     if N <= 1:
         return keep
+    if groups is not None and _pairs_pay(groups, groups):
+        # many groups (a MOMDP's observed values): compare only the pairs inside a group
+        for i, j in _same_group_pairs(groups, groups, max(1, _CHUNK_ELEMENTS // max(1, S))):
+            off = i != j
+            i, j = i[off], j[off]
+            ge = (alphas[j] >= alphas[i] - atol).all(-1)
+            le = (alphas[i] >= alphas[j] - atol).all(-1)
+            keep[i[ge & (~le | (j < i))]] = False
+        return keep
     index = torch.arange(N, device=alphas.device)
     chunk = max(1, _CHUNK_ELEMENTS // max(1, N * S))
     for start in range(0, N, chunk):
@@ -125,7 +134,6 @@ def prune_by_beliefs(
     keep = torch.zeros(N, dtype=torch.bool, device=alphas.device)
     if N == 0:
         return keep
-    scores = beliefs.to(alphas.dtype) @ alphas.T  # (M, N)
     if groups is not None:
         if belief_groups is None:
             raise ModelError("belief_groups is required when groups is given")
@@ -135,6 +143,11 @@ def prune_by_beliefs(
                 f"expected belief_groups to have shape (M={beliefs.shape[0]},), "
                 f"actual shape = {tuple(belief_groups.shape)}"
             )
+        if _pairs_pay(belief_groups, groups):
+            return _grouped_winners(alphas, beliefs.to(alphas.dtype), groups, belief_groups)
+    scores = beliefs.to(alphas.dtype) @ alphas.T  # (M, N)
+    if groups is not None:
+        assert belief_groups is not None
         same = belief_groups.unsqueeze(1) == groups.unsqueeze(0)  # (M, N)
         scores = scores.masked_fill(~same, -torch.inf)
         has_vector = same.any(-1)
@@ -143,4 +156,67 @@ def prune_by_beliefs(
         keep |= ~same.any(0)  # groups without any belief keep everything
     else:
         keep[scores.argmax(-1)] = True
+    return keep
+
+
+def _pairs_pay(left: torch.Tensor, right: torch.Tensor) -> bool:
+    """Whether the same-group pairs are far fewer than all pairs (many small groups)."""
+    if left.numel() == 0 or right.numel() == 0:
+        return False
+    G = int(max(int(left.max()), int(right.max()))) + 1
+    pairs = int((torch.bincount(left, minlength=G) * torch.bincount(right, minlength=G)).sum())
+    return 4 * pairs <= left.numel() * right.numel()
+
+
+def _same_group_pairs(left: torch.Tensor, right: torch.Tensor, chunk: int):
+    """Yield ``(i, j)`` index tensors of all pairs with ``left[i] == right[j]``, ``i`` ascending.
+
+    In chunks of about ``chunk`` pairs (a left index's partners are never split), so memory
+    stays bounded however large the groups are.
+    """
+    dev = left.device
+    G = int(max(int(left.max()), int(right.max()))) + 1
+    order = torch.argsort(right, stable=True)
+    counts = torch.bincount(right, minlength=G)
+    starts = torch.cumsum(counts, 0) - counts  # (G,) first slot of each group in `order`
+    per = counts[left]  # (M,) partners of each left index
+    ends = torch.cumsum(per, 0)
+    M = left.numel()
+    lo = 0
+    while lo < M:
+        # the left indices whose partners fit in this chunk (at least one)
+        base = int(ends[lo - 1]) if lo > 0 else 0
+        hi = int(torch.searchsorted(ends, base + chunk, right=True))
+        hi = min(max(hi, lo + 1), M)
+        p = per[lo:hi]
+        i = torch.repeat_interleave(torch.arange(lo, hi, device=dev), p)
+        first = torch.cumsum(p, 0) - p
+        offs = torch.arange(i.numel(), device=dev) - torch.repeat_interleave(first, p)
+        j = order[starts[left[i]] + offs]
+        yield i, j
+        lo = hi
+
+
+def _grouped_winners(alphas: torch.Tensor, beliefs: torch.Tensor, groups: torch.Tensor,
+                     belief_groups: torch.Tensor) -> torch.Tensor:  # fmt: skip
+    """:func:`prune_by_beliefs` scoring only the (belief, vector) pairs of the same group.
+
+    Of the vectors tied for the maximum at a belief the lowest index wins, as ``argmax`` over
+    all of the group's vectors would pick.
+    """
+    N, S = alphas.shape
+    M = beliefs.shape[0]
+    keep = torch.zeros(N, dtype=torch.bool, device=alphas.device)
+    chunk = max(1, _CHUNK_ELEMENTS // max(1, S))
+    for i, j in _same_group_pairs(belief_groups, groups, chunk):
+        score = (beliefs[i] * alphas[j]).sum(-1)  # (P,)
+        top = score.new_full((M,), -torch.inf).scatter_reduce(0, i, score, "amax")
+        win = score >= top[i]
+        first = torch.full((M,), N, dtype=torch.long, device=alphas.device)
+        first = first.scatter_reduce(0, i[win], j[win], "amin")
+        keep[first[first < N]] = True
+    # groups without any belief keep everything
+    has_belief = torch.zeros(int(groups.max()) + 1, dtype=torch.bool, device=alphas.device)
+    has_belief[belief_groups[belief_groups <= groups.max()]] = True
+    keep |= ~has_belief[groups]
     return keep

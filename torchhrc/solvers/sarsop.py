@@ -26,11 +26,23 @@ vectors, alpha vectors that win at no tree belief, redundant upper-bound points 
 nodes reached by sub-optimal actions (``Q_up(b, a) < max_a' Q_low(b, a')``) are pruned.
 
 MOMDP (Ong et al. 2010): beliefs are ``(x, b_y)``; alpha vectors belong to one observed value
-and live over ``Y``; the upper-bound points too; every expansion only touches the next
-observed values reachable from ``x`` (see :class:`~torchhrc.solvers.belief_tree.FactoredModel`),
-so a factored backup costs about ``Y / S = 1 / X`` of the flat one's flops (at small sizes the
-per-op overhead dominates instead; see docs/benchmarks.md). A flat POMDP runs through the
-same code with ``X = 1``.
+and live over ``Y``, and are stored grouped by ``x`` (one contiguous ``(N_x, Y)`` block each);
+the upper-bound points too (per-``x`` point lists, and for ``Y <= 256`` a dense per-``x``
+table), so bounding a belief at ``x`` touches only ``x``'s vectors and points, never the
+whole sets. Every expansion only touches the next observed values reachable from ``x`` (see
+:class:`~torchhrc.solvers.belief_tree.FactoredModel`, whose per-``x`` slices are built when
+the search first reaches ``x``), so a factored backup costs about ``Y / S = 1 / X`` of the
+flat one's flops. The initial bounds use the sparse transition operator
+(:class:`~torchhrc.solvers._factored.Expectation`), never the flat ``(X Y) x (X Y)`` matrix.
+A flat POMDP runs through the same code with ``X = 1``.
+
+Reproducibility and time: with a fixed ``max_iterations`` (or ``precision``) and a
+``time_limit`` that is not reached, a solve is bit-identical run to run: the default FIB
+initialisation stops on its tolerance (``init_tol``) or iteration cap, not on the clock
+(``init_time_fraction`` of the limit is only a safety net; ``Solution.info["init"]`` says how
+it stopped). ``time_limit`` is checked between iterations, at every step of a trial and
+between the backups of its path, so one long trial does not overrun it; the solve stays
+anytime and returns the bounds and policy reached so far.
 
 Every tensor computation at a belief is batched over all ``(a, x2, o)`` children at once (one
 expansion, one matrix product against all alpha vectors, one sawtooth evaluation against all
@@ -92,19 +104,22 @@ UpperInit = Callable[[POMDP | MOMDP], torch.Tensor]
 def fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, *,
                       tol: float = 1e-8, time_limit: float = math.inf,
                       max_iterations: int = 100_000) -> torch.Tensor:  # fmt: skip
-    """Fast Informed Bound corner values with a time budget (SARSOP's default upper init).
+    """Fast Informed Bound corner values (SARSOP's default upper-bound initialisation).
 
     Iterates :func:`~torchhrc.solvers.fib.fib_backup` from the QMDP vectors; the operator is
     monotone and QMDP is an upper bound it maps below itself, so every iterate is an upper
-    bound and stopping on ``time_limit`` is safe (Hauskrecht 2000).
+    bound and stopping early is safe (Hauskrecht 2000). The iteration stops
+    deterministically, when the largest change is below ``tol`` or after ``max_iterations``;
+    ``time_limit`` is only a safety net (hitting it makes the result depend on the machine's
+    speed). For a MOMDP with a static hidden value FIB equals QMDP (the next hidden value is
+    known given the current one), so no FIB iteration runs.
 
     Args:
         model: an unbatched POMDP or MOMDP, or a flat model with sparse transitions
             (:class:`~torchhrc.sparse.SparsePOMDP` or
             :class:`~torchhrc.solvers.sparse_model.SparseFlatModel`).
         tol: stop when the largest change is below ``tol``.
-        time_limit: seconds allowed for the FIB iterations after QMDP (for a sparse model,
-            for QMDP and FIB together: every QMDP iterate is an upper bound too).
+        time_limit: seconds allowed for the whole computation (QMDP included).
         max_iterations: cap on the FIB iterations.
 
     Returns:
@@ -115,36 +130,61 @@ def fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, *,
         >>> round(float(fib_corner_values(tiger())[0]), 2)  # FIB ignores listening noise
         92.82
     """
-    start = time.perf_counter()
+    deadline = time.perf_counter() + time_limit
+    return _fib_corner_values(model, tol, deadline, max_iterations)[0]
+
+
+def _fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, tol: float,
+                       deadline: float, max_iterations: int,
+                       ) -> tuple[torch.Tensor, dict[str, Any]]:  # fmt: skip
+    """:func:`fib_corner_values` and how it stopped: ``{"iterations", "stop"}``.
+
+    ``stop`` is ``"converged"`` (change below ``tol``, or FIB = QMDP), ``"max_iterations"``
+    or ``"time_limit"`` (the only outcome that depends on the wall clock).
+    """
     if isinstance(model, SparsePOMDP):
         model = SparseFlatModel.from_model(model, dtype=model.R.dtype)
-    if isinstance(model, SparseFlatModel):
-        step: _FIBStep | None = _FIBStep(model, None)
-    elif isinstance(model, POMDP):
-        step = _sparse_fib_step(model)
-    else:
-        step = _factored_fib_step(model)
-    # the sparse flat MDP iteration pays; the per-x loop of the MOMDP one does not
-    sparse_qmdp = step is not None and step.fm is None
+    info: dict[str, Any] = {"iterations": 0, "stop": "converged"}
+    step: _FIBStep | None = None
     if isinstance(model, SparseFlatModel):  # large: QMDP shares the time budget
-        alpha = torch.from_numpy(model.qmdp_np(tol, deadline=start + time_limit))
+        step = _FIBStep(model, None)
+        alpha = torch.from_numpy(model.qmdp_np(tol, deadline=deadline))
+        if time.perf_counter() > deadline:
+            info["stop"] = "time_limit"
+            return alpha.amax(0), info
         if model.deterministic:  # FIB = QMDP (one successor per (a, s))
-            return alpha.amax(0)
-    elif sparse_qmdp:
-        assert step is not None
-        alpha = step.qmdp(tol)
+            return alpha.amax(0), info
     else:
-        alpha = qmdp_vectors(model, tol=tol)  # type: ignore[arg-type]
-    for _ in range(max_iterations):
-        if time.perf_counter() - start > time_limit:
+        static = isinstance(model, MOMDP) and model.Ty is None
+        if not static:
+            step = (
+                _sparse_fib_step(model) if isinstance(model, POMDP) else _factored_fib_step(model)
+            )
+        # the sparse flat MDP iteration pays; the per-x loop of the MOMDP one does not
+        sparse_qmdp = step is not None and step.fm is None
+        alpha = step.qmdp(tol) if sparse_qmdp else qmdp_vectors(model, tol=tol)  # type: ignore[union-attr]
+        if static:
+            return alpha.amax(0), info
+    info["stop"] = "max_iterations"
+    for i in range(max_iterations):
+        if time.perf_counter() > deadline:
+            info["stop"] = "time_limit"
             break
         nxt = fib_backup(model, alpha) if step is None else step.fib(alpha)  # type: ignore[arg-type]
         new = torch.minimum(nxt, alpha)
         change = float((alpha - new).abs().max())
         alpha = new
+        info["iterations"] = i + 1
         if change < tol:
+            info["stop"] = "converged"
             break
-    return alpha.amax(0)
+    return alpha.amax(0), info
+
+
+def _floats_are(model: POMDP | MOMDP, dtype: torch.dtype) -> bool:
+    """Whether every floating tensor of ``model`` already has ``dtype`` (no copy needed)."""
+    tensors = [getattr(model, f) for f in ("T", "Tx", "Ty", "Z", "R", "b0") if hasattr(model, f)]
+    return all(t.dtype == dtype for t in tensors if isinstance(t, torch.Tensor))
 
 
 class _FIBStep:
@@ -278,8 +318,16 @@ class SARSOPConfig:
             PBVI solution's policy; default :func:`~torchhrc.solvers.blind.blind_policy`.
         upper_bound_init: ``model -> corner values`` ``(S,)`` / ``(X, Y)``, or per-action
             upper-bound vectors ``(A, S)`` / ``(A, X, Y)`` (maximised over ``A``); default
-            :func:`fib_corner_values` (FIB from QMDP, within the time budget).
-        init_time_fraction: share of ``time_limit`` the default initialisers may use.
+            :func:`fib_corner_values` (FIB from QMDP, stopped by ``init_tol`` /
+            ``init_max_iterations``).
+        init_tol: the default FIB initialisation stops when an iteration changes the corner
+            values by less than this (default ``max(1e-8, 0.01 * precision * (1 - discount))``:
+            the values are then within 1 % of ``precision`` of FIB's fixed point).
+        init_max_iterations: cap on the FIB iterations (default 10,000).
+        init_time_fraction: share of ``time_limit`` the default FIB initialisation may use at
+            most (a safety net: it normally converges long before; when it does not, the
+            result depends on the machine's speed, reported as
+            ``Solution.info["init"]["upper_stop"] == "time_limit"``).
         prune_alphas: prune dominated alpha vectors and those that win at no tree belief.
         prune_growth: prune when the number of alpha vectors (or upper-bound points) has
             grown by this factor since the last pruning.
@@ -301,6 +349,8 @@ class SARSOPConfig:
     bins: int = 10
     lower_bound_init: LowerInit | None = None
     upper_bound_init: UpperInit | None = None
+    init_tol: float | None = None
+    init_max_iterations: int = 10_000
     init_time_fraction: float = 0.25
     prune_alphas: bool = True
     prune_growth: float = 2.0
@@ -318,6 +368,14 @@ class SARSOPConfig:
             raise ValueError(f"expected kappa in (0, 1], got {self.kappa}")
         if self.prune_growth <= 1.0:
             raise ValueError(f"expected prune_growth > 1, got {self.prune_growth}")
+        if self.init_tol is not None and (
+            not isinstance(self.init_tol, (int, float)) or not self.init_tol > 0
+        ):
+            raise ValueError(f"expected init_tol to be None or a number > 0, got {self.init_tol!r}")
+        if not isinstance(self.init_max_iterations, int) or self.init_max_iterations < 0:
+            raise ValueError(
+                f"expected init_max_iterations to be an int >= 0, got {self.init_max_iterations!r}"
+            )
         for name in ("max_iterations", "max_depth"):
             value = getattr(self, name)
             if value is not None and (not isinstance(value, int) or value < 0):
@@ -334,12 +392,36 @@ class SARSOPConfig:
             raise TypeError(f"expected dtype to be a floating torch.dtype, got {self.dtype!r}")
 
 
-class _AlphaSet:
-    """Alpha vectors ``(N, Y)`` with their action and observed value, grown geometrically."""
+class _Lazy:
+    """``build(x)`` for each observed value ``x``, computed on first use and cached."""
 
-    def __init__(self, alphas: torch.Tensor, actions: torch.Tensor, observed: torch.Tensor):
+    _MISSING = object()
+
+    def __init__(self, n: int, build: Callable[[int], Any]) -> None:
+        self._build = build
+        self._items: list[Any] = [self._MISSING] * n
+
+    def __getitem__(self, x: int) -> Any:
+        item = self._items[x]
+        if item is self._MISSING:
+            item = self._items[x] = self._build(x)
+        return item
+
+
+class _AlphaSet:
+    """Alpha vectors ``(N, Y)`` with their action and observed value, grown geometrically.
+
+    On CPU the vectors are also kept grouped by observed value (Ong et al. 2010: a MOMDP
+    lower bound is a set of vectors over ``Y`` per ``x``): ``group(x)`` returns the ``(N_x, Y)``
+    contiguous block of ``x``'s vectors and their indices in the flat storage, so bounding a
+    belief at ``x`` touches only ``N_x`` vectors, not all ``N``.
+    """
+
+    def __init__(self, alphas: torch.Tensor, actions: torch.Tensor, observed: torch.Tensor,
+                 num_observed: int = 1) -> None:  # fmt: skip
         n = alphas.shape[0]
         cap = max(64, 2 * n)
+        self.num_observed = int(num_observed)
         self.vectors = alphas.new_zeros(cap, alphas.shape[1])
         self.actions = torch.zeros(cap, dtype=torch.long, device=alphas.device)
         self.observed = torch.zeros(cap, dtype=torch.long, device=alphas.device)
@@ -347,6 +429,7 @@ class _AlphaSet:
         self.size = n
         self.columns: np.ndarray | None = None  # (Y, capacity) transposed copy, see below
         self._views()
+        self._regroup()
 
     def keep_columns(self) -> None:
         """Also keep a ``(Y, capacity)`` transposed numpy copy, ``columns[:, :size]`` (CPU).
@@ -365,6 +448,46 @@ class _AlphaSet:
         self.np_actions = self.actions.numpy() if cpu else None
         self.np_observed = self.observed.numpy() if cpu else None
 
+    def _regroup(self) -> None:
+        """Rebuild the per-``x`` blocks from the flat storage (CPU only)."""
+        if self.np_vectors is None:
+            return
+        assert self.np_observed is not None
+        n, Y = self.size, self.np_vectors.shape[1]
+        obs = self.np_observed[:n]
+        order = np.argsort(obs, kind="stable")
+        counts = np.bincount(obs, minlength=self.num_observed)
+        ends = np.cumsum(counts)
+        self._gn = counts.astype(np.int64)
+        self._gvec: list[np.ndarray] = []
+        self._gid: list[np.ndarray] = []
+        for x in range(self.num_observed):
+            ids = order[ends[x] - counts[x] : ends[x]]
+            cap = max(4, 2 * ids.size)
+            vec = np.empty((cap, Y), dtype=self.np_vectors.dtype)
+            vec[: ids.size] = self.np_vectors[ids]
+            gid = np.empty(cap, dtype=np.int64)
+            gid[: ids.size] = ids
+            self._gvec.append(vec)
+            self._gid.append(gid)
+
+    def group(self, x: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(N_x, Y)`` the vectors of observed value ``x`` and ``(N_x,)`` their indices."""
+        m = self._gn[x]
+        return self._gvec[x][:m], self._gid[x][:m]
+
+    def _append_group(self, x: int, alpha: np.ndarray, index: int) -> None:
+        m = self._gn[x]
+        if m == self._gid[x].shape[0]:
+            vec = np.empty((2 * m, self._gvec[x].shape[1]), dtype=self._gvec[x].dtype)
+            vec[:m] = self._gvec[x]
+            gid = np.empty(2 * m, dtype=np.int64)
+            gid[:m] = self._gid[x]
+            self._gvec[x], self._gid[x] = vec, gid
+        self._gvec[x][m] = alpha
+        self._gid[x][m] = index
+        self._gn[x] = m + 1
+
     def add_np(self, alpha: np.ndarray, action: int, observed: int) -> None:
         """Add one vector ``alpha (Y,)`` from numpy (CPU storage only)."""
         if self.size == self.vectors.shape[0]:
@@ -378,6 +501,7 @@ class _AlphaSet:
         if self.columns is not None:
             self.columns[:, n] = alpha
         self.size = n + 1
+        self._append_group(observed, self.np_vectors[n], n)
 
     def _reserve(self, need: int) -> None:
         cap = self.vectors.shape[0]
@@ -401,6 +525,10 @@ class _AlphaSet:
         if self.columns is not None:
             self.columns[:, s] = alphas.numpy().T
         self.size += m
+        if self.np_vectors is not None:
+            assert self.np_observed is not None
+            for i in range(s.start, s.stop):
+                self._append_group(int(self.np_observed[i]), self.np_vectors[i], i)
 
     def keep(self, mask: torch.Tensor) -> None:
         idx = mask.nonzero().squeeze(-1)
@@ -411,6 +539,7 @@ class _AlphaSet:
         if self.columns is not None:
             self.columns[:, :n] = self.columns[:, idx.numpy()]
         self.size = n
+        self._regroup()
 
 
 @dataclass
@@ -478,15 +607,21 @@ class _SARSOP:
         self.X, self.Y = fm.num_observed, fm.num_hidden
         self.rng = np.random.default_rng(int(cfg.seed))
         self.device = fm.b0.device
-        budget = cfg.time_limit * cfg.init_time_fraction
-        work = fm.sparse if sparse else model.to(dtype=cfg.dtype)  # type: ignore[union-attr]
+        self.deadline = start + cfg.time_limit
+        init_deadline = start + cfg.time_limit * cfg.init_time_fraction
+        if sparse:
+            work: Any = fm.sparse
+        else:
+            work = model if _floats_are(model, cfg.dtype) else model.to(dtype=cfg.dtype)  # type: ignore[arg-type]
+        t_init = time.perf_counter()
         # lower bound: alpha vectors of a policy (blind policies by default)
         if cfg.lower_bound_init is None and self._sp is not None:
             policy = sparse_blind_policy(self._sp)
         elif cfg.lower_bound_init is None:
-            # every iterate of the blind evaluation is a lower bound: stop once the discounted
-            # tail is below 1e-3 of the first step's (gamma^k <= 1e-3)
-            k = int(min(1000, math.ceil(math.log(1e-3) / math.log(self.gamma))))
+            # every iterate of the blind evaluation is a lower bound: it stops on its tolerance,
+            # or once the discounted tail is below 1e-12 of the first step's (small dense
+            # models are solved exactly by LU instead; sparse ones iterate cheaply)
+            k = int(min(2000, math.ceil(math.log(1e-12) / math.log(self.gamma))))
             policy = blind_policy(work, max_iterations=k)
         else:
             policy = cfg.lower_bound_init(model if sparse else work)
@@ -501,19 +636,30 @@ class _SARSOP:
                 f"expected lower_bound_init to return a {kind} policy over {self.Y} values, "
                 f"got alphas {tuple(policy.alphas.shape)} (is_momdp={policy.is_momdp})"
             )
+        self.init_info: dict[str, Any] = {"lower_s": time.perf_counter() - t_init}
         observed = torch.zeros_like(policy.actions) if policy.observed is None else policy.observed
         if self.X > 1 and int(torch.bincount(observed, minlength=self.X).min()) == 0:
             raise ModelError("lower_bound_init's policy must have a vector for every observed x")
-        self.alphas = _AlphaSet(policy.alphas.to(cfg.dtype), policy.actions.long(), observed.long())
+        self.alphas = _AlphaSet(
+            policy.alphas.to(cfg.dtype), policy.actions.long(), observed.long(), self.X
+        )
         n = self.alphas.size
         self.alphas.keep(prune_dominated(self.alphas.vectors[:n], self.alphas.observed[:n]))
         if self._sp is not None:
             self.alphas.keep_columns()
         # upper bound: corner values (FIB by default)
         if cfg.upper_bound_init is None:
-            corner = fib_corner_values(work, time_limit=budget)
+            tol = cfg.init_tol
+            if tol is None:
+                tol = max(1e-8, 0.01 * cfg.precision * (1.0 - self.gamma))
+            t_upper = time.perf_counter()
+            corner, fib = _fib_corner_values(work, tol, init_deadline, cfg.init_max_iterations)
+            self.init_info["upper_iterations"] = fib["iterations"]
+            self.init_info["upper_stop"] = fib["stop"]
         else:
+            t_upper = time.perf_counter()
             corner = cfg.upper_bound_init(model if sparse else work)
+        self.init_info["upper_s"] = time.perf_counter() - t_upper
         corner = corner.to(dtype=cfg.dtype)
         if corner.dim() == (2 if fm.flat else 3):  # per-action vectors
             corner = corner.amax(0)
@@ -530,7 +676,7 @@ class _SARSOP:
         self._child_x: dict[tuple[int, int], torch.Tensor] = {}
         self._cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._default: torch.Tensor | None = None
-        self._RT = [fm.R[:, x, :].T.contiguous() for x in range(self.X)]  # (Y, A) per x
+        self._RT = _Lazy(self.X, lambda x: fm.R[:, x, :].T.contiguous())  # (Y, A) per x
         self.entropy = np.zeros(1024)
         self.entropy[0] = float(self._entropy(fm.b0.unsqueeze(0))[0])
         self.children: dict[int, list[int]] = {}
@@ -551,12 +697,15 @@ class _SARSOP:
         self._np = self.device.type == "cpu"
         if self._np:
             self._npT = None if fm._T is None else fm._T.numpy()  # (A, S, S)
-            self._nptx = [t.numpy() for t in fm._tx]  # (A, Y, K) per x
-            self._nptyk = [None if t is None else t.numpy() for t in fm._tyk]  # (A, K, Y, Y2)
-            self._npz = [t.numpy() for t in fm._z]  # (A, K, O, Y) per x
+            # per observed value, built when the search first reaches it
+            self._nptx = _Lazy(self.X, lambda x: fm._tx[x].numpy())  # (A, Y, K) per x
+            self._nptyk = _Lazy(  # (A, K, Y, Y2) per x
+                self.X, lambda x: None if fm._tyk[x] is None else fm._tyk[x].numpy()
+            )
+            self._npz = _Lazy(self.X, lambda x: fm._z[x].numpy())  # (A, K, O, Y) per x
             self._npR = fm.R.contiguous().numpy()  # (A, X, Y)
-            self._npRT = [t.numpy() for t in self._RT]  # (Y, A) per x
-            self._npreach = [t.numpy() for t in fm.reach]  # (K,) per x
+            self._npRT = _Lazy(self.X, lambda x: self._RT[x].numpy())  # (Y, A) per x
+            self._npreach = _Lazy(self.X, lambda x: fm.reach[x].numpy())  # (K,) per x
             self._npcx: dict[int, np.ndarray] = {}
             self._npzt: dict[int, np.ndarray] = {}
             self._default_np: tuple[torch.Tensor, np.ndarray] | None = None
@@ -658,19 +807,45 @@ class _SARSOP:
         return (w if tyk is None else w @ tyk[a, k]) * z
 
     def _lower_np(self, rows: np.ndarray, rows_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(B,)`` max alpha . b over the vectors of each ``x`` and the argmax (numpy)."""
-        n = self.alphas.size
-        V = self.alphas.np_vectors[:n]
-        cols = np.flatnonzero(rows.any(0))
-        if cols.size * 2 <= rows.shape[1]:  # sparse beliefs: only their support matters
-            scores = rows[:, cols] @ V[:, cols].T  # (B, N)
+        """``(B,)`` max alpha . b over the vectors of each ``x`` and the argmax (numpy).
+
+        Only the vectors of the rows' own observed values are scored (``alphas.group(x)``,
+        ``N_x * Y`` per row instead of ``N * Y``); ties go to the lowest index, as a scan of
+        the whole set would.
+        """
+        if self.X == 1:
+            V, ids = self.alphas.group(0)
+            return self._score_np(rows, V, ids)
+        B = rows.shape[0]
+        first = rows_x[0]
+        if (rows_x == first).all():
+            V, ids = self.alphas.group(int(first))
+            return self._score_np(rows, V, ids)
+        # one product against the vectors of all the rows' observed values, masked to each
+        # row's own: fewer array ops than one product per observed value
+        xs = np.unique(rows_x)
+        blocks = [self.alphas.group(int(u)) for u in xs]
+        V = np.concatenate([v for v, _ in blocks])  # (sum N_x, Y)
+        ids = np.concatenate([i for _, i in blocks])
+        label = np.repeat(xs, [i.size for _, i in blocks])  # (sum N_x,) observed value
+        scores = rows @ V.T  # (B, sum N_x)
+        scores[rows_x[:, None] != label[None, :]] = -np.inf
+        j = scores.argmax(-1)
+        return scores[np.arange(B), j], ids[j]
+
+    @staticmethod
+    def _score_np(rows: np.ndarray, V: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``max_n rows . V[n]`` ``(B,)`` and ``ids`` of the argmax, for ``V (N, Y)``."""
+        if rows.shape[1] >= 64:
+            cols = np.flatnonzero(rows.any(0))
+            if cols.size * 2 <= rows.shape[1]:  # sparse beliefs: only their support matters
+                scores = rows[:, cols] @ V[:, cols].T  # (B, N)
+            else:
+                scores = rows @ V.T
         else:
             scores = rows @ V.T  # (B, N)
-        if self.X > 1:
-            obs = self.alphas.np_observed[:n]
-            scores = np.where(rows_x[:, None] == obs[None, :], scores, -np.inf)
-        best = scores.argmax(-1)
-        return scores[np.arange(scores.shape[0]), best], best
+        j = scores.argmax(-1)
+        return scores[np.arange(scores.shape[0]), j], ids[j]
 
     def _evaluate_np(self, x: int, b: np.ndarray) -> tuple[np.ndarray, ...]:
         """:meth:`evaluate` for one belief ``b (Y,)`` in numpy.
@@ -881,7 +1056,7 @@ class _SARSOP:
         L = float(tree.lower[0])
         U = L + eps
         path = [0]
-        while t < self.max_depth:
+        while t < self.max_depth and time.perf_counter() < self.deadline:
             lo, up = float(tree.lower[node]), float(tree.upper[node])
             if self.cfg.prediction == "binning":
                 v_hat = self.bins.predict(up, float(self.entropy[node]), lo)
@@ -1052,17 +1227,24 @@ class _SARSOP:
                 if cfg.max_iterations is not None and iteration >= cfg.max_iterations:
                     reason = "max_iterations"
                     break
-                if time.perf_counter() - self.start >= cfg.time_limit:
+                if time.perf_counter() >= self.deadline:
                     reason = "time_limit"
                     break
                 iteration += 1
                 eps = cfg.kappa * (entry["upper"] - entry["lower"])
+                # the time limit is also checked inside the iteration (at every step of the
+                # trial and between backups): a long trial is cut short, and what was backed
+                # up so far is kept (every backup leaves valid bounds)
                 path = self.sample(eps)
                 for node in reversed(path):
                     self.backup(int(self.tree.x[node]), np.array([node]))
-                if cfg.sweep_interval and iteration % cfg.sweep_interval == 0:
+                    if time.perf_counter() >= self.deadline:
+                        break
+                late = time.perf_counter() >= self.deadline
+                if cfg.sweep_interval and iteration % cfg.sweep_interval == 0 and not late:
                     self.sweep()
-                self.prune()
+                if not late:
+                    self.prune()
                 entry = self.record(iteration)
                 if cfg.callback is not None and cfg.callback(dict(entry)):
                     reason = "callback"
@@ -1085,6 +1267,7 @@ class _SARSOP:
             "backups": self.backups,
             "n_beliefs": self.tree.size,
             "n_points": self.ub.size,
+            "init": dict(self.init_info),
         }
         return Solution(policy, lower=last["lower"], upper=last["upper"],
                         history=self.history, info=info)  # fmt: skip
@@ -1107,7 +1290,10 @@ def sarsop(model: POMDP | MOMDP | SparsePOMDP, config: SARSOPConfig | None = Non
         iteration with ``time_s``, ``lower``, ``upper``, ``n_alphas``, ``n_beliefs``,
         ``n_points``, ``iteration``. ``info["stop_reason"]`` is ``"precision"``,
         ``"time_limit"``, ``"max_iterations"``, ``"callback"`` or ``"interrupted"``
-        (KeyboardInterrupt: the best policy so far is returned).
+        (KeyboardInterrupt: the best policy so far is returned); ``info["init"]`` has the
+        initialisation's times (``lower_s``, ``upper_s``) and, for the default FIB, its
+        ``upper_iterations`` and ``upper_stop`` (``"converged"``, ``"max_iterations"`` or
+        ``"time_limit"``, the last making the result depend on the machine's speed).
 
     Raises:
         ModelError: a batched model, ``discount >= 1``, or an initialiser of the wrong shape.

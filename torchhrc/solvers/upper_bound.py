@@ -28,6 +28,7 @@ Example:
 from __future__ import annotations
 
 import itertools
+from typing import Any
 
 import numpy as np
 import torch
@@ -37,6 +38,7 @@ from torchhrc.errors import ModelError
 __all__ = ["SawtoothUpperBound"]
 
 _CHUNK = 1 << 22  # elements of the (B, P, K) ratio tensor computed at once
+_DENSE_HIDDEN = 256  # MOMDPs with at most this many hidden values keep dense per-x point tables
 
 
 class SawtoothUpperBound:
@@ -74,6 +76,15 @@ class SawtoothUpperBound:
         self.size = 0
         self._alive_after_prune = 0
         self._views()
+        # per observed value, the indices of its points (CPU): an evaluation at x only
+        # looks at x's points (Ong et al. 2010), not at all of them
+        self._members = [np.empty(4, dtype=np.int64) for _ in range(X)] if self._np else []
+        self._count = np.zeros(X, dtype=np.int64)
+        # MOMDP with a narrow hidden factor: each x's points also as a dense (Y, P_x) table of
+        # 1 / b_i(y) (inf off the support), so an evaluation is a few contiguous array ops
+        self._dense = self._np is not None and X > 1 and Y <= _DENSE_HIDDEN
+        dt = corner.numpy().dtype if self._dense else None
+        self._q = [np.empty((Y, 4), dtype=dt) for _ in range(X)] if self._dense else []  # (Y, cap)
 
     # -- storage -----------------------------------------------------------------------------
     def _views(self) -> None:
@@ -83,6 +94,56 @@ class SawtoothUpperBound:
             return
         self._np = (self.corner.numpy(), self._idx.numpy(), self._inv.numpy(), self._x.numpy(),
                     self._v.numpy(), self._gain.numpy(), self._w.numpy())  # fmt: skip
+
+    def _add_member(self, x: int, i: int) -> None:
+        if self._np is None:
+            return
+        m = self._count[x]
+        arr = self._members[x]
+        if m == arr.shape[0]:
+            arr = np.concatenate([arr, np.empty(m, dtype=np.int64)])
+            self._members[x] = arr
+            if self._dense:
+                self._q[x] = np.concatenate([self._q[x], np.empty_like(self._q[x])], axis=1)
+        arr[m] = i
+        self._count[x] = m + 1
+        if self._dense:
+            self._q[x][:, m] = self._dense_row(i)
+
+    def _dense_row(self, i: int) -> np.ndarray:
+        """``(Y,)`` point ``i``'s ``1 / b_i(y)`` on its support, ``inf`` elsewhere."""
+        assert self._np is not None
+        _, idx, inv, _, _, _, wid = self._np
+        w = int(wid[i])
+        row = np.full(self.num_hidden, np.inf, dtype=inv.dtype)
+        row[idx[i, :w]] = inv[i, :w]
+        return row
+
+    def _rebuild_members(self) -> None:
+        if self._np is None:
+            return
+        n = self.size
+        px = self._np[3][:n]
+        order = np.argsort(px, kind="stable")
+        counts = np.bincount(px, minlength=self.num_observed)
+        ends = np.cumsum(counts)
+        for x in range(self.num_observed):
+            ids = order[ends[x] - counts[x] : ends[x]]
+            arr = np.empty(max(4, 2 * ids.size), dtype=np.int64)
+            arr[: ids.size] = ids
+            self._members[x] = arr
+            if self._dense:
+                _, idx, inv = self._np[:3]
+                rows = np.full((ids.size, self.num_hidden + 1), np.inf, dtype=inv.dtype)
+                np.put_along_axis(rows, idx[ids], inv[ids], axis=1)  # pads land in column Y
+                q = np.empty((self.num_hidden, arr.shape[0]), dtype=inv.dtype)
+                q[:, : ids.size] = rows[:, :-1].T
+                self._q[x] = q
+        self._count[:] = counts
+
+    def members(self, x: int) -> np.ndarray:
+        """``(P_x,)`` the indices of the points of observed value ``x`` (CPU storage only)."""
+        return self._members[x][: self._count[x]]
 
     def _grow(self, need: int, width: int) -> None:
         cap, K = self._idx.shape
@@ -104,7 +165,15 @@ class SawtoothUpperBound:
                     setattr(self, name, new)
             self._views()
 
-    def _refresh_gain(self) -> None:
+    def _refresh_gain(self, x: int | None = None) -> None:
+        """Recompute the gains after a corner change (only ``x``'s points when given)."""
+        if x is not None and self._np is not None:
+            corner, idx, inv, _, v, gain, _ = self._np
+            ids = self.members(x)
+            if ids.size:
+                c = np.append(corner[x], 0.0)  # (Y + 1,), the pad index Y maps to 0
+                gain[ids] = v[ids] - (c[idx[ids]] / inv[ids]).sum(-1)
+            return
         n = self.size
         c = torch.cat([self.corner, self.corner.new_zeros(self.num_observed, 1)], dim=1)
         cx = c[self._x[:n]]  # (P, Y+1)
@@ -193,20 +262,28 @@ class SawtoothUpperBound:
         B = beliefs.shape[0]
         if n == 0 or B == 0:
             return base
+        if self._dense:
+            return base + self._dense_min(beliefs, x)
         pos = beliefs > 0  # (B, Y)
         wr = pos.sum(-1)  # (B,) support widths of the queries
         # a point (width w_i) can lower the bound at b only if b covers its support, so
         # |supp b| >= w_i, b(first) > 0 and b(last) > 0 for its first and last support entries
-        cand = gain[:n] < 0
-        cand &= wid[:n] <= wr.max()
-        if self.num_observed > 1:
-            cand &= np.isin(px[:n], x)
-        sel = np.flatnonzero(cand)
+        several = False
+        if self.num_observed > 1:  # only the points of the queried observed values
+            first = int(x[0])
+            several = not bool((x == first).all())
+            if several:
+                sel = np.concatenate([self.members(int(u)) for u in np.unique(x)])
+            else:
+                sel = self.members(first)
+            sel = sel[(gain[sel] < 0) & (wid[sel] <= wr.max())]
+        else:
+            sel = np.flatnonzero((gain[:n] < 0) & (wid[:n] <= wr.max()))
         if sel.size == 0:
             return base
         ws = wid[sel]
         pair = pos[:, idx[sel, 0]] & pos[:, idx[sel, ws - 1]] & (ws[None, :] <= wr[:, None])
-        if self.num_observed > 1:
+        if several:
             pair &= px[sel][None, :] == x[:, None]
         r, j = np.nonzero(pair)  # candidate (query, point) pairs, r sorted
         if r.size == 0:
@@ -303,6 +380,46 @@ class SawtoothUpperBound:
         best[r[starts]] = np.minimum(np.minimum.reduceat(term, starts), 0.0)
         return base + best
 
+    def _dense_min(self, beliefs: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """``(B,)`` ``min(0, min_i gain_i * min_{y in supp b_i} b(y) / b_i(y))`` per query.
+
+        From the dense per-``x`` tables ``q_i(y) = 1 / b_i(y)`` (``inf`` off the support):
+        the zeros of ``b`` are replaced by the smallest positive float, so ``b(y) q_i(y)`` is
+        ``inf`` off the support (never the minimum) and on the support ``b(y) / b_i(y)``, or a
+        ratio below ``1e-290`` where ``b(y) = 0`` (the point then moves the bound by less than
+        that, as it should not move it at all).
+        """
+        gain = self._np[5]  # type: ignore[index]
+        out = np.zeros(beliefs.shape[0], dtype=beliefs.dtype)
+        b_all = np.where(beliefs > 0, beliefs, np.finfo(beliefs.dtype).tiny)
+        first = int(x[0])
+        if (x == first).all():
+            parts: Any = ((first, slice(None)),)
+        else:
+            order = np.argsort(x, kind="stable")
+            sx = x[order]
+            edges = [0, *(np.flatnonzero(sx[1:] != sx[:-1]) + 1).tolist(), sx.size]
+            parts = (
+                (int(sx[lo]), order[lo:hi]) for lo, hi in itertools.pairwise(edges)
+            )  # (observed value, rows) per group
+        Y = self.num_hidden
+        for xv, sel in parts:
+            m = int(self._count[xv])
+            if m == 0:
+                continue
+            q = self._q[xv][:, :m]  # (Y, P_x)
+            g = gain[self._members[xv][:m]]  # (P_x,)
+            b = b_all[sel]  # (B_x, Y)
+            step = max(1, _CHUNK // max(1, m * Y))
+            for start in range(0, b.shape[0], step):
+                ratio = (b[start : start + step, :, None] * q[None]).min(1)  # (b, P_x)
+                low = (ratio * g).min(-1)
+                if isinstance(sel, slice):
+                    out[start : start + step] = low
+                else:
+                    out[sel[start : start + step]] = low
+        return np.minimum(out, 0.0)
+
     # -- updates -----------------------------------------------------------------------------
     def add(self, beliefs: torch.Tensor, x: torch.Tensor, values: torch.Tensor) -> None:
         """Add points ``(x_i, b_i, v_i)``; a one-hot belief lowers its corner value instead.
@@ -345,6 +462,9 @@ class SawtoothUpperBound:
         self._gain[s] = bv - (c[bx].gather(1, idx) * val).sum(-1)
         self._w[s] = width[rows]
         self.size += m
+        if self._np is not None:
+            for i, xi in enumerate(bx.tolist()):
+                self._add_member(xi, s.start + i)
 
     def _add_one(self, belief: torch.Tensor, x: int, value: torch.Tensor) -> None:
         """:meth:`add` for one belief ``(Y,)`` (the sequential path: fewer tensor ops)."""
@@ -388,7 +508,7 @@ class SawtoothUpperBound:
             y = int(idx[0])
             if value < corner[x, y]:
                 corner[x, y] = value
-                self._refresh_gain()
+                self._refresh_gain(x)
             return
         self._grow(self.size + 1, w)
         n = self.size
@@ -403,6 +523,7 @@ class SawtoothUpperBound:
         gain[n] = value - float(corner[x, idx] @ val)
         wid[n] = w
         self.size = n + 1
+        self._add_member(x, n)
 
     def prune(self) -> int:
         """Remove points that the other points and the corners already bound as tightly.
@@ -441,5 +562,6 @@ class SawtoothUpperBound:
             self._gain[: sel.numel()] = self._gain[sel]
             self._w[: sel.numel()] = self._w[sel]
             self.size = sel.numel()
+            self._rebuild_members()
         self._alive_after_prune = self.size
         return removed

@@ -50,6 +50,7 @@ from torchhrc.solvers import (
     solve,
     value_iteration,
 )
+from torchhrc.sparse import SparsePOMDP
 from torchhrc.tasks.place_and_drill import simulate_study
 
 __version__ = "0.1.0"
@@ -70,6 +71,7 @@ __all__ = [
     "QMDPConfig",
     "SARSOPConfig",
     "Solution",
+    "SparsePOMDP",
     "TorchHRCError",
     "__version__",
     "adjusted_rand_index",

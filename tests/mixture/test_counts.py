@@ -81,3 +81,17 @@ def test_bad_sequences_are_reported():
         transition_counts(torch.tensor([[0.0, 1.0]]), torch.tensor([2]), 3)
     with pytest.raises(ModelError, match=r"shape \(N=1,\)"):
         transition_counts(torch.tensor([[0, 1]]), torch.tensor([2, 2]), 3)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_unique_rows_equals_torch_unique(seed):
+    # the sort-based deduplication gives torch.unique's rows, order, inverse and counts
+    from torchhrc.mixture.counts import _unique_rows
+
+    g = torch.Generator().manual_seed(seed)
+    high = [1, 2, 16, 300, 2**20, 2**40][seed]
+    key = torch.randint(0, high, (50, 3 + 7 * seed), generator=g)
+    key = torch.cat([key, key[:20], key[5:9]])[torch.randperm(74, generator=g)]
+    expected = torch.unique(key, dim=0, return_inverse=True, return_counts=True)
+    for got, want in zip(_unique_rows(key), expected):
+        assert torch.equal(got, want)

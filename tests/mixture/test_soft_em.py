@@ -54,3 +54,14 @@ def test_map_objective_never_decreases():
     assert torch.isfinite(res.log_transition).all()  # smoothing: no zero probability
     # masked slots carry no weight
     assert torch.isneginf(res.log_weights[~mask]).all()
+
+
+def test_details_flag_changes_only_what_is_reported():
+    stats, mask, lt, lw, li = _start(seed=2)
+    full = soft_em(stats, lt, lw, mask, log_initial=li, tol=1e-8)
+    lean = soft_em(stats, lt, lw, mask, log_initial=li, tol=1e-8, details=False)
+    assert torch.equal(full.iterations, lean.iterations)
+    torch.testing.assert_close(full.log_likelihood, lean.log_likelihood)
+    torch.testing.assert_close(full.log_transition, lean.log_transition)
+    assert lean.assignments.shape == (0, mask.shape[0])
+    assert (full.entropy >= 0).all() and (lean.entropy == 0).all()

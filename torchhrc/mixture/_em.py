@@ -4,30 +4,33 @@ Notation: ``U`` distinct sequences (rows of :class:`SufficientStatistics`), ``R`
 (every restart of every k), ``K`` cluster slots (``k_max``; a run with ``k < K`` has its
 extra slots masked out by ``cluster_mask (R, K)``), ``A`` symbols, ``D = A * A``.
 
-One E-step is one matrix product ``(U, D) @ (D, R * K)``; one M-step is one matrix product
-``(R * K, U) @ (U, D)``. Rows are processed in chunks so the ``(U, R, K)`` table is never
-materialised for large ``U`` (a chunk is a block of thousands of rows: the loop runs over
-memory blocks, not over sequences or runs).
+The EM kernels pack the runs by their number of clusters (:func:`run_groups`): the runs with
+``k`` clusters form one group whose ``R_k * k`` real clusters are the rows of one table, so no
+work is spent on masked slots (k = 2..10 with equal restarts: 1080 columns instead of
+1800). One E-step of a group is one matrix product ``(R_k * k, D) @ (D, U)`` and a
+reduction over the cluster axis of the ``(R_k, k, U)`` result; the data axis ``U`` is
+innermost, so the reductions over clusters vectorise over rows. One M-step is one product
+``(R_k * k, U) @ (U, D)``. Columns (distinct rows) are processed in blocks
+(:func:`column_blocks`) so the table is never materialised for large ``U`` (the loop runs
+over memory blocks, not over sequences or runs).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
 
-from torchhrc.mixture.counts import SufficientStatistics
-
 __all__ = [
     "EMResult",
-    "chunk_rows",
+    "column_blocks",
     "e_table",
-    "exact_row_log_likelihood",
     "m_step_transition",
+    "onehot_sums",
+    "run_groups",
 ]
 
-#: Elements of a ``(chunk, R, K)`` block processed at once.
+#: Elements of a ``(packed clusters, block of rows)`` table processed at once (16 MiB in float32).
 _BLOCK_ELEMENTS = 1 << 22
 
 
@@ -58,10 +61,55 @@ class EMResult:
     converged: torch.Tensor
 
 
-def chunk_rows(U: int, R: int, K: int) -> list[slice]:
-    """Row blocks of at most ``_BLOCK_ELEMENTS`` elements of a ``(rows, R, K)`` table."""
-    size = max(1, _BLOCK_ELEMENTS // max(1, R * K))
+def run_groups(cluster_mask: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """The runs grouped by their number of clusters ``k`` (runs without clusters are skipped).
+
+    Args:
+        cluster_mask: ``(R, K)`` bool, the cluster slots each run uses.
+
+    Returns:
+        ``[(runs (R_k,), slots (R_k, k))]``, increasing ``k``: ``slots[i]`` are the slots of
+        run ``runs[i]`` in increasing order, so a packed column ``(i, j)`` is slot
+        ``slots[i, j]`` of run ``runs[i]``.
+
+    Example:
+        >>> mask = torch.tensor([[True, True, False], [True, False, True], [True, False, False]])
+        >>> [(r.tolist(), s.tolist()) for r, s in run_groups(mask)]
+        [([2], [[0]]), ([0, 1], [[0, 1], [0, 2]])]
+    """
+    k = cluster_mask.sum(-1)  # (R,)
+    groups = []
+    for kv in torch.unique(k).tolist():
+        if kv == 0:
+            continue
+        runs = torch.nonzero(k == kv).squeeze(-1)
+        slots = torch.nonzero(cluster_mask[runs])[:, 1].view(-1, kv)  # row-major: ascending
+        groups.append((runs, slots))
+    return groups
+
+
+def column_blocks(U: int, columns: int) -> list[slice]:
+    """Blocks of the ``U`` data columns with at most ``_BLOCK_ELEMENTS`` elements of a
+    ``(columns, block)`` table each."""
+    size = max(1, _BLOCK_ELEMENTS // max(1, columns))
     return [slice(i, min(U, i + size)) for i in range(0, U, size)] or [slice(0, 0)]
+
+
+def onehot_sums(
+    zt: torch.Tensor, slots: torch.Tensor, weighted: torch.Tensor, columns: int
+) -> torch.Tensor:
+    """``(R_g * k, F)`` sums of the rows of ``weighted (U, F)`` assigned to each cluster.
+
+    ``zt (R_g, U)`` hard assignments (slot indices) of the ``R_g`` runs of one group,
+    ``slots (R_g, k)`` their slots: one-hot ``(R_g * k, block)`` matrices times the rows,
+    block by block (``columns`` sizes the blocks).
+    """
+    Rg, k = slots.shape
+    out = weighted.new_zeros(Rg * k, weighted.shape[-1])
+    for cols in column_blocks(zt.shape[-1], columns):
+        onehot = (zt[:, None, cols] == slots[:, :, None]).to(weighted.dtype)  # (R_g, k, c)
+        out += onehot.view(Rg * k, -1) @ weighted[cols]
+    return out
 
 
 def e_table(
@@ -104,32 +152,3 @@ def m_step_transition(
     rows = smoothed.sum(-1, keepdim=True)
     fresh = smoothed.log() - rows.clamp_min(torch.finfo(smoothed.dtype).tiny).log()
     return torch.where(rows > 0, fresh, previous)
-
-
-def exact_row_log_likelihood(
-    stats: SufficientStatistics,
-    log_transition: torch.Tensor,
-    log_initial: torch.Tensor | None,
-    rows: slice,
-) -> torch.Tensor:
-    """``(rows, R, K)`` exact log-likelihoods, ``-inf`` where a needed probability is 0.
-
-    ``-inf`` entries are replaced by 0 in the product and the impossible rows are found by a
-    second product with the indicator of zero probabilities, so ``0 * -inf`` never occurs.
-    """
-    impossible = torch.isneginf(log_transition)
-    finite = log_transition.masked_fill(impossible, 0.0)
-    counts = stats.counts[rows]
-    first = stats.first_counts[rows] if stats.first_counts is not None else None
-    fin_init = imp_init = None
-    if log_initial is not None:
-        imp_init = torch.isneginf(log_initial)
-        fin_init = log_initial.masked_fill(imp_init, 0.0)
-    ll = e_table(counts, first, finite, fin_init)
-    bad = e_table(
-        counts,
-        first,
-        impossible.to(counts.dtype),
-        None if imp_init is None else imp_init.to(counts.dtype),
-    )
-    return ll.masked_fill(bad > 0, -math.inf)

@@ -145,6 +145,37 @@ class SufficientStatistics:
         return self.counts.shape[0]
 
 
+def _unique_rows(key: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``torch.unique(key, dim=0, return_inverse=True, return_counts=True)`` for a
+    nonnegative int64 ``key (N, F)``, by sorting instead of row-by-row comparisons.
+
+    The columns are packed big-endian into 62-bit words (``bits`` per entry, enough for the
+    largest entry), which keeps the lexicographic order; the rows are then sorted by the
+    words, last word first, with stable sorts (an LSD radix sort over words). Exact, and
+    the distinct rows come out in the same (lexicographic) order as ``torch.unique``.
+    """
+    N, Fd = key.shape
+    if N == 0 or Fd == 0:
+        return torch.unique(key, dim=0, return_inverse=True, return_counts=True)
+    bits = max(1, int(key.max()).bit_length())
+    per_word = max(1, 62 // bits)
+    pad = (-Fd) % per_word
+    padded = torch.cat([key, key.new_zeros(N, pad)], -1) if pad else key
+    shifts = bits * torch.arange(per_word - 1, -1, -1, device=key.device)  # big-endian
+    words = (padded.view(N, -1, per_word) << shifts).sum(-1)  # (N, W), each < 2^62
+    order = torch.arange(N, device=key.device)
+    for w in range(words.shape[-1] - 1, -1, -1):
+        order = order[torch.sort(words[order, w], stable=True).indices]
+    sorted_words = words[order]
+    start = torch.ones(N, dtype=torch.bool, device=key.device)
+    start[1:] = (sorted_words[1:] != sorted_words[:-1]).any(-1)
+    group = start.cumsum(0) - 1  # (N,) distinct index of each sorted row
+    inverse = torch.empty_like(group).scatter_(0, order, group)
+    first = order[start]
+    counts = torch.bincount(group, minlength=int(first.numel()))
+    return key[first], inverse, counts
+
+
 def sufficient_statistics(
     sequences: torch.Tensor,
     lengths: torch.Tensor,
@@ -202,7 +233,7 @@ def sufficient_statistics(
         labels, unit_of = torch.unique(groups.to(C.device), return_inverse=True)
         key = key.new_zeros(labels.shape[0], key.shape[-1]).index_add_(0, unit_of, key)
     if deduplicate and N:
-        uniq, row_of_unit, mult = torch.unique(key, dim=0, return_inverse=True, return_counts=True)
+        uniq, row_of_unit, mult = _unique_rows(key)
     else:
         uniq, row_of_unit = key, torch.arange(key.shape[0], device=C.device)
         mult = torch.ones(key.shape[0], dtype=torch.long, device=C.device)

@@ -11,6 +11,10 @@ algorithm Cluster-Transition-Matrices(k):
 5. until ``Z`` no longer changes.
 
 Every run (restart x value of k) is a slice of one batch; see :mod:`torchhrc.mixture._em`.
+The runs are packed by their k (no masked cluster slots are computed), a run whose
+assignments are stable is dropped from the batch, and after the first iteration the
+M-step's counts are updated by the rows that changed cluster only (exact: the counts are
+integer-valued).
 
 **Unseen transitions** (``log 0``): the M-step keeps exact zeros, so the returned
 ``log_transition`` has ``-inf`` where a cluster never saw a transition. In the E-step a
@@ -38,43 +42,27 @@ import math
 from collections.abc import Callable
 
 import torch
-import torch.nn.functional as F
 
 from torchhrc.errors import ModelError
 from torchhrc.mixture._em import (
     EMResult,
-    chunk_rows,
-    e_table,
-    exact_row_log_likelihood,
+    column_blocks,
     m_step_transition,
+    onehot_sums,
+    run_groups,
 )
 from torchhrc.mixture.counts import SufficientStatistics
 
 __all__ = ["hard_em", "partition_counts", "partition_sizes"]
 
 
-def _e_step(
-    stats: SufficientStatistics,
-    log_transition: torch.Tensor,
-    log_initial: torch.Tensor | None,
-    cluster_mask: torch.Tensor,
-    log_floor: float,
-) -> torch.Tensor:
-    """E-step (argmax of the floored log-likelihood), chunk by chunk: ``(U, R)`` int64."""
-    R, K, _, _ = log_transition.shape
-    table = log_transition.clamp_min(log_floor)
-    init_table = log_initial.clamp_min(log_floor) if log_initial is not None else None
-    masked = table.new_zeros(R, K).masked_fill(~cluster_mask, -math.inf)
-    z = torch.empty(stats.num_distinct, R, dtype=torch.long, device=table.device)
-    for rows in chunk_rows(stats.num_distinct, R, K):
-        first = stats.first_counts[rows] if stats.first_counts is not None else None
-        ll = e_table(stats.counts[rows], first, table, init_table) + masked
-        z[rows] = ll.max(-1).indices  # first maximum, as argmax; faster on CPU
-    return z
-
-
 def partition_sizes(z: torch.Tensor, multiplicity: torch.Tensor, K: int) -> torch.Tensor:
-    """``(R, K)`` weighted cluster sizes of a hard partition ``z (U, R)``, by one bincount."""
+    """``(R, K)`` weighted cluster sizes of a hard partition ``z (U, R)``, by one bincount.
+
+    Example:
+        >>> partition_sizes(torch.tensor([[0], [1], [1]]), torch.tensor([2.0, 1.0, 1.0]), 2)
+        tensor([[2., 2.]])
+    """
     U, R = z.shape
     index = z + K * torch.arange(R, device=z.device)  # (U, R) global cluster slot
     weights = multiplicity.unsqueeze(-1).expand(U, R)
@@ -86,47 +74,59 @@ def partition_counts(
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Counts of a hard partition ``z (U, R)``: ``(R * K, A * A)`` and ``(R * K, A) | None``.
 
-    One matrix product of the one-hot assignments with the (multiplicity-weighted) counts.
+    One matrix product of the one-hot assignments with the (multiplicity-weighted) counts per
+    group of runs with the same number of used slots (``z``'s distinct values per run).
+
+    Example:
+        >>> from torchhrc.mixture.counts import sufficient_statistics
+        >>> s = sufficient_statistics(torch.tensor([[0, 1], [1, 1]]), torch.tensor([2, 2]), 2)
+        >>> partition_counts(s, torch.tensor([[1], [0]]), 2, torch.float64)[0].tolist()
+        [[0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
     """
     U, R = z.shape
     A = stats.num_symbols
     mult = stats.multiplicity.to(dtype)
     weighted = stats.counts.to(dtype) * mult.unsqueeze(-1)  # (U, D)
-    counts = weighted.new_zeros(R * K, A * A)
-    init_counts = weighted.new_zeros(R * K, A) if stats.first_counts is not None else None
-    for rows in chunk_rows(U, R, K):
-        onehot = F.one_hot(z[rows], K).to(dtype).view(-1, R * K).transpose(0, 1)  # (R*K, c)
-        counts += onehot @ weighted[rows]
-        if init_counts is not None and stats.first_counts is not None:
-            init_counts += onehot @ (stats.first_counts[rows].to(dtype) * mult[rows, None])
-    return counts, init_counts
+    if stats.first_counts is not None:
+        weighted = torch.cat([weighted, stats.first_counts.to(dtype) * mult[:, None]], -1)
+    zt = z.transpose(0, 1).contiguous()  # (R, U)
+    used = torch.zeros(R, K, dtype=torch.bool, device=z.device)
+    if U:
+        used.scatter_(1, zt, True)
+    out = weighted.new_zeros(R, K, weighted.shape[-1])
+    for runs, slots in run_groups(used):
+        out[runs[:, None], slots] = onehot_sums(zt[runs], slots, weighted, slots.numel()).view(
+            *slots.shape, -1
+        )
+    out = out.view(R * K, -1)
+    if stats.first_counts is None:
+        return out, None
+    return out[:, : A * A].contiguous(), out[:, A * A :].contiguous()
 
 
-def _update_counts(
-    stats: SufficientStatistics,
-    counts: torch.Tensor,
-    init_counts: torch.Tensor | None,
-    runs: torch.Tensor,
-    z_old: torch.Tensor,
-    z_new: torch.Tensor,
-    K: int,
-) -> None:
-    """Move the counts of the rows whose cluster changed (in place; exact integer sums).
+def _assign(
+    xc: torch.Tensor, table: torch.Tensor, slots: torch.Tensor, z: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """E-step of one group of runs (in place): first maximum of the floored log-likelihood.
 
-    ``counts (R * K, D)``; ``runs (R_active,)`` the global index of each column of
-    ``z_old, z_new (U, R_active)``.
+    Args:
+        xc: ``(D', U)`` counts (transitions, then first symbols when modelled) by column.
+        table: ``(R_g, k, D')`` floored log-probabilities of the group's runs.
+        slots: ``(R_g, k)`` the runs' slots; z: ``(R_g, U)`` assignments (slots), updated.
+
+    Returns:
+        ``run (M,)``, ``row (M,)`` of the rows that changed cluster and their old slots.
     """
-    u, r = torch.nonzero(z_new != z_old, as_tuple=True)
-    if u.numel() == 0:
-        return
-    w = stats.multiplicity[u].unsqueeze(-1)
-    source = stats.counts[u] * w  # (M, D)
-    counts.index_add_(0, runs[r] * K + z_new[u, r], source)
-    counts.index_add_(0, runs[r] * K + z_old[u, r], -source)
-    if init_counts is not None and stats.first_counts is not None:
-        first = stats.first_counts[u] * w
-        init_counts.index_add_(0, runs[r] * K + z_new[u, r], first)
-        init_counts.index_add_(0, runs[r] * K + z_old[u, r], -first)
+    Rg, k = table.shape[:2]
+    U = xc.shape[-1]
+    flat = table.reshape(Rg * k, -1)
+    old = z.clone()
+    for cols in column_blocks(U, Rg * k):
+        ll = (flat @ xc[:, cols]).view(Rg, k, -1)  # (R_g, k, c)
+        # max over the cluster axis (not innermost: vectorised over rows); first maximum
+        z[:, cols] = slots.gather(1, ll.max(1).indices)
+    r_idx, u_idx = torch.nonzero(z != old, as_tuple=True)
+    return r_idx, u_idx, old[r_idx, u_idx]
 
 
 def hard_em(
@@ -179,69 +179,94 @@ def hard_em(
         raise ValueError(f"expected max_iterations >= 1, got {max_iterations}")
     if (log_initial is None) != (stats.first_counts is None):
         raise ModelError("log_initial must be given exactly when stats keep first symbols")
-    U = stats.num_distinct
+    U, D = stats.num_distinct, A * A
+    dtype, device = log_transition.dtype, log_transition.device
     log_floor = math.log(floor)
-    z = (
-        assignments.to(torch.long).clone()
+    # data, columns = distinct rows: xc (D [+ A], U); weighted rows for the M-step
+    mult = stats.multiplicity.to(dtype)
+    rows_data = stats.counts.to(dtype)
+    if stats.first_counts is not None:
+        rows_data = torch.cat([rows_data, stats.first_counts.to(dtype)], -1)  # (U, D + A)
+    xc = rows_data.transpose(0, 1).contiguous()
+    weighted = rows_data * mult[:, None]
+    Dc = xc.shape[0]
+    z = (  # (R, U) runs-major, so a group's rows are contiguous
+        assignments.to(torch.long).transpose(0, 1).contiguous()
         if assignments is not None
-        else torch.full((U, R), -1, dtype=torch.long, device=log_transition.device)
+        else torch.full((R, U), -1, dtype=torch.long, device=device)
     )
-    lt = log_transition.clone()
+    lt = log_transition.contiguous().view(R, K, D).clone()
     li = log_initial.clone() if log_initial is not None else None
-    iterations = torch.zeros(R, dtype=torch.long, device=lt.device)
-    converged = torch.zeros(R, dtype=torch.bool, device=lt.device)
-    # only the runs whose assignments still change are computed (compaction): a run whose
-    # assignments are stable has met the paper's stopping rule and is frozen. After the
-    # first iteration the M-step's counts are updated by the rows that changed cluster only.
-    active = torch.arange(R, device=lt.device)
-    counts = init_counts = None
+    counts = weighted.new_zeros(R, K, Dc)
+    counted = torch.zeros(R, dtype=torch.bool, device=device)
+    iterations = torch.zeros(R, dtype=torch.long, device=device)
+    converged = torch.zeros(R, dtype=torch.bool, device=device)
+    active = cluster_mask.any(-1)  # a run without clusters has nothing to do
+    # per group of runs with the same k: its state, compacted as runs converge
+    state = [[runs, slots, z[runs]] for runs, slots in run_groups(cluster_mask)]
     for it in range(1, max_iterations + 1):
-        sub_lt = lt[active]
-        sub_li = li[active] if li is not None else None
-        z_new = _e_step(stats, sub_lt, sub_li, cluster_mask[active], log_floor)
-        z_old = z[:, active]
-        changes = (z_new != z_old).sum(0)  # (active,)
-        if counts is None or int(changes.sum()) * A * A > (1 << 24):
-            counts, init_counts = partition_counts(stats, z_new, K, lt.dtype)
-            # keep the counts of all runs addressable by global run index
-            counts_all = lt.new_zeros(R * K, A * A)
-            counts_all.view(R, K, -1)[active] = counts.view(-1, K, A * A)
-            counts = counts_all
-            if init_counts is not None:
-                init_all = lt.new_zeros(R * K, A)
-                init_all.view(R, K, -1)[active] = init_counts.view(-1, K, A)
-                init_counts = init_all
-        else:
-            _update_counts(stats, counts, init_counts, active, z_old, z_new, K)
-        z[:, active] = z_new
-        lt[active] = m_step_transition(counts.view(R, K, A, A)[active], sub_lt, 0.0)
-        if li is not None and sub_li is not None and init_counts is not None:
-            li[active] = m_step_transition(init_counts.view(R, K, A)[active], sub_li, 0.0)
-        changed = changes > 0
-        iterations[active] += 1
-        converged[active[~changed]] = True
-        active = active[changed]
+        for entry in state:
+            runs, slots, z_g = entry
+            if runs.numel() == 0:
+                continue
+            Rg, k = slots.shape
+            rows, cols = runs[:, None], slots
+            parts = [lt[rows, cols]] + ([li[rows, cols]] if li is not None else [])
+            table = torch.cat(parts, -1).clamp_min(log_floor)  # (R_g, k, D')
+            r_idx, u_idx, z_old = _assign(xc, table, slots, z_g)
+            changes = torch.bincount(r_idx, minlength=Rg)  # (R_g,)
+            fresh = ~counted[runs]
+            total = int(r_idx.numel())
+            if bool(fresh.any()) or total * 8 > Rg * k * U:
+                # full recount: one-hot products (first iteration, or many rows moved)
+                counts[rows, cols] = onehot_sums(z_g, slots, weighted, Rg * k).view(Rg, k, -1)
+                counted[runs] = True
+            elif total:
+                # exact update by the rows that moved: + to the new cluster, - to the old
+                source = weighted[u_idx]  # (M, D [+ A])
+                flat = counts.view(R * K, -1)
+                flat.index_add_(0, runs[r_idx] * K + z_g[r_idx, u_idx], source)
+                flat.index_add_(0, runs[r_idx] * K + z_old, source, alpha=-1)
+            group_counts = counts[rows, cols]  # (R_g, k, D [+ A])
+            lt[rows, cols] = m_step_transition(
+                group_counts[..., :D].reshape(Rg, k, A, A), lt[rows, cols].view(Rg, k, A, A), 0.0
+            ).view(Rg, k, D)
+            if li is not None:
+                li[rows, cols] = m_step_transition(group_counts[..., D:], li[rows, cols], 0.0)
+            iterations[runs] += 1
+            stable = changes == 0
+            if bool(stable.any()):  # stable runs are done: store them, compact the rest
+                converged[runs[stable]] = True
+                active[runs[stable]] = False
+                z[runs[stable]] = z_g[stable]
+                keep = ~stable
+                entry[:] = [runs[keep], slots[keep], z_g[keep]]
         if progress is not None:
-            progress(it, int(active.numel()))
-        if active.numel() == 0:
+            progress(it, int(active.sum()))
+        if not bool(active.any()):
             break
-    # P(z) = n_z / n and the classification log-likelihood of the final partition
-    mult = stats.multiplicity
-    sizes = partition_sizes(z.clamp_min(0), mult, K).to(lt.dtype)  # (R, K)
+    for runs, _, z_g in state:  # runs stopped by max_iterations
+        if runs.numel():
+            z[runs] = z_g
+    # P(z) = n_z / n, and the classification log-likelihood of the final partition. The
+    # final parameters are the M-step of the final counts, so sum_i log theta_{z_i}(x_i) =
+    # sum_z sum_ab n_z(a -> b) log theta_z(b | a) over the observed transitions (exact, no
+    # pass over the data); accumulated in float64.
+    sizes = partition_sizes(z.clamp_min(0).transpose(0, 1), mult, K)  # (R, K)
     log_weights = sizes.log() - sizes.sum(-1, keepdim=True).log()
-    total = lt.new_zeros(R)
-    for rows in chunk_rows(U, R, K):
-        ll = exact_row_log_likelihood(stats, lt, li, rows)  # (c, R, K)
-        own = ll.gather(-1, z[rows].clamp_min(0).unsqueeze(-1)).squeeze(-1)  # (c, R)
-        own = own + log_weights.gather(-1, z[rows].clamp_min(0).transpose(0, 1)).transpose(0, 1)
-        total += (own * mult[rows, None]).sum(0)
+    n = counts.double()
+    logs = torch.cat([lt, li], -1) if li is not None else lt
+    chain = torch.where(n > 0, n * logs.double(), n.new_zeros(())).sum((-2, -1))
+    s64 = sizes.double()
+    mix = torch.where(s64 > 0, s64 * log_weights.double(), s64.new_zeros(())).sum(-1)
+    total_ll = (chain + mix).to(dtype)
     return EMResult(
-        log_transition=lt,
+        log_transition=lt.view(R, K, A, A),
         log_weights=log_weights,
         log_initial=li,
-        assignments=z,
-        log_likelihood=total,
-        entropy=torch.zeros_like(total),
+        assignments=z.transpose(0, 1).contiguous(),
+        log_likelihood=total_ll,
+        entropy=torch.zeros_like(total_ll),
         iterations=iterations,
         converged=converged,
     )

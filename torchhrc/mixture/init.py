@@ -21,12 +21,9 @@ Example:
 
 from __future__ import annotations
 
-import math
-
 import torch
-import torch.nn.functional as F
 
-from torchhrc.mixture._em import chunk_rows
+from torchhrc.mixture._em import column_blocks, onehot_sums, run_groups
 from torchhrc.mixture.counts import SufficientStatistics
 
 __all__ = ["kmeans_pp_init", "random_init"]
@@ -73,12 +70,22 @@ def _features(stats: SufficientStatistics) -> torch.Tensor:
     return feats
 
 
-def _sq_distances(x: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:
-    """``(U, F)`` x ``(R, K, F)`` -> ``(U, R, K)`` squared Euclidean distances (>= 0)."""
-    R, K, Fd = centers.shape
-    cross = x @ centers.reshape(R * K, Fd).transpose(0, 1)  # (U, R*K)
-    d = (x * x).sum(-1, keepdim=True) - 2 * cross + (centers * centers).sum(-1).view(1, R * K)
-    return d.clamp_min(0.0).view(-1, R, K)
+def _draw(weights: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+    """``(R,)`` one index per row of ``weights (R, U)`` (>= 0, positive sums), drawn with
+    probability proportional to the weights: inverse CDF (cumulative sums and a binary
+    search; an index whose weight does not raise the sum is never drawn), on the generator's
+    device (CPU)."""
+    cdf = weights.cpu().cumsum(-1)  # (R, U)
+    u = torch.rand(cdf.shape[0], 1, generator=generator, dtype=cdf.dtype) * cdf[:, -1:]
+    idx = torch.searchsorted(cdf, u, right=True).squeeze(-1)
+    return idx.clamp_max(cdf.shape[-1] - 1).to(weights.device)
+
+
+def _sq_distances(xt: torch.Tensor, x2: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:
+    """``(C, U)`` squared Euclidean distances (>= 0) of the columns of ``xt (F, U)`` (squared
+    norms ``x2 (U,)``) to ``centers (C, F)``."""
+    d = x2 - 2 * (centers @ xt) + (centers * centers).sum(-1, keepdim=True)
+    return d.clamp_min(0.0)
 
 
 def kmeans_pp_init(
@@ -93,7 +100,7 @@ def kmeans_pp_init(
     ``D^2`` seeding: the first centre is a row drawn with probability proportional to its
     multiplicity; each next centre of run ``r`` is drawn with probability proportional to
     ``m_u * min_j ||f_u - c_j||^2``. The loop runs over the ``K`` centres, batched over runs
-    and rows.
+    and rows; runs are packed by their number of clusters (no masked slot is computed).
 
     Args:
         stats: the distinct sequences.
@@ -102,47 +109,61 @@ def kmeans_pp_init(
         lloyd_iterations: k-means (Lloyd) refinements after seeding.
 
     Returns:
-        ``(U, R)`` int64 hard assignments in ``[0, k_r)``.
+        ``(U, R)`` int64 hard assignments to the slots of each run's mask.
     """
     R, K = cluster_mask.shape
     x = _features(stats)  # (U, F)
     U = x.shape[0]
-    w = stats.multiplicity  # (U,)
-    device = x.device
+    xt = x.transpose(0, 1).contiguous()  # (F, U)
+    x2 = (x * x).sum(-1)  # (U,)
+    w = stats.multiplicity.to(x.dtype)  # (U,)
     k = cluster_mask.sum(-1)  # (R,)
-    idx = torch.zeros(R, K, dtype=torch.long, device=device)
-    probs = w.expand(R, U).cpu()
-    first = torch.multinomial(probs, 1, generator=generator).squeeze(-1).to(device)
-    idx[:, 0] = first
-    d2 = _sq_distances(x, x[first].unsqueeze(1)).squeeze(-1)  # (U, R)
     tiny = torch.finfo(x.dtype).tiny
+    idx = _draw(w.expand(R, U), generator).unsqueeze(-1).repeat(1, K)  # (R, K) centre rows
+    d2 = _sq_distances(xt, x2, x[idx[:, 0]])  # (R, U) distance to the nearest centre
     for j in range(1, K):
-        p = (d2.transpose(0, 1) * w + tiny * w).cpu()  # (R, U), never all zero
-        nxt = torch.multinomial(p, 1, generator=generator).squeeze(-1).to(device)
-        active = j < k  # (R,)
-        idx[:, j] = torch.where(active, nxt, idx[:, 0])
-        dj = _sq_distances(x, x[nxt].unsqueeze(1)).squeeze(-1)
-        d2 = torch.where(active, torch.minimum(d2, dj), d2)
-    centers = x[idx]  # (R, K, F)
-    inactive = torch.zeros(R, K, dtype=x.dtype, device=device).masked_fill(~cluster_mask, math.inf)
-    z = _nearest(x, centers, inactive)
+        draw = _draw(d2 * w + tiny * w, generator)  # (R,), never all zero
+        active = torch.nonzero(j < k).squeeze(-1)  # runs that seed a j-th centre
+        if active.numel() == 0:
+            continue
+        nxt = draw[active]
+        idx[active, j] = nxt
+        d2[active] = torch.minimum(d2[active], _sq_distances(xt, x2, x[nxt]))
+    groups = run_groups(cluster_mask)
+    centers = x.new_zeros(R, K, x.shape[-1])
+    for runs, slots in groups:  # the j-th centre seeded goes to the j-th used slot
+        centers[runs[:, None], slots] = x[idx[runs, : slots.shape[1]]]
+    zt = _nearest(xt, centers, groups)
+    weighted = torch.cat([x * w[:, None], w[:, None]], -1)  # (U, F + 1)
     for _ in range(lloyd_iterations):
-        sums = x.new_zeros(R * K, x.shape[-1])
-        sizes = x.new_zeros(R * K)
-        for rows in chunk_rows(U, R, K):
-            onehot = F.one_hot(z[rows], K).to(x.dtype).view(-1, R * K)  # (c, R*K)
-            sums += onehot.transpose(0, 1) @ (x[rows] * w[rows, None])
-            sizes += onehot.transpose(0, 1) @ w[rows]
-        sizes = sizes.view(R, K, 1)
-        centers = torch.where(sizes > 0, sums.view(R, K, -1) / sizes.clamp_min(tiny), centers)
-        z = _nearest(x, centers, inactive)
-    return z
+        for runs, slots in groups:
+            sums = onehot_sums(zt[runs], slots, weighted, slots.numel())  # (R_g * k, F + 1)
+            sums = sums.view(*slots.shape, -1)
+            sizes = sums[..., -1:]
+            old = centers[runs[:, None], slots]
+            centers[runs[:, None], slots] = torch.where(
+                sizes > 0, sums[..., :-1] / sizes.clamp_min(tiny), old
+            )
+        zt = _nearest(xt, centers, groups)
+    return zt.transpose(0, 1).contiguous()
 
 
-def _nearest(x: torch.Tensor, centers: torch.Tensor, inactive: torch.Tensor) -> torch.Tensor:
-    """``(U, R)`` index of the nearest active centre, chunk by chunk over rows."""
-    U, (R, K) = x.shape[0], inactive.shape
-    z = torch.empty(U, R, dtype=torch.long, device=x.device)
-    for rows in chunk_rows(U, R, K):
-        z[rows] = (_sq_distances(x[rows], centers) + inactive).argmin(-1)
-    return z
+def _nearest(
+    xt: torch.Tensor, centers: torch.Tensor, groups: list[tuple[torch.Tensor, torch.Tensor]]
+) -> torch.Tensor:
+    """``(R, U)`` slot of the nearest centre of each run (first one on ties), block by block.
+
+    ``argmin_c ||x - c||^2 = argmax_c (2 x.c - ||c||^2)``.
+    """
+    R, U = centers.shape[0], xt.shape[-1]
+    zt = torch.zeros(R, U, dtype=torch.long, device=xt.device)
+    for runs, slots in groups:
+        Rg, k = slots.shape
+        c = centers[runs[:, None], slots].reshape(Rg * k, -1)  # (R_g * k, F)
+        half_norm = 0.5 * (c * c).sum(-1, keepdim=True)
+        best = torch.empty(Rg, U, dtype=torch.long, device=xt.device)
+        for cols in column_blocks(U, Rg * k):
+            score = c @ xt[:, cols] - half_norm  # (R_g * k, b)
+            best[:, cols] = score.view(Rg, k, -1).max(1).indices
+        zt[runs] = slots.gather(1, best)
+    return zt

@@ -5,7 +5,8 @@ The paper's Select-Best-Model(k_min, k_max, numOfIterations): for each k, run EM
 ``K = k |A| (|A| - 1)`` free transition parameters and ``n`` sequences, keep the best run
 per k, and return the k with the best BIC. Here all ``(k, restart)`` pairs are one batch
 of ``R = (k_max - k_min + 1) * restarts`` runs with ``k_max`` cluster slots each (a run
-with a smaller k masks its extra slots), so the whole selection is one tensor program.
+with a smaller k masks its extra slots), so the whole selection is one tensor program; the
+kernels pack the runs by k, so masked slots cost nothing (:mod:`._em`).
 
 Methods:
 
@@ -337,6 +338,7 @@ def fit_mixture(
                 log_initial=li0,
                 max_iterations=min(short_iterations, cap),
                 progress=progress,
+                details=False,  # only the log-likelihoods and parameters are kept
                 **options,
             )
             ll = torch.nan_to_num(short.log_likelihood, nan=-math.inf).view(len(ks), restarts)

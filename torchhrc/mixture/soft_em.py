@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.mixture._em import EMResult, chunk_rows, e_table, m_step_transition
+from torchhrc.mixture._em import EMResult, column_blocks, m_step_transition, run_groups
 from torchhrc.mixture.counts import SufficientStatistics
 
 __all__ = ["SoftStatistics", "soft_em", "soft_pass"]
@@ -46,8 +46,8 @@ class SoftStatistics:
         initial_counts: ``(R, K, A)`` expected first-symbol counts, or None.
         sizes: ``(R, K)`` expected cluster sizes ``sum_n r[n, k]``.
         log_likelihood: ``(R,)`` marginal log-likelihood of the parameters used.
-        entropy: ``(R,)`` entropy of the responsibilities.
-        assignments: ``(U, R)`` most responsible cluster.
+        entropy: ``(R,)`` entropy of the responsibilities (0 when not computed).
+        assignments: ``(U, R)`` most responsible cluster (``(0, R)`` when not computed).
     """
 
     counts: torch.Tensor
@@ -58,60 +58,122 @@ class SoftStatistics:
     assignments: torch.Tensor
 
 
+class _Data:
+    """The distinct rows laid out for the packed kernels (built once per EM call).
+
+    ``rows (U, D [+ A] + 1)``: transition counts, first-symbol counts (when modelled) and a
+    column of ones side by side (the M-step's right operand: expected counts and sizes in
+    one product); ``xt`` its transpose (the E-step's right operand: with the log weights as
+    the table's last column, the product is the joint log-likelihood); ``mult (U,)``.
+    """
+
+    def __init__(self, stats: SufficientStatistics, dtype: torch.dtype) -> None:
+        counts = stats.counts.to(dtype)
+        U = counts.shape[0]
+        self.mult = stats.multiplicity.to(dtype)
+        first = stats.first_counts.to(dtype) if stats.first_counts is not None else None
+        ones = counts.new_ones(U, 1)
+        # E-step operand (D [+ A] + 1, U): the last row of ones adds each cluster's log weight
+        parts = [counts, first, ones] if first is not None else [counts, ones]
+        self.xt = torch.cat(parts, -1).transpose(0, 1).contiguous()
+        # M-step operand (U, D [+ A] + 1): the last column of ones sums the cluster sizes
+        self.rows = torch.cat(parts, -1)
+        self.num_symbols = stats.num_symbols
+
+
+def _pass(
+    data: _Data,
+    log_transition: torch.Tensor,
+    log_weights: torch.Tensor,
+    log_initial: torch.Tensor | None,
+    cluster_mask: torch.Tensor,
+    details: bool,
+) -> SoftStatistics:
+    """:func:`soft_pass` on prepared data (see there)."""
+    R, K, A, _ = log_transition.shape
+    D, U = A * A, data.xt.shape[-1]
+    lt = log_transition.reshape(R, K, D)
+    stat = log_transition.new_zeros(R, K, data.rows.shape[-1])  # (R, K, D [+ A] + 1)
+    total = log_transition.new_zeros(R)
+    entropy = log_transition.new_zeros(R)
+    z = torch.empty(U if details else 0, R, dtype=torch.long, device=lt.device)
+    zt = z.transpose(0, 1)  # (R, U) view
+    for runs, slots in run_groups(cluster_mask):
+        Rg, k = slots.shape
+        rows, cols_k = runs[:, None], slots
+        parts = [lt[rows, cols_k]]  # (R_g, k, D)
+        if log_initial is not None:
+            parts.append(log_initial[rows, cols_k])  # (R_g, k, A)
+        parts.append(log_weights[rows, cols_k].unsqueeze(-1))  # (R_g, k, 1)
+        table = torch.cat(parts, -1).view(Rg * k, -1)  # (R_g * k, D [+ A] + 1)
+        g_stat = stat.new_zeros(Rg * k, data.rows.shape[-1])
+        g_total = stat.new_zeros(Rg)
+        g_entropy = stat.new_zeros(Rg)
+        for cols in column_blocks(U, Rg * k):
+            joint = table @ data.xt[:, cols]  # (R_g * k, c) log w_k + log P(x_u | k)
+            j3 = joint.view(Rg, k, -1)
+            # reductions over the cluster axis (not innermost: vectorised over rows)
+            if details:
+                top, idx = j3.max(1, keepdim=True)  # (R_g, 1, c)
+                zt[runs, cols] = slots.gather(1, idx.squeeze(1))
+            else:
+                top = j3.amax(1, keepdim=True)  # every run has a finite cluster
+            j3 -= top
+            j3.exp_()  # unnormalised responsibilities, 0 where log w = -inf
+            mass = j3.sum(1, keepdim=True)  # (R_g, 1, c), in [1, k]
+            m = data.mult[cols]
+            g_total += (top + mass.log()).view(Rg, -1) @ m  # sum_u m_u logsumexp_u
+            if details:
+                resp = j3 / mass
+                g_entropy -= torch.xlogy(resp, resp).sum(1) @ m
+            j3 *= m / mass  # m_u r[u, k]
+            g_stat += joint @ data.rows[cols]  # expected counts and sizes
+        stat[rows, cols_k] = g_stat.view(Rg, k, -1)
+        total[runs] = g_total
+        entropy[runs] = g_entropy
+    return SoftStatistics(
+        counts=stat[..., :D].reshape(R, K, A, A),
+        initial_counts=stat[..., D:-1] if log_initial is not None else None,
+        sizes=stat[..., -1],
+        log_likelihood=total,
+        entropy=entropy,
+        assignments=z,
+    )
+
+
 def soft_pass(
     stats: SufficientStatistics,
     log_transition: torch.Tensor,
     log_weights: torch.Tensor,
     log_initial: torch.Tensor | None,
     cluster_mask: torch.Tensor,
+    *,
+    details: bool = True,
 ) -> SoftStatistics:
-    """E-step and expected counts for ``R`` runs, chunk by chunk over the distinct rows.
+    """E-step and expected counts for ``R`` runs, packed by k, block by block over the rows.
 
     Args:
         stats: distinct rows; log_transition: ``(R, K, A, A)`` finite;
         log_weights: ``(R, K)``; log_initial: ``(R, K, A)`` finite or None;
-        cluster_mask: ``(R, K)`` bool.
+        cluster_mask: ``(R, K)`` bool (masked slots get no responsibility, zero counts).
+        details: also compute the entropy and the assignments (``False``: entropy 0 and
+            ``assignments`` of shape ``(0, R)``; what EM iterations need is cheaper).
+
+    Example:
+        >>> from torchhrc.mixture.counts import sufficient_statistics
+        >>> s = sufficient_statistics(torch.tensor([[0, 0], [1, 1]]), torch.tensor([2, 2]), 2)
+        >>> lt = torch.full((1, 2, 2, 2), 0.5).log()
+        >>> soft_pass(s, lt, torch.zeros(1, 2), None, torch.ones(1, 2, dtype=torch.bool)).sizes
+        tensor([[1., 1.]])
     """
-    R, K, A, _ = log_transition.shape
-    U = stats.num_distinct
-    lw = log_weights.masked_fill(~cluster_mask, -math.inf)  # (R, K)
-    mult = stats.multiplicity
-    weighted = stats.counts * mult.unsqueeze(-1)  # (U, D)
-    counts = log_transition.new_zeros(R * K, A * A)
-    init_counts = log_transition.new_zeros(R * K, A) if log_initial is not None else None
-    sizes = log_transition.new_zeros(R * K)
-    total = log_transition.new_zeros(R)
-    entropy = log_transition.new_zeros(R)
-    z = torch.empty(U, R, dtype=torch.long, device=log_transition.device)
-    for rows in chunk_rows(U, R, K):
-        first = stats.first_counts[rows] if stats.first_counts is not None else None
-        joint = e_table(stats.counts[rows], first, log_transition, log_initial) + lw  # (c, R, K)
-        # one max gives both the assignments and the stable logsumexp shift
-        top = joint.max(-1, keepdim=True)  # every run has an active, finite cluster
-        z[rows] = top.indices.squeeze(-1)
-        shifted = joint - top.values  # (c, R, K), -inf on masked slots
-        unnorm = shifted.exp()
-        total_mass = unnorm.sum(-1, keepdim=True)  # in [1, K]
-        log_mass = total_mass.log()
-        log_norm = top.values + log_mass  # (c, R, 1) = logsumexp
-        log_resp = shifted - log_mass
-        resp = unnorm / total_mass  # exactly 0 on masked slots
-        m = mult[rows]
-        total += (log_norm.squeeze(-1) * m.unsqueeze(-1)).sum(0)
-        plogp = torch.where(resp > 0, resp * log_resp, resp.new_zeros(()))
-        entropy -= (plogp.sum(-1) * m.unsqueeze(-1)).sum(0)
-        flat = resp.view(-1, R * K)  # (c, R*K)
-        counts += flat.transpose(0, 1) @ weighted[rows]
-        sizes += flat.transpose(0, 1) @ m
-        if init_counts is not None and first is not None:
-            init_counts += flat.transpose(0, 1) @ (first * m[:, None])
-    return SoftStatistics(
-        counts=counts.view(R, K, A, A),
-        initial_counts=None if init_counts is None else init_counts.view(R, K, A),
-        sizes=sizes.view(R, K),
-        log_likelihood=total,
-        entropy=entropy,
-        assignments=z,
+    dtype = log_transition.dtype
+    return _pass(
+        _Data(stats, dtype),
+        log_transition,
+        log_weights.to(dtype),
+        log_initial,
+        cluster_mask,
+        details,
     )
 
 
@@ -145,6 +207,7 @@ def soft_em(
     tol: float = 1e-6,
     max_iterations: int = 200,
     progress: Callable[[int, int], None] | None = None,
+    details: bool = True,
 ) -> EMResult:
     """Run soft EM from ``R`` initial models at once.
 
@@ -159,6 +222,8 @@ def soft_em(
         tol: relative change of the log-likelihood below which a run has converged.
         max_iterations: cap on iterations.
         progress: called as ``progress(iteration, runs_still_running)``.
+        details: compute the final entropy and assignments (one more pass over the data;
+            ``False``: ``entropy`` is 0 and ``assignments`` has shape ``(0, R)``).
 
     Returns:
         :class:`~torchhrc.mixture._em.EMResult` whose ``log_likelihood`` is the marginal
@@ -191,10 +256,11 @@ def soft_em(
     li = log_initial.clone() if log_initial is not None else None
     iterations = torch.zeros(R, dtype=torch.long, device=lt.device)
     converged = torch.zeros(R, dtype=torch.bool, device=lt.device)
-    expected = soft_pass(stats, lt, lw, li, cluster_mask)
+    data = _Data(stats, lt.dtype)
+    # the iterations need only the expected counts and the log-likelihood; the entropy and
+    # the assignments of the final parameters come from one pass at the end
+    expected = _pass(data, lt, lw, li, cluster_mask, False)
     log_likelihood = expected.log_likelihood.clone()
-    entropy = expected.entropy.clone()
-    assignments = expected.assignments.clone()
     # only runs that have not converged are computed (compaction); a converged run keeps
     # its parameters, so every run's result equals running it alone
     active = torch.arange(R, device=lt.device)
@@ -208,10 +274,8 @@ def soft_em(
             li[active] = new_li
         iterations[active] += 1
         previous = log_likelihood[active]
-        expected = soft_pass(stats, new_lt, new_lw, new_li, cluster_mask[active])
+        expected = _pass(data, new_lt, new_lw, new_li, cluster_mask[active], False)
         log_likelihood[active] = expected.log_likelihood
-        entropy[active] = expected.entropy
-        assignments[:, active] = expected.assignments
         done = (expected.log_likelihood - previous).abs() <= tol * expected.log_likelihood.abs()
         converged[active[done]] = True
         active = active[~done]
@@ -220,6 +284,12 @@ def soft_em(
             progress(it, int(active.numel()))
         if active.numel() == 0:
             break
+    if details:
+        final = _pass(data, lt, lw, li, cluster_mask, True)
+        entropy, assignments = final.entropy, final.assignments
+    else:
+        entropy = torch.zeros_like(log_likelihood)
+        assignments = torch.empty(0, R, dtype=torch.long, device=lt.device)
     return EMResult(
         log_transition=lt,
         log_weights=lw,

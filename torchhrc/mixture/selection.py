@@ -224,7 +224,7 @@ def fit_mixture(
     pseudo_count: float = 0.1,
     weight_pseudo_count: float = 1.0,
     max_iterations: int | None = None,
-    short_iterations: int = 10,
+    short_iterations: int = 5,
     tol: float = 1e-6,
     floor: float = 1e-10,
     initial: bool = False,

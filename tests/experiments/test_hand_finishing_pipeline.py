@@ -5,11 +5,11 @@ import pytest
 from torchhrc.errors import ModelError
 from torchhrc.experiments.hand_finishing import (
     METRIC_KEYS,
+    TIMING_KEYS,
+    HandFinishingSettings,
     check_hand_finishing_metrics,
     reproduce_hand_finishing,
 )
-
-TIMING = {"solve_time_s", "factored_speedup", "speedup_detail"}
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +36,30 @@ def test_quick_pipeline_writes_report_plots_and_metrics(quick_run):
     assert [row["noise"] for row in table] == sorted(row["noise"] for row in table)
     assert table[-1]["mean_wait_steps"] > table[0]["mean_wait_steps"]
     assert table[-1]["type_accuracy"] <= table[0]["type_accuracy"]
-    assert "| noise (m) |" in (out / "report.md").read_text()
+    report = (out / "report.md").read_text()
+    assert "| noise (m) |" in report
+    # every simulated policy came from a solve that stopped deterministically
+    assert on_disk["solve_stop_reason"] in ("precision", "max_iterations")
+    assert all(row["solve_iterations"] <= on_disk["settings"]["max_iterations"] for row in table)
+    # the arm followed one episode's box moves per true type in SAPIEN, or the report says why
+    sim = on_disk["sim"]
+    if sim["available"]:
+        assert len(sim["episodes"]) == 2 and sim["moves"] >= 2 and sim["all_settled"]
+        assert on_disk["sim_settle_error_m"] == sim["max_position_error_m"] < 2e-3
+        assert on_disk["sim_settle_rotation_error_rad"] < 1e-2
+        for replay in sim["episodes"]:
+            assert len(replay["path"]) == replay["moves"] + 1
+        assert "Settle error of the box" in report
+    else:
+        assert on_disk["sim_settle_error_m"] is None and "Not run: SAPIEN" in report
+
+
+def test_default_settings_stop_on_a_deterministic_criterion():
+    for quick in (True, False):
+        s = HandFinishingSettings.create(quick=quick)
+        # the time limit is a safety net: generous against the iteration cap
+        assert s.max_iterations is not None and s.max_iterations >= 50
+        assert s.solve_time >= 120.0
 
 
 def test_refuses_non_empty_directory(quick_run):
@@ -59,7 +82,10 @@ def test_metrics_schema_errors_name_the_key():
 
 @pytest.mark.slow
 def test_same_seed_same_metrics(quick_run, tmp_path):
-    _, first = quick_run
-    second = reproduce_hand_finishing(tmp_path, seed=0, quick=True)
-    strip = lambda m: {k: v for k, v in m.items() if k not in TIMING}  # noqa: E731
+    out, _ = quick_run
+    reproduce_hand_finishing(tmp_path, seed=0, quick=True)
+    first = json.loads((out / "metrics.json").read_text())
+    second = json.loads((tmp_path / "metrics.json").read_text())
+    assert set(TIMING_KEYS) & set(first)
+    strip = lambda m: {k: v for k, v in m.items() if k not in TIMING_KEYS}  # noqa: E731
     assert strip(first) == strip(second)

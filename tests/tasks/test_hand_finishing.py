@@ -8,10 +8,17 @@ from torchhrc.errors import ModelError
 from torchhrc.experiments.hand_finishing import cluster_preferences, observation_grid
 from torchhrc.kinematics import BoxGeometry
 from torchhrc.mixture import fit_mixture
+from torchhrc.observation import discretize_positions
 from torchhrc.solvers import SARSOPConfig, solve
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.hand_finishing import ACTIONS, HandFinishingTask, count_states
-from torchhrc.tasks.hand_finishing.person import simulate_demonstrations, simulate_episodes
+from torchhrc.tasks.hand_finishing.person import (
+    HandMotion,
+    hand_trajectories,
+    simulate_demonstrations,
+    simulate_episodes,
+    simulate_hand_tracks,
+)
 
 GEOMETRY = BoxGeometry(horizontal=(-0.3, 0.0, 0.3), vertical=(0.2,), tilt=(-0.5, 0.0, 0.5))
 
@@ -129,7 +136,8 @@ def _solve_small(noise: float):
     obs = task.observation_model(grid, loc=torch.tensor([0.1, 0.0]),
                                  scale=torch.tensor([noise, noise]))  # fmt: skip
     m = task.momdp(obs)
-    sol = solve(m, SARSOPConfig(time_limit=20, precision=0.02,
+    # deterministic stop (precision or iterations; the time limit is a safety net)
+    sol = solve(m, SARSOPConfig(time_limit=300, precision=0.02, max_iterations=10,
                                 lower_bound_init=type_policy_lower_bound))  # fmt: skip
     ep = simulate_episodes(m, sol.policy, m, obs, torch.arange(100) % 2, steps=10, seed=3)
     return ep
@@ -164,3 +172,114 @@ def test_default_task_has_about_2000_states():
     assert task.num_configurations < 100  # some configurations were removed
     assert task.presents.any(0).all()  # both sides can be presented
     assert (task.distance[task.start] < task.num_configurations).all()
+
+
+# ------------------------------------------------------------------ the person's hand motion
+def _waiting_policy(task):
+    from torchhrc.solvers import AlphaVectorPolicy
+
+    X = task.num_observed
+    alphas = torch.zeros(X, task.num_types, dtype=torch.float64)
+    return AlphaVectorPolicy(alphas, torch.zeros(X, dtype=torch.long), observed=torch.arange(X))
+
+
+@pytest.mark.parametrize("batch", [(), (2,), (2, 3)])
+def test_hand_trajectories_match_the_recursion(batch):
+    gen = torch.Generator().manual_seed(0)
+    targets = torch.randn(*batch, 7, 2, generator=gen, dtype=torch.float64)
+    motion = HandMotion(approach=0.35, start=(1.1, -0.2))
+    hands = hand_trajectories(targets, motion)
+    assert hands.shape == targets.shape
+    hand = torch.tensor([1.1, -0.2], dtype=torch.float64).expand(*batch, 2)
+    for t in range(7):  # reference: the recursion, one step at a time
+        hand = hand + 0.35 * (targets[..., t, :] - hand)
+        assert torch.allclose(hands[..., t, :], hand, atol=1e-12)
+    # approach 1: the hand is at its target at every step
+    assert torch.equal(hand_trajectories(targets, HandMotion(approach=1.0)), targets)
+
+
+def test_hand_motion_rejects_bad_settings():
+    with pytest.raises(ModelError, match="approach"):
+        HandMotion(approach=0.0)
+    with pytest.raises(ModelError, match="approach"):
+        HandMotion(approach=1.5)
+    with pytest.raises(ModelError, match="start"):
+        HandMotion(start=(0.0, float("nan")))
+    with pytest.raises(ModelError, match="targets"):
+        hand_trajectories(torch.zeros(3), HandMotion())
+
+
+def test_hand_walks_towards_the_side_worked_on():
+    # A waiting robot: the box stays at the start (presenting neither side), the target of
+    # each person stays the surface of their first side. The hand's distance to it shrinks by
+    # (1 - approach) per step: a path from the start, not noise around a point.
+    task = _task()
+    noise = 0.2
+    obs = task.observation_model(observation_grid(), loc=torch.tensor([0.1, 0.0]),
+                                 scale=torch.tensor([noise, noise]))  # fmt: skip
+    m = task.momdp(obs)
+    motion = HandMotion(approach=0.6, start=(1.2, 0.0))
+    types = torch.arange(400) % 2
+    ep = simulate_episodes(m, _waiting_policy(task), m, obs, types, steps=6, motion=motion,
+                           seed=1)  # fmt: skip
+    assert ep.hands is not None and ep.hands.shape == (400, 7, 2)
+    assert torch.allclose(ep.hands[:, 0], torch.tensor([1.2, 0.0], dtype=torch.float64))
+    target = obs.mean()[task.x0, types]  # (N, 2)
+    dist = (ep.hands - target.unsqueeze(1)).norm(dim=-1)  # (N, L + 1)
+    assert torch.allclose(dist[:, 1:], dist[:, :-1] * 0.4, atol=1e-12)
+    # left-first hands go to +y (the left surface), right-first to -y, monotonically
+    lateral = ep.hands[..., 1]
+    assert torch.all(lateral[types == 0].diff(dim=-1) > 0)
+    assert torch.all(lateral[types == 1].diff(dim=-1) < 0)
+    # the sensor adds the model's noise around the hand, unbiased
+    err = (ep.positions - ep.hands[:, 1:]).reshape(-1, 2)  # (N L, 2)
+    se = noise / math.sqrt(err.shape[0])
+    assert err.mean(0).abs().max() < 4 * se
+    assert torch.allclose(err.std(0), torch.full((2,), noise, dtype=torch.float64), rtol=0.05)
+
+
+def test_hand_crosses_to_the_second_side():
+    # left-first person: once the left side is done the target switches to the right surface
+    task = _task()
+    obs = task.observation_model(observation_grid(), loc=torch.tensor([0.1, 0.0]),
+                                 scale=torch.tensor([0.1, 0.1]))  # fmt: skip
+    m = task.momdp(obs)
+    sol = solve(m, SARSOPConfig(time_limit=60, precision=0.02, max_iterations=200,
+                                lower_bound_init=type_policy_lower_bound))  # fmt: skip
+    ep = simulate_episodes(m, sol.policy, m, obs, torch.zeros(20, dtype=torch.long), steps=12,
+                           seed=2)  # fmt: skip
+    progress = ep.observed % task.num_progress
+    lateral = ep.hands[..., 1]
+    for n in range(20):
+        done_left = int(torch.nonzero(progress[n] >= task.work_units)[0])  # first such step
+        assert lateral[n, :done_left].max() > 0.1  # was on the left (+y) side
+        assert lateral[n, -1] < -0.05  # ends on the right (-y) side
+
+
+def test_hand_tracks_follow_the_motion_and_are_seeded():
+    task = _task()
+    noise = 0.15
+    obs = task.observation_model(observation_grid(), loc=torch.tensor([0.1, 0.0]),
+                                 scale=torch.tensor([noise, noise]))  # fmt: skip
+    m = task.momdp(obs)
+    motion = HandMotion(approach=0.5, start=(1.2, 0.0))
+    n = 2000
+    waits = torch.zeros(n, 5, dtype=torch.long)
+    tracks = simulate_hand_tracks(m, obs, num_tracks=n, length=5, motion=motion, actions=waits,
+                                  seed=3)  # fmt: skip
+    again = simulate_hand_tracks(m, obs, num_tracks=n, length=5, motion=motion, actions=waits,
+                                 seed=3)  # fmt: skip
+    assert torch.equal(tracks.positions, again.positions) and torch.equal(tracks.cells,
+                                                                          again.cells)  # fmt: skip
+    assert tracks.types is not None and tracks.positions is not None
+    # box fixed at the start, no work: hand_t = g + 0.5^(t+1) (start - g) for each type
+    start = torch.tensor([1.2, 0.0], dtype=torch.float64)
+    for y in range(2):
+        g = obs.mean()[task.x0, y]
+        sel = tracks.types == y
+        expected = g + 0.5 ** torch.arange(1, 6, dtype=torch.float64).unsqueeze(-1) * (start - g)
+        mean = tracks.positions[sel].mean(0)  # (L, 2)
+        se = noise / math.sqrt(int(sel.sum()))
+        assert (mean - expected).abs().max() < 4.5 * se
+    # the cells are those of the sensed positions
+    assert torch.equal(tracks.cells, discretize_positions(obs.grid, tracks.positions))

@@ -10,6 +10,7 @@ Example:
 
 from __future__ import annotations
 
+from torchhrc.sim.replay import ReplayResult, box_moves, replay_box_moves
 from torchhrc.sim.scene import (
     HandFinishingScene,
     MoveResult,
@@ -17,4 +18,12 @@ from torchhrc.sim.scene import (
     check_render_device,
 )
 
-__all__ = ["HandFinishingScene", "MoveResult", "RenderUnavailableError", "check_render_device"]
+__all__ = [
+    "HandFinishingScene",
+    "MoveResult",
+    "RenderUnavailableError",
+    "ReplayResult",
+    "box_moves",
+    "check_render_device",
+    "replay_box_moves",
+]

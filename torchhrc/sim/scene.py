@@ -158,6 +158,11 @@ class HandFinishingScene:
         stiffness, damping: joint drive gains (N m / rad, N m s / rad).
         render: also create a render system (needs a GPU; see :func:`check_render_device`).
         seed: seed of the inverse kinematics.
+        start: ``(h, v, t)`` configuration the arm holds the box at initially (default: the
+            reachable configuration nearest the grid's centre, found by solving the IK of
+            every configuration).
+        arm: the robot's kinematics (default ``SerialArm.panda()``; pass one to share its
+            start table with other checks). Must be the shipped Panda's chain.
 
     Raises:
         ImportError: SAPIEN is missing (``pip install torchhrc[sim]``).
@@ -175,6 +180,8 @@ class HandFinishingScene:
         damping: float = 400.0,
         render: bool = False,
         seed: int = 0,
+        start: tuple[int, int, int] | None = None,
+        arm: SerialArm | None = None,
     ) -> None:
         if render:
             check_render_device()
@@ -188,7 +195,9 @@ class HandFinishingScene:
         self.table_height = float(table_height)
         self.timestep = float(timestep)
         self.seed = int(seed)
-        self.arm = SerialArm.panda()
+        self.arm = SerialArm.panda() if arm is None else arm
+        if start is not None:
+            self.geometry.index(*start)  # validates the indices
         systems = [sapien.physx.PhysxCpuSystem()]
         if render:
             systems.append(sapien.render.RenderSystem())
@@ -219,7 +228,7 @@ class HandFinishingScene:
         for joint in self.joints:
             joint.set_drive_properties(float(stiffness), float(damping))
         self.box_link = self.robot.find_link_by_name("box")
-        home = self._home()
+        home = self._home() if start is None else self._solve(self._grip(*start), None)
         self._set_qpos(home)
         self._target = home
 
@@ -249,6 +258,11 @@ class HandFinishingScene:
             raise ModelError("no box configuration of the geometry is reachable")
         first = int(torch.nonzero(res.success)[0])
         return res.joints[first]
+
+    def _grip(self, horizontal: int, vertical: int, tilt: int) -> torch.Tensor:
+        """``(4, 4)`` the TCP target holding the box at ``(h, v, t)`` (robot base frame)."""
+        box = self.geometry.box_poses()[horizontal, vertical, tilt]
+        return box @ self.geometry.grip_transform()
 
     def _solve(self, grip: torch.Tensor, initial: torch.Tensor | None) -> torch.Tensor:
         res = self.arm.inverse(
@@ -289,6 +303,20 @@ class HandFinishingScene:
         return self._base() @ self.geometry.box_poses()[horizontal, vertical, tilt]
 
     # ------------------------------------------------------------------ motion
+    def reset_box(self, horizontal: int, vertical: int, tilt: int) -> None:
+        """Place the arm at rest holding the box at configuration ``(h, v, t)`` (no motion).
+
+        The joints are set to the IK solution (seeded from the current target), velocities
+        to zero, and the drive targets to the same joints: the start of a replay.
+
+        Raises:
+            ModelError: the configuration is out of range or not reachable.
+        """
+        self.geometry.index(horizontal, vertical, tilt)
+        target = self._solve(self._grip(horizontal, vertical, tilt), self._target)
+        self._set_qpos(target)
+        self._target = target
+
     def step(self, steps: int = 1) -> None:
         """Advance physics by ``steps`` steps, compensating gravity and Coriolis forces."""
         for _ in range(int(steps)):
@@ -346,8 +374,7 @@ class HandFinishingScene:
             ModelError: the configuration is out of range or not reachable.
         """
         self.geometry.index(horizontal, vertical, tilt)
-        grip = self.geometry.grip_poses()[horizontal, vertical, tilt]
-        target = self._solve(grip, self._target)
+        target = self._solve(self._grip(horizontal, vertical, tilt), self._target)
         steps = self.move_joints(
             target, interpolation_steps=interpolation_steps, max_steps=max_steps
         )

@@ -546,3 +546,48 @@ def test_factored_model_slices_are_built_lazily():
     torch.testing.assert_close(fm._tyk[2], model.Ty[:, 2][:, :, k].permute(0, 2, 1, 3))
     built = [item is not None for item in fm.reach._cache._items]
     assert built == [False, False, True, False, False, False]
+
+
+def test_flat_sawtooth_value_np_mixed_widths_matches_formula():
+    """The numpy sawtooth buckets (query, point) pairs by point width (narrow buckets of a
+    wide storage gather only their columns): every bucket must give the formula's value."""
+    g = torch.Generator().manual_seed(5)
+    Y = 300
+    corner = torch.rand(1, Y, generator=g, dtype=torch.float64) * 10
+    ub = SawtoothUpperBound(corner, capacity=4)
+    points = []
+    for w in (2, 5, 12, 16, 17, 40, 64, 65, 120, 200, 3, 9):
+        for _ in range(3):
+            supp = torch.randperm(Y, generator=g)[:w]
+            b = torch.zeros(Y, dtype=torch.float64)
+            b[supp] = torch.rand(w, generator=g, dtype=torch.float64) + 0.05
+            b /= b.sum()
+            v = float(b @ corner[0]) - 3.0 * float(torch.rand((), generator=g))
+            ub.add_np(b.numpy(), 0, v)
+            points.append((b, v))
+    # queries covering the points' supports (so every bucket has candidate pairs), scaled
+    q = torch.stack([(p + 0.3 * torch.rand(Y, generator=g, dtype=torch.float64) * (p == 0))
+                     for p, _ in points[::2]]) * 0.7  # fmt: skip
+    q[:, ::7] = 0.0
+    xs = np.zeros(q.shape[0], dtype=np.int64)
+    got = ub.value_np(q.numpy(), xs)
+    want = [_sawtooth_reference(corner[0], points, row) for row in q]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+    assert (got < (q @ corner[0]).numpy() - 1e-6).any()  # some points do lower the bound
+
+
+def test_bins_predict_new_node_at_upper_and_clamps():
+    """SARSOP's predictor: a node alone in its bin is predicted at its upper bound (explore
+    it); otherwise the bin's mean lower bound, clamped to the node's [lower, upper]."""
+    from torchhrc.solvers.sarsop import _Bins
+
+    bins = _Bins(0.0, 10.0, 1.0, 2)
+    assert bins.predict(0, 4.0, 0.1, 1.0) == 4.0  # no data at all
+    bins.update(0, 4.0, 0.1, 1.0)
+    assert bins.predict(0, 4.0, 0.1, 1.0) == 4.0  # only itself in the bin
+    bins.update(1, 3.0, 0.2, 3.0)  # same bin (upper in [0, 5), entropy in [0, 0.5))
+    assert bins.predict(0, 4.0, 0.1, 1.0) == pytest.approx(2.0)  # mean of 1 and 3
+    assert bins.predict(2, 4.0, 0.1, 2.5) == 2.5  # mean below the node's lower bound
+    assert bins.predict(2, 1.5, 0.1, 0.0) == 1.5  # mean above the node's upper bound
+    bins.update(0, 9.0, 0.1, 1.0)  # node 0 moves to the other upper-bound bin
+    assert bins.predict(1, 3.0, 0.2, 3.0) == 3.0  # node 1 now alone: its upper bound

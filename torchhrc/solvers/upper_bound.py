@@ -281,16 +281,21 @@ class SawtoothUpperBound:
             sel = np.flatnonzero((gain[:n] < 0) & (wid[:n] <= wr.max()))
         if sel.size == 0:
             return base
-        ws = wid[sel]
-        pair = pos[:, idx[sel, 0]] & pos[:, idx[sel, ws - 1]] & (ws[None, :] <= wr[:, None])
+        ws = np.take(wid, sel)
+        # np.take: several times cheaper than fancy indexing at these sizes
+        Kc = idx.shape[1]
+        first = np.take(pos, np.take(idx, sel * Kc), axis=1)  # (B, P') b covers first entry
+        last = np.take(pos, np.take(idx, sel * Kc + ws - 1), axis=1)
+        pair = first & last & (ws[None, :] <= wr[:, None])
         if several:
             pair &= px[sel][None, :] == x[:, None]
         r, j = np.nonzero(pair)  # candidate (query, point) pairs, r sorted
         if r.size == 0:
             return base
-        p = sel[j]
-        wp = ws[j]
+        p = np.take(sel, j)
+        wp = np.take(ws, j)
         K = int(wp.max())
+        Y1 = beliefs.shape[1] + 1
         ext = np.concatenate([beliefs, np.full((B, 1), np.inf, dtype=beliefs.dtype)], axis=1)
         M = r.size
         term = np.empty(M, dtype=beliefs.dtype)
@@ -304,9 +309,19 @@ class SawtoothUpperBound:
             step = max(1, _CHUNK // Kb)
             for start in range(0, ids.size, step):
                 sub = ids[start : start + step]
-                rr, pp = r[sub], p[sub]
-                g = ext[rr[:, None], idx[pp, :Kb]]  # (m, Kb)
-                term[sub] = (g * inv[pp, :Kb]).min(-1) * gain[pp]
+                rr, pp = np.take(r, sub), np.take(p, sub)
+                if 2 * Kb >= Kc:  # whole rows: np.take (several times cheaper)
+                    flat = np.take(idx, pp, axis=0)[:, :Kb]  # (m, Kb) fresh copy
+                    w = np.take(inv, pp, axis=0)[:, :Kb]
+                else:  # narrow bucket of wide storage: gather only Kb columns
+                    flat, w = idx[pp, :Kb], inv[pp, :Kb]
+                flat += (rr * Y1)[:, None]  # index into ext.ravel()
+                g = np.take(ext, flat)  # (m, Kb) b(y) on each point's support (inf: padding)
+                g *= w
+                # the min over a short last axis is slow in numpy: reduce (Kb, m) over axis 0
+                t = np.ascontiguousarray(g.T).min(0)
+                t *= np.take(gain, pp)
+                term[sub] = t
         starts = np.flatnonzero(np.concatenate([[True], r[1:] != r[:-1]]))
         best = np.zeros(B, dtype=beliefs.dtype)
         best[r[starts]] = np.minimum(np.minimum.reduceat(term, starts), 0.0)

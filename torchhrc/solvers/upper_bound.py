@@ -28,6 +28,7 @@ Example:
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -38,6 +39,51 @@ from torchhrc.errors import ModelError
 __all__ = ["SawtoothUpperBound"]
 
 _CHUNK = 1 << 22  # elements of the (B, P, K) ratio tensor computed at once
+
+
+def _pair_minima(
+    r: np.ndarray,
+    p: np.ndarray,
+    wp: np.ndarray,
+    gain: np.ndarray,
+    B: int,
+    ratios: Callable[[np.ndarray, np.ndarray, int], np.ndarray],
+) -> np.ndarray:
+    """``(B,)`` sawtooth corrections ``min(0, min_i gain_i * min_y b(y) / b_i(y))`` per query.
+
+    Args:
+        r: ``(M,)`` sorted query index of each candidate (query, point) pair.
+        p: ``(M,)`` point index of each pair; wp: ``(M,)`` its support width.
+        gain: ``(P,)`` the points' gains; B: number of queries.
+        ratios: ``ratios(rr (m,), pp (m,), Kb) -> (m, Kb)`` the ratios ``b(y) / b_i(y)`` on
+            the first ``Kb`` support entries of each pair's point (``inf`` past its width).
+
+    Pairs are bucketed by point width, so narrow points are not padded to the widest.
+    """
+    M = r.size
+    K = int(wp.max())
+    term = np.empty(M, dtype=gain.dtype)
+    edges = (0, 16, 64, 256, K) if K > 64 else (0, K)
+    for lo, hi in itertools.pairwise(edges):
+        ids = np.flatnonzero((wp > lo) & (wp <= hi)) if len(edges) > 2 else np.arange(M)
+        if ids.size == 0:
+            continue
+        Kb = int(wp[ids].max())
+        step = max(1, _CHUNK // Kb)
+        for start in range(0, ids.size, step):
+            sub = ids[start : start + step]
+            pp = np.take(p, sub)
+            g = ratios(np.take(r, sub), pp, Kb)
+            # the min over a short last axis is slow in numpy: reduce (Kb, m) over axis 0
+            t = np.ascontiguousarray(g.T).min(0)
+            t *= np.take(gain, pp)
+            term[sub] = t
+    starts = np.flatnonzero(np.concatenate([[True], r[1:] != r[:-1]]))
+    best = np.zeros(B, dtype=gain.dtype)
+    best[r[starts]] = np.minimum(np.minimum.reduceat(term, starts), 0.0)
+    return best
+
+
 _DENSE_HIDDEN = 256  # MOMDPs with at most this many hidden values keep dense per-x point tables
 
 
@@ -294,37 +340,21 @@ class SawtoothUpperBound:
             return base
         p = np.take(sel, j)
         wp = np.take(ws, j)
-        K = int(wp.max())
         Y1 = beliefs.shape[1] + 1
         ext = np.concatenate([beliefs, np.full((B, 1), np.inf, dtype=beliefs.dtype)], axis=1)
-        M = r.size
-        term = np.empty(M, dtype=beliefs.dtype)
-        # pairs bucketed by point width, so narrow points are not padded to the widest
-        edges = (0, 16, 64, 256, K) if K > 64 else (0, K)
-        for lo, hi in itertools.pairwise(edges):
-            ids = np.flatnonzero((wp > lo) & (wp <= hi)) if len(edges) > 2 else np.arange(M)
-            if ids.size == 0:
-                continue
-            Kb = int(wp[ids].max())
-            step = max(1, _CHUNK // Kb)
-            for start in range(0, ids.size, step):
-                sub = ids[start : start + step]
-                rr, pp = np.take(r, sub), np.take(p, sub)
-                if 2 * Kb >= Kc:  # whole rows: np.take (several times cheaper)
-                    flat = np.take(idx, pp, axis=0)[:, :Kb]  # (m, Kb) fresh copy
-                    w = np.take(inv, pp, axis=0)[:, :Kb]
-                else:  # narrow bucket of wide storage: gather only Kb columns
-                    flat, w = idx[pp, :Kb], inv[pp, :Kb]
-                flat += (rr * Y1)[:, None]  # index into ext.ravel()
-                g = np.take(ext, flat)  # (m, Kb) b(y) on each point's support (inf: padding)
-                g *= w
-                # the min over a short last axis is slow in numpy: reduce (Kb, m) over axis 0
-                t = np.ascontiguousarray(g.T).min(0)
-                t *= np.take(gain, pp)
-                term[sub] = t
-        starts = np.flatnonzero(np.concatenate([[True], r[1:] != r[:-1]]))
-        best = np.zeros(B, dtype=beliefs.dtype)
-        best[r[starts]] = np.minimum(np.minimum.reduceat(term, starts), 0.0)
+
+        def ratios(rr: np.ndarray, pp: np.ndarray, Kb: int) -> np.ndarray:
+            if 2 * Kb >= Kc:  # whole rows: np.take (several times cheaper)
+                flat = np.take(idx, pp, axis=0)[:, :Kb]  # (m, Kb) fresh copy
+                w = np.take(inv, pp, axis=0)[:, :Kb]
+            else:  # narrow bucket of wide storage: gather only Kb columns
+                flat, w = idx[pp, :Kb], inv[pp, :Kb]
+            flat += (rr * Y1)[:, None]  # index into ext.ravel()
+            g = np.take(ext, flat)  # (m, Kb) b(y) on each point's support (inf: padding)
+            g *= w
+            return g
+
+        best = _pair_minima(r, p, wp, gain, B, ratios)
         return base + best
 
     def _value_columns_np(
@@ -371,28 +401,14 @@ class SawtoothUpperBound:
             return base
         p = sel[j]
         wp = ws[j]
-        K = int(wp.max())
         pad = np.zeros((B, 2), dtype=beliefs.dtype)
         pad[:, 1] = np.inf
         ext = np.concatenate([beliefs, pad], axis=1)  # (B, C + 2)
-        M = r.size
-        term = np.empty(M, dtype=beliefs.dtype)
-        # pairs bucketed by point width, so narrow points are not padded to the widest
-        edges = (0, 16, 64, 256, K) if K > 64 else (0, K)
-        for lo, hi in itertools.pairwise(edges):
-            ids = np.flatnonzero((wp > lo) & (wp <= hi)) if len(edges) > 2 else np.arange(M)
-            if ids.size == 0:
-                continue
-            Kb = int(wp[ids].max())
-            step = max(1, _CHUNK // Kb)
-            for start in range(0, ids.size, step):
-                sub = ids[start : start + step]
-                rr, pp = r[sub], p[sub]
-                g = ext[rr[:, None], local[idx[pp, :Kb]]]  # (m, Kb)
-                term[sub] = (g * inv[pp, :Kb]).min(-1) * gain[pp]
-        starts = np.flatnonzero(np.concatenate([[True], r[1:] != r[:-1]]))
-        best = np.zeros(B, dtype=beliefs.dtype)
-        best[r[starts]] = np.minimum(np.minimum.reduceat(term, starts), 0.0)
+
+        def ratios(rr: np.ndarray, pp: np.ndarray, Kb: int) -> np.ndarray:
+            return ext[rr[:, None], local[idx[pp, :Kb]]] * inv[pp, :Kb]  # (m, Kb)
+
+        best = _pair_minima(r, p, wp, gain, B, ratios)
         return base + best
 
     def _dense_min(self, beliefs: np.ndarray, x: np.ndarray) -> np.ndarray:

@@ -35,7 +35,7 @@ from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers._factored import check_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.qmdp import bound_solution, qmdp_vectors
+from torchhrc.solvers.qmdp import IterationConfig, bound_solution, qmdp_vectors
 from torchhrc.solvers.solution import Solution
 
 __all__ = ["FIBConfig", "fib", "fib_backup", "fib_policy", "fib_vectors"]
@@ -142,22 +142,13 @@ def fib_policy(model: POMDP | MOMDP, *, tol: float = 1e-8) -> AlphaVectorPolicy:
 
 
 @dataclass(frozen=True, kw_only=True)
-class FIBConfig:
+class FIBConfig(IterationConfig):
     """Settings of :func:`fib` (keyword-only).
 
     Attributes:
         tol: stop when an iteration changes the vectors by less than this.
         max_iterations: cap on the iterations.
     """
-
-    tol: float = 1e-8
-    max_iterations: int = 100_000
-
-    def __post_init__(self) -> None:
-        if not self.tol > 0:
-            raise ValueError(f"expected tol > 0, got {self.tol}")
-        if self.max_iterations < 1:
-            raise ValueError(f"expected max_iterations >= 1, got {self.max_iterations}")
 
 
 def fib(model: POMDP | MOMDP, config: FIBConfig | None = None) -> Solution:

@@ -31,7 +31,15 @@ from torchhrc.solvers._factored import Expectation, check_model, check_unit_disc
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.solution import Solution
 
-__all__ = ["QMDPConfig", "bound_solution", "mdp_q_values", "qmdp", "qmdp_policy", "qmdp_vectors"]
+__all__ = [
+    "IterationConfig",
+    "QMDPConfig",
+    "bound_solution",
+    "mdp_q_values",
+    "qmdp",
+    "qmdp_policy",
+    "qmdp_vectors",
+]
 
 
 def mdp_q_values(
@@ -101,13 +109,8 @@ def qmdp_policy(
 
 
 @dataclass(frozen=True, kw_only=True)
-class QMDPConfig:
-    """Settings of :func:`qmdp` (keyword-only).
-
-    Attributes:
-        tol: accuracy of the underlying MDP's value iteration.
-        max_iterations: cap on its iterations.
-    """
+class IterationConfig:
+    """A tolerance and an iteration cap, validated (the settings of the bound solvers)."""
 
     tol: float = 1e-8
     max_iterations: int = 100_000
@@ -117,6 +120,16 @@ class QMDPConfig:
             raise ValueError(f"expected tol > 0, got {self.tol}")
         if self.max_iterations < 1:
             raise ValueError(f"expected max_iterations >= 1, got {self.max_iterations}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class QMDPConfig(IterationConfig):
+    """Settings of :func:`qmdp` (keyword-only).
+
+    Attributes:
+        tol: accuracy of the underlying MDP's value iteration.
+        max_iterations: cap on its iterations.
+    """
 
 
 def bound_solution(

@@ -38,6 +38,7 @@ import time
 
 import numpy as np
 import torch
+from threadpoolctl import threadpool_limits
 
 from torchhrc.mixture import fit_mixture
 
@@ -132,12 +133,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.threads:  # the same number of threads for torch and numpy's BLAS
         torch.set_num_threads(args.threads)
-        try:
-            from threadpoolctl import threadpool_limits
-
-            threadpool_limits(args.threads)
-        except ImportError:
-            print("threadpoolctl is not installed: numpy's BLAS keeps its default threads")
+        threadpool_limits(args.threads)
     seqs, lengths = make_data(args.n, args.length, args.symbols, 3, args.concentration, args.seed)
     A, ks = args.symbols, range(2, 11)
     runs = len(ks) * args.restarts

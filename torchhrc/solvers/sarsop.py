@@ -71,16 +71,16 @@ Example:
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 import torch
+from threadpoolctl import threadpool_limits
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
@@ -1318,26 +1318,9 @@ def sarsop(model: POMDP | MOMDP | SparsePOMDP, config: SARSOPConfig | None = Non
         config = SARSOPConfig()
     if not isinstance(config, SARSOPConfig):
         raise TypeError(f"expected config to be a SARSOPConfig, got {type(config).__name__}")
-    with _one_blas_thread():
-        return _SARSOP(model, config, start).run()
-
-
-@contextlib.contextmanager
-def _one_blas_thread() -> Iterator[None]:
-    """Limit numpy's BLAS to one thread while a solve runs, when ``threadpoolctl`` is
-    installed (otherwise a no-op).
-
-    The sequential path multiplies small matrices (tens of rows) in numpy; a multi-threaded
-    OpenBLAS spends more time waking and spinning threads than computing, several times the
-    single-threaded cost on a loaded machine (measured: RockSample(7, 8), 2 busy cores, 28 ms
-    against 1.6 ms per lower-bound evaluation; dense RockSample(4, 4), 300 iterations: 7.4-8.1 s
-    with OpenBLAS's 2 threads against 5.4-6.3 s with one). Setting ``OPENBLAS_NUM_THREADS=1``
-    before numpy is imported has the same effect.
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        yield
-        return
+    # The sequential path multiplies small matrices (tens of rows) in numpy; a multi-threaded
+    # OpenBLAS spends more time waking and spinning threads than computing (measured:
+    # RockSample(7, 8), 2 busy cores, 28 ms against 1.6 ms per lower-bound evaluation; dense
+    # RockSample(4, 4), 300 iterations: 7.4-8.1 s with 2 BLAS threads, 5.4-6.3 s with one).
     with threadpool_limits(limits=1, user_api="blas"):
-        yield
+        return _SARSOP(model, config, start).run()

@@ -42,6 +42,18 @@ def test_metrics_schema(quick_run):
     assert on_disk["subjects"] == 6 and on_disk["runs_per_subject"] == 20
     assert on_disk["epsilon"] == pytest.approx([i / 10 for i in range(11)])
     assert 0.0 <= on_disk["loo_accuracy"] <= 1.0 and on_disk["k"] >= 1
+    for key in ("reward_online", "reward_online_ci95", "reward_online_ci95_subjects"):
+        assert set(on_disk[key]) == {"learned", "hand_coded", "cross_training"}
+        assert all(len(v) == 11 for v in on_disk[key].values())
+
+
+def test_online_case_is_not_at_the_ceiling(quick_run):
+    """Online (uniform prior), a learned or hand-coded robot cannot score the perfect 30."""
+    out, m = quick_run
+    for name in ("learned", "hand_coded"):
+        assert max(m["reward_online"][name]) < 29.0, name
+        assert min(m["reward_online"][name]) > 15.0, name
+    assert "Online case" in (out / "report.md").read_text()
 
 
 def test_learned_close_to_hand_coded_at_epsilon_zero(quick_run):

@@ -14,7 +14,8 @@ File format (JSON object)::
     format: "torchhrc.expert_momdp", version: 1, task: "place-and-drill"
     positions: int >= 1            number of screw positions n
     discount: float in (0, 1]
-    human: {placement: "uniform"}
+    human: {placement: "uniform",
+            waits_while_pending: {type name: float in [0, 1], ... every type} (optional)}
     initial_belief: {labelled_type_probability: float in [1/Y, 1]}
     types: {name: {description: str, reward: {feature name: float, ... every feature}}}
 
@@ -75,6 +76,10 @@ class ExpertModel:
         labelled_probability: initial belief on the expert's label of a subject.
         descriptions: ``(Y,)`` the expert's description of each type.
         path: where the model was read from.
+        waits_while_pending: ``(Y,)`` the expert's probability that a human of each type
+            lets its turn pass while a placed screw waits for drilling (the online study's
+            turn taking, :mod:`torchhrc.experiments.online`), or None when the file states
+            none.
     """
 
     type_names: tuple[str, ...]
@@ -84,6 +89,7 @@ class ExpertModel:
     labelled_probability: float
     descriptions: tuple[str, ...]
     path: str = "<dict>"
+    waits_while_pending: tuple[float, ...] | None = None
 
     @property
     def task(self) -> PlaceAndDrillTask:
@@ -195,7 +201,26 @@ def parse_expert_model(data: Mapping[str, Any], *, path: str = "<dict>") -> Expe
             "initial_belief.labelled_type_probability",
             f"expected a value in [1/{len(names)}, 1], got {p}",
         )
+    waits: tuple[float, ...] | None = None
+    if "waits_while_pending" in human:
+        table = _mapping(path, "human.waits_while_pending", human["waits_while_pending"])
+        values = []
+        for name in names:
+            where = f"human.waits_while_pending.{name}"
+            if name not in table:
+                raise _field_error(path, where, "missing")
+            value = _number(path, where, table[name])
+            if not 0.0 <= value <= 1.0:
+                raise _field_error(path, where, f"expected a probability in [0, 1], got {value}")
+            values.append(value)
+        extra = sorted(set(table) - set(names))
+        if extra:
+            raise _field_error(
+                path, f"human.waits_while_pending.{extra[0]}", "not one of the types"
+            )
+        waits = tuple(values)
     return ExpertModel(
+        waits_while_pending=waits,
         type_names=tuple(names),
         weights=torch.tensor(rows, dtype=torch.float64),
         n_positions=n,

@@ -103,6 +103,8 @@ class StudySettings:
         solver_precision: SARSOP target gap, relative to the reward span of the model.
         irl_iterations: cap on the IRL policies per type.
         seed: the seed of everything (study, fits, IRL, solver, simulation).
+        online: also run the online case (uniform initial belief, type inferred while
+            acting; :mod:`.online`).
     """
 
     subjects: int = 18
@@ -118,6 +120,7 @@ class StudySettings:
     solver_precision: float = 1e-3
     irl_iterations: int = 10
     seed: int = 0
+    online: bool = True
 
     @classmethod
     def quick(cls, seed: int = 0) -> StudySettings:
@@ -171,6 +174,89 @@ def _subject_types(demos: Demonstrations) -> dict[str, str]:
     return out
 
 
+def _online_setup(expert: Any, s: StudySettings) -> dict[str, Any]:
+    """Solve the hand-coded online MOMDP once; the per-fold accumulators of the online case."""
+    from torchhrc.experiments.online import expert_online_momdp
+
+    t = time.perf_counter()
+    model = expert_online_momdp(expert)
+    solution = _solve(model, s)
+    return {
+        "hand_coded": MOMDPPolicy(model, solution.policy, model.b0),
+        "generator": torch.Generator().manual_seed(s.seed),
+        "rewards": {name: [] for name in POLICY_NAMES},
+        "turn_taking": [],
+        "time": time.perf_counter() - t,
+    }
+
+
+def _online_fold(
+    state: dict[str, Any],
+    task: Any,
+    learned: Any,
+    fit: Any,
+    train: Demonstrations,
+    orders: torch.Tensor,
+    score: torch.Tensor,
+    label: str,
+    s: StudySettings,
+) -> None:
+    """The online case of one fold: learned turn taking, SARSOP from the uniform belief, runs."""
+    from torchhrc.experiments.online import (
+        human_chunk_size,
+        learn_turn_taking,
+        online_momdp,
+        pooled_cross_training,
+    )
+
+    t = time.perf_counter()
+    wait = learn_turn_taking(task, train, fit.assignments, fit.k)
+    model = online_momdp(
+        task,
+        learned.placement,
+        learned.momdp.R,
+        wait,
+        discount=learned.momdp.discount,
+        type_names=learned.type_names,
+    )
+    solution = _solve(model, s)
+    result = simulate_subject(
+        task,
+        momdp_policies={
+            "learned": MOMDPPolicy(model, solution.policy, model.b0),
+            "hand_coded": state["hand_coded"],
+        },
+        cross_training=pooled_cross_training(task, train, discount=learned.momdp.discount),
+        subject_index=0,
+        orders=orders,
+        score=score,
+        epsilons=s.epsilons,
+        runs=s.runs,
+        generator=state["generator"],
+        human_chunk=human_chunk_size(task, label),
+    )
+    for name in POLICY_NAMES:
+        state["rewards"][name].append(result[name])
+    state["turn_taking"].append([[round(float(q), 6) for q in row] for row in wait.tolist()])
+    state["time"] += time.perf_counter() - t
+
+
+def _online_metrics(online: RobustnessResult | None, rounded: Callable[..., Any]) -> dict[str, Any]:
+    """``reward_online``, ``reward_online_ci95``, ``reward_online_ci95_subjects`` (or nothing)."""
+    from torchhrc.experiments.robustness import mean_ci95
+
+    if online is None:
+        return {}
+    return {
+        "reward_online": {name: rounded(online.mean(name)) for name in POLICY_NAMES},
+        "reward_online_ci95": {name: rounded(online.ci95(name)) for name in POLICY_NAMES},
+        "reward_online_ci95_subjects": {
+            name: rounded(mean_ci95(online.subject_means(name), over="subjects")[1])
+            for name in POLICY_NAMES
+        },
+    }
+
+
 def run_study(settings: StudySettings, *, progress: Progress | None = None) -> dict[str, Any]:
     """Run the whole study in memory; return everything the report needs.
 
@@ -221,6 +307,7 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
         if key not in hand_solutions:
             hand_solutions[key] = _solve(build_expert_momdp(expert, row), s)
     timings["hand_coded_solve"] = time.perf_counter() - t
+    online_state = _online_setup(expert, s) if s.online else None
 
     generator = torch.Generator().manual_seed(s.seed)
     rewards: dict[str, list[torch.Tensor]] = {name: [] for name in POLICY_NAMES}
@@ -288,6 +375,18 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
         sim_time += time.perf_counter() - t
         for name in POLICY_NAMES:
             rewards[name].append(result[name])
+        if online_state is not None:
+            _online_fold(
+                online_state,
+                task,
+                learned,
+                fit,
+                train,
+                orders[subject],
+                score[..., true],
+                labels[subject],
+                s,
+            )
         folds.append(
             {
                 "subject": subject,
@@ -331,9 +430,20 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
         subjects=subjects,
         rewards={name: torch.stack(v, 1) for name, v in rewards.items()},  # (E, S, R)
     )
+    online = None
+    if online_state is not None:
+        online = RobustnessResult(
+            epsilon=robustness.epsilon,
+            subjects=subjects,
+            rewards={n: torch.stack(v, 1) for n, v in online_state["rewards"].items()},
+        )
+        timings["online"] = online_state["time"]
+        for fold, wait in zip(folds, online_state["turn_taking"]):
+            fold["turn_taking"] = wait
     timings["total"] = time.perf_counter() - start
     timings["total_cpu"] = time.process_time() - cpu_start
     return {
+        "online": online,
         "settings": settings,
         "demonstrations": demos,
         "task": task,
@@ -369,6 +479,7 @@ def metrics_from_study(study: dict[str, Any]) -> dict[str, Any]:
         "reward_ci95": {name: rounded(rob.ci95(name)) for name in POLICY_NAMES},
         "reward_ci95_subjects": subject_ci,
         "runs_per_subject": rob.runs_per_subject,
+        **_online_metrics(study.get("online"), rounded),
         "demonstrations_per_subject": s.demos,
         "positions": s.positions,
         "seed": s.seed,
@@ -389,6 +500,7 @@ def metrics_from_study(study: dict[str, Any]) -> dict[str, Any]:
                 "k": f["k"],
                 "cluster_names": f["cluster_names"],
                 "posterior": [round(p, 6) for p in f["posterior"]],
+                **({"turn_taking": f["turn_taking"]} if "turn_taking" in f else {}),
             }
             for f in folds
         ],

@@ -175,6 +175,7 @@ def simulate_subject(
     runs: int = 100,
     horizon: int | None = None,
     generator: torch.Generator | None = None,
+    human_chunk: int | None = None,
 ) -> dict[str, torch.Tensor]:
     """Run every policy on one subject: ``runs`` executions per epsilon, all in one batch.
 
@@ -191,6 +192,9 @@ def simulate_subject(
         runs: executions per epsilon, ``R``.
         horizon: robot decisions per run (default ``4 n``).
         generator: random source (order draws, the human's deviations, tie-breaking).
+        human_chunk: None (Fig. 3: the human places whenever it can) or the chunk size of
+            the subject's type, whose turn-taking rule the human then follows
+            (:func:`~torchhrc.tasks.place_and_drill.simulate.run_executions`).
 
     Returns:
         ``{name: (E, R)}`` accumulated rewards (``"cross_training"`` included when given).
@@ -216,5 +220,6 @@ def simulate_subject(
         score=score,
         horizon=horizon,
         generator=generator,
+        human_chunk=None if human_chunk is None else torch.full((B,), int(human_chunk)),
     )
     return {name: r.view(E, runs) for name, r in trace.rewards.items()}

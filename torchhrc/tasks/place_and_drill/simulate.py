@@ -46,7 +46,7 @@ from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP
 from torchhrc.tasks.place_and_drill.demos import placement_orders
-from torchhrc.tasks.place_and_drill.model import EMPTY, PlaceAndDrillTask
+from torchhrc.tasks.place_and_drill.model import EMPTY, PLACED, PlaceAndDrillTask
 
 __all__ = [
     "Controller",
@@ -217,6 +217,7 @@ def run_executions(
     score: torch.Tensor,
     horizon: int | None = None,
     generator: torch.Generator | None = None,
+    human_chunk: torch.Tensor | None = None,
 ) -> ExecutionTrace:
     """Run ``B`` executions per controller, all at once, with shared human randomness.
 
@@ -229,6 +230,15 @@ def run_executions(
         horizon: number of robot decisions (default ``4 n``: enough for any sensible policy,
             a policy that never finishes pays for it).
         generator: random generator (human deviations, random positions, tie-breaking).
+        human_chunk: ``(B,)`` int64 in ``[1, n]`` or None. None (the paper's Fig. 3): the
+            human places whenever a position is empty. Given: the human also follows the
+            turn-taking rule of its type (the chunk rule of
+            :mod:`~torchhrc.tasks.place_and_drill.demos`, ``n`` safe, ``1`` efficient): with
+            ``P`` screws on the bench and ``Q`` placed but undrilled after the robot's
+            action, it lets the turn pass (places nothing) when ``P mod g = 0`` and
+            ``Q > 0`` (an efficient human waits for its screw to be drilled), unless it
+            deviates (probability ``epsilon``: a random placement, as above). No random
+            numbers are drawn for it, so the other draws are those of ``human_chunk=None``.
 
     Returns:
         :class:`ExecutionTrace`.
@@ -249,6 +259,15 @@ def run_executions(
         score = score.unsqueeze(-1).expand(*score.shape, B)
     runs = torch.arange(B, device=dev)
     effect = task.robot_effect.to(dev)
+    status = task.status.to(dev)  # (X, n)
+    if human_chunk is not None:
+        human_chunk = human_chunk.to(dev)
+        n = task.n_positions
+        if human_chunk.shape != (B,) or ((human_chunk < 1) | (human_chunk > n)).any():
+            raise ModelError(
+                f"expected human_chunk of shape (B={B},) with values in [1, {n}], got "
+                f"shape {tuple(human_chunk.shape)}"
+            )
     rewards, states, actions = {}, {}, {}
     for name, controller in controllers.items():
         x = torch.full((B,), task.initial_state, dtype=torch.long, device=dev)
@@ -259,6 +278,11 @@ def run_executions(
             total = total + score[a, x, runs]
             x_mid = effect[a, x]
             x_next = step_human(task, x_mid, orders, epsilon, u_deviate[t], keys[t])
+            if human_chunk is not None:
+                on_bench = (status[x_mid] != EMPTY).sum(-1)  # P
+                pending = (status[x_mid] == PLACED).any(-1)  # Q > 0
+                waits = (on_bench % human_chunk == 0) & pending & (u_deviate[t] >= epsilon)
+                x_next = torch.where(waits, x_mid, x_next)
             controller.observe(x, a, x_next)
             x = x_next
             xs.append(x)

@@ -1,0 +1,67 @@
+"""The README's ```python blocks run as written, and the ten-line example's claims hold."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import re
+from pathlib import Path
+
+import pytest
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def python_blocks(text: str) -> list[str]:
+    """The bodies of the fenced ```python blocks of a markdown text, in order."""
+    return re.findall(r"^```python[ \t]*\n(.*?)^```[ \t]*$", text, flags=re.M | re.S)
+
+
+def test_python_blocks_are_found():
+    text = "a\n```python\nx = 1\n```\n```bash\nls\n```\n```python\ny = 2\n```\n"
+    assert python_blocks(text) == ["x = 1\n", "y = 2\n"]
+
+
+BLOCKS = python_blocks(README.read_text(encoding="utf-8"))
+
+
+def test_readme_has_python_blocks():
+    assert BLOCKS, "README.md has no ```python block"
+
+
+def _run(block: str) -> tuple[dict, str]:
+    namespace: dict = {"__name__": "__readme__"}
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        exec(compile(block, str(README), "exec"), namespace)
+    return namespace, out.getvalue()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("index", range(len(BLOCKS)))
+def test_readme_block_runs(index):
+    namespace, printed = _run(BLOCKS[index])
+    assert printed.strip(), "the block prints nothing"
+    if "fit_mixture" in BLOCKS[index]:
+        _check_ten_line_example(namespace)
+
+
+def _check_ten_line_example(ns: dict) -> None:
+    """The comments of the example: 2 types by BIC, the new user is held out, its posterior."""
+    import torch
+
+    from torchhrc.mixture import infer_type
+
+    fit, train, new, demos = ns["fit"], ns["train"], ns["new"], ns["demos"]
+    assert fit.k == 2
+    held_out = set(new.unique_subjects)
+    assert held_out and not held_out & set(train.unique_subjects)  # a true new user
+    assert set(train.unique_subjects) | held_out == set(demos.unique_subjects)
+    # the posterior's most likely cluster is the one that holds most training subjects of
+    # the new user's true type
+    posterior = infer_type(fit.model, new.sequences, new.lengths)
+    label = new.types[0]
+    mine = torch.tensor([t == label for t in train.types])
+    majority = int(fit.assignments[mine].mode().values)
+    assert int(posterior.argmax()) == majority
+    assert float(posterior.max()) > 0.9

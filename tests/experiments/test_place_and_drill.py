@@ -56,6 +56,22 @@ def test_online_case_is_not_at_the_ceiling(quick_run):
     assert "Online case" in (out / "report.md").read_text()
 
 
+def test_separation_replay_keeps_the_drill_away_from_a_safe_persons_hand(quick_run):
+    """Measured in the SAPIEN workbench: the policies that respect the safe type never drill
+    next to the placing hand; with an efficient person they do (drill and hand at once)."""
+    pytest.importorskip("sapien", reason="the [sim] extra (SAPIEN 3) is not installed")
+    out, m = quick_run
+    sep = m["separation"]
+    assert sep["available"] and (out / "separation.png").is_file()
+    for case in ("offline", "online"):
+        for name in ("learned", "hand_coded"):
+            safe, efficient = sep[case][name]["safe"], sep[case][name]["efficient"]
+            assert safe["fraction_below"] == 0.0 and safe["contacts"] == 0
+            assert safe["p5_m"] > sep["threshold_m"]
+            assert efficient["p5_m"] < safe["p5_m"]
+            assert safe["executions"] == efficient["executions"] == 1
+
+
 def test_learned_close_to_hand_coded_at_epsilon_zero(quick_run):
     _, m = quick_run
     learned, hand = m["reward"]["learned"][0], m["reward"]["hand_coded"][0]

@@ -105,6 +105,11 @@ class StudySettings:
         seed: the seed of everything (study, fits, IRL, solver, simulation).
         online: also run the online case (uniform initial belief, type inferred while
             acting; :mod:`.online`).
+        separation: replay sampled executions of every policy in the SAPIEN workbench and
+            measure human-robot separation (needs the ``sim`` extra; skipped without it).
+        separation_runs, separation_subjects, separation_epsilon: executions per (subject,
+            policy, case), subjects per type, and their deviation probability.
+        separation_threshold: the separation (m) below which a step counts as close.
     """
 
     subjects: int = 18
@@ -119,6 +124,11 @@ class StudySettings:
     solver_time: float = 5.0
     solver_precision: float = 1e-3
     irl_iterations: int = 10
+    separation: bool = True
+    separation_runs: int = 2
+    separation_subjects: int = 1
+    separation_epsilon: float = 0.0
+    separation_threshold: float = 0.10
     seed: int = 0
     online: bool = True
 
@@ -132,6 +142,7 @@ class StudySettings:
             restarts=4,
             solver_time=1.0,
             irl_iterations=5,
+            separation_runs=1,
             seed=seed,
         )
 
@@ -200,6 +211,8 @@ def _online_fold(
     score: torch.Tensor,
     label: str,
     s: StudySettings,
+    *,
+    on_trace: Callable[..., None] | None = None,
 ) -> None:
     """The online case of one fold: learned turn taking, SARSOP from the uniform belief, runs."""
     from torchhrc.experiments.online import (
@@ -234,6 +247,7 @@ def _online_fold(
         runs=s.runs,
         generator=state["generator"],
         human_chunk=human_chunk_size(task, label),
+        on_trace=on_trace,
     )
     for name in POLICY_NAMES:
         state["rewards"][name].append(result[name])
@@ -308,6 +322,12 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
             hand_solutions[key] = _solve(build_expert_momdp(expert, row), s)
     timings["hand_coded_solve"] = time.perf_counter() - t
     online_state = _online_setup(expert, s) if s.online else None
+    sampler = None
+    if s.separation:
+        from torchhrc.experiments.separation import TraceSampler
+
+        sampler = TraceSampler(runs=s.separation_runs, epsilon=s.separation_epsilon,
+                               subjects=s.separation_subjects)  # fmt: skip
 
     generator = torch.Generator().manual_seed(s.seed)
     rewards: dict[str, list[torch.Tensor]] = {name: [] for name in POLICY_NAMES}
@@ -371,6 +391,7 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
             epsilons=s.epsilons,
             runs=s.runs,
             generator=generator,
+            on_trace=None if sampler is None else sampler.hook("offline", subject, labels[subject]),
         )
         sim_time += time.perf_counter() - t
         for name in POLICY_NAMES:
@@ -386,7 +407,9 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
                 score[..., true],
                 labels[subject],
                 s,
-            )
+                on_trace=None if sampler is None else sampler.hook("online", subject,
+                                                                   labels[subject]),
+            )  # fmt: skip
         folds.append(
             {
                 "subject": subject,
@@ -440,9 +463,17 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
         timings["online"] = online_state["time"]
         for fold, wait in zip(folds, online_state["turn_taking"]):
             fold["turn_taking"] = wait
+    separation = None
+    if sampler is not None:
+        from torchhrc.experiments.separation import separation_study
+
+        separation = separation_study(task, sampler.executions,
+                                      threshold=s.separation_threshold, seed=s.seed)  # fmt: skip
+        timings["separation"] = separation.pop("time_s", 0.0)
     timings["total"] = time.perf_counter() - start
     timings["total_cpu"] = time.process_time() - cpu_start
     return {
+        "separation": separation,
         "online": online,
         "settings": settings,
         "demonstrations": demos,
@@ -505,6 +536,25 @@ def metrics_from_study(study: dict[str, Any]) -> dict[str, Any]:
             for f in folds
         ],
         "paper": PAPER,
+        **_separation_metrics(study.get("separation"), s),
+    }
+
+
+def _separation_metrics(separation: dict[str, Any] | None, s: StudySettings) -> dict[str, Any]:
+    """``separation`` (summary per case, policy and type; the sampling) or nothing."""
+    if separation is None:
+        return {}
+    if not separation.get("available"):
+        return {"separation": {"available": False, "note": separation.get("note", "")}}
+    return {
+        "separation": {
+            "available": True,
+            "threshold_m": separation["threshold_m"],
+            "epsilon": s.separation_epsilon,
+            "runs_per_subject": s.separation_runs,
+            "subjects_per_type": s.separation_subjects,
+            **separation["summary"],
+        }
     }
 
 

@@ -328,6 +328,69 @@ The left panel of the figure is the offline case, the right panel the online cas
 """
 
 
+def plot_separation(separation: Mapping[str, Any], path: str | os.PathLike[str]) -> None:
+    """The per-step minimum separation of every replayed execution, per policy and true type
+    (one panel per case: offline, online), with the threshold as a line."""
+    plt = _pyplot()
+    rows = separation["per_step"]
+    cases = [c for c in ("offline", "online") if any(r["case"] == c for r in rows)]
+    fig, axes = plt.subplots(1, len(cases), figsize=(6.0 * len(cases), 3.8), squeeze=False)
+    types = sorted({r["true_type"] for r in rows})
+    for ax, case in zip(axes[0], cases):
+        labels, data = [], []
+        for name in _POLICIES:
+            for label in types:
+                values = [v for r in rows if (r["case"], r["policy"], r["true_type"])
+                          == (case, name, label) for v in r["separation"]]  # fmt: skip
+                if values:
+                    labels.append(f"{_LABELS[name].split()[0]}\n{label}")
+                    data.append(values)
+        ax.boxplot(data, whis=(5, 95), showfliers=True)
+        ax.set_xticks(range(1, len(labels) + 1), labels, fontsize=7)
+        ax.axhline(separation["threshold_m"], color="red", linewidth=0.8, linestyle="--")
+        ax.set_ylabel("minimum robot-person separation per step (m)")
+        ax.set_title(f"{case}: SAPIEN replay", fontsize=9)
+        ax.grid(alpha=0.3, axis="y")
+    _save(fig, Path(path))
+    plt.close(fig)
+
+
+def _separation_section(metrics: Mapping[str, Any], study: Mapping[str, Any]) -> str:
+    sep = metrics.get("separation")
+    if not sep:
+        return ""
+    if not sep.get("available"):
+        return f"\n### Human-robot separation\n\nNot measured: {sep.get('note', '')}\n"
+    lines = ["| case | policy | true type | median (m) | 5th pct (m) | "
+             f"steps < {sep['threshold_m']:g} m | contacts | steps |", "|---|---|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+    for case in ("offline", "online"):
+        for name in _POLICIES:
+            for label, v in sorted(sep.get(case, {}).get(name, {}).items()):
+                lines.append(
+                    f"| {case} | {_LABELS[name]} | {label} | {v['median_m']:.3f} | "
+                    f"{v['p5_m']:.3f} | {v['fraction_below']:.2f} | {v['contacts']} | "
+                    f"{v['steps']} |"
+                )
+    s = study["settings"]
+    return f"""
+### Human-robot separation (SAPIEN replay)
+
+The paper scores policies by reward only; the types differ in what a physical scene can
+measure: a safe person wants the robot to wait until every screw is placed. Sampled
+executions ({s.separation_runs} per policy and case, epsilon {s.separation_epsilon:g}, the
+first {s.separation_subjects} subject(s) of each type) are replayed in the SAPIEN workbench
+(`torchhrc.sim.workbench`, physics on the CPU): the Panda with its drill moves to each
+drilled screw (joint targets from inverse kinematics, interpolated) while the person's right
+arm reaches to the screw it places, at the same time, as in the task's turn. Per step: the
+minimum distance between the robot's capsules (drill included) and the arm's, and the
+robot-person contact points SAPIEN reports (`separation` in `metrics.json`).
+
+{chr(10).join(lines)}
+
+![separation](separation.png)
+"""
+
+
 def write_report(
     out_dir: str | os.PathLike[str], study: Mapping[str, Any], metrics: Mapping[str, Any]
 ) -> None:
@@ -351,6 +414,8 @@ def write_report(
         fit.model.transition.detach(), demos.symbol_names, names, out / "transitions.png"
     )
     plot_type_posterior(study["folds"], out / "type_posterior.png")
+    if study.get("separation") and study["separation"].get("available"):
+        plot_separation(study["separation"], out / "separation.png")
 
     s = study["settings"]
     timings = study["timings"]
@@ -410,7 +475,7 @@ Mean accumulated reward ± 95% CI half-width (over all runs of an epsilon):
 (Where the learned and hand-coded lines coincide, the hand-coded one is drawn on top.)
 The 95% half-widths over the {len(study["folds"])} per-subject means (Student t), which also
 count the spread between subjects, are in `metrics.json` under `reward_ci95_subjects`.
-{_online_section(metrics, study)}
+{_online_section(metrics, study)}{_separation_section(metrics, study)}
 Checks of the issue:
 
 {checks}

@@ -27,7 +27,7 @@ Example:
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -39,6 +39,7 @@ from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask
 from torchhrc.tasks.place_and_drill.simulate import (
     Controller,
     CrossTrainingController,
+    ExecutionTrace,
     MOMDPController,
     run_executions,
 )
@@ -176,6 +177,7 @@ def simulate_subject(
     horizon: int | None = None,
     generator: torch.Generator | None = None,
     human_chunk: int | None = None,
+    on_trace: Callable[[ExecutionTrace, torch.Tensor], None] | None = None,
 ) -> dict[str, torch.Tensor]:
     """Run every policy on one subject: ``runs`` executions per epsilon, all in one batch.
 
@@ -195,6 +197,8 @@ def simulate_subject(
         human_chunk: None (Fig. 3: the human places whenever it can) or the chunk size of
             the subject's type, whose turn-taking rule the human then follows
             (:func:`~torchhrc.tasks.place_and_drill.simulate.run_executions`).
+        on_trace: called with the runs' :class:`ExecutionTrace` and their ``epsilon (B,)``
+            (e.g. to replay some runs in the SAPIEN workbench).
 
     Returns:
         ``{name: (E, R)}`` accumulated rewards (``"cross_training"`` included when given).
@@ -222,4 +226,6 @@ def simulate_subject(
         generator=generator,
         human_chunk=None if human_chunk is None else torch.full((B,), int(human_chunk)),
     )
+    if on_trace is not None:
+        on_trace(trace, eps)
     return {name: r.view(E, runs) for name, r in trace.rewards.items()}

@@ -46,7 +46,8 @@ def run(args: argparse.Namespace) -> int:
     spec = SweepSpec.create(args.task, args.param or [], seeds=args.seeds, quick=args.quick)
     executor: Any
     if args.ray is not None:
-        from torchhrc.experiments.sweep_ray import RayExecutor, check_reachable, import_ray
+        from torchhrc._ray import check_reachable, import_ray
+        from torchhrc.experiments.sweep_ray import RayExecutor
 
         import_ray()
         if args.ray != "local":  # fail before anything is written

@@ -28,6 +28,7 @@ on a shared, loaded machine the CPU time is what a free core would need.
 Usage::
 
     python benchmarks/bench_mixture.py [--n 100000] [--concentration 0.1] [--threads 2]
+    python benchmarks/bench_mixture.py --shards 16 --total 10000000 --n 1000000  # Ray, Parquet
 """
 
 from __future__ import annotations
@@ -130,7 +131,18 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--skip-baselines", action="store_true", help="time torchhrc only")
+    parser.add_argument("--shards", type=int, default=0,
+                        help="corpus-scale run: --total sequences in this many Parquet shards "
+                        "on a local Ray cluster, against the in-memory fit of --n")  # fmt: skip
+    parser.add_argument("--total", type=int, default=10_000_000)
+    parser.add_argument("--ray-cpus", type=int, default=2)
+    parser.add_argument("--shard-dir", default=None, help="keep/reuse the shards here")
     args = parser.parse_args()
+    if args.shards:
+        import _sharded
+
+        _sharded.run(args, make_data)
+        return
     if args.threads:  # the same number of threads for torch and numpy's BLAS
         torch.set_num_threads(args.threads)
         threadpool_limits(args.threads)

@@ -29,6 +29,7 @@ COMMANDS: tuple[str, ...] = (
     "cluster",
     "solve",
     "reproduce",
+    "sweep",
 )
 
 USER_ERRORS = (

@@ -36,7 +36,7 @@ import torch
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 
-__all__ = ["cluster_report", "read_demonstrations", "register", "run"]
+__all__ = ["cluster_report", "read_demonstrations", "register", "run", "sharded_cluster_report"]
 
 
 def read_demonstrations(path: str) -> Demonstrations:
@@ -68,7 +68,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "chains; Select-Best-Model picks k in [k-min, k-max] by BIC over restarts."
         ),
     )
-    parser.add_argument("demos", metavar="DEMOS", help="demonstrations file (.csv or .json)")
+    parser.add_argument(
+        "demos",
+        metavar="DEMOS",
+        nargs="+",
+        help="demonstrations file (.csv or .json), or a corpus in shards: several files, a "
+        "directory or a glob of .csv/.parquet files with the same columns",
+    )
     parser.add_argument("--k-min", type=int, default=2, help="smallest k (2)")
     parser.add_argument("--k-max", type=int, default=10, help="largest k (10)")
     parser.add_argument("--restarts", type=int, default=20, help="EM runs per k (20)")
@@ -98,6 +104,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="treat the objects of verb_object actions as exchangeable: rename them 1, 2, ... "
         "by first use in each sequence (types become strategies, not placement orders)",
+    )
+    parser.add_argument(
+        "--ray",
+        metavar="local|HOST:PORT",
+        default=None,
+        help="sharded corpus: reduce each shard in a Ray task (a local cluster or a running one)",
     )
     parser.add_argument("--save-model", metavar="PATH", help="save the fitted mixture (.json)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -214,6 +226,88 @@ def cluster_report(
     return report
 
 
+def sharded_cluster_report(
+    corpus: Any,
+    *,
+    k_min: int = 2,
+    k_max: int = 10,
+    restarts: int = 20,
+    method: str = "soft",
+    criterion: str = "bic",
+    seed: int = 0,
+    save_model: str | None = None,
+    ray: str | None = None,
+) -> dict[str, Any]:
+    """:func:`cluster_report` for a :class:`~torchhrc.corpus.ShardedCorpus` (same keys).
+
+    The shards are reduced to their distinct units (as Ray tasks with ``ray``) and merged;
+    the fit equals the in-memory one. ``--loo`` and ``--relabel-objects`` need the corpus in
+    memory and are not offered here.
+    """
+    from torchhrc.metrics import adjusted_rand_index, matched_accuracy
+    from torchhrc.mixture import fit_mixture
+
+    for name, value in (("k_min", k_min), ("k_max", k_max), ("restarts", restarts)):
+        if value < 1:
+            raise ModelError(f"expected {name} >= 1, got {value}")
+    if k_max < k_min:
+        raise ModelError(f"expected k_min <= k_max, got k_min = {k_min} > k_max = {k_max}")
+    unit = "subject" if method == "soft" else "sequence"
+    merged = corpus.statistics(unit=unit, ray=ray, keep_keys=True)
+    fit = fit_mixture(merged, k_min=k_min, k_max=k_max, restarts=restarts,
+                      method=method, criterion=criterion, seed=seed)  # type: ignore[arg-type]
+    if save_model is not None:
+        fit.model.save(save_model)
+    stats = merged.stats
+    assignments = fit.assignments.cpu()
+    A = stats.num_symbols
+    row_cluster = torch.zeros(stats.num_distinct, dtype=torch.long)
+    row_cluster.scatter_(0, stats.inverse, assignments)
+    weighted = stats.counts * stats.multiplicity[:, None]
+    by_cluster = torch.zeros(fit.k, A * A, dtype=weighted.dtype).index_add_(0, row_cluster, weighted)
+    keys = merged.sequence_keys or ()
+    report: dict[str, Any] = {
+        "k": fit.k,
+        "bic": _finite(fit.bic),
+        "icl": _finite(fit.icl),
+        "log_likelihood": _finite(fit.log_likelihood),
+        "method": fit.method,
+        "criterion": fit.criterion,
+        "num_sequences": stats.num_sequences,
+        "num_subjects": len({k.rsplit("/", 1)[0] for k in keys}),
+        "num_symbols": A,
+        "symbols": [f"{a}:{b}" for a, b in merged.vocabulary],
+        "num_shards": len(corpus.paths),
+        "per_k": {
+            str(k): {name: _finite(v) for name, v in sorted(scores.items())}
+            for k, scores in sorted(fit.per_k.items())
+        },
+        "cluster_sizes": torch.bincount(assignments, minlength=fit.k).tolist(),
+        "assignments": dict(zip(keys, assignments.tolist())),
+        "_cluster_counts": by_cluster.view(fit.k, A, A),
+    }
+    if merged.types is not None:
+        report["adjusted_rand_index"] = adjusted_rand_index(merged.types, assignments)
+        report["matched_accuracy"] = matched_accuracy(merged.types, assignments)
+        table: dict[str, list[int]] = {}
+        for label, c in zip(merged.types, assignments.tolist()):
+            table.setdefault(label, [0] * fit.k)[c] += 1
+        report["type_by_cluster"] = dict(sorted(table.items()))
+    return report
+
+
+def _is_sharded(paths: list[str]) -> bool:
+    import glob
+    import os
+
+    return (
+        len(paths) > 1
+        or os.path.isdir(paths[0])
+        or glob.has_magic(paths[0])
+        or paths[0].lower().endswith((".parquet", ".pq"))
+    )
+
+
 def _print_table(report: dict[str, Any], path: str, out: Any) -> None:
     w = out.write
     w(
@@ -276,7 +370,28 @@ def _print_table(report: dict[str, Any], path: str, out: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Cluster ``args.demos`` and print the report; return the exit status."""
-    demos = read_demonstrations(args.demos)
+    paths = list(args.demos)
+    if _is_sharded(paths) or args.ray is not None:
+        from torchhrc.corpus import ShardedCorpus
+
+        for flag, value in (("--loo", args.loo), ("--relabel-objects", args.relabel_objects)):
+            if value:
+                raise ModelError(f"{flag} needs one demonstrations file, not a sharded corpus")
+        if args.ray is not None:
+            from torchhrc._ray import check_reachable, import_ray
+
+            import_ray()
+            if args.ray != "local":
+                check_reachable(args.ray)
+        corpus = ShardedCorpus.open(paths)
+        report = sharded_cluster_report(
+            corpus, k_min=args.k_min, k_max=args.k_max, restarts=args.restarts,
+            method=args.method, criterion=args.criterion, seed=args.seed,
+            save_model=args.save_model, ray=args.ray,
+        )  # fmt: skip
+        _emit(report, " ".join(paths), args.json)
+        return 0
+    demos = read_demonstrations(paths[0])
     report = cluster_report(
         demos,
         k_min=args.k_min,
@@ -290,10 +405,14 @@ def run(args: argparse.Namespace) -> int:
         save_model=args.save_model,
         relabel_objects=args.relabel_objects,
     )
-    if args.json:
+    _emit(report, paths[0], args.json)
+    return 0
+
+
+def _emit(report: dict[str, Any], source: str, as_json: bool) -> None:
+    if as_json:
         public = {k: v for k, v in report.items() if not k.startswith("_")}
         json.dump(public, sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
     else:
-        _print_table(report, args.demos, sys.stdout)
-    return 0
+        _print_table(report, source, sys.stdout)

@@ -115,6 +115,9 @@ class HandFinishingSettings:
             part of the deterministic results).
         motion: how the simulated persons' hands move.
         sim: replay one episode per true type in the SAPIEN scene when SAPIEN is installed.
+        speedup: measure factored vs flat SARSOP (a timing; sweeps turn it off).
+        subjects: demonstrating subjects whose demonstrations are clustered into types (half
+            left-first, half right-first).
         speedup_horizontal: indices of the horizontal positions kept in the instance of the
             factored-vs-flat measurement (``None``: the study's own MOMDP). At the paper's
             size the flat POMDP does not fit in memory (its ``Z`` has ``A * X * Y * X * O``,
@@ -141,6 +144,8 @@ class HandFinishingSettings:
     speedup_work_units: int | None = None
     motion: HandMotion = field(default_factory=HandMotion)
     sim: bool = True
+    speedup: bool = True
+    subjects: int = 6
     seed: int = 0
 
     @classmethod
@@ -379,7 +384,10 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
         feasibility = feasible_box_configurations(settings.geometry, seed=seed)
     tick("hand-finishing", 1, stages)
     # 2. types found by clustering demonstrations of 6 simulated subjects
-    demos = simulate_demonstrations(["left"] * 3 + ["right"] * 3, seed=seed)
+    half = settings.subjects // 2
+    demos = simulate_demonstrations(
+        ["left"] * half + ["right"] * (settings.subjects - half), seed=seed
+    )
     fit = fit_mixture(demos, k_min=1, k_max=4, seed=seed, initial=True)
     robot_sides = cluster_preferences(fit, demos.vocabulary)
     subject_cluster = {}
@@ -436,9 +444,13 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
                 scale=learned.log_scale.exp().reshape(-1, 2),
             )  # fmt: skip
         speed_model = sub.momdp(sub_obs)
-    speed = factored_vs_flat(speed_model, precision=settings.precision,
-                             time_limit=settings.flat_time, flat_time=settings.flat_time,
-                             seed=seed)  # fmt: skip
+    speed = (
+        factored_vs_flat(speed_model, precision=settings.precision,
+                         time_limit=settings.flat_time, flat_time=settings.flat_time,
+                         seed=seed)  # fmt: skip
+        if settings.speedup
+        else {"speedup": None, "note": "not measured (settings.speedup = False)"}
+    )
     tick("hand-finishing", 5, stages)
     # 6. the arm follows one episode's box moves per true type in the physics scene
     sim = (_replay_in_sapien(task, ep, seed=seed) if settings.sim
@@ -472,6 +484,7 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
         "k": fit.k,
         "cluster_sides": list(robot_sides),
         "cluster_accuracy": cluster_accuracy,
+        "subjects": settings.subjects,
         "paper_noise": noise,
         "noise_table": table,
         "episodes": settings.episodes,
@@ -616,7 +629,7 @@ def _report(metrics: dict[str, Any]) -> str:
         f"- MOMDP: {metrics['n_observed']} observed values x {len(metrics['cluster_sides'])} "
         f"types = **{metrics['n_states']} states**; kept box configurations: "
         f"{metrics['reachable_fraction']:.2f} of the grid (reach + comfort).",
-        f"- Types found by clustering 6 simulated subjects: k = {metrics['k']}, cluster "
+        f"- Types found by clustering {metrics.get('subjects', 6)} simulated subjects: k = {metrics['k']}, cluster "
         f"preferences {metrics['cluster_sides']}, subject accuracy "
         f"{metrics['cluster_accuracy']:.2f}.",
         "- Simulated persons: the hand walks from where the person stands "

@@ -96,6 +96,8 @@ class StudySettings:
         subjects: number of simulated subjects (even split safe / efficient).
         demos: demonstrations per subject.
         positions: screw positions.
+        noise: demonstration noise: each subject's per-step deviation rate, one rate for
+            all or a ``(low, high)`` range drawn per subject (the study simulator's ``noise``).
         runs: simulated executions per subject per epsilon.
         epsilons: deviation probabilities.
         k_min, k_max, restarts, mixture_method: Select-Best-Model settings.
@@ -115,6 +117,7 @@ class StudySettings:
     subjects: int = 18
     demos: int = 3
     positions: int = 3
+    noise: float | tuple[float, float] = (0.0, 0.15)
     runs: int = 100
     epsilons: tuple[float, ...] = EPSILONS
     k_min: int = 2
@@ -288,7 +291,8 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
     cpu_start = time.process_time()
     s = settings
     demos = simulate_study(
-        n_subjects=s.subjects, n_demos=s.demos, n_positions=s.positions, seed=s.seed
+        n_subjects=s.subjects, n_demos=s.demos, n_positions=s.positions, noise=s.noise,
+        seed=s.seed,
     )
     expert = load_expert_model()
     task = expert.task

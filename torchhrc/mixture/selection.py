@@ -230,12 +230,16 @@ def fit_mixture(
     initial: bool = False,
     dtype: torch.dtype = torch.float64,
     progress: Callable[[int, int], None] | None = None,
+    ray: bool | str | None = None,
 ) -> MixtureFit:
     """Cluster sequences into human types and choose their number (Select-Best-Model).
 
     Args:
-        data: a :class:`torchhrc.data.Demonstrations`, or a tuple ``(sequences (N, L) int64,
-            lengths (N,) int64, num_symbols)``.
+        data: a :class:`torchhrc.data.Demonstrations`, a tuple ``(sequences (N, L) int64,
+            lengths (N,) int64, num_symbols)``, or a corpus in shards
+            (:class:`torchhrc.corpus.ShardedCorpus`: CSV or Parquet files), whose shards are
+            reduced to their distinct units one by one (or as Ray tasks, ``ray=``) and merged
+            exactly: the same fit as the corpus in memory.
         k_min, k_max: the range of k (``1 <= k_min <= k_max``).
         restarts: EM runs per k (the paper's numOfIterations, 20).
         method: ``"soft"`` (k-means++ + smoothed soft EM, the default) or ``"paper"``
@@ -261,6 +265,8 @@ def fit_mixture(
         initial: also model each cluster's first-symbol distribution.
         dtype: float dtype of the computation (float32 halves time and memory on big data).
         progress: ``progress(iteration, runs_still_running)`` after every EM iteration.
+        ray: with a sharded corpus, reduce each shard in a Ray task: ``True`` or ``"local"``
+            (a local cluster, unless Ray is already initialised) or ``"HOST:PORT"``.
 
     Returns:
         :class:`MixtureFit`.
@@ -274,7 +280,12 @@ def fit_mixture(
         >>> fit_mixture((seqs, torch.full((10,), 4), 2), k_min=1, k_max=2, restarts=2).k
         2
     """
-    sequences, lengths, A, vocabulary = _unpack(data)
+    # a ShardedCorpus (or its merged CorpusStatistics): statistics computed shard by shard
+    sharded = callable(getattr(data, "statistics", None))
+    if not sharded:
+        sequences, lengths, A, vocabulary = _unpack(data)
+    elif ray is not None and not isinstance(ray, (bool, str)):
+        raise TypeError(f"expected ray to be a bool or an address string, got {ray!r}")
     for name, value in (("k_min", k_min), ("k_max", k_max), ("restarts", restarts)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"expected {name} to be a positive int, got {value!r}")
@@ -295,10 +306,15 @@ def fit_mixture(
     if short_iterations < 1:
         raise ValueError(f"expected short_iterations >= 1, got {short_iterations}")
     gen = _generator(seed, generator)
-    groups = _groups(data, unit, method)
-    stats = sufficient_statistics(
-        sequences, lengths, A, initial=initial, groups=groups, dtype=dtype
-    )
+    if sharded:
+        by = unit if unit != "auto" else ("subject" if method == "soft" else "sequence")
+        corpus = data.statistics(unit=by, initial=initial, dtype=dtype, ray=ray)
+        stats, vocabulary, A = corpus.stats, corpus.vocabulary, corpus.stats.num_symbols
+    else:
+        groups = _groups(data, unit, method)
+        stats = sufficient_statistics(
+            sequences, lengths, A, initial=initial, groups=groups, dtype=dtype
+        )
     device = stats.counts.device
     ks = torch.arange(k_min, k_max + 1, device=device)
     run_k = ks.repeat_interleave(restarts)  # (R,): run r = (k index) * restarts + restart

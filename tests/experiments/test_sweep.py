@@ -1,0 +1,201 @@
+"""Sweeps: grid parsing, streaming and resume, executors agree, CLI errors (exit 2)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from torchhrc.cli import main
+from torchhrc.errors import ModelError
+from torchhrc.experiments import sweep as sweep_module
+from torchhrc.experiments.sweep import (
+    LocalExecutor,
+    SerialExecutor,
+    SweepSpec,
+    flatten_scalars,
+    is_timing_column,
+    parse_seeds,
+    read_results,
+    run_sweep,
+)
+
+#: Small place-and-drill jobs (quick study, 2 runs per subject): a second or two each.
+GRID = ["subjects=2,4", "runs=2"]
+
+
+def _untimed(rows: list[dict]) -> list[dict]:
+    return [{k: v for k, v in row.items() if not is_timing_column(k)} for row in rows]
+
+
+def _csv_rows(path: Path) -> list[dict]:
+    with open(path, newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_grid_is_the_product_of_the_values_with_seeds_innermost() -> None:
+    spec = SweepSpec.create("place-and-drill", ["subjects=2,4", "noise=0,0.1"], seeds="3-4")
+    jobs = spec.jobs()
+    assert len(jobs) == 2 * 2 * 2
+    assert [dict(j.params) for j in jobs[:2]] == [{"subjects": 2, "noise": 0.0}] * 2
+    assert [j.seed for j in jobs[:2]] == [3, 4]
+    assert {type(v) for j in jobs for _, v in j.params} == {int, float}
+    assert len({j.key for j in jobs}) == len(jobs)
+
+
+@pytest.mark.parametrize(
+    ("params", "match"),
+    [
+        (["bogus=1"], "no sweep parameter 'bogus'"),
+        (["subjects=2.5"], "of type int"),
+        (["noise=abc"], "of type float"),
+        (["noise=1.5"], r"in \[0.0, 1.0\]"),
+        (["subjects=1"], "in \\[2, None\\]"),
+        (["subjects=2,2"], "repeats a value"),
+        (["subjects=2", "subjects=4"], "given twice"),
+        (["subjects"], "NAME=V1,V2"),
+    ],
+)
+def test_bad_parameters_are_rejected_by_name(params: list[str], match: str) -> None:
+    with pytest.raises(ModelError, match=match):
+        SweepSpec.create("place-and-drill", params)
+
+
+def test_unknown_task_and_bad_seeds() -> None:
+    with pytest.raises(ModelError, match="expected a task"):
+        SweepSpec.create("juggling", [])
+    for bad in ("", "a-b", "4-2", "-1"):
+        with pytest.raises(ModelError, match="seeds"):
+            parse_seeds(bad)
+    assert parse_seeds("0-2,5,1") == (0, 1, 2, 5)
+
+
+def test_flatten_keeps_numbers_only() -> None:
+    flat = flatten_scalars(
+        {"a": 1, "b": {"c": [1.0, 3.0], "d": "x", "e": None, "f": [{"g": 1}]}, "h": True}
+    )
+    assert flat == {"a": 1, "b.c.0": 1.0, "b.c.1": 3.0, "b.c.mean": 2.0, "h": True}
+
+
+def test_serial_and_two_process_sweeps_write_the_same_results(tmp_path: Path) -> None:
+    spec = SweepSpec.create("place-and-drill", GRID, seeds="0-1", quick=True)
+    serial = run_sweep(spec, tmp_path / "serial", executor=SerialExecutor(), summary=False)
+    pooled = run_sweep(spec, tmp_path / "pooled", executor=LocalExecutor(workers=2))
+    assert not serial.failed and not pooled.failed
+    assert len(serial.rows) == 4
+    assert _untimed(serial.rows) == _untimed(pooled.rows)
+    # the CSV holds one row per job, parameters and seed first, timing last
+    rows = _csv_rows(tmp_path / "pooled" / "results.csv")
+    assert len(rows) == 4
+    header = list(rows[0])
+    assert header[:3] == ["subjects", "runs", "seed"] and header[-1] == "wall_s"
+    assert {(r["subjects"], r["seed"]) for r in rows} == {("2", "0"), ("2", "1"), ("4", "0"),
+                                                          ("4", "1")}  # fmt: skip
+    # the summary and one plot per varying headline metric
+    summary = (tmp_path / "pooled" / "summary.md").read_text()
+    assert "## loo_accuracy" in summary and "| 4 | 2 |" in summary
+    assert (tmp_path / "pooled" / "loo_accuracy.png").stat().st_size > 1000
+
+
+def test_resume_after_a_crash_runs_only_the_missing_jobs(tmp_path: Path) -> None:
+    spec = SweepSpec.create("place-and-drill", GRID, seeds="0-1", quick=True)
+    full = run_sweep(spec, tmp_path / "full", executor=SerialExecutor(), summary=False)
+    out = tmp_path / "crashed"
+    out.mkdir()
+    (out / "sweep.json").write_text(json.dumps(spec.to_json()))
+    lines = (tmp_path / "full" / "results.jsonl").read_text().splitlines()
+    # the driver died while writing the third row: two whole rows and a torn line remain
+    (out / "results.jsonl").write_text("\n".join(lines[:2]) + "\n" + lines[2][:25])
+    assert len(read_results(out)) == 2
+    resumed = run_sweep(spec, out, executor=SerialExecutor(), resume=True, summary=False)
+    assert resumed.skipped == 2
+    assert _untimed(resumed.rows) == _untimed(full.rows)
+    assert len(_csv_rows(out / "results.csv")) == 4
+    # a finished sweep resumes to nothing
+    again = run_sweep(spec, out, executor=SerialExecutor(), resume=True, summary=False)
+    assert again.skipped == 4
+
+
+def test_resume_refuses_another_sweep_and_new_sweeps_refuse_a_full_dir(tmp_path: Path) -> None:
+    spec = SweepSpec.create("place-and-drill", ["subjects=2", "runs=2"], quick=True)
+    run_sweep(spec, tmp_path, executor=SerialExecutor(), summary=False)
+    other = SweepSpec.create("place-and-drill", ["subjects=4", "runs=2"], quick=True)
+    with pytest.raises(ModelError, match="another sweep"):
+        run_sweep(other, tmp_path, executor=SerialExecutor(), resume=True)
+    with pytest.raises(ModelError, match="not empty"):
+        run_sweep(spec, tmp_path, executor=SerialExecutor())
+    with pytest.raises(ModelError, match="no sweep.json"):
+        run_sweep(spec, tmp_path / "fresh", executor=SerialExecutor(), resume=True)
+
+
+def test_a_failing_job_is_retried_then_reported(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    calls: list[int] = []
+
+    def flaky(params: dict, seed: int, quick: bool) -> dict:
+        calls.append(seed)
+        if seed == 1 or calls.count(seed) == 1:  # seed 0 fails once, seed 1 always
+            raise RuntimeError(f"boom {seed}")
+        return {"value": float(seed)}
+
+    monkeypatch.setitem(sweep_module._RUNNERS, "place-and-drill", flaky)
+    spec = SweepSpec.create("place-and-drill", [], seeds="0-1")
+    result = run_sweep(spec, tmp_path, executor=SerialExecutor(retries=1))
+    assert calls == [0, 0, 1, 1]
+    assert [r["value"] for r in result.rows] == [0.0]
+    assert list(result.failed) == ["|seed=1"] and "boom 1" in result.failed["|seed=1"]
+    assert "Failed jobs" in (tmp_path / "summary.md").read_text()
+
+
+def test_ray_local_cluster_gives_the_serial_results(tmp_path: Path) -> None:
+    ray = pytest.importorskip("ray", reason="the [ray] extra is not installed")
+    from torchhrc.experiments.sweep_ray import RayExecutor
+
+    spec = SweepSpec.create("place-and-drill", GRID, seeds="0", quick=True)
+    serial = run_sweep(spec, tmp_path / "serial", executor=SerialExecutor(), summary=False)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        on_ray = run_sweep(spec, tmp_path / "ray", executor=RayExecutor(), summary=False)
+        assert ray.is_initialized()  # the executor leaves a cluster it did not start
+    finally:
+        ray.shutdown()
+    assert not on_ray.failed
+    assert _untimed(on_ray.rows) == _untimed(serial.rows)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--param", "bogus=1"], "no sweep parameter 'bogus'"),
+        (["--param", "subjects=two"], "of type int"),
+        (["--seeds", "x"], "seeds"),
+        (["--ray", "127.0.0.1:1"], "cannot reach the Ray cluster"),
+        (["--ray", "nonsense"], "HOST:PORT"),
+    ],
+)
+def test_cli_bad_input_is_one_line_exit_2_and_writes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str], message: str
+) -> None:
+    out = tmp_path / "out"
+    if argv[0] == "--ray":
+        pytest.importorskip("ray", reason="the [ray] extra is not installed")
+    code = main(["sweep", "place-and-drill", "--out", str(out), "--no-progress", *argv])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert message in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_cli_runs_a_small_sweep(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "cli"
+    argv = ["sweep", "place-and-drill", "--param", "subjects=2", "--param", "runs=2",
+            "--quick", "--workers", "1", "--out", str(out), "--no-progress"]  # fmt: skip
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["finished"] == 1 and summary["failed"] == []
+    assert main(argv) == 2  # the directory is not empty now
+    assert main([*argv, "--resume"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["skipped"] == 1

@@ -1,0 +1,518 @@
+"""A demonstration corpus in shards (CSV or Parquet files), for clustering at scale.
+
+A corpus too large for one machine's memory is kept as several files with the columns of the
+demonstrations CSV (``subject,sequence,step,actor,action[,type]``, shared/DESIGN.md): CSV
+files, or Parquet files (the ``[ray]`` extra installs pyarrow). :class:`ShardedCorpus` names
+them (a glob, a directory or a list) and computes what clustering needs shard by shard:
+every EM step of :func:`torchhrc.mixture.fit_mixture` consumes only the distinct units'
+transition counts and their multiplicities (:class:`~torchhrc.mixture.SufficientStatistics`),
+so each shard is reduced to its own distinct rows (a Ray task per shard with ``ray=``, or one
+shard after the other in this process), and the driver merges them exactly: the merged
+statistics equal those of the whole corpus in memory, row for row (distinct rows in the same
+lexicographic order, multiplicities summed), so the fit is the in-memory fit. The driver holds
+the distinct rows (``U <= N``), never the corpus; a worker holds one shard.
+
+Every shard must have the same columns and the same vocabulary (the sorted set of
+``(actor, action)`` symbols), and the sequences of one subject must lie in one shard (a
+subject is one clustering unit by default).
+
+Example:
+    >>> import tempfile, os
+    >>> from torchhrc.tasks.place_and_drill.demos import simulate_study
+    >>> folder = tempfile.mkdtemp()
+    >>> demos = simulate_study(n_subjects=4, n_demos=2, seed=0)
+    >>> demos.select_subjects(["S01", "S02"]).write_csv(os.path.join(folder, "a.csv"))
+    >>> demos.select_subjects(["S03", "S04"]).write_csv(os.path.join(folder, "b.csv"))
+    >>> corpus = ShardedCorpus.open(folder)
+    >>> len(corpus.paths), corpus.statistics().stats.num_sequences
+    (2, 8)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import glob
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from torchhrc.data import CSV_COLUMNS, Demonstrations, Step
+from torchhrc.errors import ModelError, ParseError
+
+__all__ = [
+    "SHARD_SUFFIXES",
+    "CorpusStatistics",
+    "ShardStatistics",
+    "ShardedCorpus",
+    "read_parquet",
+    "read_shard",
+    "shard_statistics",
+    "write_parquet",
+]
+
+#: File suffixes a shard may have (CSV, JSON as :class:`Demonstrations` writes it, Parquet).
+SHARD_SUFFIXES: tuple[str, ...] = (".csv", ".json", ".parquet", ".pq")
+_COLUMNS = (*CSV_COLUMNS, "type")
+
+
+def _pyarrow() -> Any:
+    try:
+        import pyarrow
+        import pyarrow.parquet
+    except ImportError:
+        raise ModelError(
+            "Parquet shards need pyarrow: pip install 'torchhrc[ray]' (or pyarrow)"
+        ) from None
+    return pyarrow
+
+
+def write_parquet(demos: Demonstrations, path: str | os.PathLike[str]) -> None:
+    """Write ``demos`` as a Parquet file with the CSV's columns, atomically.
+
+    One row per step, dictionary-encoded string columns; :func:`read_parquet` reads it back
+    to equal :class:`Demonstrations`.
+
+    Example:
+        >>> import tempfile, os
+        >>> d = Demonstrations.from_lists([[("human", "a"), ("robot", "b")]])
+        >>> p = os.path.join(tempfile.mkdtemp(), "d.parquet")
+        >>> write_parquet(d, p); read_parquet(p) == d
+        True
+    """
+    pa = _pyarrow()
+    from torchhrc.io._atomic import atomic_write_bytes
+
+    mask = demos.mask.cpu().numpy()
+    n_idx, t_idx = np.nonzero(mask)  # row-major: sequences in order, steps 0, 1, ...
+    symbols = demos.sequences.cpu().numpy()[n_idx, t_idx]
+    vocab = demos.vocabulary
+
+    def dictionary(indices: np.ndarray, values: Sequence[str]) -> Any:
+        return pa.DictionaryArray.from_arrays(
+            pa.array(indices, type=pa.int32()), pa.array(list(values), type=pa.string())
+        )
+
+    subjects, subject_code = np.unique(np.asarray(demos.subjects, dtype=object),
+                                       return_inverse=True)  # fmt: skip
+    seq_ids, seq_code = np.unique(np.asarray(demos.sequence_ids, dtype=object),
+                                  return_inverse=True)  # fmt: skip
+    actor_names = sorted({a for a, _ in vocab})
+    action_names = sorted({b for _, b in vocab})
+    actor_of = np.array([actor_names.index(a) for a, _ in vocab], dtype=np.int32)
+    action_of = np.array([action_names.index(b) for _, b in vocab], dtype=np.int32)
+    columns = {
+        "subject": dictionary(subject_code[n_idx], subjects.tolist()),
+        "sequence": dictionary(seq_code[n_idx], seq_ids.tolist()),
+        "step": pa.array(t_idx.astype(np.int64)),
+        "actor": dictionary(actor_of[symbols], actor_names),
+        "action": dictionary(action_of[symbols], action_names),
+    }
+    if demos.types is not None:
+        types, type_code = np.unique(np.asarray(demos.types, dtype=object), return_inverse=True)
+        columns["type"] = dictionary(type_code[n_idx], types.tolist())
+    table = pa.table(columns)
+    sink = pa.BufferOutputStream()
+    pa.parquet.write_table(table, sink)
+    atomic_write_bytes(path, sink.getvalue().to_pybytes())
+
+
+def _codes(column: Any, pa: Any) -> tuple[np.ndarray, list[str]]:
+    """``(codes (R,) int64, values)`` of a string-like Arrow column."""
+    if pa.types.is_dictionary(column.type):
+        column = column.cast(pa.string()) if column.num_chunks != 1 else column
+    encoded = column.cast(pa.string()).dictionary_encode().combine_chunks()
+    return (
+        encoded.indices.to_numpy(zero_copy_only=False).astype(np.int64),
+        [str(v) for v in encoded.dictionary.to_pylist()],
+    )
+
+
+def read_parquet(
+    path: str | os.PathLike[str], *, vocabulary: Sequence[Step] | None = None
+) -> Demonstrations:
+    """Read a Parquet file with the demonstrations CSV's columns (vectorised, no row loop).
+
+    The same rules as :meth:`Demonstrations.read_csv`: rows of a sequence contiguous, steps
+    ``0, 1, ...`` in order, at least 2 steps, actor ``human`` or ``robot``, a constant type
+    within a sequence. A violation raises :class:`ParseError` naming the file, the row
+    (1-based, as ``line``) and the reason.
+    """
+    pa = _pyarrow()
+    name = str(path)
+    try:
+        table = pa.parquet.read_table(name)
+    except FileNotFoundError:
+        raise
+    except Exception as error:  # pyarrow raises its own error types for a bad file
+        raise ParseError(f"not a readable Parquet file ({error})", path=name) from None
+    header = table.column_names
+    unknown = [c for c in header if c not in _COLUMNS]
+    missing = [c for c in CSV_COLUMNS if c not in header]
+    if unknown or missing:
+        what = f"unknown column {unknown[0]!r}" if unknown else f"missing column(s) {missing}"
+        raise ParseError(f"{what} (expected subject,sequence,step,actor,action[,type])",
+                         path=name)  # fmt: skip
+    rows = table.num_rows
+    if rows == 0:
+        raise ParseError("no data rows (expected one row per step)", path=name)
+    for column in header:
+        if table.column(column).null_count:
+            first = int(np.nonzero(table.column(column).is_null().to_numpy(
+                zero_copy_only=False))[0][0])  # fmt: skip
+            raise ParseError(f"empty {column!r} field", path=name, line=first + 1)
+    subj, subj_names = _codes(table.column("subject"), pa)
+    seq, seq_names = _codes(table.column("sequence"), pa)
+    actor, actor_names = _codes(table.column("actor"), pa)
+    action, action_names = _codes(table.column("action"), pa)
+    try:
+        step = table.column("step").cast(pa.int64()).to_numpy(zero_copy_only=False)
+    except Exception:
+        raise ParseError("column 'step' is not integer", path=name) from None
+    bad_actor = [i for i, a in enumerate(actor_names) if a not in ("human", "robot")]
+    if bad_actor:
+        row = int(np.nonzero(actor == bad_actor[0])[0][0])
+        raise ParseError(f"unknown actor {actor_names[bad_actor[0]]!r} (expected one of "
+                         "human, robot)", path=name, line=row + 1)  # fmt: skip
+    pair = subj * len(seq_names) + seq  # (R,) one code per (subject, sequence)
+    start = np.ones(rows, dtype=bool)
+    start[1:] = pair[1:] != pair[:-1]
+    group = np.cumsum(start) - 1  # (R,) sequence index of each row
+    starts = np.nonzero(start)[0]
+    n = len(starts)
+    if len(np.unique(pair)) != n:
+        codes, first = np.unique(pair[starts], return_index=True)
+        counts = np.bincount(np.searchsorted(codes, pair[starts]), minlength=len(codes))
+        again = starts[np.nonzero(counts[np.searchsorted(codes, pair[starts])] > 1)[0][1]]
+        raise ParseError(
+            f"rows of sequence {subj_names[subj[again]]}/{seq_names[seq[again]]} are not "
+            "contiguous", path=name, line=int(again) + 1,
+        )  # fmt: skip
+    position = np.arange(rows) - starts[group]
+    wrong = np.nonzero(step != position)[0]
+    if len(wrong):
+        r = int(wrong[0])
+        raise ParseError(
+            f"step {int(step[r])} of sequence {subj_names[subj[r]]}/{seq_names[seq[r]]} is out "
+            f"of order (expected {int(position[r])}: steps 0, 1, ... in order)",
+            path=name, line=r + 1,
+        )  # fmt: skip
+    lengths = np.bincount(group, minlength=n)
+    short = np.nonzero(lengths < 2)[0]
+    if len(short):
+        r = int(starts[short[0]])
+        raise ParseError(f"sequence {subj_names[subj[r]]}/{seq_names[seq[r]]} has 1 step, "
+                         "expected at least 2", path=name, line=r + 1)  # fmt: skip
+    symbol_pair = actor * len(action_names) + action
+    present = np.unique(symbol_pair)
+    found = [(actor_names[p // len(action_names)], action_names[p % len(action_names)])
+             for p in present]  # fmt: skip
+    vocab = tuple(sorted(found)) if vocabulary is None else tuple(vocabulary)
+    index = {s: i for i, s in enumerate(vocab)}
+    missing_symbols = [s for s in found if s not in index]
+    if missing_symbols:
+        a, b = missing_symbols[0]
+        r = int(np.nonzero(symbol_pair == present[found.index((a, b))])[0][0])
+        raise ParseError(f"symbol {a}:{b} is not in the given vocabulary", path=name,
+                         line=r + 1)  # fmt: skip
+    lookup = np.zeros(len(actor_names) * len(action_names), dtype=np.int64)
+    lookup[present] = [index[s] for s in found]
+    sequences = np.zeros((n, int(lengths.max())), dtype=np.int64)
+    sequences[group, position] = lookup[symbol_pair]
+    types = None
+    if "type" in header:
+        type_code, type_names = _codes(table.column("type"), pa)
+        changed = np.nonzero(type_code != type_code[starts][group])[0]
+        if len(changed):
+            r = int(changed[0])
+            raise ParseError(f"type label changes within sequence {subj_names[subj[r]]}/"
+                             f"{seq_names[seq[r]]}", path=name, line=r + 1)  # fmt: skip
+        types = tuple(np.asarray(type_names, dtype=object)[type_code[starts]].tolist())
+    return Demonstrations(
+        vocabulary=vocab,
+        sequences=torch.from_numpy(sequences),
+        lengths=torch.from_numpy(lengths.astype(np.int64)),
+        subjects=tuple(np.asarray(subj_names, dtype=object)[subj[starts]].tolist()),
+        sequence_ids=tuple(np.asarray(seq_names, dtype=object)[seq[starts]].tolist()),
+        types=types,
+    )
+
+
+def read_shard(path: str | os.PathLike[str]) -> Demonstrations:
+    """Read one shard by its suffix: ``.parquet``/``.pq``, ``.json`` or CSV."""
+    suffix = Path(path).suffix.lower()
+    if suffix in (".parquet", ".pq"):
+        return read_parquet(path)
+    if suffix == ".json":
+        return Demonstrations.read_json(path)
+    return Demonstrations.read_csv(path)
+
+
+@dataclass(frozen=True)
+class ShardStatistics:
+    """One shard reduced to its distinct units (what a Ray task returns to the driver).
+
+    Attributes:
+        path: the shard.
+        vocabulary: its sorted ``(actor, action)`` symbols.
+        columns: its columns with ``type`` or not (``True`` when it has the column).
+        keys: ``(U_s, F)`` int64 distinct unit rows: transition counts ``A * A`` (and first
+            symbols ``A`` when modelled), lexicographically sorted.
+        multiplicity: ``(U_s,)`` int64 units per distinct row.
+        inverse: ``(N_s,)`` int64 distinct row of each sequence.
+        num_units: units of the shard (sequences, or subjects).
+        subjects: the shard's distinct subject ids (to check that shards do not share one).
+        sequence_keys: ``"subject/sequence"`` of each sequence, or None when not asked.
+        types: ground-truth label of each sequence, or None.
+    """
+
+    path: str
+    vocabulary: tuple[Step, ...]
+    has_types: bool
+    keys: torch.Tensor
+    multiplicity: torch.Tensor
+    inverse: torch.Tensor
+    num_units: int
+    subjects: tuple[str, ...]
+    sequence_keys: tuple[str, ...] | None
+    types: tuple[str, ...] | None
+
+
+def shard_statistics(
+    path: str, *, by_subject: bool, initial: bool, keep_keys: bool = False
+) -> ShardStatistics:
+    """Read one shard and reduce it to its distinct unit rows (runs in a worker).
+
+    Args:
+        path: the shard file.
+        by_subject: one unit per subject (a subject's counts added) or per sequence.
+        initial: keep first-symbol counts.
+        keep_keys: also return each sequence's ``"subject/sequence"`` key and type.
+    """
+    from torchhrc.mixture.counts import _unique_rows, transition_counts
+
+    demos = read_shard(path)
+    A = demos.num_symbols
+    N = demos.num_sequences
+    counts = transition_counts(demos.sequences, demos.lengths, A).view(N, A * A)
+    key = counts
+    if initial:
+        key = torch.cat([counts, torch.nn.functional.one_hot(demos.sequences[:, 0], A)], -1)
+    unit_of = torch.arange(N)
+    if by_subject:
+        _, unit_of = np.unique(np.asarray(demos.subjects, dtype=object), return_inverse=True)
+        unit_of = torch.from_numpy(unit_of.astype(np.int64).reshape(-1))
+        key = key.new_zeros(int(unit_of.max()) + 1, key.shape[-1]).index_add_(0, unit_of, key)
+    uniq, row_of_unit, mult = _unique_rows(key)
+    return ShardStatistics(
+        path=str(path),
+        vocabulary=demos.vocabulary,
+        has_types=demos.types is not None,
+        keys=uniq,
+        multiplicity=mult,
+        inverse=row_of_unit[unit_of],
+        num_units=key.shape[0],
+        subjects=tuple(sorted(set(demos.subjects))),
+        sequence_keys=demos.keys if keep_keys else None,
+        types=demos.types if keep_keys else None,
+    )
+
+
+@dataclass(frozen=True)
+class CorpusStatistics:
+    """The merged statistics of a corpus.
+
+    Attributes:
+        stats: :class:`~torchhrc.mixture.SufficientStatistics` of the whole corpus (equal to
+            the in-memory ones), sequences in shard order.
+        vocabulary: the shards' common vocabulary.
+        sequence_keys: ``"subject/sequence"`` of every sequence, or None.
+        types: ground-truth labels of every sequence (None unless every shard has them).
+        unit, initial: the options they were computed with.
+    """
+
+    stats: Any
+    vocabulary: tuple[Step, ...]
+    sequence_keys: tuple[str, ...] | None
+    types: tuple[str, ...] | None
+    unit: str = "subject"
+    initial: bool = False
+
+    def statistics(
+        self,
+        *,
+        unit: str = "subject",
+        initial: bool = False,
+        dtype: torch.dtype = torch.float64,
+        ray: bool | str | None = None,
+        keep_keys: bool = False,
+    ) -> CorpusStatistics:
+        """These statistics again (so :func:`~torchhrc.mixture.fit_mixture` takes them as
+        data); raise :class:`ModelError` when they were computed with other options."""
+        del ray, keep_keys  # already computed
+        if (unit, bool(initial)) != (self.unit, self.initial):
+            raise ModelError(
+                f"these statistics were computed with unit={self.unit!r}, initial="
+                f"{self.initial}; the fit asks for unit={unit!r}, initial={bool(initial)}"
+            )
+        return dataclasses.replace(self, stats=dataclasses.replace(
+            self.stats, counts=self.stats.counts.to(dtype),
+            multiplicity=self.stats.multiplicity.to(dtype),
+            first_counts=None if self.stats.first_counts is None
+            else self.stats.first_counts.to(dtype),
+        ))  # fmt: skip
+
+
+class ShardedCorpus:
+    """Demonstration shards on disk (see the module docstring).
+
+    Args:
+        paths: the shard files, in order.
+
+    Raises:
+        ModelError: no shard, or a file with an unknown suffix.
+    """
+
+    def __init__(self, paths: Sequence[str | os.PathLike[str]]) -> None:
+        files = tuple(str(p) for p in paths)
+        if not files:
+            raise ModelError("expected at least one shard, got none")
+        for p in files:
+            if Path(p).suffix.lower() not in SHARD_SUFFIXES:
+                raise ModelError(
+                    f"shard {p} has an unknown suffix (expected one of {SHARD_SUFFIXES})"
+                )
+        self.paths = files
+
+    def __repr__(self) -> str:
+        return f"ShardedCorpus({len(self.paths)} shards, first {self.paths[0]!r})"
+
+    @classmethod
+    def open(
+        cls, source: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]
+    ) -> ShardedCorpus:
+        """Shards from a directory (its shard files, sorted), a glob pattern, or a list.
+
+        Raises:
+            FileNotFoundError: the directory or pattern names no shard.
+        """
+        if isinstance(source, (list, tuple)):
+            paths: list[str] = []
+            for item in source:
+                paths.extend(cls.open(item).paths)
+            return cls(paths)
+        text = str(source)
+        if os.path.isdir(text):
+            found = sorted(
+                str(p) for p in Path(text).iterdir()
+                if p.is_file() and p.suffix.lower() in SHARD_SUFFIXES
+            )  # fmt: skip
+            if not found:
+                raise FileNotFoundError(2, "no .csv/.json/.parquet shard in directory", text)
+            return cls(found)
+        if glob.has_magic(text):
+            found = sorted(glob.glob(text))
+            if not found:
+                raise FileNotFoundError(2, "no file matches the pattern", text)
+            return cls(found)
+        if not os.path.exists(text):
+            raise FileNotFoundError(2, "No such file or directory", text)
+        return cls([text])
+
+    def statistics(
+        self,
+        *,
+        unit: str = "subject",
+        initial: bool = False,
+        dtype: torch.dtype = torch.float64,
+        ray: bool | str | None = None,
+        keep_keys: bool = False,
+    ) -> CorpusStatistics:
+        """Reduce every shard to its distinct units and merge them exactly.
+
+        Args:
+            unit: ``"subject"`` (a subject's sequences share a type) or ``"sequence"``.
+            initial: keep first-symbol counts.
+            dtype: float dtype of the merged counts.
+            ray: run each shard as a Ray task: ``True``/``"local"`` (a local cluster unless
+                Ray is already initialised) or ``"HOST:PORT"``; ``None``: one shard after the
+                other in this process.
+            keep_keys: also collect each sequence's key and type (for reports).
+
+        Raises:
+            ModelError: shards with different columns or vocabularies, or a subject in two
+                shards (with ``unit="subject"``).
+        """
+        from torchhrc.mixture.counts import SufficientStatistics, _unique_rows
+
+        if unit not in ("subject", "sequence"):
+            raise ValueError(f"expected unit 'subject' or 'sequence', got {unit!r}")
+        options = dict(by_subject=unit == "subject", initial=initial, keep_keys=keep_keys)
+        shards = self._run(options, ray)
+        first = shards[0]
+        for s in shards[1:]:
+            if s.vocabulary != first.vocabulary:
+                extra = sorted(set(s.vocabulary) ^ set(first.vocabulary))
+                raise ModelError(
+                    f"shard {s.path} has another vocabulary than {first.path} "
+                    f"(symbols in one only: {', '.join(f'{a}:{b}' for a, b in extra[:5])})"
+                )
+            if s.has_types != first.has_types:
+                raise ModelError(
+                    f"shard {s.path} has other columns than {first.path} (the 'type' column is "
+                    f"{'present' if s.has_types else 'missing'})"
+                )
+        if unit == "subject":
+            owner: dict[str, str] = {}
+            for s in shards:
+                for subject in s.subjects:
+                    if subject in owner:
+                        raise ModelError(
+                            f"subject {subject} has sequences in two shards ({owner[subject]} "
+                            f"and {s.path}); keep a subject's sequences in one shard, or "
+                            "cluster with unit='sequence'"
+                        )
+                    owner[subject] = s.path
+        keys = torch.cat([s.keys for s in shards])
+        mult = torch.cat([s.multiplicity for s in shards])
+        uniq, merged_row, _ = _unique_rows(keys)
+        multiplicity = torch.zeros(uniq.shape[0], dtype=torch.long).index_add_(0, merged_row, mult)
+        offsets = np.cumsum([0] + [s.keys.shape[0] for s in shards])
+        inverse = torch.cat([merged_row[int(o) + s.inverse] for o, s in
+                             zip(offsets[:-1], shards, strict=True)])  # fmt: skip
+        A = len(first.vocabulary)
+        stats = SufficientStatistics(
+            counts=uniq[:, : A * A].to(dtype),
+            first_counts=uniq[:, A * A :].to(dtype) if initial else None,
+            multiplicity=multiplicity.to(dtype),
+            inverse=inverse,
+            num_units=sum(s.num_units for s in shards),
+            num_symbols=A,
+        )
+        sequence_keys = types = None
+        if keep_keys:
+            sequence_keys = tuple(k for s in shards for k in (s.sequence_keys or ()))
+            if first.has_types:
+                types = tuple(t for s in shards for t in (s.types or ()))
+        return CorpusStatistics(stats, first.vocabulary, sequence_keys, types, unit, initial)
+
+    def _run(self, options: dict[str, Any], ray: bool | str | None) -> list[ShardStatistics]:
+        if ray is None or ray is False:
+            return [shard_statistics(p, **options) for p in self.paths]
+        from torchhrc._ray import import_ray, init_ray
+
+        ray_module = import_ray()
+        started = init_ray("local" if ray is True else str(ray))
+        try:
+            task = ray_module.remote(num_cpus=1, max_retries=2)(shard_statistics)
+            return ray_module.get([task.remote(p, **options) for p in self.paths])
+        except Exception as error:  # a shard task failed after its retries
+            cause = getattr(error, "cause", None)
+            raise (cause if isinstance(cause, Exception) else error) from None
+        finally:
+            if started:
+                ray_module.shutdown()

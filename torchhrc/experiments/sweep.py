@@ -1,0 +1,740 @@
+"""Parameter sweeps of the reproductions: every grid cell x every seed, locally or on Ray.
+
+A sweep runs one reproduction (``place-and-drill`` or ``hand-finishing``) for every cell of
+a grid (the product of the swept parameters' values) and every seed. Each (cell, seed) is one
+independent job: it builds the study's settings, runs the study in memory, and returns one
+row (the parameters, the seed, every scalar of the study's ``metrics.json`` flattened to
+``a.b.0`` keys, and the job's wall time). Jobs run on an :class:`Executor`: in this process
+(``workers=1``), in local worker processes (one per core), or as Ray tasks
+(:mod:`torchhrc.experiments.sweep_ray`).
+
+Files in the output directory (nothing is lost when the driver dies)::
+
+    sweep.json       the sweep's specification (task, grid, seeds, quick); --resume checks it
+    results.jsonl    one JSON row per finished job, appended and fsynced as each finishes
+    results.csv      the same rows as CSV, rewritten atomically after each job
+    summary.md       mean and 95% CI over seeds of each metric per cell, at the end
+    <metric>.png     a plot per metric: metric against each swept parameter
+
+A job's result depends only on the task, the cell, the seed and ``quick``: each job runs with
+one intra-op thread and a fresh generator from its seed, so results are the same whatever the
+executor and the number of workers (the timing columns aside, see :data:`TIMING_COLUMNS`).
+
+Example:
+    >>> spec = SweepSpec.create("place-and-drill", ["noise=0,0.1"], seeds="0-1", quick=True)
+    >>> [(dict(c.params)["noise"], c.seed) for c in spec.jobs()]
+    [(0.0, 0), (0.0, 1), (0.1, 0), (0.1, 1)]
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import itertools
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+from torchhrc.errors import ModelError
+
+__all__ = [
+    "PARAMETERS",
+    "TIMING_COLUMNS",
+    "Executor",
+    "Job",
+    "LocalExecutor",
+    "SerialExecutor",
+    "SweepParameter",
+    "SweepResult",
+    "SweepSpec",
+    "flatten_scalars",
+    "parse_seeds",
+    "run_job",
+    "run_sweep",
+    "write_summary",
+]
+
+
+@dataclass(frozen=True)
+class SweepParameter:
+    """A parameter a sweep may vary.
+
+    Attributes:
+        kind: ``int`` or ``float``: the type its values are parsed as.
+        low, high: inclusive range of valid values (``None``: unbounded).
+        help: what it sets in the study.
+    """
+
+    kind: type
+    low: float | None
+    high: float | None
+    help: str
+
+    def parse(self, name: str, text: str) -> int | float:
+        """Parse one value; raise :class:`ModelError` naming ``name`` when it is invalid."""
+        try:
+            value: int | float = self.kind(text)
+        except ValueError:
+            raise ModelError(
+                f"expected --param {name} values of type {self.kind.__name__}, got {text!r}"
+            ) from None
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ModelError(f"expected a finite --param {name} value, got {text!r}")
+        if (self.low is not None and value < self.low) or (
+            self.high is not None and value > self.high
+        ):
+            raise ModelError(
+                f"expected --param {name} values in [{self.low}, {self.high}], got {value}"
+            )
+        return value
+
+
+#: Task -> parameter name -> :class:`SweepParameter`: the names ``--param`` accepts.
+PARAMETERS: dict[str, dict[str, SweepParameter]] = {
+    "place-and-drill": {
+        "subjects": SweepParameter(int, 2, None, "simulated subjects (half per type)"),
+        "noise": SweepParameter(
+            float, 0.0, 1.0, "demonstration noise: per-step deviation rate of every subject"
+        ),
+        "runs": SweepParameter(int, 1, None, "simulated executions per subject and epsilon"),
+        "demos": SweepParameter(int, 1, None, "demonstrations per subject"),
+    },
+    "hand-finishing": {
+        "noise": SweepParameter(float, 0.001, 2.0, "hand-position noise (m, per axis)"),
+        "subjects": SweepParameter(int, 2, None, "demonstrating subjects (half per side)"),
+        "episodes": SweepParameter(int, 2, None, "closed-loop episodes (half per type)"),
+    },
+}
+
+#: Columns that measure time: they differ between runs of the same job.
+TIMING_COLUMNS: tuple[str, ...] = ("wall_s",)
+_TIMING_MARKERS = ("time", "speedup", "seconds", "wall")
+
+
+def is_timing_column(name: str) -> bool:
+    """True for a column that measures time (excluded when comparing results)."""
+    return name in TIMING_COLUMNS or any(m in name for m in _TIMING_MARKERS)
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """Parse ``"0-4"``, ``"3"`` or ``"0,2,5"`` (ranges and lists mixed) into sorted seeds.
+
+    Example:
+        >>> parse_seeds("0-2,5")
+        (0, 1, 2, 5)
+    """
+    seeds: set[int] = set()
+    for part in str(text).split(","):
+        part = part.strip()
+        try:
+            if "-" in part[1:]:
+                lo, hi = part.split("-", 1) if not part.startswith("-") else (part, "")
+                a, b = int(lo), int(hi)
+                if b < a:
+                    raise ValueError
+                seeds.update(range(a, b + 1))
+            else:
+                seeds.add(int(part))
+        except ValueError:
+            raise ModelError(
+                f"expected --seeds as 'A-B' or 'A,B,...' of non-negative integers, got {text!r}"
+            ) from None
+    if not seeds or min(seeds) < 0:
+        raise ModelError(f"expected non-negative --seeds, got {text!r}")
+    return tuple(sorted(seeds))
+
+
+@dataclass(frozen=True)
+class Job:
+    """One grid cell and one seed.
+
+    Attributes:
+        params: ``((name, value), ...)`` in the sweep's parameter order.
+        seed: the seed of the job's study.
+    """
+
+    params: tuple[tuple[str, int | float], ...]
+    seed: int
+
+    @property
+    def key(self) -> str:
+        """A stable identifier, e.g. ``"noise=0.1,subjects=6|seed=2"``."""
+        cell = ",".join(f"{k}={v!r}" for k, v in self.params)
+        return f"{cell}|seed={self.seed}"
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """What a sweep runs: task, grid and seeds (see :meth:`create`).
+
+    Attributes:
+        task: ``"place-and-drill"`` or ``"hand-finishing"``.
+        grid: ``((name, (v1, v2, ...)), ...)``, each name once.
+        seeds: the seeds of every cell.
+        quick: run each job's ``--quick`` version of the study.
+    """
+
+    task: str
+    grid: tuple[tuple[str, tuple[int | float, ...]], ...]
+    seeds: tuple[int, ...]
+    quick: bool = False
+
+    @classmethod
+    def create(
+        cls,
+        task: str,
+        params: Sequence[str],
+        *,
+        seeds: str | Sequence[int] = "0",
+        quick: bool = False,
+    ) -> SweepSpec:
+        """Parse ``--param NAME=V1,V2`` strings; raise :class:`ModelError` on bad input.
+
+        Args:
+            task: a key of :data:`PARAMETERS`.
+            params: ``"NAME=V1,V2,..."`` strings (no parameter: one cell, the defaults).
+            seeds: ``"0-4"``-style text or a sequence of seeds.
+            quick: run the quick version of each study.
+        """
+        if task not in PARAMETERS:
+            raise ModelError(f"expected a task in {sorted(PARAMETERS)}, got {task!r}")
+        known = PARAMETERS[task]
+        grid: list[tuple[str, tuple[int | float, ...]]] = []
+        for text in params:
+            name, sep, values = str(text).partition("=")
+            name = name.strip()
+            if not sep or not values.strip():
+                raise ModelError(f"expected --param NAME=V1,V2,..., got {text!r}")
+            if name not in known:
+                raise ModelError(
+                    f"task {task} has no sweep parameter {name!r} "
+                    f"(parameters: {', '.join(sorted(known))})"
+                )
+            if any(name == g for g, _ in grid):
+                raise ModelError(f"--param {name} given twice")
+            parsed = tuple(known[name].parse(name, v.strip()) for v in values.split(","))
+            if len(set(parsed)) != len(parsed):
+                raise ModelError(f"--param {name} repeats a value: {values!r}")
+            grid.append((name, parsed))
+        seed_tuple = (
+            parse_seeds(seeds) if isinstance(seeds, str) else tuple(sorted({int(s) for s in seeds}))
+        )
+        if not seed_tuple or min(seed_tuple) < 0:
+            raise ModelError(f"expected non-negative seeds, got {seeds!r}")
+        return cls(task=task, grid=tuple(grid), seeds=seed_tuple, quick=bool(quick))
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return tuple(name for name, _ in self.grid)
+
+    def jobs(self) -> list[Job]:
+        """Every (cell, seed), cells in grid order, seeds innermost."""
+        names = self.parameter_names
+        values = [v for _, v in self.grid]
+        return [
+            Job(tuple(zip(names, cell, strict=True)), seed)
+            for cell in itertools.product(*values)
+            for seed in self.seeds
+        ]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "task": self.task,
+            "grid": {name: list(values) for name, values in self.grid},
+            "seeds": list(self.seeds),
+            "quick": self.quick,
+        }
+
+
+def flatten_scalars(data: Mapping[str, Any], prefix: str = "") -> dict[str, float | int | bool]:
+    """Every number of a nested ``metrics.json``-like mapping, keyed ``a.b`` / ``a.b.0``.
+
+    Dicts are walked, lists of numbers are indexed and averaged (``.mean``); strings, ``None``
+    and lists of records (e.g. per-fold tables) are left out: a sweep aggregates numbers.
+
+    Example:
+        >>> flatten_scalars({"k": 2, "reward": {"learned": [1.0, 2.5]}, "name": "x"})
+        {'k': 2, 'reward.learned.0': 1.0, 'reward.learned.1': 2.5, 'reward.learned.mean': 1.75}
+    """
+    out: dict[str, float | int | bool] = {}
+    for key, value in data.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(flatten_scalars(value, prefix=f"{name}."))
+        elif isinstance(value, (list, tuple)):
+            if value and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
+            ):
+                out.update({f"{name}.{i}": v for i, v in enumerate(value)})
+                out[f"{name}.mean"] = sum(value) / len(value)
+        elif isinstance(value, (int, float)) and value is not None:
+            if isinstance(value, float) and not math.isfinite(value):
+                continue
+            out[name] = value
+    return out
+
+
+def _place_and_drill_metrics(params: Mapping[str, Any], seed: int, quick: bool) -> dict[str, Any]:
+    from torchhrc.experiments.place_and_drill import StudySettings, metrics_from_study, run_study
+
+    settings = StudySettings.quick(seed=seed) if quick else StudySettings(seed=seed)
+    settings = dataclasses.replace(settings, **dict(params))
+    return metrics_from_study(run_study(settings))
+
+
+def _hand_finishing_metrics(params: Mapping[str, Any], seed: int, quick: bool) -> dict[str, Any]:
+    from torchhrc.experiments.hand_finishing import HandFinishingSettings, run_study
+
+    settings = HandFinishingSettings.create(quick=quick, seed=seed)
+    changes: dict[str, Any] = {"sim": False, "speedup": False}
+    if "noise" in params:
+        changes["paper_noise"] = float(params["noise"])
+        changes["noise_levels"] = (float(params["noise"]),)
+    if "subjects" in params:
+        changes["subjects"] = int(params["subjects"])
+    if "episodes" in params:
+        changes["episodes"] = int(params["episodes"])
+    settings = dataclasses.replace(settings, **changes)
+    return run_study(settings)["metrics"]
+
+
+_RUNNERS: dict[str, Callable[[Mapping[str, Any], int, bool], dict[str, Any]]] = {
+    "place-and-drill": _place_and_drill_metrics,
+    "hand-finishing": _hand_finishing_metrics,
+}
+
+
+def run_job(task: str, params: tuple[tuple[str, Any], ...], seed: int, quick: bool) -> dict:
+    """Run one (cell, seed) of a sweep in this process; return its result row.
+
+    The row holds the parameters, ``seed``, every scalar of the study's metrics
+    (:func:`flatten_scalars`) and ``wall_s``. One intra-op thread, so that the result does not
+    depend on the machine's core count.
+
+    Example:
+        >>> row = run_job("place-and-drill", (("subjects", 2), ("runs", 2)), 0, True)
+        >>> row["subjects"], row["seed"], 0.0 <= row["loo_accuracy"] <= 1.0
+        (2, 0, True)
+    """
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    start = time.perf_counter()
+    try:
+        metrics = _RUNNERS[task](dict(params), seed, quick)
+    finally:
+        torch.set_num_threads(threads)
+    scalars = flatten_scalars(metrics)
+    row: dict[str, Any] = {name: value for name, value in params}
+    row["seed"] = seed
+    for key, value in scalars.items():
+        if key not in row:
+            row[key] = value
+    row["wall_s"] = round(time.perf_counter() - start, 3)
+    return row
+
+
+# --- executors -----------------------------------------------------------------------------
+
+
+class Executor(Protocol):
+    """Runs jobs and yields ``(job, row or exception)`` as each finishes (any order)."""
+
+    def run(self, spec: SweepSpec, jobs: Sequence[Job]) -> Iterator[tuple[Job, Any]]: ...
+
+
+@dataclass(frozen=True)
+class SerialExecutor:
+    """Runs the jobs one after the other in this process (tests, debugging).
+
+    Attributes:
+        retries: extra tries of a job that raised.
+    """
+
+    retries: int = 0
+
+    def run(self, spec: SweepSpec, jobs: Sequence[Job]) -> Iterator[tuple[Job, Any]]:
+        for job in jobs:
+            result: Any = None
+            for _ in range(self.retries + 1):
+                try:
+                    result = run_job(spec.task, job.params, job.seed, spec.quick)
+                    break
+                except Exception as error:  # a job's failure is reported, not fatal
+                    result = error
+            yield job, result
+
+
+@dataclass(frozen=True)
+class LocalExecutor:
+    """Runs the jobs in local worker processes (``spawn``), one per core by default.
+
+    Attributes:
+        workers: worker processes (``None``: ``os.cpu_count()``).
+        retries: extra tries of a job that raised or whose worker died.
+    """
+
+    workers: int | None = None
+    retries: int = 2
+
+    def run(self, spec: SweepSpec, jobs: Sequence[Job]) -> Iterator[tuple[Job, Any]]:
+        import multiprocessing
+        from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+        workers = self.workers or os.cpu_count() or 1
+        context = multiprocessing.get_context("spawn")
+        tries = dict.fromkeys(jobs, 0)
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
+        try:
+            pending = {
+                pool.submit(run_job, spec.task, j.params, j.seed, spec.quick): j for j in jobs
+            }
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in done:
+                    job = pending.pop(future)
+                    try:
+                        result: Any = future.result()
+                    except Exception as error:
+                        tries[job] += 1
+                        if tries[job] <= self.retries:
+                            if "BrokenProcessPool" in type(error).__name__:
+                                pool.shutdown(wait=False, cancel_futures=True)
+                                pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
+                                resubmit = [*pending.values(), job]
+                                pending = {
+                                    pool.submit(
+                                        run_job, spec.task, j.params, j.seed, spec.quick
+                                    ): j
+                                    for j in resubmit
+                                }
+                                break
+                            again = pool.submit(run_job, spec.task, job.params, job.seed,
+                                                spec.quick)  # fmt: skip
+                            pending[again] = job
+                            continue
+                        result = error
+                    yield job, result
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+# --- results files --------------------------------------------------------------------------
+
+
+def _columns(rows: Iterable[Mapping[str, Any]], first: Sequence[str]) -> list[str]:
+    columns = list(first)
+    seen = set(columns)
+    for row in rows:
+        for key in row:
+            if key not in seen:
+                seen.add(key)
+                columns.append(key)
+    if "wall_s" in seen:  # the timing column last
+        columns.remove("wall_s")
+        columns.append("wall_s")
+    return columns
+
+
+def _csv_text(rows: Sequence[Mapping[str, Any]], first: Sequence[str]) -> str:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=_columns(rows, first), lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow(row)
+    return buffer.getvalue()
+
+
+def read_results(out_dir: str | os.PathLike[str]) -> list[dict[str, Any]]:
+    """The finished rows of a sweep directory (a torn last line, from a crash, is skipped)."""
+    path = Path(out_dir) / "results.jsonl"
+    if not path.exists():
+        return []
+    rows = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # a line torn by a crash mid-write: its job runs again
+        if isinstance(row, dict) and "_key" in row:
+            rows.append(row)
+    return rows
+
+
+@dataclass(frozen=True)
+class SweepResult:
+    """What :func:`run_sweep` did.
+
+    Attributes:
+        out_dir: the sweep directory.
+        rows: every finished row (earlier runs' included when resuming), in job order.
+        skipped: jobs already finished by an earlier run (``resume``).
+        failed: ``{job key: error message}`` of jobs that failed after their retries.
+    """
+
+    out_dir: Path
+    rows: list[dict[str, Any]]
+    skipped: int
+    failed: dict[str, str]
+
+
+def _prepare(out_dir: Path, spec: SweepSpec, resume: bool) -> None:
+    spec_path = out_dir / "sweep.json"
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ModelError(f"--out {out_dir} exists and is not a directory")
+    if resume:
+        if not spec_path.exists():
+            raise ModelError(f"--resume: {out_dir} holds no sweep (no sweep.json)")
+        earlier = json.loads(spec_path.read_text(encoding="utf-8"))
+        if earlier != spec.to_json():
+            raise ModelError(
+                f"--resume: {spec_path} describes another sweep ({json.dumps(earlier)}); "
+                "resume with the same task, --param, --seeds and --quick"
+            )
+        return
+    if out_dir.exists() and any(out_dir.iterdir()):
+        raise ModelError(f"--out {out_dir} is not empty (use --resume to continue a sweep)")
+    from torchhrc.experiments.report import write_json_atomic
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(spec_path, spec.to_json())
+
+
+def run_sweep(
+    spec: SweepSpec,
+    out_dir: str | os.PathLike[str],
+    *,
+    executor: Executor | None = None,
+    resume: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+    summary: bool = True,
+) -> SweepResult:
+    """Run every job of ``spec`` not yet finished in ``out_dir``; stream rows to its files.
+
+    Args:
+        spec: the sweep.
+        out_dir: the sweep directory; must be empty or absent unless ``resume``.
+        executor: where jobs run (default: :class:`LocalExecutor`, one process per core).
+        resume: skip the jobs that ``results.jsonl`` already holds; ``sweep.json`` must
+            describe the same sweep.
+        progress: ``progress(done, total)`` after each finished job.
+        summary: write ``summary.md`` and the plots at the end.
+
+    Returns:
+        A :class:`SweepResult`.
+
+    Raises:
+        ModelError: a non-empty ``out_dir`` without ``resume``, or a resume of another sweep.
+
+    Example:
+        >>> import tempfile
+        >>> spec = SweepSpec.create("place-and-drill", ["subjects=2"], seeds="0", quick=True)
+        >>> out = tempfile.mkdtemp()
+        >>> result = run_sweep(spec, out, executor=SerialExecutor(), summary=False)
+        >>> len(result.rows), result.failed
+        (1, {})
+    """
+    from torchhrc.experiments.report import write_text_atomic
+
+    path = Path(out_dir)
+    _prepare(path, spec, resume)
+    jobs = spec.jobs()
+    earlier: dict[str, dict[str, Any]] = {}
+    if resume:
+        earlier = {row["_key"]: row for row in read_results(path)}
+        # drop a line torn by a crash before appending after it
+        text = "".join(json.dumps(row) + "\n" for row in earlier.values())
+        write_text_atomic(path / "results.jsonl", text)
+    todo = [job for job in jobs if job.key not in earlier]
+    rows_by_key = dict(earlier)
+    first = [*spec.parameter_names, "seed"]
+    failed: dict[str, str] = {}
+    done = len(jobs) - len(todo)
+    if progress is not None:
+        progress(done, len(jobs))
+    executor = executor or LocalExecutor()
+    order = {job.key: i for i, job in enumerate(jobs)}
+
+    def ordered() -> list[dict[str, Any]]:
+        rows = sorted(rows_by_key.values(), key=lambda r: order.get(r["_key"], len(order)))
+        return [{k: v for k, v in r.items() if k != "_key"} for r in rows]
+
+    with open(path / "results.jsonl", "a", encoding="utf-8") as log:
+        for job, result in executor.run(spec, todo):
+            done += 1
+            if isinstance(result, BaseException):
+                failed[job.key] = f"{type(result).__name__}: {result}"
+            else:
+                row = {"_key": job.key, **result}
+                log.write(json.dumps(row) + "\n")
+                log.flush()
+                os.fsync(log.fileno())
+                rows_by_key[job.key] = row
+                write_text_atomic(path / "results.csv", _csv_text(ordered(), first))
+            if progress is not None:
+                progress(done, len(jobs))
+    rows = ordered()
+    if rows:
+        write_text_atomic(path / "results.csv", _csv_text(rows, first))
+    if summary and rows:
+        write_summary(path, spec, rows, failed=failed)
+    return SweepResult(out_dir=path, rows=rows, skipped=len(earlier), failed=failed)
+
+
+# --- summary --------------------------------------------------------------------------------
+
+
+def _is_summary_metric(name: str) -> bool:
+    """Headline columns: not a list element (``a.3``, its ``a.mean`` is kept), not a CI."""
+    last = name.rsplit(".", 1)[-1]
+    return not last.isdigit() and "ci95" not in name
+
+
+def _metric_columns(rows: Sequence[Mapping[str, Any]], spec: SweepSpec) -> list[str]:
+    skip = {*spec.parameter_names, "seed"}
+    columns = [
+        c for c in _columns(rows, [])
+        if c not in skip and not is_timing_column(c) and _is_summary_metric(c)
+    ]  # fmt: skip
+    varying = []
+    for c in columns:
+        values = {row.get(c) for row in rows}
+        if len(values) > 1 or len(spec.grid) == 0:
+            varying.append(c)
+    return varying
+
+
+def _mean_ci(values: Sequence[float]) -> tuple[float, float]:
+    import torch
+
+    from torchhrc.experiments.robustness import mean_ci95
+
+    mean, half = mean_ci95(torch.tensor(values, dtype=torch.float64), over="subjects")
+    return float(mean), float(half)
+
+
+def cell_statistics(
+    rows: Sequence[Mapping[str, Any]], spec: SweepSpec, metric: str
+) -> list[tuple[tuple[tuple[str, Any], ...], float, float, int]]:
+    """``[(cell params, mean, 95% CI half-width, n seeds), ...]`` of ``metric`` per cell.
+
+    The half-width uses Student's t with ``n - 1`` degrees of freedom (0 for one seed).
+    """
+    names = spec.parameter_names
+    groups: dict[tuple[tuple[str, Any], ...], list[float]] = {}
+    for row in rows:
+        if row.get(metric) is None:
+            continue
+        cell = tuple((n, row[n]) for n in names)
+        groups.setdefault(cell, []).append(float(row[metric]))
+    return [(cell, *_mean_ci(v), len(v)) for cell, v in groups.items()]
+
+
+def _safe_name(metric: str) -> str:
+    return "".join(c if c.isalnum() or c in "._-" else "_" for c in metric)
+
+
+def write_summary(
+    out_dir: str | os.PathLike[str],
+    spec: SweepSpec,
+    rows: Sequence[Mapping[str, Any]],
+    *,
+    failed: Mapping[str, str] | None = None,
+    plots: bool = True,
+) -> Path:
+    """Write ``summary.md`` (mean +/- 95% CI per cell) and a PNG per metric; return the md path.
+
+    Each PNG has one panel per swept parameter: the metric's mean and 95% CI over seeds
+    against that parameter, one line per combination of the other parameters. The headline
+    metrics are summarised: scalars and the mean of each list (``reward.learned.mean``); list
+    elements and CI columns stay in ``results.csv``. Metrics that do not vary over the sweep
+    are listed once, not plotted.
+    """
+    from torchhrc.experiments.report import write_text_atomic
+
+    path = Path(out_dir)
+    metrics = _metric_columns(rows, spec)
+    names = spec.parameter_names
+    lines = [
+        f"# Sweep: {spec.task}",
+        "",
+        f"Grid: {', '.join(f'{n} = {list(v)}' for n, v in spec.grid) or '(defaults)'}; "
+        f"seeds {list(spec.seeds)}; quick = {spec.quick}; {len(rows)} finished jobs"
+        + (f", {len(failed)} failed" if failed else "")
+        + ".",
+        "",
+        "Each entry: mean +/- 95% CI half-width over seeds (Student t).",
+        "",
+    ]
+    constant = [
+        c for c in _columns(rows, []) if c not in {*names, "seed"} and c not in metrics
+        and not is_timing_column(c) and _is_summary_metric(c)
+    ]  # fmt: skip
+    for metric in metrics:
+        stats = cell_statistics(rows, spec, metric)
+        lines += [f"## {metric}", "", "| " + " | ".join([*names, "mean", "ci95", "seeds"]) + " |"]
+        lines.append("|" + "---|" * (len(names) + 3))
+        for cell, mean, half, n in stats:
+            values = [str(v) for _, v in cell]
+            lines.append("| " + " | ".join([*values, f"{mean:.4g}", f"{half:.3g}", str(n)]) + " |")
+        if plots and names:
+            lines += ["", f"![{metric}]({_safe_name(metric)}.png)"]
+        lines.append("")
+    if constant:
+        lines += ["## Constant over the sweep", ""]
+        lines += [f"- {c} = {rows[0].get(c)}" for c in constant]
+        lines.append("")
+    if failed:
+        lines += ["## Failed jobs", ""] + [f"- `{k}`: {v}" for k, v in failed.items()] + [""]
+    if plots and names:
+        for metric in metrics:
+            _plot(path / f"{_safe_name(metric)}.png", spec, rows, metric)
+    target = path / "summary.md"
+    write_text_atomic(target, "\n".join(lines))
+    return target
+
+
+def _plot(target: Path, spec: SweepSpec, rows: Sequence[Mapping[str, Any]], metric: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from torchhrc.experiments.report import _atomic
+
+    names = spec.parameter_names
+    stats = cell_statistics(rows, spec, metric)
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.2), squeeze=False)
+    for ax, name in zip(axes[0], names, strict=True):
+        lines: dict[tuple[tuple[str, Any], ...], list[tuple[float, float, float]]] = {}
+        for cell, mean, half, _ in stats:
+            values = dict(cell)
+            others = tuple((n, values[n]) for n in names if n != name)
+            lines.setdefault(others, []).append((float(values[name]), mean, half))
+        for others, points in lines.items():
+            points.sort()
+            x = [p[0] for p in points]
+            label = ", ".join(f"{n}={v}" for n, v in others) or None
+            ax.errorbar(x, [p[1] for p in points], yerr=[p[2] for p in points], marker="o",
+                        capsize=3, label=label)  # fmt: skip
+        ax.set_xlabel(name)
+        ax.set_ylabel(metric)
+        if any(others for others in lines):
+            ax.legend(fontsize=7)
+    fig.suptitle(f"{spec.task}: {metric} (mean, 95% CI over {len(spec.seeds)} seeds)", fontsize=9)
+    fig.tight_layout()
+
+    def write(tmp: str) -> None:
+        fig.savefig(tmp, format="png", dpi=90)
+
+    try:
+        _atomic(target, write)
+    finally:
+        plt.close(fig)

@@ -284,7 +284,8 @@ def _place_and_drill_metrics(params: Mapping[str, Any], seed: int, quick: bool) 
     from torchhrc.experiments.place_and_drill import StudySettings, metrics_from_study, run_study
 
     settings = StudySettings.quick(seed=seed) if quick else StudySettings(seed=seed)
-    settings = dataclasses.replace(settings, **dict(params))
+    # the SAPIEN replay is a physical check of a few executions, not a swept statistic
+    settings = dataclasses.replace(settings, separation=False, **dict(params))
     return metrics_from_study(run_study(settings))
 
 

@@ -26,6 +26,16 @@ def test_layout_validation() -> None:
     with pytest.raises(ModelError, match="person_x"):
         WorkbenchLayout(person_x=0.3)
     assert WorkbenchLayout(n_positions=4).screw_positions().shape == (4, 3)
+    wide = WorkbenchLayout(n_positions=8).screw_positions()
+    assert float(wide[-1, 1] - wide[0, 1]) == pytest.approx(0.6)  # narrowed to stay in reach
+
+
+def test_every_task_size_is_reachable() -> None:
+    from torchhrc.sim.workbench import PlaceAndDrillScene
+
+    for n in (1, 8):
+        scene = PlaceAndDrillScene(WorkbenchLayout(n_positions=n))
+        assert scene.robot_drill.shape == (n, 7) and scene.human_place.shape[0] == n
 
 
 def test_drill_settles_on_every_screw(scene) -> None:

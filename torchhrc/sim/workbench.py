@@ -73,7 +73,8 @@ class WorkbenchLayout:
         n_positions: screw positions ``n`` (1 to 8).
         bench_height: the bench top's height.
         screw_x: the row's distance from the robot's base.
-        spacing: distance between neighbouring screws.
+        spacing: distance between neighbouring screws (``None``: 0.15 m, narrowed so that
+            the row stays within the person's reach, 0.6 m wide at most).
         person_x: where the person stands (their body frame, facing ``-x``).
         person_height: the person's height (sizes the arm).
         tool_length: the drill's length past the TCP.
@@ -85,7 +86,7 @@ class WorkbenchLayout:
     n_positions: int = 3
     bench_height: float = 0.9
     screw_x: float = 0.5
-    spacing: float = 0.15
+    spacing: float | None = None
     person_x: float = 0.85
     person_height: float = 1.75
     tool_length: float = 0.12
@@ -96,6 +97,9 @@ class WorkbenchLayout:
     def __post_init__(self) -> None:
         if not isinstance(self.n_positions, int) or not 1 <= self.n_positions <= 8:
             raise ModelError(f"expected n_positions in [1, 8], got {self.n_positions!r}")
+        if self.spacing is None:
+            pitch = 0.15 if self.n_positions <= 5 else 0.6 / (self.n_positions - 1)
+            object.__setattr__(self, "spacing", pitch)
         for name in ("bench_height", "screw_x", "spacing", "tool_length", "hover"):
             if not getattr(self, name) > 0:
                 raise ModelError(f"expected {name} > 0, got {getattr(self, name)}")
@@ -107,7 +111,7 @@ class WorkbenchLayout:
     def screw_positions(self) -> torch.Tensor:
         """``(n, 3)`` world positions of the screw heads (on the bench top)."""
         n = self.n_positions
-        y = (torch.arange(n, dtype=torch.float64) - (n - 1) / 2) * self.spacing
+        y = (torch.arange(n, dtype=torch.float64) - (n - 1) / 2) * float(self.spacing or 0.0)
         return torch.stack(
             [torch.full_like(y, self.screw_x), y, torch.full_like(y, self.bench_height)], -1
         )

@@ -483,6 +483,7 @@ def learn(
     k_max: int = 6,
     restarts: int = 10,
     mixture_method: str = "soft",
+    bic_parameters: str = "support",
     noise: float = 0.05,
     pause: float = 0.01,
     irl_iterations: int = 10,
@@ -502,6 +503,10 @@ def learn(
         task: the task.
         demonstrations: :class:`~torchhrc.data.Demonstrations` over the task's actions.
         k, k_min, k_max, restarts, mixture_method: clustering settings.
+        bic_parameters: the BIC's parameter count (:func:`~torchhrc.mixture.fit_mixture`'s
+            ``parameters``): ``"support"`` (default: only transitions seen in the data are
+            free, so short demonstrations over many symbols are not over-penalised) or
+            ``"full"`` (the paper's ``k V (V - 1)``).
         noise, pause: human-behaviour settings (:class:`~torchhrc.tasks.interface.TypeEvidence`).
         irl_iterations: cap on the IRL policies per type.
         solve: solve the MOMDP (SARSOP) too.
@@ -517,7 +522,8 @@ def learn(
     if k is not None:
         k_min = k_max = k
     fit = fit_mixture(demonstrations, k_min=k_min, k_max=k_max, restarts=restarts,
-                      method=mixture_method, seed=seed)  # type: ignore[arg-type]  # fmt: skip
+                      method=mixture_method, parameters=bic_parameters,
+                      seed=seed)  # type: ignore[arg-type]  # fmt: skip
     info = {"k": int(fit.k), "bic": float(fit.bic), "log_likelihood": float(fit.log_likelihood),
             "seed": seed}  # fmt: skip
     model = build_model(task, demonstrations, fit.model.transition, fit.assignments, noise=noise,

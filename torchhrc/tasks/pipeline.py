@@ -179,7 +179,7 @@ class LearnedModel:
             ModelError: a file is missing or malformed (the message names the file and
                 the field).
         """
-        from safetensors import SafetensorsError
+        from safetensors import SafetensorError
         from safetensors.torch import load_file
 
         from torchhrc.solvers.policy import AlphaVectorPolicy
@@ -200,7 +200,7 @@ class LearnedModel:
                              f"got {meta.get('version')!r}")  # fmt: skip
         try:
             t = load_file(str(tensor_path))
-        except (SafetensorsError, OSError) as exc:
+        except (SafetensorError, OSError) as exc:
             raise ModelError(f"{tensor_path}: {exc}") from None
         for key in ("Tx", "Z", "R", "b0", "weights", "behaviour", "chains", "assignments"):
             if key not in t:

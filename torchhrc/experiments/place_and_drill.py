@@ -10,7 +10,7 @@ Pipeline (one call of :func:`reproduce_place_and_drill`):
 
 1. simulate the study (:func:`~torchhrc.tasks.place_and_drill.demos.simulate_study`);
 2. cross-training: one MDP per subject from its own demonstrations, solved in one batch;
-3. hand-coded expert MOMDP: read ``torchhrc/models/place_and_drill_expert.json``, solved by SARSOP
+3. hand-coded expert MOMDP: read ``models/place_and_drill_expert.json``, solved by SARSOP
    once per distinct initial belief (the expert's belief depends only on its label of the
    subject, so that is once per type);
 4. per fold (held-out subject): fit the mixture on the other subjects (BIC picks k), the

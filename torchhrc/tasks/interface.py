@@ -298,8 +298,11 @@ class CollaborativeTask:
         return torch.where(human_action >= 0, after, mid)
 
     # ------------------------------------------------------------------ demonstrations
-    def read_steps(self, demonstrations: Demonstrations) -> TaskSteps:
+    def read_steps(self, demonstrations: Demonstrations) -> TaskSteps | None:
         """Rewrite ``(actor, action)`` demonstrations as task steps ``(x, a_r, a_h, x')``.
+
+        A task whose demonstrations serve the clustering only (its reward given by
+        :meth:`known_reward`, its behaviour not counted from steps) may return ``None``.
 
         Reading rules: a sequence starts at ``x0``; a robot symbol is one decision at the
         current ``x``; a human turn right after it belongs to the same step; a human turn

@@ -391,6 +391,11 @@ def build_model(
     Tx = transition_from_behaviour(task, behaviour)
     R = task.known_reward(evidence)
     if R is None:
+        if steps is None:
+            raise ModelError(
+                "the task reads no demonstration steps (read_steps() gave None) and gives no "
+                "known_reward(): IRL needs the steps; implement one of the two"
+            )
         weights = learn_type_weights(task, Tx, steps, evidence.assignments, rule=rule,
                                      epsilon=irl_epsilon, max_iterations=irl_iterations,
                                      seed=seed)  # fmt: skip

@@ -36,7 +36,7 @@ def test_lookup_errors():
         shipped_root("meshes")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="relative name"):
         shipped_path("assets", "../pyproject.toml")
-    with pytest.raises(FileNotFoundError, match="no shipped file 'nothing.urdf'"):
+    with pytest.raises(FileNotFoundError, match=r"no shipped file 'nothing\.urdf'"):
         shipped_path("assets", "nothing.urdf")
 
 

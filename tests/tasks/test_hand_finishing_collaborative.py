@@ -68,6 +68,6 @@ def test_a_wrong_observation_is_rejected(clusters):
 
 
 def test_first_sides_need_the_side_symbols(clusters):
-    demos, fit = clusters
+    fit = clusters[1]
     with pytest.raises(ModelError, match="lacks human:work_left"):
         first_sides_from_chains(fit.model.transition[:, :2, :2], [("human", "a"), ("robot", "b")])

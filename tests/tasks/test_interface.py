@@ -14,6 +14,7 @@ from torchhrc.tasks.interface import (
     check_task,
     tabular_features,
 )
+from torchhrc.tasks.pipeline import transition_from_behaviour
 from torchhrc.tasks.place_and_drill.demos import simulate_study
 from torchhrc.tasks.place_and_drill.model import (
     PlaceAndDrillTask,
@@ -21,7 +22,6 @@ from torchhrc.tasks.place_and_drill.model import (
     placement_probabilities,
     placement_transition,
 )
-from torchhrc.tasks.pipeline import transition_from_behaviour
 
 
 class Toggle(CollaborativeTask):

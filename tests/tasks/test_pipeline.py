@@ -74,8 +74,11 @@ class _WrongObservation(PlaceAndDrillTask):
 
 @pytest.mark.parametrize(
     "task, piece",
-    [(_WrongReward(3), "known_reward"), (_WrongBehaviour(3), "human_policy"),
-     (_WrongObservation(3), "observation")],  # fmt: skip
+    [
+        (_WrongReward(3), "known_reward"),
+        (_WrongBehaviour(3), "human_policy"),
+        (_WrongObservation(3), "observation"),
+    ],
 )
 def test_a_type_dependent_piece_with_the_wrong_number_of_types_is_rejected(study, task, piece):
     demos, fit = study
@@ -121,7 +124,7 @@ def test_learn_save_load_roundtrip_and_controller(tmp_path):
 
 
 def test_load_reports_the_bad_file(tmp_path):
-    with pytest.raises(ModelError, match="model.json: no such file"):
+    with pytest.raises(ModelError, match=r"model\.json: no such file"):
         LearnedModel.load(tmp_path)
     (tmp_path / "model.json").write_text('{"format": "torchhrc.learned_task_model",\n oops}')
     (tmp_path / "model.safetensors").write_bytes(b"")

@@ -104,8 +104,10 @@ class Controller:
             ModelError: the model has not been solved.
         """
         if model.policy is None:
-            raise ModelError("the model has no policy: solve it first "
-                             "(torchhrc.tasks.pipeline.solve_model or learn(solve=True))")  # fmt: skip
+            raise ModelError(
+                "the model has no policy: solve it first "
+                "(torchhrc.tasks.pipeline.solve_model or learn(solve=True))"
+            )
         return cls.from_momdp(model.momdp, model.policy)
 
     @classmethod

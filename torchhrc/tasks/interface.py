@@ -395,7 +395,6 @@ class CollaborativeTask:
         Returns:
             ``(Y, A, X, H + 1)`` probabilities, rows summing to 1.
         """
-        A, X, H = self.num_actions, self.num_states, self.num_human_actions
         chains = evidence.chains
         dt, dev = chains.dtype, chains.device
         mid = torch.as_tensor(self.robot_effect).to(dev)  # (A, X)
@@ -437,7 +436,7 @@ def _state_counts(
 ) -> torch.Tensor:
     steps = evidence.steps
     assert steps is not None
-    K, A, X, H = evidence.num_types, task.num_actions, task.num_states, task.num_human_actions
+    K, X, H = evidence.num_types, task.num_states, task.num_human_actions
     mid = torch.as_tensor(task.robot_effect).to(steps.states.device)[steps.actions, steps.states]
     keep = steps.mask & (steps.human >= 0)
     y = evidence.assignments.to(steps.states.device).view(-1, 1).expand_as(mid)[keep]

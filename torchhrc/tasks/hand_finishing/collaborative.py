@@ -146,7 +146,7 @@ class HandFinishingCollaborativeTask(CollaborativeTask):
         self, *, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
     ) -> torch.Tensor:
         """``(A, X, 2)``: the action is a move; the box presents a side after it (not done)."""
-        c, p = self._cp
+        c = self._cp[0]
         move = torch.tensor([d != 0 for _, d in _MOVES], dtype=dtype).view(-1, 1)
         c2 = self.base.neighbour[:, c]
         presents = self.base.presents[c2].any(-1) & ~self.terminal

@@ -72,7 +72,8 @@ def test_a_built_wheel_ships_and_finds_the_files(tmp_path: Path):
     (wheel,) = wheels.glob("torchhrc-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
     assert {"torchhrc/assets/panda/panda.urdf", "torchhrc/assets/human_arm/human_arm.urdf",
-            "torchhrc/models/place_and_drill_expert.json"} <= names  # fmt: skip
+            "torchhrc/models/place_and_drill_expert.json",
+            "torchhrc/models/place_and_drill_learned/model.safetensors"} <= names  # fmt: skip
     site = tmp_path / "site"
     subprocess.run([*pip, "install", "--no-deps", "--target", str(site), str(wheel)],
                    check=True, capture_output=True)  # fmt: skip
@@ -86,3 +87,52 @@ def test_a_built_wheel_ships_and_finds_the_files(tmp_path: Path):
     assert Path(found["arm"]) == installed / "assets" / "human_arm" / "human_arm.urdf"
     assert Path(found["expert"]) == installed / "models" / "place_and_drill_expert.json"
     assert found["types"] == ["safe", "efficient"]
+
+
+def _load_make_script():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("make_learned_models",
+                                                  ROOT / "models" / "make_learned_models.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_shipped_learned_model_loads_and_finishes_the_task():
+    import torch
+
+    from torchhrc.tasks import Controller, LearnedModel
+    from torchhrc.tasks.place_and_drill import PlaceAndDrillTask
+
+    path = shipped_path("models", "place_and_drill_learned/model.json").parent
+    model = LearnedModel.load(path)
+    assert sorted(model.type_names) == ["efficient", "safe"]
+    assert model.policy is not None and model.lower <= model.upper + 1e-9
+    task = PlaceAndDrillTask(3)
+    for order in ((0, 1, 2), (2, 0, 1)):  # the human places in this order
+        controller = Controller.from_model(model)
+        controller.reset()
+        x, placed = task.initial_state, 0
+        for _ in range(4 * 3):
+            a = controller.act(x)
+            h = order[placed] if placed < 3 else -1
+            x = int(task.step(torch.tensor(x), torch.tensor(h), torch.tensor(a)))
+            placed += h >= 0
+            if x == task.terminal_state:
+                break
+        assert x == task.terminal_state  # every screw placed and drilled
+
+
+@pytest.mark.slow
+def test_the_shipped_learned_model_is_what_the_script_learns(tmp_path: Path):
+    import torch
+
+    from torchhrc.tasks import LearnedModel
+
+    shipped = LearnedModel.load(shipped_path("models", "place_and_drill_learned/model.json").parent)
+    again = _load_make_script().place_and_drill_learned()
+    for name in ("Tx", "R", "b0"):
+        assert torch.equal(getattr(shipped.momdp, name), getattr(again.momdp, name))
+    assert torch.equal(shipped.weights, again.weights)
+    assert shipped.type_names == again.type_names and shipped.info["k"] == again.info["k"]

@@ -159,6 +159,11 @@ class LearnedModel:
             save_file({k: v.detach().contiguous().cpu() for k, v in tensors.items()},
                       str(tmp / "model.safetensors"))  # fmt: skip
             (tmp / "model.json").write_text(json.dumps(meta, indent=2) + "\n")
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; a model is a plain file
+            for f in tmp.iterdir():
+                os.chmod(f, 0o666 & ~umask)
             if target.exists():
                 old = target.with_name(f".{target.name}.old")
                 shutil.rmtree(old, ignore_errors=True)

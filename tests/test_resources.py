@@ -136,3 +136,37 @@ def test_the_shipped_learned_model_is_what_the_script_learns(tmp_path: Path):
         assert torch.equal(getattr(shipped.momdp, name), getattr(again.momdp, name))
     assert torch.equal(shipped.weights, again.weights)
     assert shipped.type_names == again.type_names and shipped.info["k"] == again.info["k"]
+
+
+_SDIST_THEN_WHEEL = """
+import sys, tarfile
+from pathlib import Path
+from setuptools import build_meta
+out = Path(sys.argv[1])
+sdist = out / build_meta.build_sdist(str(out))
+with tarfile.open(sdist) as tar:
+    tar.extractall(out / "unpacked", filter="data")
+(root,) = (out / "unpacked").iterdir()
+import os
+os.chdir(root)
+print(out / build_meta.build_wheel(str(out)))
+"""
+
+
+@pytest.mark.slow
+def test_the_wheel_built_from_the_sdist_ships_the_files(tmp_path: Path):
+    """``python -m build`` builds the sdist, then the wheel from the unpacked sdist."""
+    source = tmp_path / "src"
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "*.egg-info", "build")
+    for name in ("torchhrc", "assets", "models"):
+        shutil.copytree(ROOT / name, source / name, ignore=ignore)
+    for name in ("pyproject.toml", "setup.py", "MANIFEST.in", "README.md"):
+        shutil.copy2(ROOT / name, source / name)
+    out = tmp_path / "dist"
+    out.mkdir()
+    done = subprocess.run([sys.executable, "-c", _SDIST_THEN_WHEEL, str(out)], cwd=source,
+                          check=True, capture_output=True, text=True)  # fmt: skip
+    wheel = Path(done.stdout.strip().splitlines()[-1])
+    names = set(zipfile.ZipFile(wheel).namelist())
+    assert {"torchhrc/assets/panda/panda.urdf", "torchhrc/models/place_and_drill_expert.json",
+            "torchhrc/models/place_and_drill_learned/model.safetensors"} <= names  # fmt: skip

@@ -92,8 +92,9 @@ def test_a_built_wheel_ships_and_finds_the_files(tmp_path: Path):
 def _load_make_script():
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("make_learned_models",
-                                                  ROOT / "models" / "make_learned_models.py")
+    spec = importlib.util.spec_from_file_location(
+        "make_learned_models", ROOT / "models" / "make_learned_models.py"
+    )
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -81,8 +81,13 @@ def test_read_steps_rejects_a_foreign_symbol():
 def test_chain_behaviour_reproduces_the_place_and_drill_transition():
     task = PlaceAndDrillTask(3)
     demos = simulate_study(n_subjects=4, n_demos=2, seed=0)
-    chains = torch.rand(2, len(demos.vocabulary), len(demos.vocabulary),
-                        generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    chains = torch.rand(
+        2,
+        len(demos.vocabulary),
+        len(demos.vocabulary),
+        generator=torch.Generator().manual_seed(0),
+        dtype=torch.float64,
+    )
     chains = chains / chains.sum(-1, keepdim=True)
     evidence = TypeEvidence(chains, demos.vocabulary, torch.zeros(demos.num_sequences,
                             dtype=torch.long), None, noise=0.1, pause=0.02)  # fmt: skip

@@ -159,8 +159,9 @@ class HandFinishingCollaborativeTask(CollaborativeTask):
 
     def typed(self, evidence: TypeEvidence) -> HandFinishingTask:
         """The base task with the clusters' first sides."""
-        return replace(self.base, first_sides=first_sides_from_chains(evidence.chains,
-                                                                      evidence.vocabulary))
+        return replace(
+            self.base, first_sides=first_sides_from_chains(evidence.chains, evidence.vocabulary)
+        )
 
     def human_policy(self, evidence: TypeEvidence) -> torch.Tensor:
         """``(Y, A, X, 2)``: work with ``work_probability`` when the box presents the side
@@ -182,8 +183,9 @@ class HandFinishingCollaborativeTask(CollaborativeTask):
 
     def type_names(self, evidence: TypeEvidence) -> tuple[str, ...]:
         """``"left-first"`` / ``"right-first"`` per cluster."""
-        return tuple(f"{s}-first" for s in first_sides_from_chains(evidence.chains,
-                                                                    evidence.vocabulary))
+        return tuple(
+            f"{s}-first" for s in first_sides_from_chains(evidence.chains, evidence.vocabulary)
+        )
 
     def observation(self, model: MOMDP) -> torch.Tensor | None:
         """The hand-position signal's ``Z`` (``observation_model(model)``), or None."""
@@ -206,4 +208,3 @@ class HandFinishingCollaborativeTask(CollaborativeTask):
         if observation is not None:
             task = replace(self, observation_model=lambda m: observation().detach().to(m.Tx.dtype))
         return build_model(task, demonstrations, chains, assignments).momdp
-

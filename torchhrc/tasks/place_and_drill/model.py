@@ -169,7 +169,7 @@ class PlaceAndDrillTask(CollaborativeTask):
         return self.legal_placements
 
     def type_names(self, evidence: TypeEvidence) -> tuple[str, ...]:
-        """"safe" / "efficient" from the chains (:func:`interpret_clusters`)."""
+        """ "safe" / "efficient" from the chains (:func:`interpret_clusters`)."""
         return interpret_clusters(self, evidence.chains, evidence.vocabulary)
 
     @property

@@ -39,6 +39,7 @@ from torchhrc.mixture import (
 )
 from torchhrc.observation import DiscretizedGaussianObservation, fit_observation_model
 from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.resources import shipped_path
 from torchhrc.solvers import (
     AlphaVectorPolicy,
     FIBConfig,
@@ -51,6 +52,7 @@ from torchhrc.solvers import (
     value_iteration,
 )
 from torchhrc.sparse import SparsePOMDP
+from torchhrc.tasks import CollaborativeTask, Controller, LearnedModel, learn
 from torchhrc.tasks.place_and_drill import simulate_study
 
 __version__ = "0.1.0"
@@ -60,9 +62,12 @@ __all__ = [
     "POMDP",
     "AlphaVectorPolicy",
     "BeliefUpdate",
+    "CollaborativeTask",
+    "Controller",
     "Demonstrations",
     "DiscretizedGaussianObservation",
     "FIBConfig",
+    "LearnedModel",
     "MarkovChainMixture",
     "MixtureFit",
     "ModelError",
@@ -80,6 +85,7 @@ __all__ = [
     "fit_mixture",
     "fit_observation_model",
     "infer_type",
+    "learn",
     "learn_type_rewards",
     "load_policy",
     "log_update",
@@ -91,6 +97,7 @@ __all__ = [
     "read_pomdp",
     "save_policy",
     "sequence_log_likelihood",
+    "shipped_path",
     "simulate_study",
     "solve",
     "update",

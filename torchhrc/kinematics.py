@@ -1,12 +1,12 @@
 """Arm kinematics for the hand-finishing task: robot reach checks and human comfort checks.
 
-The robot (a Franka Emika Panda, URDF shipped in ``torchhrc/assets/panda``) holds a large box
+The robot (a Franka Emika Panda, URDF shipped in ``assets/panda``) holds a large box
 for a person who refinishes its side surfaces by hand (paper, "Online estimation of human
 type": the robot "can move the box along the horizontal and vertical axis and rotate it in
 the tilt direction" and should move it "to a reachable, ergonomically friendly position").
 This module decides which box configurations the robot can reach and hold (inverse
 kinematics within joint limits) and which are comfortable for the person (a human-arm model
-with anthropometric segment lengths, ``torchhrc/assets/human_arm``); the task removes the
+with anthropometric segment lengths, ``assets/human_arm``); the task removes the
 others from its MOMDP.
 
 Kinematic chains are read from URDF by pytorch-kinematics (the ``full`` extra) and compiled
@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 
 import torch
@@ -80,7 +79,7 @@ def _import_pk():
 
 
 def asset_path(name: str) -> Path:
-    """Path of a file shipped under ``torchhrc/assets`` (package data).
+    """Path of a shipped asset (top-level ``assets/``; :func:`torchhrc.resources.shipped_path`).
 
     Args:
         name: relative name, e.g. ``"panda/panda.urdf"``.
@@ -95,10 +94,9 @@ def asset_path(name: str) -> Path:
         >>> asset_path("panda/panda.urdf").name
         'panda.urdf'
     """
-    path = Path(str(resources.files("torchhrc").joinpath("assets", *name.split("/"))))
-    if not path.is_file():
-        raise FileNotFoundError(f"no asset {name!r} under {path.parent}")
-    return path
+    from torchhrc.resources import shipped_path
+
+    return shipped_path("assets", name)
 
 
 # --------------------------------------------------------------------------- poses
@@ -885,7 +883,7 @@ def human_arm_urdf(*, height: float = 1.75, mass: float = 75.0) -> str:
     shoulder height ``0.818 H``, biacromial width ``0.259 H``, upper arm ``0.186 H``, forearm
     ``0.146 H``, hand ``0.108 H`` (the ``palm`` frame half a hand past the wrist). Joint
     ranges: adult active ranges of motion (AAOS 1965). ``body`` stands on the floor, x
-    forward, y left, z up. ``torchhrc/assets/human_arm/human_arm.urdf`` is this function's
+    forward, y left, z up. ``assets/human_arm/human_arm.urdf`` is this function's
     output for the defaults.
 
     Example:

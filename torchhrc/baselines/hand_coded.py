@@ -3,7 +3,7 @@
 Paper (section "Quality of Learned Model"): "we had a domain expert manually partition the
 data and empirically hand-craft a reward function"; the policy of that MOMDP is the
 reference the learned model is compared with (Fig. 3). The shipped file
-``torchhrc/models/place_and_drill_expert.json`` states, per human type, a reward for each situation
+``models/place_and_drill_expert.json`` states, per human type, a reward for each situation
 of the task (the reward features of :mod:`torchhrc.tasks.place_and_drill.model`), the
 expert's model of the human's placements (uniform over the empty positions) and how sure the
 expert's label of a subject makes the robot at the start. Its reward of a subject's true type
@@ -39,6 +39,7 @@ import torch
 
 from torchhrc.errors import ModelError, ParseError
 from torchhrc.pomdp import MOMDP
+from torchhrc.resources import shipped_path
 from torchhrc.tasks.place_and_drill.model import (
     FEATURE_NAMES,
     PlaceAndDrillTask,
@@ -58,10 +59,9 @@ __all__ = [
 _FORMAT = "torchhrc.expert_momdp"
 _VERSION = 1
 
-#: The shipped expert model, package data: ``torchhrc/models/place_and_drill_expert.json``.
-DEFAULT_EXPERT_PATH: Path = (
-    Path(__file__).resolve().parents[1] / "models" / "place_and_drill_expert.json"
-)
+#: The shipped expert model, ``models/place_and_drill_expert.json`` (found by
+#: :func:`torchhrc.resources.shipped_path` in a checkout, an editable install or a wheel).
+DEFAULT_EXPERT_PATH: Path = shipped_path("models", "place_and_drill_expert.json")
 
 
 @dataclass(frozen=True)

@@ -51,6 +51,10 @@ from torchhrc.experiments.report import _pyplot, _save, write_json_atomic, write
 from torchhrc.kinematics import BoxGeometry
 from torchhrc.observation import ObservationGrid, fit_observation_model
 from torchhrc.solvers.type_policies import type_policy_lower_bound
+from torchhrc.tasks.hand_finishing.collaborative import (
+    HandFinishingCollaborativeTask,
+    first_sides_from_chains,
+)
 from torchhrc.tasks.hand_finishing.model import SIDES, HandFinishingTask
 from torchhrc.tasks.hand_finishing.person import (
     Episodes,
@@ -203,12 +207,7 @@ def cluster_preferences(fit: Any, vocabulary: tuple[tuple[str, str], ...]) -> tu
     ``T[k, work_left, present_right] + T[k, work_left, work_right] >
     T[k, work_right, present_left] + T[k, work_right, work_left]``.
     """
-    idx = {step: i for i, step in enumerate(vocabulary)}
-    T = fit.model.transition  # (K, A, A)
-    wl, wr = idx[("human", "work_left")], idx[("human", "work_right")]
-    pl, pr = idx[("robot", "present_left")], idx[("robot", "present_right")]
-    score = T[:, wl, pr] + T[:, wl, wr] - T[:, wr, pl] - T[:, wr, wl]
-    return tuple("left" if float(s) > 0 else "right" for s in score)
+    return first_sides_from_chains(fit.model.transition, vocabulary)
 
 
 def _qmdp_upper(model: Any) -> torch.Tensor:
@@ -310,16 +309,17 @@ def _learn_observation(task: HandFinishingTask, robot_task: HandFinishingTask, n
 
 def _episodes(
     task: HandFinishingTask,
-    robot_task: HandFinishingTask,
+    robot_momdp: Callable[[Any], Any],
     noise: float,
     settings: HandFinishingSettings,
     learned: Any,
 ) -> tuple[Episodes, Any, float]:
-    """Solve the robot's MOMDP (its ``learned`` observation model) and run it against
+    """Solve the robot's MOMDP (``robot_momdp(learned)``: the task pipeline's model with the
+    ``learned`` observation model) and run it against
     simulated persons whose sensed hands have ``noise``; half of each true type."""
     true_obs = _true_observation(task, noise)
     truth = task.momdp(true_obs)
-    robot = robot_task.momdp(learned)
+    robot = robot_momdp(learned)
     # QMDP upper bound: FIB's first sweep at the paper's size can use up the time budget
     solution, t_solve = _solve(robot, settings.solve_time, settings.plan_precision,
                                settings.seed, typed_bound=True, qmdp_upper=True,
@@ -403,6 +403,13 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
                  geometry=settings.geometry, work_units=settings.work_units)  # fmt: skip
     task = HandFinishingTask.build(first_sides=true_sides, **build)
     robot_task = HandFinishingTask.build(first_sides=robot_sides, **build)
+    # the robot's model goes through the task pipeline (torchhrc.tasks.pipeline), as any task's
+    robot_pipeline = HandFinishingCollaborativeTask(robot_task)
+
+    def robot_momdp(observation: Any) -> Any:
+        return robot_pipeline.learned_momdp(demos, fit.model.transition, fit.assignments,
+                                            observation)  # fmt: skip
+
     # 3.-5. at each noise level: learn the observation model from hand tracks (type
     # unknown), solve the MOMDP with it, run it against simulated persons
     noise = settings.paper_noise
@@ -410,7 +417,7 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
     table, runs = [], {}
     for i, level in enumerate(levels):
         learned, obs_fit, fit_error = _learn_observation(task, robot_task, level, settings)
-        ep, solution, solve_time = _episodes(task, robot_task, level, settings, learned)
+        ep, solution, solve_time = _episodes(task, robot_momdp, level, settings, learned)
         runs[level] = (learned, obs_fit, fit_error, ep, solution, solve_time)
         if level in settings.noise_levels:
             table.append({

@@ -10,7 +10,7 @@ Pipeline (one call of :func:`reproduce_place_and_drill`):
 
 1. simulate the study (:func:`~torchhrc.tasks.place_and_drill.demos.simulate_study`);
 2. cross-training: one MDP per subject from its own demonstrations, solved in one batch;
-3. hand-coded expert MOMDP: read ``torchhrc/models/place_and_drill_expert.json``, solved by SARSOP
+3. hand-coded expert MOMDP: read ``models/place_and_drill_expert.json``, solved by SARSOP
    once per distinct initial belief (the expert's belief depends only on its label of the
    subject, so that is once per type);
 4. per fold (held-out subject): fit the mixture on the other subjects (BIC picks k), the
@@ -61,7 +61,8 @@ from torchhrc.experiments.robustness import (
 )
 from torchhrc.pomdp import MOMDP
 from torchhrc.solvers.type_policies import type_policy_lower_bound
-from torchhrc.tasks.place_and_drill.model import build_learned_model
+from torchhrc.tasks.pipeline import build_model, solve_model
+from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask
 from torchhrc.tasks.place_and_drill.simulate import demonstrated_orders
 
 __all__ = [
@@ -301,6 +302,7 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
             f"the expert model {expert.path} is written for {task.n_positions} positions, "
             f"the study has {s.positions}"
         )
+    learner_task = PlaceAndDrillTask(task.n_positions, discount=expert.discount)
     labels = _subject_types(demos)
     subjects = demos.unique_subjects
     orders = demonstrated_orders(task, demos)
@@ -362,19 +364,22 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
         fit_time += time.perf_counter() - t
 
         t = time.perf_counter()
-        learned = build_learned_model(
-            task,
-            fit.model,
+        # the task-independent pipeline (torchhrc.tasks.pipeline), as for any user's task
+        learned = build_model(
+            learner_task,
             train,
+            fit.model.transition,
             fit.assignments,
             b0=posterior,
-            discount=expert.discount,
             irl_iterations=s.irl_iterations,
             seed=s.seed,
         )
         irl_time += time.perf_counter() - t
         t = time.perf_counter()
-        solution = _solve(learned.momdp, s)
+        learned = solve_model(
+            learned, time_limit=s.solver_time, precision=s.solver_precision, seed=s.seed
+        )
+        solution = learned
         solve_time += time.perf_counter() - t
 
         t = time.perf_counter()

@@ -449,7 +449,7 @@ for Human-Robot Collaborative Tasks" (section "Evaluation", Fig. 3) on a simulat
   given the robot's last action), reward per cluster by Abbeel-Ng apprenticeship learning on
   the cluster's demonstrations (features: {", ".join(FEATURE_NAMES)});
   solved by SARSOP ({s.solver_time:g} s limit) once per fold.
-- Hand-coded expert MOMDP: `torchhrc/models/place_and_drill_expert.json`, solved by SARSOP once per
+- Hand-coded expert MOMDP: `models/place_and_drill_expert.json`, solved by SARSOP once per
   distinct initial belief (the expert's label of the subject, 2 solves).
 - Cross-training (Nikolaidis & Shah 2013, docs/cross_training.md): one MDP per subject from
   its own {s.demos} demonstrations (counted transitions; reward on the action it demonstrated
@@ -502,7 +502,7 @@ IRL reward weights of the first two folds (unit norm; features {", ".join(FEATUR
   correct on average over its runs; here each subject is right or wrong once.
 - Fig. 3 of the paper has no published numbers or reward scale; its shape is the claim:
   learned close to hand-coded, both above cross-training as epsilon grows. Our scale is the
-  expert reward of `torchhrc/models/place_and_drill_expert.json` (perfect run: +30).
+  expert reward of `models/place_and_drill_expert.json` (perfect run: +30).
 - The IRL reward is the reward of the dominant policy of Abbeel-Ng's final mixture, not the
   paper's mean of the second half of the weight iterates, which fails on noisy demonstrations
   (see `torchhrc.tasks.place_and_drill.model.learn_type_weights`).

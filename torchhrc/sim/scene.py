@@ -1,7 +1,7 @@
 """A SAPIEN 3 scene of the hand-finishing task: the arm holds the box over a table.
 
 Physics only, on the CPU (``sapien.Scene([sapien.physx.PhysxCpuSystem()])``): the Panda
-(``torchhrc/assets/panda``) is mounted on a table, the box (a link rigidly fixed to the hand's
+(``assets/panda``) is mounted on a table, the box (a link rigidly fixed to the hand's
 TCP, with a box collision shape and the inertia of a solid box) is held at the configurations
 of :class:`torchhrc.kinematics.BoxGeometry`. The arm follows box moves with joint position
 targets: the targets come from :meth:`torchhrc.kinematics.SerialArm.inverse`, are

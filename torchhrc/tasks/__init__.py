@@ -1,1 +1,33 @@
-"""torchhrc.tasks."""
+"""torchhrc.tasks: the task interface, the pipeline from demonstrations to a solved model, and
+the online controller (any user's task and the paper's two go through the same code).
+
+Example:
+    >>> from torchhrc.tasks import CollaborativeTask, Controller, LearnedModel, learn
+    >>> issubclass(CollaborativeTask, object)
+    True
+"""
+
+from torchhrc.tasks.controller import Controller
+from torchhrc.tasks.interface import (
+    CollaborativeTask,
+    TaskSteps,
+    TypeEvidence,
+    chain_preferences,
+    check_task,
+    tabular_features,
+)
+from torchhrc.tasks.pipeline import LearnedModel, build_model, learn, solve_model
+
+__all__ = [
+    "CollaborativeTask",
+    "Controller",
+    "LearnedModel",
+    "TaskSteps",
+    "TypeEvidence",
+    "build_model",
+    "chain_preferences",
+    "check_task",
+    "learn",
+    "solve_model",
+    "tabular_features",
+]

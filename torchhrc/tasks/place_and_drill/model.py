@@ -62,6 +62,7 @@ import torch
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP
+from torchhrc.tasks.interface import CollaborativeTask, TypeEvidence
 
 __all__ = [
     "DRILLED",
@@ -95,11 +96,19 @@ FEATURE_NAMES: tuple[str, ...] = (
 
 
 @dataclass(frozen=True)
-class PlaceAndDrillTask:
+class PlaceAndDrillTask(CollaborativeTask):
     """The task's mechanics: states, actions, effects and reward features.
+
+    A :class:`~torchhrc.tasks.interface.CollaborativeTask`: robot actions :attr:`actions`,
+    human actions ``place_<p>``, ``robot_effect (A, X)``, ``human_effect = place_effect
+    (X, n)``, the features of the module docstring, the human's placements seen through
+    ``x`` (no observation model), the types learned from the chains and named "safe" /
+    "efficient" (:func:`interpret_clusters`); :func:`torchhrc.tasks.pipeline.learn` turns
+    it and demonstrations into a solved model.
 
     Args:
         n_positions: number of screw positions ``n`` (1 to 8); ``X = 3 ** n``.
+        discount: discount factor of the MOMDP and the IRL.
 
     Example:
         >>> PlaceAndDrillTask(2).robot_effect[1].tolist()[:4]  # drill_A from EE, EP, ED, PE
@@ -107,8 +116,11 @@ class PlaceAndDrillTask:
     """
 
     n_positions: int = 3
+    discount: float = 0.95
 
     def __post_init__(self) -> None:
+        if not 0.0 < float(self.discount) < 1.0:
+            raise ModelError(f"expected discount in (0, 1), got {self.discount}")
         n = self.n_positions
         if not isinstance(n, int) or isinstance(n, bool):
             raise TypeError(f"expected n_positions to be an int, got {type(n).__name__}")
@@ -127,9 +139,38 @@ class PlaceAndDrillTask:
         return ("wait", *(f"drill_{p}" for p in self.positions))
 
     @property
+    def robot_actions(self) -> tuple[str, ...]:
+        """The task interface's name of :attr:`actions`."""
+        return self.actions
+
+    @property
     def human_actions(self) -> tuple[str, ...]:
         """Human actions ``("place_A", ...)``."""
         return tuple(f"place_{p}" for p in self.positions)
+
+    @property
+    def feature_names(self) -> tuple[str, ...]:
+        """:data:`FEATURE_NAMES`."""
+        return FEATURE_NAMES
+
+    @property
+    def terminal(self) -> torch.Tensor:
+        """``(X,)`` bool, True in the all-drilled state."""
+        return torch.arange(self.num_states) == self.terminal_state
+
+    @property
+    def human_effect(self) -> torch.Tensor:
+        """:attr:`place_effect` (the task interface's name)."""
+        return self.place_effect
+
+    @property
+    def human_legal(self) -> torch.Tensor:
+        """:attr:`legal_placements` (the task interface's name)."""
+        return self.legal_placements
+
+    def type_names(self, evidence: TypeEvidence) -> tuple[str, ...]:
+        """ "safe" / "efficient" from the chains (:func:`interpret_clusters`)."""
+        return interpret_clusters(self, evidence.chains, evidence.vocabulary)
 
     @property
     def num_states(self) -> int:
@@ -665,6 +706,9 @@ def build_learned_model(
 ) -> LearnedTaskModel:
     """Build the learned MOMDP: cluster chains -> ``Tx``, IRL per cluster -> ``R``.
 
+    A thin wrapper of :func:`torchhrc.tasks.pipeline.build_model` (the task-independent
+    pipeline) that keeps the place-and-drill names (``placement``).
+
     Paper (sections "MOMDP Formulation" and "Inverse Reinforcement Learning"): each cluster
     is a value of the hidden type; its Markov chain gives the human's placements
     (:func:`placement_probabilities`, :func:`placement_transition`), IRL on the cluster's
@@ -695,35 +739,31 @@ def build_learned_model(
         >>> build_learned_model(PlaceAndDrillTask(3), chains, demos, labels).type_names
         ('safe', 'efficient')
     """
+    from torchhrc.tasks.pipeline import build_model
+
     transition = mixture if isinstance(mixture, torch.Tensor) else mixture.transition
     transition = transition.detach().to(torch.float64)
     if transition.dim() != 3:
         raise ModelError(
             f"expected the mixture's transition of shape (K, V, V), got {tuple(transition.shape)}"
         )
-    K = transition.shape[0]
-    if assignments.shape != (demonstrations.num_sequences,):
-        raise ModelError(
-            f"expected assignments of shape (N={demonstrations.num_sequences},), "
-            f"got {tuple(assignments.shape)}"
-        )
-    placement = placement_probabilities(task, transition, demonstrations.vocabulary)
-    Tx = placement_transition(task, placement, noise=noise, pause=pause)
-    steps = demonstration_steps(task, demonstrations)
-    weights = learn_type_weights(
+    if task.discount != discount:
+        task = PlaceAndDrillTask(task.n_positions, discount=discount)
+    learned = build_model(
         task,
-        Tx,
-        steps,
+        demonstrations,
+        transition,
         assignments,
-        discount=discount,
+        b0=b0,
+        noise=noise,
+        pause=pause,
         rule=rule,
-        epsilon=irl_epsilon,
-        max_iterations=irl_iterations,
+        irl_epsilon=irl_epsilon,
+        irl_iterations=irl_iterations,
         seed=seed,
     )
-    R = task.reward(weights)
-    if b0 is None:
-        b0 = torch.full((K,), 1.0 / K, dtype=torch.float64, device=transition.device)
-    names = interpret_clusters(task, transition, demonstrations.vocabulary)
-    momdp = build_momdp(task, Tx, R, b0, discount=discount, type_names=names)
-    return LearnedTaskModel(momdp=momdp, weights=weights, placement=placement, type_names=names)
+    placement = placement_probabilities(task, transition, demonstrations.vocabulary)
+    return LearnedTaskModel(
+        momdp=learned.momdp, weights=learned.weights, placement=placement,
+        type_names=learned.type_names,
+    )  # fmt: skip

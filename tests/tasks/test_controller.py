@@ -1,0 +1,77 @@
+"""The online controller: belief updates match the filter, first step, errors, batches."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from torchhrc.belief import momdp_update, update
+from torchhrc.errors import ModelError
+from torchhrc.solvers import AlphaVectorPolicy
+from torchhrc.tasks.controller import Controller
+from torchhrc.testing import random_momdp, random_pomdp
+
+
+def _blind(m):
+    return AlphaVectorPolicy.from_action_vectors(m.R, momdp=True)
+
+
+def test_belief_follows_the_momdp_filter():
+    m = random_momdp(4, 3, 2, 2, seed=1)
+    policy = _blind(m)
+    c = Controller.from_momdp(m, policy)
+    c.reset()
+    a = c.act(0)
+    assert torch.equal(c.belief, m.b0)  # nothing to update at the start
+    assert a == int(policy.action(torch.tensor(0), m.b0))
+    b = momdp_update(m, 0, m.b0, a, 2, 1).belief
+    a2 = c.act((2, 1))
+    assert torch.allclose(c.belief, b)
+    assert a2 == int(policy.action(torch.tensor(2), b))
+    c.reset(torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64))
+    assert c.belief.tolist() == [1.0, 0.0, 0.0] and c.history == []
+
+
+def test_batched_episodes_match_single_ones():
+    m = random_momdp(4, 3, 2, 2, seed=2)
+    c = Controller.from_momdp(m, _blind(m))
+    c.reset(batch=2)
+    a = c.act(torch.tensor([0, 1]))
+    c.act((torch.tensor([3, 2]), torch.tensor([0, 1])))
+    for i, (x0, x1, o) in enumerate(((0, 3, 0), (1, 2, 1))):
+        s = Controller.from_momdp(m, _blind(m))
+        s.reset()
+        assert s.act(x0) == int(a[i])
+        s.act((x1, o))
+        assert torch.allclose(s.belief, c.belief[i])
+
+
+def test_impossible_observation_raises():
+    m = random_momdp(3, 2, 2, 1, seed=0)
+    Tx = torch.zeros_like(m.Tx)
+    Tx[..., 0] = 1.0  # every step goes to x = 0
+    m = type(m)(Tx=Tx, Ty=None, Z=m.Z, R=m.R, x0=0, b0=m.b0, discount=m.discount)
+    c = Controller.from_momdp(m, _blind(m))
+    c.reset()
+    c.act(0)
+    with pytest.raises(ModelError):
+        c.act(2)
+
+
+def test_prior_is_validated():
+    m = random_momdp(3, 2, 2, 1, seed=0)
+    c = Controller.from_momdp(m, _blind(m))
+    with pytest.raises(ModelError, match=r"expected prior of shape \(K=2,\)"):
+        c.reset(torch.ones(3) / 3)
+    with pytest.raises(ModelError, match="sum to 1"):
+        c.reset(torch.tensor([0.7, 0.7]))
+
+
+def test_flat_pomdp_controller_uses_the_flat_filter():
+    p = random_pomdp(3, 2, 2, seed=0)
+    policy = AlphaVectorPolicy.from_action_vectors(p.R, momdp=False)
+    c = Controller.from_pomdp(p, policy)
+    c.reset()
+    a = c.act(0)
+    c.act(1)
+    assert torch.allclose(c.belief, update(p, p.b0, a, 1).belief)

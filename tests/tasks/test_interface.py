@@ -1,0 +1,157 @@
+"""The task interface: dynamics, demonstration reading, default behaviour, validation."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from torchhrc.data import Demonstrations
+from torchhrc.errors import ModelError
+from torchhrc.tasks.interface import (
+    CollaborativeTask,
+    TypeEvidence,
+    chain_preferences,
+    check_task,
+    tabular_features,
+)
+from torchhrc.tasks.pipeline import transition_from_behaviour
+from torchhrc.tasks.place_and_drill.demos import simulate_study
+from torchhrc.tasks.place_and_drill.model import (
+    PlaceAndDrillTask,
+    demonstration_steps,
+    placement_probabilities,
+    placement_transition,
+)
+
+
+class Toggle(CollaborativeTask):
+    state_names = ("off", "on")
+    robot_actions = ("wait", "press")
+    human_actions = ("flip",)
+    robot_effect = torch.tensor([[0, 1], [1, 1]])
+    human_effect = torch.tensor([[1], [0]])
+
+
+def test_step_is_robot_then_human():
+    task = Toggle()
+    x = torch.tensor([0, 0, 1, 1])
+    a = torch.tensor([0, 1, 0, 1])
+    assert task.step(x, torch.tensor([0, 0, 0, 0]), a).tolist() == [1, 0, 0, 0]
+    assert task.step(x, torch.tensor([-1, -1, -1, -1]), a).tolist() == [0, 1, 1, 1]
+
+
+def test_default_features_are_one_hot_per_state_action_and_zero_when_terminal():
+    phi = tabular_features(2, 3, torch.tensor([False, False, True]))
+    assert phi.shape == (2, 3, 6)
+    assert phi.sum(-1).tolist() == [[1.0, 1.0, 0.0], [1.0, 1.0, 0.0]]
+    assert phi[1, 1, 4] == 1.0
+    assert len(Toggle().feature_names) == Toggle().features().shape[-1] == 4
+
+
+def test_read_steps_matches_the_place_and_drill_reader():
+    task = PlaceAndDrillTask(3)
+    demos = simulate_study(n_subjects=6, n_demos=3, seed=3)
+    new = task.read_steps(demos)
+    old = demonstration_steps(task, demos)
+    assert torch.equal(new.mask, old.mask)
+    m = new.mask
+    for a, b in ((new.states, old.states), (new.actions, old.actions),
+                 (new.next_states, old.next_states)):  # fmt: skip
+        assert torch.equal(a[m], b[m])
+    # every step is one the dynamics produce
+    assert torch.equal(task.step(new.states, new.human, new.actions)[m], new.next_states[m])
+
+
+def test_read_steps_rejects_a_step_the_dynamics_cannot_produce():
+    task = PlaceAndDrillTask(2)
+    demos = Demonstrations.from_lists(
+        [[("human", "place_A"), ("robot", "wait"), ("human", "place_A")]]
+    )
+    with pytest.raises(ModelError, match=r"step 2: human action 'place_A' cannot happen in "
+                                         r"state 'PE'"):  # fmt: skip
+        task.read_steps(demos)
+
+
+def test_read_steps_rejects_a_foreign_symbol():
+    demos = Demonstrations.from_lists([[("human", "place_Z"), ("robot", "wait")]])
+    with pytest.raises(ModelError, match="symbol human:place_Z is not an action of the task"):
+        PlaceAndDrillTask(2).read_steps(demos)
+
+
+def test_chain_behaviour_reproduces_the_place_and_drill_transition():
+    task = PlaceAndDrillTask(3)
+    demos = simulate_study(n_subjects=4, n_demos=2, seed=0)
+    chains = torch.rand(
+        2,
+        len(demos.vocabulary),
+        len(demos.vocabulary),
+        generator=torch.Generator().manual_seed(0),
+        dtype=torch.float64,
+    )
+    chains = chains / chains.sum(-1, keepdim=True)
+    evidence = TypeEvidence(chains, demos.vocabulary, torch.zeros(demos.num_sequences,
+                            dtype=torch.long), None, noise=0.1, pause=0.02)  # fmt: skip
+    behaviour = task.human_policy(evidence)
+    assert torch.allclose(behaviour.sum(-1), torch.ones(2, 4, 27, dtype=torch.float64))
+    reference = placement_transition(
+        task, placement_probabilities(task, chains, demos.vocabulary), noise=0.1, pause=0.02
+    )
+    assert torch.equal(transition_from_behaviour(task, behaviour), reference)
+
+
+def test_chain_preferences_pick_robot_rows_and_human_columns():
+    vocab = [("human", "h0"), ("human", "h1"), ("robot", "r0")]
+    chains = torch.arange(9.0).view(1, 3, 3)
+    p = chain_preferences(chains, vocab, ["r0", "missing"], ["h1", "h0"])
+    assert p.tolist() == [[[7.0, 6.0], [0.0, 0.0]]]
+
+
+def test_state_behaviour_counts_the_demonstrated_choices():
+    class Two(CollaborativeTask):  # two chores; the human does one per step
+        state_names = ("none", "a", "b", "ab")
+        robot_actions = ("wait",)
+        human_actions = ("do_a", "do_b")
+        robot_effect = torch.tensor([[0, 1, 2, 3]])
+        human_effect = torch.tensor([[1, 2], [1, 3], [3, 2], [3, 3]])
+        human_model = "state"
+
+    task = Two()
+    demos = Demonstrations.from_lists([[("human", "do_a"), ("human", "do_b")]] * 3
+                                      + [[("human", "do_b"), ("human", "do_a")]])  # fmt: skip
+    steps = task.read_steps(demos)
+    evidence = TypeEvidence(torch.ones(1, 2, 2) / 2, demos.vocabulary,
+                            torch.zeros(4, dtype=torch.long), steps, noise=0.0,
+                            pause=0.0)  # fmt: skip
+    p = task.human_policy(evidence)[0, 0]  # (X, H + 1)
+    # state "none": 3 x do_a, 1 x do_b (+0.1 each)
+    assert torch.allclose(p[0], torch.tensor([3.1 / 4.2, 1.1 / 4.2, 0.0]))
+    assert p[1].tolist() == [0.0, 1.0, 0.0] and p[3].tolist() == [0.0, 0.0, 1.0]
+
+
+def test_check_task_names_the_bad_table():
+    class BadEffect(Toggle):
+        human_effect = torch.tensor([[2], [0]])
+
+    with pytest.raises(ModelError, match=r"human_effect\[0, 0\] = 2 is not a state index"):
+        check_task(BadEffect())
+
+    class BadShape(Toggle):
+        robot_effect = torch.tensor([[0, 1]])
+
+    with pytest.raises(ModelError, match=r"expected robot_effect of shape \(2, 2\), got \(1, 2\)"):
+        check_task(BadShape())
+
+    class BadFeatures(Toggle):
+        def features(self, *, dtype=torch.float64, device=None):
+            return torch.zeros(2, 3, 1, dtype=dtype)
+
+    with pytest.raises(ModelError, match=r"features\(\) of shape \(A=2, X=2, F\), got \(2, 3, 1\)"):
+        check_task(BadFeatures())
+
+    class BadNames(Toggle):
+        feature_names = ("only_one",)
+
+    with pytest.raises(ModelError, match="expected 4 feature_names"):
+        check_task(BadNames())
+    check_task(Toggle())
+    check_task(PlaceAndDrillTask(3))

@@ -1,0 +1,173 @@
+"""Shipped files: top-level assets/ and models/ are the single source, and one lookup finds
+them in a checkout and in a built wheel installed elsewhere."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+import torchhrc
+from torchhrc.resources import shipped_path, shipped_root
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_top_level_folders_are_the_single_source():
+    assert (ROOT / "assets" / "panda" / "panda.urdf").is_file()
+    assert (ROOT / "models" / "place_and_drill_expert.json").is_file()
+    package = Path(torchhrc.__file__).parent
+    if package.parent == ROOT:  # imported from this checkout: nothing copied into the package
+        assert not (package / "assets").exists() and not (package / "models").exists()
+        assert shipped_root("assets") == ROOT / "assets"
+        assert shipped_path("models", "place_and_drill_expert.json") == (
+            ROOT / "models" / "place_and_drill_expert.json"
+        )
+
+
+def test_lookup_errors():
+    with pytest.raises(ValueError, match="expected kind in"):
+        shipped_root("meshes")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="relative name"):
+        shipped_path("assets", "../pyproject.toml")
+    with pytest.raises(FileNotFoundError, match=r"no shipped file 'nothing\.urdf'"):
+        shipped_path("assets", "nothing.urdf")
+
+
+_CHECK = """
+import json, sys
+import torchhrc
+from torchhrc.resources import shipped_path
+from torchhrc.kinematics import asset_path
+from torchhrc.baselines import DEFAULT_EXPERT_PATH, load_expert_model
+expert = load_expert_model()
+print(json.dumps({
+    "package": torchhrc.__file__,
+    "urdf": str(asset_path("panda/panda.urdf")),
+    "arm": str(shipped_path("assets", "human_arm/human_arm.urdf")),
+    "expert": str(DEFAULT_EXPERT_PATH),
+    "types": list(expert.type_names),
+}))
+"""
+
+
+@pytest.mark.slow
+def test_a_built_wheel_ships_and_finds_the_files(tmp_path: Path):
+    source = tmp_path / "src"
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "*.egg-info", "build")
+    for name in ("torchhrc", "assets", "models"):
+        shutil.copytree(ROOT / name, source / name, ignore=ignore)
+    for name in ("pyproject.toml", "setup.py", "MANIFEST.in", "README.md"):
+        shutil.copy2(ROOT / name, source / name)
+    wheels = tmp_path / "wheels"
+    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "--no-input"]
+    subprocess.run([*pip, "wheel", str(source), "--no-deps", "--no-build-isolation",
+                    "-w", str(wheels)], check=True, capture_output=True)  # fmt: skip
+    (wheel,) = wheels.glob("torchhrc-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    assert {"torchhrc/assets/panda/panda.urdf", "torchhrc/assets/human_arm/human_arm.urdf",
+            "torchhrc/models/place_and_drill_expert.json",
+            "torchhrc/models/place_and_drill_learned/model.safetensors"} <= names  # fmt: skip
+    site = tmp_path / "site"
+    subprocess.run([*pip, "install", "--no-deps", "--target", str(site), str(wheel)],
+                   check=True, capture_output=True)  # fmt: skip
+    env = dict(os.environ, PYTHONPATH=str(site))
+    out = subprocess.run([sys.executable, "-c", _CHECK], cwd=tmp_path, env=env, check=True,
+                         capture_output=True, text=True)  # fmt: skip
+    found = json.loads(out.stdout.strip().splitlines()[-1])
+    installed = site / "torchhrc"
+    assert Path(found["package"]).parent == installed
+    assert Path(found["urdf"]) == installed / "assets" / "panda" / "panda.urdf"
+    assert Path(found["arm"]) == installed / "assets" / "human_arm" / "human_arm.urdf"
+    assert Path(found["expert"]) == installed / "models" / "place_and_drill_expert.json"
+    assert found["types"] == ["safe", "efficient"]
+
+
+def _load_make_script():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "make_learned_models", ROOT / "models" / "make_learned_models.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_shipped_learned_model_loads_and_finishes_the_task():
+    import torch
+
+    from torchhrc.tasks import Controller, LearnedModel
+    from torchhrc.tasks.place_and_drill import PlaceAndDrillTask
+
+    path = shipped_path("models", "place_and_drill_learned/model.json").parent
+    model = LearnedModel.load(path)
+    assert sorted(model.type_names) == ["efficient", "safe"]
+    assert model.policy is not None and model.lower <= model.upper + 1e-9
+    task = PlaceAndDrillTask(3)
+    for order in ((0, 1, 2), (2, 0, 1)):  # the human places in this order
+        controller = Controller.from_model(model)
+        controller.reset()
+        x, placed = task.initial_state, 0
+        for _ in range(4 * 3):
+            a = controller.act(x)
+            h = order[placed] if placed < 3 else -1
+            x = int(task.step(torch.tensor(x), torch.tensor(h), torch.tensor(a)))
+            placed += h >= 0
+            if x == task.terminal_state:
+                break
+        assert x == task.terminal_state  # every screw placed and drilled
+
+
+@pytest.mark.slow
+def test_the_shipped_learned_model_is_what_the_script_learns(tmp_path: Path):
+    import torch
+
+    from torchhrc.tasks import LearnedModel
+
+    shipped = LearnedModel.load(shipped_path("models", "place_and_drill_learned/model.json").parent)
+    again = _load_make_script().place_and_drill_learned()
+    for name in ("Tx", "R", "b0"):
+        assert torch.equal(getattr(shipped.momdp, name), getattr(again.momdp, name))
+    assert torch.equal(shipped.weights, again.weights)
+    assert shipped.type_names == again.type_names and shipped.info["k"] == again.info["k"]
+
+
+_SDIST_THEN_WHEEL = """
+import sys, tarfile
+from pathlib import Path
+from setuptools import build_meta
+out = Path(sys.argv[1])
+sdist = out / build_meta.build_sdist(str(out))
+with tarfile.open(sdist) as tar:
+    tar.extractall(out / "unpacked", filter="data")
+(root,) = (out / "unpacked").iterdir()
+import os
+os.chdir(root)
+print(out / build_meta.build_wheel(str(out)))
+"""
+
+
+@pytest.mark.slow
+def test_the_wheel_built_from_the_sdist_ships_the_files(tmp_path: Path):
+    """``python -m build`` builds the sdist, then the wheel from the unpacked sdist."""
+    source = tmp_path / "src"
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "*.egg-info", "build")
+    for name in ("torchhrc", "assets", "models"):
+        shutil.copytree(ROOT / name, source / name, ignore=ignore)
+    for name in ("pyproject.toml", "setup.py", "MANIFEST.in", "README.md"):
+        shutil.copy2(ROOT / name, source / name)
+    out = tmp_path / "dist"
+    out.mkdir()
+    done = subprocess.run([sys.executable, "-c", _SDIST_THEN_WHEEL, str(out)], cwd=source,
+                          check=True, capture_output=True, text=True)  # fmt: skip
+    wheel = Path(done.stdout.strip().splitlines()[-1])
+    names = set(zipfile.ZipFile(wheel).namelist())
+    assert {"torchhrc/assets/panda/panda.urdf", "torchhrc/models/place_and_drill_expert.json",
+            "torchhrc/models/place_and_drill_learned/model.safetensors"} <= names  # fmt: skip

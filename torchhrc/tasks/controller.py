@@ -1,0 +1,188 @@
+"""An online controller: a solved model acting in a loop against a real or simulated human.
+
+Paper (section "Online estimation of human type"; Eq. 3): at each step the robot observes
+the task state ``x'`` (and, when the task has one, a noisy signal ``o`` of the human),
+updates its belief over the human types
+
+    b'(y') = eta Z(x', y', a, o) sum_y Tx(x, y, a, x') Ty(x, y, a, x', y') b(y)
+
+and takes the action of its policy at ``(x', b')``. :class:`Controller` does exactly that::
+
+    controller.reset(prior)                   # belief over the types, start state
+    a = controller.act(x0)                    # first action
+    a = controller.act((x1, o1))              # later: the new state (and signal)
+
+The filter is given as a function, so one controller serves every model form: the factored
+MOMDP (:meth:`Controller.from_model`, :meth:`Controller.from_momdp`; belief over ``Y``) and
+the flat POMDP (:meth:`Controller.from_pomdp`; belief over ``S``, observation only).
+Batched: ``x`` of shape ``(B,)`` runs ``B`` episodes at once.
+
+Example:
+    >>> import torch
+    >>> from torchhrc.testing import random_momdp
+    >>> from torchhrc.solvers import AlphaVectorPolicy
+    >>> m = random_momdp(3, 2, 2, 1, seed=0)
+    >>> blind = AlphaVectorPolicy.from_action_vectors(m.R, momdp=True)
+    >>> c = Controller.from_momdp(m, blind)
+    >>> c.reset()
+    >>> a = c.act(0); a2 = c.act(1)
+    >>> c.belief.shape, len(c.history)
+    (torch.Size([2]), 2)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import torch
+
+from torchhrc.errors import ModelError
+
+if TYPE_CHECKING:
+    from torchhrc.pomdp import MOMDP, POMDP
+    from torchhrc.tasks.pipeline import LearnedModel
+
+__all__ = ["Controller"]
+
+#: ``filter(x, belief, action, x_next, observation) -> belief'`` (batched).
+Filter = Callable[[Any, torch.Tensor, torch.Tensor, Any, torch.Tensor], torch.Tensor]
+#: ``choose(x, belief) -> action`` (batched).
+Chooser = Callable[[Any, torch.Tensor], torch.Tensor]
+
+
+class Controller:
+    """A robot acting online: belief filter + policy.
+
+    Args:
+        filter: ``filter(x, belief, action, x_next, observation) -> belief'``.
+        choose: ``choose(x, belief) -> action``.
+        prior: default initial belief ``(K,)``.
+        x0: default start state (``None`` for a flat POMDP).
+        names: optional action names (for :attr:`history`).
+
+    Most users build one with :meth:`from_model`.
+    """
+
+    def __init__(
+        self,
+        filter: Filter,
+        choose: Chooser,
+        prior: torch.Tensor,
+        x0: int | None,
+        names: tuple[str, ...] | None = None,
+    ) -> None:
+        self._filter = filter
+        self._choose = choose
+        self._prior = prior
+        self._x0 = x0
+        self.names = names
+        self.belief: torch.Tensor = prior.clone()
+        self.state: torch.Tensor | None = None
+        self.last_action: torch.Tensor | None = None
+        self.history: list[tuple[Any, Any, torch.Tensor]] = []
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_momdp(cls, momdp: MOMDP, policy: Any) -> Controller:
+        """A controller of a MOMDP and a policy with ``action(x, belief_y) -> a``."""
+        from torchhrc.belief import momdp_update
+
+        def filt(x: Any, b: torch.Tensor, a: torch.Tensor, x2: Any, o: torch.Tensor) -> Any:
+            return momdp_update(momdp, x, b, a, x2, o).belief
+
+        def choose(x: Any, b: torch.Tensor) -> torch.Tensor:
+            return policy.action(x, b)
+
+        return cls(filt, choose, momdp.b0, int(momdp.x0), tuple(momdp.actions or ()) or None)
+
+    @classmethod
+    def from_model(cls, model: LearnedModel) -> Controller:
+        """The controller of a solved :class:`~torchhrc.tasks.pipeline.LearnedModel`.
+
+        Raises:
+            ModelError: the model has not been solved.
+        """
+        if model.policy is None:
+            raise ModelError(
+                "the model has no policy: solve it first "
+                "(torchhrc.tasks.pipeline.solve_model or learn(solve=True))"
+            )
+        return cls.from_momdp(model.momdp, model.policy)
+
+    @classmethod
+    def from_pomdp(cls, pomdp: POMDP, policy: Any) -> Controller:
+        """A controller of a flat POMDP (belief over its ``S`` states; ``act(o)``)."""
+        from torchhrc.belief import update
+
+        def filt(x: Any, b: torch.Tensor, a: torch.Tensor, x2: Any, o: torch.Tensor) -> Any:
+            return update(pomdp, b, a, o).belief
+
+        def choose(x: Any, b: torch.Tensor) -> torch.Tensor:
+            return policy.action(b)
+
+        return cls(filt, choose, pomdp.b0, None, tuple(pomdp.actions or ()) or None)
+
+    # ------------------------------------------------------------------ loop
+    def reset(self, prior: torch.Tensor | None = None, *, batch: int | None = None) -> None:
+        """Start an episode.
+
+        Args:
+            prior: ``(K,)`` or ``(B, K)`` initial belief (default the model's ``b0``).
+            batch: run ``B`` episodes at once (the prior is repeated).
+
+        Raises:
+            ModelError: the prior is not a distribution over the model's ``K`` values.
+        """
+        p = self._prior if prior is None else torch.as_tensor(prior)
+        K = self._prior.shape[-1]
+        if p.shape[-1] != K or p.dim() > 2:
+            raise ModelError(f"expected prior of shape (K={K},) or (B, K={K}), "
+                             f"got {tuple(p.shape)}")  # fmt: skip
+        p = p.to(self._prior.dtype)
+        if (p < 0).any() or not torch.allclose(p.sum(-1), torch.ones((), dtype=p.dtype),
+                                               atol=1e-6):  # fmt: skip
+            raise ModelError("expected prior to be non-negative and sum to 1 over the last dim")
+        if batch is not None:
+            p = p.expand(batch, K)
+        self.belief = p.clone()
+        self.state = None
+        self.last_action = None
+        self.history = []
+
+    def act(self, observation: Any) -> Any:
+        """Update the belief with what the robot sees now and return its next action.
+
+        Args:
+            observation: the current task state ``x`` (int or ``(B,)`` int64); for a task
+                with a noisy human signal, the pair ``(x, o)``; for a flat POMDP, ``o``.
+                At the first call after :meth:`reset` there is nothing to update: ``x`` is
+                the start state (its signal, if any, is ignored).
+
+        Returns:
+            The robot action (int for an int ``x``, else an int64 tensor ``(B,)``).
+
+        Raises:
+            ModelError: the observation is impossible under the belief (the human did
+                something no type explains).
+        """
+        if isinstance(observation, tuple):
+            x, o = observation
+        elif self._x0 is None:
+            x, o = None, observation
+        else:
+            x, o = observation, 0
+        scalar = not isinstance(x, torch.Tensor) and not isinstance(o, torch.Tensor)
+        xt = None if x is None else torch.as_tensor(x, dtype=torch.long)
+        ot = torch.as_tensor(o, dtype=torch.long)
+        if self.last_action is not None:
+            self.belief = self._filter(self.state, self.belief, self.last_action, xt, ot)
+        action = torch.as_tensor(self._choose(xt, self.belief), dtype=torch.long)
+        self.state = xt
+        self.last_action = action
+        self.history.append((x, o, self.belief))
+        return int(action) if scalar else action
+
+    def action_name(self, action: int) -> str:
+        """The name of ``action`` (its index when the model has no names)."""
+        return self.names[action] if self.names else str(action)

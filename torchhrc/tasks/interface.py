@@ -1,0 +1,517 @@
+"""The task interface: what a user supplies about a collaborative task, and nothing more.
+
+Paper (Nikolaidis et al., "MOMDP Formulation"): a collaborative task is a MOMDP whose
+observed part ``x`` is the task state, whose hidden part ``y`` is the human type, and whose
+one decision step is a robot action ``a_r`` followed by the human's response ``a_h``. What
+differs between tasks is only the mechanics of ``x``; everything learned (the types, their
+behaviour, their rewards) comes from demonstrations through :mod:`torchhrc.tasks.pipeline`.
+A task is a :class:`CollaborativeTask`, tabulated (all tables are small tensors):
+
+=====================  ==============================================================
+``state_names``        ``(X,)`` names of the observed task states ``x``
+``robot_actions``      ``(A,)`` names of the robot actions ``a_r``
+``human_actions``      ``(H,)`` names of the human actions ``a_h``
+``robot_effect``       ``(A, X)`` int64: ``x`` after robot action ``a`` (before the human)
+``human_effect``       ``(X, H)`` int64: ``x`` after human action ``h`` (from the robot's result)
+``human_legal``        ``(X, H)`` bool: ``h`` can happen in ``x`` (default: it changes ``x``)
+``initial_state``      ``x0`` (default 0)
+``terminal``           ``(X,)`` bool absorbing, zero-reward states (default none)
+``features()``         ``(A, X, F)`` reward features ``phi(x, a_r)`` (default one-hot of
+                       ``(x, a_r)``: :func:`tabular_features`)
+``observation(model)`` how the robot observes the human: ``None`` (the human's action is
+                       seen through ``x'``, as in place-and-drill) or ``Z (A, X, Y, O)``
+                       (a noisy signal, as the hand positions of hand-finishing)
+=====================  ==============================================================
+
+One step is ``x' = human_effect[robot_effect[a_r, x], a_h]`` (:meth:`CollaborativeTask.step`);
+the human may also let a turn pass (``x' = robot_effect[a_r, x]``). Demonstrations are
+sequences of ``(actor, action)`` symbols (:class:`torchhrc.data.Demonstrations`); the default
+reading (:meth:`CollaborativeTask.read_steps`) turns them into steps ``(x, a_r, a_h, x')``
+and rejects a step the dynamics cannot produce.
+
+The pieces a task may replace (each has a default that learns it from the demonstrations):
+:meth:`~CollaborativeTask.human_policy` (per-type human behaviour),
+:meth:`~CollaborativeTask.known_reward` (a reward given instead of learned by IRL),
+:meth:`~CollaborativeTask.type_names`. The pipeline calls them the same way for every task.
+
+Example:
+    >>> class Toggle(CollaborativeTask):
+    ...     state_names = ("off", "on")
+    ...     robot_actions = ("wait", "press")
+    ...     human_actions = ("flip",)
+    ...     robot_effect = torch.tensor([[0, 1], [1, 1]])   # press turns it on
+    ...     human_effect = torch.tensor([[1], [0]])         # flip toggles
+    >>> task = Toggle()
+    >>> task.step(torch.tensor(0), torch.tensor(0), torch.tensor(1)).item()  # press, flip
+    0
+    >>> task.features().shape
+    torch.Size([2, 2, 4])
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Literal
+
+import torch
+
+from torchhrc.errors import ModelError
+
+if TYPE_CHECKING:
+    from torchhrc.data import Demonstrations
+    from torchhrc.pomdp import MOMDP
+
+__all__ = [
+    "CollaborativeTask",
+    "TaskSteps",
+    "TypeEvidence",
+    "chain_preferences",
+    "check_task",
+    "tabular_features",
+]
+
+#: Human symbols read as "the human lets this turn pass" when not a task action.
+IDLE_HUMAN_NAMES: tuple[str, ...] = ("wait", "idle", "none")
+
+
+@dataclass(frozen=True)
+class TaskSteps:
+    """Demonstrations rewritten as task steps ``(x, a_r, a_h, x')`` (``N`` sequences,
+    ``L`` steps at most, padded).
+
+    Attributes:
+        states: ``(N, L)`` int64 ``x`` before the robot's ``t``-th decision.
+        actions: ``(N, L)`` int64 robot action ``a_r``.
+        human: ``(N, L)`` int64 human action ``a_h`` (``-1``: the human let the turn pass).
+        next_states: ``(N, L)`` int64 ``x'``.
+        mask: ``(N, L)`` bool, True on real steps.
+    """
+
+    states: torch.Tensor
+    actions: torch.Tensor
+    human: torch.Tensor
+    next_states: torch.Tensor
+    mask: torch.Tensor
+
+    @property
+    def lengths(self) -> torch.Tensor:
+        """``(N,)`` real steps per sequence."""
+        return self.mask.sum(-1)
+
+
+@dataclass(frozen=True)
+class TypeEvidence:
+    """What the pipeline knows about the types when it asks the task for a type-dependent
+    piece (``K`` types, ``V`` demonstration symbols).
+
+    Attributes:
+        chains: ``(K, V, V)`` float64 Markov chain of each type over the symbols.
+        vocabulary: ``(V,)`` symbols ``(actor, action)`` of the chains.
+        assignments: ``(N,)`` int64 type of each demonstration.
+        steps: the demonstrations as :class:`TaskSteps` (``None`` when the task does not
+            read its demonstrations as steps).
+        noise: weight of a uniformly random legal human action in the behaviour.
+        pause: probability that the human lets a turn pass although an action is legal.
+    """
+
+    chains: torch.Tensor
+    vocabulary: tuple[tuple[str, str], ...]
+    assignments: torch.Tensor
+    steps: TaskSteps | None
+    noise: float = 0.05
+    pause: float = 0.0
+
+    @property
+    def num_types(self) -> int:
+        """``K``."""
+        return int(self.chains.shape[0])
+
+
+def tabular_features(
+    num_actions: int,
+    num_states: int,
+    terminal: torch.Tensor | None = None,
+    *,
+    dtype: torch.dtype = torch.float64,
+) -> torch.Tensor:
+    """The default reward features: one indicator per ``(a_r, x)``, zero in terminal states.
+
+    With these IRL can represent any reward ``R(x, a_r)``; a task with many states should
+    supply a few meaningful features instead (fewer demonstrations needed).
+
+    Returns:
+        ``(A, X, A * X)`` float, ``phi[a, x, a * X + x] = 1``.
+
+    Example:
+        >>> tabular_features(2, 3)[1, 2].nonzero().flatten().tolist()
+        [5]
+    """
+    phi = torch.eye(num_actions * num_states, dtype=dtype).view(num_actions, num_states, -1)
+    if terminal is not None:
+        phi = phi * (~terminal.to(torch.bool)).to(dtype).view(1, -1, 1)
+    return phi
+
+
+def chain_preferences(
+    chains: torch.Tensor,
+    vocabulary: Sequence[tuple[str, str]],
+    robot_actions: Sequence[str],
+    human_actions: Sequence[str],
+) -> torch.Tensor:
+    """Per-type preferences ``p[k, a, h] = theta_k(human:h | robot:a)`` from Markov chains.
+
+    Paper: "the transition matrix encodes information about how the human will act based on
+    the previous robot action". Symbols missing from the vocabulary give zero preference.
+
+    Args:
+        chains: ``(..., K, V, V)`` ``chains[k, u, v] = P(next v | previous u)``.
+        vocabulary: ``(V,)`` symbols.
+        robot_actions: ``(A,)`` robot action names; human_actions: ``(H,)``.
+
+    Returns:
+        ``(..., K, A, H)`` preferences (rows not normalised).
+
+    Example:
+        >>> c = torch.tensor([[[0.0, 1.0], [1.0, 0.0]]])
+        >>> chain_preferences(c, [("robot", "go"), ("human", "hi")], ["go"], ["hi"]).tolist()
+        [[[1.0]]]
+    """
+    vocab = [tuple(v) for v in vocabulary]
+    V = len(vocab)
+    if chains.shape[-1] != V or chains.shape[-2] != V:
+        raise ModelError(
+            f"expected chains of shape (..., K, V={V}, V={V}), got {tuple(chains.shape)}"
+        )
+    lookup = {sym: i for i, sym in enumerate(vocab)}
+    rows = torch.tensor([lookup.get(("robot", a), -1) for a in robot_actions])
+    cols = torch.tensor([lookup.get(("human", h), -1) for h in human_actions])
+    picked = chains[..., rows.clamp_min(0)[:, None], cols.clamp_min(0)[None, :]]
+    ok = (rows[:, None] >= 0) & (cols[None, :] >= 0)
+    return torch.where(ok.to(chains.device), picked, torch.zeros_like(picked))
+
+
+class CollaborativeTask:
+    """Base class of a collaborative task (see the module docstring for the contract).
+
+    Subclasses set (class attributes, properties or dataclass fields) ``state_names``,
+    ``robot_actions``, ``human_actions``, ``robot_effect (A, X)`` and
+    ``human_effect (X, H)``, and may override every other member.
+
+    Attributes:
+        human_model: how :meth:`human_policy` learns a type's behaviour by default:
+            ``"chain"``: from the type's Markov chain, ``P(a_h | previous robot action)``
+            (the paper's reading, place-and-drill); ``"state"``: from the type's
+            demonstration steps, ``P(a_h | x after the robot's action)`` (counts with a
+            Dirichlet pseudo-count), for tasks where the human's choice depends on the
+            task state more than on the robot's last move.
+        discount: discount factor of the MOMDP and of the IRL.
+    """
+
+    state_names: Sequence[str]
+    robot_actions: Sequence[str]
+    human_actions: Sequence[str]
+    robot_effect: torch.Tensor
+    human_effect: torch.Tensor
+    human_model: Literal["chain", "state"] = "chain"
+    discount: float = 0.95
+
+    # ------------------------------------------------------------------ sizes and defaults
+    @property
+    def num_states(self) -> int:
+        """``X``."""
+        return len(self.state_names)
+
+    @property
+    def num_actions(self) -> int:
+        """``A``, robot actions."""
+        return len(self.robot_actions)
+
+    @property
+    def num_human_actions(self) -> int:
+        """``H``."""
+        return len(self.human_actions)
+
+    @property
+    def initial_state(self) -> int:
+        """``x0`` (default 0)."""
+        return 0
+
+    @property
+    def idle_robot_action(self) -> int:
+        """The robot action read before a human turn that follows no robot action
+        (default: ``"wait"`` when there is one, else 0)."""
+        names = list(self.robot_actions)
+        return names.index("wait") if "wait" in names else 0
+
+    @property
+    def human_legal(self) -> torch.Tensor:
+        """``(X, H)`` bool: human action ``h`` can happen in ``x`` (default: it changes ``x``)."""
+        X = self.num_states
+        return self.human_effect != torch.arange(X).view(X, 1)
+
+    @property
+    def terminal(self) -> torch.Tensor:
+        """``(X,)`` bool absorbing zero-reward states (default: none)."""
+        return torch.zeros(self.num_states, dtype=torch.bool)
+
+    @property
+    def feature_names(self) -> tuple[str, ...]:
+        """``(F,)`` names of :meth:`features` (default: ``"<action>@<state>"``)."""
+        return tuple(f"{a}@{x}" for a in self.robot_actions for x in self.state_names)
+
+    def features(
+        self, *, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
+    ) -> torch.Tensor:
+        """Reward features ``(A, X, F)``, ``phi_f(x, a_r)`` (default :func:`tabular_features`)."""
+        phi = tabular_features(self.num_actions, self.num_states, self.terminal, dtype=dtype)
+        return phi.to(device)
+
+    def observation(self, model: MOMDP) -> torch.Tensor | None:
+        """How the robot observes the human, given the learned model without it.
+
+        Args:
+            model: the learned MOMDP with the trivial observation (``Z`` of ones, ``O = 1``).
+
+        Returns:
+            ``None``: the human's action is seen through ``x'`` alone (default); or
+            ``Z (A, X, Y, O)`` = ``P(o | x', y', a_r)``, a noisy signal of the human.
+        """
+        return None
+
+    # ------------------------------------------------------------------ dynamics
+    def step(
+        self, x: torch.Tensor, human_action: torch.Tensor, robot_action: torch.Tensor
+    ) -> torch.Tensor:
+        """``x'`` after robot action ``a_r`` then human action ``a_h`` (``-1``: none), batched.
+
+        Args:
+            x, human_action, robot_action: int64 tensors of one shape ``(...)``.
+
+        Returns:
+            ``(...)`` int64 next states.
+        """
+        effect = torch.as_tensor(self.robot_effect)
+        mid = effect[robot_action, x]
+        human = torch.as_tensor(self.human_effect)
+        after = human[mid, human_action.clamp_min(0)]
+        return torch.where(human_action >= 0, after, mid)
+
+    # ------------------------------------------------------------------ demonstrations
+    def read_steps(self, demonstrations: Demonstrations) -> TaskSteps | None:
+        """Rewrite ``(actor, action)`` demonstrations as task steps ``(x, a_r, a_h, x')``.
+
+        A task whose demonstrations serve the clustering only (its reward given by
+        :meth:`known_reward`, its behaviour not counted from steps) may return ``None``.
+
+        Reading rules: a sequence starts at ``x0``; a robot symbol is one decision at the
+        current ``x``; a human turn right after it belongs to the same step; a human turn
+        that follows no robot action (the first one, or two human turns in a row) is
+        preceded by :attr:`idle_robot_action`. A human symbol named ``wait`` (or ``idle``,
+        ``none``) that is not a task action means "no human action".
+
+        Raises:
+            ModelError: a symbol that is not an action of the task, or a human action the
+                dynamics cannot produce (``human_legal`` is False where it happens).
+        """
+        robot_index = {a: i for i, a in enumerate(self.robot_actions)}
+        human_index = {h: i for i, h in enumerate(self.human_actions)}
+        kinds: list[tuple[int, int]] = []  # (0 robot / 1 human / 2 other, index)
+        for actor, action in demonstrations.vocabulary:
+            if actor == "robot" and action in robot_index:
+                kinds.append((0, robot_index[action]))
+            elif actor == "human" and action in human_index:
+                kinds.append((1, human_index[action]))
+            elif actor == "human" and action in IDLE_HUMAN_NAMES:
+                kinds.append((1, -1))
+            else:
+                kinds.append((2, -1))
+        effect = torch.as_tensor(self.robot_effect).tolist()
+        human = torch.as_tensor(self.human_effect).tolist()
+        legal = torch.as_tensor(self.human_legal).tolist()
+        idle = self.idle_robot_action
+        names = list(self.state_names)
+        seqs = demonstrations.sequences.cpu().tolist()
+        lengths = demonstrations.lengths.cpu().tolist()
+        rows: list[list[list[int]]] = []
+        for n, (seq, length) in enumerate(zip(seqs, lengths)):
+            x = self.initial_state
+            steps: list[list[int]] = []
+            open_step = False
+            for t in range(length):
+                kind, idx = kinds[seq[t]]
+                if kind == 2:
+                    actor, action = demonstrations.vocabulary[seq[t]]
+                    raise ModelError(
+                        f"demonstration {n} step {t}: symbol {actor}:{action} is not an action "
+                        f"of the task (robot: {', '.join(self.robot_actions)}; human: "
+                        f"{', '.join(self.human_actions)})"
+                    )
+                if kind == 0:
+                    mid = effect[idx][x]
+                    steps.append([x, idx, -1, mid])
+                    x = mid
+                    open_step = True
+                    continue
+                if not open_step:
+                    steps.append([x, idle, -1, effect[idle][x]])
+                    x = effect[idle][x]
+                if idx >= 0:
+                    if not legal[x][idx]:
+                        raise ModelError(
+                            f"demonstration {n} step {t}: human action "
+                            f"{self.human_actions[idx]!r} cannot happen in state {names[x]!r} "
+                            f"(after robot action {self.robot_actions[steps[-1][1]]!r}); the "
+                            "task's dynamics cannot produce this step"
+                        )
+                    x = human[x][idx]
+                steps[-1][2] = idx
+                steps[-1][3] = x
+                open_step = False
+            rows.append(steps)
+        N = len(rows)
+        H = max([len(s) for s in rows] + [1])
+        out = torch.zeros(4, N, H, dtype=torch.long)
+        mask = torch.zeros(N, H, dtype=torch.bool)
+        out[2] = -1
+        for n, steps in enumerate(rows):
+            if steps:
+                out[:, n, : len(steps)] = torch.tensor(steps, dtype=torch.long).T
+                mask[n, : len(steps)] = True
+        dev = demonstrations.device
+        return TaskSteps(*(t.to(dev) for t in out), mask.to(dev))  # type: ignore[arg-type]
+
+    # ------------------------------------------------------------------ type-dependent pieces
+    def human_policy(self, evidence: TypeEvidence) -> torch.Tensor:
+        """Per-type human behaviour ``P(a_h | x, a_r, y)``, the last column "no action".
+
+        Default (:attr:`human_model`): preferences ``p[y, a, x, h]`` from the chains
+        (:func:`chain_preferences`, the same for every ``x``) or from the type's
+        demonstration steps (counts per ``(x after the robot, a_h)`` plus 0.1), restricted to
+        the actions legal after the robot's move, renormalised (uniform where ``p`` has no
+        mass), mixed with ``evidence.noise`` of a uniformly random legal action and scaled by
+        ``1 - evidence.pause``; the rest is "no action" (all of it where nothing is legal).
+
+        Returns:
+            ``(Y, A, X, H + 1)`` probabilities, rows summing to 1.
+        """
+        chains = evidence.chains
+        dt, dev = chains.dtype, chains.device
+        mid = torch.as_tensor(self.robot_effect).to(dev)  # (A, X)
+        legal = torch.as_tensor(self.human_legal).to(dev)[mid]  # (A, X, H)
+        if self.human_model == "chain":
+            p = chain_preferences(chains, evidence.vocabulary, self.robot_actions,
+                                  self.human_actions)  # fmt: skip
+            p = p.unsqueeze(-2)  # (Y, A, 1, H)
+        elif self.human_model == "state":
+            if evidence.steps is None:
+                raise ModelError("human_model='state' needs the demonstrations read as steps")
+            p = _state_counts(self, evidence, dt, dev)  # (Y, A, X, H)
+        else:
+            raise ModelError(f"expected human_model 'chain' or 'state', got {self.human_model!r}")
+        legal_f = legal.to(dt)  # (A, X, H)
+        num_legal = legal_f.sum(-1, keepdim=True)
+        uniform = legal_f / num_legal.clamp_min(1.0)
+        masked = p * legal_f
+        total = masked.sum(-1, keepdim=True)
+        chain = torch.where(total > 0, masked / total.clamp_min(1e-300), uniform)
+        probs = (1.0 - evidence.noise) * chain + evidence.noise * uniform
+        probs = probs * (1.0 - evidence.pause)  # (Y, A, X, H)
+        stay = torch.where(num_legal == 0, 1.0, evidence.pause).to(dt)  # (A, X, 1)
+        stay = stay.expand(*probs.shape[:-1], 1)
+        return torch.cat([probs, stay], -1)
+
+    def known_reward(self, evidence: TypeEvidence) -> torch.Tensor | None:
+        """A reward ``(A, X, Y)`` the task knows, or ``None`` to learn one per type by IRL
+        from the demonstrations (default)."""
+        return None
+
+    def type_names(self, evidence: TypeEvidence) -> tuple[str, ...]:
+        """``(Y,)`` names of the learned types (default ``"type_0"``, ...)."""
+        return tuple(f"type_{k}" for k in range(evidence.num_types))
+
+
+def _state_counts(
+    task: CollaborativeTask, evidence: TypeEvidence, dtype: torch.dtype, device: torch.device
+) -> torch.Tensor:
+    steps = evidence.steps
+    assert steps is not None
+    K, X, H = evidence.num_types, task.num_states, task.num_human_actions
+    mid = torch.as_tensor(task.robot_effect).to(steps.states.device)[steps.actions, steps.states]
+    keep = steps.mask & (steps.human >= 0)
+    y = evidence.assignments.to(steps.states.device).view(-1, 1).expand_as(mid)[keep]
+    counts = torch.zeros(K, X, H, dtype=dtype, device=steps.states.device)
+    flat = (y * X + mid[keep]) * H + steps.human[keep]
+    counts.view(-1).index_add_(0, flat, torch.ones_like(flat, dtype=dtype))
+    counts = counts + 0.1
+    index = torch.as_tensor(task.robot_effect).to(counts.device)  # (A, X)
+    return counts[:, index].to(device)  # (K, A, X, H)
+
+
+def _table(name: str, value: Any, shape: tuple[int, ...], kind: str) -> torch.Tensor:
+    try:
+        t = torch.as_tensor(value)
+    except Exception as exc:
+        raise TypeError(f"expected {name} to be a tensor of shape {shape}, got {value!r}") from exc
+    if tuple(t.shape) != shape:
+        raise ModelError(f"expected {name} of shape {shape}, got {tuple(t.shape)}")
+    if kind == "index" and (t.is_floating_point() or t.dtype == torch.bool):
+        raise TypeError(f"expected {name} to have an integer dtype, got {t.dtype}")
+    if kind == "bool" and t.dtype != torch.bool:
+        raise TypeError(f"expected {name} to have dtype torch.bool, got {t.dtype}")
+    return t
+
+
+def check_task(task: CollaborativeTask) -> None:
+    """Validate a task's tables; raise a clear error naming the bad piece.
+
+    Checks: names are non-empty; ``robot_effect (A, X)`` and ``human_effect (X, H)`` are
+    integer tables of states in ``[0, X)``; ``human_legal (X, H)`` and ``terminal (X,)``
+    bool; ``x0`` in range; ``features()`` of shape ``(A, X, F)``, finite, with
+    ``len(feature_names) == F``.
+
+    Raises:
+        ModelError: a table has the wrong shape or an out-of-range entry.
+        TypeError: a table has the wrong kind.
+
+    Example:
+        >>> class Bad(CollaborativeTask):
+        ...     state_names, robot_actions, human_actions = ("s",), ("wait",), ("go",)
+        ...     robot_effect = torch.tensor([[0]])
+        ...     human_effect = torch.tensor([[1]])
+        >>> check_task(Bad())
+        Traceback (most recent call last):
+        ...
+        torchhrc.errors.ModelError: human_effect[0, 0] = 1 is not a state index in [0, 1)
+    """
+    for name in ("state_names", "robot_actions", "human_actions"):
+        names = getattr(task, name, None)
+        if names is None or len(names) == 0:
+            raise ModelError(f"expected the task's {name} to be a non-empty sequence of names")
+    X, A, H = task.num_states, task.num_actions, task.num_human_actions
+    for name, shape in (("robot_effect", (A, X)), ("human_effect", (X, H))):
+        t = _table(name, getattr(task, name), shape, "index")
+        bad = (t < 0) | (t >= X)
+        if bad.any():
+            i = tuple(torch.nonzero(bad)[0].tolist())
+            raise ModelError(
+                f"{name}[{', '.join(map(str, i))}] = {int(t[i])} is not a state index in [0, {X})"
+            )
+    _table("human_legal", task.human_legal, (X, H), "bool")
+    _table("terminal", task.terminal, (X,), "bool")
+    x0 = task.initial_state
+    if not isinstance(x0, int) or not 0 <= x0 < X:
+        raise ModelError(f"expected initial_state in [0, {X}), got {x0!r}")
+    phi = task.features()
+    if not isinstance(phi, torch.Tensor) or phi.dim() != 3 or tuple(phi.shape[:2]) != (A, X):
+        shape = tuple(phi.shape) if isinstance(phi, torch.Tensor) else type(phi).__name__
+        raise ModelError(f"expected features() of shape (A={A}, X={X}, F), got {shape}")
+    if not phi.is_floating_point() or not torch.isfinite(phi).all():
+        raise ModelError("expected features() to be finite floating-point values")
+    if len(task.feature_names) != phi.shape[-1]:
+        raise ModelError(
+            f"expected {phi.shape[-1]} feature_names (F of features()), "
+            f"got {len(task.feature_names)}"
+        )
+    if not 0.0 < float(task.discount) < 1.0:
+        raise ModelError(f"expected discount in (0, 1), got {task.discount}")

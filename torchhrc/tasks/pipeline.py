@@ -1,0 +1,545 @@
+"""From a task and demonstrations to a learned, solved MOMDP: one call, the same for every task.
+
+Paper (Nikolaidis et al., Fig. 1): demonstrations -> clustering into human types (mixture of
+Markov chains, BIC picks ``k``) -> per-type human behaviour (the transition ``Tx``) -> a
+reward per type by inverse reinforcement learning (Abbeel & Ng 2004) -> the MOMDP over
+``(x, type)`` -> solved by SARSOP (Kurniawati et al. 2008; Ong et al. 2010). Every piece
+that depends on the task is asked of the :class:`~torchhrc.tasks.interface.CollaborativeTask`
+through its interface; the pipeline never looks at which task it holds.
+
+* :func:`learn`: everything, ``learn(task, demos, seed=0) -> LearnedModel``;
+* :func:`build_model`: the model from given clusters (chains and assignments), no solve;
+* :func:`solve_model`: SARSOP on a built model.
+
+A :class:`LearnedModel` is what a researcher inspects (clusters, rewards, behaviour, policy,
+bounds) and is saved / loaded with :meth:`LearnedModel.save` / :meth:`LearnedModel.load`
+(safetensors for the tensors, JSON for the rest, written atomically).
+
+Example:
+    >>> from torchhrc.tasks.place_and_drill import PlaceAndDrillTask
+    >>> from torchhrc.tasks.place_and_drill.demos import simulate_study
+    >>> demos = simulate_study(n_subjects=4, n_demos=2, seed=0)
+    >>> model = learn(PlaceAndDrillTask(3), demos, k_max=3, restarts=2, solver_time=1.0)
+    >>> model.num_types, model.momdp.num_observed
+    (2, 27)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Literal
+
+import torch
+
+from torchhrc.errors import ModelError
+from torchhrc.pomdp import MOMDP
+from torchhrc.tasks.interface import CollaborativeTask, TaskSteps, TypeEvidence, check_task
+
+__all__ = [
+    "LearnedModel",
+    "build_model",
+    "learn",
+    "learn_type_weights",
+    "solve_model",
+]
+
+_FORMAT = "torchhrc.learned_task_model"
+_VERSION = 1
+
+RewardRule = Literal["dominant", "paper", "last"]
+
+
+@dataclass(frozen=True)
+class LearnedModel:
+    """A learned task model (``Y`` types, ``X`` states, ``A`` robot actions).
+
+    Attributes:
+        momdp: the MOMDP over ``(x, type)`` (static type).
+        weights: ``(Y, F)`` IRL reward weights per type (empty ``(Y, 0)`` when the task gave
+            its reward).
+        behaviour: ``(Y, A, X, H + 1)`` human behaviour ``P(a_h | x, a_r, y)`` (last column:
+            no action).
+        type_names: ``(Y,)`` names of the types.
+        chains: ``(Y, V, V)`` the Markov chain of each type over ``vocabulary``.
+        vocabulary: ``(V,)`` demonstration symbols.
+        assignments: ``(N,)`` int64 type of each training demonstration.
+        feature_names: ``(F,)``.
+        human_actions: ``(H,)``.
+        policy: the solved :class:`~torchhrc.solvers.AlphaVectorPolicy` (``None`` before
+            :func:`solve_model`).
+        lower, upper: the solver's bounds on the value of ``b0`` (NaN before solving).
+        info: extra JSON-able facts (``k``, BIC, settings).
+    """
+
+    momdp: MOMDP
+    weights: torch.Tensor
+    behaviour: torch.Tensor
+    type_names: tuple[str, ...]
+    chains: torch.Tensor
+    vocabulary: tuple[tuple[str, str], ...]
+    assignments: torch.Tensor
+    feature_names: tuple[str, ...]
+    human_actions: tuple[str, ...]
+    policy: Any = None
+    lower: float = float("nan")
+    upper: float = float("nan")
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def num_types(self) -> int:
+        """``Y``."""
+        return self.momdp.num_hidden
+
+    def with_belief(self, b0: torch.Tensor) -> LearnedModel:
+        """The same model with another initial type belief ``b0 (Y,)`` (policy kept)."""
+        return replace(self, momdp=replace(self.momdp, b0=b0.to(self.momdp.Tx.dtype)))
+
+    # ------------------------------------------------------------------ save / load
+    def save(self, directory: str | os.PathLike[str]) -> Path:
+        """Write ``model.safetensors`` and ``model.json`` into ``directory`` atomically.
+
+        The directory is written under a temporary name next to it and renamed; an existing
+        directory of that name is replaced.
+
+        Example:
+            >>> import tempfile, pathlib
+            >>> from torchhrc.testing import random_momdp
+            >>> m = random_momdp(3, 2, 2, 1, seed=0)
+            >>> lm = LearnedModel(m, torch.zeros(2, 0), torch.zeros(2, 2, 3, 1), ("a", "b"),
+            ...                   torch.zeros(2, 1, 1), (("human", "x"),), torch.zeros(0),
+            ...                   (), ())
+            >>> d = lm.save(pathlib.Path(tempfile.mkdtemp()) / "m")
+            >>> LearnedModel.load(d).type_names
+            ('a', 'b')
+        """
+        from safetensors.torch import save_file
+
+        target = Path(directory)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
+        m = self.momdp
+        tensors: dict[str, torch.Tensor] = {
+            "Tx": m.Tx,
+            "Z": m.Z,
+            "R": m.R,
+            "b0": m.b0,
+            "weights": self.weights,
+            "behaviour": self.behaviour,
+            "chains": self.chains,
+            "assignments": self.assignments.long(),
+        }
+        if self.policy is not None:
+            tensors["policy_alphas"] = self.policy.alphas
+            tensors["policy_actions"] = self.policy.actions
+            if self.policy.observed is not None:
+                tensors["policy_observed"] = self.policy.observed
+        meta = {
+            "format": _FORMAT,
+            "version": _VERSION,
+            "x0": int(m.x0),
+            "discount": float(m.discount),
+            "observed_states": list(m.observed_states or ()),
+            "hidden_states": list(self.type_names),
+            "actions": list(m.actions or ()),
+            "observations": list(m.observations or ()),
+            "type_names": list(self.type_names),
+            "vocabulary": [list(v) for v in self.vocabulary],
+            "feature_names": list(self.feature_names),
+            "human_actions": list(self.human_actions),
+            "lower": None if self.lower != self.lower else float(self.lower),
+            "upper": None if self.upper != self.upper else float(self.upper),
+            "info": self.info,
+        }
+        try:
+            save_file({k: v.detach().contiguous().cpu() for k, v in tensors.items()},
+                      str(tmp / "model.safetensors"))  # fmt: skip
+            (tmp / "model.json").write_text(json.dumps(meta, indent=2) + "\n")
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; a model is a plain file
+            for f in tmp.iterdir():
+                os.chmod(f, 0o666 & ~umask)
+            if target.exists():
+                old = target.with_name(f".{target.name}.old")
+                shutil.rmtree(old, ignore_errors=True)
+                target.rename(old)
+                tmp.rename(target)
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                tmp.rename(target)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        return target
+
+    @classmethod
+    def load(cls, directory: str | os.PathLike[str]) -> LearnedModel:
+        """Read a model written by :meth:`save`.
+
+        Raises:
+            ModelError: a file is missing or malformed (the message names the file and
+                the field).
+        """
+        from safetensors import SafetensorError
+        from safetensors.torch import load_file
+
+        from torchhrc.solvers.policy import AlphaVectorPolicy
+
+        root = Path(directory)
+        meta_path, tensor_path = root / "model.json", root / "model.safetensors"
+        for p in (meta_path, tensor_path):
+            if not p.is_file():
+                raise ModelError(f"{p}: no such file (expected a directory written by save())")
+        try:
+            meta = json.loads(meta_path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ModelError(f"{meta_path}: line {exc.lineno}: {exc.msg}") from None
+        if not isinstance(meta, dict) or meta.get("format") != _FORMAT:
+            raise ModelError(f"{meta_path}: field 'format': expected {_FORMAT!r}")
+        if meta.get("version") != _VERSION:
+            raise ModelError(f"{meta_path}: field 'version': expected {_VERSION}, "
+                             f"got {meta.get('version')!r}")  # fmt: skip
+        try:
+            t = load_file(str(tensor_path))
+        except (SafetensorError, OSError) as exc:
+            raise ModelError(f"{tensor_path}: {exc}") from None
+        for key in ("Tx", "Z", "R", "b0", "weights", "behaviour", "chains", "assignments"):
+            if key not in t:
+                raise ModelError(f"{tensor_path}: tensor {key!r} is missing")
+        try:
+            momdp = MOMDP(
+                Tx=t["Tx"], Ty=None, Z=t["Z"], R=t["R"], x0=int(meta["x0"]), b0=t["b0"],
+                discount=float(meta["discount"]),
+                observed_states=tuple(meta["observed_states"]) or None,
+                hidden_states=tuple(meta["hidden_states"]) or None,
+                actions=tuple(meta["actions"]) or None,
+                observations=tuple(meta["observations"]) or None,
+            )  # fmt: skip
+            policy = None
+            if "policy_alphas" in t:
+                policy = AlphaVectorPolicy(t["policy_alphas"], t["policy_actions"],
+                                           t.get("policy_observed"))  # fmt: skip
+            return cls(
+                momdp=momdp,
+                weights=t["weights"],
+                behaviour=t["behaviour"],
+                type_names=tuple(meta["type_names"]),
+                chains=t["chains"],
+                vocabulary=tuple((str(a), str(b)) for a, b in meta["vocabulary"]),
+                assignments=t["assignments"],
+                feature_names=tuple(meta["feature_names"]),
+                human_actions=tuple(meta["human_actions"]),
+                policy=policy,
+                lower=float("nan") if meta["lower"] is None else float(meta["lower"]),
+                upper=float("nan") if meta["upper"] is None else float(meta["upper"]),
+                info=dict(meta.get("info", {})),
+            )
+        except KeyError as exc:
+            raise ModelError(f"{meta_path}: field {exc.args[0]!r} is missing") from None
+
+
+# ---------------------------------------------------------------------------- pieces
+
+
+def _check_types(name: str, value: torch.Tensor, dim: int, Y: int, shape: str) -> torch.Tensor:
+    if not isinstance(value, torch.Tensor):
+        raise TypeError(f"expected the task's {name} to be a tensor {shape}, got "
+                        f"{type(value).__name__}")  # fmt: skip
+    if value.dim() <= dim or value.shape[dim] != Y:
+        raise ModelError(
+            f"the task's {name} has {value.shape[dim] if value.dim() > dim else 'no'} types "
+            f"(shape {tuple(value.shape)}), the clustering found Y={Y}; expected {shape}"
+        )
+    return value
+
+
+def transition_from_behaviour(task: CollaborativeTask, behaviour: torch.Tensor) -> torch.Tensor:
+    """``Tx (A, X, Y, X)`` from the human behaviour ``(Y, A, X, H + 1)`` and the dynamics.
+
+    ``Tx[a, x, y, x'] = sum_h P(h | x, a, y) [human_effect[robot_effect[a, x], h] = x']``,
+    with "no action" (the last column) going to ``robot_effect[a, x]``.
+    """
+    A, X = task.num_actions, task.num_states
+    dev, dt = behaviour.device, behaviour.dtype
+    mid = torch.as_tensor(task.robot_effect).to(dev)  # (A, X)
+    dest = torch.as_tensor(task.human_effect).to(dev)[mid]  # (A, X, H)
+    dest = torch.cat([dest, mid.unsqueeze(-1)], -1)  # (A, X, H + 1)
+    probs = behaviour.permute(1, 2, 0, 3)  # (A, X, Y, H + 1)
+    Y = probs.shape[2]
+    index = dest.unsqueeze(2).expand(A, X, Y, dest.shape[-1])
+    Tx = torch.zeros(A, X, Y, X, dtype=dt, device=dev)
+    return Tx.scatter_add(-1, index, probs.contiguous())
+
+
+def learn_type_weights(
+    task: CollaborativeTask,
+    Tx: torch.Tensor,
+    steps: TaskSteps,
+    assignments: torch.Tensor,
+    *,
+    rule: RewardRule = "dominant",
+    epsilon: float = 0.05,
+    max_iterations: int = 10,
+    seed: int = 0,
+) -> torch.Tensor:
+    """Reward weights per type by apprenticeship learning (Abbeel & Ng 2004; paper Sec. IRL).
+
+    For type ``k`` the MDP is ``(X, A, Tx[:, :, k, :], phi, discount)`` and the expert's
+    trajectories are the demonstrations of type ``k``. The reward kept (``rule``):
+    ``"dominant"`` (default): ``w^(i*)``, ``i* = argmax_{i >= 1} lambda_i``, the reward of
+    the policy the expert's mixture relies on most (robust to noisy demonstrations, see
+    :func:`torchhrc.tasks.place_and_drill.model.learn_type_weights`); ``"paper"``: the mean
+    of ``w^(i)`` over the second half of the iterations; ``"last"``: ``w^(M)``.
+
+    Returns:
+        ``(K, F)`` weights (zeros for a type without demonstrations).
+    """
+    from torchhrc.irl.projection import apprenticeship_learning
+    from torchhrc.irl.trajectories import Trajectories
+
+    if rule not in ("dominant", "paper", "last"):
+        raise ValueError(f"expected rule 'dominant', 'paper' or 'last', got {rule!r}")
+    K = Tx.shape[-2]
+    phi = task.features(dtype=Tx.dtype, device=Tx.device).permute(1, 0, 2)  # (X, A, F)
+    weights = Tx.new_zeros(K, phi.shape[-1])
+    lengths = steps.lengths
+    assignments = assignments.to(steps.states.device)
+    for k in range(K):  # one IRL problem per type (a handful)
+        idx = torch.nonzero((assignments == k) & (lengths > 0)).flatten()
+        if idx.numel() == 0:
+            continue
+        demos = Trajectories(steps.states[idx], steps.actions[idx], lengths[idx])
+        result = apprenticeship_learning(
+            Tx[:, :, k, :], phi, demos, discount=task.discount, epsilon=epsilon,
+            max_iterations=max_iterations, seed=seed,
+        )  # fmt: skip
+        if rule == "paper" or result.num_iterations == 0:
+            weights[k] = result.weights
+        elif rule == "last":
+            weights[k] = result.last_weights
+        else:
+            dominant = int(result.mixture_weights[1:].argmax())
+            weights[k] = result.weight_history[dominant]
+    return weights
+
+
+def build_model(
+    task: CollaborativeTask,
+    demonstrations: Any,
+    chains: torch.Tensor,
+    assignments: torch.Tensor,
+    *,
+    b0: torch.Tensor | None = None,
+    noise: float = 0.05,
+    pause: float = 0.01,
+    rule: RewardRule = "dominant",
+    irl_epsilon: float = 0.05,
+    irl_iterations: int = 10,
+    seed: int = 0,
+    info: dict[str, Any] | None = None,
+) -> LearnedModel:
+    """Build the learned MOMDP from given types (no solve).
+
+    Args:
+        task: the task.
+        demonstrations: the training :class:`~torchhrc.data.Demonstrations`.
+        chains: ``(K, V, V)`` Markov chain of each type over the demonstrations' vocabulary.
+        assignments: ``(N,)`` int64 type of each demonstration.
+        b0: ``(K,)`` initial type belief (uniform by default).
+        noise: weight of a random legal human action in the behaviour (:class:`TypeEvidence`).
+        pause: probability of a skipped human turn.
+        rule, irl_epsilon, irl_iterations, seed: IRL settings (:func:`learn_type_weights`).
+        info: extra facts stored with the model.
+
+    Returns:
+        :class:`LearnedModel` with ``policy=None``.
+
+    Raises:
+        ModelError: an inconsistent task (bad tables, a demonstration step the dynamics
+            cannot produce, features of the wrong shape, a type-dependent piece with the
+            wrong number of types) or inputs of the wrong shape.
+    """
+    check_task(task)
+    chains = chains.detach().to(torch.float64)
+    if chains.dim() != 3 or chains.shape[1] != chains.shape[2]:
+        raise ModelError(f"expected chains of shape (K, V, V), got {tuple(chains.shape)}")
+    K = chains.shape[0]
+    N = demonstrations.num_sequences
+    if tuple(assignments.shape) != (N,):
+        raise ModelError(f"expected assignments of shape (N={N},), got {tuple(assignments.shape)}")
+    if N and (int(assignments.min()) < 0 or int(assignments.max()) >= K):
+        raise ModelError(f"expected assignments in [0, {K}), got range "
+                         f"[{int(assignments.min())}, {int(assignments.max())}]")  # fmt: skip
+    A, X, H = task.num_actions, task.num_states, task.num_human_actions
+    steps = task.read_steps(demonstrations)
+    evidence = TypeEvidence(
+        chains=chains,
+        vocabulary=tuple(tuple(v) for v in demonstrations.vocabulary),  # type: ignore[misc]
+        assignments=assignments.long(),
+        steps=steps,
+        noise=noise,
+        pause=pause,
+    )
+    behaviour = _check_types("human_policy()", task.human_policy(evidence), 0, K,
+                             f"(Y={K}, A={A}, X={X}, H+1={H + 1})")  # fmt: skip
+    if tuple(behaviour.shape) != (K, A, X, H + 1):
+        raise ModelError(f"expected the task's human_policy() of shape (Y={K}, A={A}, X={X}, "
+                         f"H+1={H + 1}), got {tuple(behaviour.shape)}")  # fmt: skip
+    if (behaviour < 0).any() or not torch.allclose(
+        behaviour.sum(-1), torch.ones((), dtype=behaviour.dtype), atol=1e-8
+    ):
+        raise ModelError("the task's human_policy() rows must be probabilities summing to 1")
+    Tx = transition_from_behaviour(task, behaviour)
+    R = task.known_reward(evidence)
+    if R is None:
+        if steps is None:
+            raise ModelError(
+                "the task reads no demonstration steps (read_steps() gave None) and gives no "
+                "known_reward(): IRL needs the steps; implement one of the two"
+            )
+        weights = learn_type_weights(task, Tx, steps, evidence.assignments, rule=rule,
+                                     epsilon=irl_epsilon, max_iterations=irl_iterations,
+                                     seed=seed)  # fmt: skip
+        phi = task.features(dtype=weights.dtype, device=weights.device)
+        R = torch.einsum("axf,yf->axy", phi, weights)
+    else:
+        R = _check_types("known_reward()", R, 2, K, f"(A={A}, X={X}, Y={K})").to(Tx.dtype)
+        if tuple(R.shape) != (A, X, K):
+            raise ModelError(f"expected the task's known_reward() of shape (A={A}, X={X}, "
+                             f"Y={K}), got {tuple(R.shape)}")  # fmt: skip
+        weights = Tx.new_zeros(K, 0)
+    R = R.clone()
+    R[:, torch.as_tensor(task.terminal).to(R.device), :] = 0.0
+    if b0 is None:
+        b0 = torch.full((K,), 1.0 / K, dtype=Tx.dtype, device=Tx.device)
+    if tuple(b0.shape) != (K,):
+        raise ModelError(f"expected b0 of shape (Y={K},), got {tuple(b0.shape)}")
+    names = tuple(task.type_names(evidence))
+    if len(names) != K:
+        raise ModelError(f"the task's type_names() gave {len(names)} names for Y={K} types")
+    trivial = torch.ones(A, X, K, 1, dtype=Tx.dtype, device=Tx.device)
+    common = dict(Tx=Tx, Ty=None, R=R, x0=task.initial_state, b0=b0.to(Tx.dtype),
+                  discount=float(task.discount), observed_states=tuple(task.state_names),
+                  hidden_states=names, actions=tuple(task.robot_actions))  # fmt: skip
+    momdp = MOMDP(Z=trivial, observations=("none",), **common)  # type: ignore[arg-type]
+    Z = task.observation(momdp)
+    if Z is not None:
+        Z = _check_types("observation()", Z, 2, K, f"(A={A}, X={X}, Y={K}, O)").to(Tx.dtype)
+        if Z.dim() != 4 or tuple(Z.shape[:2]) != (A, X):
+            raise ModelError(f"expected the task's observation() of shape (A={A}, X={X}, "
+                             f"Y={K}, O), got {tuple(Z.shape)}")  # fmt: skip
+        momdp = MOMDP(Z=Z, **common)  # type: ignore[arg-type]
+    return LearnedModel(
+        momdp=momdp,
+        weights=weights,
+        behaviour=behaviour,
+        type_names=names,
+        chains=chains,
+        vocabulary=evidence.vocabulary,
+        assignments=evidence.assignments,
+        feature_names=tuple(task.feature_names) if R is not None and weights.numel() else (),
+        human_actions=tuple(task.human_actions),
+        info=dict(info or {}),
+    )
+
+
+def solve_model(
+    model: LearnedModel,
+    *,
+    time_limit: float = 5.0,
+    precision: float = 1e-3,
+    max_iterations: int | None = None,
+    seed: int = 0,
+) -> LearnedModel:
+    """Solve the model's MOMDP with SARSOP (typed lower bound: the best per-type policy).
+
+    Args:
+        model: a built model.
+        time_limit: SARSOP time limit (s).
+        precision: target gap, relative to the reward span ``max R - min R``.
+        max_iterations: cap on SARSOP iterations (deterministic stop).
+        seed: solver seed.
+
+    Returns:
+        The model with ``policy``, ``lower`` and ``upper`` set.
+    """
+    from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
+    from torchhrc.solvers.type_policies import type_policy_lower_bound
+
+    m = model.momdp
+    span = float(m.R.max() - m.R.min()) or 1.0
+    config = SARSOPConfig(
+        time_limit=time_limit,
+        precision=precision * span,
+        max_iterations=max_iterations,
+        seed=seed,
+        lower_bound_init=type_policy_lower_bound,
+    )
+    solution = sarsop(m, config)
+    return replace(model, policy=solution.policy, lower=float(solution.lower),
+                   upper=float(solution.upper))  # fmt: skip
+
+
+def learn(
+    task: CollaborativeTask,
+    demonstrations: Any,
+    *,
+    k: int | None = None,
+    k_min: int = 1,
+    k_max: int = 6,
+    restarts: int = 10,
+    mixture_method: str = "soft",
+    bic_parameters: str = "support",
+    noise: float = 0.05,
+    pause: float = 0.01,
+    irl_iterations: int = 10,
+    solve: bool = True,
+    solver_time: float = 5.0,
+    solver_precision: float = 1e-3,
+    solver_iterations: int | None = None,
+    seed: int = 0,
+) -> LearnedModel:
+    """Turn a task and its demonstrations into a learned, solved model (one call).
+
+    Steps: cluster the demonstrations into types (:func:`torchhrc.mixture.fit_mixture`,
+    BIC picks ``k`` in ``[k_min, k_max]``, or exactly ``k``; ``k=1`` pools all
+    demonstrations: a type-agnostic MDP), then :func:`build_model` and :func:`solve_model`.
+
+    Args:
+        task: the task.
+        demonstrations: :class:`~torchhrc.data.Demonstrations` over the task's actions.
+        k, k_min, k_max, restarts, mixture_method: clustering settings.
+        bic_parameters: the BIC's parameter count (:func:`~torchhrc.mixture.fit_mixture`'s
+            ``parameters``): ``"support"`` (default: only transitions seen in the data are
+            free, so short demonstrations over many symbols are not over-penalised) or
+            ``"full"`` (the paper's ``k V (V - 1)``).
+        noise, pause: human-behaviour settings (:class:`~torchhrc.tasks.interface.TypeEvidence`).
+        irl_iterations: cap on the IRL policies per type.
+        solve: solve the MOMDP (SARSOP) too.
+        solver_time, solver_precision, solver_iterations: :func:`solve_model` settings.
+        seed: the seed of everything.
+
+    Returns:
+        :class:`LearnedModel` (uniform ``b0``).
+    """
+    from torchhrc.mixture import fit_mixture
+
+    check_task(task)
+    if k is not None:
+        k_min = k_max = k
+    fit = fit_mixture(demonstrations, k_min=k_min, k_max=k_max, restarts=restarts,
+                      method=mixture_method, parameters=bic_parameters,
+                      seed=seed)  # type: ignore[arg-type]  # fmt: skip
+    info = {"k": int(fit.k), "bic": float(fit.bic), "log_likelihood": float(fit.log_likelihood),
+            "seed": seed}  # fmt: skip
+    model = build_model(task, demonstrations, fit.model.transition, fit.assignments, noise=noise,
+                        pause=pause, irl_iterations=irl_iterations, seed=seed,
+                        info=info)  # fmt: skip
+    if solve:
+        model = solve_model(model, time_limit=solver_time, precision=solver_precision,
+                            max_iterations=solver_iterations, seed=seed)  # fmt: skip
+    return model

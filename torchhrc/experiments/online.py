@@ -34,7 +34,7 @@ once here):
   What the data do not show (an efficient person facing a waiting screw) stays at the
   prior's 1/2.
 * Hand-coded. The expert states the same quantity per type in
-  ``torchhrc/models/place_and_drill_expert.json`` (``human.waits_while_pending``).
+  ``models/place_and_drill_expert.json`` (``human.waits_while_pending``).
 * Cross-training has no type and, online, no demonstrations of the new user: its MDP is
   learned from the pooled demonstrations of the training subjects
   (:func:`pooled_cross_training`).

@@ -228,9 +228,11 @@ def _online_fold(
 
     t = time.perf_counter()
     wait = learn_turn_taking(task, train, fit.assignments, fit.k)
+    from torchhrc.tasks.place_and_drill.model import placement_probabilities
+
     model = online_momdp(
         task,
-        learned.placement,
+        placement_probabilities(task, learned.chains, learned.vocabulary),
         learned.momdp.R,
         wait,
         discount=learned.momdp.discount,

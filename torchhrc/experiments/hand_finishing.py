@@ -45,6 +45,7 @@ from typing import Any
 
 import torch
 
+from torchhrc.approach_observation import ApproachObservation, fit_approach_observation
 from torchhrc.errors import ModelError
 from torchhrc.experiments.place_and_drill import prepare_output_dir
 from torchhrc.experiments.report import _pyplot, _save, write_json_atomic, write_text_atomic
@@ -87,6 +88,9 @@ TIMING_KEYS: tuple[str, ...] = ("solve_time_s", "factored_speedup", "speedup_det
 
 #: True hand position relative to the worked surface's centre (m): a little towards the person.
 TRUE_HAND_LOC = (0.1, 0.0)
+
+#: Initial guess of the approach model's start (m): the centre of :func:`observation_grid`.
+APPROACH_START_GUESS = (0.85, 0.0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -140,6 +144,7 @@ class HandFinishingSettings:
     speedup_horizontal: tuple[int, ...] | None = None
     speedup_work_units: int | None = None
     motion: HandMotion = field(default_factory=HandMotion)
+    approach_fit_steps: int = 150
     sim: bool = True
     seed: int = 0
 
@@ -301,6 +306,23 @@ def _learn_observation(task: HandFinishingTask, robot_task: HandFinishingTask, n
         loc_err = (learned.loc.reshape(-1, 2) - torch.tensor(TRUE_HAND_LOC)).abs().max()
         scale_err = (learned.log_scale.exp().reshape(-1, 2) - noise).abs().max()
     return learned, fit, float(max(loc_err, scale_err))
+
+
+def _learn_approach(task: HandFinishingTask, robot_task: HandFinishingTask, noise: float,
+                    settings: HandFinishingSettings) -> tuple[ApproachObservation, Any]:  # fmt: skip
+    """Learn the approach model (:mod:`torchhrc.approach_observation`) from the same hand
+    tracks as :func:`_learn_observation`, type unknown; start at the grid's centre."""
+    true_obs = _true_observation(task, noise)
+    tracks = simulate_hand_tracks(task.momdp(true_obs), true_obs, num_tracks=settings.tracks,
+                                  length=settings.track_length, motion=settings.motion,
+                                  seed=settings.seed + 1)  # fmt: skip
+    Y = robot_task.num_types
+    target = robot_task.observation_model(observation_grid(), loc=torch.zeros(Y, 2),
+                                          scale=torch.full((Y, 2), 0.35))  # fmt: skip
+    model = ApproachObservation(target, approach=0.5, start=APPROACH_START_GUESS)
+    fit = fit_approach_observation(model, robot_task.momdp(), tracks,
+                                   steps=settings.approach_fit_steps, lr=0.05)  # fmt: skip
+    return model, fit
 
 
 def _episodes(

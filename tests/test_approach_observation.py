@@ -50,7 +50,7 @@ def _model(offset, *, approach=0.5, start=(0.0, 0.0), loc=(0.0, 0.0), scale=0.4)
 
 
 def test_means_follow_the_hand_recursion():
-    truth, person, offset, tracks = _setup()
+    _truth, _person, offset, tracks = _setup()
     model = _model(offset, approach=0.6, start=(0.8, 0.0))
     means = model.means(tracks.observed)  # (N, L, Y, 2)
     hand = torch.tensor([0.8, 0.0], dtype=torch.float64).expand(tracks.num_tracks, 2, 2)
@@ -61,14 +61,14 @@ def test_means_follow_the_hand_recursion():
 
 def test_a_hand_at_its_target_is_the_static_model():
     # approach -> 1: the hand is at its target at every step, the static model's likelihood
-    truth, person, offset, tracks = _setup()
+    truth, _person, offset, tracks = _setup()
     model = _model(offset, approach=1.0 - 1e-12, start=(5.0, 5.0), loc=(0.1, -0.1), scale=0.3)
     static = track_log_likelihood(model.stationary(), truth, tracks)
     torch.testing.assert_close(approach_log_likelihood(model, truth, tracks), static)
 
 
 def test_filter_normalisers_sum_to_the_likelihood():
-    truth, person, offset, tracks = _setup(seed=1)
+    truth, _person, offset, tracks = _setup(seed=1)
     model = _model(offset, approach=0.7, start=(0.5, 0.2), scale=0.35)
     n = tracks.num_tracks
     b = truth.b0.expand(n, 2).clone()
@@ -88,7 +88,7 @@ def test_filter_normalisers_sum_to_the_likelihood():
 
 
 def test_gradcheck_float64():
-    truth, person, offset, tracks = _setup()
+    truth, _person, offset, tracks = _setup()
     small = type(tracks)(tracks.observed[:5], tracks.actions[:5], tracks.cells[:5],
                          tracks.lengths[:5])  # fmt: skip
     model = _model(offset, approach=0.6, start=(0.7, 0.1), loc=(0.05, -0.02), scale=0.35)
@@ -96,8 +96,10 @@ def test_gradcheck_float64():
     def f(raw_a, start, loc, log_scale):
         return approach_log_likelihood(_with(model, raw_a, start, loc, log_scale), truth, small)
 
-    args = tuple(p.detach().clone().requires_grad_(True) for p in (
-        model.raw_approach, model.start, model.stationary.loc, model.stationary.log_scale))
+    args = tuple(
+        p.detach().clone().requires_grad_(True)
+        for p in (model.raw_approach, model.start, model.stationary.loc, model.stationary.log_scale)
+    )
     assert torch.autograd.gradcheck(f, args)
 
 
@@ -113,7 +115,7 @@ def _with(model, raw_a, start, loc, log_scale):
 
 
 def test_fit_recovers_the_generating_motion():
-    truth, person, offset, tracks = _setup(seed=2, approach=0.6)
+    truth, _person, offset, tracks = _setup(seed=2, approach=0.6)
     model = _model(offset, approach=0.3, start=(0.0, 0.0), scale=0.5)
     fit = fit_approach_observation(model, truth, tracks, steps=400, lr=0.05)
     # maximum likelihood: at least as likely as the generating parameters
@@ -123,8 +125,12 @@ def test_fit_recovers_the_generating_motion():
     assert fit.log_likelihood >= reference - 1e-6 * abs(reference)
     assert fit.log_likelihood > fit.initial_log_likelihood
     assert model.approach().item() == pytest.approx(0.6, abs=0.05)
-    torch.testing.assert_close(model.stationary.scale()[0].detach(),
-                               torch.full((2, 2), 0.3, dtype=torch.float64), atol=0.05, rtol=0)
+    torch.testing.assert_close(
+        model.stationary.scale()[0].detach(),
+        torch.full((2, 2), 0.3, dtype=torch.float64),
+        atol=0.05,
+        rtol=0,
+    )
 
 
 def test_errors():

@@ -230,6 +230,11 @@ def approach_log_likelihood(
     if Ty is not None:
         raise ModelError("approach_log_likelihood supports static types only (Ty = None)")
     A, X, Y = Tx.shape[-4], Tx.shape[-3], Tx.shape[-2]
+    if (X, Y) != (model.stationary.num_observed, model.num_hidden):
+        raise ModelError(
+            f"expected a transition with X = {model.stationary.num_observed} observed values "
+            f"and Y = {model.num_hidden} types (the model's), got X = {X}, Y = {Y}"
+        )
     tracks.check_against(A, X, model.stationary.num_observations)
     mask = tracks.mask  # (N, L)
     x, x2 = tracks.observed[:, :-1], tracks.observed[:, 1:]

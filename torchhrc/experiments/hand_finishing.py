@@ -308,8 +308,12 @@ def _learn_observation(task: HandFinishingTask, robot_task: HandFinishingTask, n
     return learned, fit, float(max(loc_err, scale_err))
 
 
-def _learn_approach(task: HandFinishingTask, robot_task: HandFinishingTask, noise: float,
-                    settings: HandFinishingSettings) -> tuple[ApproachObservation, Any]:  # fmt: skip
+def _learn_approach(
+    task: HandFinishingTask,
+    robot_task: HandFinishingTask,
+    noise: float,
+    settings: HandFinishingSettings,
+) -> tuple[ApproachObservation, Any]:
     """Learn the approach model (:mod:`torchhrc.approach_observation`) from the same hand
     tracks as :func:`_learn_observation`, type unknown; start at the grid's centre."""
     true_obs = _true_observation(task, noise)

@@ -286,6 +286,20 @@ def fit_approach_observation(
 
     Raises:
         ModelError: no steps to learn from, or a non-finite likelihood.
+
+    Example:
+        >>> import torch
+        >>> from torchhrc.observation import ObservationGrid
+        >>> g = ObservationGrid.uniform((-1.0, 1.0), (-1.0, 1.0), (4, 4))
+        >>> s = DiscretizedGaussianObservation(g, torch.zeros(2, 2, dtype=torch.float64),
+        ...     torch.full((2,), 0.5, dtype=torch.float64), num_observed=1, num_hidden=2)
+        >>> t = HandTracks(torch.zeros(2, 4, dtype=torch.long),
+        ...     torch.zeros(2, 3, dtype=torch.long), torch.tensor([[5, 6, 6], [9, 10, 10]]),
+        ...     torch.tensor([3, 3]))
+        >>> Tx = torch.ones(1, 1, 2, 1, dtype=torch.float64)
+        >>> fit = fit_approach_observation(ApproachObservation(s), Tx, t, steps=5)
+        >>> fit.steps, fit.log_likelihood > fit.initial_log_likelihood
+        (5, True)
     """
     if not isinstance(steps, int) or steps < 1:
         raise ModelError(f"expected steps to be a positive int, got {steps!r}")

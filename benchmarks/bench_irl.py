@@ -7,7 +7,8 @@ the distance to the goal (``features("semantic")``, F = 3). Every method gets th
 demonstrations and the same features, and learns a linear reward ``w . phi(s)``:
 
 * ``torchhrc projection`` / ``torchhrc qp``: :func:`torchhrc.irl.apprenticeship_learning`
-  (the paper's algorithm; horizon 60, epsilon 0.02; reward = mean of w over the second half).
+  (the paper's algorithm; horizon 60, epsilon 0.02; reward = its default rule "closest", the
+  w whose policy's feature expectations are nearest the expert's; docs/irl.md).
 * ``torchhrc maxent``: :func:`torchhrc.irl.maxent_irl` (soft value iteration with implicit
   gradients, L-BFGS; infinite horizon; l2 = 1e-3, gradient tolerance 1e-6).
 * ``imitation MCE IRL``: ``imitation.algorithms.mce_irl.MCEIRL`` (finite-horizon MCE IRL,

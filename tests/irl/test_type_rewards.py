@@ -103,15 +103,18 @@ def test_batched_types_equal_separate_runs():
         torch.testing.assert_close(out.weights[y], single.weights)
 
 
-@pytest.mark.parametrize("rule", ["paper", "last", "dominant"])
+@pytest.mark.parametrize("rule", ["closest", "paper", "last", "dominant"])
 def test_reward_rules(rule):
     model, demos, phi = _momdp()
     out = learn_type_rewards(
         model, demos, phi, horizon=40, epsilon=1e-3, max_iterations=6, reward_rule=rule
     )
-    attribute = {"paper": "weights", "last": "last_weights", "dominant": "dominant_weights"}
+    attribute = {"closest": "closest_weights", "paper": "paper_weights", "last": "last_weights",
+                 "dominant": "dominant_weights"}  # fmt: skip
     for y in range(2):
+        assert out.results[y].rule == rule
         torch.testing.assert_close(out.weights[y], getattr(out.results[y], attribute[rule]))
+        torch.testing.assert_close(out.weights[y], out.results[y].weights)
 
 
 def test_state_action_features_give_action_dependent_rewards():

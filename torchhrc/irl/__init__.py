@@ -30,8 +30,13 @@ from torchhrc.irl.maxent import (
     maxent_objective,
     soft_value_iteration,
 )
-from torchhrc.irl.metrics import expected_return, policy_agreement
-from torchhrc.irl.projection import ApprenticeshipResult, apprenticeship_learning
+from torchhrc.irl.metrics import expected_return, normalized_return, policy_agreement
+from torchhrc.irl.projection import (
+    REWARD_RULES,
+    ApprenticeshipResult,
+    IRLConvergenceWarning,
+    apprenticeship_learning,
+)
 from torchhrc.irl.qp import QPError, solve_simplex_qp
 from torchhrc.irl.trajectories import (
     Trajectories,
@@ -42,7 +47,9 @@ from torchhrc.irl.trajectories import (
 from torchhrc.irl.type_rewards import TypeRewards, learn_type_rewards, type_transitions
 
 __all__ = [
+    "REWARD_RULES",
     "ApprenticeshipResult",
+    "IRLConvergenceWarning",
     "MaxEntResult",
     "QPError",
     "SoftSolution",
@@ -60,6 +67,7 @@ __all__ = [
     "maxent_irl",
     "maxent_objective",
     "monte_carlo_feature_expectations",
+    "normalized_return",
     "policy_agreement",
     "policy_matrix",
     "reward_from_weights",

@@ -14,7 +14,7 @@ import torch
 from torchhrc._checks import check_shape, check_tensor
 from torchhrc.solvers.value_iteration import policy_evaluation
 
-__all__ = ["expected_return", "policy_agreement"]
+__all__ = ["expected_return", "normalized_return", "policy_agreement"]
 
 
 def policy_agreement(
@@ -72,3 +72,44 @@ def expected_return(
     """
     values = policy_evaluation(transition, reward, discount, policy)
     return (values * start.to(values.dtype)).sum(-1)
+
+
+def normalized_return(
+    transition: torch.Tensor,
+    reward: torch.Tensor,
+    discount: float,
+    policy: torch.Tensor,
+    start: torch.Tensor,
+) -> torch.Tensor:
+    """The true value of ``policy`` as a fraction of the optimal one's above a random policy's.
+
+    ``(V(policy) - V(random)) / (V(optimal) - V(random))`` with ``V = start . V^pi`` under the
+    true ``reward`` and ``random`` the uniform stochastic policy: 1 for an optimal policy,
+    0 for one no better than chance (the score of ``docs/irl.md``).
+
+    Args:
+        transition: ``(A, S, S)``.
+        reward: ``(A, S)`` the true reward.
+        discount: in (0, 1).
+        policy: ``(S,)`` int64 or ``(S, A)`` probabilities.
+        start: ``(S,)`` initial distribution.
+
+    Returns:
+        ``()`` the score (``nan`` when the random policy is optimal).
+
+    Example:
+        >>> T = torch.eye(2, dtype=torch.float64).expand(2, 2, 2).clone()
+        >>> T[1] = torch.tensor([[0.0, 1.0], [0.0, 1.0]], dtype=torch.float64)  # a1 -> s1
+        >>> R = torch.tensor([[0.0, 1.0], [0.0, 1.0]], dtype=torch.float64)
+        >>> d0 = torch.tensor([1.0, 0.0], dtype=torch.float64)
+        >>> normalized_return(T, R, 0.5, torch.tensor([1, 1]), d0).item()
+        1.0
+    """
+    from torchhrc.solvers.value_iteration import value_iteration
+
+    T = check_tensor("transition", transition)
+    A, S = T.shape[-3], T.shape[-1]
+    optimal = value_iteration(T, reward, discount).policy
+    uniform = T.new_full((S, A), 1.0 / A)
+    values = [expected_return(T, reward, discount, p, start) for p in (policy, optimal, uniform)]
+    return (values[0] - values[2]) / (values[1] - values[2])

@@ -34,7 +34,13 @@ from torchhrc._checks import check_tensor
 from torchhrc.errors import ModelError
 from torchhrc.irl.features import reward_from_weights
 from torchhrc.irl.maxent import MaxEntResult, _maxent_batched
-from torchhrc.irl.projection import ApprenticeshipResult, _prepare, _run_batched
+from torchhrc.irl.projection import (
+    REWARD_RULES,
+    ApprenticeshipResult,
+    _prepare,
+    _run_batched,
+    _standard_errors,
+)
 from torchhrc.irl.trajectories import Trajectories
 from torchhrc.pomdp import MOMDP
 from torchhrc.solvers.value_iteration import value_iteration
@@ -91,7 +97,7 @@ def learn_type_rewards(
     *,
     discount: float | None = None,
     method: Literal["projection", "qp", "maxent"] = "projection",
-    reward_rule: Literal["paper", "last", "dominant"] = "paper",
+    reward_rule: Literal["closest", "paper", "last", "dominant"] = "closest",
     epsilon: float = 1e-2,
     max_iterations: int = 50,
     horizon: int | None = None,
@@ -117,10 +123,12 @@ def learn_type_rewards(
         discount: discount of the feature expectations (default the MOMDP's).
         method: ``"projection"`` / ``"qp"`` (Abbeel & Ng 2004, as in the paper) or
             ``"maxent"`` (Ziebart et al. 2008).
-        reward_rule: which Abbeel-Ng weights make the reward: ``"paper"`` the mean of
-            ``w^(i)`` over the second half of the iterations, ``"last"`` ``w^(M)``,
-            ``"dominant"`` the ``w^(i)`` of the policy with the largest mixture weight
-            (see :attr:`~torchhrc.irl.projection.ApprenticeshipResult.dominant_weights`).
+        reward_rule: which Abbeel-Ng weights make the reward (the ``rule`` of
+            :func:`~torchhrc.irl.projection.apprenticeship_learning`): ``"closest"``
+            (default) the ``w^(i)`` whose policy's feature expectations are nearest the
+            expert's, ``"paper"`` the mean of ``w^(i)`` over the second half of the
+            iterations, ``"last"`` ``w^(M)``, ``"dominant"`` the ``w^(i)`` of the policy with
+            the largest mixture weight.
         epsilon: Abbeel-Ng stopping margin; for MaxEnt the gradient-norm tolerance.
         max_iterations: Abbeel-Ng RL steps, or L-BFGS iterations for MaxEnt.
         horizon: finite horizon of the feature expectations (Abbeel-Ng only): use the
@@ -157,8 +165,8 @@ def learn_type_rewards(
         raise TypeError("learn_type_rewards() needs discount= when given transitions")
     if method not in ("projection", "qp", "maxent"):
         raise ValueError(f"expected method 'projection', 'qp' or 'maxent', got {method!r}")
-    if reward_rule not in ("paper", "last", "dominant"):
-        raise ValueError(f"expected reward_rule 'paper', 'last' or 'dominant', got {reward_rule!r}")
+    if reward_rule not in REWARD_RULES:
+        raise ValueError(f"expected reward_rule in {REWARD_RULES}, got {reward_rule!r}")
     demonstrations_by_cluster = list(demonstrations_by_cluster)
     Y, A = T.shape[0], T.shape[1]
     if len(demonstrations_by_cluster) != Y:
@@ -230,10 +238,11 @@ def learn_type_rewards(
                 vi_tol=1e-8,
                 qp_solver=qp_solver,
                 qp_options=qp_options,
+                standard_error=_standard_errors(phi, demonstrations_by_cluster, discount),
+                rule=reward_rule,
             )
         )
-        attribute = {"paper": "weights", "last": "last_weights", "dominant": "dominant_weights"}
-        weights = torch.stack([getattr(r, attribute[reward_rule]) for r in results])
+        weights = torch.stack([r.weights for r in results])
     R = reward_from_weights(phi, weights, A)  # (Y, A, X)
     policies = value_iteration(T, R, discount).policy  # (Y, X)
     return TypeRewards(

@@ -29,7 +29,7 @@ from torchhrc.errors import ModelError
 from torchhrc.irl.trajectories import Trajectories, sample_trajectories
 from torchhrc.solvers.value_iteration import MDPSolution, value_iteration
 
-__all__ = ["ACTIONS", "SEMANTIC_FEATURES", "Gridworld"]
+__all__ = ["ACTIONS", "SEMANTIC_FEATURES", "ColourGridworld", "Gridworld", "grid_transition"]
 
 ACTIONS: tuple[str, ...] = ("up", "down", "left", "right", "stay")
 """Action names, in index order."""
@@ -40,6 +40,28 @@ distance to the goal divided by ``2 (n - 1)``. There is no "free cell" feature: 
 shift of the reward changes no policy, so ``step_reward`` is the reference level."""
 
 _MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1), (0, 0))
+
+
+def grid_transition(size: int, slip: float, *, dtype: torch.dtype = torch.float64) -> torch.Tensor:
+    """``(A=5, S, S)`` moves on an n x n grid (no absorbing cell): the intended move with
+    probability ``1 - slip``, a uniformly random one of the four directions with ``slip``; a
+    move into a wall stays put.
+
+    Example:
+        >>> grid_transition(3, 0.0)[3, 0].nonzero().flatten().tolist()   # right from (0, 0)
+        [1]
+    """
+    n, S = size, size * size
+    rows = torch.arange(S) // n
+    cols = torch.arange(S) % n
+    moves = torch.tensor(_MOVES)  # (A, 2)
+    # target[a, s] = the cell reached by moving a from s (walls keep the agent in place)
+    r2 = (rows.unsqueeze(0) + moves[:, :1]).clamp(0, n - 1)
+    c2 = (cols.unsqueeze(0) + moves[:, 1:]).clamp(0, n - 1)
+    target = r2 * n + c2  # (A, S)
+    deterministic = torch.nn.functional.one_hot(target, S).to(dtype)  # (A, S, S)
+    slipped = deterministic[:4].mean(0)  # (S, S), a uniformly random direction
+    return (1.0 - slip) * deterministic + slip * slipped
 
 
 @dataclass(frozen=True)
@@ -137,17 +159,7 @@ class Gridworld:
     @property
     def transition(self) -> torch.Tensor:
         """``(A, S, S)`` transition probabilities ``T[a, s, s2] = P(s2 | s, a)``."""
-        n, S = self.size, self.num_states
-        rows = torch.arange(S) // n
-        cols = torch.arange(S) % n
-        moves = torch.tensor(_MOVES)  # (A, 2)
-        # target[a, s] = the cell reached by moving a from s (walls keep the agent in place)
-        r2 = (rows.unsqueeze(0) + moves[:, :1]).clamp(0, n - 1)
-        c2 = (cols.unsqueeze(0) + moves[:, 1:]).clamp(0, n - 1)
-        target = r2 * n + c2  # (A, S)
-        deterministic = torch.nn.functional.one_hot(target, S).to(self.dtype)  # (A, S, S)
-        slipped = deterministic[:4].mean(0)  # (S, S), a uniformly random direction
-        T = (1.0 - self.slip) * deterministic + self.slip * slipped
+        T = grid_transition(self.size, self.slip, dtype=self.dtype)
         goal = self.state(*self.goal)
         T[:, goal, :] = 0.0
         T[:, goal, goal] = 1.0
@@ -255,3 +267,128 @@ class Gridworld:
         lengths = torch.randint(min_length, horizon + 1, (num_trajectories,), generator=generator)
         mask = torch.arange(horizon) < lengths.unsqueeze(-1)
         return Trajectories(demos.states * mask, demos.actions * mask, lengths)
+
+
+@dataclass(frozen=True)
+class ColourGridworld:
+    """An n x n grid of coloured cells whose reward is a linear function of the colour.
+
+    The IRL setting of Abbeel & Ng (2004, Sec. 4.1: a grid whose reward is a weighted sum of
+    region indicators): moves as :func:`grid_transition` (no absorbing cell), features the
+    one-hot colour of a cell ``phi: (S, C)``, true reward ``R(a, s) = w* . phi(s)`` with
+    ``w*`` non-zero on a few colours. Used by ``tests/irl/test_projection.py`` and
+    ``docs/irl.md`` to score the reward Abbeel-Ng's loop reports.
+
+    Args:
+        size: n (S = n * n).
+        colours: ``(S,)`` int64 colour of each cell, in ``[0, C)``.
+        weights: ``(C,)`` true reward weight of each colour.
+        slip: probability that a move goes in a uniformly random direction.
+        discount: discount factor in (0, 1).
+
+    Example:
+        >>> w = ColourGridworld.random(4, num_colours=3, num_rewarded=1, seed=0)
+        >>> w.features().shape, int((w.weights != 0).sum())
+        (torch.Size([16, 3]), 1)
+    """
+
+    size: int
+    colours: torch.Tensor
+    weights: torch.Tensor
+    slip: float = 0.1
+    discount: float = 0.9
+
+    def __post_init__(self) -> None:
+        n = self.size
+        if not isinstance(n, int) or n < 2:
+            raise ModelError(f"expected size to be an int >= 2, got {n!r}")
+        if self.colours.shape != (n * n,) or self.colours.is_floating_point():
+            raise ModelError(
+                f"expected colours to be int64 of shape (S={n * n},), got "
+                f"{self.colours.dtype} {tuple(self.colours.shape)}"
+            )
+        C = self.weights.shape[-1]
+        if self.weights.dim() != 1 or int(self.colours.min()) < 0 or int(self.colours.max()) >= C:
+            raise ModelError(f"expected weights (C,) and colours in [0, C={C})")
+        if not 0.0 <= self.slip <= 1.0:
+            raise ModelError(f"expected slip in [0, 1], got {self.slip}")
+        if not 0.0 < self.discount < 1.0:
+            raise ModelError(f"expected discount in (0, 1), got {self.discount}")
+
+    @classmethod
+    def random(
+        cls,
+        size: int = 10,
+        *,
+        num_colours: int = 6,
+        num_rewarded: int = 3,
+        slip: float = 0.1,
+        discount: float = 0.9,
+        seed: int = 0,
+    ) -> ColourGridworld:
+        """Uniformly random colours; ``num_rewarded`` colours get weights ``U[0, 1)``.
+
+        Example:
+            >>> ColourGridworld.random(3, seed=1).colours.shape
+            torch.Size([9])
+        """
+        if not 1 <= num_rewarded <= num_colours:
+            raise ModelError(f"expected 1 <= num_rewarded <= num_colours, got {num_rewarded}")
+        g = torch.Generator().manual_seed(int(seed))
+        colours = torch.randint(num_colours, (size * size,), generator=g)
+        weights = torch.zeros(num_colours, dtype=torch.float64)
+        rewarded = torch.randperm(num_colours, generator=g)[:num_rewarded]
+        weights[rewarded] = torch.rand(num_rewarded, generator=g, dtype=torch.float64)
+        return cls(size=size, colours=colours, weights=weights, slip=slip, discount=discount)
+
+    @property
+    def num_states(self) -> int:
+        """S = n * n."""
+        return self.size * self.size
+
+    @property
+    def num_actions(self) -> int:
+        """A = 5."""
+        return len(ACTIONS)
+
+    @property
+    def transition(self) -> torch.Tensor:
+        """``(A, S, S)``."""
+        return grid_transition(self.size, self.slip, dtype=self.weights.dtype)
+
+    def features(self) -> torch.Tensor:
+        """``(S, C)`` one-hot colours."""
+        C = self.weights.shape[-1]
+        return torch.nn.functional.one_hot(self.colours, C).to(self.weights.dtype)
+
+    @property
+    def reward(self) -> torch.Tensor:
+        """``(A, S)`` true rewards ``w* . phi(s)``."""
+        return (self.features() @ self.weights).expand(self.num_actions, -1).clone()
+
+    def solve(self, reward: torch.Tensor | None = None, *, tol: float = 1e-8) -> MDPSolution:
+        """Value iteration for ``reward (..., A, S)`` (default: the true reward)."""
+        R = self.reward if reward is None else reward
+        return value_iteration(self.transition, R, self.discount, tol=tol)
+
+    def uniform_start(self) -> torch.Tensor:
+        """``(S,)`` uniform over all cells."""
+        return torch.full((self.num_states,), 1.0 / self.num_states, dtype=self.weights.dtype)
+
+    def demonstrations(self, num_trajectories: int, horizon: int, *, seed: int = 0) -> Trajectories:
+        """Trajectories of the optimal policy from uniform starts, seeded.
+
+        Example:
+            >>> ColourGridworld.random(3, seed=0).demonstrations(2, 4).states.shape
+            torch.Size([2, 4])
+        """
+        demos = sample_trajectories(
+            self.transition,
+            self.solve().policy,
+            self.uniform_start(),
+            num_trajectories,
+            horizon,
+            generator=torch.Generator().manual_seed(int(seed)),
+        )
+        assert isinstance(demos, Trajectories)
+        return demos

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import torch
 
+from torchhrc.approach_observation import ApproachObservation
 from torchhrc.belief import momdp_update
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
@@ -287,6 +288,7 @@ def simulate_episodes(
     steps: int,
     motion: HandMotion | None = None,
     seed: int = 0,
+    observer: ApproachObservation | None = None,
 ) -> Episodes:
     """Run the robot's policy against simulated persons, all episodes batched.
 
@@ -307,6 +309,9 @@ def simulate_episodes(
         motion: the hand's motion (default :class:`HandMotion`; ``HandMotion(approach=1)``
             puts the hand at its target at every step).
         seed: seed.
+        observer: when given, the robot's belief filter uses this approach model of the
+            hand (:meth:`~torchhrc.approach_observation.ApproachObservation.filter_update`)
+            instead of ``model.Z``; the policy is still ``policy``.
 
     Raises:
         ModelError: a hand cell has probability zero under the robot's model.
@@ -335,6 +340,7 @@ def simulate_episodes(
     hand = motion.start_like(means).expand(n, 2)
     observed, actions, cells, positions, beliefs, rewards = [x], [], [], [], [b], []
     hands = [hand]
+    tracked = None if observer is None else observer.filter_start(n)
     for _ in range(steps):  # a closed loop is sequential in time
         a = policy.action(x, b)  # type: ignore[attr-defined]
         rewards.append(truth.R[a, x, types])
@@ -344,7 +350,10 @@ def simulate_episodes(
                                correlation=None if rho is None else rho[x2, types],
                                generator=gen)  # fmt: skip
         cell = discretize_positions(person.grid, pos)
-        b = momdp_update(model, x, b, a, x2, cell).belief
+        if observer is None:
+            b = momdp_update(model, x, b, a, x2, cell).belief
+        else:
+            b, tracked = observer.filter_update(model, x, b, a, x2, cell, tracked)
         x = x2
         for lst, v in ((observed, x), (actions, a), (cells, cell), (positions, pos), (beliefs, b),
                        (hands, hand)):  # fmt: skip

@@ -584,7 +584,7 @@ def learn_type_weights(
             seed=seed,
         )
         if rule == "paper" or result.num_iterations == 0:
-            weights[k] = result.weights
+            weights[k] = result.paper_weights
         elif rule == "last":
             weights[k] = result.last_weights
         else:

@@ -115,7 +115,7 @@ def test_type_accuracy_over_seeds():
                                        reachable=feas.reachable, geometry=s.geometry,
                                        work_units=s.work_units)  # fmt: skip
         learned, _, _ = _learn_observation(task, task, s.paper_noise, s)
-        ep, _, _ = _episodes(task, task, s.paper_noise, s, learned)
+        ep, _, _ = _episodes(task, task.momdp, s.paper_noise, s, learned)
         accuracies.append(_accuracy(ep, ("left", "right"), ("left", "right")))
     assert min(accuracies) >= 0.93, accuracies
     assert sum(accuracies) / len(accuracies) >= 0.95, accuracies
@@ -147,7 +147,7 @@ def test_the_generating_motion_as_filter_is_calibrated_at_the_first_move():
                                        reachable=feas.reachable, geometry=s.geometry,
                                        work_units=s.work_units)  # fmt: skip
         learned, _, _ = _learn_observation(task, task, s.paper_noise, s)
-        _, solution, _ = _episodes(task, task, s.paper_noise, s, learned)
+        _, solution, _ = _episodes(task, task.momdp, s.paper_noise, s, learned)
         true_obs = _true_observation(task, s.paper_noise)
         oracle = ApproachObservation(true_obs, approach=s.motion.approach - 1e-12,
                                      start=s.motion.start)  # fmt: skip

@@ -10,8 +10,10 @@ MOMDP) and acts greedily on it::
 
 An observation the model gives probability zero (the environment's human may do what the
 robot's model does not foresee) leaves the belief unchanged instead of failing. The agent is
-batched: with a vector environment's observations (arrays of ``N``) it keeps ``N`` beliefs, and
-:meth:`BeliefAgent.reset` with a ``mask`` restarts some of them (autoreset).
+batched: with a vector environment's observations (arrays of ``N``) it keeps ``N`` beliefs; an
+observation equal to the environments' start observation ``O`` (an episode that a vector
+environment has just reset) restarts that belief at ``b0``, as does :meth:`BeliefAgent.reset`
+with a ``mask``.
 
 :func:`rollout` runs episodes of a single environment with any agent and returns their
 returns.
@@ -139,6 +141,8 @@ class BeliefAgent:
         """Update the beliefs with the action taken and the observation received."""
         a, _ = _as_batch(action)
         x2, o = self._split(observation)
+        start = o >= self.source.num_observations  # an autoreset episode's first observation
+        o = o.masked_fill(start, 0)
         if self._momdp:
             result = momdp_update(self.model, self._x, self.belief, a, x2, o, on_zero="ninf")
         elif self._flat_of_momdp:
@@ -147,7 +151,8 @@ class BeliefAgent:
         else:
             result = update(self.model, self.belief, a, o, on_zero="ninf")
         possible = torch.isfinite(result.log_normalizer).unsqueeze(-1)
-        self.belief = torch.where(possible, result.belief, self.belief)
+        belief = torch.where(possible, result.belief, self.belief)
+        self.belief = torch.where(start.unsqueeze(-1), self.b0, belief)
         if x2 is not None:
             self._x = x2
 

@@ -81,7 +81,7 @@ class HandFinishingEnv(gym.Env):
         discount: the model's discount (rewards are returned undiscounted).
     """
 
-    metadata = {"render_modes": ["ansi"]}
+    metadata = {"render_modes": ["ansi"], "render_fps": 4}
 
     def __init__(
         self,

@@ -57,7 +57,7 @@ class MOMDPEnv(gym.Env):
         discount: its discount factor.
     """
 
-    metadata = {"render_modes": ["ansi"]}
+    metadata = {"render_modes": ["ansi"], "render_fps": 4}
 
     def __init__(
         self,

@@ -180,7 +180,7 @@ class PlaceAndDrillEnv(gym.Env):
         human: the :class:`PlaceAndDrillHuman`.
     """
 
-    metadata = {"render_modes": ["ansi"]}
+    metadata = {"render_modes": ["ansi"], "render_fps": 4}
 
     def __init__(
         self,

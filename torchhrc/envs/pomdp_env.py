@@ -75,7 +75,7 @@ class POMDPEnv(gym.Env):
         discount: the model's discount factor.
     """
 
-    metadata = {"render_modes": ["ansi"]}
+    metadata = {"render_modes": ["ansi"], "render_fps": 4}
 
     def __init__(
         self,

@@ -27,7 +27,8 @@ EPISODES = 200
 
 def summary(name: str, returns: np.ndarray) -> str:
     half = 1.959963984540054 * returns.std(ddof=1) / math.sqrt(returns.size)
-    return f"{name:>6} robot: mean return {returns.mean():7.2f} +- {half:.2f} (95% CI, n={returns.size})"
+    mean = returns.mean()
+    return f"{name:>6} robot: mean return {mean:7.2f} +- {half:.2f} (95% CI, n={returns.size})"
 
 
 def main() -> None:

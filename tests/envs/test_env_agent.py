@@ -11,9 +11,9 @@ import torch
 
 pytest.importorskip("gymnasium", reason="torchhrc.envs needs the gym extra (gymnasium)")
 
-from torchhrc.baselines.hand_coded import build_expert_momdp, load_expert_model  # noqa: E402
-from torchhrc.belief import momdp_update, update  # noqa: E402
-from torchhrc.envs import (  # noqa: E402
+from torchhrc.baselines.hand_coded import build_expert_momdp, load_expert_model
+from torchhrc.belief import momdp_update, update
+from torchhrc.envs import (
     BeliefAgent,
     MOMDPEnv,
     PlaceAndDrillVectorEnv,
@@ -21,9 +21,9 @@ from torchhrc.envs import (  # noqa: E402
     RandomAgent,
     rollout,
 )
-from torchhrc.solvers import SARSOPConfig, evaluate_policy, solve  # noqa: E402
-from torchhrc.tasks.classic import tiger  # noqa: E402
-from torchhrc.testing import random_momdp  # noqa: E402
+from torchhrc.solvers import SARSOPConfig, evaluate_policy, solve
+from torchhrc.tasks.classic import tiger
+from torchhrc.testing import random_momdp
 
 Z95 = 1.959963984540054
 
@@ -96,7 +96,7 @@ def test_agent_acts_on_a_vector_env_batch():
     for _ in range(30):
         a = agent.act(obs)
         assert a.shape == (16,)
-        obs, r, term, trunc, _ = envs.step(a)
+        obs, *_ = envs.step(a)
         agent.observe(a, obs)  # episodes the env restarted (observation 1) restart at b0
         restarted = torch.as_tensor(obs["observation"] == 1)
         torch.testing.assert_close(agent.belief[restarted], model.b0.expand(16, -1)[restarted])

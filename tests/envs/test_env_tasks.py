@@ -27,7 +27,7 @@ def _vector_samples(envs: PlaceAndDrillVectorEnv, steps: int, seed: int):
     out = []
     for _ in range(steps):
         a = rng.integers(envs.task.num_actions, size=envs.num_envs)
-        obs2, r, term, trunc, info2 = envs.step(a)
+        obs2, r, _, _, info2 = envs.step(a)
         real = obs2["observation"] == 0  # 1 marks a step that reset the episode
         out.append(np.stack([obs["x"], a, info["y"], obs2["x"], r], -1)[real])
         obs, info = obs2, info2
@@ -94,7 +94,7 @@ def test_vector_env_autoresets_on_the_next_step():
     envs = PlaceAndDrillVectorEnv(8, epsilon=0.0, horizon=3)
     envs.reset(seed=0)
     drill_all = np.zeros(8, dtype=np.int64)
-    for t in range(3):
+    for _ in range(3):
         obs, r, term, trunc, info = envs.step(drill_all)
     assert trunc.all() and not term.any() and (info["t"] == 3).all()
     obs, r, term, trunc, info = envs.step(drill_all)
@@ -146,7 +146,7 @@ def test_hand_finishing_moves_follow_the_task_model(chi_square):
     R = model.R.numpy()
     for a in rng.integers(model.num_actions, size=6000):
         x, y = info["x"], info["y"]
-        obs, r, term, trunc, info = env.step(int(a))
+        obs, r, term, _, info = env.step(int(a))
         assert r == R[a, x, y]  # the true type's reward
         rows.append((a * X + x) * Y + y)
         nxt.append(info["x"])

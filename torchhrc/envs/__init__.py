@@ -26,9 +26,7 @@ from __future__ import annotations
 try:
     import gymnasium
 except ImportError as error:  # pragma: no cover - exercised only without the extra
-    raise ImportError(
-        "torchhrc.envs needs gymnasium: pip install 'torchhrc[gym]'"
-    ) from error
+    raise ImportError("torchhrc.envs needs gymnasium: pip install 'torchhrc[gym]'") from error
 
 from torchhrc.envs.agent import Agent, BeliefAgent, RandomAgent, rollout
 from torchhrc.envs.hand_finishing import HandFinishingEnv, quick_hand_finishing_task

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import torch
@@ -110,11 +110,7 @@ class PlaceAndDrillHuman:
             probs = torch.full((Y,), 1.0 / Y, dtype=torch.float64)
         else:
             probs = torch.as_tensor(type_probabilities, dtype=torch.float64)
-            if (
-                probs.shape != (Y,)
-                or (probs < 0).any()
-                or abs(float(probs.sum()) - 1.0) > 1e-9
-            ):
+            if probs.shape != (Y,) or (probs < 0).any() or abs(float(probs.sum()) - 1.0) > 1e-9:
                 raise ValueError(
                     f"expected type_probabilities of shape (Y={Y},), non-negative, summing to "
                     f"1, got {list(type_probabilities)!r}"
@@ -180,7 +176,7 @@ class PlaceAndDrillEnv(gym.Env):
         human: the :class:`PlaceAndDrillHuman`.
     """
 
-    metadata = {"render_modes": ["ansi"], "render_fps": 4}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["ansi"], "render_fps": 4}
 
     def __init__(
         self,
@@ -248,8 +244,12 @@ class PlaceAndDrillEnv(gym.Env):
         self._t += 1
         terminated = int(x2[0]) == self.task.terminal_state
         truncated = not terminated and self.horizon is not None and self._t >= self.horizon
-        return {"x": int(x2[0]), "observation": 0}, float(reward[0]), terminated, truncated, (
-            self._info()
+        return (
+            {"x": int(x2[0]), "observation": 0},
+            float(reward[0]),
+            terminated,
+            truncated,
+            (self._info()),
         )
 
     def render(self) -> str | None:

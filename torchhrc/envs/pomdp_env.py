@@ -31,7 +31,7 @@ Example:
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -47,7 +47,7 @@ __all__ = ["POMDPEnv"]
 def _flat_tables(model: POMDP | SparsePOMDP) -> tuple[CategoricalRows, CategoricalRows]:
     """``(T, Z)`` as compressed rows ``a * S + s``; the one place the two forms differ."""
     if isinstance(model, SparsePOMDP):
-        A, S, O = model.num_actions, model.num_states, model.num_observations
+        A, S = model.num_actions, model.num_states
         (ti, tp), (zi, zp) = model.transitions, model.observations_
         ti, zi = ti.cpu().numpy(), zi.cpu().numpy()
         T = CategoricalRows(ti[:, 0] * S + ti[:, 1], ti[:, 2], tp.cpu().numpy(), A * S)
@@ -75,7 +75,7 @@ class POMDPEnv(gym.Env):
         discount: the model's discount factor.
     """
 
-    metadata = {"render_modes": ["ansi"], "render_fps": 4}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["ansi"], "render_fps": 4}
 
     def __init__(
         self,

@@ -31,6 +31,17 @@ _GROUPED = re.compile(r"^(\s+)(\w+(?:\s*,\s*\w+)+)\s*:\s(.*)$")
 _EXAMPLE = re.compile(r"^(\s*)Example:\s*$")
 
 
+def _indent(line: str) -> int:
+    return len(line) - len(line.lstrip())
+
+
+def _continues(lines: list[str], j: int, item_indent: int) -> bool:
+    """Line ``j`` belongs to the item above: indented deeper, or blank before such a line."""
+    if lines[j].strip():
+        return _indent(lines[j]) > item_indent
+    return j + 1 < len(lines) and bool(lines[j + 1].strip()) and _indent(lines[j + 1]) > item_indent
+
+
 def _split_grouped(text: str) -> str:
     lines = text.split("\n")
     out: list[str] = []
@@ -54,11 +65,7 @@ def _split_grouped(text: str) -> str:
             if indent == item_indent and (g := _GROUPED.match(line)) is not None:
                 continuation = []
                 j = i + 1
-                while j < len(lines) and (
-                    not lines[j].strip() and j + 1 < len(lines) and
-                    len(lines[j + 1]) - len(lines[j + 1].lstrip()) > item_indent
-                    or lines[j].strip() and len(lines[j]) - len(lines[j].lstrip()) > item_indent
-                ):  # fmt: skip
+                while j < len(lines) and _continues(lines, j, item_indent):
                     continuation.append(lines[j])
                     j += 1
                 for name in (n.strip() for n in g.group(2).split(",")):
@@ -107,7 +114,6 @@ class TorchHRCDocstrings(griffe.Extension):
         return suffix[0] if len(suffix) == 1 else None
 
     def _rewrite(self, text: str, obj: griffe.Object) -> str:
-        text = _EXAMPLE.sub(r"\1Examples:", text)
         text = "\n".join(_EXAMPLE.sub(r"\1Examples:", line) for line in text.split("\n"))
         text = _split_grouped(text)
 

@@ -172,3 +172,17 @@ def test_bad_options_name_the_option():
         envs.step(np.array([0, 7]))
     with pytest.raises(ValueError, match="noise"):
         gym.make("torchhrc/HandFinishing-v0", noise=-0.1)
+
+
+def test_registered_ids_make_the_batched_vector_env():
+    envs = gym.make_vec(
+        "torchhrc/PlaceAndDrill-v0",
+        num_envs=8,
+        vectorization_mode="vector_entry_point",
+        epsilon=0.2,
+    )
+    assert isinstance(envs, PlaceAndDrillVectorEnv) and envs.human.epsilon == 0.2
+    obs, _ = envs.reset(seed=0)
+    assert envs.observation_space.contains(obs)
+    obs, reward, *_ = envs.step(envs.action_space.sample())
+    assert envs.observation_space.contains(obs) and reward.shape == (8,)

@@ -4,8 +4,8 @@
 collected (its tests in ``tests/envs`` skip with the reason).
 """
 
-import importlib.util
-
 collect_ignore = []
-if importlib.util.find_spec("gymnasium") is None:
+try:
+    import gymnasium  # noqa: F401
+except ImportError:
     collect_ignore.append("torchhrc/envs")

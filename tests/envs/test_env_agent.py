@@ -102,3 +102,23 @@ def test_agent_acts_on_a_vector_env_batch():
         torch.testing.assert_close(agent.belief[restarted], model.b0.expand(16, -1)[restarted])
     assert agent.belief.shape == (16, model.num_hidden)
     torch.testing.assert_close(agent.belief.sum(-1), torch.ones(16, dtype=torch.float64))
+
+
+def test_flat_policy_of_a_momdp_filters_on_the_flat_model():
+    """A policy solved on ``to_pomdp()`` acts in the MOMDP env through flat observations
+    ``x2 * O + o`` and the flat belief update."""
+    model = random_momdp(3, 2, 2, 2, seed=4)
+    flat = model.to_pomdp()
+    policy = solve(flat, SARSOPConfig(time_limit=5.0, precision=0.1, seed=0)).policy
+    env, agent = MOMDPEnv(model), BeliefAgent(model, policy)
+    obs, _ = env.reset(seed=1)
+    agent.reset(obs)
+    belief = flat.b0
+    for _ in range(8):
+        a = agent.act(obs)
+        assert a == int(policy.action(belief))
+        obs, *_ = env.step(a)
+        agent.observe(a, obs)
+        o_flat = obs["x"] * model.num_observations + obs["observation"]
+        belief = update(flat, belief, a, o_flat).belief
+        torch.testing.assert_close(agent.belief[0], belief)

@@ -4,8 +4,9 @@ Runs ``mkdocs build --strict`` (mkdocs.yml: the pages of docs/ and the API refer
 from the docstrings by mkdocstrings) into a temporary folder, so a docstring griffe cannot
 read, a dead cross-reference (``:func:`torchhrc.nowhere```), a broken link or a page missing
 from the navigation fails the suite. Then every name in the ``__all__`` of torchhrc and of
-each public module must be in the site's object inventory (``objects.inv``): a module left
-out of ``docs/api/`` fails too. Skipped only when the ``docs`` extra is not installed.
+each public module must be in the site's object inventory (``objects.inv``): a name the
+generated API pages (docs/_ext/api_pages.py) leave out fails too. Skipped only when the
+``docs`` extra is not installed.
 """
 
 from __future__ import annotations
@@ -77,4 +78,4 @@ def test_docs_build_strict_and_cover_every_public_name(tmp_path):
     assert completed.returncode == 0, f"mkdocs build --strict failed:\n{log}"
     inventory = _inventory(site)
     missing = [f"{m}.{n}" for m, n, paths in _public_names() if not paths & inventory]
-    assert not missing, f"public names missing from the API reference (docs/api/): {missing}"
+    assert not missing, f"public names missing from the API reference: {missing}"

@@ -186,3 +186,15 @@ def test_registered_ids_make_the_batched_vector_env():
     assert envs.observation_space.contains(obs)
     obs, reward, *_ = envs.step(envs.action_space.sample())
     assert envs.observation_space.contains(obs) and reward.shape == (8,)
+
+
+def test_vector_env_reset_seed_fixes_the_batch():
+    def run(seed):
+        envs = PlaceAndDrillVectorEnv(32, epsilon=0.5, noise=0.1)
+        out = [envs.reset(seed=seed)]
+        rng = np.random.default_rng(0)
+        out += [envs.step(rng.integers(4, size=32)) for _ in range(20)]
+        return repr(out)
+
+    assert run(7) == run(7)
+    assert run(7) != run(8)

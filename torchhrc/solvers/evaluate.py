@@ -2,7 +2,7 @@
 
 Each step advances every episode at once: the policy picks ``a = pi(b)`` for all beliefs,
 the successor state and observation are sampled, and the beliefs are updated in one batched
-call (:mod:`torchhrc.sampling`-style steps of :mod:`torchhrc.solvers.sampling`). The
+call (the steps of :mod:`torchhrc.solvers.sampling`). The
 discounted return of episode ``e`` is ``sum_t discount^t R(a_t, s_t)``, truncated at a
 horizon ``H`` whose tail ``discount^H max|R| / (1 - discount)`` is below ``tail_tolerance``.
 

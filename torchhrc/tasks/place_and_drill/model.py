@@ -81,7 +81,12 @@ __all__ = [
     "placement_transition",
 ]
 
-EMPTY, PLACED, DRILLED = 0, 1, 2
+#: Status of an empty position (``status[x, i]``, see the module docstring).
+EMPTY = 0
+#: Status of a placed, undrilled screw.
+PLACED = 1
+#: Status of a drilled screw.
+DRILLED = 2
 _STATUS_LETTERS = ("E", "P", "D")
 
 #: Names of the reward features ``phi(x, a)``, in feature order (see the module docstring).

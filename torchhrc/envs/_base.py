@@ -1,0 +1,48 @@
+"""What every torchhrc environment shares: validation of the options, seeding, the horizon."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+__all__: list[str] = []
+
+
+def check_horizon(horizon: object) -> int | None:
+    """``None`` or a positive int (the number of steps after which an episode is truncated)."""
+    if horizon is None:
+        return None
+    if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
+        raise ValueError(f"expected horizon to be a positive int or None, got {horizon!r}")
+    return int(horizon)
+
+
+def check_probability(name: str, value: object, *, upper_open: bool = False) -> float:
+    """A float in ``[0, 1]`` (``[0, 1)`` with ``upper_open``)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)):
+        raise TypeError(f"expected {name} to be a float in [0, 1], got {value!r}")
+    value = float(value)
+    if not (0.0 <= value < 1.0 if upper_open else 0.0 <= value <= 1.0):
+        bound = "[0, 1)" if upper_open else "[0, 1]"
+        raise ValueError(f"expected {name} in {bound}, got {value}")
+    return value
+
+
+def check_action(action: object, num_actions: int) -> int:
+    """The action as an int in ``[0, A)``; a ValueError naming the range otherwise."""
+    a = np.asarray(action)
+    if a.shape != () or not np.issubdtype(a.dtype, np.integer) or not 0 <= int(a) < num_actions:
+        raise ValueError(f"expected action to be an int in [0, {num_actions}), got {action!r}")
+    return int(a)
+
+
+def torch_generator(np_random: np.random.Generator) -> torch.Generator:
+    """A ``torch.Generator`` seeded from gymnasium's ``np_random`` (deterministic in it)."""
+    return torch.Generator().manual_seed(int(np_random.integers(0, 2**62)))
+
+
+def check_unbatched(model: object) -> None:
+    """Raise ValueError when ``model`` has batch dims (an env simulates one model)."""
+    batch = tuple(getattr(model, "batch_shape", ()))
+    if batch:
+        raise ValueError(f"expected an unbatched model, got batch_shape {batch}")

@@ -260,8 +260,10 @@ class ShardStatistics:
         path: the shard.
         vocabulary: its sorted ``(actor, action)`` symbols.
         columns: its columns with ``type`` or not (``True`` when it has the column).
-        keys: ``(U_s, F)`` int64 distinct unit rows: transition counts ``A * A`` (and first
-            symbols ``A`` when modelled), lexicographically sorted.
+        keys: ``(U_s, F)`` distinct unit rows: transition counts ``A * A`` (and first
+            symbols ``A`` when modelled), lexicographically sorted, in the smallest integer
+            dtype that holds them (``uint8`` for counts below 256: 8x less to send and hold
+            than int64).
         multiplicity: ``(U_s,)`` int64 units per distinct row.
         inverse: ``(N_s,)`` int64 distinct row of each sequence.
         num_units: units of the shard (sequences, or subjects).
@@ -280,6 +282,13 @@ class ShardStatistics:
     subjects: tuple[str, ...]
     sequence_keys: tuple[str, ...] | None
     types: tuple[str, ...] | None
+
+
+def _compact_dtype(largest: int) -> torch.dtype:
+    for dtype in (torch.uint8, torch.int16, torch.int32):
+        if largest <= (255 if dtype == torch.uint8 else torch.iinfo(dtype).max):
+            return dtype
+    return torch.int64
 
 
 def shard_statistics(
@@ -312,7 +321,7 @@ def shard_statistics(
         path=str(path),
         vocabulary=demos.vocabulary,
         has_types=demos.types is not None,
-        keys=uniq,
+        keys=uniq.to(_compact_dtype(int(uniq.max()) if uniq.numel() else 0)),
         multiplicity=mult,
         inverse=row_of_unit[unit_of],
         num_units=key.shape[0],
@@ -447,7 +456,7 @@ class ShardedCorpus:
             ModelError: shards with different columns or vocabularies, or a subject in two
                 shards (with ``unit="subject"``).
         """
-        from torchhrc.mixture.counts import SufficientStatistics, _unique_rows
+        from torchhrc.mixture.counts import SufficientStatistics, _pack_rows, _unique_words
 
         if unit not in ("subject", "sequence"):
             raise ValueError(f"expected unit 'subject' or 'sequence', got {unit!r}")
@@ -477,11 +486,22 @@ class ShardedCorpus:
                             "cluster with unit='sequence'"
                         )
                     owner[subject] = s.path
-        keys = torch.cat([s.keys for s in shards])
+        # merge on bit-packed rows (a few int64 words per row), never an int64 copy of all keys
+        largest = max((int(s.keys.max()) for s in shards if s.keys.numel()), default=0)
+        bits = max(1, largest.bit_length())
+        words = torch.cat([_pack_rows(s.keys, bits) for s in shards])
+        first_row, merged_row, _ = _unique_words(words)
+        del words
         mult = torch.cat([s.multiplicity for s in shards])
-        uniq, merged_row, _ = _unique_rows(keys)
-        multiplicity = torch.zeros(uniq.shape[0], dtype=torch.long).index_add_(0, merged_row, mult)
+        multiplicity = torch.zeros(first_row.shape[0], dtype=torch.long).index_add_(
+            0, merged_row, mult
+        )
         offsets = np.cumsum([0] + [s.keys.shape[0] for s in shards])
+        width = first.keys.shape[-1]
+        uniq = torch.empty(first_row.shape[0], width, dtype=_compact_dtype(largest))
+        for o, s in zip(offsets[:-1], shards, strict=True):
+            here = (first_row >= int(o)) & (first_row < int(o) + s.keys.shape[0])
+            uniq[here] = s.keys[first_row[here] - int(o)].to(uniq.dtype)
         inverse = torch.cat([merged_row[int(o) + s.inverse] for o, s in
                              zip(offsets[:-1], shards, strict=True)])  # fmt: skip
         A = len(first.vocabulary)

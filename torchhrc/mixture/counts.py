@@ -145,6 +145,36 @@ class SufficientStatistics:
         return self.counts.shape[0]
 
 
+def _pack_rows(key: torch.Tensor, bits: int) -> torch.Tensor:
+    """Nonnegative int ``key (N, F)`` (entries < ``2**bits``) packed big-endian into ``(N, W)``
+    int64 words of at most 62 bits: comparing word rows lexicographically compares the rows."""
+    N, Fd = key.shape
+    per_word = max(1, 62 // bits)
+    pad = (-Fd) % per_word
+    key = key.to(torch.int64)
+    padded = torch.cat([key, key.new_zeros(N, pad)], -1) if pad else key
+    shifts = bits * torch.arange(per_word - 1, -1, -1, device=key.device)  # big-endian
+    return (padded.view(N, -1, per_word) << shifts).sum(-1)  # (N, W), each < 2^62
+
+
+def _unique_words(words: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(first (U,), inverse (N,), counts (U,))`` of the distinct rows of ``words (N, W)``,
+    in lexicographic order, by stable sorts (an LSD radix sort over words): ``first[u]`` is a
+    row holding the ``u``-th distinct value."""
+    N = words.shape[0]
+    order = torch.arange(N, device=words.device)
+    for w in range(words.shape[-1] - 1, -1, -1):
+        order = order[torch.sort(words[order, w], stable=True).indices]
+    sorted_words = words[order]
+    start = torch.ones(N, dtype=torch.bool, device=words.device)
+    start[1:] = (sorted_words[1:] != sorted_words[:-1]).any(-1)
+    group = start.cumsum(0) - 1  # (N,) distinct index of each sorted row
+    inverse = torch.empty_like(group).scatter_(0, order, group)
+    first = order[start]
+    counts = torch.bincount(group, minlength=int(first.numel()))
+    return first, inverse, counts
+
+
 def _unique_rows(key: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``torch.unique(key, dim=0, return_inverse=True, return_counts=True)`` for a
     nonnegative int64 ``key (N, F)``, by sorting instead of row-by-row comparisons.
@@ -158,21 +188,7 @@ def _unique_rows(key: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.T
     if N == 0 or Fd == 0:
         return torch.unique(key, dim=0, return_inverse=True, return_counts=True)
     bits = max(1, int(key.max()).bit_length())
-    per_word = max(1, 62 // bits)
-    pad = (-Fd) % per_word
-    padded = torch.cat([key, key.new_zeros(N, pad)], -1) if pad else key
-    shifts = bits * torch.arange(per_word - 1, -1, -1, device=key.device)  # big-endian
-    words = (padded.view(N, -1, per_word) << shifts).sum(-1)  # (N, W), each < 2^62
-    order = torch.arange(N, device=key.device)
-    for w in range(words.shape[-1] - 1, -1, -1):
-        order = order[torch.sort(words[order, w], stable=True).indices]
-    sorted_words = words[order]
-    start = torch.ones(N, dtype=torch.bool, device=key.device)
-    start[1:] = (sorted_words[1:] != sorted_words[:-1]).any(-1)
-    group = start.cumsum(0) - 1  # (N,) distinct index of each sorted row
-    inverse = torch.empty_like(group).scatter_(0, order, group)
-    first = order[start]
-    counts = torch.bincount(group, minlength=int(first.numel()))
+    first, inverse, counts = _unique_words(_pack_rows(key, bits))
     return key[first], inverse, counts
 
 

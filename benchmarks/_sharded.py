@@ -1,7 +1,9 @@
 """``bench_mixture.py --shards S``: corpus-scale clustering on Parquet shards and Ray.
 
-Writes ``--total`` sequences (the same random mixture of Markov chains as the in-memory
-benchmark, generated shard by shard, never all in memory) into ``S`` Parquet shards, then
+Writes ``--total`` sequences (``--data study``: place-and-drill demonstrations as in issue 12,
+2 types, noise 0.1, random placement orders; ``--data chains``: the random mixture of Markov
+chains of the in-memory benchmark, almost every sequence distinct), generated shard by shard,
+never all in memory, into ``S`` Parquet shards, then
 times ``fit_mixture(ShardedCorpus.open(dir), ray=True)`` on a local Ray cluster against the
 in-memory fit of ``--n`` sequences. Reports wall time, the driver's peak resident memory, a
 worker's peak resident memory (a Ray task that reduces one shard, as the fit's tasks do),
@@ -44,14 +46,29 @@ def write_shards(args: Any, make_data: Any, folder: Path) -> float:
     vocab_sorted = tuple(sorted(vocab))
     remap = torch.tensor([vocab_sorted.index(v) for v in vocab])
     for i in range(args.shards):
-        seqs, lengths = make_data(per, args.length, args.symbols, 3, args.concentration,
-                                  args.seed + 1000 + i)  # fmt: skip
-        ids = [f"s{i}_{j}" for j in range(per)]
-        demos = Demonstrations(vocabulary=vocab_sorted, sequences=remap[seqs], lengths=lengths,
-                               subjects=ids, sequence_ids=("0",) * per)  # fmt: skip
+        if args.data == "study":
+            demos = study_data(per, args.seed + 1000 + i)
+        else:
+            seqs, lengths = make_data(per, args.length, args.symbols, 3, args.concentration,
+                                      args.seed + 1000 + i)  # fmt: skip
+            ids = [f"s{i}_{j}" for j in range(per)]
+            demos = Demonstrations(vocabulary=vocab_sorted, sequences=remap[seqs],
+                                   lengths=lengths, subjects=ids,
+                                   sequence_ids=("0",) * per)  # fmt: skip
         write_parquet(demos, folder / f"part{i:03d}.parquet")
-        del demos, seqs
+        del demos
     return time.perf_counter() - t0
+
+
+def study_data(n: int, seed: int) -> Any:
+    """``n`` place-and-drill demonstrations (2 types, 3 positions, noise 0.1, a fresh random
+    placement order in every demonstration: the corpus of issue 12)."""
+    from torchhrc.tasks.place_and_drill.demos import simulate_study
+
+    subjects = -(-n // 3)
+    demos = simulate_study(n_subjects=subjects, n_demos=3, noise=0.1, order_change=1.0,
+                           seed=seed)  # fmt: skip
+    return demos.subset(torch.arange(n))
 
 
 def run(args: Any, make_data: Any) -> None:
@@ -88,9 +105,14 @@ def run(args: Any, make_data: Any) -> None:
           f"driver")  # fmt: skip
     print(f"peak RSS: driver {driver_peak:.0f} MiB, a worker reducing one shard "
           f"{w_peak:.0f} MiB ({w_seconds:.1f} s per shard)")  # fmt: skip
-    seqs, lengths = make_data(args.n, args.length, args.symbols, 3, args.concentration, args.seed)
+    if args.data == "study":
+        demos = study_data(args.n, args.seed)
+        data: Any = (demos.sequences, demos.lengths, demos.num_symbols)
+    else:
+        data = (*make_data(args.n, args.length, args.symbols, 3, args.concentration, args.seed),
+                args.symbols)  # fmt: skip
     t0 = time.perf_counter()
-    mem = fit_mixture((seqs, lengths, args.symbols), **options)
+    mem = fit_mixture(data, **options)
     t_mem = time.perf_counter() - t0
     print(f"in memory, {args.n} sequences: {t_mem:.1f} s wall; k = {mem.k}, "
           f"{mem.num_distinct} distinct rows")  # fmt: skip

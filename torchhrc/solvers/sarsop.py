@@ -169,6 +169,9 @@ class SARSOPConfig:
         prune_nodes: deactivate tree nodes reached by sub-optimal actions.
         sweep_interval: every this many iterations, back up all active tree beliefs at once
             (grouped by observed value; 0 disables).
+        lazy_upper: a one-belief backup re-bounds only the children of the action with the
+            highest cached ``Q_up`` until that action is one just refreshed (APPL's
+            ``getNewUBValueUseCache``); ``False`` re-bounds every child at every backup.
         callback: called after each iteration with the history entry (a dict); returning
             True stops the solve.
         dtype: floating dtype of the solve (default float64).
@@ -191,6 +194,7 @@ class SARSOPConfig:
     prune_growth: float = 2.0
     prune_nodes: bool = True
     sweep_interval: int = 0
+    lazy_upper: bool = True
     callback: Callable[[dict[str, Any]], bool | None] | None = None
     dtype: torch.dtype = torch.float64
 
@@ -607,24 +611,78 @@ class _SARSOP:
         j = scores.argmax(-1)
         return scores[np.arange(scores.shape[0]), j], ids[j]
 
-    def _evaluate_np(self, x: int, b: np.ndarray) -> tuple[np.ndarray, ...]:
+    def _upper_np(
+        self,
+        value: Any,
+        ia: np.ndarray,
+        nz: np.ndarray,
+        reward: np.ndarray,
+        C: int,
+        stale: tuple[np.ndarray, ...] | None,
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """Upper bounds of a belief's possible children ``nz`` (action ``ia``), ``Q_up``, ``V_up(b)``.
+
+        ``value(ids)`` bounds rows ``ids`` of the children (row ``nz.size`` is ``b`` itself).
+        Without ``stale`` every child is bounded. With ``stale`` (the node's cached
+        ``q_low, q_up, prob, low, up`` of an earlier evaluation) only the children of the
+        action with the highest ``Q_up`` are re-bounded, repeatedly, until the best action is
+        one just refreshed (APPL's ``getNewUBValueUseCache``): every earlier sawtooth value is
+        still an upper bound, so stale ``Q_up`` of the other actions stay valid, and a backup
+        bounds one or two actions' children instead of all ``A``.
+        """
+        m, A = nz.size, reward.shape[0]
+        if stale is None:
+            up_r = value(np.arange(m + 1))
+            up = np.zeros(C, dtype=reward.dtype)
+            up[nz] = up_r[:m]
+            q_up = reward + self.gamma * up.reshape(A, -1).sum(-1)
+            return up, q_up, float(up_r[m])
+        q_up = stale[1].copy()
+        up = stale[4].reshape(-1).copy()
+        fresh = np.zeros(A, dtype=bool)
+        cu = None
+        while True:
+            # refresh the best stale action while it beats every fresh one (ties within
+            # 1e-12 relative, resolved to the lowest index, so that round-off in the cached
+            # values does not change which children are bounded)
+            if fresh.any():
+                top = float(q_up[fresh].max())
+                cand = np.where(~fresh & (q_up > top + 1e-12 * max(1.0, abs(top))), q_up, -np.inf)
+            else:
+                cand = q_up
+            best = float(cand.max())
+            if best == -np.inf:
+                break
+            a = int(np.flatnonzero(cand >= best - 1e-12 * max(1.0, abs(best)))[0])
+            sel = np.flatnonzero(ia == a)
+            vals = value(sel if cu is not None else np.append(sel, m))
+            if cu is None:
+                cu, vals = float(vals[-1]), vals[:-1]
+            up.reshape(A, -1)[a] = 0.0
+            up[nz[sel]] = vals
+            q_up[a] = reward[a] + self.gamma * up.reshape(A, -1)[a].sum()
+            fresh[a] = True
+        assert cu is not None
+        return up, q_up, cu
+
+    def _evaluate_np(
+        self, x: int, b: np.ndarray, stale: tuple[np.ndarray, ...] | None = None
+    ) -> tuple[np.ndarray, ...]:
         """:meth:`evaluate` for one belief ``b (Y,)`` in numpy.
 
         The form gives the possible children (:meth:`SolverModel.children_np`, on the columns
         they live on); they and ``b`` are bounded by one product against the alpha vectors
         and one sawtooth evaluation. Returns ``q_low (A,)``, ``q_up (A,)``, ``prob``, ``low``,
         ``up`` (``(A, K, O)`` each, as :class:`_Evaluation`), ``best (A, K, O)``,
-        ``V_low(b)``, ``V_up(b)``.
+        ``V_low(b)``, ``V_up(b)``. ``stale``: the node's cached evaluation, see
+        :meth:`_upper_np`.
         """
         ch = self.form.children_np(x, b)
         A, K, O = ch.prob.shape
         low_r, best_r = self._lower_np(ch.rows, ch.rows_x, ch.cols)
-        up_r = self.ub.value_np(ch.rows, ch.rows_x, ch.cols)
         m = ch.nz.size
         low = np.zeros(A * K * O, dtype=b.dtype)
         low[ch.nz] = low_r[:m]
-        up = np.zeros(A * K * O, dtype=b.dtype)
-        up[ch.nz] = up_r[:m]
         # impossible children weigh 0 and take any vector of their x2 in a backup
         d = self._default_alpha()
         if self._default_np is None or self._default_np[0] is not d:
@@ -632,16 +690,21 @@ class _SARSOP:
         best = self._default_np[1][ch.child_x]
         best[ch.nz] = best_r[:m]
         q_low = ch.reward + self.gamma * low.reshape(A, K * O).sum(-1)
-        q_up = ch.reward + self.gamma * up.reshape(A, K * O).sum(-1)
+        rows, rows_x, cols = ch.rows, ch.rows_x, ch.cols
+        up, q_up, cu = self._upper_np(
+            lambda ids: self.ub.value_np(rows[ids], rows_x[ids], cols),
+            ch.nz // (K * O), ch.nz, ch.reward, A * K * O, stale,
+        )  # fmt: skip
         shape = (A, K, O)
         return (q_low, q_up, ch.prob, low.reshape(shape), up.reshape(shape), best.reshape(shape),
-                float(low_r[m]), float(up_r[m]))  # fmt: skip
+                float(low_r[m]), cu)  # fmt: skip
 
     def _backup_one_np(self, x: int, node: int) -> None:
         """:meth:`backup` of one node in numpy (the sequential path of a trial)."""
         tree = self.tree
         b = tree.beliefs_np[node]
-        q_low, q_up, prob, low_c, up_c, best, lo, cu = self._evaluate_np(x, b)
+        stale = self._cache.get(node) if self.cfg.lazy_upper else None
+        q_low, q_up, prob, low_c, up_c, best, lo, cu = self._evaluate_np(x, b, stale)
         a = int(q_low.argmax())
         W = self.alphas.np_vectors[best[a]]  # (K, O, Y)
         vals = (self.form.observation_np(x)[a] * W).sum(1)  # (K, Y)

@@ -16,8 +16,8 @@ from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers.backup import momdp_point_backup, point_backup
 from torchhrc.solvers.belief_tree import BeliefTree
-from torchhrc.solvers.forms import as_solver_model
 from torchhrc.solvers.evaluate import evaluate_policy
+from torchhrc.solvers.forms import as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig, fib_corner_values, sarsop
 from torchhrc.solvers.upper_bound import SawtoothUpperBound

@@ -25,16 +25,22 @@ the same with ``V_up`` for ``U_t``). The path is then backed up leaf to root. Do
 vectors, alpha vectors that win at no tree belief, redundant upper-bound points and belief
 nodes reached by sub-optimal actions (``Q_up(b, a) < max_a' Q_low(b, a')``) are pruned.
 
+One model interface: the solver asks the model only through
+:class:`~torchhrc.solvers.forms.base.SolverModel` (children of beliefs with their
+probabilities, rewards, the pieces of a backup, the initial bounds, the tree that stores
+beliefs), picked once by :func:`~torchhrc.solvers.forms.as_solver_model`; it never tests
+which form it holds. The forms: dense flat POMDP, MOMDP, sparse flat
+(:mod:`torchhrc.solvers.forms`).
+
 MOMDP (Ong et al. 2010): beliefs are ``(x, b_y)``; alpha vectors belong to one observed value
 and live over ``Y``, and are stored grouped by ``x`` (one contiguous ``(N_x, Y)`` block each);
 the upper-bound points too (per-``x`` point lists, and for ``Y <= 256`` a dense per-``x``
 table), so bounding a belief at ``x`` touches only ``x``'s vectors and points, never the
 whole sets. Every expansion only touches the next observed values reachable from ``x`` (see
-:class:`~torchhrc.solvers.belief_tree.FactoredModel`, whose per-``x`` slices are built when
+:class:`~torchhrc.solvers.forms.momdp.MOMDPForm`, whose per-``x`` slices are built when
 the search first reaches ``x``), so a factored backup costs about ``Y / S = 1 / X`` of the
-flat one's flops. The initial bounds use the sparse transition operator
-(:class:`~torchhrc.solvers._factored.Expectation`), never the flat ``(X Y) x (X Y)`` matrix.
-A flat POMDP runs through the same code with ``X = 1``.
+flat one's flops. The initial bounds use the reachable-``x2`` FIB operator, never the flat
+``(X Y) x (X Y)`` matrix. A flat POMDP is the same model with ``X = 1``.
 
 Reproducibility and time: with a fixed ``max_iterations`` (or ``precision``) and a
 ``time_limit`` that is not reached, a solve is bit-identical run to run: the default FIB
@@ -54,13 +60,13 @@ per problem, so :func:`sarsop` raises for them; solve ``model`` per batch index.
 
 Sparse flat models (:class:`~torchhrc.sparse.SparsePOMDP`, e.g. RockSample(7, 8) read with
 ``read_pomdp(path, sparse=True)``: 12545 states, a dense ``T`` of 2e9 entries) take a sparse
-path with the same algorithm: ``T`` as per-action CSR
-(:class:`~torchhrc.solvers.sparse_model.SparseFlatModel`), tree beliefs stored by their
-support (:class:`~torchhrc.solvers.belief_tree.SparseBeliefTree`), each belief's children
-formed and bounded only on the union of their supports, blind lower bound and QMDP/FIB upper
-bound by sparse value iteration, alpha vectors dense ``(S,)``. Belief pruning is one sparse
-product; the ``N^2 S`` pointwise-dominance test is skipped. On small models it gives the
-same bounds and policy as the dense path (tested).
+form with the same algorithm (:class:`~torchhrc.solvers.forms.sparse.SparseForm`): ``T`` as
+per-action CSR (:class:`~torchhrc.solvers.sparse_model.SparseFlatModel`), tree beliefs stored
+by their support (:class:`~torchhrc.solvers.belief_tree.SparseBeliefTree`), each belief's
+children formed and bounded only on the union of their supports, blind lower bound and
+QMDP/FIB upper bound by sparse value iteration, alpha vectors dense ``(S,)``. Belief pruning
+is one sparse product; the ``N^2 S`` pointwise-dominance test is skipped. On small models it
+gives the same bounds and policy as the dense path (tested).
 
 Example:
     >>> from torchhrc.tasks.classic import tiger

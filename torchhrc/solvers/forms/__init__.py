@@ -122,6 +122,4 @@ def as_solver_model(model: Any, *, dtype: torch.dtype | None = None) -> SolverMo
     for cls in type(model).__mro__:
         if cls in _FORMS:
             return _FORMS[cls](model, dtype)
-    raise TypeError(
-        f"expected a POMDP, MOMDP or SparsePOMDP, got {type(model).__name__}"
-    )
+    raise TypeError(f"expected a POMDP, MOMDP or SparsePOMDP, got {type(model).__name__}")

@@ -71,7 +71,10 @@ from torchhrc.solvers.fib import fib_vectors
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.qmdp import qmdp_vectors
 
-__all__ = ["Children", "PerObserved", "SolverModel", "TensorModelForm"]
+__all__ = ["Children", "FIBOperator", "PerObserved", "SolverModel", "TensorModelForm"]
+
+#: One Fast Informed Bound step ``(A, *state_shape) -> (A, *state_shape)`` (Hauskrecht 2000).
+FIBOperator = Callable[[torch.Tensor], torch.Tensor]
 
 
 class PerObserved(Sequence[Any]):
@@ -311,7 +314,7 @@ class SolverModel(ABC):
 
     @abstractmethod
     def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
-                  ) -> tuple[torch.Tensor, Callable[[torch.Tensor], torch.Tensor] | None]:  # fmt: skip
+                  ) -> tuple[torch.Tensor, FIBOperator | None]:  # fmt: skip
         """QMDP vectors ``(A, *state_shape)`` (an upper bound) and the FIB operator, or None
         when no FIB iteration is needed (FIB = QMDP, or ``info["stop"]`` set)."""
 
@@ -396,9 +399,16 @@ class TensorModelForm(SolverModel):
     """What the dense flat and the MOMDP forms share: a :class:`~torchhrc.pomdp.POMDP` or
     :class:`~torchhrc.pomdp.MOMDP` ``model`` held in the solve's dtype, whose bound kernels
     (:func:`~torchhrc.solvers.blind.blind_policy`, :func:`~torchhrc.solvers.qmdp.qmdp_vectors`,
-    :func:`~torchhrc.solvers.fib.fib_vectors`) take it directly."""
+    :func:`~torchhrc.solvers.fib.fib_vectors`) take it directly.
 
-    model: Any
+    Args:
+        model: the unbatched model, already in the solve's dtype.
+        source: what the user passed (default ``model``).
+    """
+
+    def __init__(self, model: Any, source: Any = None) -> None:
+        self.model = model
+        self.source = model if source is None else source
 
     @property
     def init_argument(self) -> Any:

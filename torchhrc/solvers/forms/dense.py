@@ -18,7 +18,6 @@ Example:
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -27,7 +26,7 @@ import torch
 from torchhrc.pomdp import POMDP
 from torchhrc.solvers.backup import BackupResult, point_backup
 from torchhrc.solvers.fib import fib_backup
-from torchhrc.solvers.forms.base import FlatFields, TensorModelForm
+from torchhrc.solvers.forms.base import FIBOperator, FlatFields, TensorModelForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.qmdp import qmdp_vectors
 from torchhrc.solvers.sampling import flat_step, sample_categorical
@@ -36,16 +35,11 @@ __all__ = ["DenseForm"]
 
 
 class DenseForm(FlatFields, TensorModelForm):
-    """A dense flat POMDP under the solver interface (:class:`~.base.SolverModel`).
-
-    Args:
-        model: an unbatched POMDP, already in the solve's dtype.
-        source: what the user passed (default ``model``).
-    """
+    """A dense flat POMDP under the solver interface (:class:`~.base.SolverModel`); built
+    from an unbatched :class:`~torchhrc.pomdp.POMDP` (see :class:`~.base.TensorModelForm`)."""
 
     def __init__(self, model: POMDP, source: Any = None) -> None:
-        self.model = model
-        self.source = model if source is None else source
+        super().__init__(model, source)
         self._flat(model.Z, model.R, model.b0, model.discount)
         self.T = model.T.contiguous()  # (A, S, S)
 
@@ -86,7 +80,7 @@ class DenseForm(FlatFields, TensorModelForm):
 
     # -- initial bounds ----------------------------------------------------------------------
     def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
-                  ) -> tuple[torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:  # fmt: skip
+                  ) -> tuple[torch.Tensor, FIBOperator]:  # fmt: skip
         """QMDP and FIB (Hauskrecht 2000) on per-action CSR ``T`` when it is sparse::
 
             fib(alpha)[a, s] = R[a, s] + gamma sum_o max_a2 sum_s2 T[a, s, s2] Z[a, s2, o]
@@ -132,4 +126,3 @@ class DenseForm(FlatFields, TensorModelForm):
     def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
                      beliefs: torch.Tensor) -> BackupResult:  # fmt: skip
         return point_backup(self.model, policy, beliefs)
-

@@ -6,7 +6,8 @@ the slices of ``Tx``, ``Ty`` and ``Z`` restricted to them, built when the search
 ``x``: expanding a belief costs ``A K_x Y`` (static hidden value) or ``A K_x Y^2``, never the
 flat ``A (X Y)^2``. The expansion is the unnormalised MOMDP belief update of paper Eq. 3::
 
-    J[..., a, k, o, y2] = Z[a, x2_k, y2, o] * sum_y Tx[a, x, y, x2_k] Ty[a, x, y, x2_k, y2] b[..., y]
+    J[..., a, k, o, y2] = Z[a, x2_k, y2, o]
+                          * sum_y Tx[a, x, y, x2_k] Ty[a, x, y, x2_k, y2] b[..., y]
 
 (it agrees with :func:`torchhrc.belief.momdp_update_all`, tested). Policies are vectors over
 ``Y`` tagged with their observed value.
@@ -17,12 +18,11 @@ Example:
     >>> form = as_solver_model(random_momdp(4, 3, 2, 2, static=False, seed=0))
     >>> xs, J = form.expand(0, form.b0.unsqueeze(0))
     >>> J.shape[-1], form.factored
-    (2, True)
+    (3, True)
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -31,7 +31,7 @@ import torch
 from torchhrc.pomdp import MOMDP
 from torchhrc.solvers.backup import BackupResult, momdp_point_backup
 from torchhrc.solvers.fib import fib_backup
-from torchhrc.solvers.forms.base import PerObserved, TensorModelForm, field
+from torchhrc.solvers.forms.base import FIBOperator, PerObserved, TensorModelForm, field
 from torchhrc.solvers.forms.dense import DenseForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.qmdp import qmdp_vectors
@@ -51,14 +51,11 @@ class MOMDPForm(TensorModelForm):
             tyk (A, K, Y, Y2) or None, z (A, K, O, Y))``; ``reach``, ``_tx``, ``_tyk`` and
             ``_z`` are its per-``x`` fields.
 
-    Args:
-        model: an unbatched MOMDP, already in the solve's dtype.
-        source: what the user passed (default ``model``).
+    Built from an unbatched :class:`~torchhrc.pomdp.MOMDP` (see :class:`~.base.TensorModelForm`).
     """
 
     def __init__(self, model: MOMDP, source: Any = None) -> None:
-        self.model = model
-        self.source = model if source is None else source
+        super().__init__(model, source)
         self.Tx, self.Ty, self.Z, self.R = model.Tx, model.Ty, model.Z, model.R
         self.x0, self.b0 = int(model.x0), model.b0
         A, X, Y, _ = self.Tx.shape
@@ -110,8 +107,10 @@ class MOMDPForm(TensorModelForm):
     # -- numpy ---------------------------------------------------------------------------------
     def _np(self, x: int) -> tuple[np.ndarray, np.ndarray | None]:
         """``tx (A, Y, K)`` and ``tyk (A, K, Y, Y2)`` or None of ``x`` as numpy views."""
-        return self._np_cache("txy", x, lambda: (
-            self._tx[x].numpy(), None if self._tyk[x] is None else self._tyk[x].numpy()))  # fmt: skip
+        tyk = self._tyk[x]
+        return self._np_cache(
+            "txy", x, lambda: (self._tx[x].numpy(), None if tyk is None else tyk.numpy())
+        )
 
     def predict_np(self, x: int, b: np.ndarray) -> np.ndarray:
         tx, tyk = self._np(x)
@@ -133,7 +132,7 @@ class MOMDPForm(TensorModelForm):
 
     # -- initial bounds ----------------------------------------------------------------------
     def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
-                  ) -> tuple[torch.Tensor, Callable[[torch.Tensor], torch.Tensor] | None]:  # fmt: skip
+                  ) -> tuple[torch.Tensor, FIBOperator | None]:  # fmt: skip
         """QMDP, and the FIB operator summed over the reachable ``x2`` only::
 
             fib(alpha)[a, x, y] = R[a, x, y] + gamma sum_{x2, o} max_a2 sum_y2 Tx Ty Z

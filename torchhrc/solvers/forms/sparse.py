@@ -20,14 +20,13 @@ Example:
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import torch
 
 from torchhrc.solvers.belief_tree import BeliefTree, SparseBeliefTree
-from torchhrc.solvers.forms.base import Children, FlatFields, SolverModel
+from torchhrc.solvers.forms.base import Children, FIBOperator, FlatFields, SolverModel
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sparse_model import SparseFlatModel, sparse_blind_policy
 
@@ -87,7 +86,7 @@ class SparseForm(FlatFields, SolverModel):
         return sparse_blind_policy(self.sparse, max_iterations=max_iterations)
 
     def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
-                  ) -> tuple[torch.Tensor, Callable[[torch.Tensor], torch.Tensor] | None]:  # fmt: skip
+                  ) -> tuple[torch.Tensor, FIBOperator | None]:  # fmt: skip
         """QMDP by sparse value iteration (sharing the time budget: models here are large),
         then :meth:`SparseFlatModel.fib_np`; deterministic moves make FIB equal QMDP."""
         alpha = torch.from_numpy(self.sparse.qmdp_np(tol, deadline=deadline))

@@ -68,6 +68,13 @@ CASES: dict[str, Callable[[], Any]] = {
         lambda: rock_sample_sparse(4, 4), 12, sweep_interval=4
     ),
     "sarsop/tiger_sparse": _sarsop(lambda: SparsePOMDP.from_dense(tiger()), 40),
+    # every child re-bounded at every backup (SARSOPConfig.lazy_upper=False)
+    "sarsop/rocksample44_momdp_eager": _sarsop(
+        lambda: rock_sample_momdp(4, 4), 25, lazy_upper=False
+    ),
+    "sarsop/rocksample44_sparse_eager": _sarsop(
+        lambda: rock_sample_sparse(4, 4), 25, lazy_upper=False
+    ),
     "pbvi/tiger": _pbvi(tiger, expansions=4),
     "pbvi/random_pomdp_qmdp": _pbvi(
         lambda: random_pomdp(6, 3, 3, discount=0.9, seed=11), expansions=3, upper_bound="qmdp"

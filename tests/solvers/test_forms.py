@@ -147,3 +147,40 @@ def test_sarsop_torch_path_reaches_the_tiger_optimum_on_every_flat_form() -> Non
         sol = solver.run()
         assert sol.info["stop_reason"] == "precision"
         assert sol.lower <= 19.3714 <= sol.upper + 1e-9
+
+
+class _SupportMOMDP(MOMDPForm):
+    """A new form in a few lines: a MOMDP whose one-belief children are given on their
+    support columns only (what a sparse MOMDP form would do)."""
+
+    def children_np(self, x, b):  # type: ignore[no-untyped-def]
+        ch = super().children_np(x, b)
+        cols = np.flatnonzero(ch.rows.any(0))
+        ch.rows, ch.cols = np.ascontiguousarray(ch.rows[:, cols]), cols
+        return ch
+
+
+def test_a_new_form_is_one_class_and_column_children_of_a_momdp_bound_correctly() -> None:
+    from torchhrc.tasks.classic import rock_sample_momdp
+
+    model = rock_sample_momdp(4, 4)
+    form = _SupportMOMDP(model)
+    assert as_solver_model(form) is form
+    b = form.b0.numpy()
+    ch = form.children_np(form.x0, b)
+    assert ch.cols is not None and ch.rows.shape[1] == ch.cols.size
+    cfg = SARSOPConfig(time_limit=1e9, precision=1e-9, max_iterations=20)
+    ref = _SARSOP(model, cfg, 0.0)
+    ref.run()
+    solver = _SARSOP(form, cfg, 0.0)
+    sol = solver.run()
+    # the same search up to round-off: the same bounds, to 1e-9
+    assert sol.lower == pytest.approx(ref.history[-1]["lower"], rel=1e-9)
+    assert sol.upper == pytest.approx(ref.history[-1]["upper"], rel=1e-9)
+    # and each row is bounded against its own observed value's vectors only
+    rows = torch.from_numpy(ch.rows[:-1])
+    full = torch.zeros(rows.shape[0], form.num_hidden, dtype=rows.dtype)
+    full[:, torch.from_numpy(ch.cols)] = rows
+    low, _ = solver._lower_np(ch.rows[:-1], ch.rows_x[:-1], ch.cols)
+    ref_low, _ = solver._lower_np(full.numpy(), ch.rows_x[:-1])
+    np.testing.assert_allclose(low, ref_low, rtol=1e-12, atol=1e-12)

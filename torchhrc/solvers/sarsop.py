@@ -573,14 +573,19 @@ class _SARSOP:
         Only the vectors of the rows' own observed values are scored (``alphas.group(x)``,
         ``N_x * Y`` per row instead of ``N * Y``); ties go to the lowest index, as a scan of
         the whole set would. Rows given on the columns ``cols`` only (children of a sparse
-        belief) are scored against the vectors restricted to them
-        (:meth:`_AlphaSet.keep_columns`).
+        belief, :class:`~torchhrc.solvers.forms.base.Children`) are scored against the
+        vectors restricted to them (:meth:`_AlphaSet.keep_columns`), masked to each row's
+        observed value.
         """
         if cols is not None:
             if self.alphas.columns is None:
                 self.alphas.keep_columns()
             assert self.alphas.columns is not None
-            scores = rows @ self.alphas.columns[cols, : self.alphas.size]  # (B, N)
+            n = self.alphas.size
+            scores = rows @ self.alphas.columns[cols, :n]  # (B, N)
+            if self.X > 1:  # a sparse MOMDP form: each row against its own x's vectors
+                assert self.alphas.np_observed is not None
+                scores[rows_x[:, None] != self.alphas.np_observed[None, :n]] = -np.inf
             best = scores.argmax(-1)
             return scores[np.arange(scores.shape[0]), best], best
         if self.X == 1:

@@ -90,7 +90,6 @@ from threadpoolctl import threadpool_limits
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers.forms import SolverModel, as_solver_model
-from torchhrc.solvers.forms.base import PerObserved
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.pruning import prune_dominated
 from torchhrc.solvers.solution import Solution
@@ -477,7 +476,6 @@ class _SARSOP:
         self._child_x: dict[tuple[int, int], torch.Tensor] = {}
         self._cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._default: torch.Tensor | None = None
-        self._RT = PerObserved(self.X, lambda x: form.R[:, x, :].T.contiguous())  # (Y, A) per x
         self.entropy = np.zeros(1024)
         self.entropy[0] = float(self._entropy(form.b0.unsqueeze(0))[0])
         self.children: dict[int, list[int]] = {}
@@ -550,7 +548,7 @@ class _SARSOP:
             up = self.ub.value(flat, cx)
             low_c, best_c, up_c = low[:C].view(shape), best[:C].view(shape), up[:C].view(shape)
             self_low, self_up = low[C:], up[C:]
-        reward = beliefs @ self._RT[x]  # (B, A)
+        reward = self.form.reward(x, beliefs)  # (B, A)
         q_low = reward + self.gamma * low_c.sum((-1, -2))
         q_up = reward + self.gamma * up_c.sum((-1, -2))
         return _Evaluation(xs, J, prob, low_c, best_c, up_c, q_low, q_up, self_low, self_up)

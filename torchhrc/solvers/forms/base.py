@@ -34,6 +34,7 @@ observations, ``Y`` hidden values; a flat model has ``X = K = 1`` and ``Y = S``)
 
 ==========================  =============================================================
 ``R``                       ``(A, X, Y)`` rewards
+``reward(x, b)``            ``(B, A)`` expected immediate rewards of ``b (B, Y)``
 ``expand(x, b)``            ``xs (K,)``, ``J (B, A, K, O, Y)``
 ``observation_slice(x, a)`` ``(B, K, O, Y)`` for ``a (B,)``
 ``backproject(x, a, v)``    ``(B, Y)`` for ``a (B,)``, ``v (B, K, Y)``
@@ -224,6 +225,15 @@ class SolverModel(ABC):
         """
         return self.reach[x], self.predict(x, beliefs).unsqueeze(-2) * self.observation(x)
 
+    def reward(self, x: int, beliefs: torch.Tensor) -> torch.Tensor:
+        """``(B, A)`` expected immediate rewards ``R(b, a) = sum_y b[y] R[a, x, y]`` of
+        ``beliefs (B, Y)`` at observed value ``x``."""
+        return beliefs @ self._reward_table(x)
+
+    def _reward_table(self, x: int) -> torch.Tensor:
+        """``(Y, A)`` ``R[:, x, :]`` transposed, contiguous (built once per ``x``)."""
+        return self._cached("RT", x, lambda: self.R[:, x, :].T.contiguous())
+
     def observation_slice(self, x: int, actions: torch.Tensor) -> torch.Tensor:
         """``(B, K, O, Y)``: ``Z[a_i, x2_k, y2, o]`` for ``actions (B,)``."""
         return self.observation(x)[actions]
@@ -237,14 +247,15 @@ class SolverModel(ABC):
     # -- one belief on the CPU (numpy) -------------------------------------------------------
     def observation_np(self, x: int) -> np.ndarray:
         """``(A, K, O, Y)`` :meth:`observation` as a numpy view (CPU)."""
-        return self._np_cache("z", x, lambda: self.observation(x).numpy())
+        return self._cached("z", x, lambda: self.observation(x).numpy())
 
     def reach_np(self, x: int) -> np.ndarray:
         """``(K,)`` :attr:`reach` of ``x`` as a numpy view (CPU)."""
-        return self._np_cache("reach", x, lambda: self.reach[x].numpy())
+        return self._cached("reach", x, lambda: self.reach[x].numpy())
 
-    def _np_cache(self, name: str, x: int, build: Callable[[], Any]) -> Any:
-        caches = self.__dict__.setdefault("_np_caches", {})
+    def _cached(self, name: str, x: int, build: Callable[[], Any]) -> Any:
+        """``build()`` cached under ``(name, x)`` (per-``x`` views and tables, built once)."""
+        caches = self.__dict__.setdefault("_cacheds", {})
         key = (name, x)
         if key not in caches:
             caches[key] = build()
@@ -275,11 +286,11 @@ class SolverModel(ABC):
         pred = self.predict_np(x, b)  # (A, K, Y)
         z = self.observation_np(x)  # (A, K, O, Y)
         A, K, O, _ = z.shape
-        cx = self._np_cache(
+        cx = self._cached(
             "child_x", x,
             lambda: np.broadcast_to(self.reach_np(x)[None, :, None], (A, K, O)).reshape(-1).copy(),
         )  # fmt: skip
-        zt = self._np_cache("zt", x, lambda: np.ascontiguousarray(z.transpose(0, 1, 3, 2)))
+        zt = self._cached("zt", x, lambda: np.ascontiguousarray(z.transpose(0, 1, 3, 2)))
         prob = np.matmul(pred[:, :, None, :], zt)[:, :, 0, :]  # (A, K, O)
         nz = np.flatnonzero(prob)
         ia, ik, io = np.unravel_index(nz, (A, K, O))
@@ -289,7 +300,7 @@ class SolverModel(ABC):
 
     def reward_np(self, x: int) -> np.ndarray:
         """``(Y, A)`` ``R[:, x, :]`` transposed, contiguous (numpy, CPU)."""
-        return self._np_cache("RT", x, lambda: self.R[:, x, :].T.contiguous().numpy())
+        return self._cached("RT_np", x, lambda: self._reward_table(x).numpy())
 
     # -- initial bounds ----------------------------------------------------------------------
     @abstractmethod

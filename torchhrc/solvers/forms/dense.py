@@ -62,7 +62,7 @@ class DenseForm(FlatFields, TensorModelForm):
 
     # -- numpy ---------------------------------------------------------------------------------
     def _T_np(self) -> np.ndarray:
-        return self._np_cache("T", 0, lambda: self.T.numpy())
+        return self._cached("T", 0, lambda: self.T.numpy())
 
     def predict_np(self, x: int, b: np.ndarray) -> np.ndarray:
         T = self._T_np()

@@ -108,7 +108,7 @@ class MOMDPForm(TensorModelForm):
     def _np(self, x: int) -> tuple[np.ndarray, np.ndarray | None]:
         """``tx (A, Y, K)`` and ``tyk (A, K, Y, Y2)`` or None of ``x`` as numpy views."""
         tyk = self._tyk[x]
-        return self._np_cache(
+        return self._cached(
             "txy", x, lambda: (self._tx[x].numpy(), None if tyk is None else tyk.numpy())
         )
 

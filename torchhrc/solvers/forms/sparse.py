@@ -69,7 +69,7 @@ class SparseForm(FlatFields, SolverModel):
         """The children of ``b (S,)`` on ``cols``, the union of the supports of the
         predictions and of ``b`` (``K = 1``)."""
         cols, pred = self.sparse.predict_columns_np(b)  # (C,), (A, C)
-        Z = self._np_cache("Z", 0, lambda: self.sparse.Z.numpy())  # (A, S, O)
+        Z = self._cached("Z", 0, lambda: self.sparse.Z.numpy())  # (A, S, O)
         zc = Z[:, cols, :]  # (A, C, O)
         A, _, O = zc.shape
         prob = np.matmul(pred[:, None, :], zc)[:, 0, :]  # (A, O)

@@ -108,6 +108,12 @@ def _record(name: str) -> dict[str, Any]:
     }
 
 
+def _dumps(cases: dict[str, Any]) -> str:
+    """One case a line (floats as ``repr``: exact round trip)."""
+    lines = [f"{json.dumps(k)}: {json.dumps(v)}" for k, v in sorted(cases.items())]
+    return "{\n" + ",\n".join(lines) + "\n}\n"
+
+
 def _expected() -> dict[str, Any]:
     return json.loads(DATA.read_text())
 
@@ -132,5 +138,5 @@ if __name__ == "__main__":
         out[name] = _record(name)
         print(name, out[name]["lower"], out[name]["upper"], out[name]["n_alphas"], flush=True)
     tmp = DATA.with_suffix(".tmp")
-    tmp.write_text(json.dumps(out, indent=1) + "\n")
+    tmp.write_text(_dumps(out))
     tmp.replace(DATA)

@@ -18,7 +18,10 @@ iteration. The upper bound is the Fast Informed Bound at ``b0`` (Hauskrecht 2000
 
 For a MOMDP (Ong et al. 2010) the beliefs are pairs ``(x, b_y)``, the vectors live over
 ``Y`` per observed ``x``, and backups run factored; ``factored=False`` solves the flat
-``to_pomdp()`` model instead (for comparison).
+``to_pomdp()`` model instead (for comparison). The algorithm is written once: it asks the
+model only through :class:`~torchhrc.solvers.forms.base.SolverModel` (a simulation step, a
+batched point backup, the bounds, the value of a policy at beliefs), picked by
+:func:`~torchhrc.solvers.forms.as_solver_model`.
 
 Anytime: the loop stops at ``time_limit``, when the gap at ``b0`` falls below ``precision``,
 after ``max_iterations`` backup sweeps or ``expansions`` expansions, or on
@@ -196,6 +199,8 @@ def pbvi(model: POMDP | MOMDP, config: PBVIConfig | None = None) -> Solution:
 
     Raises:
         ModelError: the model is batched or undiscounted.
+        TypeError: ``config`` is not a PBVIConfig, or ``model`` is not a POMDP or MOMDP (a
+            :class:`~torchhrc.sparse.SparsePOMDP` is solved by SARSOP only).
 
     Example:
         >>> from torchhrc.testing import random_momdp

@@ -10,7 +10,7 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import POMDP
-from torchhrc.solvers import PBVIConfig, solve
+from torchhrc.solvers import PBVIConfig, QMDPConfig, solve
 from torchhrc.solvers import sparse_model as sparse_module
 from torchhrc.solvers.belief_tree import SparseBeliefTree
 from torchhrc.solvers.blind import blind_policy, blind_vectors
@@ -272,9 +272,11 @@ def test_sparse_sarsop_with_sweeps_and_custom_initialisers(rs44: POMDP) -> None:
     assert sol.lower <= ref.upper + 1e-9 and ref.lower <= sol.upper + 1e-9
 
 
-def test_solve_dispatches_sparse_models_to_sarsop_only() -> None:
+def test_solve_dispatches_sparse_models_to_sarsop_and_pbvi_only() -> None:
     sp = SparsePOMDP.from_dense(tiger())
     sol = solve(sp, SARSOPConfig(time_limit=1e9, precision=0.5))
     assert sol.upper - sol.lower <= 0.5
-    with pytest.raises(ModelError, match="SARSOP only"):
-        solve(sp, PBVIConfig(time_limit=1.0))
+    sol = solve(sp, PBVIConfig(time_limit=1e9, expansions=4))
+    assert sol.lower <= 19.3714 <= sol.upper
+    with pytest.raises(ModelError, match="SARSOP or PBVI only"):
+        solve(sp, QMDPConfig())

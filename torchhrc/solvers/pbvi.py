@@ -50,6 +50,7 @@ from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers.forms import SolverModel, as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.solution import Solution
+from torchhrc.sparse import SparsePOMDP
 
 __all__ = ["PBVIConfig", "pbvi"]
 
@@ -183,11 +184,13 @@ def _merge(form: SolverModel, policy: AlphaVectorPolicy, new: AlphaVectorPolicy,
     return form.prune(union, belief_set.x, belief_set.beliefs)
 
 
-def pbvi(model: POMDP | MOMDP, config: PBVIConfig | None = None) -> Solution:
+def pbvi(model: POMDP | MOMDP | SparsePOMDP, config: PBVIConfig | None = None) -> Solution:
     """Solve a POMDP or MOMDP by point-based value iteration (Pineau et al. 2003).
 
     Args:
-        model: an unbatched :class:`POMDP` or :class:`MOMDP` with discount < 1.
+        model: an unbatched :class:`POMDP` or :class:`MOMDP` with discount < 1, or a
+            :class:`~torchhrc.sparse.SparsePOMDP` (sparse ``T``; beliefs and vectors dense
+            ``(S,)``).
         config: :class:`PBVIConfig` (defaults if None).
 
     Returns:
@@ -199,8 +202,7 @@ def pbvi(model: POMDP | MOMDP, config: PBVIConfig | None = None) -> Solution:
 
     Raises:
         ModelError: the model is batched or undiscounted.
-        TypeError: ``config`` is not a PBVIConfig, or ``model`` is not a POMDP or MOMDP (a
-            :class:`~torchhrc.sparse.SparsePOMDP` is solved by SARSOP only).
+        TypeError: ``config`` is not a PBVIConfig, or ``model`` of no known form.
 
     Example:
         >>> from torchhrc.testing import random_momdp

@@ -317,11 +317,17 @@ class SolverModel(ABC):
         ``stop`` is ``"converged"`` (change below ``tol``, or FIB = QMDP), ``"max_iterations"``
         or ``"time_limit"`` (the only outcome that depends on the wall clock).
         """
+        vectors, info = self.fib_vectors(tol, deadline, max_iterations)
+        return vectors.amax(0), info
+
+    def fib_vectors(self, tol: float, deadline: float = math.inf, max_iterations: int = 100_000,
+                    ) -> tuple[torch.Tensor, dict[str, Any]]:  # fmt: skip
+        """``(A, *state_shape)`` the per-action FIB vectors of :meth:`fib_corner_values`."""
         info: dict[str, Any] = {"iterations": 0, "stop": "converged"}
         start, step = self.fib_start(tol, deadline, info)
         if step is None:  # FIB = QMDP, or the budget is spent
-            return start.amax(0), info
-        return _iterate_fib(start, step, tol, deadline, max_iterations, info).amax(0), info
+            return start, info
+        return _iterate_fib(start, step, tol, deadline, max_iterations, info), info
 
     @abstractmethod
     def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
@@ -379,21 +385,24 @@ class SolverModel(ABC):
         """The same model as a flat form (a MOMDP's ``to_pomdp()``; flat forms: itself)."""
         return self
 
+    @abstractmethod
     def upper_vectors(self, kind: str, tol: float) -> torch.Tensor:
-        """``(A, *state_shape)`` FIB (``kind="fib"``) or QMDP upper-bound vectors (PBVI)."""
-        raise TypeError(f"pbvi needs a POMDP or MOMDP, got {type(self.source).__name__}")
+        """``(A, *state_shape)`` FIB (``kind="fib"``) or QMDP upper-bound vectors (PBVI),
+        iterated until the change is below ``tol``."""
 
+    @abstractmethod
     def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
                  generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
         """One sampled step of beliefs ``(x (M,), beliefs (M, Y))`` under ``actions (M,)``:
         a hidden value drawn from the belief, its successor and observation drawn from the
         model, the Bayes update. Returns ``x2 (M,)`` and ``beliefs2 (M, Y)``."""
-        raise TypeError(f"pbvi needs a POMDP or MOMDP, got {type(self.source).__name__}")
 
+    @abstractmethod
     def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
                      beliefs: torch.Tensor) -> BackupResult:  # fmt: skip
-        """The batched point backup of ``(x (M,), beliefs (M, Y))`` against ``policy``."""
-        raise TypeError(f"pbvi needs a POMDP or MOMDP, got {type(self.source).__name__}")
+        """The batched point backup of ``(x (M,), beliefs (M, Y))`` against ``policy``
+        (Pineau et al. 2003): ``alphas (M, Y)``, ``actions (M,)``, ``values (M,)``,
+        ``q_values (M, A)``."""
 
     def value(self, policy: AlphaVectorPolicy, x: torch.Tensor,
               beliefs: torch.Tensor) -> torch.Tensor:  # fmt: skip

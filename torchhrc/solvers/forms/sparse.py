@@ -25,9 +25,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from torchhrc.solvers.backup import CHUNK_ELEMENTS, BackupResult
 from torchhrc.solvers.belief_tree import BeliefTree, SparseBeliefTree
 from torchhrc.solvers.forms.base import Children, FIBOperator, FlatFields, SolverModel
 from torchhrc.solvers.policy import AlphaVectorPolicy
+from torchhrc.solvers.sampling import sample_categorical
 from torchhrc.solvers.sparse_model import SparseFlatModel, sparse_blind_policy
 
 __all__ = ["SparseForm"]
@@ -100,3 +102,60 @@ class SparseForm(FlatFields, SolverModel):
     def new_tree(self) -> BeliefTree:
         """A :class:`SparseBeliefTree` (beliefs stored by their support)."""
         return SparseBeliefTree(self.b0, self.x0)
+
+    # -- PBVI ----------------------------------------------------------------------------------
+    def upper_vectors(self, kind: str, tol: float) -> torch.Tensor:
+        if kind == "fib":
+            return self.fib_vectors(tol)[0]
+        return torch.from_numpy(self.sparse.qmdp_np(tol))
+
+    def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
+                 generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+        """One sampled step: ``s ~ b``, ``s2 ~ T[a, s, .]`` among the stored successors,
+        ``o ~ Z[a, s2, .]``, then the Bayes update ``b2 ~ (b T_a) Z[a, ., o]`` (a uniform
+        placeholder where ``P(o) = 0``, as :func:`torchhrc.belief.update` with
+        ``on_zero="ninf"``)."""
+        sp = self.sparse
+        s = sample_categorical(beliefs, generator)
+        nxt, prob = sp.successors(actions, s)  # (M, W)
+        s2 = nxt.gather(1, sample_categorical(prob, generator).unsqueeze(1)).squeeze(1)
+        o = sample_categorical(sp.Z[actions, s2], generator)
+        new = sp.predict_actions(beliefs, actions) * sp.Z[actions, :, o]  # (M, S)
+        total = new.sum(-1, keepdim=True)
+        uniform = torch.full_like(new, 1.0 / new.shape[-1])
+        return torch.zeros_like(s), torch.where(total > 0, new / total.clamp(min=1e-300), uniform)
+
+    def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
+                     beliefs: torch.Tensor) -> BackupResult:  # fmt: skip
+        """The belief-side point backup (Pineau et al. 2003) on the sparse ``T``::
+
+            best[m, a, o] = argmax_n (b_m T_a) Z[a, ., o] . alpha_n
+            inner[m, a]   = sum_o Z[a, ., o] * alpha_best[m, a, o]              (S,)
+            Q[m, a]       = b_m . R[a] + gamma (b_m T_a) . inner[m, a]
+
+        and only the chosen action's vector ``R[a] + gamma T_a inner[m, a]`` is formed (one
+        sparse back-projection), so no ``(M, A, S)`` vector block is held; chunked over
+        beliefs to bound the ``(m, A, O, S)`` children.
+        """
+        sp = self.sparse
+        alphas = policy.alphas.to(sp.dtype)
+        beliefs = beliefs.to(sp.dtype)
+        A, S, O = sp.num_actions, sp.num_states, sp.num_observations
+        N, M = alphas.shape[0], beliefs.shape[0]
+        R, g = sp.R, self.discount
+        Zt = sp.Z.transpose(-1, -2)  # (A, O, S)
+        chunk = max(1, CHUNK_ELEMENTS // max(1, A * O * max(N, S)))
+        q_parts, inner_parts = [], []
+        for start in range(0, M, chunk):
+            b = beliefs[start : start + chunk]
+            pred = sp.predict(b)  # (m, A, S)
+            W = pred.unsqueeze(2) * Zt.unsqueeze(0)  # (m, A, O, S)
+            best = (W @ alphas.T).argmax(-1)  # (m, A, O)
+            inner = (alphas[best] * Zt.unsqueeze(0)).sum(2)  # (m, A, S)
+            q_parts.append(b @ R.T + g * (pred * inner).sum(-1))  # (m, A)
+            inner_parts.append(inner)
+        q = torch.cat(q_parts)
+        values, actions = q.max(-1)
+        inner = torch.cat(inner_parts)[torch.arange(M), actions]  # (M, S)
+        new = R[actions] + g * sp.backproject(actions, inner)
+        return BackupResult(new, actions, values, q)

@@ -255,7 +255,7 @@ class SolverModel(ABC):
 
     def _cached(self, name: str, x: int, build: Callable[[], Any]) -> Any:
         """``build()`` cached under ``(name, x)`` (per-``x`` views and tables, built once)."""
-        caches = self.__dict__.setdefault("_cacheds", {})
+        caches = self.__dict__.setdefault("_form_cache", {})
         key = (name, x)
         if key not in caches:
             caches[key] = build()
@@ -371,9 +371,9 @@ class SolverModel(ABC):
 
     def policy(self, alphas: torch.Tensor, actions: torch.Tensor,
                observed: torch.Tensor) -> AlphaVectorPolicy:  # fmt: skip
-        """The solver's vectors ``(N, Y)`` as this form's policy (``observed`` kept iff
-        :attr:`factored`)."""
-        return AlphaVectorPolicy(alphas, actions, observed if self.factored else None)
+        """The solver's vectors ``(N, Y)`` as this form's policy (flat here: ``observed``,
+        all zero, is dropped; a factored form keeps it)."""
+        return AlphaVectorPolicy(alphas, actions)
 
     # -- the belief representation -------------------------------------------------------------
     def new_tree(self) -> BeliefTree:
@@ -406,13 +406,15 @@ class SolverModel(ABC):
 
     def value(self, policy: AlphaVectorPolicy, x: torch.Tensor,
               beliefs: torch.Tensor) -> torch.Tensor:  # fmt: skip
-        """``(M,)`` ``policy``'s value at ``(x (M,), beliefs (M, Y))``."""
-        return policy.value(x, beliefs) if self.factored else policy.value(beliefs)
+        """``(M,)`` ``policy``'s value at ``(x (M,), beliefs (M, Y))`` (flat here: ``x`` is
+        all zero and unused; a factored form overrides)."""
+        return policy.value(beliefs)
 
     def prune(self, policy: AlphaVectorPolicy, x: torch.Tensor,
               beliefs: torch.Tensor) -> AlphaVectorPolicy:  # fmt: skip
-        """``policy`` restricted to the vectors that win at some ``(x, belief)``."""
-        return policy.prune(beliefs, x=x if self.factored else None)
+        """``policy`` restricted to the vectors that win at some ``(x, belief)`` (flat here;
+        a factored form overrides)."""
+        return policy.prune(beliefs)
 
 
 class TensorModelForm(SolverModel):

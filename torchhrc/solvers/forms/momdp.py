@@ -175,3 +175,16 @@ class MOMDPForm(TensorModelForm):
     def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
                      beliefs: torch.Tensor) -> BackupResult:  # fmt: skip
         return momdp_point_backup(self.model, policy, x, beliefs)
+
+    # -- policies: vectors over Y tagged with their observed value --------------------------------
+    def policy(self, alphas: torch.Tensor, actions: torch.Tensor,
+               observed: torch.Tensor) -> AlphaVectorPolicy:  # fmt: skip
+        return AlphaVectorPolicy(alphas, actions, observed)
+
+    def value(self, policy: AlphaVectorPolicy, x: torch.Tensor,
+              beliefs: torch.Tensor) -> torch.Tensor:  # fmt: skip
+        return policy.value(x, beliefs)
+
+    def prune(self, policy: AlphaVectorPolicy, x: torch.Tensor,
+              beliefs: torch.Tensor) -> AlphaVectorPolicy:  # fmt: skip
+        return policy.prune(beliefs, x=x)

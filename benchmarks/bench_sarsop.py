@@ -202,9 +202,214 @@ def batch_table(limit: float) -> None:
         )
 
 
+# -- the public suite (--suite DIR) ------------------------------------------------------------
+SUITE_COLUMNS = [
+    "problem", "states", "actions", "observations", "limit_s", "solver", "lower", "upper", "gap",
+    "time_to_precision_s", "peak_rss_mb", "load_s", "solve_s", "wall_s", "status",
+]  # fmt: skip
+
+
+def _run_measured(cmd: list[str], timeout: float) -> tuple[int, str, float, float]:
+    """Run ``cmd``; return exit code, stdout+stderr, peak resident memory (MB), wall seconds.
+
+    The peak is the child's own ``ru_maxrss``, so every solve, ours and APPL's, is measured
+    alone: through GNU ``/usr/bin/time -f %M`` when present (a forked copy of this
+    torch-loaded process would otherwise count its own pages in the child's peak), else
+    ``os.wait4``.
+    """
+    gnu_time = Path("/usr/bin/time")
+    if gnu_time.exists():
+        cmd = [str(gnu_time), "-f", "MAXRSS_KB %M", *cmd]
+    with tempfile.TemporaryFile(mode="w+") as out:
+        start = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT)
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
+            if time.perf_counter() - start > timeout:
+                proc.kill()
+                pid, status, usage = os.wait4(proc.pid, 0)
+                break
+            time.sleep(0.02)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - start
+        out.seek(0)
+        text = out.read()
+        found = re.findall(r"^MAXRSS_KB (\d+)$", text, flags=re.M)
+        rss = int(found[-1]) / 1024 if found else usage.ru_maxrss / 1024
+        return proc.returncode, text, rss, wall
+
+
+def _read_suite_model(path: Path):  # type: ignore[no-untyped-def]
+    """A suite file as a model: ``.pomdp`` by :func:`read_pomdp` (sparse above 2000 states),
+    ``.pomdpx`` by ``torchhrc.io.read_pomdpx`` when that reader exists."""
+    if path.suffix == ".pomdpx":
+        import torchhrc.io as tio
+
+        reader = getattr(tio, "read_pomdpx", None)
+        if reader is None:
+            raise NotImplementedError("torchhrc.io.read_pomdpx does not exist (no .pomdpx reader)")
+        return reader(path)
+    sparse = path.stat().st_size > 20_000_000
+    return read_pomdp(path, sparse=sparse)
+
+
+def child_solve(path: Path, limit: float, precision: float, out: Path, policyx: Path | None) -> int:
+    """Solve one suite file in this (child) process and write the figures as JSON to ``out``."""
+    import json
+
+    torch.set_num_threads(1)
+    # torch imports torch._refs on the first torch.broadcast_shapes call (which the model's
+    # validation makes): about 0.4 s idle, 1.4 s on a loaded machine, once per process; it
+    # is paid here, outside the load time, as a long-running process pays it once
+    torch.broadcast_shapes((1,), (1,))
+    t0 = time.perf_counter()
+    model = _read_suite_model(path)
+    load = time.perf_counter() - t0
+    # APPL's pomdpsol limits and reports process CPU time (user + system, times(2) in its
+    # CPTimer), not wall-clock: on a shared machine our solve gets the same CPU budget, checked
+    # after every iteration (the wall-clock limit is only a safety net)
+    cpu0 = time.process_time()
+    cpu: list[tuple[float, float]] = []  # (CPU seconds, gap) after each iteration
+
+    def stop(entry: dict) -> bool:
+        used = time.process_time() - cpu0
+        cpu.append((used, entry["upper"] - entry["lower"]))
+        return used >= limit
+
+    sol = sarsop(model, SARSOPConfig(time_limit=20 * limit + 60, precision=precision,
+                                     callback=stop))  # fmt: skip
+    reached = next((t for t, gap in cpu if gap <= precision), None)
+    if policyx is not None:
+        from torchhrc.io import write_policyx
+
+        write_policyx(sol.policy, policyx)
+    out.write_text(json.dumps({
+        "lower": sol.lower, "upper": sol.upper, "load_s": load,
+        "solve_s": time.process_time() - cpu0, "wall_s": sol.history[-1]["time_s"],
+        "time_to_precision_s": reached, "backups": sol.info["backups"],
+        "states": int(sol.policy.alphas.shape[-1]),
+    }))  # fmt: skip
+    return 0
+
+
+def _appl_rows(text: str) -> list[tuple[float, float, float, float]]:
+    """APPL's progress rows: (time, lower, upper, precision column = its own gap)."""
+    return [(float(m.group(1)), float(m.group(4)), float(m.group(5)), float(m.group(6)))
+            for m in map(_ROW.match, text.splitlines()) if m]  # fmt: skip
+
+
+def suite_table(
+    folder: Path, limits: list[float], appl: str | None, precision: float, prefix: Path,
+    only: list[str] | None = None,
+) -> list[dict]:  # fmt: skip
+    """Both solvers on every suite file at every limit, back to back per problem; writes
+    ``prefix.csv`` and ``prefix.md`` after every row (a long run leaves a partial table)."""
+    import csv
+    import json
+
+    files = sorted(p for p in folder.iterdir() if p.suffix in (".pomdp", ".pomdpx"))
+    stems = {p.stem for p in files if p.suffix == ".pomdp"}
+    rows: list[dict] = []
+    for path in files:
+        if only and path.stem not in only:
+            continue
+        if path.suffix == ".pomdpx" and path.stem in stems:
+            continue  # the same problem is in the suite as .pomdp
+        for limit in limits:
+            for solver in ("torchhrc", "APPL"):
+                row: dict = {"problem": path.name, "limit_s": limit, "solver": solver}
+                if solver == "APPL":
+                    if appl is None:
+                        continue
+                    with tempfile.TemporaryDirectory() as tmp:
+                        cmd = [appl, str(path), "--timeout", str(limit), "--precision",
+                               str(precision), "-o", str(Path(tmp) / "out.policy")]  # fmt: skip
+                        rc, text, rss, wall = _run_measured(cmd, 3 * limit + 120)
+                    found = _appl_rows(text)
+                    m = re.search(r"loading time\s*:\s*([0-9.]+)", text)
+                    if rc != 0 or not found:
+                        row["status"] = f"failed (exit {rc}): {text.strip()[-160:]!r}"
+                    else:
+                        t, lo, up, _ = found[-1]
+                        reach = next((r[0] for r in found if r[3] <= precision), None)
+                        row.update(lower=lo, upper=up, gap=up - lo, time_to_precision_s=reach,
+                                   peak_rss_mb=rss, solve_s=t, status="ok", wall_s=wall,
+                                   load_s=float(m.group(1)) if m else None)  # fmt: skip
+                else:
+                    if path.suffix == ".pomdpx":
+                        import torchhrc.io as tio
+
+                        if not hasattr(tio, "read_pomdpx"):
+                            print(f"{path.name}: skipped (torchhrc.io.read_pomdpx does not "
+                                  "exist: no .pomdpx reader on this branch)", flush=True)  # fmt: skip
+                            break
+                    with tempfile.TemporaryDirectory() as tmp:
+                        res = Path(tmp) / "res.json"
+                        cmd = [sys.executable, str(Path(__file__).resolve()), "--child", str(path),
+                               str(limit), str(precision), str(res)]  # fmt: skip
+                        rc, text, rss, wall = _run_measured(cmd, 3 * limit + 300)
+                        if rc != 0 or not res.exists():
+                            row["status"] = f"failed (exit {rc}): {text.strip()[-160:]!r}"
+                        else:
+                            r = json.loads(res.read_text())
+                            row.update(lower=r["lower"], upper=r["upper"],
+                                       gap=r["upper"] - r["lower"], peak_rss_mb=rss,
+                                       time_to_precision_s=r["time_to_precision_s"],
+                                       load_s=r["load_s"], solve_s=r["solve_s"], status="ok",
+                                       wall_s=wall)  # fmt: skip
+                rows.append(row)
+                print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                               for k, v in row.items()), flush=True)  # fmt: skip
+                _write_suite(rows, prefix, precision)
+    return rows
+
+
+def _write_suite(rows: list[dict], prefix: Path, precision: float) -> None:
+    import csv
+
+    prefix.parent.mkdir(parents=True, exist_ok=True)
+    with open(prefix.with_suffix(".csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=SUITE_COLUMNS, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+
+    def cell(v: object, fmt: str = ".4f") -> str:
+        return "-" if v is None else format(v, fmt) if isinstance(v, float) else str(v)
+
+    lines = [
+        "| problem | limit s | solver | lower | upper | gap | "
+        f"CPU s to {precision:g} | peak RSS MB | load s | CPU s | wall s | status |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['problem']} | {r['limit_s']:g} | {r['solver']} | {cell(r.get('lower'))} | "
+            f"{cell(r.get('upper'))} | {cell(r.get('gap'))} | "
+            f"{cell(r.get('time_to_precision_s'), '.2f')} | {cell(r.get('peak_rss_mb'), '.0f')} | "
+            f"{cell(r.get('load_s'), '.2f')} | {cell(r.get('solve_s'), '.1f')} | "
+            f"{cell(r.get('wall_s'), '.1f')} | {r.get('status', '')} |"
+        )
+    prefix.with_suffix(".md").write_text("\n".join(lines) + "\n")
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] == "--child":  # one solve of the suite, in its own process
+        _, path, limit, precision, out, *rest = argv
+        return child_solve(Path(path), float(limit), float(precision), Path(out),
+                           Path(rest[0]) if rest else None)  # fmt: skip
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--limits", type=float, nargs="+", default=[10.0, 60.0])
+    parser.add_argument("--suite", type=Path, default=None,
+                        help="a suite folder (problems/make_suite.py): both solvers on every file")  # fmt: skip
+    parser.add_argument("--table", type=Path, default=Path("sarsop_suite"),
+                        help="--suite: the table is written to TABLE.md and TABLE.csv")  # fmt: skip
+    parser.add_argument("--only", nargs="*", default=None, help="--suite: only these stems")
+    parser.add_argument(
+        "--limits", type=lambda v: [float(t) for t in v.split(",")] if "," in v else float(v),
+        nargs="+", default=[10.0, 60.0], help="seconds: '10 60' or '10,60'",
+    )  # fmt: skip
     parser.add_argument("--problems", nargs="+", choices=list(PROBLEMS), default=list(PROBLEMS))
     parser.add_argument("--appl", default=None, help="path of APPL's pomdpsol binary")
     parser.add_argument("--precision", type=float, default=1e-3)
@@ -216,7 +421,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--repeats", type=int, default=1, help="repeats of the MOMDP table")
     args = parser.parse_args(argv)
+    args.limits = [t for v in args.limits for t in (v if isinstance(v, list) else [v])]
     torch.set_num_threads(1)  # the tree search is sequential; APPL is single-threaded too
+    if args.suite is not None:
+        print(f"suite {args.suite}, limits {args.limits}, load average {os.getloadavg()}")
+        suite_table(args.suite, args.limits, args.appl, args.precision, args.table, args.only)
+        print(f"load average after: {os.getloadavg()}")
+        return 0
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, limits {args.limits}")
     print(f"load average before: {os.getloadavg()}")
     if not args.no_quality:

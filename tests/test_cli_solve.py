@@ -93,6 +93,11 @@ def test_sarsop_reads_and_solves_sparsely_above_the_dense_threshold(
     report = json.loads(out)
     assert code == 0 and report["sparse"] is True and report["solver"] == "sarsop"
     assert report["lower"] <= 19.3711 <= report["upper"] and report["gap"] <= 0.5
+    # PBVI solves it through the same sparse form
+    code, out, _ = _run(capsys, "solve", tiger_file, "--solver", "pbvi", "--json", "--quiet")
+    report = json.loads(out)
+    assert code == 0 and report["sparse"] is True and report["solver"] == "pbvi"
+    assert report["lower"] <= 19.3711 <= report["upper"]
     # the other solvers read the dense model whatever its size
     code, out, _ = _run(capsys, "solve", tiger_file, "--solver", "qmdp", "--json", "--quiet")
     assert code == 0 and json.loads(out)["sparse"] is False

@@ -15,8 +15,9 @@ from torchhrc.belief import momdp_update_all
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers.backup import momdp_point_backup, point_backup
-from torchhrc.solvers.belief_tree import BeliefTree, FactoredModel
+from torchhrc.solvers.belief_tree import BeliefTree
 from torchhrc.solvers.evaluate import evaluate_policy
+from torchhrc.solvers.forms import as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig, fib_corner_values, sarsop
 from torchhrc.solvers.upper_bound import SawtoothUpperBound
@@ -196,7 +197,7 @@ def test_callback_can_stop_and_time_limit_is_anytime():
 # -- components against references ------------------------------------------------------------
 def test_expand_matches_belief_update_all():
     model = random_momdp(4, 3, 2, 3, static=False, sparsity=0.4, seed=2)
-    fm = FactoredModel.from_model(model)
+    fm = as_solver_model(model)
     b = torch.distributions.Dirichlet(torch.ones(3, dtype=torch.float64)).sample((5,))
     for x in range(4):
         xs, J = fm.expand(x, b)  # (B, A, K, O, Y)
@@ -226,16 +227,16 @@ def test_backup_matches_point_backup_kernel(kind):
         None if kind == "flat" else solver.alphas.observed[:n].clone(),
     )
     # back up the root against the initial (blind) vectors with both kernels
-    ev = solver.evaluate(solver.fm.x0, solver.fm.b0.unsqueeze(0))
-    solver.backup(solver.fm.x0, np.array([0]))
+    ev = solver.evaluate(solver.form.x0, solver.form.b0.unsqueeze(0))
+    solver.backup(solver.form.x0, np.array([0]))
     if kind == "flat":
         ref = point_backup(model, policy, model.b0.unsqueeze(0))
     else:
         ref = momdp_point_backup(model, policy, torch.tensor([model.x0]), model.b0.unsqueeze(0))
     torch.testing.assert_close(ev.q_low[0], ref.q_values[0])
     new = solver.alphas.vectors[: solver.alphas.size]
-    best = float((new @ solver.fm.b0).max())
-    assert best == pytest.approx(max(float(ref.values[0]), float((before @ solver.fm.b0).max())))
+    best = float((new @ solver.form.b0).max())
+    assert best == pytest.approx(max(float(ref.values[0]), float((before @ solver.form.b0).max())))
 
 
 def test_fib_corner_values_bound_and_budget():
@@ -538,13 +539,13 @@ def test_sawtooth_numpy_paths_match_the_formula_per_observed_value(Y):
 
 def test_factored_model_slices_are_built_lazily():
     model = random_momdp(6, 3, 2, 3, static=False, sparsity=0.4, seed=2)
-    fm = FactoredModel.from_model(model)
-    assert all(item is None for item in fm.reach._cache._items)  # nothing built yet
+    fm = as_solver_model(model)
+    assert not any(fm.slices.built())  # nothing built yet
     k = fm.reach[2]
     assert torch.equal(k, (model.Tx[:, 2].sum((0, 1)) > 0).nonzero().squeeze(-1))
     torch.testing.assert_close(fm._tx[2], model.Tx[:, 2][:, :, k])
     torch.testing.assert_close(fm._tyk[2], model.Ty[:, 2][:, :, k].permute(0, 2, 1, 3))
-    built = [item is not None for item in fm.reach._cache._items]
+    built = fm.slices.built()
     assert built == [False, False, True, False, False, False]
 
 

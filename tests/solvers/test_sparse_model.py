@@ -10,10 +10,11 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import POMDP
-from torchhrc.solvers import PBVIConfig, solve
+from torchhrc.solvers import PBVIConfig, QMDPConfig, solve
 from torchhrc.solvers import sparse_model as sparse_module
-from torchhrc.solvers.belief_tree import FactoredModel, SparseBeliefTree
+from torchhrc.solvers.belief_tree import SparseBeliefTree
 from torchhrc.solvers.blind import blind_policy, blind_vectors
+from torchhrc.solvers.forms import as_solver_model
 from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig, fib_corner_values, sarsop
 from torchhrc.solvers.sparse_model import (
     SparseFlatModel,
@@ -101,8 +102,8 @@ def test_duplicate_coordinates_are_summed_and_dense_models_accepted() -> None:
 
 
 def test_factored_model_from_sparse_expands_and_backprojects_as_dense(rs44: POMDP) -> None:
-    dense = FactoredModel.from_model(rs44)
-    sparse = FactoredModel.from_sparse(SparsePOMDP.from_dense(rs44))
+    dense = as_solver_model(rs44)
+    sparse = as_solver_model(SparsePOMDP.from_dense(rs44))
     g = torch.Generator().manual_seed(0)
     beliefs = torch.rand(3, rs44.num_states, generator=g, dtype=torch.float64)
     beliefs[0] = rs44.b0
@@ -271,9 +272,11 @@ def test_sparse_sarsop_with_sweeps_and_custom_initialisers(rs44: POMDP) -> None:
     assert sol.lower <= ref.upper + 1e-9 and ref.lower <= sol.upper + 1e-9
 
 
-def test_solve_dispatches_sparse_models_to_sarsop_only() -> None:
+def test_solve_dispatches_sparse_models_to_sarsop_and_pbvi_only() -> None:
     sp = SparsePOMDP.from_dense(tiger())
     sol = solve(sp, SARSOPConfig(time_limit=1e9, precision=0.5))
     assert sol.upper - sol.lower <= 0.5
-    with pytest.raises(ModelError, match="SARSOP only"):
-        solve(sp, PBVIConfig(time_limit=1.0))
+    sol = solve(sp, PBVIConfig(time_limit=1e9, expansions=4))
+    assert sol.lower <= 19.3714 <= sol.upper
+    with pytest.raises(ModelError, match="SARSOP or PBVI only"):
+        solve(sp, QMDPConfig())

@@ -8,10 +8,11 @@ stderr unless ``--quiet``. With ``--json`` one JSON object is printed with the k
 ``lower``, ``upper``, ``gap``, ``time_s``, ``n_alphas``, ``solver``, ``stop_reason``,
 ``iterations``, ``policy`` (the written path or null) and ``sparse``.
 
-With ``--solver sarsop`` (the default), a model whose dense ``T (A, S, S)`` or ``Z (A, S, O)``
-would exceed :data:`torchhrc.sparse.MAX_DENSE_ENTRIES` (2e8 entries, 1.6 GB in float64;
-RockSample(7, 8): 2e9) is read as a :class:`~torchhrc.sparse.SparsePOMDP` and solved by
-SARSOP's sparse path (``"sparse": true``); the other solvers need the dense model.
+With ``--solver sarsop`` (the default) or ``pbvi``, a model whose dense ``T (A, S, S)`` or
+``Z (A, S, O)`` would exceed :data:`torchhrc.sparse.MAX_DENSE_ENTRIES` (2e8 entries, 1.6 GB
+in float64; RockSample(7, 8): 2e9) is read as a :class:`~torchhrc.sparse.SparsePOMDP` and
+solved through the solvers' sparse form (``"sparse": true``); QMDP and FIB need the dense
+model.
 
 Example:
     >>> import argparse
@@ -149,9 +150,10 @@ def run(args: argparse.Namespace) -> int:
     from torchhrc.solvers import solve
     from torchhrc.sparse import SparsePOMDP
 
-    # SARSOP has a sparse path: a model whose dense T (A, S, S) or Z would exceed
+    # SARSOP and PBVI have a sparse form: a model whose dense T (A, S, S) or Z would exceed
     # MAX_DENSE_ENTRIES (2e8 entries, 1.6 GB) is read and solved sparsely
-    model = read_pomdp(args.model, sparse="auto" if args.solver == "sarsop" else False)
+    point_based = args.solver in ("sarsop", "pbvi")
+    model = read_pomdp(args.model, sparse="auto" if point_based else False)
     sparse = isinstance(model, SparsePOMDP)
     callback = None if args.quiet else _Progress()
     config = make_config(args, callback)

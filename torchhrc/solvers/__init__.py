@@ -104,7 +104,7 @@ def solve(model: POMDP | MOMDP | SparsePOMDP, config: Any) -> Solution:
 
     Args:
         model: an unbatched :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`,
-            or (SARSOP only) a :class:`~torchhrc.sparse.SparsePOMDP`.
+            or (SARSOP and PBVI only) a :class:`~torchhrc.sparse.SparsePOMDP`.
         config: a solver configuration (``QMDPConfig``, ``FIBConfig``, ``PBVIConfig``,
             ``SARSOPConfig`` or a registered type).
 
@@ -114,18 +114,20 @@ def solve(model: POMDP | MOMDP | SparsePOMDP, config: Any) -> Solution:
 
     Raises:
         TypeError: ``config``'s type has no registered solver.
-        ModelError: a ``SparsePOMDP`` with a solver other than SARSOP.
+        ModelError: a ``SparsePOMDP`` with a solver other than SARSOP or PBVI.
 
     Example:
         >>> from torchhrc.tasks.classic import tiger
         >>> round(solve(tiger(), QMDPConfig()).upper, 6)
         189.0
     """
-    if isinstance(model, SparsePOMDP):  # only SARSOP has a sparse path
+    if isinstance(model, SparsePOMDP):  # the point-based solvers have a sparse form
+        if isinstance(config, PBVIConfig):
+            return pbvi(model, config)
         if not isinstance(config, SARSOPConfig):
             raise ModelError(
-                f"a SparsePOMDP (sparse transitions) is solved by SARSOP only, got a "
-                f"{type(config).__name__}; pass a SARSOPConfig or a dense POMDP"
+                f"a SparsePOMDP (sparse transitions) is solved by SARSOP or PBVI only, got a "
+                f"{type(config).__name__}; pass a SARSOPConfig, a PBVIConfig or a dense POMDP"
             )
         return sarsop(model, config)
     if not isinstance(model, (POMDP, MOMDP)):

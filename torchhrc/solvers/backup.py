@@ -87,6 +87,17 @@ def _check_unbatched(model: POMDP | MOMDP) -> None:
         )
 
 
+def _check_beliefs(beliefs: torch.Tensor, name: str, size: int) -> torch.Tensor:
+    """``beliefs`` as a ``(M, size)`` tensor, or a ModelError naming the expected shape."""
+    beliefs = check_tensor("beliefs", beliefs)
+    check_shape("beliefs", beliefs, (size,), f"(M, {name}={size})")
+    if beliefs.dim() != 2:
+        raise ModelError(
+            f"expected beliefs to have shape (M, {name}), actual shape = {tuple(beliefs.shape)}"
+        )
+    return beliefs
+
+
 def _select_action(
     beliefs: torch.Tensor, vectors: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -174,12 +185,7 @@ def point_backup(
     if policy.is_momdp:
         raise ModelError("point_backup takes a flat policy; use momdp_point_backup for a MOMDP")
     S = model.num_states
-    beliefs = check_tensor("beliefs", beliefs)
-    check_shape("beliefs", beliefs, (S,), f"(M, S={S})")
-    if beliefs.dim() != 2:
-        raise ModelError(
-            f"expected beliefs to have shape (M, S), actual shape = {tuple(beliefs.shape)}"
-        )
+    beliefs = _check_beliefs(beliefs, "S", S)
     if policy.alphas.shape[1] != S:
         raise ModelError(f"expected policy alphas (N, S={S}), got {tuple(policy.alphas.shape)}")
     if policy.num_vectors == 0:
@@ -265,12 +271,7 @@ def momdp_point_backup(
         raise ModelError("momdp_point_backup takes a MOMDP policy (observed set)")
     A, X, Y = model.num_actions, model.num_observed, model.num_hidden
     O = model.num_observations
-    beliefs = check_tensor("beliefs", beliefs)
-    check_shape("beliefs", beliefs, (Y,), f"(M, Y={Y})")
-    if beliefs.dim() != 2:
-        raise ModelError(
-            f"expected beliefs to have shape (M, Y), actual shape = {tuple(beliefs.shape)}"
-        )
+    beliefs = _check_beliefs(beliefs, "Y", Y)
     x = torch.as_tensor(x, device=beliefs.device)
     if x.is_floating_point() or x.shape != beliefs.shape[:1]:
         raise ModelError(

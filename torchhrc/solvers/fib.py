@@ -26,16 +26,14 @@ Example:
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import torch
 
-from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers._factored import check_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.qmdp import IterationConfig, bound_solution, qmdp_vectors
+from torchhrc.solvers.qmdp import IterationConfig, qmdp_vectors, solve_bound
 from torchhrc.solvers.solution import Solution
 
 __all__ = ["FIBConfig", "fib", "fib_backup", "fib_policy", "fib_vectors"]
@@ -159,11 +157,4 @@ def fib(model: POMDP | MOMDP, config: FIBConfig | None = None) -> Solution:
         >>> fib(tiger()).upper < 189.0
         True
     """
-    start = time.perf_counter()
-    config = FIBConfig() if config is None else config
-    if not isinstance(config, FIBConfig):
-        raise TypeError(f"expected config to be a FIBConfig, got {type(config).__name__}")
-    if len(model.batch_shape):
-        raise ModelError(f"fib solves one model, got batch_shape {tuple(model.batch_shape)}")
-    vectors = fib_vectors(model, tol=config.tol, max_iterations=config.max_iterations)
-    return bound_solution(model, vectors, start, "fib")
+    return solve_bound(model, config, FIBConfig, fib_vectors, "fib")

@@ -18,7 +18,10 @@ iteration. The upper bound is the Fast Informed Bound at ``b0`` (Hauskrecht 2000
 
 For a MOMDP (Ong et al. 2010) the beliefs are pairs ``(x, b_y)``, the vectors live over
 ``Y`` per observed ``x``, and backups run factored; ``factored=False`` solves the flat
-``to_pomdp()`` model instead (for comparison).
+``to_pomdp()`` model instead (for comparison). The algorithm is written once: it asks the
+model only through :class:`~torchhrc.solvers.forms.base.SolverModel` (a simulation step, a
+batched point backup, the bounds, the value of a policy at beliefs), picked by
+:func:`~torchhrc.solvers.forms.as_solver_model`.
 
 Anytime: the loop stops at ``time_limit``, when the gap at ``b0`` falls below ``precision``,
 after ``max_iterations`` backup sweeps or ``expansions`` expansions, or on
@@ -44,12 +47,10 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
-from torchhrc.solvers.backup import momdp_point_backup, point_backup
-from torchhrc.solvers.blind import blind_policy
-from torchhrc.solvers.fib import fib_vectors
+from torchhrc.solvers.forms import SolverModel, as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.sampling import flat_step, momdp_step, sample_categorical
 from torchhrc.solvers.solution import Solution
+from torchhrc.sparse import SparsePOMDP
 
 __all__ = ["PBVIConfig", "pbvi"]
 
@@ -129,14 +130,14 @@ class _BeliefSet:
 
 
 def _expand(
-    model: POMDP | MOMDP,
+    form: SolverModel,
     belief_set: _BeliefSet,
     config: PBVIConfig,
     generator: torch.Generator,
 ) -> int:
     """Add at most one successor per belief; returns the number added."""
     M = len(belief_set)
-    A = model.num_actions
+    A = form.num_actions
     device = belief_set.beliefs.device
     if config.expansion == "explore":
         idx = torch.arange(M, device=device).repeat_interleave(A)
@@ -144,16 +145,7 @@ def _expand(
     else:
         idx = torch.arange(M, device=device)
         actions = torch.randint(0, A, (M,), generator=generator, device=device)
-    b = belief_set.beliefs[idx]
-    if isinstance(model, MOMDP):
-        x = belief_set.x[idx]
-        y = sample_categorical(b, generator)
-        step = momdp_step(model, x, y, b, actions, generator)
-        new_x, new_b = step.x, step.belief
-    else:
-        s = sample_categorical(b, generator)
-        step = flat_step(model, s, b, actions, generator)
-        new_x, new_b = torch.zeros_like(step.state), step.belief
+    new_x, new_b = form.simulate(belief_set.x[idx], belief_set.beliefs[idx], actions, generator)
     distance = belief_set.distance(new_x, new_b)
     if config.expansion == "explore":
         distance = distance.view(M, A)
@@ -180,30 +172,25 @@ def _expand(
     return int(new_b.shape[0])
 
 
-def _backup(model: POMDP | MOMDP, policy: AlphaVectorPolicy, belief_set: _BeliefSet):
-    if isinstance(model, MOMDP):
-        return momdp_point_backup(model, policy, belief_set.x, belief_set.beliefs)
-    return point_backup(model, policy, belief_set.beliefs)
-
-
-def _merge(
-    policy: AlphaVectorPolicy, new: AlphaVectorPolicy, belief_set: _BeliefSet, momdp: bool
-) -> AlphaVectorPolicy:
+def _merge(form: SolverModel, policy: AlphaVectorPolicy, new: AlphaVectorPolicy,
+           belief_set: _BeliefSet) -> AlphaVectorPolicy:  # fmt: skip
+    """The union of ``policy`` and ``new``, pruned to the vectors that win at some belief."""
     observed = None
-    if momdp:
-        assert policy.observed is not None and new.observed is not None
+    if policy.observed is not None and new.observed is not None:
         observed = torch.cat([policy.observed, new.observed])
     union = AlphaVectorPolicy(
         torch.cat([policy.alphas, new.alphas]), torch.cat([policy.actions, new.actions]), observed
     )
-    return union.prune(belief_set.beliefs, x=belief_set.x if momdp else None)
+    return form.prune(union, belief_set.x, belief_set.beliefs)
 
 
-def pbvi(model: POMDP | MOMDP, config: PBVIConfig | None = None) -> Solution:
+def pbvi(model: POMDP | MOMDP | SparsePOMDP, config: PBVIConfig | None = None) -> Solution:
     """Solve a POMDP or MOMDP by point-based value iteration (Pineau et al. 2003).
 
     Args:
-        model: an unbatched :class:`POMDP` or :class:`MOMDP` with discount < 1.
+        model: an unbatched :class:`POMDP` or :class:`MOMDP` with discount < 1, or a
+            :class:`~torchhrc.sparse.SparsePOMDP` (sparse ``T``; beliefs and vectors dense
+            ``(S,)``).
         config: :class:`PBVIConfig` (defaults if None).
 
     Returns:
@@ -215,6 +202,7 @@ def pbvi(model: POMDP | MOMDP, config: PBVIConfig | None = None) -> Solution:
 
     Raises:
         ModelError: the model is batched or undiscounted.
+        TypeError: ``config`` is not a PBVIConfig, or ``model`` of no known form.
 
     Example:
         >>> from torchhrc.testing import random_momdp
@@ -225,41 +213,28 @@ def pbvi(model: POMDP | MOMDP, config: PBVIConfig | None = None) -> Solution:
     config = PBVIConfig() if config is None else config
     if not isinstance(config, PBVIConfig):
         raise TypeError(f"expected config to be a PBVIConfig, got {type(config).__name__}")
-    if not isinstance(model, (POMDP, MOMDP)):
-        raise TypeError(f"expected model to be a POMDP or MOMDP, got {type(model).__name__}")
-    if len(model.batch_shape):
-        raise ModelError(
-            f"pbvi solves one model, got batch_shape {tuple(model.batch_shape)}; index it first"
-        )
-    if model.discount >= 1.0:
-        raise ModelError(f"pbvi needs discount < 1, got {model.discount}")
+    form = as_solver_model(model)
+    if form.discount >= 1.0:
+        raise ModelError(f"pbvi needs discount < 1, got {form.discount}")
     start = time.perf_counter()
-    if isinstance(model, MOMDP) and not config.factored:
-        model = model.to_pomdp()
-    momdp = isinstance(model, MOMDP)
-    device = model.R.device
+    if not config.factored:
+        form = form.flattened()
+    device = form.R.device
     generator = torch.Generator(device=device).manual_seed(config.seed)
 
     if config.upper_bound == "fib":
-        upper_vectors = fib_vectors(model, tol=max(1e-9, config.precision * 1e-3))
+        upper_vectors = form.upper_vectors("fib", max(1e-9, config.precision * 1e-3))
     else:
-        from torchhrc.solvers.qmdp import qmdp_vectors
-
-        upper_vectors = qmdp_vectors(model)
-    if momdp:
-        assert isinstance(model, MOMDP)
-        x0 = torch.tensor([model.x0], device=device)
-        b0 = model.b0.unsqueeze(0)
-        upper = float((upper_vectors[:, model.x0] @ model.b0).max())
-    else:
-        x0 = torch.zeros(1, dtype=torch.long, device=device)
-        b0 = model.b0.unsqueeze(0)
-        upper = float((upper_vectors @ model.b0).max())
+        upper_vectors = form.upper_vectors("qmdp", 1e-8)
+    A, X, Y = form.num_actions, form.num_observed, form.num_hidden
+    upper = float((upper_vectors.reshape(A, X, Y)[:, form.x0] @ form.b0).max())
+    x0 = torch.tensor([form.x0], device=device)
+    b0 = form.b0.unsqueeze(0)
 
     def value_at_b0(p: AlphaVectorPolicy) -> float:
-        return float(p.value(x0, b0)[0] if momdp else p.value(b0)[0])
+        return float(form.value(p, x0, b0)[0])
 
-    policy = blind_policy(model)
+    policy = form.blind_policy(100_000)
     belief_set = _BeliefSet(x0, b0)
     lower = value_at_b0(policy)
     history: list[dict[str, Any]] = []
@@ -285,23 +260,15 @@ def pbvi(model: POMDP | MOMDP, config: PBVIConfig | None = None) -> Solution:
     try:
         for expansion in range(config.expansions + 1):
             if expansion > 0:
-                if _expand(model, belief_set, config, generator) == 0:
+                if _expand(form, belief_set, config, generator) == 0:
                     stop_reason = "belief set converged"
                     break
-            values = (
-                policy.value(belief_set.x, belief_set.beliefs)
-                if momdp
-                else policy.value(belief_set.beliefs)
-            )
+            values = form.value(policy, belief_set.x, belief_set.beliefs)
             for _ in range(config.backups_per_expansion):
-                result = _backup(model, policy, belief_set)
-                policy = _merge(policy, result.as_policy(), belief_set, momdp)
+                result = form.point_backup(policy, belief_set.x, belief_set.beliefs)
+                policy = _merge(form, policy, result.as_policy(), belief_set)
                 iteration += 1
-                new_values = (
-                    policy.value(belief_set.x, belief_set.beliefs)
-                    if momdp
-                    else policy.value(belief_set.beliefs)
-                )
+                new_values = form.value(policy, belief_set.x, belief_set.beliefs)
                 improvement = float((new_values - values).max())
                 values = new_values
                 lower = value_at_b0(policy)
@@ -315,7 +282,7 @@ def pbvi(model: POMDP | MOMDP, config: PBVIConfig | None = None) -> Solution:
                 if iteration >= config.max_iterations:
                     stop_reason = "max_iterations"
                     raise StopIteration
-                if improvement < config.precision * (1.0 - model.discount):
+                if improvement < config.precision * (1.0 - form.discount):
                     break
     except StopIteration:
         pass

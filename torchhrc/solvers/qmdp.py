@@ -21,6 +21,7 @@ Example:
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -39,6 +40,7 @@ __all__ = [
     "qmdp",
     "qmdp_policy",
     "qmdp_vectors",
+    "solve_bound",
 ]
 
 
@@ -169,6 +171,28 @@ def bound_solution(
     )
 
 
+def solve_bound(
+    model: POMDP | MOMDP,
+    config: IterationConfig | None,
+    config_type: type[IterationConfig],
+    vectors: Callable[..., torch.Tensor],
+    name: str,
+) -> Solution:
+    """Validate, compute ``vectors(model, tol=..., max_iterations=...)`` and wrap them with
+    :func:`bound_solution` (the one body of :func:`qmdp` and :func:`~torchhrc.solvers.fib.fib`).
+    """
+    start = time.perf_counter()
+    config = config_type() if config is None else config
+    if not isinstance(config, config_type):
+        raise TypeError(
+            f"expected config to be a {config_type.__name__}, got {type(config).__name__}"
+        )
+    if len(model.batch_shape):
+        raise ModelError(f"{name} solves one model, got batch_shape {tuple(model.batch_shape)}")
+    found = vectors(model, tol=config.tol, max_iterations=config.max_iterations)
+    return bound_solution(model, found, start, name)
+
+
 def qmdp(model: POMDP | MOMDP, config: QMDPConfig | None = None) -> Solution:
     """Solve with QMDP: the policy is the QMDP vectors, ``upper`` their value at ``b0``.
 
@@ -177,11 +201,4 @@ def qmdp(model: POMDP | MOMDP, config: QMDPConfig | None = None) -> Solution:
         >>> round(qmdp(tiger()).upper, 6)
         189.0
     """
-    start = time.perf_counter()
-    config = QMDPConfig() if config is None else config
-    if not isinstance(config, QMDPConfig):
-        raise TypeError(f"expected config to be a QMDPConfig, got {type(config).__name__}")
-    if len(model.batch_shape):
-        raise ModelError(f"qmdp solves one model, got batch_shape {tuple(model.batch_shape)}")
-    vectors = qmdp_vectors(model, tol=config.tol, max_iterations=config.max_iterations)
-    return bound_solution(model, vectors, start, "qmdp")
+    return solve_bound(model, config, QMDPConfig, qmdp_vectors, "qmdp")

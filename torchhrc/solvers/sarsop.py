@@ -25,16 +25,22 @@ the same with ``V_up`` for ``U_t``). The path is then backed up leaf to root. Do
 vectors, alpha vectors that win at no tree belief, redundant upper-bound points and belief
 nodes reached by sub-optimal actions (``Q_up(b, a) < max_a' Q_low(b, a')``) are pruned.
 
+One model interface: the solver asks the model only through
+:class:`~torchhrc.solvers.forms.base.SolverModel` (children of beliefs with their
+probabilities, rewards, the pieces of a backup, the initial bounds, the tree that stores
+beliefs), picked once by :func:`~torchhrc.solvers.forms.as_solver_model`; it never tests
+which form it holds. The forms: dense flat POMDP, MOMDP, sparse flat
+(:mod:`torchhrc.solvers.forms`).
+
 MOMDP (Ong et al. 2010): beliefs are ``(x, b_y)``; alpha vectors belong to one observed value
 and live over ``Y``, and are stored grouped by ``x`` (one contiguous ``(N_x, Y)`` block each);
 the upper-bound points too (per-``x`` point lists, and for ``Y <= 256`` a dense per-``x``
 table), so bounding a belief at ``x`` touches only ``x``'s vectors and points, never the
 whole sets. Every expansion only touches the next observed values reachable from ``x`` (see
-:class:`~torchhrc.solvers.belief_tree.FactoredModel`, whose per-``x`` slices are built when
+:class:`~torchhrc.solvers.forms.momdp.MOMDPForm`, whose per-``x`` slices are built when
 the search first reaches ``x``), so a factored backup costs about ``Y / S = 1 / X`` of the
-flat one's flops. The initial bounds use the sparse transition operator
-(:class:`~torchhrc.solvers._factored.Expectation`), never the flat ``(X Y) x (X Y)`` matrix.
-A flat POMDP runs through the same code with ``X = 1``.
+flat one's flops. The initial bounds use the reachable-``x2`` FIB operator, never the flat
+``(X Y) x (X Y)`` matrix. A flat POMDP is the same model with ``X = 1``.
 
 Reproducibility and time: with a fixed ``max_iterations`` (or ``precision``) and a
 ``time_limit`` that is not reached, a solve is bit-identical run to run: the default FIB
@@ -54,13 +60,13 @@ per problem, so :func:`sarsop` raises for them; solve ``model`` per batch index.
 
 Sparse flat models (:class:`~torchhrc.sparse.SparsePOMDP`, e.g. RockSample(7, 8) read with
 ``read_pomdp(path, sparse=True)``: 12545 states, a dense ``T`` of 2e9 entries) take a sparse
-path with the same algorithm: ``T`` as per-action CSR
-(:class:`~torchhrc.solvers.sparse_model.SparseFlatModel`), tree beliefs stored by their
-support (:class:`~torchhrc.solvers.belief_tree.SparseBeliefTree`), each belief's children
-formed and bounded only on the union of their supports, blind lower bound and QMDP/FIB upper
-bound by sparse value iteration, alpha vectors dense ``(S,)``. Belief pruning is one sparse
-product; the ``N^2 S`` pointwise-dominance test is skipped. On small models it gives the
-same bounds and policy as the dense path (tested).
+form with the same algorithm (:class:`~torchhrc.solvers.forms.sparse.SparseForm`): ``T`` as
+per-action CSR (:class:`~torchhrc.solvers.sparse_model.SparseFlatModel`), tree beliefs stored
+by their support (:class:`~torchhrc.solvers.belief_tree.SparseBeliefTree`), each belief's
+children formed and bounded only on the union of their supports, blind lower bound and
+QMDP/FIB upper bound by sparse value iteration, alpha vectors dense ``(S,)``. Belief pruning
+is one sparse product; the ``N^2 S`` pointwise-dominance test is skipped. On small models it
+gives the same bounds and policy as the dense path (tested).
 
 Example:
     >>> from torchhrc.tasks.classic import tiger
@@ -73,7 +79,6 @@ from __future__ import annotations
 
 import math
 import time
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -84,14 +89,11 @@ from threadpoolctl import threadpool_limits
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
-from torchhrc.solvers.belief_tree import BeliefTree, FactoredModel, SparseBeliefTree
-from torchhrc.solvers.blind import blind_policy
-from torchhrc.solvers.fib import fib_backup
+from torchhrc.solvers.forms import SolverModel, as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.pruning import prune_by_beliefs, prune_dominated
-from torchhrc.solvers.qmdp import qmdp_vectors
+from torchhrc.solvers.pruning import prune_dominated
 from torchhrc.solvers.solution import Solution
-from torchhrc.solvers.sparse_model import SparseFlatModel, sparse_blind_policy
+from torchhrc.solvers.sparse_model import SparseFlatModel
 from torchhrc.solvers.upper_bound import SawtoothUpperBound
 from torchhrc.sparse import SparsePOMDP
 
@@ -131,169 +133,7 @@ def fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, *,
         92.82
     """
     deadline = time.perf_counter() + time_limit
-    return _fib_corner_values(model, tol, deadline, max_iterations)[0]
-
-
-def _fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, tol: float,
-                       deadline: float, max_iterations: int,
-                       ) -> tuple[torch.Tensor, dict[str, Any]]:  # fmt: skip
-    """:func:`fib_corner_values` and how it stopped: ``{"iterations", "stop"}``.
-
-    ``stop`` is ``"converged"`` (change below ``tol``, or FIB = QMDP), ``"max_iterations"``
-    or ``"time_limit"`` (the only outcome that depends on the wall clock).
-    """
-    if isinstance(model, SparsePOMDP):
-        model = SparseFlatModel.from_model(model, dtype=model.R.dtype)
-    info: dict[str, Any] = {"iterations": 0, "stop": "converged"}
-    step: _FIBStep | None = None
-    if isinstance(model, SparseFlatModel):  # large: QMDP shares the time budget
-        step = _FIBStep(model, None)
-        alpha = torch.from_numpy(model.qmdp_np(tol, deadline=deadline))
-        if time.perf_counter() > deadline:
-            info["stop"] = "time_limit"
-            return alpha.amax(0), info
-        if model.deterministic:  # FIB = QMDP (one successor per (a, s))
-            return alpha.amax(0), info
-    else:
-        static = isinstance(model, MOMDP) and model.Ty is None
-        if not static:
-            step = (
-                _sparse_fib_step(model) if isinstance(model, POMDP) else _factored_fib_step(model)
-            )
-        # the sparse flat MDP iteration pays; the per-x loop of the MOMDP one does not
-        sparse_qmdp = step is not None and step.fm is None
-        alpha = step.qmdp(tol) if sparse_qmdp else qmdp_vectors(model, tol=tol)  # type: ignore[union-attr]
-        if static:
-            return alpha.amax(0), info
-    info["stop"] = "max_iterations"
-    for i in range(max_iterations):
-        if time.perf_counter() > deadline:
-            info["stop"] = "time_limit"
-            break
-        nxt = fib_backup(model, alpha) if step is None else step.fib(alpha)  # type: ignore[arg-type]
-        new = torch.minimum(nxt, alpha)
-        change = float((alpha - new).abs().max())
-        alpha = new
-        info["iterations"] = i + 1
-        if change < tol:
-            info["stop"] = "converged"
-            break
-    return alpha.amax(0), info
-
-
-def _floats_are(model: POMDP | MOMDP, dtype: torch.dtype) -> bool:
-    """Whether every floating tensor of ``model`` already has ``dtype`` (no copy needed)."""
-    tensors = [getattr(model, f) for f in ("T", "Tx", "Ty", "Z", "R", "b0") if hasattr(model, f)]
-    return all(t.dtype == dtype for t in tensors if isinstance(t, torch.Tensor))
-
-
-class _FIBStep:
-    """FIB and QMDP operators of one unbatched CPU model, using its sparse structure.
-
-    Flat (Hauskrecht 2000)::
-
-        fib(alpha)[a, s] = R[a, s] + gamma sum_o max_a2 sum_s2 T[a, s, s2] Z[a, s2, o] alpha[a2, s2]
-
-    as one sparse ``(S, S) x (S, O A)`` product per action (Tag, RockSample: a few successors
-    per state). MOMDP (Ong et al. 2010): ``(x2, o)`` is the observation, and only the
-    ``x2`` reachable from ``x`` (:class:`~torchhrc.solvers.belief_tree.FactoredModel`) are
-    summed, one batched ``(A, K, Y, Y2) x (A, K, Y2, O A)`` product per ``x``. The values
-    equal :func:`~torchhrc.solvers.fib.fib_backup`'s; ``qmdp`` is value iteration on the
-    underlying MDP from the upper bound ``max R / (1 - gamma)`` (monotone, so every iterate
-    is an upper bound; stops when the change is below ``tol``), used for flat models.
-    """
-
-    def __init__(self, model: POMDP | MOMDP | SparseFlatModel, fm: FactoredModel | None) -> None:
-        self.model, self.fm = model, fm
-        self.g = float(model.discount)
-        # a SparseFlatModel keeps T as sorted nonzeros: the numpy operators below
-        self.sparse = model if isinstance(model, SparseFlatModel) else None
-        if self.sparse is None and fm is None:
-            assert isinstance(model, POMDP)
-            T = model.T
-            with warnings.catch_warnings():  # "sparse CSR support is in beta"
-                warnings.simplefilter("ignore", UserWarning)
-                self.Ts = [T[a].to_sparse_csr() for a in range(T.shape[0])]
-
-    def _mdp(self, V: torch.Tensor) -> torch.Tensor:
-        """``Q[a, ...] = R + gamma E[V(next)]`` for ``V (S,)`` / ``(X, Y)``."""
-        if self.sparse is not None:
-            return self.model.R + self.g * torch.from_numpy(self.sparse.expect_np(V.numpy()))
-        if self.fm is None:
-            return self.model.R + self.g * torch.stack([t @ V for t in self.Ts])
-        fm = self.fm
-        out = []
-        for x in range(fm.num_observed):
-            Vk = V[fm.reach[x]]  # (K, Y2)
-            tx = fm._tx[x]  # (A, Y, K)
-            tyk = fm._tyk[x]
-            if tyk is None:
-                nxt = (tx * Vk.T.unsqueeze(0)).sum(-1)  # (A, Y)
-            else:  # sum_k tx[a, y, k] sum_y2 ty[a, k, y, y2] V[k, y2]
-                inner = (tyk @ Vk.unsqueeze(-1)).squeeze(-1)  # (A, K, Y)
-                nxt = (tx * inner.transpose(-1, -2)).sum(-1)
-            out.append(nxt)
-        return fm.R + self.g * torch.stack(out, 1)  # (A, X, Y)
-
-    def qmdp(self, tol: float, deadline: float = math.inf) -> torch.Tensor:
-        R = self.model.R
-        V = torch.full_like(R[0], float(R.max()) / (1.0 - self.g))
-        Q = self._mdp(V)
-        for _ in range(100_000):
-            if time.perf_counter() > deadline:  # every iterate is an upper bound
-                break
-            new = Q.amax(0)
-            change = float((V - new).abs().max())
-            V = new
-            Q = torch.minimum(self._mdp(V), Q)
-            if change < tol:
-                break
-        return Q
-
-    def fib(self, alpha: torch.Tensor) -> torch.Tensor:
-        if self.sparse is not None:
-            return torch.from_numpy(self.sparse.fib_np(alpha.numpy()))
-        if self.fm is None:
-            Z, R = self.model.Z, self.model.R
-            A, S, O = Z.shape
-            # Yv[a, s2, o, a2] = Z[a, s2, o] * alpha[a2, s2]
-            Yv = Z.unsqueeze(-1) * alpha.T.unsqueeze(1).unsqueeze(0)  # (A, S, O, A2)
-            G = torch.stack([self.Ts[a] @ Yv[a].reshape(S, O * A) for a in range(A)])
-            return R + self.g * G.view(A, S, O, A).amax(-1).sum(-1)
-        fm = self.fm
-        out = []
-        for x in range(fm.num_observed):
-            k = fm.reach[x]
-            z = fm._z[x]  # (A, K, O, Y2)
-            A, K, O, Y = z.shape
-            # Kt[a, k, y2, o, a2] = Z[a, x2_k, y2, o] alpha[a2, x2_k, y2]
-            Kt = (
-                z.permute(0, 1, 3, 2).unsqueeze(-1) * alpha[:, k].permute(1, 2, 0)[None, :, :, None]
-            )
-            tx = fm._tx[x].permute(0, 2, 1).unsqueeze(-1)  # (A, K, Y, 1)
-            if fm._tyk[x] is None:  # y2 = y
-                G = tx * Kt.reshape(A, K, Y, O * A)  # (A, K, Y, O A)
-            else:
-                G = (tx * fm._tyk[x]) @ Kt.reshape(A, K, Y, O * A)  # (A, K, Y, O A)
-            out.append(G.view(A, K, Y, O, A).amax(-1).sum((1, 3)))  # (A, Y)
-        return fm.R + self.g * torch.stack(out, 1)
-
-
-def _sparse_fib_step(model: POMDP) -> _FIBStep | None:
-    """The sparse flat FIB operator (CPU, unbatched, ``T`` under 10 % dense), or None."""
-    T = model.T
-    if T.dim() != 3 or T.device.type != "cpu":
-        return None
-    if int((T != 0).sum()) * 10 > T.numel() or T.shape[-1] < 64:
-        return None
-    return _FIBStep(model, None)
-
-
-def _factored_fib_step(model: POMDP | MOMDP) -> _FIBStep | None:
-    """The reachable-``x2`` MOMDP FIB operator (CPU, unbatched), or None."""
-    if not isinstance(model, MOMDP) or len(model.batch_shape) > 0 or model.Tx.device.type != "cpu":
-        return None
-    return _FIBStep(model, FactoredModel.from_model(model, dtype=model.R.dtype))
+    return as_solver_model(model).fib_corner_values(tol, deadline, max_iterations)[0]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -334,6 +174,9 @@ class SARSOPConfig:
         prune_nodes: deactivate tree nodes reached by sub-optimal actions.
         sweep_interval: every this many iterations, back up all active tree beliefs at once
             (grouped by observed value; 0 disables).
+        lazy_upper: a one-belief backup re-bounds only the children of the action with the
+            highest cached ``Q_up`` until that action is one just refreshed (APPL's
+            ``getNewUBValueUseCache``); ``False`` re-bounds every child at every backup.
         callback: called after each iteration with the history entry (a dict); returning
             True stops the solve.
         dtype: floating dtype of the solve (default float64).
@@ -356,6 +199,7 @@ class SARSOPConfig:
     prune_growth: float = 2.0
     prune_nodes: bool = True
     sweep_interval: int = 0
+    lazy_upper: bool = True
     callback: Callable[[dict[str, Any]], bool | None] | None = None
     dtype: torch.dtype = torch.float64
 
@@ -390,22 +234,6 @@ class SARSOPConfig:
             )
         if not isinstance(self.dtype, torch.dtype) or not self.dtype.is_floating_point:
             raise TypeError(f"expected dtype to be a floating torch.dtype, got {self.dtype!r}")
-
-
-class _Lazy:
-    """``build(x)`` for each observed value ``x``, computed on first use and cached."""
-
-    _MISSING = object()
-
-    def __init__(self, n: int, build: Callable[[int], Any]) -> None:
-        self._build = build
-        self._items: list[Any] = [self._MISSING] * n
-
-    def __getitem__(self, x: int) -> Any:
-        item = self._items[x]
-        if item is self._MISSING:
-            item = self._items[x] = self._build(x)
-        return item
 
 
 class _AlphaSet:
@@ -600,50 +428,27 @@ class _Bins:
 
 
 class _SARSOP:
-    def __init__(self, model: POMDP | MOMDP | SparsePOMDP, cfg: SARSOPConfig, start: float) -> None:
+    def __init__(self, model: POMDP | MOMDP | SparsePOMDP | SolverModel, cfg: SARSOPConfig,
+                 start: float) -> None:  # fmt: skip
         self.cfg = cfg
         self.start = start
-        sparse = isinstance(model, SparsePOMDP)
-        if sparse:  # the sparse flat path: sparse T, beliefs stored by their support
-            self.fm = fm = FactoredModel.from_sparse(model, dtype=cfg.dtype)
-        else:
-            self.fm = fm = FactoredModel.from_model(model, dtype=cfg.dtype)
-        self._sp = fm.sparse
-        if fm.discount >= 1.0:
-            raise ModelError(f"SARSOP needs discount < 1, got {fm.discount}")
-        self.gamma = fm.discount
-        self.X, self.Y = fm.num_observed, fm.num_hidden
+        # the one place the model's form is chosen; everything below asks the form
+        self.form = form = as_solver_model(model, dtype=cfg.dtype)
+        if form.discount >= 1.0:
+            raise ModelError(f"SARSOP needs discount < 1, got {form.discount}")
+        self.gamma = form.discount
+        self.X, self.Y = form.num_observed, form.num_hidden
         self.rng = np.random.default_rng(int(cfg.seed))
-        self.device = fm.b0.device
+        self.device = form.b0.device
         self.deadline = start + cfg.time_limit
         init_deadline = start + cfg.time_limit * cfg.init_time_fraction
-        if sparse:
-            work: Any = fm.sparse
-        else:
-            work = model if _floats_are(model, cfg.dtype) else model.to(dtype=cfg.dtype)  # type: ignore[arg-type]
         t_init = time.perf_counter()
         # lower bound: alpha vectors of a policy (blind policies by default)
-        if cfg.lower_bound_init is None and self._sp is not None:
-            policy = sparse_blind_policy(self._sp)
-        elif cfg.lower_bound_init is None:
-            # every iterate of the blind evaluation is a lower bound: it stops on its tolerance,
-            # or once the discounted tail is below 1e-12 of the first step's (small dense
-            # models are solved exactly by LU instead; sparse ones iterate cheaply)
-            k = int(min(2000, math.ceil(math.log(1e-12) / math.log(self.gamma))))
-            policy = blind_policy(work, max_iterations=k)
+        if cfg.lower_bound_init is None:
+            policy = form.blind_policy()
         else:
-            policy = cfg.lower_bound_init(model if sparse else work)
-        if not isinstance(policy, AlphaVectorPolicy):
-            raise TypeError(
-                "expected lower_bound_init to return an AlphaVectorPolicy, "
-                f"got {type(policy).__name__}"
-            )
-        if policy.alphas.shape[-1] != self.Y or policy.is_momdp == fm.flat:
-            kind = "flat (N, S)" if fm.flat else "MOMDP (N, Y) with observed"
-            raise ModelError(
-                f"expected lower_bound_init to return a {kind} policy over {self.Y} values, "
-                f"got alphas {tuple(policy.alphas.shape)} (is_momdp={policy.is_momdp})"
-            )
+            policy = cfg.lower_bound_init(form.init_argument)
+        policy = form.check_policy(policy, "lower_bound_init")
         self.init_info: dict[str, Any] = {"lower_s": time.perf_counter() - t_init}
         observed = torch.zeros_like(policy.actions) if policy.observed is None else policy.observed
         if self.X > 1 and int(torch.bincount(observed, minlength=self.X).min()) == 0:
@@ -653,42 +458,28 @@ class _SARSOP:
         )
         n = self.alphas.size
         self.alphas.keep(prune_dominated(self.alphas.vectors[:n], self.alphas.observed[:n]))
-        if self._sp is not None:
-            self.alphas.keep_columns()
         # upper bound: corner values (FIB by default)
+        t_upper = time.perf_counter()
         if cfg.upper_bound_init is None:
             tol = cfg.init_tol
             if tol is None:
                 tol = max(1e-8, 0.01 * cfg.precision * (1.0 - self.gamma))
-            t_upper = time.perf_counter()
-            corner, fib = _fib_corner_values(work, tol, init_deadline, cfg.init_max_iterations)
+            corner, fib = form.fib_corner_values(tol, init_deadline, cfg.init_max_iterations)
             self.init_info["upper_iterations"] = fib["iterations"]
             self.init_info["upper_stop"] = fib["stop"]
         else:
-            t_upper = time.perf_counter()
-            corner = cfg.upper_bound_init(model if sparse else work)
+            corner = cfg.upper_bound_init(form.init_argument)
         self.init_info["upper_s"] = time.perf_counter() - t_upper
-        corner = corner.to(dtype=cfg.dtype)
-        if corner.dim() == (2 if fm.flat else 3):  # per-action vectors
-            corner = corner.amax(0)
-        if fm.flat and corner.dim() == 1:
-            corner = corner.unsqueeze(0)
-        if corner.shape != (self.X, self.Y):
-            raise ModelError(
-                f"expected upper_bound_init to return corner values "
-                f"{'(S,)' if fm.flat else '(X, Y)'} or per-action vectors, "
-                f"got {tuple(corner.shape)}"
-            )
+        corner = form.corner_values(corner.to(dtype=cfg.dtype), "upper_bound_init")
         self.ub = SawtoothUpperBound(corner)
-        self.tree = SparseBeliefTree(fm.b0, fm.x0) if sparse else BeliefTree(fm.b0, fm.x0)
+        self.tree = form.new_tree()
         self._child_x: dict[tuple[int, int], torch.Tensor] = {}
         self._cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._default: torch.Tensor | None = None
-        self._RT = _Lazy(self.X, lambda x: fm.R[:, x, :].T.contiguous())  # (Y, A) per x
         self.entropy = np.zeros(1024)
-        self.entropy[0] = float(self._entropy(fm.b0.unsqueeze(0))[0])
+        self.entropy[0] = float(self._entropy(form.b0.unsqueeze(0))[0])
         self.children: dict[int, list[int]] = {}
-        span = float(fm.R.max() - fm.R.min()) / (1.0 - self.gamma)
+        span = float(form.R.max() - form.R.min()) / (1.0 - self.gamma)
         if cfg.max_depth is not None:
             self.max_depth = cfg.max_depth
         else:
@@ -700,25 +491,12 @@ class _SARSOP:
         self.last_point_prune = 1
         self.history: list[dict[str, Any]] = []
         self.backups = 0
-        # numpy views of the model (CPU): the sequential one-belief path runs in numpy, whose
-        # per-op overhead at these sizes is several times below torch's dispatch
+        # the sequential one-belief path runs in numpy on the CPU, whose per-op overhead at
+        # these sizes is several times below torch's dispatch
         self._np = self.device.type == "cpu"
         if self._np:
-            self._npT = None if fm._T is None else fm._T.numpy()  # (A, S, S)
-            # per observed value, built when the search first reaches it
-            self._nptx = _Lazy(self.X, lambda x: fm._tx[x].numpy())  # (A, Y, K) per x
-            self._nptyk = _Lazy(  # (A, K, Y, Y2) per x
-                self.X, lambda x: None if fm._tyk[x] is None else fm._tyk[x].numpy()
-            )
-            self._npz = _Lazy(self.X, lambda x: fm._z[x].numpy())  # (A, K, O, Y) per x
-            self._npR = fm.R.contiguous().numpy()  # (A, X, Y)
-            self._npRT = _Lazy(self.X, lambda x: self._RT[x].numpy())  # (Y, A) per x
-            self._npreach = _Lazy(self.X, lambda x: fm.reach[x].numpy())  # (K,) per x
-            self._npcx: dict[int, np.ndarray] = {}
-            self._npzt: dict[int, np.ndarray] = {}
+            self._npR = form.R.contiguous().numpy()  # (A, X, Y)
             self._default_np: tuple[torch.Tensor, np.ndarray] | None = None
-            if self._sp is not None:
-                self._spZ = self._sp.Z.numpy()  # (A, S, O)
         lo, up = self._root_bounds()
         self.tree.lower[0], self.tree.upper[0] = lo, up
 
@@ -739,8 +517,7 @@ class _SARSOP:
         One expansion, one matrix product against the alpha vectors and one sawtooth
         evaluation cover the ``B * A * K * O`` children and the ``B`` beliefs themselves.
         """
-        fm = self.fm
-        xs, J = fm.expand(x, beliefs)  # (B, A, K, O, Y)
+        xs, J = self.form.expand(x, beliefs)  # (B, A, K, O, Y)
         B, A, K, O, Y = J.shape
         C = B * A * K * O
         key = (x, B)
@@ -771,7 +548,7 @@ class _SARSOP:
             up = self.ub.value(flat, cx)
             low_c, best_c, up_c = low[:C].view(shape), best[:C].view(shape), up[:C].view(shape)
             self_low, self_up = low[C:], up[C:]
-        reward = beliefs @ self._RT[x]  # (B, A)
+        reward = self.form.reward(x, beliefs)  # (B, A)
         q_low = reward + self.gamma * low_c.sum((-1, -2))
         q_up = reward + self.gamma * up_c.sum((-1, -2))
         return _Evaluation(xs, J, prob, low_c, best_c, up_c, q_low, q_up, self_low, self_up)
@@ -787,40 +564,28 @@ class _SARSOP:
         return self._default
 
     # -- numpy path (CPU, one belief) -------------------------------------------------------
-    def _predict_np(self, x: int, b: np.ndarray) -> np.ndarray:
-        """``(A, K, Y)`` ``P(x2_k, y2 | x, b, a)`` of one belief ``b (Y,)`` (before ``Z``)."""
-        if self._sp is not None:  # flat, sparse T
-            return self._sp.predict_np(b)[:, None, :]  # (A, 1, S)
-        T = self._npT
-        if T is not None:  # flat: only the rows of T on the support of b
-            supp = np.flatnonzero(b)
-            if supp.size * 4 <= b.shape[0]:
-                return (b[supp] @ T[:, supp, :])[:, None, :]  # (A, 1, S)
-            return (b @ T)[:, None, :]
-        w = (b[None, :, None] * self._nptx[x]).transpose(0, 2, 1)  # (A, K, Y)
-        tyk = self._nptyk[x]
-        return w if tyk is None else np.matmul(w[:, :, None, :], tyk)[:, :, 0, :]
-
-    def _child_np(self, x: int, b: np.ndarray, a: int, k: int, o: int) -> np.ndarray:
-        """``(Y,)`` the unnormalised child ``J[a, k, o]`` of one belief (one row only)."""
-        z = self._npz[x][a, k, o]
-        if self._sp is not None:
-            return self._sp.predict_action_np(b, a) * z
-        T = self._npT
-        if T is not None:
-            supp = np.flatnonzero(b)
-            return (b[supp] @ T[a][supp]) * z
-        w = b * self._nptx[x][a, :, k]
-        tyk = self._nptyk[x]
-        return (w if tyk is None else w @ tyk[a, k]) * z
-
-    def _lower_np(self, rows: np.ndarray, rows_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _lower_np(self, rows: np.ndarray, rows_x: np.ndarray, cols: np.ndarray | None = None,
+                  ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """``(B,)`` max alpha . b over the vectors of each ``x`` and the argmax (numpy).
 
         Only the vectors of the rows' own observed values are scored (``alphas.group(x)``,
         ``N_x * Y`` per row instead of ``N * Y``); ties go to the lowest index, as a scan of
-        the whole set would.
+        the whole set would. Rows given on the columns ``cols`` only (children of a sparse
+        belief, :class:`~torchhrc.solvers.forms.base.Children`) are scored against the
+        vectors restricted to them (:meth:`_AlphaSet.keep_columns`), masked to each row's
+        observed value.
         """
+        if cols is not None:
+            if self.alphas.columns is None:
+                self.alphas.keep_columns()
+            assert self.alphas.columns is not None
+            n = self.alphas.size
+            scores = rows @ self.alphas.columns[cols, :n]  # (B, N)
+            if self.X > 1:  # a sparse MOMDP form: each row against its own x's vectors
+                assert self.alphas.np_observed is not None
+                scores[rows_x[:, None] != self.alphas.np_observed[None, :n]] = -np.inf
+            best = scores.argmax(-1)
+            return scores[np.arange(scores.shape[0]), best], best
         if self.X == 1:
             V, ids = self.alphas.group(0)
             return self._score_np(rows, V, ids)
@@ -855,106 +620,104 @@ class _SARSOP:
         j = scores.argmax(-1)
         return scores[np.arange(scores.shape[0]), j], ids[j]
 
-    def _evaluate_np(self, x: int, b: np.ndarray) -> tuple[np.ndarray, ...]:
+    def _upper_np(
+        self,
+        value: Any,
+        ia: np.ndarray,
+        nz: np.ndarray,
+        reward: np.ndarray,
+        C: int,
+        stale: tuple[np.ndarray, ...] | None,
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """Upper bounds of a belief's possible children ``nz`` (action ``ia``), ``Q_up``, ``V_up(b)``.
+
+        ``value(ids)`` bounds rows ``ids`` of the children (row ``nz.size`` is ``b`` itself).
+        Without ``stale`` every child is bounded. With ``stale`` (the node's cached
+        ``q_low, q_up, prob, low, up`` of an earlier evaluation) only the children of the
+        action with the highest ``Q_up`` are re-bounded, repeatedly, until the best action is
+        one just refreshed (APPL's ``getNewUBValueUseCache``): every earlier sawtooth value is
+        still an upper bound, so stale ``Q_up`` of the other actions stay valid, and a backup
+        bounds one or two actions' children instead of all ``A``.
+        """
+        m, A = nz.size, reward.shape[0]
+        if stale is None:
+            up_r = value(np.arange(m + 1))
+            up = np.zeros(C, dtype=reward.dtype)
+            up[nz] = up_r[:m]
+            q_up = reward + self.gamma * up.reshape(A, -1).sum(-1)
+            return up, q_up, float(up_r[m])
+        q_up = stale[1].copy()
+        up = stale[4].reshape(-1).copy()
+        fresh = np.zeros(A, dtype=bool)
+        cu = None
+        while True:
+            # refresh the best stale action while it beats every fresh one (ties within
+            # 1e-12 relative, resolved to the lowest index, so that round-off in the cached
+            # values does not change which children are bounded)
+            if fresh.any():
+                top = float(q_up[fresh].max())
+                cand = np.where(~fresh & (q_up > top + 1e-12 * max(1.0, abs(top))), q_up, -np.inf)
+            else:
+                cand = q_up
+            best = float(cand.max())
+            if best == -np.inf:
+                break
+            a = int(np.flatnonzero(cand >= best - 1e-12 * max(1.0, abs(best)))[0])
+            sel = np.flatnonzero(ia == a)
+            vals = value(sel if cu is not None else np.append(sel, m))
+            if cu is None:
+                cu, vals = float(vals[-1]), vals[:-1]
+            up.reshape(A, -1)[a] = 0.0
+            up[nz[sel]] = vals
+            q_up[a] = reward[a] + self.gamma * up.reshape(A, -1)[a].sum()
+            fresh[a] = True
+        assert cu is not None
+        return up, q_up, cu
+
+    def _evaluate_np(
+        self, x: int, b: np.ndarray, stale: tuple[np.ndarray, ...] | None = None
+    ) -> tuple[np.ndarray, ...]:
         """:meth:`evaluate` for one belief ``b (Y,)`` in numpy.
 
-        Returns ``q_low (A,)``, ``q_up (A,)``, ``prob``, ``low``, ``up`` (``(A, K, O)``
-        each, as :class:`_Evaluation`), ``best (A, K, O)``, ``V_low(b)``, ``V_up(b)``.
+        The form gives the possible children (:meth:`SolverModel.children_np`, on the columns
+        they live on); they and ``b`` are bounded by one product against the alpha vectors
+        and one sawtooth evaluation. Returns ``q_low (A,)``, ``q_up (A,)``, ``prob``, ``low``,
+        ``up`` (``(A, K, O)`` each, as :class:`_Evaluation`), ``best (A, K, O)``,
+        ``V_low(b)``, ``V_up(b)``. ``stale``: the node's cached evaluation, see
+        :meth:`_upper_np`.
         """
-        if self._sp is not None:
-            return self._evaluate_sparse_np(b)
-        pred = self._predict_np(x, b)  # (A, K, Y)
-        z = self._npz[x]  # (A, K, O, Y)
-        A, K, O, _ = z.shape
-        C = A * K * O
-        cx = self._npcx.get(x)
-        if cx is None:
-            cx = np.broadcast_to(self._npreach[x][None, :, None], (A, K, O)).reshape(-1).copy()
-            self._npcx[x] = cx
-            self._npzt[x] = np.ascontiguousarray(z.transpose(0, 1, 3, 2))  # (A, K, Y, O)
-        prob = np.matmul(pred[:, :, None, :], self._npzt[x])[:, :, 0, :]  # (A, K, O)
-        nz = np.flatnonzero(prob)
-        # impossible children weigh 0 (the bounds are homogeneous): bound the possible ones;
-        # J[a, k, o] = pred[a, k] * z[a, k, o] is formed only for them
-        ia, ik, io = np.unravel_index(nz, (A, K, O))
-        rows = np.concatenate([pred[ia, ik] * z[ia, ik, io], b[None]])
-        rows_x = np.append(cx[nz], x)
-        low_r, best_r = self._lower_np(rows, rows_x)
-        up_r = self.ub.value_np(rows, rows_x)
-        m = nz.size
-        low = np.zeros(C, dtype=b.dtype)
-        low[nz] = low_r[:m]
-        up = np.zeros(C, dtype=b.dtype)
-        up[nz] = up_r[:m]
+        ch = self.form.children_np(x, b)
+        A, K, O = ch.prob.shape
+        low_r, best_r = self._lower_np(ch.rows, ch.rows_x, ch.cols)
+        m = ch.nz.size
+        low = np.zeros(A * K * O, dtype=b.dtype)
+        low[ch.nz] = low_r[:m]
+        # impossible children weigh 0 and take any vector of their x2 in a backup
         d = self._default_alpha()
         if self._default_np is None or self._default_np[0] is not d:
             self._default_np = (d, d.numpy())
-        best = self._default_np[1][cx]
-        best[nz] = best_r[:m]
-        reward = b @ self._npRT[x]  # (A,)
-        q_low = reward + self.gamma * low.reshape(A, K * O).sum(-1)
-        q_up = reward + self.gamma * up.reshape(A, K * O).sum(-1)
+        best = self._default_np[1][ch.child_x]
+        best[ch.nz] = best_r[:m]
+        q_low = ch.reward + self.gamma * low.reshape(A, K * O).sum(-1)
+        rows, rows_x, cols = ch.rows, ch.rows_x, ch.cols
+        up, q_up, cu = self._upper_np(
+            lambda ids: self.ub.value_np(rows[ids], rows_x[ids], cols),
+            ch.nz // (K * O), ch.nz, ch.reward, A * K * O, stale,
+        )  # fmt: skip
         shape = (A, K, O)
-        return (q_low, q_up, prob, low.reshape(shape), up.reshape(shape), best.reshape(shape),
-                float(low_r[m]), float(up_r[m]))  # fmt: skip
-
-    def _evaluate_sparse_np(self, b: np.ndarray) -> tuple[Any, ...]:
-        """:meth:`_evaluate_np` of the sparse flat path (``K = 1``).
-
-        Every child and ``b`` itself are formed only on ``cols``, the union of the supports
-        of the predictions and of ``b`` (RockSample(7, 8): about a thousand of 12545 states),
-        and bounded there: the alpha vectors restricted to ``cols``, the sawtooth through
-        :meth:`~torchhrc.solvers.upper_bound.SawtoothUpperBound.value_np` with ``columns``.
-        """
-        assert self._sp is not None
-        cols, pred = self._sp.predict_columns_np(b)  # (C,), (A, C)
-        zc = self._spZ[:, cols, :]  # (A, C, O)
-        A, _, O = zc.shape
-        prob = np.matmul(pred[:, None, :], zc)[:, 0, :]  # (A, O)
-        nz = np.flatnonzero(prob)
-        ia, io = np.unravel_index(nz, (A, O))
-        rows = np.concatenate([pred[ia] * zc[ia, :, io], b[cols][None]])  # (m + 1, C)
-        n = self.alphas.size
-        assert self.alphas.columns is not None
-        scores = rows @ self.alphas.columns[cols, :n]  # (m + 1, N)
-        best_r = scores.argmax(-1)
-        low_r = scores[np.arange(scores.shape[0]), best_r]
-        up_r = self.ub.value_np(rows, np.zeros(rows.shape[0], dtype=np.int64), cols)
-        m = nz.size
-        low = np.zeros(A * O, dtype=b.dtype)
-        low[nz] = low_r[:m]
-        up = np.zeros(A * O, dtype=b.dtype)
-        up[nz] = up_r[:m]
-        best = np.full(A * O, int(self._default_alpha()[0]), dtype=np.int64)
-        best[nz] = best_r[:m]
-        reward = b[cols] @ self._npRT[0][cols]  # (A,)
-        q_low = reward + self.gamma * low.reshape(A, O).sum(-1)
-        q_up = reward + self.gamma * up.reshape(A, O).sum(-1)
-        shape = (A, 1, O)
-        return (q_low, q_up, prob.reshape(shape), low.reshape(shape), up.reshape(shape),
-                best.reshape(shape), float(low_r[m]), float(up_r[m]))  # fmt: skip
+        return (q_low, q_up, ch.prob, low.reshape(shape), up.reshape(shape), best.reshape(shape),
+                float(low_r[m]), cu)  # fmt: skip
 
     def _backup_one_np(self, x: int, node: int) -> None:
         """:meth:`backup` of one node in numpy (the sequential path of a trial)."""
         tree = self.tree
         b = tree.beliefs_np[node]
-        q_low, q_up, prob, low_c, up_c, best, lo, cu = self._evaluate_np(x, b)
+        stale = self._cache.get(node) if self.cfg.lazy_upper else None
+        q_low, q_up, prob, low_c, up_c, best, lo, cu = self._evaluate_np(x, b, stale)
         a = int(q_low.argmax())
         W = self.alphas.np_vectors[best[a]]  # (K, O, Y)
-        vals = (self._npz[x][a] * W).sum(1)  # (K, Y)
-        if self._sp is not None:
-            nxt = self._sp.backproject_np(a, vals[0])
-        elif self._npT is not None:
-            nxt = self._npT[a] @ vals[0]
-        else:
-            tx = self._nptx[x][a]  # (Y, K)
-            tyk = self._nptyk[x]
-            if tyk is not None:  # inner[k, y] = sum_y2 ty[a, y, k, y2] vals[k, y2]
-                vals = np.matmul(tyk[a], vals[:, :, None])[:, :, 0].T  # (Y, K)
-            else:
-                vals = vals.T
-            nxt = (tx * vals).sum(-1)
-        alpha = self._npR[a, x] + self.gamma * nxt  # (Y,)
+        vals = (self.form.observation_np(x)[a] * W).sum(1)  # (K, Y)
+        alpha = self._npR[a, x] + self.gamma * self.form.backproject_np(x, a, vals)  # (Y,)
         nl = float(alpha @ b)
         nu = float(q_up.max())
         self._cache[node] = (q_low, q_up, prob, low_c, up_c)
@@ -976,11 +739,11 @@ class _SARSOP:
 
     def _root_bounds(self) -> tuple[float, float]:
         if self._np:
-            b = self.fm.b0.numpy()[None]
-            x = np.array([self.fm.x0])
+            b = self.form.b0.numpy()[None]
+            x = np.array([self.form.x0])
             return float(self._lower_np(b, x)[0][0]), float(self.ub.value_np(b, x)[0])
-        b = self.fm.b0.unsqueeze(0)
-        x = torch.tensor([self.fm.x0], device=b.device)
+        b = self.form.b0.unsqueeze(0)
+        x = torch.tensor([self.form.x0], device=b.device)
         lo = float(self.lower_value(b, x)[0][0])
         up = float(self.ub.value(b, x)[0])
         return lo, up
@@ -995,12 +758,11 @@ class _SARSOP:
         is added when it raises ``V_low(b)``. Upper bound: the point
         ``(b, max_a Q_up(b, a))`` is added when below the sawtooth at ``b``.
         """
-        if self._np and (len(nodes) == 1 or self._sp is not None):
-            # sparse models: one node at a time (a batch would hold B A O dense children)
+        if self._np and (len(nodes) == 1 or not self.form.batch_backups):
             for node in nodes.tolist():
                 self._backup_one_np(x, int(node))
             return
-        tree, fm = self.tree, self.fm
+        tree, form = self.tree, self.form
         B = len(nodes)
         beliefs = (
             tree.beliefs[torch.from_numpy(nodes).to(self.device)]
@@ -1011,8 +773,8 @@ class _SARSOP:
         a = ev.q_low.argmax(-1)  # (B,)
         sel = ev.best[torch.arange(B, device=self.device), a]  # (B, K, O) alpha index per child
         W = self.alphas.vectors[sel]  # (B, K, O, Y)
-        z = fm.observation_slice(x, a)  # (B, K, O, Y)
-        alpha = fm.R[a, x, :] + self.gamma * fm.backproject(x, a, (z * W).sum(2))  # (B, Y)
+        z = form.observation_slice(x, a)  # (B, K, O, Y)
+        alpha = form.R[a, x, :] + self.gamma * form.backproject(x, a, (z * W).sum(2))  # (B, Y)
         new_low = (alpha * beliefs).sum(-1)
         new_up = ev.q_up.amax(-1)
         cur_low, cur_up = ev.self_low, ev.self_up
@@ -1096,14 +858,14 @@ class _SARSOP:
             low_c, up_c = float(low_a[k, o]), float(up_a[k, o])
             L = (L1 - float(q_low[a]) + g * low_c) / (g * p)
             U = (U1 - float(q_up[a]) + g * up_c) / (g * p)
-            x2 = int(self._npreach[x][k]) if self._np else int(self.fm.reach[x][k])
+            x2 = int(self.form.reach_np(x)[k]) if self._np else int(self.form.reach[x][k])
             child = tree.child(node, a, x2, o)
             if child < 0:
                 if self._np:
-                    row = self._child_np(x, tree.beliefs_np[node], a, k, o) / p
+                    row = self.form.child_np(x, tree.beliefs_np[node], a, k, o) / p
                     child = self._add_node(torch.from_numpy(row), x2, node, a, o)
                 else:
-                    _, J = self.fm.expand(x, tree.beliefs[node].unsqueeze(0))
+                    _, J = self.form.expand(x, tree.beliefs[node].unsqueeze(0))
                     child = self._add_node(J[0, a, k, o] / p, x2, node, a, o)
                 tree.lower[child] = low_c / p
                 tree.upper[child] = up_c / p
@@ -1154,17 +916,7 @@ class _SARSOP:
             vec, obs = self.alphas.vectors[:n], self.alphas.observed[:n]
             groups = obs if self.X > 1 else None
             act = np.flatnonzero(self.tree.active[: self.tree.size])
-            if isinstance(self.tree, SparseBeliefTree):
-                self._prune_sparse(vec, act)
-                return self._prune_points()
-            beliefs = self.tree.beliefs[torch.from_numpy(act).to(self.device)]
-            bgroups = torch.from_numpy(self.tree.x[act]).to(self.device) if self.X > 1 else None
-            keep = prune_by_beliefs(vec, beliefs, groups, bgroups)
-            # the quadratic dominance test only on the survivors of the cheap belief test
-            # (both keep the maximum at every tree belief)
-            idx = keep.nonzero().squeeze(-1)
-            keep[idx] = prune_dominated(vec[idx], None if groups is None else groups[idx])
-            self.alphas.keep(keep)
+            self.alphas.keep(self.tree.keep_alphas(vec, groups, act))
             self._default = None
             self.last_alpha_prune = self.alphas.size
         self._prune_points()
@@ -1176,21 +928,6 @@ class _SARSOP:
             self.last_point_prune = self.ub.size
         if cfg.prune_nodes:
             self.tree.refresh_active()
-
-    def _prune_sparse(self, vec: torch.Tensor, act: np.ndarray) -> None:
-        """Belief pruning on a :class:`SparseBeliefTree`: keep the vectors that win at some
-        active tree belief (one sparse ``(M, S) x (S, N)`` product).
-
-        The pointwise-dominance test is skipped: it costs ``N^2 S`` comparisons (large ``S``
-        is why this path exists), and a dominated vector never wins at a belief unless tied.
-        """
-        assert isinstance(self.tree, SparseBeliefTree)
-        scores = self.tree.csr(act) @ vec.T.contiguous()  # (M, N)
-        keep = torch.zeros(vec.shape[0], dtype=torch.bool)
-        keep[scores.argmax(-1)] = True
-        self.alphas.keep(keep)
-        self._default = None
-        self.last_alpha_prune = self.alphas.size
 
     def sweep(self) -> None:
         """Back up every active tree node, one batched backup per observed value."""
@@ -1264,10 +1001,9 @@ class _SARSOP:
 
     def solution(self, reason: str, iterations: int) -> Solution:
         n = self.alphas.size
-        alphas = self.alphas.vectors[:n].clone()
-        actions = self.alphas.actions[:n].clone()
-        observed = None if self.fm.flat else self.alphas.observed[:n].clone()
-        policy = AlphaVectorPolicy(alphas, actions, observed)
+        policy = self.form.policy(self.alphas.vectors[:n].clone(),
+                                  self.alphas.actions[:n].clone(),
+                                  self.alphas.observed[:n].clone())  # fmt: skip
         last = self.history[-1]
         info = {
             "stop_reason": reason,

@@ -286,6 +286,32 @@ class SparseFlatModel:
         out = self.Tt_stacked @ beliefs.T.to(self.dtype).contiguous()  # (A S, B)
         return out.T.reshape(B, self.num_actions, S)
 
+    def predict_actions(self, beliefs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """``(M, S)`` the prediction of each belief ``(M, S)`` under its own action ``(M,)``:
+        ``pred[m, s2] = sum_s T[actions[m], s, s2] beliefs[m, s]`` (one sparse product per
+        distinct action)."""
+        out = beliefs.new_zeros(beliefs.shape)
+        for a in torch.unique(actions).tolist():
+            rows = (actions == a).nonzero().squeeze(-1)
+            out[rows] = (self.T_csr[a].t() @ beliefs[rows].T.to(self.dtype).contiguous()).T
+        return out
+
+    def successors(self, actions: torch.Tensor, states: torch.Tensor,
+                   ) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+        """The successors of ``(actions[m], states[m])``, ``(M,)`` each, padded per row:
+        ``next (M, W)`` states and ``prob (M, W)`` their probabilities ``T[a, s, next]``
+        (0 on padding), ``W`` the most successors of a row."""
+        S = self.num_states
+        rows = (actions * S + states).cpu().numpy()
+        start, stop = self._ptr[rows], self._ptr[rows + 1]
+        W = max(int((stop - start).max()) if rows.size else 1, 1)
+        pos = start[:, None] + np.arange(W)[None, :]  # (M, W)
+        valid = pos < stop[:, None]
+        pos = np.where(valid, pos, 0)
+        prob = np.where(valid, self._val[pos] if self.nnz else 0.0, 0.0)
+        nxt = np.where(valid, self._col[pos] if self.nnz else 0, 0)
+        return torch.from_numpy(nxt), torch.from_numpy(prob.astype(self._val.dtype, copy=False))
+
     def backproject(self, actions: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
         """``(B, S)``: ``g[i] = T[actions[i]] @ values[i]`` for ``values (B, S)``."""
         out = torch.empty_like(values)

@@ -1,0 +1,136 @@
+"""Build the public SARSOP benchmark suite (``bench_sarsop.py --suite DIR``) into a folder.
+
+Third-party problem files are not part of torchhrc: this script converts copies a user has
+fetched. Each given folder is scanned for Cassandra ``.pomdp``/``.POMDP`` files (and
+``.pomdpx`` files, copied as they are for a ``.pomdpx`` reader); every file is read with
+:func:`torchhrc.io.read_pomdp` and re-written with :func:`torchhrc.io.write_pomdp` (one
+normalised form that both torchhrc and APPL's ``pomdpsol`` read), except:
+
+* undiscounted problems (``discount: 1``): SARSOP needs ``discount < 1`` (APPL's
+  ``pomdpsol`` asserts it too), so they are skipped with a printed reason;
+* files that do not parse (e.g. ``ejs4``-``ejs7`` of pomdp-solve, whose ``values: rewards``
+  is outside the format's grammar and is rejected by APPL's parser as well): skipped with the
+  parser's message;
+* duplicates of a problem already in the suite (same sizes, discount and tensors).
+
+Sources used for ``docs/benchmarks.md`` (both public):
+
+* APPL SARSOP's ``examples/POMDP`` (Tiger, Hallway, Hallway2, TagAvoid) and
+  ``examples/POMDPX`` (RockSample ``.pomdpx``);
+* pomdp-solve's ``examples/pomdp-files`` (Cassandra; 1d, 4x3.95, aloha-10max, cheese.95,
+  parr95.95, shuttle.95, tiger.aaai, uav-search, ...).
+
+Random problems are generated from seeds with :func:`torchhrc.testing.random_pomdp`
+(``random_S<S>_A<A>_O<O>_<dense|sparse>.pomdp``), so they need no source.
+
+Usage::
+
+    python benchmarks/problems/make_suite.py --out SUITE_DIR [--from DIR ...] [--no-random]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+from pathlib import Path
+
+import torch
+
+from torchhrc.errors import ParseError
+from torchhrc.io.cassandra import read_pomdp, write_pomdp
+from torchhrc.testing import random_pomdp
+
+# (states, actions, observations, sparsity of T and Z, seed): small to medium, dense and sparse
+RANDOM = [
+    (20, 4, 4, 0.0, 1),
+    (50, 5, 5, 0.0, 2),
+    (100, 6, 8, 0.8, 3),
+]
+
+
+def random_problems() -> dict[str, object]:
+    """The generated problems of the suite, by file stem (rebuilt from their seeds)."""
+    out = {}
+    for S, A, O, sparsity, seed in RANDOM:
+        kind = "sparse" if sparsity > 0 else "dense"
+        out[f"random_S{S}_A{A}_O{O}_{kind}"] = random_pomdp(
+            S, A, O, sparsity=sparsity, seed=seed, discount=0.95
+        )
+    return out
+
+
+def _stem(path: Path) -> str:
+    name = path.name
+    for ext in (".pomdpx", ".POMDP", ".pomdp"):
+        if name.endswith(ext):
+            name = name[: -len(ext)]
+    return name.replace(".", "_").replace("-", "_").lower()
+
+
+def _same(a, b) -> bool:  # type: ignore[no-untyped-def]
+    if (a.num_states, a.num_actions, a.num_observations) != (
+        b.num_states,
+        b.num_actions,
+        b.num_observations,
+    ):
+        return False
+    return bool(
+        float(a.discount) == float(b.discount)
+        and torch.allclose(a.T, b.T)
+        and torch.allclose(a.Z, b.Z)
+        and torch.allclose(a.R, b.R)
+        and torch.allclose(a.b0, b.b0)
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, required=True, help="the suite folder")
+    parser.add_argument(
+        "--from", dest="sources", type=Path, nargs="*", default=[], help="folders of fetched files"
+    )
+    parser.add_argument("--no-random", action="store_true", help="skip the generated problems")
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    kept: dict[str, object] = {}
+    for src in args.sources:
+        files = sorted(p for p in src.iterdir() if p.suffix.lower() in (".pomdp", ".pomdpx"))
+        for path in files:
+            stem = _stem(path)
+            if path.suffix.lower() == ".pomdpx":
+                shutil.copyfile(path, args.out / f"{stem}.pomdpx")
+                print(f"{path.name}: copied as {stem}.pomdpx")
+                continue
+            try:
+                model = read_pomdp(path)
+            except ParseError as err:
+                print(f"{path.name}: skipped (does not parse: {err})")
+                continue
+            if float(model.discount) >= 1.0:
+                print(f"{path.name}: skipped (discount {float(model.discount)}: SARSOP needs < 1)")
+                continue
+            dup = next((k for k, m in kept.items() if _same(m, model)), None)
+            if dup is not None:
+                print(f"{path.name}: skipped (same problem as {dup})")
+                continue
+            kept[stem] = model
+            write_pomdp(
+                model,
+                args.out / f"{stem}.pomdp",
+                comment=f"{path.name}, re-written by benchmarks/problems/make_suite.py (torchhrc)",
+            )
+            print(f"{path.name}: {stem}.pomdp (S={model.num_states}, A={model.num_actions}, "
+                  f"O={model.num_observations}, discount {float(model.discount)})")  # fmt: skip
+    if not args.no_random:
+        for stem, model in random_problems().items():
+            write_pomdp(
+                model,  # type: ignore[arg-type]
+                args.out / f"{stem}.pomdp",
+                comment="generated by benchmarks/problems/make_suite.py from its seed (torchhrc)",
+            )
+            print(f"{stem}.pomdp (generated)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

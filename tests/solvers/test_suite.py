@@ -1,0 +1,246 @@
+"""The public SARSOP suite (``benchmarks/problems/make_suite.py``, ``bench_sarsop.py --suite``).
+
+* the generated problems (rebuilt from their seeds) and hand-written Cassandra snippets solve
+  without error, and their files round-trip through ``write_pomdp``/``read_pomdp``;
+* bounds bracket the exact value where it is known (the exact finite-horizon solver of
+  ``_exact_pomdp.py`` on the small problems; Tiger's published optimum);
+* the written ``.policyx`` is accepted by APPL's ``pomdpeval`` and its simulated value lies
+  within our bounds up to sampling error (skipped when APPL is not installed: set
+  ``TORCHHRC_APPL_BIN`` to the folder holding ``pomdpeval``, or put it on ``PATH``);
+* with ``TORCHHRC_SUITE_DIR`` set to a suite folder built from fetched files, every file of
+  it too (the third-party files are not part of the repository).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from _exact_pomdp import TIGER_OPTIMUM, optimal_value_bounds
+
+from torchhrc.io import parse_pomdp, read_pomdp, write_policyx, write_pomdp
+from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
+
+LONG = 1e9  # no wall-clock limit: iteration caps and precision stop the solves
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _make_suite():  # type: ignore[no-untyped-def]
+    spec = importlib.util.spec_from_file_location(
+        "make_suite", ROOT / "benchmarks" / "problems" / "make_suite.py"
+    )
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+GENERATED = _make_suite().random_problems()
+
+# Hand-written problems in the Cassandra format (small enough for the exact solver).
+# A two-state "listen or guess" problem with asymmetric, noisy observations and a reset.
+GUESS = """\
+# hand-written: guess the hidden side after noisy listens
+discount: 0.75
+values: reward
+states: left right
+actions: listen guess-left guess-right
+observations: hear-left hear-right
+start: 0.6 0.4
+T: listen
+identity
+T: guess-left
+uniform
+T: guess-right
+uniform
+O: listen
+0.8 0.2
+0.3 0.7
+O: guess-left
+uniform
+O: guess-right
+uniform
+R: listen : * : * : * -1
+R: guess-left : left : * : * 5
+R: guess-left : right : * : * -20
+R: guess-right : right : * : * 5
+R: guess-right : left : * : * -20
+"""
+
+# Three states on a line, moves succeed with probability 0.9, a reward at the right end and a
+# noisy "at an end" sensor; costs given as ``values: cost`` (rewards negated).
+LINE = """\
+discount: 0.7
+values: cost
+states: 3
+actions: left right
+observations: end middle
+start: uniform
+T: left : 0 : 0 1.0
+T: left : 1 : 0 0.9
+T: left : 1 : 1 0.1
+T: left : 2 : 1 0.9
+T: left : 2 : 2 0.1
+T: right : 0 : 1 0.9
+T: right : 0 : 0 0.1
+T: right : 1 : 2 0.9
+T: right : 1 : 1 0.1
+T: right : 2 : 0 1.0
+O: * : 0 : end 0.85
+O: * : 0 : middle 0.15
+O: * : 1 : end 0.2
+O: * : 1 : middle 0.8
+O: * : 2 : end 0.85
+O: * : 2 : middle 0.15
+R: right : 2 : * : * -10
+R: left : * : * : * 1
+R: right : 0 : * : * 1
+R: right : 1 : * : * 1
+"""
+
+SNIPPETS = {"guess": GUESS, "line": LINE}
+
+
+def _suite_files() -> list[Path]:
+    folder = os.environ.get("TORCHHRC_SUITE_DIR")
+    if not folder:
+        return []
+    return sorted(Path(folder).glob("*.pomdp"))
+
+
+def _check_solution(model, sol) -> None:  # type: ignore[no-untyped-def]
+    assert math.isfinite(sol.lower) and math.isfinite(sol.upper)
+    assert sol.lower <= sol.upper + 1e-9
+    for h in sol.history:
+        assert h["lower"] <= h["upper"] + 1e-9
+    # the alpha-vector policy achieves its lower bound at b0
+    assert float(sol.policy.value(model.b0)) == pytest.approx(sol.lower, abs=1e-7)
+
+
+# -- every problem solves -----------------------------------------------------------------------
+@pytest.mark.parametrize("name", sorted(GENERATED))
+def test_generated_suite_problem_solves_and_round_trips(name: str, tmp_path: Path) -> None:
+    model = GENERATED[name]
+    path = write_pomdp(model, tmp_path / f"{name}.pomdp")
+    back = read_pomdp(path)
+    for field in ("T", "Z", "R", "b0"):
+        torch.testing.assert_close(getattr(back, field), getattr(model, field), rtol=0, atol=1e-12)
+    sol = sarsop(back, SARSOPConfig(time_limit=LONG, max_iterations=5))
+    _check_solution(back, sol)
+    assert sol.info["stop_reason"] in ("max_iterations", "precision")
+
+
+@pytest.mark.parametrize("path", _suite_files(), ids=lambda p: p.stem)
+def test_fetched_suite_problem_solves(path: Path) -> None:
+    model = read_pomdp(path)
+    sol = sarsop(model, SARSOPConfig(time_limit=LONG, max_iterations=3))
+    _check_solution(model, sol)
+    if model.num_states <= 4 and float(model.discount) <= 0.8:
+        lo, hi = _exact(model)
+        assert sol.lower <= hi + 1e-9 and lo <= sol.upper + 1e-9
+
+
+# -- bounds bracket the exact value ---------------------------------------------------------------
+def _exact(model) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+    gamma = float(model.discount)
+    horizon = int(math.ceil(math.log(1e-7) / math.log(gamma)))
+    return optimal_value_bounds(
+        model.T.numpy(), model.Z.numpy(), model.R.numpy(), gamma, model.b0.numpy(), horizon
+    )
+
+
+@pytest.mark.parametrize("name", sorted(SNIPPETS))
+def test_snippet_bounds_bracket_exact_value(name: str) -> None:
+    model = parse_pomdp(SNIPPETS[name], path=f"{name}.pomdp")
+    lo, hi = _exact(model)
+    assert hi - lo < 1e-5
+    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-4, max_iterations=500))
+    _check_solution(model, sol)
+    for h in sol.history:  # every iteration brackets V*
+        assert h["lower"] <= hi + 1e-9 and lo <= h["upper"] + 1e-9
+    assert sol.info["stop_reason"] == "precision"
+    assert lo - 1e-4 <= sol.lower <= sol.upper <= hi + 1e-4
+
+
+def test_line_snippet_reads_costs_as_negated_rewards() -> None:
+    model = parse_pomdp(LINE, path="line.pomdp")
+    # left everywhere costs 1; right costs 1 at states 0, 1 and earns 10 at state 2
+    torch.testing.assert_close(
+        model.R, torch.tensor([[-1.0, -1.0, -1.0], [-1.0, -1.0, 10.0]], dtype=model.R.dtype)
+    )
+
+
+def test_tiger_suite_file_brackets_published_optimum(tmp_path: Path) -> None:
+    from torchhrc.tasks.classic import tiger
+
+    path = write_pomdp(tiger(), tmp_path / "tiger.pomdp")
+    sol = sarsop(read_pomdp(path), SARSOPConfig(time_limit=LONG, precision=1e-3))
+    assert sol.lower - 1e-3 <= TIGER_OPTIMUM <= sol.upper + 1e-3
+
+
+# -- APPL's pomdpeval accepts our .policyx ------------------------------------------------------
+def _appl_binary(name: str) -> str:
+    folder = os.environ.get("TORCHHRC_APPL_BIN")
+    if folder:
+        path = Path(folder) / name
+        if path.is_file():
+            return str(path)
+        pytest.skip(f"TORCHHRC_APPL_BIN={folder} has no {name}")
+    found = shutil.which(name)
+    if found is None:
+        pytest.skip(
+            f"APPL's {name} is not on PATH and TORCHHRC_APPL_BIN is not set "
+            "(CI has no APPL; set TORCHHRC_APPL_BIN to the folder of the built binaries)"
+        )
+    return found
+
+
+_EVAL_ROW = re.compile(r"^\s*(\d+)\s+([-0-9.eE+]+)\s+\(([-0-9.eE+]+),\s*([-0-9.eE+]+)\)")
+
+
+def _pomdpeval_models() -> list[tuple[str, object]]:
+    models = [(k, parse_pomdp(v, path=f"{k}.pomdp")) for k, v in SNIPPETS.items()]
+    models += sorted(GENERATED.items())
+    models += [(p.stem, p) for p in _suite_files()]
+    return models
+
+
+@pytest.mark.parametrize(("name", "source"), _pomdpeval_models(), ids=lambda v: str(v)[:40])
+def test_pomdpeval_accepts_policyx_and_value_lies_within_bounds(
+    name: str, source, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    binary = _appl_binary("pomdpeval")
+    if isinstance(source, Path):
+        path, model = source, read_pomdp(source)
+    else:
+        model = source
+        path = write_pomdp(model, tmp_path / f"{name}.pomdp")
+    gamma = float(model.discount)
+    span = float(model.R.abs().max()) / (1.0 - gamma)
+    length = int(math.ceil(math.log(1e-3 / max(span, 1e-3)) / math.log(gamma)))
+    if length > 3000:
+        pytest.skip(f"discount {gamma}: a simulation of {length} steps per run is too long")
+    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-2, max_iterations=200))
+    policy = write_policyx(sol.policy, tmp_path / f"{name}.policyx")
+    proc = subprocess.run(
+        [binary, "--simLen", str(length), "--simNum", "4000", "--policy-file", str(policy),
+         str(path)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    rows = [m for m in map(_EVAL_ROW.match, proc.stdout.splitlines()) if m]
+    assert rows, f"pomdpeval printed no result:\n{proc.stdout[-2000:]}"
+    mean, ci_lo, ci_hi = (float(rows[-1].group(i)) for i in (2, 3, 4))
+    half = (ci_hi - ci_lo) / 2 * (3.29 / 1.96)  # the 95% interval widened to 99.9%
+    tail = gamma**length * span  # rewards past the simulated horizon
+    assert sol.lower - half - tail <= mean <= sol.upper + half + tail, (
+        f"{name}: simulated {mean:.4f} +- {half:.4f} outside [{sol.lower:.4f}, {sol.upper:.4f}]"
+    )

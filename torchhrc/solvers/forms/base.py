@@ -1,0 +1,472 @@
+"""The one model interface under the point-based solvers (SARSOP, PBVI): :class:`SolverModel`.
+
+A point-based solver asks a model a handful of questions, whatever the model's
+representation (dense flat, MOMDP-factored, sparse flat, and later a device backend):
+
+* its sizes and the reward, as a mixed-observability model ``(A, X, Y)`` (Ong et al. 2010; a
+  flat POMDP is the MOMDP with one observed value, ``X = 1``, ``Y = S``), and the initial
+  belief ``(x0, b0)``;
+* the **children** of beliefs under every action ``a``, reachable next observed value ``x2``
+  and observation ``o``, unnormalised (paper Eq. 3)::
+
+      J[i, a, k, o, y2] = P(x2_k, o | x, b_i, a) * tau(b_i, a, x2_k, o)[y2]
+
+  batched in torch (:meth:`SolverModel.expand`) and, for one belief on the CPU, as the rows
+  of its possible children on the columns they live on (:meth:`SolverModel.children_np`);
+* the pieces of a point-based **backup** against a set of alpha vectors (Pineau et al. 2003):
+  the observation slice ``Z[a, x2_k, y2, o]`` and the back-projection
+  ``g[y] = sum_{k, y2} Tx Ty values[k, y2]`` (:meth:`SolverModel.backproject`);
+* the **initial bounds**: the blind-policy lower bound (Hauskrecht 2000) and the Fast
+  Informed Bound corner values (:meth:`SolverModel.fib_corner_values`);
+* the **belief representation**: the tree that stores beliefs (dense rows or supports), and
+  how a policy's vectors are tagged (``observed`` for a MOMDP);
+* for PBVI: a simulation step, a batched point backup and the value of a policy at beliefs.
+
+Each form implements it once in its own module (:mod:`~torchhrc.solvers.forms.dense`,
+:mod:`~torchhrc.solvers.forms.momdp`, :mod:`~torchhrc.solvers.forms.sparse`), and
+:func:`~torchhrc.solvers.forms.as_solver_model` picks the form once, at the solver's entry.
+SARSOP and PBVI never test which form they hold. What several forms share (the FIB
+iteration, the per-observed-value caches, the one-belief children of a dense belief, the
+shape checks of user-supplied initialisers) lives here once.
+
+Shapes (``B`` beliefs, ``A`` actions, ``K`` reachable next observed values of ``x``, ``O``
+observations, ``Y`` hidden values; a flat model has ``X = K = 1`` and ``Y = S``):
+
+==========================  =============================================================
+``R``                       ``(A, X, Y)`` rewards
+``reward(x, b)``            ``(B, A)`` expected immediate rewards of ``b (B, Y)``
+``expand(x, b)``            ``xs (K,)``, ``J (B, A, K, O, Y)``
+``observation_slice(x, a)`` ``(B, K, O, Y)`` for ``a (B,)``
+``backproject(x, a, v)``    ``(B, Y)`` for ``a (B,)``, ``v (B, K, Y)``
+``children_np(x, b)``       :class:`Children` of one ``b (Y,)``
+``backproject_np(x, a, v)`` ``(Y,)`` for one action, ``v (K, Y)``
+``fib_corner_values``       ``(S,)`` flat, ``(X, Y)`` MOMDP (the model's own state shape)
+==========================  =============================================================
+
+Example:
+    >>> from torchhrc.solvers.forms import as_solver_model
+    >>> from torchhrc.tasks.classic import tiger
+    >>> form = as_solver_model(tiger())
+    >>> xs, J = form.expand(form.x0, form.b0.unsqueeze(0))
+    >>> tuple(J.shape), form.num_observed, form.factored
+    ((1, 3, 1, 2, 2), 1, False)
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from torchhrc.errors import ModelError
+from torchhrc.solvers.backup import BackupResult
+from torchhrc.solvers.belief_tree import BeliefTree
+from torchhrc.solvers.blind import blind_policy
+from torchhrc.solvers.fib import fib_vectors
+from torchhrc.solvers.policy import AlphaVectorPolicy
+from torchhrc.solvers.qmdp import qmdp_vectors
+
+__all__ = ["Children", "FIBOperator", "PerObserved", "SolverModel", "TensorModelForm"]
+
+#: One Fast Informed Bound step ``(A, *state_shape) -> (A, *state_shape)`` (Hauskrecht 2000).
+FIBOperator = Callable[[torch.Tensor], torch.Tensor]
+
+
+class PerObserved(Sequence[Any]):
+    """``build(x)`` for each observed value ``x``, computed on first use and cached.
+
+    The search of a large MOMDP usually visits a small part of ``X``: per-``x`` slices are
+    built when it first reaches ``x``.
+
+    Example:
+        >>> squares = PerObserved(3, lambda x: x * x)
+        >>> squares[2], len(squares)
+        (4, 3)
+    """
+
+    _MISSING = object()
+
+    def __init__(self, n: int, build: Callable[[int], Any]) -> None:
+        self._build = build
+        self._items: list[Any] = [self._MISSING] * n
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def built(self) -> list[bool]:
+        """Which observed values have been built so far."""
+        return [item is not self._MISSING for item in self._items]
+
+    def __getitem__(self, x: int) -> Any:  # type: ignore[override]
+        if not isinstance(x, (int, np.integer)):
+            raise TypeError(f"expected an int observed value, got {type(x).__name__}")
+        item = self._items[x]
+        if item is self._MISSING:
+            item = self._items[x] = self._build(int(x))
+        return item
+
+
+def field(cache: PerObserved, i: int) -> PerObserved:
+    """The per-``x`` view of field ``i`` of the tuples of ``cache`` (shares its cache)."""
+    return PerObserved(len(cache), lambda x: cache[x][i])
+
+
+@dataclass
+class Children:
+    """The possible children of one belief ``b (Y,)`` at observed value ``x`` (numpy).
+
+    Attributes:
+        rows: ``(m + 1, C)`` the ``m`` possible unnormalised children (``P(x2, o) tau``,
+            ``prob > 0``), then ``b`` itself, on the columns ``cols``.
+        rows_x: ``(m + 1,)`` the observed value of each row.
+        cols: ``(C,)`` sorted hidden values the rows are given on (``None``: all ``Y``).
+        nz: ``(m,)`` flat indices of the possible children into ``(A, K, O)``.
+        prob: ``(A, K, O)`` ``P(x2_k, o | x, b, a)``.
+        child_x: ``(A K O,)`` the next observed value of every child.
+        reward: ``(A,)`` the expected immediate reward ``R(b, a)``.
+    """
+
+    rows: np.ndarray
+    rows_x: np.ndarray
+    cols: np.ndarray | None
+    nz: np.ndarray
+    prob: np.ndarray
+    child_x: np.ndarray
+    reward: np.ndarray
+
+
+def _iterate_fib(start: torch.Tensor, step: Callable[[torch.Tensor], torch.Tensor],
+                 tol: float, deadline: float, max_iterations: int,
+                 info: dict[str, Any]) -> torch.Tensor:  # fmt: skip
+    """``alpha <- min(step(alpha), alpha)`` from the upper bound ``start`` (Hauskrecht 2000).
+
+    The FIB operator is monotone, so every iterate is an upper bound and stopping early is
+    safe; stops when the change is below ``tol`` (``info["stop"] = "converged"``), after
+    ``max_iterations`` or at ``deadline``.
+    """
+    alpha = start
+    info["stop"] = "max_iterations"
+    for i in range(max_iterations):
+        if time.perf_counter() > deadline:
+            info["stop"] = "time_limit"
+            break
+        new = torch.minimum(step(alpha), alpha)
+        change = float((alpha - new).abs().max())
+        alpha = new
+        info["iterations"] = i + 1
+        if change < tol:
+            info["stop"] = "converged"
+            break
+    return alpha
+
+
+class SolverModel(ABC):
+    """What a point-based solver asks of a model (see the module docstring for shapes).
+
+    Attributes:
+        num_actions, num_observed, num_hidden, num_observations: ``A``, ``X``, ``Y``, ``O``.
+        discount: the discount factor.
+        R: ``(A, X, Y)`` rewards.
+        x0: the initial observed value; b0: ``(Y,)`` the initial hidden belief.
+        factored: True when policies carry ``observed`` tags (MOMDP vectors over ``Y`` per
+            ``x``); False for flat ``(N, S)`` policies.
+        state_shape: the model's own shape of a value function (``(S,)`` or ``(X, Y)``);
+            ``state_doc`` the same in words, for error messages.
+        reach: per ``x``, the ``(K_x,)`` long tensor of reachable next observed values.
+        batch_backups: whether batched backups of many tree beliefs pay on the CPU (a sparse
+            form backs up one belief at a time: a batch would hold ``B A O`` dense children).
+        source: the model the user gave.
+        init_argument: what custom bound initialisers receive (SARSOP's
+            ``lower_bound_init``, ``upper_bound_init``): the model in the solve's dtype, or
+            the ``source`` where no such copy exists.
+    """
+
+    num_actions: int
+    num_observed: int
+    num_hidden: int
+    num_observations: int
+    discount: float
+    R: torch.Tensor
+    x0: int
+    b0: torch.Tensor
+    factored: bool
+    state_shape: tuple[int, ...]
+    state_doc: str
+    reach: Sequence[torch.Tensor]
+    batch_backups: bool = True
+    source: Any
+
+    @property
+    def init_argument(self) -> Any:
+        return self.source
+
+    # -- the children of beliefs (torch, batched) -------------------------------------------
+    @abstractmethod
+    def predict(self, x: int, beliefs: torch.Tensor) -> torch.Tensor:
+        """``(B, A, K, Y)`` ``sum_y b[y] Tx[a, x, y, x2_k] Ty[a, x, y, x2_k, y2]`` of
+        ``beliefs (B, Y)`` at observed value ``x`` (the prediction before ``Z``)."""
+
+    @abstractmethod
+    def observation(self, x: int) -> torch.Tensor:
+        """``(A, K, O, Y)`` ``Z[a, x2_k, y2, o]`` over the reachable ``x2_k`` of ``x``."""
+
+    def expand(self, x: int, beliefs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Unnormalised children of ``beliefs (B, Y)`` sharing the observed value ``x``.
+
+        Returns:
+            ``xs (K,)`` the reachable next observed values and ``J (B, A, K, O, Y)``,
+            ``J[i, a, k, o, y2] = P(xs[k], o | x, b_i, a) * tau(b_i, a, xs[k], o)[y2]``.
+        """
+        return self.reach[x], self.predict(x, beliefs).unsqueeze(-2) * self.observation(x)
+
+    def reward(self, x: int, beliefs: torch.Tensor) -> torch.Tensor:
+        """``(B, A)`` expected immediate rewards ``R(b, a) = sum_y b[y] R[a, x, y]`` of
+        ``beliefs (B, Y)`` at observed value ``x``."""
+        return beliefs @ self._reward_table(x)
+
+    def _reward_table(self, x: int) -> torch.Tensor:
+        """``(Y, A)`` ``R[:, x, :]`` transposed, contiguous (built once per ``x``)."""
+        return self._cached("RT", x, lambda: self.R[:, x, :].T.contiguous())
+
+    def observation_slice(self, x: int, actions: torch.Tensor) -> torch.Tensor:
+        """``(B, K, O, Y)``: ``Z[a_i, x2_k, y2, o]`` for ``actions (B,)``."""
+        return self.observation(x)[actions]
+
+    @abstractmethod
+    def backproject(self, x: int, actions: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        """``(B, Y)`` ``g[i, y] = sum_{k, y2} Tx[a_i, x, y, x2_k] Ty[a_i, x, y, x2_k, y2]
+        values[i, k, y2]`` for ``actions (B,)`` and ``values (B, K, Y)`` (already summed
+        over observations with ``Z``)."""
+
+    # -- one belief on the CPU (numpy) -------------------------------------------------------
+    def observation_np(self, x: int) -> np.ndarray:
+        """``(A, K, O, Y)`` :meth:`observation` as a numpy view (CPU)."""
+        return self._cached("z", x, lambda: self.observation(x).numpy())
+
+    def reach_np(self, x: int) -> np.ndarray:
+        """``(K,)`` :attr:`reach` of ``x`` as a numpy view (CPU)."""
+        return self._cached("reach", x, lambda: self.reach[x].numpy())
+
+    def _cached(self, name: str, x: int, build: Callable[[], Any]) -> Any:
+        """``build()`` cached under ``(name, x)`` (per-``x`` views and tables, built once)."""
+        caches = self.__dict__.setdefault("_form_cache", {})
+        key = (name, x)
+        if key not in caches:
+            caches[key] = build()
+        return caches[key]
+
+    @abstractmethod
+    def predict_np(self, x: int, b: np.ndarray) -> np.ndarray:
+        """``(A, K, Y)`` :meth:`predict` of one belief ``b (Y,)`` in numpy."""
+
+    @abstractmethod
+    def predict_action_np(self, x: int, b: np.ndarray, a: int, k: int) -> np.ndarray:
+        """``(Y,)`` row ``(a, k)`` of :meth:`predict_np` alone."""
+
+    @abstractmethod
+    def backproject_np(self, x: int, a: int, values: np.ndarray) -> np.ndarray:
+        """``(Y,)`` :meth:`backproject` of one action ``a`` and ``values (K, Y)``."""
+
+    def child_np(self, x: int, b: np.ndarray, a: int, k: int, o: int) -> np.ndarray:
+        """``(Y,)`` the unnormalised child ``J[a, k, o]`` of one belief ``b (Y,)``."""
+        return self.predict_action_np(x, b, a, k) * self.observation_np(x)[a, k, o]
+
+    def children_np(self, x: int, b: np.ndarray) -> Children:
+        """The possible children of one belief ``b (Y,)`` at ``x`` and its rewards (numpy).
+
+        Impossible children weigh 0 (the bounds are positively homogeneous), so only the
+        possible ones are formed: ``J[a, k, o] = pred[a, k] * Z[a, x2_k, ., o]``.
+        """
+        pred = self.predict_np(x, b)  # (A, K, Y)
+        z = self.observation_np(x)  # (A, K, O, Y)
+        A, K, O, _ = z.shape
+        cx = self._cached(
+            "child_x", x,
+            lambda: np.broadcast_to(self.reach_np(x)[None, :, None], (A, K, O)).reshape(-1).copy(),
+        )  # fmt: skip
+        zt = self._cached("zt", x, lambda: np.ascontiguousarray(z.transpose(0, 1, 3, 2)))
+        prob = np.matmul(pred[:, :, None, :], zt)[:, :, 0, :]  # (A, K, O)
+        nz = np.flatnonzero(prob)
+        ia, ik, io = np.unravel_index(nz, (A, K, O))
+        rows = np.concatenate([pred[ia, ik] * z[ia, ik, io], b[None]])
+        reward = b @ self.reward_np(x)  # (A,)
+        return Children(rows, np.append(cx[nz], x), None, nz, prob, cx, reward)
+
+    def reward_np(self, x: int) -> np.ndarray:
+        """``(Y, A)`` ``R[:, x, :]`` transposed, contiguous (numpy, CPU)."""
+        return self._cached("RT_np", x, lambda: self._reward_table(x).numpy())
+
+    # -- initial bounds ----------------------------------------------------------------------
+    @abstractmethod
+    def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
+        """The blind-policy lower bound ("always do ``a``", Hauskrecht 2000) as a policy;
+        every iterate of its evaluation is a lower bound (``max_iterations=None``: the
+        form's default for SARSOP, where the discounted tail is negligible)."""
+
+    def fib_corner_values(self, tol: float, deadline: float, max_iterations: int,
+                          ) -> tuple[torch.Tensor, dict[str, Any]]:  # fmt: skip
+        """Fast Informed Bound corner values ``max_a alpha_a`` (:attr:`state_shape`) from
+        QMDP, and how the iteration stopped: ``{"iterations", "stop"}``.
+
+        ``stop`` is ``"converged"`` (change below ``tol``, or FIB = QMDP), ``"max_iterations"``
+        or ``"time_limit"`` (the only outcome that depends on the wall clock).
+        """
+        vectors, info = self.fib_vectors(tol, deadline, max_iterations)
+        return vectors.amax(0), info
+
+    def fib_vectors(self, tol: float, deadline: float = math.inf, max_iterations: int = 100_000,
+                    ) -> tuple[torch.Tensor, dict[str, Any]]:  # fmt: skip
+        """``(A, *state_shape)`` the per-action FIB vectors of :meth:`fib_corner_values`."""
+        info: dict[str, Any] = {"iterations": 0, "stop": "converged"}
+        start, step = self.fib_start(tol, deadline, info)
+        if step is None:  # FIB = QMDP, or the budget is spent
+            return start, info
+        return _iterate_fib(start, step, tol, deadline, max_iterations, info), info
+
+    @abstractmethod
+    def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
+                  ) -> tuple[torch.Tensor, FIBOperator | None]:  # fmt: skip
+        """QMDP vectors ``(A, *state_shape)`` (an upper bound) and the FIB operator, or None
+        when no FIB iteration is needed (FIB = QMDP, or ``info["stop"]`` set)."""
+
+    def corner_values(self, corner: torch.Tensor, what: str) -> torch.Tensor:
+        """``(X, Y)`` corner values from ``corner``: ``state_shape`` corner values or
+        per-action vectors ``(A, *state_shape)`` (maximised over actions).
+
+        Raises:
+            ModelError: ``corner`` has another shape (``what`` names its origin).
+        """
+        if corner.dim() == len(self.state_shape) + 1:  # per-action vectors
+            corner = corner.amax(0)
+        if tuple(corner.shape) != self.state_shape:
+            raise ModelError(
+                f"expected {what} to return corner values {self.state_doc} or per-action "
+                f"vectors, got {tuple(corner.shape)}"
+            )
+        return corner.reshape(self.num_observed, self.num_hidden)
+
+    def check_policy(self, policy: object, what: str) -> AlphaVectorPolicy:
+        """``policy`` if it is an :class:`AlphaVectorPolicy` of this form's vectors.
+
+        Raises:
+            TypeError: not an AlphaVectorPolicy. ModelError: wrong width or tagging.
+        """
+        if not isinstance(policy, AlphaVectorPolicy):
+            raise TypeError(
+                f"expected {what} to return an AlphaVectorPolicy, got {type(policy).__name__}"
+            )
+        if policy.alphas.shape[-1] != self.num_hidden or policy.is_momdp != self.factored:
+            kind = "MOMDP (N, Y) with observed" if self.factored else "flat (N, S)"
+            raise ModelError(
+                f"expected {what} to return a {kind} policy over {self.num_hidden} values, "
+                f"got alphas {tuple(policy.alphas.shape)} (is_momdp={policy.is_momdp})"
+            )
+        return policy
+
+    def policy(self, alphas: torch.Tensor, actions: torch.Tensor,
+               observed: torch.Tensor) -> AlphaVectorPolicy:  # fmt: skip
+        """The solver's vectors ``(N, Y)`` as this form's policy (flat here: ``observed``,
+        all zero, is dropped; a factored form keeps it)."""
+        return AlphaVectorPolicy(alphas, actions)
+
+    # -- the belief representation -------------------------------------------------------------
+    def new_tree(self) -> BeliefTree:
+        """An empty SARSOP belief tree rooted at ``(x0, b0)`` (dense rows)."""
+        return BeliefTree(self.b0, self.x0)
+
+    # -- PBVI --------------------------------------------------------------------------------
+    def flattened(self) -> SolverModel:
+        """The same model as a flat form (a MOMDP's ``to_pomdp()``; flat forms: itself)."""
+        return self
+
+    @abstractmethod
+    def upper_vectors(self, kind: str, tol: float) -> torch.Tensor:
+        """``(A, *state_shape)`` FIB (``kind="fib"``) or QMDP upper-bound vectors (PBVI),
+        iterated until the change is below ``tol``."""
+
+    @abstractmethod
+    def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
+                 generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+        """One sampled step of beliefs ``(x (M,), beliefs (M, Y))`` under ``actions (M,)``:
+        a hidden value drawn from the belief, its successor and observation drawn from the
+        model, the Bayes update. Returns ``x2 (M,)`` and ``beliefs2 (M, Y)``."""
+
+    @abstractmethod
+    def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
+                     beliefs: torch.Tensor) -> BackupResult:  # fmt: skip
+        """The batched point backup of ``(x (M,), beliefs (M, Y))`` against ``policy``
+        (Pineau et al. 2003): ``alphas (M, Y)``, ``actions (M,)``, ``values (M,)``,
+        ``q_values (M, A)``."""
+
+    def value(self, policy: AlphaVectorPolicy, x: torch.Tensor,
+              beliefs: torch.Tensor) -> torch.Tensor:  # fmt: skip
+        """``(M,)`` ``policy``'s value at ``(x (M,), beliefs (M, Y))`` (flat here: ``x`` is
+        all zero and unused; a factored form overrides)."""
+        return policy.value(beliefs)
+
+    def prune(self, policy: AlphaVectorPolicy, x: torch.Tensor,
+              beliefs: torch.Tensor) -> AlphaVectorPolicy:  # fmt: skip
+        """``policy`` restricted to the vectors that win at some ``(x, belief)`` (flat here;
+        a factored form overrides)."""
+        return policy.prune(beliefs)
+
+
+class TensorModelForm(SolverModel):
+    """What the dense flat and the MOMDP forms share: a :class:`~torchhrc.pomdp.POMDP` or
+    :class:`~torchhrc.pomdp.MOMDP` ``model`` held in the solve's dtype, whose bound kernels
+    (:func:`~torchhrc.solvers.blind.blind_policy`, :func:`~torchhrc.solvers.qmdp.qmdp_vectors`,
+    :func:`~torchhrc.solvers.fib.fib_vectors`) take it directly.
+
+    Args:
+        model: the unbatched model, already in the solve's dtype.
+        source: what the user passed (default ``model``).
+    """
+
+    def __init__(self, model: Any, source: Any = None) -> None:
+        self.model = model
+        self.source = model if source is None else source
+
+    @property
+    def init_argument(self) -> Any:
+        return self.model
+
+    def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
+        if max_iterations is not None:
+            return blind_policy(self.model, max_iterations=max_iterations)
+        # every iterate of the blind evaluation is a lower bound: it stops on its tolerance,
+        # or once the discounted tail is below 1e-12 of the first step's (small dense
+        # models are solved exactly by LU instead)
+        k = int(min(2000, math.ceil(math.log(1e-12) / math.log(self.discount))))
+        return blind_policy(self.model, max_iterations=k)
+
+    def upper_vectors(self, kind: str, tol: float) -> torch.Tensor:
+        if kind == "fib":
+            return fib_vectors(self.model, tol=tol)
+        return qmdp_vectors(self.model, tol=tol)
+
+
+class FlatFields:
+    """What the flat forms (dense and sparse ``T``) share: one observed value (``X = K = 1``,
+    ``x0 = 0``), hidden value = state, policies untagged, ``Z (A, S, O)`` seen as the
+    ``(A, 1, O, S)`` observation slice of the one reachable ``x2``."""
+
+    def _flat(self, Z: torch.Tensor, R: torch.Tensor, b0: torch.Tensor, discount: float) -> None:
+        form: Any = self
+        A, S, O = Z.shape
+        form.num_actions, form.num_observed, form.num_hidden, form.num_observations = A, 1, S, O
+        form.discount = float(discount)
+        form.R = R.reshape(A, 1, S)
+        form.x0, form.b0 = 0, b0
+        form.factored = False
+        form.state_shape, form.state_doc = (S,), "(S,)"
+        form.reach = [torch.zeros(1, dtype=torch.long, device=b0.device)]
+        self._z = Z.permute(0, 2, 1).unsqueeze(1).contiguous()  # (A, 1, O, S)
+
+    def observation(self, x: int) -> torch.Tensor:
+        return self._z

@@ -1,0 +1,128 @@
+"""The dense flat form: a :class:`~torchhrc.pomdp.POMDP` with a dense ``T (A, S, S)``.
+
+A flat POMDP is the mixed-observability model with one observed value (``X = K = 1``,
+``Y = S``). The prediction is one ``(B, S) x (A, S, S)`` product; a single belief of a
+structured problem (RockSample: the robot's position known) touches only the rows of ``T`` on
+its support. The FIB and QMDP initialisations run on per-action sparse CSR copies of ``T``
+when ``T`` is under 10 % dense (Tag, RockSample), else on the dense kernels of
+:mod:`torchhrc.solvers.fib` and :mod:`torchhrc.solvers.qmdp`.
+
+Example:
+    >>> from torchhrc.solvers.forms import as_solver_model
+    >>> from torchhrc.tasks.classic import tiger
+    >>> form = as_solver_model(tiger())
+    >>> form.predict(0, form.b0.unsqueeze(0)).shape  # (B, A, K, Y)
+    torch.Size([1, 3, 1, 2])
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Any
+
+import numpy as np
+import torch
+
+from torchhrc.pomdp import POMDP
+from torchhrc.solvers.backup import BackupResult, point_backup
+from torchhrc.solvers.fib import fib_backup
+from torchhrc.solvers.forms.base import FIBOperator, FlatFields, TensorModelForm
+from torchhrc.solvers.policy import AlphaVectorPolicy
+from torchhrc.solvers.qmdp import qmdp_vectors
+from torchhrc.solvers.sampling import flat_step, sample_categorical
+
+__all__ = ["DenseForm"]
+
+
+class DenseForm(FlatFields, TensorModelForm):
+    """A dense flat POMDP under the solver interface (:class:`~.base.SolverModel`); built
+    from an unbatched :class:`~torchhrc.pomdp.POMDP` (see :class:`~.base.TensorModelForm`)."""
+
+    def __init__(self, model: POMDP, source: Any = None) -> None:
+        super().__init__(model, source)
+        self._flat(model.Z, model.R, model.b0, model.discount)
+        self.T = model.T.contiguous()  # (A, S, S)
+
+    # -- torch ---------------------------------------------------------------------------------
+    def predict(self, x: int, beliefs: torch.Tensor) -> torch.Tensor:
+        B, S = beliefs.shape
+        if B == 1 and S >= 64:
+            # one belief: only the rows of T on its support matter (beliefs of structured
+            # problems are sparse, e.g. RockSample's robot position is known)
+            supp = beliefs[0].nonzero().squeeze(-1)
+            if supp.numel() * 4 <= S:
+                rows = self.T.index_select(1, supp)  # (A, w, S)
+                return torch.matmul(beliefs[0, supp], rows).view(1, -1, 1, S)
+        return torch.matmul(beliefs[:, None, None, :], self.T)  # (B, A, 1, S)
+
+    def backproject(self, x: int, actions: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        if actions.numel() == 1:  # a view of T[a], no (S, S) copy
+            return torch.mv(self.T[int(actions[0])], values[0, 0]).unsqueeze(0)
+        return torch.matmul(self.T[actions], values[:, 0, :].unsqueeze(-1)).squeeze(-1)
+
+    # -- numpy ---------------------------------------------------------------------------------
+    def _T_np(self) -> np.ndarray:
+        return self._cached("T", 0, lambda: self.T.numpy())
+
+    def predict_np(self, x: int, b: np.ndarray) -> np.ndarray:
+        T = self._T_np()
+        supp = np.flatnonzero(b)
+        if supp.size * 4 <= b.shape[0]:  # only the rows of T on the support of b
+            return (b[supp] @ T[:, supp, :])[:, None, :]  # (A, 1, S)
+        return (b @ T)[:, None, :]
+
+    def predict_action_np(self, x: int, b: np.ndarray, a: int, k: int) -> np.ndarray:
+        supp = np.flatnonzero(b)
+        return b[supp] @ self._T_np()[a][supp]
+
+    def backproject_np(self, x: int, a: int, values: np.ndarray) -> np.ndarray:
+        return self._T_np()[a] @ values[0]
+
+    # -- initial bounds ----------------------------------------------------------------------
+    def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
+                  ) -> tuple[torch.Tensor, FIBOperator]:  # fmt: skip
+        """QMDP and FIB (Hauskrecht 2000) on per-action CSR ``T`` when it is sparse::
+
+            fib(alpha)[a, s] = R[a, s] + gamma sum_o max_a2 sum_s2 T[a, s, s2] Z[a, s2, o]
+                                                                 alpha[a2, s2]
+
+        as one sparse ``(S, S) x (S, O A)`` product per action; else the dense kernels.
+        """
+        T, model = self.T, self.model
+        if T.device.type != "cpu" or int((T != 0).sum()) * 10 > T.numel() or T.shape[-1] < 64:
+            return qmdp_vectors(model, tol=tol), lambda alpha: fib_backup(model, alpha)
+        with warnings.catch_warnings():  # "sparse CSR support is in beta"
+            warnings.simplefilter("ignore", UserWarning)
+            Ts = [T[a].to_sparse_csr() for a in range(T.shape[0])]
+        R, Z, g = model.R, model.Z, self.discount
+
+        def fib(alpha: torch.Tensor) -> torch.Tensor:
+            A, S, O = Z.shape
+            # Yv[a, s2, o, a2] = Z[a, s2, o] * alpha[a2, s2]
+            Yv = Z.unsqueeze(-1) * alpha.T.unsqueeze(1).unsqueeze(0)  # (A, S, O, A2)
+            G = torch.stack([Ts[a] @ Yv[a].reshape(S, O * A) for a in range(A)])
+            return R + g * G.view(A, S, O, A).amax(-1).sum(-1)
+
+        # QMDP: value iteration on the underlying MDP from the upper bound max R / (1 - g)
+        # (monotone: every iterate is an upper bound), stopped when the change is below tol
+        V = torch.full_like(R[0], float(R.max()) / (1.0 - g))
+        Q = R + g * torch.stack([t @ V for t in Ts])
+        for _ in range(100_000):
+            new = Q.amax(0)
+            change = float((V - new).abs().max())
+            V = new
+            Q = torch.minimum(R + g * torch.stack([t @ V for t in Ts]), Q)
+            if change < tol:
+                break
+        return Q, fib
+
+    # -- PBVI ----------------------------------------------------------------------------------
+    def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
+                 generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+        s = sample_categorical(beliefs, generator)
+        step = flat_step(self.model, s, beliefs, actions, generator)
+        return torch.zeros_like(step.state), step.belief
+
+    def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
+                     beliefs: torch.Tensor) -> BackupResult:  # fmt: skip
+        return point_backup(self.model, policy, beliefs)

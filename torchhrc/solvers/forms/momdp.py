@@ -1,0 +1,190 @@
+"""The MOMDP-factored form: a :class:`~torchhrc.pomdp.MOMDP` over observed ``x`` and hidden ``y``.
+
+Beliefs are ``(x, b_y)`` (Ong et al. 2010). For every observed value ``x`` the form keeps the
+next observed values reachable from ``x`` (``K_x`` of them, usually far fewer than ``X``) and
+the slices of ``Tx``, ``Ty`` and ``Z`` restricted to them, built when the search first reaches
+``x``: expanding a belief costs ``A K_x Y`` (static hidden value) or ``A K_x Y^2``, never the
+flat ``A (X Y)^2``. The expansion is the unnormalised MOMDP belief update of paper Eq. 3::
+
+    J[..., a, k, o, y2] = Z[a, x2_k, y2, o]
+                          * sum_y Tx[a, x, y, x2_k] Ty[a, x, y, x2_k, y2] b[..., y]
+
+(it agrees with :func:`torchhrc.belief.momdp_update_all`, tested). Policies are vectors over
+``Y`` tagged with their observed value.
+
+Example:
+    >>> from torchhrc.solvers.forms import as_solver_model
+    >>> from torchhrc.testing import random_momdp
+    >>> form = as_solver_model(random_momdp(4, 3, 2, 2, static=False, seed=0))
+    >>> xs, J = form.expand(0, form.b0.unsqueeze(0))
+    >>> J.shape[-1], form.factored
+    (3, True)
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+from torchhrc.pomdp import MOMDP
+from torchhrc.solvers.backup import BackupResult, momdp_point_backup
+from torchhrc.solvers.fib import fib_backup
+from torchhrc.solvers.forms.base import FIBOperator, PerObserved, TensorModelForm, field
+from torchhrc.solvers.forms.dense import DenseForm
+from torchhrc.solvers.policy import AlphaVectorPolicy
+from torchhrc.solvers.qmdp import qmdp_vectors
+from torchhrc.solvers.sampling import momdp_step, sample_categorical
+
+__all__ = ["MOMDPForm"]
+
+
+class MOMDPForm(TensorModelForm):
+    """A MOMDP under the solver interface (:class:`~.base.SolverModel`).
+
+    Attributes:
+        Tx: ``(A, X, Y, X)``; Ty: ``(A, X, Y, X, Y)`` or None (static hidden value);
+            Z: ``(A, X, Y, O)``, as :class:`~torchhrc.pomdp.MOMDP`.
+        reach_mask: ``(X, X)`` bool, ``reach_mask[x, x2]`` iff ``x2`` is reachable from ``x``.
+        slices: per ``x`` (built on first use) the tuple ``(reach (K,), tx (A, Y, K),
+            tyk (A, K, Y, Y2) or None, z (A, K, O, Y))``; ``reach``, ``_tx``, ``_tyk`` and
+            ``_z`` are its per-``x`` fields.
+
+    Built from an unbatched :class:`~torchhrc.pomdp.MOMDP` (see :class:`~.base.TensorModelForm`).
+    """
+
+    def __init__(self, model: MOMDP, source: Any = None) -> None:
+        super().__init__(model, source)
+        self.Tx, self.Ty, self.Z, self.R = model.Tx, model.Ty, model.Z, model.R
+        self.x0, self.b0 = int(model.x0), model.b0
+        A, X, Y, _ = self.Tx.shape
+        self.num_actions, self.num_observed, self.num_hidden = A, X, Y
+        self.num_observations = self.Z.shape[-1]
+        self.discount = float(model.discount)
+        self.factored = True
+        self.state_shape, self.state_doc = (X, Y), "(X, Y)"
+        self.reach_mask = self.Tx.sum(dim=(0, 2)) > 0  # (X, X2)
+        self.slices = PerObserved(X, self._slices)
+        self.reach = field(self.slices, 0)
+        self._tx = field(self.slices, 1)
+        self._tyk = field(self.slices, 2)
+        self._z = field(self.slices, 3)
+
+    def _slices(self, x: int) -> tuple[Any, ...]:
+        k = self.reach_mask[x].nonzero().squeeze(-1)
+        tx = self.Tx[:, x][:, :, k].contiguous()  # (A, Y, K)
+        tyk = None
+        if self.Ty is not None:
+            # (A, K, Y, Y2): the per-(a, x2) hidden transition matrices, for batched matmuls
+            tyk = self.Ty[:, x][:, :, k].permute(0, 2, 1, 3).contiguous()
+        z = self.Z[:, k].permute(0, 1, 3, 2).contiguous()  # (A, K, O, Y)
+        return k, tx, tyk, z
+
+    def flattened(self) -> DenseForm:
+        """The flat form of ``model.to_pomdp()`` (states ``(x, y)``)."""
+        return DenseForm(self.model.to_pomdp(), self.source)
+
+    # -- torch ---------------------------------------------------------------------------------
+    def observation(self, x: int) -> torch.Tensor:
+        return self._z[x]
+
+    def predict(self, x: int, beliefs: torch.Tensor) -> torch.Tensor:
+        w = (beliefs[:, None, :, None] * self._tx[x]).transpose(-1, -2)  # (B, A, K, Y)
+        if self.Ty is None:
+            return w
+        # sum_y b[y] tx[a, y, k] ty[a, y, k, y2], as (B, A, K, 1, Y) @ (A, K, Y, Y2)
+        return torch.matmul(w.unsqueeze(-2), self._tyk[x]).squeeze(-2)
+
+    def backproject(self, x: int, actions: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        tx = self._tx[x][actions]  # (B, Y, K)
+        if self.Ty is None:
+            return (tx * values.transpose(-1, -2)).sum(-1)
+        # inner[b, k, y] = sum_y2 ty[a_b, y, k, y2] values[b, k, y2]
+        inner = torch.matmul(self._tyk[x][actions], values.unsqueeze(-1)).squeeze(-1)
+        return (tx * inner.transpose(-1, -2)).sum(-1)
+
+    # -- numpy ---------------------------------------------------------------------------------
+    def _np(self, x: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """``tx (A, Y, K)`` and ``tyk (A, K, Y, Y2)`` or None of ``x`` as numpy views."""
+        tyk = self._tyk[x]
+        return self._cached(
+            "txy", x, lambda: (self._tx[x].numpy(), None if tyk is None else tyk.numpy())
+        )
+
+    def predict_np(self, x: int, b: np.ndarray) -> np.ndarray:
+        tx, tyk = self._np(x)
+        w = (b[None, :, None] * tx).transpose(0, 2, 1)  # (A, K, Y)
+        return w if tyk is None else np.matmul(w[:, :, None, :], tyk)[:, :, 0, :]
+
+    def predict_action_np(self, x: int, b: np.ndarray, a: int, k: int) -> np.ndarray:
+        tx, tyk = self._np(x)
+        w = b * tx[a, :, k]
+        return w if tyk is None else w @ tyk[a, k]
+
+    def backproject_np(self, x: int, a: int, values: np.ndarray) -> np.ndarray:
+        tx, tyk = self._np(x)
+        if tyk is not None:  # inner[k, y] = sum_y2 ty[a, y, k, y2] values[k, y2]
+            values = np.matmul(tyk[a], values[:, :, None])[:, :, 0].T  # (Y, K)
+        else:
+            values = values.T
+        return (tx[a] * values).sum(-1)
+
+    # -- initial bounds ----------------------------------------------------------------------
+    def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
+                  ) -> tuple[torch.Tensor, FIBOperator | None]:  # fmt: skip
+        """QMDP, and the FIB operator summed over the reachable ``x2`` only::
+
+            fib(alpha)[a, x, y] = R[a, x, y] + gamma sum_{x2, o} max_a2 sum_y2 Tx Ty Z
+                                  alpha[a2, x2, y2]
+
+        one batched ``(A, K, Y, Y2) x (A, K, Y2, O A)`` product per ``x``. With a static
+        hidden value FIB equals QMDP (the next hidden value is known given the current one),
+        so no FIB iteration runs.
+        """
+        alpha = qmdp_vectors(self.model, tol=tol)
+        if self.Ty is None:
+            return alpha, None
+        if self.Tx.device.type != "cpu":
+            model = self.model
+            return alpha, lambda a: fib_backup(model, a)
+        return alpha, self._fib
+
+    def _fib(self, alpha: torch.Tensor) -> torch.Tensor:
+        out = []
+        for x in range(self.num_observed):
+            k = self.reach[x]
+            z = self._z[x]  # (A, K, O, Y2)
+            A, K, O, Y = z.shape
+            # Kt[a, k, y2, o, a2] = Z[a, x2_k, y2, o] alpha[a2, x2_k, y2]
+            Kt = (
+                z.permute(0, 1, 3, 2).unsqueeze(-1) * alpha[:, k].permute(1, 2, 0)[None, :, :, None]
+            )
+            tx = self._tx[x].permute(0, 2, 1).unsqueeze(-1)  # (A, K, Y, 1)
+            G = (tx * self._tyk[x]) @ Kt.reshape(A, K, Y, O * A)  # (A, K, Y, O A)
+            out.append(G.view(A, K, Y, O, A).amax(-1).sum((1, 3)))  # (A, Y)
+        return self.R + self.discount * torch.stack(out, 1)
+
+    # -- PBVI ----------------------------------------------------------------------------------
+    def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
+                 generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+        y = sample_categorical(beliefs, generator)
+        step = momdp_step(self.model, x, y, beliefs, actions, generator)
+        return step.x, step.belief
+
+    def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
+                     beliefs: torch.Tensor) -> BackupResult:  # fmt: skip
+        return momdp_point_backup(self.model, policy, x, beliefs)
+
+    # -- policies: vectors over Y tagged with their observed value --------------------------------
+    def policy(self, alphas: torch.Tensor, actions: torch.Tensor,
+               observed: torch.Tensor) -> AlphaVectorPolicy:  # fmt: skip
+        return AlphaVectorPolicy(alphas, actions, observed)
+
+    def value(self, policy: AlphaVectorPolicy, x: torch.Tensor,
+              beliefs: torch.Tensor) -> torch.Tensor:  # fmt: skip
+        return policy.value(x, beliefs)
+
+    def prune(self, policy: AlphaVectorPolicy, x: torch.Tensor,
+              beliefs: torch.Tensor) -> AlphaVectorPolicy:  # fmt: skip
+        return policy.prune(beliefs, x=x)

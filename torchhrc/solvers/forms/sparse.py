@@ -1,0 +1,161 @@
+"""The sparse flat form: a flat POMDP whose ``T`` is kept as its nonzeros.
+
+For models too large for a dense ``T`` (RockSample(7, 8): 12545 states, a dense ``T`` of 2e9
+entries) read as a :class:`~torchhrc.sparse.SparsePOMDP`. The operations run on the per-action
+CSR of :class:`~torchhrc.solvers.sparse_model.SparseFlatModel`; tree beliefs are stored by
+their support (:class:`~torchhrc.solvers.belief_tree.SparseBeliefTree`), and the children of
+one belief are formed and bounded only on the union of their supports (``Children.cols``;
+RockSample(7, 8): about a thousand of 12545 states). Alpha vectors stay dense ``(S,)``.
+
+Example:
+    >>> from torchhrc.solvers.forms import as_solver_model
+    >>> from torchhrc.sparse import SparsePOMDP
+    >>> from torchhrc.tasks.classic import tiger
+    >>> form = as_solver_model(SparsePOMDP.from_dense(tiger()))
+    >>> ch = form.children_np(0, form.b0.numpy())
+    >>> ch.rows.shape, ch.cols.tolist()  # 6 possible children and b0, on states 0 and 1
+    ((7, 2), [0, 1])
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+import torch
+
+from torchhrc.solvers.backup import CHUNK_ELEMENTS, BackupResult
+from torchhrc.solvers.belief_tree import BeliefTree, SparseBeliefTree
+from torchhrc.solvers.forms.base import Children, FIBOperator, FlatFields, SolverModel
+from torchhrc.solvers.policy import AlphaVectorPolicy
+from torchhrc.solvers.sampling import sample_categorical
+from torchhrc.solvers.sparse_model import SparseFlatModel, sparse_blind_policy
+
+__all__ = ["SparseForm"]
+
+
+class SparseForm(FlatFields, SolverModel):
+    """A flat model with sparse ``T`` under the solver interface (:class:`~.base.SolverModel`).
+
+    Args:
+        model: the :class:`SparseFlatModel` (in the solve's dtype).
+        source: what the user passed (a ``SparsePOMDP``; default ``model``).
+    """
+
+    batch_backups = False  # a batch would hold B A O dense children
+
+    def __init__(self, model: SparseFlatModel, source: Any = None) -> None:
+        self.sparse = model
+        self.source = model if source is None else source
+        self._flat(model.Z, model.R, model.b0, model.discount)
+
+    # -- torch ---------------------------------------------------------------------------------
+    def predict(self, x: int, beliefs: torch.Tensor) -> torch.Tensor:
+        return self.sparse.predict(beliefs).unsqueeze(2)  # (B, A, 1, S): one sparse product
+
+    def backproject(self, x: int, actions: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        return self.sparse.backproject(actions, values[:, 0, :])
+
+    # -- numpy ---------------------------------------------------------------------------------
+    def predict_np(self, x: int, b: np.ndarray) -> np.ndarray:
+        return self.sparse.predict_np(b)[:, None, :]  # (A, 1, S)
+
+    def predict_action_np(self, x: int, b: np.ndarray, a: int, k: int) -> np.ndarray:
+        return self.sparse.predict_action_np(b, a)
+
+    def backproject_np(self, x: int, a: int, values: np.ndarray) -> np.ndarray:
+        return self.sparse.backproject_np(a, values[0])
+
+    def children_np(self, x: int, b: np.ndarray) -> Children:
+        """The children of ``b (S,)`` on ``cols``, the union of the supports of the
+        predictions and of ``b`` (``K = 1``)."""
+        cols, pred = self.sparse.predict_columns_np(b)  # (C,), (A, C)
+        Z = self._cached("Z", 0, lambda: self.sparse.Z.numpy())  # (A, S, O)
+        zc = Z[:, cols, :]  # (A, C, O)
+        A, _, O = zc.shape
+        prob = np.matmul(pred[:, None, :], zc)[:, 0, :]  # (A, O)
+        nz = np.flatnonzero(prob)
+        ia, io = np.unravel_index(nz, (A, O))
+        rows = np.concatenate([pred[ia] * zc[ia, :, io], b[cols][None]])  # (m + 1, C)
+        reward = b[cols] @ self.reward_np(0)[cols]  # (A,)
+        zeros = np.zeros(A * O, dtype=np.int64)
+        return Children(rows, np.zeros(rows.shape[0], dtype=np.int64), cols, nz,
+                        prob.reshape(A, 1, O), zeros, reward)  # fmt: skip
+
+    # -- initial bounds and beliefs ------------------------------------------------------------
+    def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
+        return sparse_blind_policy(self.sparse, max_iterations=max_iterations)
+
+    def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
+                  ) -> tuple[torch.Tensor, FIBOperator | None]:  # fmt: skip
+        """QMDP by sparse value iteration (sharing the time budget: models here are large),
+        then :meth:`SparseFlatModel.fib_np`; deterministic moves make FIB equal QMDP."""
+        alpha = torch.from_numpy(self.sparse.qmdp_np(tol, deadline=deadline))
+        if time.perf_counter() > deadline:
+            info["stop"] = "time_limit"
+            return alpha, None
+        if self.sparse.deterministic:  # one successor per (a, s)
+            return alpha, None
+        return alpha, lambda a: torch.from_numpy(self.sparse.fib_np(a.numpy()))
+
+    def new_tree(self) -> BeliefTree:
+        """A :class:`SparseBeliefTree` (beliefs stored by their support)."""
+        return SparseBeliefTree(self.b0, self.x0)
+
+    # -- PBVI ----------------------------------------------------------------------------------
+    def upper_vectors(self, kind: str, tol: float) -> torch.Tensor:
+        if kind == "fib":
+            return self.fib_vectors(tol)[0]
+        return torch.from_numpy(self.sparse.qmdp_np(tol))
+
+    def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
+                 generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+        """One sampled step: ``s ~ b``, ``s2 ~ T[a, s, .]`` among the stored successors,
+        ``o ~ Z[a, s2, .]``, then the Bayes update ``b2 ~ (b T_a) Z[a, ., o]`` (a uniform
+        placeholder where ``P(o) = 0``, as :func:`torchhrc.belief.update` with
+        ``on_zero="ninf"``)."""
+        sp = self.sparse
+        s = sample_categorical(beliefs, generator)
+        nxt, prob = sp.successors(actions, s)  # (M, W)
+        s2 = nxt.gather(1, sample_categorical(prob, generator).unsqueeze(1)).squeeze(1)
+        o = sample_categorical(sp.Z[actions, s2], generator)
+        new = sp.predict_actions(beliefs, actions) * sp.Z[actions, :, o]  # (M, S)
+        total = new.sum(-1, keepdim=True)
+        uniform = torch.full_like(new, 1.0 / new.shape[-1])
+        return torch.zeros_like(s), torch.where(total > 0, new / total.clamp(min=1e-300), uniform)
+
+    def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
+                     beliefs: torch.Tensor) -> BackupResult:  # fmt: skip
+        """The belief-side point backup (Pineau et al. 2003) on the sparse ``T``::
+
+            best[m, a, o] = argmax_n (b_m T_a) Z[a, ., o] . alpha_n
+            inner[m, a]   = sum_o Z[a, ., o] * alpha_best[m, a, o]              (S,)
+            Q[m, a]       = b_m . R[a] + gamma (b_m T_a) . inner[m, a]
+
+        and only the chosen action's vector ``R[a] + gamma T_a inner[m, a]`` is formed (one
+        sparse back-projection), so no ``(M, A, S)`` vector block is held; chunked over
+        beliefs to bound the ``(m, A, O, S)`` children.
+        """
+        sp = self.sparse
+        alphas = policy.alphas.to(sp.dtype)
+        beliefs = beliefs.to(sp.dtype)
+        A, S, O = sp.num_actions, sp.num_states, sp.num_observations
+        N, M = alphas.shape[0], beliefs.shape[0]
+        R, g = sp.R, self.discount
+        Zt = sp.Z.transpose(-1, -2)  # (A, O, S)
+        chunk = max(1, CHUNK_ELEMENTS // max(1, A * O * max(N, S)))
+        q_parts, inner_parts = [], []
+        for start in range(0, M, chunk):
+            b = beliefs[start : start + chunk]
+            pred = sp.predict(b)  # (m, A, S)
+            W = pred.unsqueeze(2) * Zt.unsqueeze(0)  # (m, A, O, S)
+            best = (W @ alphas.T).argmax(-1)  # (m, A, O)
+            inner = (alphas[best] * Zt.unsqueeze(0)).sum(2)  # (m, A, S)
+            q_parts.append(b @ R.T + g * (pred * inner).sum(-1))  # (m, A)
+            inner_parts.append(inner)
+        q = torch.cat(q_parts)
+        values, actions = q.max(-1)
+        inner = torch.cat(inner_parts)[torch.arange(M), actions]  # (M, S)
+        new = R[actions] + g * sp.backproject(actions, inner)
+        return BackupResult(new, actions, values, q)

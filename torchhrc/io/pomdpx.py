@@ -81,6 +81,7 @@ from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.sparse import MAX_DENSE_ENTRIES, SparsePOMDP
 
 __all__ = [
+    "AUTO_SPARSE_ENTRIES",
     "PomdpxVariable",
     "PomdpxVariables",
     "format_pomdpx",
@@ -89,6 +90,11 @@ __all__ = [
     "read_pomdpx_variables",
     "write_pomdpx",
 ]
+
+#: ``read_pomdpx(..., sparse="auto")`` reads a model sparsely when a dense tensor (``Tx``, ``Ty``
+#: and ``Z`` of the MOMDP form, then ``T (A, S, S)`` and ``Z`` of the flat form) would have more
+#: entries than this (``torchhrc solve`` with SARSOP uses it).
+AUTO_SPARSE_ENTRIES = MAX_DENSE_ENTRIES
 
 _ROW_TOL = 1e-4  # rows of a CondProb must sum to 1 within this (then renormalised exactly)
 
@@ -871,6 +877,7 @@ class _Builder:
         R = self.expected_reward().reshape(A, X, Y)
         b = b0.reshape(X, Y)
         x0 = int(b.sum(-1).argmax())
+        hidden = b[x0] if abs(b[x0].sum() - 1) <= 1e-12 else b[x0] / b[x0].sum()
         v = self.r.variables
         t = _tensor_factory(dtype, device)
         return MOMDP(
@@ -879,7 +886,7 @@ class _Builder:
             Z=t(Z),
             R=t(R),
             x0=x0,
-            b0=t(b[x0] / b[x0].sum()),
+            b0=t(hidden),
             discount=self.r.discount,
             observed_states=_group_names(v.observed),
             hidden_states=_group_names(v.hidden),
@@ -1022,9 +1029,10 @@ def read_pomdpx(
     Args:
         source: a path (``str`` without ``<``, or ``os.PathLike``) or the XML text.
         sparse: ``True``: a flat :class:`~torchhrc.sparse.SparsePOMDP`; ``False``: a dense
-            model (:class:`ParseError` when too large); ``"auto"``: dense when it fits
-            (every dense tensor within :data:`~torchhrc.sparse.MAX_DENSE_ENTRIES`, 2e8
-            entries), else sparse.
+            model (:class:`ParseError` when a tensor would exceed
+            :data:`~torchhrc.sparse.MAX_DENSE_ENTRIES`, 2e8 entries); ``"auto"``: dense when
+            every dense tensor is within :data:`AUTO_SPARSE_ENTRIES` (by default the same
+            2e8), else sparse.
         momdp: return a :class:`~torchhrc.pomdp.MOMDP` when the file has an observed
             (``fullyObs="true"``) state variable, the initial belief is on one observed value
             and the dense ``Tx``, ``Ty`` (unless static) and ``Z`` fit; ``False``: always flat.
@@ -1072,11 +1080,12 @@ def parse_pomdpx(
     reader.read()
     b = _Builder(reader)
     b0 = b.initial_belief()
+    limit = AUTO_SPARSE_ENTRIES if sparse == "auto" else MAX_DENSE_ENTRIES
     if momdp and sparse is not True and b.xc:
         mass = b0.reshape(b.X, b.Y).sum(-1)
         tx, ty, z, static = b.momdp_sizes()
         one_x = bool(np.abs(mass.max() - 1) <= 1e-9)
-        if one_x and max(tx, ty, z) <= MAX_DENSE_ENTRIES:
+        if one_x and max(tx, ty, z) <= limit:
             return _wrap(lambda: b.momdp(b0, static, dtype, device), path)
     O_flat = b.O * (b.X if b.xc else 1)
     dense = max(b.A * b.S * b.S, b.A * b.S * O_flat)
@@ -1086,7 +1095,7 @@ def parse_pomdpx(
             f"(more than {MAX_DENSE_ENTRIES:.3g}); read it with sparse=True or 'auto'",
             path=path,
         )
-    use_sparse = sparse is True or (sparse == "auto" and dense > MAX_DENSE_ENTRIES)
+    use_sparse = sparse is True or (sparse == "auto" and dense > limit)
     return _wrap(lambda: b.flat(b0, use_sparse, dtype, device), path)
 
 

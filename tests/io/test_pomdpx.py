@@ -227,10 +227,18 @@ def _corridor() -> MOMDP:
     R = torch.full((A, X, Y), -1.0, dtype=torch.float64)
     R[2, 2, 0] = 10.0
     return MOMDP(
-        Tx=Tx, Ty=Ty, Z=Z, R=R, x0=0, b0=torch.tensor([0.3, 0.7], dtype=torch.float64),
-        discount=0.9, observed_states=("c0", "c1", "c2"), hidden_states=("open", "closed"),
-        actions=("left", "right", "push"), observations=("see-open", "see-closed"),
-    )  # fmt: skip
+        Tx=Tx,
+        Ty=Ty,
+        Z=Z,
+        R=R,
+        x0=0,
+        b0=torch.tensor([0.3, 0.7], dtype=torch.float64),
+        discount=0.9,
+        observed_states=("c0", "c1", "c2"),
+        hidden_states=("open", "closed"),
+        actions=("left", "right", "push"),
+        observations=("see-open", "see-closed"),
+    )
 
 
 def test_two_variable_momdp_by_hand():
@@ -268,8 +276,18 @@ def test_initial_belief_over_several_x_is_read_flat():
 
 # ----------------------------------------------------------------------------- brute force
 
-_SIZES = {"a1": 2, "a2": 2, "x_0": 2, "x_1": 2, "u_0": 2, "u_1": 2, "v_0": 3, "v_1": 3,
-          "o1": 2, "o2": 2}  # fmt: skip
+_SIZES = {
+    "a1": 2,
+    "a2": 2,
+    "x_0": 2,
+    "x_1": 2,
+    "u_0": 2,
+    "u_1": 2,
+    "v_0": 3,
+    "v_1": 3,
+    "o1": 2,
+    "o2": 2,
+}
 
 
 def _factored(seed: int) -> tuple[str, dict[str, tuple[list[str], np.ndarray]]]:
@@ -300,8 +318,10 @@ def _factored(seed: int) -> tuple[str, dict[str, tuple[list[str], np.ndarray]]]:
     def entry(parents: list[str], values: np.ndarray, tag: str) -> str:
         inst = " ".join(["-"] * values.ndim)
         nums = " ".join(repr(float(v)) for v in values.reshape(-1))
-        return (f"<Parent>{' '.join(parents) or 'null'}</Parent><Parameter><Entry>"
-                f"<Instance>{inst}</Instance><{tag}>{nums}</{tag}></Entry></Parameter>")  # fmt: skip
+        return (
+            f"<Parent>{' '.join(parents) or 'null'}</Parent><Parameter><Entry>"
+            f"<Instance>{inst}</Instance><{tag}>{nums}</{tag}></Entry></Parameter>"
+        )
 
     def cond(var: str) -> str:
         parents, values = tables[var]
@@ -329,9 +349,10 @@ def _factored(seed: int) -> tuple[str, dict[str, tuple[list[str], np.ndarray]]]:
 
 def _brute_force(tables: dict) -> tuple[np.ndarray, ...]:
     """Flat T, Z (observations x2 * O + o), R and b0 by loops over every combination."""
+
     def p(var: str, val: dict) -> float:
         parents, t = tables[var]
-        return float(t[tuple(val[q] for q in parents) + (val[var],)])
+        return float(t[(*(val[q] for q in parents), val[var])])
 
     def r(key: str, val: dict) -> float:
         parents, t = tables[key]
@@ -342,11 +363,24 @@ def _brute_force(tables: dict) -> tuple[np.ndarray, ...]:
     obs = list(itertools.product(range(2), range(2)))  # (o1, o2)
     S, A, O = len(states), len(actions), len(obs)
     T, Z, R = np.zeros((A, S, S)), np.zeros((A, S, 2 * O)), np.zeros((A, S))
-    b0 = np.array([p("x_0", {"x_0": x}) * p("u_0", {"u_0": u}) * p("v_0", {"u_0": u, "v_0": v})
-                   for x, u, v in states])  # fmt: skip
+    b0 = np.array(
+        [
+            p("x_0", {"x_0": x}) * p("u_0", {"u_0": u}) * p("v_0", {"u_0": u, "v_0": v})
+            for x, u, v in states
+        ]
+    )
     for (i, (a1, a2)), (s, (x, u, v)) in itertools.product(enumerate(actions), enumerate(states)):
         for s2, (x2, u2, v2) in enumerate(states):
-            val = {"a1": a1, "a2": a2, "x_0": x, "u_0": u, "v_0": v, "x_1": x2, "u_1": u2, "v_1": v2}
+            val = {
+                "a1": a1,
+                "a2": a2,
+                "x_0": x,
+                "u_0": u,
+                "v_0": v,
+                "x_1": x2,
+                "u_1": u2,
+                "v_1": v2,
+            }
             T[i, s, s2] = p("x_1", val) * p("u_1", val) * p("v_1", val)
             for k, (o1, o2) in enumerate(obs):
                 val.update(o1=o1, o2=o2)
@@ -403,9 +437,14 @@ def test_sparse_auto_above_the_dense_threshold(monkeypatch):
 
 @settings(max_examples=40, deadline=None, derandomize=True)
 @given(
-    st.integers(1, 4), st.integers(1, 4), st.integers(1, 3), st.integers(1, 3),
-    st.booleans(), st.integers(0, 2**31 - 1), st.floats(0.01, 1.0),
-)  # fmt: skip
+    st.integers(1, 4),
+    st.integers(1, 4),
+    st.integers(1, 3),
+    st.integers(1, 3),
+    st.booleans(),
+    st.integers(0, 2**31 - 1),
+    st.floats(0.01, 1.0),
+)
 def test_random_momdps_round_trip(X, Y, A, O, static, seed, discount):
     m = random_momdp(X, Y, A, O, static=static, seed=seed, discount=discount)
     back = read_pomdpx(format_pomdpx(m))
@@ -420,15 +459,27 @@ def test_random_momdps_round_trip(X, Y, A, O, static, seed, discount):
 
 
 @settings(max_examples=40, deadline=None, derandomize=True)
-@given(st.integers(1, 5), st.integers(1, 3), st.integers(1, 3), st.integers(0, 2**31 - 1),
-       st.sampled_from([0.0, 0.5]), st.booleans())  # fmt: skip
+@given(
+    st.integers(1, 5),
+    st.integers(1, 3),
+    st.integers(1, 3),
+    st.integers(0, 2**31 - 1),
+    st.sampled_from([0.0, 0.5]),
+    st.booleans(),
+)
 def test_random_pomdps_round_trip(S, A, O, seed, sparsity, names):
     m = random_pomdp(S, A, O, seed=seed, sparsity=sparsity)
     if names:
-        m = POMDP(T=m.T, Z=m.Z, R=m.R, b0=m.b0, discount=m.discount,
-                  states=tuple(f"s_{i}" for i in range(S)),
-                  actions=tuple(f"act{i}" for i in range(A)),
-                  observations=tuple(f"o{i}x" for i in range(O)))  # fmt: skip
+        m = POMDP(
+            T=m.T,
+            Z=m.Z,
+            R=m.R,
+            b0=m.b0,
+            discount=m.discount,
+            states=tuple(f"s_{i}" for i in range(S)),
+            actions=tuple(f"act{i}" for i in range(A)),
+            observations=tuple(f"o{i}x" for i in range(O)),
+        )
     back = read_pomdpx(format_pomdpx(m))
     assert isinstance(back, POMDP)
     for name in ("T", "Z", "R", "b0"):
@@ -452,36 +503,83 @@ def _line_of(text: str, needle: str) -> int:
 
 _ERRORS = [
     # (replace this, with this, the line of this element, reason)
-    ("<ProbTable>0.3 0.7</ProbTable>", "<ProbTable>0.3 0.7 0</ProbTable>", "<ProbTable>0.3 0.7 0",
-     "has 3 numbers, expected 2"),
-    ("<Entry><Instance>push c2 closed -</Instance>", "<Entry><Instance>push c9 closed -</Instance>",
-     "<Instance>push c9", "'c9' is not a value of 'robot_0'"),
-    ("<ProbTable>0.8 0.2</ProbTable>", "<ProbTable>0.8 0.3</ProbTable>",
-     "<CondProb><Var>door_1", "sum to 1.1, expected 1"),
-    ("<ProbTable>0.8 0.2</ProbTable>", "<ProbTable>1.8 -0.8</ProbTable>", "<ProbTable>1.8",
-     "outside"),
-    ("<ProbTable>0.8 0.2</ProbTable>", "<ProbTable>0.8 x</ProbTable>", "<ProbTable>0.8 x",
-     "'x' is not a number"),
-    ('<Parameter>\n    <Entry><Instance>push - -', '<Parameter type="DD">\n    <Entry><Instance>push - -',
-     '<Parameter type="DD">', "DD.*not supported"),
-    ("<Entry><Instance>* * * -</Instance>", "<Entry><Instance>* * -</Instance>",
-     "<Instance>* * -</Instance>", "has 3 tokens, expected 4"),
-    ("<Parent>move robot_1 door_1</Parent>", "<Parent>move robot_0 door_1</Parent>",
-     "<Parent>move robot_0 door_1", "cannot be a parent"),
-    ("<Entry><Instance>right c2 c2</Instance><ProbTable>1</ProbTable></Entry>", "",
-     "<CondProb><Var>robot_1", "no <Entry> covers them"),
-    ("<Instance>push - -</Instance><ProbTable>identity", "<Instance>push * -</Instance><ProbTable>identity",
-     "<Instance>push * -</Instance><ProbTable>identity", "identity needs"),
+    (
+        "<ProbTable>0.3 0.7</ProbTable>",
+        "<ProbTable>0.3 0.7 0</ProbTable>",
+        "<ProbTable>0.3 0.7 0",
+        "has 3 numbers, expected 2",
+    ),
+    (
+        "<Entry><Instance>push c2 closed -</Instance>",
+        "<Entry><Instance>push c9 closed -</Instance>",
+        "<Instance>push c9",
+        "'c9' is not a value of 'robot_0'",
+    ),
+    (
+        "<ProbTable>0.8 0.2</ProbTable>",
+        "<ProbTable>0.8 0.3</ProbTable>",
+        "<CondProb><Var>door_1",
+        "sum to 1.1, expected 1",
+    ),
+    (
+        "<ProbTable>0.8 0.2</ProbTable>",
+        "<ProbTable>1.8 -0.8</ProbTable>",
+        "<ProbTable>1.8",
+        "outside",
+    ),
+    (
+        "<ProbTable>0.8 0.2</ProbTable>",
+        "<ProbTable>0.8 x</ProbTable>",
+        "<ProbTable>0.8 x",
+        "'x' is not a number",
+    ),
+    (
+        "<Parameter>\n    <Entry><Instance>push - -",
+        '<Parameter type="DD">\n    <Entry><Instance>push - -',
+        '<Parameter type="DD">',
+        "DD.*not supported",
+    ),
+    (
+        "<Entry><Instance>* * * -</Instance>",
+        "<Entry><Instance>* * -</Instance>",
+        "<Instance>* * -</Instance>",
+        "has 3 tokens, expected 4",
+    ),
+    (
+        "<Parent>move robot_1 door_1</Parent>",
+        "<Parent>move robot_0 door_1</Parent>",
+        "<Parent>move robot_0 door_1",
+        "cannot be a parent",
+    ),
+    (
+        "<Entry><Instance>right c2 c2</Instance><ProbTable>1</ProbTable></Entry>",
+        "",
+        "<CondProb><Var>robot_1",
+        "no <Entry> covers them",
+    ),
+    (
+        "<Instance>push - -</Instance><ProbTable>identity",
+        "<Instance>push * -</Instance><ProbTable>identity",
+        "<Instance>push * -</Instance><ProbTable>identity",
+        "identity needs",
+    ),
     ("<Var>seen</Var>", "<Var>heard</Var>", "<Var>heard", "'heard' is undeclared"),
     ("<RewardFunction>", "<Bogus/><RewardFunction>", "<Bogus/>", "<Bogus> is unknown"),
     ("<Discount>0.9</Discount>", "<Discount>1.5</Discount>", "<Discount>1.5", r"\(0, 1\]"),
     ("<ObsFunction>", "<ObsFunction><CondProb>", "<ObsFunction><CondProb>", "malformed XML"),
-    ("<?xml version=\"1.0\"?>", '<?xml version="1.0"?><!DOCTYPE p [<!ENTITY e "x">]>',
-     "<!DOCTYPE", "document type declarations"),
-    ('<StateVar vnamePrev="door_0" vnameCurr="door_1">',
-     '<StateVar vnamePrev="door_0" vnameCurr="robot_1">', '<StateVar vnamePrev="door_0"',
-     "declared twice"),
-]  # fmt: skip
+    (
+        '<?xml version="1.0"?>',
+        '<?xml version="1.0"?><!DOCTYPE p [<!ENTITY e "x">]>',
+        "<!DOCTYPE",
+        "document type declarations",
+    ),
+    (
+        '<StateVar vnamePrev="door_0" vnameCurr="door_1">',
+        '<StateVar vnamePrev="door_0" vnameCurr="robot_1">',
+        '<StateVar vnamePrev="door_0"',
+        "declared twice",
+    ),
+]
 
 
 @pytest.mark.parametrize("old, new, where, reason", _ERRORS)
@@ -508,9 +606,31 @@ def test_missing_file_and_missing_function():
         read_pomdpx(CORRIDOR_PX[:start] + CORRIDOR_PX[end:])
 
 
-_PX_BASES = [CORRIDOR_PX, TIGER_PX, _factored(0)[0], format_pomdpx(random_momdp(2, 2, 2, 2, seed=1))]
-_PX_JUNK = ["-", "*", "identity", "uniform", "0.5", "2", "nan", "1e999", "null", "c2", "</Entry>",
-            "<Entry>", '"', "<", "&e;", "push", "true"]  # fmt: skip
+_PX_BASES = [
+    CORRIDOR_PX,
+    TIGER_PX,
+    _factored(0)[0],
+    format_pomdpx(random_momdp(2, 2, 2, 2, seed=1)),
+]
+_PX_JUNK = [
+    "-",
+    "*",
+    "identity",
+    "uniform",
+    "0.5",
+    "2",
+    "nan",
+    "1e999",
+    "null",
+    "c2",
+    "</Entry>",
+    "<Entry>",
+    '"',
+    "<",
+    "&e;",
+    "push",
+    "true",
+]
 
 
 @st.composite
@@ -532,8 +652,9 @@ def corrupted(draw):
     return "".join(pieces)
 
 
-@settings(max_examples=300, deadline=None, derandomize=True,
-          suppress_health_check=[HealthCheck.too_slow])  # fmt: skip
+@settings(
+    max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow]
+)
 @given(corrupted())
 def test_corrupted_files_raise_parse_error_or_parse_to_a_valid_model(text):
     for sparse in ("auto", True):

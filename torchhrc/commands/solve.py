@@ -1,10 +1,10 @@
-"""``torchhrc solve``: solve a Cassandra ``.pomdp`` or APPL ``.pomdpx`` file and report the bounds.
+"""``torchhrc solve``: solve a Cassandra ``.pomdp`` or APPL ``.pomdpx`` file, report the bounds.
 
 Reads the model (:func:`torchhrc.io.cassandra.read_pomdp`, or
 :func:`torchhrc.io.pomdpx.read_pomdpx` for a ``.pomdpx`` suffix: a MOMDP when the file has
-observed state variables and the factored tensors fit, else a flat POMDP), solves it with SARSOP (default),
-PBVI, QMDP or FIB through :func:`torchhrc.solvers.solve`, prints the lower and upper bounds
-on the optimal value at the initial belief, and optionally writes the policy
+observed state variables and the factored tensors fit, else a flat POMDP), solves it with
+SARSOP (default), PBVI, QMDP or FIB through :func:`torchhrc.solvers.solve`, prints the lower
+and upper bounds on the optimal value at the initial belief, and optionally writes the policy
 (``.policyx``, APPL's format, or ``.safetensors``). Progress (bounds over time) goes to
 stderr unless ``--quiet``. With ``--json`` one JSON object is printed with the keys
 ``lower``, ``upper``, ``gap``, ``time_s``, ``n_alphas``, ``solver``, ``stop_reason``,

@@ -233,8 +233,9 @@ def _parse_xml(data: bytes | str, path: str) -> _Node:
         stack[-1].parts.append(text)
 
     def refuse(*_: Any) -> None:
-        raise _Refused("document type declarations and entities are not allowed",
-                       parser.CurrentLineNumber)  # fmt: skip
+        raise _Refused(
+            "document type declarations and entities are not allowed", parser.CurrentLineNumber
+        )
 
     parser.StartElementHandler = start
     parser.EndElementHandler = end
@@ -298,11 +299,15 @@ class _Reader:
         for child in root.children:
             if child.tag not in allowed:
                 what = "is not supported" if child.tag.startswith("Terminal") else "is unknown"
-                raise self.error(f"<{child.tag}> {what} (expected one of {sorted(allowed)})",
-                                 child)  # fmt: skip
+                raise self.error(f"<{child.tag}> {what} (expected one of {sorted(allowed)})", child)
             sections.setdefault(child.tag, []).append(child)
-        for tag in ("Discount", "Variable", "InitialStateBelief", "StateTransitionFunction",
-                    "RewardFunction"):  # fmt: skip
+        for tag in (
+            "Discount",
+            "Variable",
+            "InitialStateBelief",
+            "StateTransitionFunction",
+            "RewardFunction",
+        ):
             if tag not in sections:
                 raise self.error(f"<pomdpx> has no <{tag}>", root)
         for tag in ("Discount", "Variable"):
@@ -338,8 +343,7 @@ class _Reader:
                 raise self.error(f"<{node.tag}>: empty <ValueEnum>", enum)
             if len(set(names)) != len(names):
                 dup = next(n for n in names if names.count(n) > 1)
-                raise self.error(f"<{node.tag}>: value {dup!r} appears twice in <ValueEnum>",
-                                 enum)  # fmt: skip
+                raise self.error(f"<{node.tag}>: value {dup!r} appears twice in <ValueEnum>", enum)
             return names, True
         if num is not None:
             text = num.text.strip()
@@ -367,13 +371,17 @@ class _Reader:
                 prev, curr = child.attrib.get("vnamePrev"), child.attrib.get("vnameCurr")
                 flag = child.attrib.get("fullyObs", "false").strip().lower()
                 if flag not in ("true", "false", "1", "0"):
-                    raise self.error(f"<StateVar>: fullyObs must be true or false, got {flag!r}",
-                                     child)  # fmt: skip
+                    raise self.error(
+                        f"<StateVar>: fullyObs must be true or false, got {flag!r}", child
+                    )
                 values, enumerated = self._values(child, "s")
                 var = PomdpxVariable(
-                    str(curr), values, previous=prev, observed=flag in ("true", "1"),
+                    str(curr),
+                    values,
+                    previous=prev,
+                    observed=flag in ("true", "1"),
                     enumerated=enumerated,
-                )  # fmt: skip
+                )
                 self._declare(prev, "prev", var, child)
                 self._declare(curr, "curr", var, child)
                 (observed if var.observed else hidden).append(var)
@@ -417,8 +425,9 @@ class _Reader:
                 raise self.error(f"<{section.tag}> has no <{element}>", section)
             for node in section.children:
                 if node.tag != element:
-                    raise self.error(f"<{section.tag}>: expected <{element}>, got <{node.tag}>",
-                                     node)  # fmt: skip
+                    raise self.error(
+                        f"<{section.tag}>: expected <{element}>, got <{node.tag}>", node
+                    )
                 table = self._table(node, kind)
                 key = table.var if kind != "reward" else f"{table.var}#{len(out)}"
                 if key in out:
@@ -439,8 +448,7 @@ class _Reader:
         var_names = self._names(node, "Var")
         var_node = node.find("Var")
         if len(var_names) != 1:
-            raise self.error(f"<Var>: expected one variable, got {' '.join(var_names)!r}",
-                             var_node)  # fmt: skip
+            raise self.error(f"<Var>: expected one variable, got {' '.join(var_names)!r}", var_node)
         var = var_names[0]
         expected = {
             "belief": ("prev", "curr"),
@@ -449,8 +457,12 @@ class _Reader:
             "reward": ("reward",),
         }[kind]
         if self.kind.get(var) not in expected:
-            what = {"belief": "a state variable", "transition": "a vnameCurr state variable",
-                    "observation": "an observation variable", "reward": "a reward variable"}
+            what = {
+                "belief": "a state variable",
+                "transition": "a vnameCurr state variable",
+                "observation": "an observation variable",
+                "reward": "a reward variable",
+            }
             got = "undeclared" if var not in self.kind else f"a {self.kind[var]} variable"
             raise self.error(f"<Var>: {var!r} is {got}, expected {what[kind]}", var_node)
         if kind == "belief":
@@ -459,8 +471,9 @@ class _Reader:
         parents = self._names(node, "Parent")
         if parents == ["null"]:
             if kind != "belief":
-                raise self.error("<Parent>null</Parent> is allowed in <InitialStateBelief> only",
-                                 parent_node)  # fmt: skip
+                raise self.error(
+                    "<Parent>null</Parent> is allowed in <InitialStateBelief> only", parent_node
+                )
             parents = []
         allowed = {
             "belief": ("prev",),
@@ -518,8 +531,9 @@ class _Reader:
             self._normalise(table, axes, var, node)
         return _Table(var=var, axes=tuple(axes), values=table, line=node.line)
 
-    def _entry(self, entry: _Node, table: np.ndarray, axes: list[str], var: str, kind: str,
-               value_tag: str) -> None:  # fmt: skip
+    def _entry(
+        self, entry: _Node, table: np.ndarray, axes: list[str], var: str, kind: str, value_tag: str
+    ) -> None:
         inst_node = entry.find("Instance")
         if inst_node is None:
             raise self.error("<Entry> has no <Instance>", entry)
@@ -592,8 +606,9 @@ class _Reader:
                 raise self.error(f"<{value_tag}> has a non-finite number", value_node)
             if kind != "reward" and ((values < 0).any() or (values > 1 + _ROW_TOL).any()):
                 bad = values[(values < 0) | (values > 1 + _ROW_TOL)].flat[0]
-                raise self.error(f"<{value_tag}>: probability {bad:g} is outside [0, 1]",
-                                 value_node)  # fmt: skip
+                raise self.error(
+                    f"<{value_tag}>: probability {bad:g} is outside [0, 1]", value_node
+                )
         table[tuple(index)] = values
 
     def _normalise(self, table: np.ndarray, axes: list[str], var: str, node: _Node) -> None:
@@ -618,8 +633,11 @@ class _Reader:
             "transition": [v.name for v in self._states()],
             "observation": [v.name for v in self.variables.observations],
         }
-        tags = {"belief": "InitialStateBelief", "transition": "StateTransitionFunction",
-                "observation": "ObsFunction"}  # fmt: skip
+        tags = {
+            "belief": "InitialStateBelief",
+            "transition": "StateTransitionFunction",
+            "observation": "ObsFunction",
+        }
         for kind, required in names.items():
             have = getattr(self, kind)
             missing = [n for n in required if n not in have]
@@ -635,8 +653,11 @@ class _Reader:
                 return
             if state[name] == 1:
                 table = self.belief[name]
-                raise ParseError(f"<InitialStateBelief>: the parents of {name!r} form a cycle",
-                                 path=self.path, line=table.line)  # fmt: skip
+                raise ParseError(
+                    f"<InitialStateBelief>: the parents of {name!r} form a cycle",
+                    path=self.path,
+                    line=table.line,
+                )
             state[name] = 1
             for p in self.belief[name].axes[:-1]:
                 visit(p)
@@ -724,11 +745,12 @@ class _Builder:
                 later.append(t)
         R = R.reshape(self.A, self.S)
         if later:
-            rows, s2, p, value = transitions if transitions is not None else self.transitions()
+            rows, _, p, value = transitions if transitions is not None else self.transitions()
             flat = R.reshape(-1)
             for t in later:
-                flat += np.bincount(rows, weights=p * self._reward_given_next(t, value),
-                                    minlength=flat.size)  # fmt: skip
+                flat += np.bincount(
+                    rows, weights=p * self._reward_given_next(t, value), minlength=flat.size
+                )
         return R
 
     def _reward_given_next(self, t: _Table, value: Any) -> np.ndarray:
@@ -740,20 +762,19 @@ class _Builder:
         out = None
         for combo in itertools.product(*(range(self.size(o)) for o in obs)):
             given = dict(zip(obs, combo))
-
-            def pick(a: str) -> Any:
-                return given[a] if a in given else value(a)
-
-            weight = t.values[tuple(pick(a) for a in t.axes)]
+            weight = t.values[tuple(given[a] if a in given else value(a) for a in t.axes)]
             for o in obs:
-                weight = weight * self.r.observation[o].values[
-                    tuple(pick(a) for a in self.r.observation[o].axes)
-                ]
+                cpt = self.r.observation[o]
+                weight = (
+                    weight
+                    * cpt.values[tuple(given[a] if a in given else value(a) for a in cpt.axes)]
+                )
             out = weight if out is None else out + weight
         return out
 
-    def _expand(self, layout: list[str],
-                tables: list[_Table]) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, Any]:  # fmt: skip
+    def _expand(
+        self, layout: list[str], tables: list[_Table]
+    ) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, Any]:
         """Start from every row ``0 .. prod(layout sizes) - 1`` (row-major over ``layout``) and
         expand each over the nonzero values of every table's variable, in order.
 
@@ -813,8 +834,9 @@ class _Builder:
             else:
                 grid = False
                 keep = np.repeat(np.arange(len(rows)), count)
-                pos = start[keep] + (np.arange(len(keep)) - np.repeat(np.cumsum(count) - count,
-                                                                      count))  # fmt: skip
+                pos = start[keep] + (
+                    np.arange(len(keep)) - np.repeat(np.cumsum(count) - count, count)
+                )
                 rows = rows[keep]
                 new = {name: v[keep] for name, v in new.items()}
                 p = p[keep]
@@ -862,8 +884,9 @@ class _Builder:
         eye = np.eye(n).reshape(shape)
         return bool((t.values == eye).all())
 
-    def momdp(self, b0: np.ndarray, static: bool, dtype: torch.dtype,
-              device: torch.device | str | None) -> MOMDP:  # fmt: skip
+    def momdp(
+        self, b0: np.ndarray, static: bool, dtype: torch.dtype, device: torch.device | str | None
+    ) -> MOMDP:
         A, X, Y, O = self.A, self.X, self.Y, self.O
         layout = self.act + self.xp + self.yp + self.xc
         Tx = self.product([self.r.transition[n] for n in self.xc], layout).reshape(A, X, Y, X)
@@ -894,8 +917,9 @@ class _Builder:
             observations=_group_names(v.observations),
         )
 
-    def flat(self, b0: np.ndarray, sparse: bool, dtype: torch.dtype,
-             device: torch.device | str | None) -> POMDP | SparsePOMDP:  # fmt: skip
+    def flat(
+        self, b0: np.ndarray, sparse: bool, dtype: torch.dtype, device: torch.device | str | None
+    ) -> POMDP | SparsePOMDP:
         A, S = self.A, self.S
         O_flat = self.O * (self.X if self.xc else 1)
         rows, s2, p, value = self.transitions()
@@ -905,7 +929,10 @@ class _Builder:
         states, observations = _flat_names(v, sparse)
         actions = _group_names(v.actions)
         if sparse:
-            def coo(r: np.ndarray, c: np.ndarray, q: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:  # noqa: E501
+
+            def coo(
+                r: np.ndarray, c: np.ndarray, q: np.ndarray
+            ) -> tuple[torch.Tensor, torch.Tensor]:
                 index = np.stack([r // S, r % S, c], axis=1)
                 return torch.from_numpy(index), torch.from_numpy(q)
 
@@ -1156,7 +1183,8 @@ def _reward(parents: str, instance: str, R: torch.Tensor) -> list[str]:
 
 def _format_pomdp(model: POMDP, description: str) -> str:
     A, S, O = model.num_actions, model.num_states, model.num_observations
-    lines = _header(model.discount, description) + [
+    lines = [
+        *_header(model.discount, description),
         "<Variable>",
         '<StateVar vnamePrev="state_0" vnameCurr="state_1" fullyObs="false">'
         f"{_enum(model.states, S)}</StateVar>",
@@ -1205,7 +1233,8 @@ def format_pomdpx(model: MOMDP | POMDP, *, description: str = "written by torchh
     A, X, Y, O = model.num_actions, model.num_observed, model.num_hidden, model.num_observations
     x0 = torch.zeros(X, dtype=torch.float64)
     x0[model.x0] = 1.0
-    lines = _header(model.discount, description) + [
+    lines = [
+        *_header(model.discount, description),
         "<Variable>",
         '<StateVar vnamePrev="x_0" vnameCurr="x_1" fullyObs="true">'
         f"{_enum(model.observed_states, X)}</StateVar>",

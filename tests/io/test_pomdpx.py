@@ -667,3 +667,19 @@ def test_corrupted_files_raise_parse_error_or_parse_to_a_valid_model(text):
             m = m.to_dense()
         m.validate()  # a file that still parses gives a valid model
         assert torch.isfinite(m.R).all()
+
+
+def test_cyclic_initial_belief_is_refused():
+    text = CORRIDOR_PX.replace(
+        "<Var>robot_0</Var><Parent>null</Parent><Parameter>\n"
+        "    <Entry><Instance>-</Instance><ProbTable>1 0 0</ProbTable>",
+        "<Var>robot_0</Var><Parent>door_0</Parent><Parameter>\n"
+        "    <Entry><Instance>* -</Instance><ProbTable>1 0 0</ProbTable>",
+    ).replace(
+        "<Var>door_0</Var><Parent>null</Parent><Parameter>\n    <Entry><Instance>-</Instance>",
+        "<Var>door_0</Var><Parent>robot_0</Parent><Parameter>\n    <Entry><Instance>* -</Instance>",
+    )
+    assert text.count("<Parent>door_0</Parent>") == 1
+    assert text.count("<Parent>robot_0</Parent>") == 1
+    with pytest.raises(ParseError, match="form a cycle"):
+        read_pomdpx(text)

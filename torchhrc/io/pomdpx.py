@@ -645,7 +645,6 @@ class _Reader:
                 node = sections.get(tags[kind], [self.root])[0]
                 raise self.error(f"<{tags[kind]}> has no <CondProb> for {missing[0]!r}", node)
         # the initial belief's parents must not form a cycle
-        order: list[str] = []
         state = dict.fromkeys(self.belief, 0)
 
         def visit(name: str) -> None:
@@ -662,7 +661,6 @@ class _Reader:
             for p in self.belief[name].axes[:-1]:
                 visit(p)
             state[name] = 2
-            order.append(name)
 
         for name in self.belief:
             visit(name)

@@ -249,12 +249,20 @@ def test_two_variable_momdp_by_hand():
     assert (m.x0, m.discount) == (0, 0.9)
     assert (m.observed_states, m.hidden_states) == (want.observed_states, want.hidden_states)
     assert (m.actions, m.observations) == (want.actions, want.observations)
-    # the flat forms (dense and sparse) are the MOMDP's flat form, names "x|y" and "x|o"
-    flat = read_pomdpx(CORRIDOR_PX, momdp=False)
-    _same_pomdp(flat, want.to_pomdp())
-    assert flat.states == want.to_pomdp().states
-    assert flat.observations == want.to_pomdp().observations
-    _same_pomdp(read_pomdpx(CORRIDOR_PX, sparse=True).to_dense(), want.to_pomdp())
+    # the flat forms (dense and sparse) are the MOMDP's flat form; the robot's cell is a
+    # function of the actions (deterministic moves from one start), so the flat observations
+    # need not carry it: O = 2 instead of X * O = 6
+    want_flat = want.to_pomdp()
+    want_z = want_flat.Z.reshape(3, 6, 3, 2).sum(-2)
+    for flat in (
+        read_pomdpx(CORRIDOR_PX, momdp=False),
+        read_pomdpx(CORRIDOR_PX, sparse=True).to_dense(),
+    ):
+        for name in ("T", "R", "b0"):
+            assert torch.equal(getattr(flat, name), getattr(want_flat, name)), name
+        assert torch.equal(flat.Z, want_z)
+        assert flat.states == want_flat.states and flat.states[1] == "c0|closed"
+        assert flat.observations == ("see-open", "see-closed")
 
 
 def test_static_hidden_variables_give_ty_none():
@@ -270,6 +278,10 @@ def test_initial_belief_over_several_x_is_read_flat():
     text = CORRIDOR_PX.replace("<ProbTable>1 0 0</ProbTable>", "<ProbTable>0.5 0.5 0</ProbTable>")
     m = read_pomdpx(text)
     assert isinstance(m, POMDP)
+    # the robot's cell is now uncertain: the flat observations carry it ("x|o", x2 * O + o)
+    assert m.num_observations == 6 and m.observations[3] == "c1|see-closed"
+    flat = _corridor().to_pomdp()
+    _same_pomdp(m, POMDP(T=flat.T, Z=flat.Z, R=flat.R, b0=m.b0, discount=0.9))
     want = torch.tensor([0.15, 0.35, 0.15, 0.35, 0, 0], dtype=torch.float64)
     torch.testing.assert_close(m.b0, want, rtol=0, atol=1e-15)
 

@@ -29,8 +29,10 @@ variables ``o``; a value's name is its variables' value names joined by ``","``.
 an observed variable, starting at one ``x``, is returned as a :class:`~torchhrc.pomdp.MOMDP`
 (``Tx (A, X, Y, X)``, ``Ty (A, X, Y, X, Y)`` or ``None`` when every hidden variable keeps its
 value, ``Z (A, X, Y, O)``, ``R (A, X, Y)``); otherwise as a flat
-:class:`~torchhrc.pomdp.POMDP` over ``s = x * Y + y`` (observations ``x2 * O + o`` when some
-variable is observed, names ``"x|y"``, as :meth:`~torchhrc.pomdp.MOMDP.to_pomdp`), or as a
+:class:`~torchhrc.pomdp.POMDP` over ``s = x * Y + y`` (names ``"x|y"``; observations
+``x2 * O + o`` when some variable is observed, as :meth:`~torchhrc.pomdp.MOMDP.to_pomdp`,
+unless ``x`` is a function of the actions taken: one initial ``x`` and deterministic observed
+variables that depend on no hidden one), or as a
 :class:`~torchhrc.sparse.SparsePOMDP` when the dense tensors would be too large
 (RockSample(7, 8): ``Ty`` would hold 2e9 entries). Tables are parsed with numpy and combined
 by broadcasting (dense forms) or by expanding the nonzero successors of every ``(a, s)``
@@ -707,6 +709,31 @@ class _Builder:
         self.Y = v.size("hidden")
         self.S = self.X * self.Y
         self.O = v.size("observations")
+        self.reveal = bool(self.xc)  # the flat observations carry x2 (see set_initial_x)
+
+    def set_initial_x(self, b0: np.ndarray) -> None:
+        """Decide whether the flat observations must carry the observed part ``x2``.
+
+        They need not when ``x`` is a function of the actions taken: the initial belief is on
+        one ``x`` and every observed variable moves deterministically, depending only on the
+        action and observed variables (RockSample's robot). Seeing ``x2`` then adds nothing,
+        and the flat model keeps ``O`` observations instead of ``X * O`` (RockSample(11, 11):
+        a dense ``Z`` of 8e6 instead of 9.8e8 entries).
+        """
+        if not self.xc:
+            return
+        one_x = int(np.count_nonzero(b0.reshape(self.X, self.Y).sum(-1) > 0)) == 1
+        observed_prev = set(self.xp)
+        deterministic = all(
+            all(a in self.act or a in observed_prev for a in t.axes[:-1])
+            and bool((np.count_nonzero(t.values, axis=-1) == 1).all())
+            for t in (self.r.transition[n] for n in self.xc)
+        )
+        self.reveal = not (one_x and deterministic)
+
+    @property
+    def flat_observations(self) -> int:
+        return self.O * (self.X if self.reveal else 1)
 
     def size(self, name: str) -> int:
         return self.r.size(name)
@@ -859,7 +886,7 @@ class _Builder:
         o = np.zeros(len(rows), dtype=np.int64)
         for n in self.ob:
             o = o * self.size(n) + new[n]
-        if self.xc:  # the observed part of the next state is seen: o_flat = x2 * O + o
+        if self.reveal:  # the observed part of the next state is seen: o_flat = x2 * O + o
             o = (rows % self.S) // self.Y * self.O + o
         return rows, o, p
 
@@ -919,12 +946,12 @@ class _Builder:
         self, b0: np.ndarray, sparse: bool, dtype: torch.dtype, device: torch.device | str | None
     ) -> POMDP | SparsePOMDP:
         A, S = self.A, self.S
-        O_flat = self.O * (self.X if self.xc else 1)
+        O_flat = self.flat_observations
         rows, s2, p, value = self.transitions()
         R = self.expected_reward((rows, s2, p, value))
         z_rows, z_o, z_p = self.observations()
         v = self.r.variables
-        states, observations = _flat_names(v, sparse)
+        states, observations = _flat_names(v, sparse, self.reveal)
         actions = _group_names(v.actions)
         if sparse:
 
@@ -982,7 +1009,7 @@ def _group_names(variables: Sequence[PomdpxVariable]) -> tuple[str, ...] | None:
     return names if len(set(names)) == len(names) else None
 
 
-def _flat_names(v: PomdpxVariables, required: bool) -> tuple[Any, Any]:
+def _flat_names(v: PomdpxVariables, required: bool, reveal: bool) -> tuple[Any, Any]:
     """Flat state names ``"x|y"`` (or one part) and observation names ``"x|o"`` (or ``o``);
     indices as strings when ``required`` (a sparse model) and the names are not distinct."""
     states = observations = None
@@ -994,7 +1021,7 @@ def _flat_names(v: PomdpxVariables, required: bool) -> tuple[Any, Any]:
             states = tuple(_joined(v.observed + v.hidden))
     obs = _joined(v.observations) if v.observations else ["o0"]
     if required or any(o.enumerated for o in v.observations):
-        if v.observed:
+        if reveal:
             observations = tuple(f"{x}|{o}" for x in _joined(v.observed) for o in obs)
         else:
             observations = tuple(obs)
@@ -1112,8 +1139,8 @@ def parse_pomdpx(
         one_x = bool(np.abs(mass.max() - 1) <= 1e-9)
         if one_x and max(tx, ty, z) <= limit:
             return _wrap(lambda: b.momdp(b0, static, dtype, device), path)
-    O_flat = b.O * (b.X if b.xc else 1)
-    dense = max(b.A * b.S * b.S, b.A * b.S * O_flat)
+    b.set_initial_x(b0)
+    dense = max(b.A * b.S * b.S, b.A * b.S * b.flat_observations)
     if sparse is False and dense > MAX_DENSE_ENTRIES:
         raise ParseError(
             f"the dense T (A={b.A}, S={b.S}, S) would have {b.A * b.S * b.S:.3g} entries "

@@ -971,10 +971,8 @@ class _Builder:
                 actions=actions or tuple(str(i) for i in range(A)),
                 observations=observations,  # type: ignore[arg-type]
             )
-        T = np.zeros(A * S * S)
-        np.add.at(T, rows * S + s2, p)
-        Z = np.zeros(A * S * O_flat)
-        np.add.at(Z, z_rows * O_flat + z_o, z_p)
+        T = np.bincount(rows * S + s2, weights=p, minlength=A * S * S)
+        Z = np.bincount(z_rows * O_flat + z_o, weights=z_p, minlength=A * S * O_flat)
         t = _tensor_factory(dtype, device)
         return POMDP(
             T=t(T.reshape(A, S, S)),

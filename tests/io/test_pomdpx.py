@@ -695,3 +695,38 @@ def test_cyclic_initial_belief_is_refused():
     assert text.count("<Parent>robot_0</Parent>") == 1
     with pytest.raises(ParseError, match="form a cycle"):
         read_pomdpx(text)
+
+
+def test_numvalues_implicit_names_and_indices_in_instances():
+    # APPL names counted values s0 s1 ... (states), o0 ... (observations), a0 ... (actions)
+    text = """<pomdpx version="1.0"><Discount>0.5</Discount><Variable>
+<StateVar vnamePrev="p" vnameCurr="q"><NumValues>3</NumValues></StateVar>
+<ObsVar vname="z"><NumValues>2</NumValues></ObsVar>
+<ActionVar vname="u"><NumValues>2</NumValues></ActionVar><RewardVar vname="r"/></Variable>
+<InitialStateBelief><CondProb><Var>p</Var><Parent>null</Parent><Parameter>
+<Entry><Instance>s2</Instance><ProbTable>1</ProbTable></Entry></Parameter></CondProb>
+</InitialStateBelief>
+<StateTransitionFunction><CondProb><Var>q</Var><Parent>u p</Parent><Parameter>
+<Entry><Instance>* - -</Instance><ProbTable>identity</ProbTable></Entry>
+<Entry><Instance>a1 s0 *</Instance><ProbTable>uniform</ProbTable></Entry>
+</Parameter></CondProb></StateTransitionFunction>
+<ObsFunction><CondProb><Var>z</Var><Parent>q</Parent><Parameter>
+<Entry><Instance>* o1</Instance><ProbTable>1</ProbTable></Entry>
+<Entry><Instance>1 -</Instance><ProbTable>0.25 0.75</ProbTable></Entry>
+</Parameter></CondProb></ObsFunction>
+<RewardFunction><Func><Var>r</Var><Parent>u q</Parent><Parameter>
+<Entry><Instance>a1 s2</Instance><ValueTable>4</ValueTable></Entry>
+</Parameter></Func></RewardFunction></pomdpx>"""
+    m = read_pomdpx(text)
+    assert isinstance(m, POMDP) and m.states is None and m.actions is None
+    third = torch.full((3,), 1 / 3, dtype=torch.float64)
+    T = torch.eye(3, dtype=torch.float64).repeat(2, 1, 1)
+    T[1, 0] = third
+    assert torch.equal(m.T, T)
+    Z = torch.tensor([[0, 1], [0.25, 0.75], [0, 1]], dtype=torch.float64).expand(2, 3, 2)
+    assert torch.equal(m.Z, Z)
+    # the reward depends on the next state q: R[a1, s] = sum_s2 T[a1, s, s2] * 4 [s2 = s2]
+    want_R = torch.zeros(2, 3, dtype=torch.float64)
+    want_R[1] = 4 * T[1, :, 2]
+    torch.testing.assert_close(m.R, want_R, rtol=0, atol=1e-15)
+    assert torch.equal(m.b0, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))

@@ -101,3 +101,39 @@ def test_sarsop_reads_and_solves_sparsely_above_the_dense_threshold(
     # the other solvers read the dense model whatever its size
     code, out, _ = _run(capsys, "solve", tiger_file, "--solver", "qmdp", "--json", "--quiet")
     assert code == 0 and json.loads(out)["sparse"] is False
+
+
+def test_pomdpx_files_are_chosen_by_suffix(capsys, tmp_path, monkeypatch):
+    from torchhrc.io.pomdpx import write_pomdpx
+    from torchhrc.tasks.classic import rock_sample_momdp
+
+    path = write_pomdpx(tiger(), tmp_path / "tiger.pomdpx")
+    code, out, _ = _run(capsys, "solve", path, "--precision", "0.01", "--json", "--quiet")
+    report = json.loads(out)
+    assert code == 0 and report["model"] == "POMDP" and report["sparse"] is False
+    assert report["lower"] <= 19.3711 <= report["upper"] and report["gap"] <= 0.01
+    # a file with an observed state variable is solved as a MOMDP, with the flat model's value
+    momdp = rock_sample_momdp(2, 1)
+    path = write_pomdpx(momdp, tmp_path / "rs.pomdpx")
+    code, out, _ = _run(capsys, "solve", path, "--precision", "0.01", "--json", "--quiet")
+    report = json.loads(out)
+    assert code == 0 and report["model"] == "MOMDP"
+    flat = tmp_path / "rs.pomdp"
+    write_pomdp(momdp.to_pomdp(), flat)
+    code, out, _ = _run(capsys, "solve", flat, "--precision", "0.01", "--json", "--quiet")
+    ref = json.loads(out)
+    assert ref["model"] == "POMDP"
+    assert report["lower"] <= ref["upper"] + 1e-9 and ref["lower"] <= report["upper"] + 1e-9
+    # above the dense threshold SARSOP reads it as a SparsePOMDP
+    import torchhrc.io.pomdpx as pomdpx
+
+    monkeypatch.setattr(pomdpx, "AUTO_SPARSE_ENTRIES", 4)
+    code, out, _ = _run(capsys, "solve", path, "--precision", "0.01", "--json", "--quiet")
+    report = json.loads(out)
+    assert code == 0 and report["model"] == "SparsePOMDP" and report["sparse"] is True
+    assert report["lower"] <= ref["upper"] + 1e-9 and ref["lower"] <= report["upper"] + 1e-9
+    bad = tmp_path / "bad.pomdpx"
+    bad.write_text(path.read_text().replace("<Discount>", "<Discount>x"))
+    code, out, err = _run(capsys, "solve", bad)
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
+    assert "bad.pomdpx" in err and "Discount" in err

@@ -27,7 +27,7 @@ from torchhrc.belief import (
 )
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError, ParseError, TorchHRCError
-from torchhrc.io import load_policy, read_pomdp, save_policy, write_pomdp
+from torchhrc.io import load_policy, read_pomdp, read_pomdpx, save_policy, write_pomdp
 from torchhrc.irl import apprenticeship_learning, learn_type_rewards, maxent_irl
 from torchhrc.metrics import adjusted_rand_index, match_clusters
 from torchhrc.mixture import (
@@ -95,6 +95,7 @@ __all__ = [
     "momdp_update",
     "momdp_update_all",
     "read_pomdp",
+    "read_pomdpx",
     "save_policy",
     "sequence_log_likelihood",
     "shipped_path",

@@ -1,12 +1,15 @@
-"""``torchhrc solve``: solve a Cassandra ``.pomdp`` file and report the bounds.
+"""``torchhrc solve``: solve a Cassandra ``.pomdp`` or APPL ``.pomdpx`` file, report the bounds.
 
-Reads the model (:func:`torchhrc.io.cassandra.read_pomdp`), solves it with SARSOP (default),
-PBVI, QMDP or FIB through :func:`torchhrc.solvers.solve`, prints the lower and upper bounds
-on the optimal value at the initial belief, and optionally writes the policy
+Reads the model (:func:`torchhrc.io.cassandra.read_pomdp`, or
+:func:`torchhrc.io.pomdpx.read_pomdpx` for a ``.pomdpx`` suffix: a MOMDP when the file has
+observed state variables and the factored tensors fit, else a flat POMDP), solves it with
+SARSOP (default), PBVI, QMDP or FIB through :func:`torchhrc.solvers.solve`, prints the lower
+and upper bounds on the optimal value at the initial belief, and optionally writes the policy
 (``.policyx``, APPL's format, or ``.safetensors``). Progress (bounds over time) goes to
 stderr unless ``--quiet``. With ``--json`` one JSON object is printed with the keys
 ``lower``, ``upper``, ``gap``, ``time_s``, ``n_alphas``, ``solver``, ``stop_reason``,
-``iterations``, ``policy`` (the written path or null) and ``sparse``.
+``iterations``, ``policy`` (the written path or null), ``sparse`` and ``model`` (``"POMDP"``,
+``"MOMDP"`` or ``"SparsePOMDP"``).
 
 With ``--solver sarsop`` (the default) or ``pbvi``, a model whose dense ``T (A, S, S)`` or
 ``Z (A, S, O)`` would exceed :data:`torchhrc.sparse.MAX_DENSE_ENTRIES` (2e8 entries, 1.6 GB
@@ -69,13 +72,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``solve`` sub-command."""
     parser = subparsers.add_parser(
         "solve",
-        help="solve a .pomdp file (SARSOP, PBVI, QMDP, FIB) and report the bounds",
+        help="solve a .pomdp or .pomdpx file (SARSOP, PBVI, QMDP, FIB) and report the bounds",
         description=(
-            "Solve a POMDP in Cassandra's .pomdp format; print lower and upper bounds on the "
-            "optimal value at the initial belief, and optionally write the policy."
+            "Solve a POMDP in Cassandra's .pomdp format or APPL's .pomdpx format (chosen by the "
+            "suffix); print lower and upper bounds on the optimal value at the initial belief, "
+            "and optionally write the policy."
         ),
     )
-    parser.add_argument("model", metavar="FILE.pomdp", help="the model (Cassandra format)")
+    parser.add_argument(
+        "model",
+        metavar="FILE.pomdp|FILE.pomdpx",
+        help="the model (Cassandra .pomdp; APPL .pomdpx by its suffix)",
+    )
     parser.add_argument("--solver", choices=SOLVERS, default="sarsop", help="solver (sarsop)")
     parser.add_argument(
         "--time-limit", type=_positive, default=10.0, help="seconds (10; PBVI and SARSOP)"
@@ -153,7 +161,13 @@ def run(args: argparse.Namespace) -> int:
     # SARSOP and PBVI have a sparse form: a model whose dense T (A, S, S) or Z would exceed
     # MAX_DENSE_ENTRIES (2e8 entries, 1.6 GB) is read and solved sparsely
     point_based = args.solver in ("sarsop", "pbvi")
-    model = read_pomdp(args.model, sparse="auto" if point_based else False)
+    mode = "auto" if point_based else False
+    if Path(args.model).suffix.lower() == ".pomdpx":
+        from torchhrc.io.pomdpx import read_pomdpx
+
+        model = read_pomdpx(args.model, sparse=mode)
+    else:
+        model = read_pomdp(args.model, sparse=mode)
     sparse = isinstance(model, SparsePOMDP)
     callback = None if args.quiet else _Progress()
     config = make_config(args, callback)
@@ -176,6 +190,7 @@ def run(args: argparse.Namespace) -> int:
         "iterations": solution.info.get("iterations"),
         "policy": written,
         "sparse": sparse,
+        "model": type(model).__name__,
     }
     if args.json:
         print(json.dumps(report))
@@ -186,8 +201,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"gap        {solution.gap:.6g}")
         print(f"time_s     {elapsed:.3f}")
         print(f"n_alphas   {solution.policy.num_vectors}")
+        print(f"model      {type(model).__name__}")
         if sparse:
-            print("model      sparse (dense T would exceed 2e8 entries)")
+            print("           sparse (dense T would exceed 2e8 entries)")
         if written is not None:
             print(f"policy     {written}")
     return 0

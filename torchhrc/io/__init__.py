@@ -1,4 +1,4 @@
-"""File formats: Cassandra ``.pomdp``, APPL ``.pomdpx`` (MOMDP export), ``.policyx``, safetensors.
+"""File formats: Cassandra ``.pomdp``, APPL ``.pomdpx`` (read and write), ``.policyx``, safetensors.
 
 Example:
     >>> from torchhrc.io import format_pomdp, read_pomdp
@@ -19,17 +19,30 @@ from torchhrc.io.policyx import (
     write_policy_safetensors,
     write_policyx,
 )
-from torchhrc.io.pomdpx import format_pomdpx, write_pomdpx
+from torchhrc.io.pomdpx import (
+    PomdpxVariable,
+    PomdpxVariables,
+    format_pomdpx,
+    parse_pomdpx,
+    read_pomdpx,
+    read_pomdpx_variables,
+    write_pomdpx,
+)
 
 __all__ = [
+    "PomdpxVariable",
+    "PomdpxVariables",
     "format_policyx",
     "format_pomdp",
     "format_pomdpx",
     "load_policy",
     "parse_pomdp",
+    "parse_pomdpx",
     "read_policy_safetensors",
     "read_policyx",
     "read_pomdp",
+    "read_pomdpx",
+    "read_pomdpx_variables",
     "save_policy",
     "write_policy_safetensors",
     "write_policyx",

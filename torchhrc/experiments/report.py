@@ -448,7 +448,8 @@ for Human-Robot Collaborative Tasks" (section "Evaluation", Fig. 3) on a simulat
   robot actions wait / drill_p; Tx from each cluster's chain (the human's next placement
   given the robot's last action), reward per cluster by Abbeel-Ng apprenticeship learning on
   the cluster's demonstrations (features: {", ".join(FEATURE_NAMES)});
-  solved by SARSOP ({s.solver_time:g} s limit) once per fold.
+  solved by SARSOP once per fold (to a gap of {s.solver_precision:g} of the reward span, at most
+  {s.solver_max_iterations} iterations; the {s.solver_time:g} s time limit is a safety net).
 - Hand-coded expert MOMDP: `models/place_and_drill_expert.json`, solved by SARSOP once per
   distinct initial belief (the expert's label of the subject, 2 solves).
 - Cross-training (Nikolaidis & Shah 2013, docs/cross_training.md): one MDP per subject from

@@ -49,6 +49,8 @@ from torchhrc.mixture.soft_em import SoftStatistics, m_step, soft_em
 
 __all__ = [
     "DEFAULT_MIN_GAIN",
+    "DEFAULT_PSEUDO_COUNT",
+    "DEFAULT_WEIGHT_PSEUDO_COUNT",
     "MixtureFit",
     "bic",
     "fit_mixture",
@@ -219,6 +221,12 @@ def _support_parameters(stats: SufficientStatistics) -> int:
     return int((seen.sum(-1) - 1).clamp_min(0).sum())
 
 
+#: The soft method's default Dirichlet pseudo-count on every transition (``alpha``).
+DEFAULT_PSEUDO_COUNT = 0.1
+
+#: The soft method's default pseudo-count on every cluster size (``beta``).
+DEFAULT_WEIGHT_PSEUDO_COUNT = 1.0
+
 #: The default ``min_gain`` of the soft method, nats per transition. Measured on the
 #: place-and-drill corpora of ``docs/clustering.md`` (seeds 0-2): a true type adds 0.04-0.27,
 #: a sub-cluster of one type (noise patterns, placement orders) 0.003-0.005.
@@ -332,8 +340,8 @@ def fit_mixture(
     parameters: Literal["auto", "full", "support"] = "auto",
     seed: int | None = None,
     generator: torch.Generator | None = None,
-    pseudo_count: float = 0.1,
-    weight_pseudo_count: float = 1.0,
+    pseudo_count: float | None = None,
+    weight_pseudo_count: float | None = None,
     max_iterations: int | None = None,
     short_iterations: int = 5,
     tol: float = 1e-6,
@@ -362,8 +370,10 @@ def fit_mixture(
             ``k sum_a (s_a - 1)``, ``s_a`` the distinct successors of ``a``). ``"auto"``:
             ``"full"`` for ``"paper"``, ``"support"`` for ``"soft"``.
         seed, generator: randomness (one of them; default seed 0). Same seed, same result.
-        pseudo_count: Dirichlet pseudo-count on transitions (``"soft"`` only).
-        weight_pseudo_count: pseudo-count on cluster sizes (``"soft"`` only).
+        pseudo_count: Dirichlet pseudo-count on transitions (``"soft"`` only; ``None``:
+            ``DEFAULT_PSEUDO_COUNT``, 0.1).
+        weight_pseudo_count: pseudo-count on cluster sizes (``"soft"`` only; ``None``:
+            ``DEFAULT_WEIGHT_PSEUDO_COUNT``, 1).
         max_iterations: EM iteration cap (default 100 for ``"paper"``, 200 for ``"soft"``).
         short_iterations: ``"soft"`` runs the em-EM strategy (Biernacki, Celeux, Govaert
             2003): every restart runs this many iterations, then the best restart of each k
@@ -415,6 +425,10 @@ def fit_mixture(
         raise ValueError(f"expected max_iterations >= 1, got {max_iterations}")
     if short_iterations < 1:
         raise ValueError(f"expected short_iterations >= 1, got {short_iterations}")
+    if pseudo_count is None:
+        pseudo_count = DEFAULT_PSEUDO_COUNT
+    if weight_pseudo_count is None:
+        weight_pseudo_count = DEFAULT_WEIGHT_PSEUDO_COUNT
     if min_gain is None:
         min_gain = DEFAULT_MIN_GAIN if method == "soft" else 0.0
     if isinstance(min_gain, bool) or not isinstance(min_gain, (int, float)) or not min_gain >= 0:

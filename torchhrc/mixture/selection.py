@@ -56,7 +56,7 @@ __all__ = [
     "fit_mixture",
     "num_free_parameters",
     "num_transitions",
-    "select_by_gain",
+    "gains_per_transition",
 ]
 
 Method = Literal["soft", "paper"]
@@ -79,7 +79,8 @@ class MixtureFit:
             ``unit="subject"`` all sequences of a subject share their subject's cluster).
         responsibilities: ``(N, k)`` posterior cluster probabilities (one-hot for ``"paper"``).
         per_k: ``k -> {"bic", "icl", "log_likelihood", "gain"}`` of the best run of every
-            k (``gain``: over the previous k, nats per transition, see ``min_gain``).
+            k (``gain``: over the previous k, nats per transition, see ``min_gain``; every k
+            but ``k_min`` has one).
         method: ``"soft"`` or ``"paper"``; criterion: ``"bic"`` or ``"icl"``.
         converged: whether the selected run converged before ``max_iterations``.
         iterations: EM iterations of the selected run.
@@ -244,14 +245,14 @@ def num_transitions(stats: SufficientStatistics) -> float:
     return float((stats.counts.sum(-1) * stats.multiplicity).sum())
 
 
-def select_by_gain(log_likelihoods: torch.Tensor, transitions: float) -> torch.Tensor:
+def gains_per_transition(log_likelihoods: torch.Tensor, transitions: float) -> torch.Tensor:
     """``(num_k,)`` gain of each k over the previous one, in nats per transition.
 
     ``gain[i] = (l[i] - l[i - 1]) / T`` for consecutive ``k``; ``gain[0] = nan``.
 
     Example:
-        >>> select_by_gain(torch.tensor([-100.0, -50.0, -49.0]), 10.0).tolist()
-        [nan, 5.0, 0.1]
+        >>> gains_per_transition(torch.tensor([-100.0, -50.0, -45.0]), 10.0).tolist()
+        [nan, 5.0, 0.5]
     """
     gains = torch.full_like(log_likelihoods, math.nan)
     gains[1:] = (log_likelihoods[1:] - log_likelihoods[:-1]) / max(transitions, 1.0)
@@ -402,7 +403,7 @@ def fit_mixture(
     Example:
         >>> import torch
         >>> seqs = torch.tensor([[0, 1, 0, 1]] * 5 + [[0, 0, 0, 0]] * 5)
-        >>> fit_mixture((seqs, torch.full((10,), 4), 2), k_min=1, k_max=2, restarts=2).k
+        >>> fit_mixture((seqs, torch.full((10,), 4), 2), k_min=1, k_max=3, restarts=2).k
         2
     """
     sequences, lengths, A, vocabulary = _unpack(data)
@@ -511,7 +512,7 @@ def fit_mixture(
     best_run = torch.arange(len(ks), device=device) * per_group + grouped.argmax(-1)
     by_score = int(grouped.max(-1).values.argmax())  # index into ks
     lls = result.log_likelihood[best_run]  # (num_k,)
-    gains = select_by_gain(lls, num_transitions(stats))  # (num_k,), nan for ks[0]
+    gains = gains_per_transition(lls, num_transitions(stats))  # (num_k,), nan for ks[0]
     index = by_score
     if min_gain > 0:
         index = _smallest_sufficient(gains, by_score, float(min_gain))
@@ -521,7 +522,7 @@ def fit_mixture(
             "bic": float(bics[best_run[i]]),
             "icl": float(icls[best_run[i]]),
             "log_likelihood": float(lls[i]),
-            "gain": float(gains[i]),
+            **({"gain": float(gains[i])} if i > 0 else {}),
         }
         for i in range(len(ks))
     }

@@ -273,14 +273,14 @@ def _warn_at_edge(
     k_min: int,
     k_max: int,
     per_k: dict[int, dict[str, float]],
-    criterion: str,
     min_gain: float,
 ) -> None:
     """Warn when the chosen k lies at an edge of the searched range and the data may want
     one beyond it. Upper edge: always (``k = k_max > k_min``). Lower edge ``k = k_min > 1``:
     when ``k_min = 2`` a single chain is fitted in closed form and the warning is given only
-    if it scores at least as well (criterion) or ``k = 2`` gains less than ``min_gain`` over it;
-    for ``k_min > 2`` always."""
+    if ``k = 2`` gains less than ``min_gain`` over it (an effect size: on small studies BIC
+    often prefers one chain although the types differ by far more than ``min_gain``; that is
+    a lack of data, not a sign of one type); for ``k_min > 2`` always."""
     if k_min == k_max:
         return
     if k == k_max:
@@ -300,14 +300,9 @@ def _warn_at_edge(
         )
     elif k == k_min == 2:
         one = _single_chain_log_likelihood(stats)
-        n_par = per_k[2]["log_likelihood"] - per_k[2]["bic"]  # K/2 log n of k = 2
-        # one chain: half the transition parameters of k = 2, no weight
         A = stats.num_symbols
-        per_chain = (n_par * 2 / math.log(max(stats.num_units, 2)) - 1) / 2
-        bic_one = one - per_chain / 2 * math.log(max(stats.num_units, 2))
         gain = (per_k[2]["log_likelihood"] - one) / max(num_transitions(stats), 1.0)
-        score_two = per_k[2]["bic"] if criterion == "bic" else per_k[2]["icl"]
-        if bic_one >= score_two or gain < min_gain:
+        if gain < min_gain:
             warnings.warn(
                 f"the chosen number of clusters k = 2 is the smallest searched, and one cluster "
                 f"(a single chain over all {A} symbols) fits as well (gain of k = 2: "
@@ -526,7 +521,7 @@ def fit_mixture(
         }
         for i in range(len(ks))
     }
-    _warn_at_edge(stats, int(ks[index]), k_min, k_max, per_k, criterion, float(min_gain))
+    _warn_at_edge(stats, int(ks[index]), k_min, k_max, per_k, float(min_gain))
     return _finish(
         stats,
         result,

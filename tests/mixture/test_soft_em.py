@@ -1,3 +1,5 @@
+import itertools
+
 import torch
 from test_hard_em import _data
 
@@ -74,7 +76,8 @@ def test_chunked_e_step_sums_to_the_one_pass_statistics():
     stats, mask, lt, lw, li = _start(seed=3)
     whole = soft_pass(stats, lt, lw, li, mask)
     cuts = [0, 5, 17, stats.num_distinct]
-    parts = [soft_pass(stats.rows(slice(a, b)), lt, lw, li, mask) for a, b in zip(cuts, cuts[1:])]
+    chunks = [slice(a, b) for a, b in itertools.pairwise(cuts)]
+    parts = [soft_pass(stats.rows(c), lt, lw, li, mask) for c in chunks]
     total = sum_statistics(parts)
     for name in ("counts", "initial_counts", "sizes", "log_likelihood", "entropy"):
         torch.testing.assert_close(getattr(total, name), getattr(whole, name))

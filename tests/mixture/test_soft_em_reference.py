@@ -76,7 +76,8 @@ def m_step(units, resp, k, A):
 
 
 def e_step(units, theta, weights):
-    """Responsibilities ``r[u][k]`` and the marginal log-likelihood ``sum_u log sum_k w_k P(x_u|k)``."""
+    """Responsibilities ``r[u][k]`` and the marginal log-likelihood
+    ``sum_u log sum_k w_k P(x_u | k)``."""
     k = len(weights)
     resp, total = [], 0.0
     for unit in units:
@@ -100,15 +101,16 @@ def em(units, theta, weights, max_iterations):
     their log-likelihood and the iterations."""
     A = len(theta[0])
     resp, ll = e_step(units, theta, weights)
-    it = 0
-    for it in range(1, max_iterations + 1):
+    iterations = 0
+    while iterations < max_iterations:
+        iterations += 1
         theta, weights = m_step(units, resp, len(weights), A)
         resp, new = e_step(units, theta, weights)
         done = abs(new - ll) <= TOL * abs(new)
         ll = new
         if done:
             break
-    return theta, weights, ll, it
+    return theta, weights, ll, iterations
 
 
 def reference_fit(sequences, subjects, A, ks, restarts, partitions, min_gain=MIN_GAIN):
@@ -235,7 +237,9 @@ def _three_chains(seed, subjects=20, demos=2, length=8, A=3):
             x = [int(torch.randint(0, A, (1,), generator=g))]
             for _ in range(length - 1):
                 noisy = float(torch.rand(1, generator=g)) < 0.1
-                x.append(int(torch.randint(0, A, (1,), generator=g)) if noisy else (x[-1] + step) % A)
+                x.append(
+                    int(torch.randint(0, A, (1,), generator=g)) if noisy else (x[-1] + step) % A
+                )
             rows.append([("human", f"s{v}") for v in x])
             subject_ids.append(f"S{s:02d}")
     vocabulary = [("human", f"s{v}") for v in range(A)]
@@ -283,7 +287,10 @@ def test_soft_em_iterations_equal_the_loop_reference():
         )
         assert int(res.iterations[0]) == t
         torch.testing.assert_close(
-            res.log_transition[0].exp(), torch.tensor(theta, dtype=torch.float64), atol=1e-10, rtol=0
+            res.log_transition[0].exp(),
+            torch.tensor(theta, dtype=torch.float64),
+            atol=1e-10,
+            rtol=0,
         )
         torch.testing.assert_close(
             res.log_weights[0].exp(), torch.tensor(weights, dtype=torch.float64), atol=1e-10, rtol=0

@@ -54,9 +54,9 @@ __all__ = [
     "MixtureFit",
     "bic",
     "fit_mixture",
+    "gains_per_transition",
     "num_free_parameters",
     "num_transitions",
-    "gains_per_transition",
 ]
 
 Method = Literal["soft", "paper"]
@@ -428,7 +428,9 @@ def fit_mixture(
     if min_gain is None:
         min_gain = DEFAULT_MIN_GAIN if method == "soft" else 0.0
     if isinstance(min_gain, bool) or not isinstance(min_gain, (int, float)) or not min_gain >= 0:
-        raise ValueError(f"expected min_gain to be a float >= 0 (nats per transition), got {min_gain!r}")
+        raise ValueError(
+            f"expected min_gain to be a float >= 0 (nats per transition), got {min_gain!r}"
+        )
     gen = _generator(seed, generator)
     groups = _groups(data, unit, method)
     stats = sufficient_statistics(

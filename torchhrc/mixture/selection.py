@@ -14,7 +14,11 @@ Methods:
 * ``"soft"`` (default, the better one): k-means++ initialisation (:mod:`.init`) and soft
   EM with Dirichlet smoothing (:mod:`.soft_em`); the BIC also counts the ``k - 1`` free
   mixture weights (and ``k (A - 1)`` first-symbol parameters when ``initial=True``), and
-  ``l`` is the marginal log-likelihood.
+  ``l`` is the marginal log-likelihood. BIC's k is then an upper bound: the smallest k whose
+  next cluster gains less than ``min_gain`` (0.015) nats per transition is chosen, so a large
+  corpus is not cut into sub-clusters of one type (issue 12.1, ``docs/clustering.md``).
+
+A ``RuntimeWarning`` says when the chosen k lies at the edge of the range searched.
 
 ``criterion="icl"`` uses the integrated completed likelihood ``ICL = BIC - H(r)`` (Biernacki,
 Celeux, Govaert 2000), ``H`` the entropy of the responsibilities (0 for hard EM).

@@ -61,13 +61,11 @@ def write_shards(args: Any, make_data: Any, folder: Path) -> float:
 
 
 def study_data(n: int, seed: int) -> Any:
-    """``n`` place-and-drill demonstrations (2 types, 3 positions, noise 0.1, a fresh random
-    placement order in every demonstration: the corpus of issue 12)."""
-    from torchhrc.tasks.place_and_drill.demos import simulate_study
+    """``n`` demonstrations of the issue-12 corpus (``bench_mixture.study_corpus``: 2 types,
+    3 positions, noise 0.1, a fresh random placement order in every demonstration)."""
+    from bench_mixture import study_corpus
 
-    subjects = -(-n // 3)
-    demos = simulate_study(n_subjects=subjects, n_demos=3, noise=0.1, order_change=1.0,
-                           seed=seed)  # fmt: skip
+    demos = study_corpus(n + 2, 2, seed)
     return demos.subset(torch.arange(n))
 
 

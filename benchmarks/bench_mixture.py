@@ -29,6 +29,16 @@ Usage::
 
     python benchmarks/bench_mixture.py [--n 100000] [--concentration 0.1] [--threads 2]
     python benchmarks/bench_mixture.py --shards 16 --total 10000000 --n 1000000  # Ray, Parquet
+
+Study mode (issue 12.1), ``--study 2`` or ``--study 3``: the place-and-drill corpus of
+``docs/clustering.md`` (``--study 2``: "safe" and "efficient" at 3 positions; ``--study 3``:
+plus "lagging", at 4 positions; 3 demonstrations per subject, a fresh random placement
+order in every demonstration, every step replaced with probability 0.1 by a uniformly random
+action of its actor) with ``--n`` sequences, clustered with ``fit_mixture``'s defaults
+(float64, all 20 restarts of k = 2..10); prints the simulation and fit times (wall and CPU),
+k and the ARI against the true types::
+
+    python benchmarks/bench_mixture.py --study 2 --n 1000000 --threads 2
 """
 
 from __future__ import annotations
@@ -119,6 +129,51 @@ def per_sequence_paper_run(
     return it
 
 
+def study_corpus(n_sequences: int, types: int, seed: int):
+    """The issue-12 place-and-drill corpus with about ``n_sequences`` sequences (3 per subject)."""
+    from torchhrc.tasks.place_and_drill import simulate_study
+
+    three = types == 3
+    return simulate_study(
+        n_subjects=max(1, n_sequences // 3),
+        n_demos=3,
+        n_positions=4 if three else 3,
+        strategies=("safe", "efficient", "lagging") if three else ("safe", "efficient"),
+        noise=0.1,
+        robot_noise=0.1,
+        order_change=1.0,
+        deviation="uniform",
+        seed=seed,
+    )
+
+
+def run_study(args: argparse.Namespace) -> None:
+    """Time the default ``fit_mixture`` on the issue-12 corpus (see the module docstring)."""
+    from torchhrc.metrics import adjusted_rand_index
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    demos = study_corpus(args.n, args.study, args.seed)
+    sim_wall, sim_cpu = time.perf_counter() - t0, time.process_time() - c0
+    print(
+        f"study: {demos.num_sequences} sequences, {len(demos.unique_subjects)} subjects, "
+        f"{args.study} types, {demos.num_symbols} symbols; simulated in {sim_wall:.2f} s wall, "
+        f"{sim_cpu:.2f} s CPU; torch threads = {torch.get_num_threads()}"
+    )
+    for name, kwargs in (("soft", {}), ("paper", {"method": "paper"})):
+        if name == "paper" and args.skip_baselines:
+            continue
+        t0, c0 = time.perf_counter(), time.process_time()
+        fit = fit_mixture(demos, seed=args.seed, **kwargs)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        ari = adjusted_rand_index(list(demos.types), fit.assignments.tolist())
+        print(
+            f"torchhrc {name:5s}: {wall:7.2f} s wall, {cpu:7.2f} s CPU  (k = {fit.k}, "
+            f"ARI = {ari:.3f}, {fit.num_distinct} distinct units)"
+        )
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"peak resident memory: {peak_mb:.0f} MiB")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--n", type=int, default=100_000)
@@ -139,6 +194,14 @@ def main() -> None:
     parser.add_argument("--shard-dir", default=None, help="keep/reuse the shards here")
     parser.add_argument("--data", choices=("study", "chains"), default="study",
                         help="--shards data: place-and-drill demonstrations or random chains")  # fmt: skip
+    parser.add_argument(
+        "--study",
+        type=int,
+        choices=(2, 3),
+        default=None,
+        help="time the default clustering on the issue-12 place-and-drill corpus with 2 or 3 "
+        "types instead (--skip-baselines: without the paper's method)",
+    )
     args = parser.parse_args()
     if args.shards:
         import _sharded
@@ -148,6 +211,9 @@ def main() -> None:
     if args.threads:  # the same number of threads for torch and numpy's BLAS
         torch.set_num_threads(args.threads)
         threadpool_limits(args.threads)
+    if args.study is not None:
+        run_study(args)
+        return
     seqs, lengths = make_data(args.n, args.length, args.symbols, 3, args.concentration, args.seed)
     A, ks = args.symbols, range(2, 11)
     runs = len(ks) * args.restarts

@@ -115,6 +115,19 @@ def test_cluster_json_schema_and_values(study, capsys):
     assert report["adjusted_rand_index"] == 1.0  # noiseless study
 
 
+def test_cluster_min_gain_option_sets_the_rule(study, capsys):
+    """--min-gain is fit_mixture's min_gain: a huge one keeps k_min, 0 is BIC alone."""
+    argv = ["cluster", str(study), "--k-max", "4", "--restarts", "3", "--json"]
+    with pytest.warns(RuntimeWarning, match="single type"):  # k = 2 gains < 100 over one
+        code, out, _ = _run(capsys, *argv, "--min-gain", "100")
+    assert code == 0 and json.loads(out)["k"] == 2
+    code, out, _ = _run(capsys, *argv, "--min-gain", "0")
+    report = json.loads(out)
+    best = max(report["per_k"], key=lambda k: report["per_k"][k]["bic"])
+    assert report["k"] == int(best)
+    assert set(report["per_k"]["3"]) == {"bic", "icl", "log_likelihood", "gain"}
+
+
 def test_cluster_same_seed_same_output(study, capsys):
     argv = ["cluster", str(study), "--k-max", "3", "--restarts", "3", "--json", "--seed", "7"]
     assert _run(capsys, *argv)[1] == _run(capsys, *argv)[1]

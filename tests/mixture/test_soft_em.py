@@ -1,3 +1,5 @@
+import itertools
+
 import torch
 from test_hard_em import _data
 
@@ -65,3 +67,19 @@ def test_details_flag_changes_only_what_is_reported():
     torch.testing.assert_close(full.log_transition, lean.log_transition)
     assert lean.assignments.shape == (0, mask.shape[0])
     assert (full.entropy >= 0).all() and (lean.entropy == 0).all()
+
+
+def test_chunked_e_step_sums_to_the_one_pass_statistics():
+    """A sharded E-step (soft_pass per chunk of rows, then sum_statistics) equals one pass."""
+    from torchhrc.mixture.soft_em import soft_pass, sum_statistics
+
+    stats, mask, lt, lw, li = _start(seed=3)
+    whole = soft_pass(stats, lt, lw, li, mask)
+    cuts = [0, 5, 17, stats.num_distinct]
+    chunks = [slice(a, b) for a, b in itertools.pairwise(cuts)]
+    parts = [soft_pass(stats.rows(c), lt, lw, li, mask) for c in chunks]
+    total = sum_statistics(parts)
+    for name in ("counts", "initial_counts", "sizes", "log_likelihood", "entropy"):
+        torch.testing.assert_close(getattr(total, name), getattr(whole, name))
+    assert torch.equal(total.assignments, whole.assignments)
+    assert stats.rows(slice(0, 5)).num_units == int(stats.multiplicity[:5].sum())

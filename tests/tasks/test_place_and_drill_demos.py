@@ -208,3 +208,57 @@ def test_bad_arguments(kwargs, match):
         simulate_study(**kwargs)
     with pytest.raises(TypeError):
         simulate_study(n_demos=2.5)
+
+
+def test_lagging_strategy_drills_the_previous_screw():
+    from torchhrc.tasks.place_and_drill.demos import demonstration
+
+    steps = [f"{actor[0]}:{action}" for actor, action in demonstration("lagging", "CAB")]
+    assert steps == [
+        "h:place_C", "r:wait",
+        "h:place_A", "r:drill_C",
+        "h:place_B", "r:drill_A",
+        "h:wait", "r:drill_B",
+    ]  # fmt: skip
+
+
+def test_uniform_deviations_draw_any_action_of_the_actor():
+    """noise = robot_noise = 1 with uniform deviations: every step of the first turns is a
+    uniform draw over the actor's n + 1 actions, legal or not."""
+    from torchhrc.tasks.place_and_drill.demos import simulate_demonstrations
+
+    B, n = 20000, 3
+    g = torch.Generator().manual_seed(11)
+    orders = torch.rand(B, n, generator=g).argsort(-1)
+    one = torch.ones(B, dtype=torch.float64)
+    seqs, lengths = simulate_demonstrations(
+        orders, torch.full((B,), n), one, one, generator=g, deviation="uniform"
+    )
+    first_h = torch.bincount(seqs[:, 0], minlength=2 * n + 2)[: n + 1].double() / B
+    second_r = torch.bincount(seqs[:, 1], minlength=2 * n + 2)[n + 1 :].double() / B
+    # 4 options each: 0.25 +- 4 standard errors (0.0031)
+    assert ((first_h - 0.25).abs() < 0.0125).all()
+    assert ((second_r - 0.25).abs() < 0.0125).all()
+    # an illegal drill (nothing placed at the robot's first step unless the human placed)
+    # is recorded and changes nothing: every sequence still ends with all screws drilled
+    ends = seqs.gather(1, (lengths - 1)[:, None]).squeeze(-1)
+    assert ((ends > n) & (ends < 2 * n + 1)).all()  # the last step is a drill
+
+
+def test_batched_simulation_gives_valid_padded_sequences():
+    """A study simulated in several batches: one padded tensor, every sequence task-valid
+    (each screw placed once then drilled once, under other-legal deviations)."""
+    import torchhrc.tasks.place_and_drill.demos as demos_module
+
+    old = demos_module._BATCH
+    try:
+        demos_module._BATCH = 50  # 120 demonstrations: three batches of different widths
+        d = simulate_study(n_subjects=40, seed=5, noise=0.3, robot_noise=0.2, order_change=1.0)
+    finally:
+        demos_module._BATCH = old
+    assert d.num_sequences == 120 and int(d.lengths.max()) == d.sequences.shape[1]
+    n = 3
+    for row, length in zip(d.sequences.tolist(), d.lengths.tolist()):
+        steps = row[:length]
+        assert sorted(a for a in steps if a < n) == list(range(n))  # each placed once
+        assert sorted(a - n - 1 for a in steps if n < a < 2 * n + 1) == list(range(n))

@@ -87,6 +87,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--criterion", choices=("bic", "icl"), default="bic", help="model selection (bic)"
     )
+    parser.add_argument(
+        "--min-gain",
+        type=float,
+        default=None,
+        help="least gain (nats per transition) an extra cluster must add (soft: 0.015; "
+        "0 = BIC alone; see docs/clustering.md)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="random seed (0)")
     parser.add_argument(
         "--loo",
@@ -129,9 +136,11 @@ def cluster_report(
     inference: str = "vote",
     save_model: str | None = None,
     relabel_objects: bool = False,
+    min_gain: float | None = None,
 ) -> dict[str, Any]:
     """Fit, score and summarise: the dict that ``--json`` prints.
 
+    ``min_gain`` is passed to ``fit_mixture`` (``None``: its default).
     With ``relabel_objects`` the demonstrations are first passed through
     :meth:`~torchhrc.data.Demonstrations.relabel_objects` (symbols, counts and the model are
     then over the relabelled vocabulary).
@@ -169,6 +178,7 @@ def cluster_report(
         method=method,  # type: ignore[arg-type]
         criterion=criterion,  # type: ignore[arg-type]
         seed=seed,
+        min_gain=min_gain,
     )
     if save_model is not None:
         fit.model.save(save_model)
@@ -215,6 +225,7 @@ def cluster_report(
             method=method,
             inference=inference,  # type: ignore[arg-type]
             seed=seed,
+            **({} if min_gain is None else {"min_gain": min_gain}),
         )
         report["loo"] = {
             "accuracy": result.accuracy,
@@ -404,6 +415,7 @@ def run(args: argparse.Namespace) -> int:
         inference=args.inference,
         save_model=args.save_model,
         relabel_objects=args.relabel_objects,
+        min_gain=args.min_gain,
     )
     _emit(report, paths[0], args.json)
     return 0

@@ -144,6 +144,27 @@ class SufficientStatistics:
         """U, the number of distinct rows."""
         return self.counts.shape[0]
 
+    def rows(self, index: slice | torch.Tensor) -> SufficientStatistics:
+        """The statistics of some distinct rows only (a chunk of the data for a sharded
+        E-step: :func:`~torchhrc.mixture.soft_em.soft_pass` on each chunk, then
+        :func:`~torchhrc.mixture.soft_em.sum_statistics`). ``inverse`` is kept as is (it
+        refers to the full table) and ``num_units`` counts the chunk's units.
+
+        Example:
+            >>> s = sufficient_statistics(torch.tensor([[0, 1], [1, 1]]), torch.tensor([2, 2]), 2)
+            >>> s.rows(slice(0, 1)).counts.tolist()
+            [[0.0, 0.0, 0.0, 1.0]]
+        """
+        mult = self.multiplicity[index]
+        return SufficientStatistics(
+            counts=self.counts[index],
+            first_counts=None if self.first_counts is None else self.first_counts[index],
+            multiplicity=mult,
+            inverse=self.inverse,
+            num_units=int(mult.sum().round()),
+            num_symbols=self.num_symbols,
+        )
+
 
 def _pack_rows(key: torch.Tensor, bits: int) -> torch.Tensor:
     """Nonnegative int ``key (N, F)`` (entries < ``2**bits``) packed big-endian into ``(N, W)``

@@ -14,7 +14,11 @@ Methods:
 * ``"soft"`` (default, the better one): k-means++ initialisation (:mod:`.init`) and soft
   EM with Dirichlet smoothing (:mod:`.soft_em`); the BIC also counts the ``k - 1`` free
   mixture weights (and ``k (A - 1)`` first-symbol parameters when ``initial=True``), and
-  ``l`` is the marginal log-likelihood.
+  ``l`` is the marginal log-likelihood. BIC's k is then an upper bound: the smallest k whose
+  next cluster gains less than ``min_gain`` (0.015) nats per transition is chosen, so a large
+  corpus is not cut into sub-clusters of one type (issue 12.1, ``docs/clustering.md``).
+
+A ``RuntimeWarning`` says when the chosen k lies at the edge of the range searched.
 
 ``criterion="icl"`` uses the integrated completed likelihood ``ICL = BIC - H(r)`` (Biernacki,
 Celeux, Govaert 2000), ``H`` the entropy of the responsibilities (0 for hard EM).
@@ -31,6 +35,7 @@ Example:
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -46,7 +51,17 @@ from torchhrc.mixture.init import kmeans_pp_init, random_init
 from torchhrc.mixture.model import MarkovChainMixture
 from torchhrc.mixture.soft_em import SoftStatistics, m_step, soft_em
 
-__all__ = ["MixtureFit", "bic", "fit_mixture", "num_free_parameters"]
+__all__ = [
+    "DEFAULT_MIN_GAIN",
+    "DEFAULT_PSEUDO_COUNT",
+    "DEFAULT_WEIGHT_PSEUDO_COUNT",
+    "MixtureFit",
+    "bic",
+    "fit_mixture",
+    "gains_per_transition",
+    "num_free_parameters",
+    "num_transitions",
+]
 
 Method = Literal["soft", "paper"]
 Criterion = Literal["bic", "icl"]
@@ -67,7 +82,9 @@ class MixtureFit:
         assignments: ``(N,)`` int64 cluster of every sequence (most responsible one; with
             ``unit="subject"`` all sequences of a subject share their subject's cluster).
         responsibilities: ``(N, k)`` posterior cluster probabilities (one-hot for ``"paper"``).
-        per_k: ``k -> {"bic", "icl", "log_likelihood"}`` of the best run of every k.
+        per_k: ``k -> {"bic", "icl", "log_likelihood", "gain"}`` of the best run of every
+            k (``gain``: over the previous k, nats per transition, see ``min_gain``; every k
+            but ``k_min`` has one).
         method: ``"soft"`` or ``"paper"``; criterion: ``"bic"`` or ``"icl"``.
         converged: whether the selected run converged before ``max_iterations``.
         iterations: EM iterations of the selected run.
@@ -209,6 +226,108 @@ def _support_parameters(stats: SufficientStatistics) -> int:
     return int((seen.sum(-1) - 1).clamp_min(0).sum())
 
 
+#: The soft method's default Dirichlet pseudo-count on every transition (``alpha``).
+DEFAULT_PSEUDO_COUNT = 0.1
+
+#: The soft method's default pseudo-count on every cluster size (``beta``).
+DEFAULT_WEIGHT_PSEUDO_COUNT = 1.0
+
+#: The default ``min_gain`` of the soft method, nats per transition. Measured on the
+#: place-and-drill corpora of ``docs/clustering.md`` (seeds 0-2): a true type adds 0.04-0.27,
+#: a sub-cluster of one type (noise patterns, placement orders) 0.003-0.005.
+DEFAULT_MIN_GAIN = 0.015
+
+
+def num_transitions(stats: SufficientStatistics) -> float:
+    """``T``, the number of transitions in the data (all units, with multiplicity).
+
+    Example:
+        >>> s = sufficient_statistics(torch.tensor([[0, 1, 1], [1, 0, 0]]), torch.tensor([3, 2]), 2)
+        >>> num_transitions(s)
+        3.0
+    """
+    return float((stats.counts.sum(-1) * stats.multiplicity).sum())
+
+
+def gains_per_transition(log_likelihoods: torch.Tensor, transitions: float) -> torch.Tensor:
+    """``(num_k,)`` gain of each k over the previous one, in nats per transition.
+
+    ``gain[i] = (l[i] - l[i - 1]) / T`` for consecutive ``k``; ``gain[0] = nan``.
+
+    Example:
+        >>> gains_per_transition(torch.tensor([-100.0, -50.0, -45.0]), 10.0).tolist()
+        [nan, 5.0, 0.5]
+    """
+    gains = torch.full_like(log_likelihoods, math.nan)
+    gains[1:] = (log_likelihoods[1:] - log_likelihoods[:-1]) / max(transitions, 1.0)
+    return gains
+
+
+def _smallest_sufficient(gains: torch.Tensor, by_score: int, min_gain: float) -> int:
+    """The smallest index ``i <= by_score`` whose next k gains less than ``min_gain``."""
+    for i in range(by_score):
+        if not float(gains[i + 1]) >= min_gain:  # nan (a failed run) counts as no gain
+            return i
+    return by_score
+
+
+def _warn_at_edge(
+    stats: SufficientStatistics,
+    k: int,
+    k_min: int,
+    k_max: int,
+    per_k: dict[int, dict[str, float]],
+    min_gain: float,
+) -> None:
+    """Warn when the chosen k lies at an edge of the searched range and the data may want
+    one beyond it. Upper edge: always (``k = k_max > k_min``). Lower edge ``k = k_min > 1``:
+    when ``k_min = 2`` a single chain is fitted in closed form and the warning is given only
+    if ``k = 2`` gains less than ``min_gain`` over it (an effect size: on small studies BIC
+    often prefers one chain although the types differ by far more than ``min_gain``; that is
+    a lack of data, not a sign of one type); for ``k_min > 2`` always."""
+    if k_min == k_max:
+        return
+    if k == k_max:
+        warnings.warn(
+            f"the chosen number of clusters k = {k} is the largest searched (k_max = {k_max}); "
+            "a larger k may fit better: raise k_max, or see docs/clustering.md on "
+            "over-splitting large corpora (min_gain)",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+    elif k == k_min and k_min > 2:
+        warnings.warn(
+            f"the chosen number of clusters k = {k} is the smallest searched (k_min = {k_min}); "
+            "a smaller k may fit as well: lower k_min",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+    elif k == k_min == 2:
+        one = _single_chain_log_likelihood(stats)
+        A = stats.num_symbols
+        gain = (per_k[2]["log_likelihood"] - one) / max(num_transitions(stats), 1.0)
+        if gain < min_gain:
+            warnings.warn(
+                f"the chosen number of clusters k = 2 is the smallest searched, and one cluster "
+                f"(a single chain over all {A} symbols) fits as well (gain of k = 2: "
+                f"{gain:.4f} nats per transition): the data may hold a single type",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+
+
+def _single_chain_log_likelihood(stats: SufficientStatistics) -> float:
+    """Log-likelihood of one maximum-likelihood chain fitted to all the data (closed form)."""
+    A = stats.num_symbols
+    total = (stats.counts * stats.multiplicity[:, None]).sum(0).view(A, A).double()
+    rows = total.sum(-1, keepdim=True)
+    ll = torch.xlogy(total, total / rows.clamp_min(1.0)).sum()
+    if stats.first_counts is not None:
+        first = (stats.first_counts * stats.multiplicity[:, None]).sum(0).double()
+        ll = ll + torch.xlogy(first, first / first.sum().clamp_min(1.0)).sum()
+    return float(ll)
+
+
 def fit_mixture(
     data: Any,
     *,
@@ -221,13 +340,14 @@ def fit_mixture(
     parameters: Literal["auto", "full", "support"] = "auto",
     seed: int | None = None,
     generator: torch.Generator | None = None,
-    pseudo_count: float = 0.1,
-    weight_pseudo_count: float = 1.0,
+    pseudo_count: float | None = None,
+    weight_pseudo_count: float | None = None,
     max_iterations: int | None = None,
     short_iterations: int = 5,
     tol: float = 1e-6,
     floor: float = 1e-10,
     initial: bool = False,
+    min_gain: float | None = None,
     dtype: torch.dtype = torch.float64,
     progress: Callable[[int, int], None] | None = None,
     ray: bool | str | None = None,
@@ -254,8 +374,10 @@ def fit_mixture(
             ``k sum_a (s_a - 1)``, ``s_a`` the distinct successors of ``a``). ``"auto"``:
             ``"full"`` for ``"paper"``, ``"support"`` for ``"soft"``.
         seed, generator: randomness (one of them; default seed 0). Same seed, same result.
-        pseudo_count: Dirichlet pseudo-count on transitions (``"soft"`` only).
-        weight_pseudo_count: pseudo-count on cluster sizes (``"soft"`` only).
+        pseudo_count: Dirichlet pseudo-count on transitions (``"soft"`` only; ``None``:
+            ``DEFAULT_PSEUDO_COUNT``, 0.1).
+        weight_pseudo_count: pseudo-count on cluster sizes (``"soft"`` only; ``None``:
+            ``DEFAULT_WEIGHT_PSEUDO_COUNT``, 1).
         max_iterations: EM iteration cap (default 100 for ``"paper"``, 200 for ``"soft"``).
         short_iterations: ``"soft"`` runs the em-EM strategy (Biernacki, Celeux, Govaert
             2003): every restart runs this many iterations, then the best restart of each k
@@ -263,6 +385,15 @@ def fit_mixture(
         tol: relative log-likelihood change that stops soft EM.
         floor: probability that stands for 0 in the paper's E-step (see :mod:`.hard_em`).
         initial: also model each cluster's first-symbol distribution.
+        min_gain: the least log-likelihood, in nats per transition of the data, that one
+            more cluster must add to be kept (an effect size, so it does not grow with the
+            corpus). The criterion's k is reduced to the smallest ``k`` whose ``k + 1``
+            gains less than this over ``k``: ``(l(k + 1) - l(k)) / T < min_gain``, ``T`` the
+            number of transitions. ``None``: ``DEFAULT_MIN_GAIN`` (0.015) for ``"soft"``, 0
+            (off: the paper's BIC alone) for ``"paper"``. Why: BIC's penalty grows like
+            ``log n`` while the misfit of first-order chains to real data grows like ``n``, so
+            on large corpora BIC alone cuts every type into sub-clusters of noise patterns
+            and orders (``docs/clustering.md``).
         dtype: float dtype of the computation (float32 halves time and memory on big data).
         progress: ``progress(iteration, runs_still_running)`` after every EM iteration.
         ray: with a sharded corpus, reduce each shard in a Ray task: ``True`` or ``"local"``
@@ -277,7 +408,7 @@ def fit_mixture(
     Example:
         >>> import torch
         >>> seqs = torch.tensor([[0, 1, 0, 1]] * 5 + [[0, 0, 0, 0]] * 5)
-        >>> fit_mixture((seqs, torch.full((10,), 4), 2), k_min=1, k_max=2, restarts=2).k
+        >>> fit_mixture((seqs, torch.full((10,), 4), 2), k_min=1, k_max=3, restarts=2).k
         2
     """
     # a ShardedCorpus (or its merged CorpusStatistics): statistics computed shard by shard
@@ -305,6 +436,16 @@ def fit_mixture(
         raise ValueError(f"expected max_iterations >= 1, got {max_iterations}")
     if short_iterations < 1:
         raise ValueError(f"expected short_iterations >= 1, got {short_iterations}")
+    if pseudo_count is None:
+        pseudo_count = DEFAULT_PSEUDO_COUNT
+    if weight_pseudo_count is None:
+        weight_pseudo_count = DEFAULT_WEIGHT_PSEUDO_COUNT
+    if min_gain is None:
+        min_gain = DEFAULT_MIN_GAIN if method == "soft" else 0.0
+    if isinstance(min_gain, bool) or not isinstance(min_gain, (int, float)) or not min_gain >= 0:
+        raise ValueError(
+            f"expected min_gain to be a float >= 0 (nats per transition), got {min_gain!r}"
+        )
     gen = _generator(seed, generator)
     if sharded:
         by = unit if unit != "auto" else ("subject" if method == "soft" else "sequence")
@@ -386,15 +527,23 @@ def fit_mixture(
     score = torch.nan_to_num(score, nan=-math.inf)
     grouped = score.view(len(ks), per_group)
     best_run = torch.arange(len(ks), device=device) * per_group + grouped.argmax(-1)
-    chosen = int(best_run[grouped.max(-1).values.argmax()])
+    by_score = int(grouped.max(-1).values.argmax())  # index into ks
+    lls = result.log_likelihood[best_run]  # (num_k,)
+    gains = gains_per_transition(lls, num_transitions(stats))  # (num_k,), nan for ks[0]
+    index = by_score
+    if min_gain > 0:
+        index = _smallest_sufficient(gains, by_score, float(min_gain))
+    chosen = int(best_run[index])
     per_k = {
         int(ks[i]): {
             "bic": float(bics[best_run[i]]),
             "icl": float(icls[best_run[i]]),
-            "log_likelihood": float(result.log_likelihood[best_run[i]]),
+            "log_likelihood": float(lls[i]),
+            **({"gain": float(gains[i])} if i > 0 else {}),
         }
         for i in range(len(ks))
     }
+    _warn_at_edge(stats, int(ks[index]), k_min, k_max, per_k, float(min_gain))
     return _finish(
         stats,
         result,

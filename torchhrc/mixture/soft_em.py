@@ -34,7 +34,7 @@ from torchhrc.errors import ModelError
 from torchhrc.mixture._em import EMResult, column_blocks, m_step_transition, run_groups
 from torchhrc.mixture.counts import SufficientStatistics
 
-__all__ = ["SoftStatistics", "soft_em", "soft_pass"]
+__all__ = ["SoftStatistics", "m_step", "soft_em", "soft_pass", "sum_statistics"]
 
 
 @dataclass(frozen=True)
@@ -174,6 +174,37 @@ def soft_pass(
         log_initial,
         cluster_mask,
         details,
+    )
+
+
+def sum_statistics(parts: list[SoftStatistics]) -> SoftStatistics:
+    """The statistics of the whole data from those of disjoint chunks of its rows.
+
+    Every field of :class:`SoftStatistics` but the assignments is a sum over rows, so a
+    sharded E-step (:func:`soft_pass` on ``stats.rows(chunk)`` per worker) adds up to the
+    one-pass result; the assignments are concatenated along the rows.
+
+    Example:
+        >>> from torchhrc.mixture.counts import sufficient_statistics
+        >>> s = sufficient_statistics(torch.tensor([[0, 0], [1, 1]]), torch.tensor([2, 2]), 2)
+        >>> lt, lw = torch.full((1, 2, 2, 2), 0.5).log(), torch.zeros(1, 2)
+        >>> mask = torch.ones(1, 2, dtype=torch.bool)
+        >>> parts = [soft_pass(s.rows(slice(i, i + 1)), lt, lw, None, mask) for i in (0, 1)]
+        >>> sum_statistics(parts).sizes
+        tensor([[1., 1.]])
+    """
+    if not parts:
+        raise ValueError("expected at least one SoftStatistics to sum, got none")
+    first = parts[0]
+    return SoftStatistics(
+        counts=sum((p.counts for p in parts[1:]), first.counts),
+        initial_counts=None
+        if first.initial_counts is None
+        else sum((p.initial_counts for p in parts[1:]), first.initial_counts),  # type: ignore[misc]
+        sizes=sum((p.sizes for p in parts[1:]), first.sizes),
+        log_likelihood=sum((p.log_likelihood for p in parts[1:]), first.log_likelihood),
+        entropy=sum((p.entropy for p in parts[1:]), first.entropy),
+        assignments=torch.cat([p.assignments for p in parts], 0),
     )
 
 

@@ -24,21 +24,33 @@ Strategies are *chunk sizes* ``g`` (one rule covers all three types):
 * ``"efficient"`` (``g = 1``): place one, drill it, repeat;
 * ``"pairs"`` (``g = 2``): place two, drill those two, repeat.
 
+and a *lag* ``l`` (0 for the three above): the robot keeps ``l`` placed screws undrilled
+while the human goes on placing:
+
+* ``"lagging"`` (``g = 1``, ``l = 1``): the robot drills the previous screw while the next
+  one is placed (``place_1; place_2 drill_1; place_3 drill_2; wait drill_3``).
+
 Placements are numbered ``0, 1, ...`` as they happen; chunk ``c`` is placements
 ``c g .. c g + g - 1``. With ``P`` screws placed and ``Q`` placed but undrilled, the
 noiseless rules are: the human places the next screw of its placement order if
-``P mod g != 0`` or ``Q = 0`` (finish the current chunk; start a new one only when everything
-placed is drilled), else waits; the robot drills the earliest placed undrilled screw once its
-chunk is complete (``P`` reaches the chunk's end, or ``P = n``), else waits.
+``P mod g != 0`` or ``Q <= l`` (finish the current chunk; start a new one only when at most
+``l`` placed screws are undrilled), else waits; the robot drills the earliest placed
+undrilled screw once its chunk is complete (``P`` reaches the chunk's end) and ``Q > l``, or
+once ``P = n``, else waits.
 
-Deviations: with probability ``noise`` (the subject's own rate) a human step is replaced by a
-uniformly drawn *other legal* action of the human (another empty position, a wait, or a
-placement where the rule waits); with probability ``robot_noise`` the same for a robot step
-(another placed undrilled screw, a wait, or a drill where the rule waits). Every sequence
-therefore stays task-valid: no screw is placed twice, no empty or drilled position is
-drilled, every screw ends drilled; after a deviation the rules go on from the state it left.
+Deviations (``deviation="other"``, the default): with probability ``noise`` (the subject's
+own rate) a human step is replaced by a uniformly drawn *other legal* action of the human
+(another empty position, a wait, or a placement where the rule waits); with probability
+``robot_noise`` the same for a robot step (another placed undrilled screw, a wait, or a
+drill where the rule waits). Every sequence therefore stays task-valid: no screw is placed
+twice, no empty or drilled position is drilled, every screw ends drilled; after a deviation
+the rules go on from the state it left. With ``deviation="uniform"`` a deviating step is
+replaced by a uniformly random action of the same actor (any of its ``n + 1`` actions, the
+rule's own included); an action that is not legal in the state (placing a placed screw,
+drilling one that is not placed or already drilled) is recorded and changes nothing.
 Each subject has a preferred placement order (a random permutation) which each
-demonstration keeps with probability ``1 - order_change``.
+demonstration keeps with probability ``1 - order_change`` (``order_change=1``: a fresh
+random order in every demonstration).
 
 Why ``robot_noise`` defaults to 0 in :func:`simulate_study`: in the paper's study the
 subjects demonstrated the *robot's* actions themselves (human and robot switched roles), so
@@ -65,11 +77,14 @@ import math
 from collections.abc import Sequence
 
 import torch
+import torch.nn.functional as F
 
 from torchhrc.data import Demonstrations, Step
 from torchhrc.errors import ModelError
 
 __all__ = [
+    "DEVIATIONS",
+    "LAGS",
     "STRATEGIES",
     "demonstration",
     "placement_orders",
@@ -80,7 +95,16 @@ __all__ = [
 ]
 
 #: Strategy name -> chunk size ``g`` (``None``: all positions, i.e. ``g = n``).
-STRATEGIES: dict[str, int | None] = {"safe": None, "efficient": 1, "pairs": 2}
+STRATEGIES: dict[str, int | None] = {"safe": None, "efficient": 1, "pairs": 2, "lagging": 1}
+
+#: Strategy name -> lag ``l`` (screws the robot leaves undrilled while the human places).
+LAGS: dict[str, int] = {"lagging": 1}
+
+#: How a deviating step is drawn (see the module docstring).
+DEVIATIONS = ("other", "uniform")
+
+#: Demonstrations simulated per batch by :func:`simulate_study` (bounds the turn buffers).
+_BATCH = 1 << 17
 
 _MAX_POSITIONS = 26
 
@@ -128,7 +152,11 @@ def _chunk_size(strategy: str, n_positions: int) -> int:
 
 
 def _sample_other(
-    legal: torch.Tensor, chosen: torch.Tensor, flip: torch.Tensor, generator: torch.Generator
+    legal: torch.Tensor,
+    chosen: torch.Tensor,
+    flip: torch.Tensor,
+    generator: torch.Generator,
+    uniform: bool = False,
 ) -> torch.Tensor:
     """Replace ``chosen`` by a uniform other legal option where ``flip`` (and one exists).
 
@@ -136,12 +164,16 @@ def _sample_other(
         legal: ``(B, C)`` bool, the legal options.
         chosen: ``(B,)`` int64, the rule's option (legal).
         flip: ``(B,)`` bool, where noise strikes.
+        uniform: draw among all ``C`` options instead (legal or not, ``chosen`` included).
     """
+    if uniform:
+        keys = torch.rand(legal.shape, generator=generator, dtype=torch.float64)
+        return torch.where(flip, keys.to(legal.device).argmax(-1), chosen)
     others = legal.clone()
     others[torch.arange(legal.shape[0]), chosen] = False
     has_other = others.any(-1)
     # Uniform draw among the other legal options: argmax of random keys on them.
-    keys = torch.rand(others.shape, generator=generator, dtype=torch.float64)
+    keys = torch.rand(others.shape, generator=generator, dtype=torch.float64).to(legal.device)
     keys = torch.where(others, keys, torch.full_like(keys, -1.0))
     return torch.where(flip & has_other, keys.argmax(-1), chosen)
 
@@ -154,6 +186,8 @@ def simulate_demonstrations(
     *,
     generator: torch.Generator | None = None,
     max_noisy_turns: int | None = None,
+    lags: torch.Tensor | None = None,
+    deviation: str = "other",
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Simulate ``B`` demonstrations at once (the batched kernel of :func:`simulate_study`).
 
@@ -168,6 +202,10 @@ def simulate_demonstrations(
         generator: the random source (a fresh unseeded one if None).
         max_noisy_turns: after this many turns the rules are followed without noise so
             every demonstration ends (default ``8 n + 8``; noiseless play needs <= ``2 n``).
+        lags: ``(B,)`` int64 in ``[0, n)``, the robot's lag ``l`` of each demonstration
+            (default all 0; ``"lagging"`` is chunk 1, lag 1).
+        deviation: ``"other"`` (another legal action) or ``"uniform"`` (any action of the
+            actor, see the module docstring).
 
     Returns:
         ``(sequences (B, L) int64, lengths (B,) int64)`` over :func:`task_vocabulary`
@@ -206,6 +244,16 @@ def simulate_demonstrations(
             f"expected robot_noise of shape (B,) = ({b},) with values in [0, 1], got "
             f"shape {tuple(robot_noise.shape)}"
         )
+    if lags is None:
+        lags = torch.zeros(b, dtype=torch.int64, device=device)
+    if lags.shape != (b,) or ((lags < 0) | (lags >= n)).any():
+        raise ModelError(
+            f"expected lags of shape (B,) = ({b},) with values in [0, {n}), got "
+            f"shape {tuple(lags.shape)}"
+        )
+    if deviation not in DEVIATIONS:
+        raise ValueError(f"expected deviation in {DEVIATIONS}, got {deviation!r}")
+    uniform = deviation == "uniform"
     if generator is None:
         generator = torch.Generator()
     noisy_turns = 8 * n + 8 if max_noisy_turns is None else int(max_noisy_turns)
@@ -218,6 +266,7 @@ def simulate_demonstrations(
     place_index = torch.zeros(b, n, dtype=torch.int64, device=device)  # k-th placement
     rows = torch.arange(b, device=device)
     g = chunk_sizes.to(device=device, dtype=torch.int64)
+    lag = lags.to(device=device, dtype=torch.int64)
     noise = noise.to(device=device, dtype=torch.float64)
     robot_noise = robot_noise.to(device=device, dtype=torch.float64)
     out = torch.zeros(b, 2 * max_turns, dtype=torch.int64, device=device)
@@ -231,16 +280,16 @@ def simulate_demonstrations(
         # ---- human: option p in 0..n-1 = place p, option n = wait.
         count = placed.sum(-1)
         pending = (placed & ~drilled).sum(-1)
-        place_rule = (count < n) & ((count % g != 0) | (pending == 0))
+        place_rule = (count < n) & ((count % g != 0) | (pending <= lag))
         next_pos = torch.where(placed, torch.full_like(rank, big), rank).argmin(-1)
         human = torch.where(place_rule, next_pos, torch.full_like(next_pos, n))
         if noisy:
             legal = torch.cat([~placed, placed.new_ones(b, 1)], dim=-1)
             flip = torch.rand(b, generator=generator, dtype=torch.float64).to(device) < noise
-            human = _sample_other(legal, human, flip, generator)
+            human = _sample_other(legal, human, flip, generator, uniform)
         does_place = active & (human < n)
         hit = torch.nn.functional.one_hot(human.clamp(max=n - 1), n).bool()
-        hit &= does_place[:, None]
+        hit &= does_place[:, None] & ~placed  # an illegal placement changes nothing
         place_index = torch.where(hit, count[:, None].expand(b, n), place_index)
         placed |= hit
         # ---- robot: option p = drill p, option n = wait.
@@ -248,15 +297,17 @@ def simulate_demonstrations(
         pend = placed & ~drilled
         first = torch.where(pend, place_index, torch.full_like(place_index, big)).argmin(-1)
         chunk_end = (place_index[rows, first] // g + 1) * g  # placements closing its chunk
-        ready = pend.any(-1) & ((count >= chunk_end) | (count == n))
+        ready = pend.any(-1) & (((count >= chunk_end) & (pend.sum(-1) > lag)) | (count == n))
         robot = torch.where(ready, first, torch.full_like(first, n))
         if noisy:
             legal = torch.cat([pend, pend.new_ones(b, 1)], dim=-1)
             flip = torch.rand(b, generator=generator, dtype=torch.float64).to(device) < robot_noise
-            robot = _sample_other(legal, robot, flip, generator)
+            robot = _sample_other(legal, robot, flip, generator, uniform)
         does_drill = active & (robot < n)
         drilled |= (
-            torch.nn.functional.one_hot(robot.clamp(max=n - 1), n).bool() & does_drill[:, None]
+            torch.nn.functional.one_hot(robot.clamp(max=n - 1), n).bool()
+            & does_drill[:, None]
+            & pend  # an illegal drill changes nothing
         )
         # ---- record the turn's two symbols for active demonstrations.
         human_symbol = torch.where(human < n, human, torch.full_like(human, wait_h))
@@ -294,6 +345,7 @@ def simulate_study(
     noise: float | tuple[float, float] = (0.0, 0.15),
     robot_noise: float | tuple[float, float] = 0.0,
     order_change: float = 0.1,
+    deviation: str = "other",
     seed: int | None = 0,
     generator: torch.Generator | None = None,
 ) -> Demonstrations:
@@ -315,7 +367,10 @@ def simulate_study(
         robot_noise: the same for the robot-role steps, which carry the type's preference
             (default 0; see the module docstring for why).
         order_change: probability that a demonstration uses a fresh random placement order
-            instead of the subject's preferred one.
+            instead of the subject's preferred one (1: a fresh order in every demonstration).
+        deviation: how a deviating step is drawn: ``"other"`` (another legal action of the
+            actor) or ``"uniform"`` (a uniformly random action of the actor, which may be
+            illegal and then changes nothing).
         seed: seed of a fresh generator (ignored when ``generator`` is given).
         generator: the random source.
 
@@ -343,6 +398,9 @@ def simulate_study(
     if not strategies or len(set(strategies)) != len(strategies):
         raise ModelError(f"expected distinct strategy names, got {strategies!r}")
     sizes = [_chunk_size(s, n_positions) for s in strategies]
+    lag_of = [min(LAGS.get(s, 0), n_positions - 1) for s in strategies]
+    if deviation not in DEVIATIONS:
+        raise ValueError(f"expected deviation in {DEVIATIONS}, got {deviation!r}")
     if not 0.0 <= float(order_change) <= 1.0:
         raise ModelError(f"expected order_change in [0, 1], got {order_change}")
     if generator is None:
@@ -363,13 +421,26 @@ def simulate_study(
     change = torch.rand(total, generator=generator, dtype=torch.float64) < float(order_change)
     orders = torch.where(change[:, None], fresh, preferred[subject_of])  # (B, n)
     chunk = torch.tensor(sizes, dtype=torch.int64)[strategy_of[subject_of]]  # (B,)
-    sequences, lengths = simulate_demonstrations(
-        orders,
-        chunk,
-        rates[subject_of],
-        robot_rates[subject_of],
-        generator=generator,
-    )
+    lags = torch.tensor(lag_of, dtype=torch.int64)[strategy_of[subject_of]]  # (B,)
+    # batches bound the (B, turns) buffers of the kernel; one batch for studies up to _BATCH
+    parts = [
+        simulate_demonstrations(
+            orders[i : i + _BATCH],
+            chunk[i : i + _BATCH],
+            rates[subject_of[i : i + _BATCH]],
+            robot_rates[subject_of[i : i + _BATCH]],
+            generator=generator,
+            lags=lags[i : i + _BATCH],
+            deviation=deviation,
+        )
+        for i in range(0, total, _BATCH)
+    ]
+    if len(parts) == 1:
+        sequences, lengths = parts[0]
+    else:
+        width_l = max(p[0].shape[1] for p in parts)
+        sequences = torch.cat([F.pad(p[0], (0, width_l - p[0].shape[1])) for p in parts])
+        lengths = torch.cat([p[1] for p in parts])
     width = max(2, len(str(n_subjects)))
     subject_names = [f"S{i + 1:0{width}d}" for i in range(n_subjects)]
     subject_list = subject_of.tolist()
@@ -394,6 +465,8 @@ def demonstration(strategy: str, order: Sequence[str] | str) -> list[Step]:
     Example:
         >>> [f"{a[0]}:{b}" for a, b in demonstration("efficient", "BA")]
         ['h:place_B', 'r:drill_B', 'h:place_A', 'r:drill_A']
+        >>> [f"{a[0]}:{b}" for a, b in demonstration("lagging", "BA")]
+        ['h:place_B', 'r:wait', 'h:place_A', 'r:drill_B', 'h:wait', 'r:drill_A']
     """
     order = tuple(order)
     n = len(order)
@@ -402,8 +475,9 @@ def demonstration(strategy: str, order: Sequence[str] | str) -> list[Step]:
         raise ModelError(f"expected order to be a permutation of {names}, got {order!r}")
     perm = torch.tensor([[names.index(p) for p in order]], dtype=torch.int64)
     g = torch.tensor([_chunk_size(strategy, n)])
+    lag = torch.tensor([min(LAGS.get(strategy, 0), n - 1)])
     zero = torch.zeros(1, dtype=torch.float64)
-    seqs, lengths = simulate_demonstrations(perm, g, zero, zero)
+    seqs, lengths = simulate_demonstrations(perm, g, zero, zero, lags=lag)
     vocab = task_vocabulary(n)
     return [vocab[a] for a in seqs[0, : int(lengths[0])].tolist()]
 

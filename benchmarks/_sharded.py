@@ -115,9 +115,11 @@ def run(args: Any, make_data: Any) -> None:
     print(f"in memory, {args.n} sequences: {t_mem:.1f} s wall; k = {mem.k}, "
           f"{mem.num_distinct} distinct rows")  # fmt: skip
     per_shard = w_seconds
-    print(f"scaling: shard reduction is {per_shard:.1f} s per shard per CPU; with C CPUs across "
-          f"nodes the reduction takes about ceil({args.shards}/C) x {per_shard:.1f} s, the EM on "
-          f"the driver {t_total - t_stats:.1f} s (it grows with distinct rows, not sequences)")  # fmt: skip
+    print(
+        f"scaling: shard reduction is {per_shard:.1f} s per shard per CPU; with C CPUs across "
+        f"nodes the reduction takes about ceil({args.shards}/C) x {per_shard:.1f} s, the EM on "
+        f"the driver {t_total - t_stats:.1f} s (it grows with distinct rows, not sequences)"
+    )
     if not args.shard_dir:
         for p in folder.glob("*.parquet"):
             os.unlink(p)

@@ -126,7 +126,7 @@ def test_resume_refuses_another_sweep_and_new_sweeps_refuse_a_full_dir(tmp_path:
         run_sweep(other, tmp_path, executor=SerialExecutor(), resume=True)
     with pytest.raises(ModelError, match="not empty"):
         run_sweep(spec, tmp_path, executor=SerialExecutor())
-    with pytest.raises(ModelError, match="no sweep.json"):
+    with pytest.raises(ModelError, match=r"no sweep\.json"):
         run_sweep(spec, tmp_path / "fresh", executor=SerialExecutor(), resume=True)
 
 

@@ -155,8 +155,8 @@ def separation_study(
     try:
         import sapien  # noqa: F401
     except ImportError:
-        return {"available": False,
-                "note": "SAPIEN is not installed (pip install torchhrc[sim]); no replay"}  # fmt: skip
+        note = "SAPIEN is not installed (pip install torchhrc[sim]); no replay"
+        return {"available": False, "note": note}
     from torchhrc.sim.drill_replay import execution_steps, replay_execution
     from torchhrc.sim.workbench import PlaceAndDrillScene, WorkbenchLayout
 

@@ -396,7 +396,8 @@ def fit_mixture(
             and orders (``docs/clustering.md``).
         dtype: float dtype of the computation (float32 halves time and memory on big data).
         progress: ``progress(iteration, runs_still_running)`` after every EM iteration.
-        ray: with a sharded corpus, reduce each shard in a Ray task: ``True`` or ``"local"``
+        ray: with a sharded corpus, reduce each shard in a Ray task and run every soft-EM
+            E-step on the cluster (:class:`torchhrc.corpus.RayEStep`): ``True`` or ``"local"``
             (a local cluster, unless Ray is already initialised) or ``"HOST:PORT"``.
 
     Returns:
@@ -480,39 +481,53 @@ def fit_mixture(
             progress=progress,
         )
     else:
-        z0 = kmeans_pp_init(stats, cluster_mask, generator=gen)
-        lt0, lw0, li0 = _soft_initial_parameters(
-            stats, z0, cluster_mask, pseudo_count, weight_pseudo_count, dtype
-        )
-        options = dict(pseudo_count=pseudo_count, weight_pseudo_count=weight_pseudo_count, tol=tol)
-        cap = 200 if max_iterations is None else max_iterations
-        if restarts > 1:  # em-EM: short runs for every restart, then the best of each k
-            short = soft_em(
+        e_step = None
+        if sharded and ray:  # every E-step on the Ray cluster, M-steps here
+            from torchhrc.corpus import RayEStep
+
+            e_step = RayEStep(stats, dtype=dtype, ray=ray)
+        try:
+            z0 = kmeans_pp_init(stats, cluster_mask, generator=gen)
+            lt0, lw0, li0 = _soft_initial_parameters(
+                stats, z0, cluster_mask, pseudo_count, weight_pseudo_count, dtype
+            )
+            options = dict(
+                pseudo_count=pseudo_count,
+                weight_pseudo_count=weight_pseudo_count,
+                tol=tol,
+                e_step=e_step,
+            )
+            cap = 200 if max_iterations is None else max_iterations
+            if restarts > 1:  # em-EM: short runs for every restart, then the best of each k
+                short = soft_em(
+                    stats,
+                    lt0,
+                    lw0,
+                    cluster_mask,
+                    log_initial=li0,
+                    max_iterations=min(short_iterations, cap),
+                    progress=progress,
+                    details=False,  # only the log-likelihoods and parameters are kept
+                    **options,
+                )
+                ll = torch.nan_to_num(short.log_likelihood, nan=-math.inf).view(len(ks), restarts)
+                keep = torch.arange(len(ks), device=device) * restarts + ll.argmax(-1)  # (num_k,)
+                lt0, lw0 = short.log_transition[keep], short.log_weights[keep]
+                li0 = short.log_initial[keep] if short.log_initial is not None else None
+                run_k, cluster_mask, per_group = run_k[keep], cluster_mask[keep], 1
+            result = soft_em(
                 stats,
                 lt0,
                 lw0,
                 cluster_mask,
                 log_initial=li0,
-                max_iterations=min(short_iterations, cap),
+                max_iterations=cap,
                 progress=progress,
-                details=False,  # only the log-likelihoods and parameters are kept
                 **options,
             )
-            ll = torch.nan_to_num(short.log_likelihood, nan=-math.inf).view(len(ks), restarts)
-            keep = torch.arange(len(ks), device=device) * restarts + ll.argmax(-1)  # (num_k,)
-            lt0, lw0 = short.log_transition[keep], short.log_weights[keep]
-            li0 = short.log_initial[keep] if short.log_initial is not None else None
-            run_k, cluster_mask, per_group = run_k[keep], cluster_mask[keep], 1
-        result = soft_em(
-            stats,
-            lt0,
-            lw0,
-            cluster_mask,
-            log_initial=li0,
-            max_iterations=cap,
-            progress=progress,
-            **options,
-        )
+        finally:
+            if e_step is not None:
+                e_step.close()
 
     if parameters == "auto":
         parameters = "full"

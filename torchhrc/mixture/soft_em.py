@@ -34,7 +34,7 @@ from torchhrc.errors import ModelError
 from torchhrc.mixture._em import EMResult, column_blocks, m_step_transition, run_groups
 from torchhrc.mixture.counts import SufficientStatistics
 
-__all__ = ["SoftStatistics", "m_step", "soft_em", "soft_pass", "sum_statistics"]
+__all__ = ["EStep", "SoftStatistics", "m_step", "soft_em", "soft_pass", "sum_statistics"]
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,12 @@ class SoftStatistics:
     log_likelihood: torch.Tensor
     entropy: torch.Tensor
     assignments: torch.Tensor
+
+
+#: ``e_step(log_transition, log_weights, log_initial, cluster_mask, details) -> SoftStatistics``
+EStep = Callable[
+    [torch.Tensor, torch.Tensor, "torch.Tensor | None", torch.Tensor, bool], SoftStatistics
+]
 
 
 class _Data:
@@ -239,6 +245,7 @@ def soft_em(
     max_iterations: int = 200,
     progress: Callable[[int, int], None] | None = None,
     details: bool = True,
+    e_step: EStep | None = None,
 ) -> EMResult:
     """Run soft EM from ``R`` initial models at once.
 
@@ -255,6 +262,11 @@ def soft_em(
         progress: called as ``progress(iteration, runs_still_running)``.
         details: compute the final entropy and assignments (one more pass over the data;
             ``False``: ``entropy`` is 0 and ``assignments`` has shape ``(0, R)``).
+        e_step: computes every pass over the data instead of this process, called as
+            ``e_step(log_transition, log_weights, log_initial, cluster_mask, details)`` and
+            returning :class:`SoftStatistics` of all of ``stats``' rows (e.g. the sum of the
+            passes over chunks of the rows on a Ray cluster,
+            :class:`torchhrc.corpus.RayEStep`); ``None``: :func:`soft_pass` here.
 
     Returns:
         :class:`~torchhrc.mixture._em.EMResult` whose ``log_likelihood`` is the marginal
@@ -287,10 +299,15 @@ def soft_em(
     li = log_initial.clone() if log_initial is not None else None
     iterations = torch.zeros(R, dtype=torch.long, device=lt.device)
     converged = torch.zeros(R, dtype=torch.bool, device=lt.device)
-    data = _Data(stats, lt.dtype)
+    if e_step is None:
+        data = _Data(stats, lt.dtype)
+
+        def e_step(lt_, lw_, li_, mask_, details_):  # type: ignore[no-redef]
+            return _pass(data, lt_, lw_, li_, mask_, details_)
+
     # the iterations need only the expected counts and the log-likelihood; the entropy and
     # the assignments of the final parameters come from one pass at the end
-    expected = _pass(data, lt, lw, li, cluster_mask, False)
+    expected = e_step(lt, lw, li, cluster_mask, False)
     log_likelihood = expected.log_likelihood.clone()
     # only runs that have not converged are computed (compaction); a converged run keeps
     # its parameters, so every run's result equals running it alone
@@ -305,7 +322,7 @@ def soft_em(
             li[active] = new_li
         iterations[active] += 1
         previous = log_likelihood[active]
-        expected = _pass(data, new_lt, new_lw, new_li, cluster_mask[active], False)
+        expected = e_step(new_lt, new_lw, new_li, cluster_mask[active], False)
         log_likelihood[active] = expected.log_likelihood
         done = (expected.log_likelihood - previous).abs() <= tol * expected.log_likelihood.abs()
         converged[active[done]] = True
@@ -316,7 +333,7 @@ def soft_em(
         if active.numel() == 0:
             break
     if details:
-        final = _pass(data, lt, lw, li, cluster_mask, True)
+        final = e_step(lt, lw, li, cluster_mask, True)
         entropy, assignments = final.entropy, final.assignments
     else:
         entropy = torch.zeros_like(log_likelihood)

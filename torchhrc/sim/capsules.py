@@ -210,7 +210,8 @@ def capsule_separation(
         >>> import torch
         >>> z = torch.zeros(1, 3)
         >>> x = torch.tensor([[1.0, 0.0, 0.0]])
-        >>> round(capsule_separation(z, z, torch.tensor([0.1]), x, x, torch.tensor([0.2])).item(), 6)
+        >>> sep = capsule_separation(z, z, torch.tensor([0.1]), x, x, torch.tensor([0.2]))
+        >>> round(sep.item(), 6)
         0.7
     """
     d = segment_distance(

@@ -346,8 +346,10 @@ class PlaceAndDrillScene:
                                   position_tolerance=1e-3)  # fmt: skip
         if not bool(res.success.all()):
             bad = int(torch.nonzero(~res.success)[0])
-            raise ModelError(f"the person cannot reach pose {bad} of the layout (IK error "
-                             f"{float(res.position_error[bad]):.3g} m); move person_x closer")  # fmt: skip
+            raise ModelError(
+                f"the person cannot reach pose {bad} of the layout (IK error "
+                f"{float(res.position_error[bad]):.3g} m); move person_x closer"
+            )
         self.human_above, self.human_place = res.joints[:n], res.joints[n:]
         self.human_rest = torch.zeros(self.person.dof, dtype=torch.float64)
 
@@ -409,7 +411,7 @@ class PlaceAndDrillScene:
 
     def tip_position(self) -> torch.Tensor:
         """``(3,)`` the drill's tip in the world."""
-        start, end = self._robot_chain.world()
+        _, end = self._robot_chain.world()
         return end[self._robot_chain.names.index("drill")]
 
     # ------------------------------------------------------------------ motion

@@ -135,7 +135,7 @@ class StudySettings:
     irl_iterations: int = 10
     separation: bool = True
     separation_runs: int = 2
-    separation_subjects: int = 1
+    separation_subjects: int = 2
     separation_epsilon: float = 0.0
     separation_threshold: float = 0.10
     seed: int = 0
@@ -151,6 +151,7 @@ class StudySettings:
             restarts=4,
             irl_iterations=5,
             separation_runs=1,
+            separation_subjects=1,
             seed=seed,
         )
 

@@ -31,7 +31,7 @@ def _shard_worker_peak(path: str) -> tuple[float, float]:
     from torchhrc.corpus import shard_statistics
 
     t0 = time.perf_counter()
-    shard_statistics(path, by_subject=False, initial=False)
+    shard_statistics(path, by_subject=True, initial=False)
     return time.perf_counter() - t0, _peak_mib()
 
 
@@ -47,7 +47,7 @@ def write_shards(args: Any, make_data: Any, folder: Path) -> float:
     remap = torch.tensor([vocab_sorted.index(v) for v in vocab])
     for i in range(args.shards):
         if args.data == "study":
-            demos = study_data(per, args.seed + 1000 + i)
+            demos = study_data(per, args.seed + 1000 + i, prefix=f"p{i}_")
         else:
             seqs, lengths = make_data(per, args.length, args.symbols, 3, args.concentration,
                                       args.seed + 1000 + i)  # fmt: skip
@@ -60,13 +60,18 @@ def write_shards(args: Any, make_data: Any, folder: Path) -> float:
     return time.perf_counter() - t0
 
 
-def study_data(n: int, seed: int) -> Any:
+def study_data(n: int, seed: int, prefix: str = "") -> Any:
     """``n`` demonstrations of the issue-12 corpus (``bench_mixture.study_corpus``: 2 types,
-    3 positions, noise 0.1, a fresh random placement order in every demonstration)."""
+    3 positions, noise 0.1, a fresh random placement order in every demonstration); subject
+    ids start with ``prefix`` (distinct across shards: a subject is one clustering unit)."""
+    import dataclasses
+
     from bench_mixture import study_corpus
 
-    demos = study_corpus(n + 2, 2, seed)
-    return demos.subset(torch.arange(n))
+    demos = study_corpus(n + 2, 2, seed).subset(torch.arange(n))
+    if prefix:
+        demos = dataclasses.replace(demos, subjects=tuple(prefix + s for s in demos.subjects))
+    return demos
 
 
 def run(args: Any, make_data: Any) -> None:
@@ -83,29 +88,30 @@ def run(args: Any, make_data: Any) -> None:
         print(f"wrote {args.total} sequences in {args.shards} Parquet shards ({size:.0f} MiB) "
               f"in {seconds:.1f} s: {folder}")  # fmt: skip
     corpus = ShardedCorpus.open(folder)
+    # fit_mixture's defaults (one type per subject, min_gain), in float32
+    unit = "subject" if args.data == "study" else "sequence"
     options = dict(k_min=2, k_max=10, restarts=args.restarts, dtype=torch.float32,
-                   seed=args.seed, unit="sequence")  # fmt: skip
+                   seed=args.seed, unit=unit)  # fmt: skip
     ray.init(num_cpus=args.ray_cpus, include_dashboard=False, log_to_driver=False)
     try:
         worker = ray.remote(num_cpus=1)(_shard_worker_peak)
         w_seconds, w_peak = ray.get(worker.remote(corpus.paths[0]))
         t0, c0 = time.perf_counter(), time.process_time()
-        merged = corpus.statistics(unit="sequence", ray=True, dtype=torch.float32)
+        merged = corpus.statistics(unit=unit, ray=True, dtype=torch.float32)
         t_stats = time.perf_counter() - t0
-        fit = fit_mixture(merged, **options)
+        fit = fit_mixture(merged, ray=True, **options)
         t_total, c_total = time.perf_counter() - t0, time.process_time() - c0
     finally:
         ray.shutdown()
     driver_peak = _peak_mib()
     print(f"sharded on Ray ({args.ray_cpus} CPUs): {t_total:.1f} s wall ({t_stats:.1f} s shard "
-          f"tasks + merge, {t_total - t_stats:.1f} s EM on the driver), driver CPU "
+          f"tasks + merge, {t_total - t_stats:.1f} s EM: E-steps on Ray actors, M-steps on the driver), driver CPU "
           f"{c_total:.1f} s; k = {fit.k}; {merged.stats.num_distinct} distinct rows on the "
           f"driver")  # fmt: skip
     print(f"peak RSS: driver {driver_peak:.0f} MiB, a worker reducing one shard "
           f"{w_peak:.0f} MiB ({w_seconds:.1f} s per shard)")  # fmt: skip
     if args.data == "study":
-        demos = study_data(args.n, args.seed)
-        data: Any = (demos.sequences, demos.lengths, demos.num_symbols)
+        data: Any = study_data(args.n, args.seed)
     else:
         data = (*make_data(args.n, args.length, args.symbols, 3, args.concentration, args.seed),
                 args.symbols)  # fmt: skip
@@ -117,7 +123,7 @@ def run(args: Any, make_data: Any) -> None:
     per_shard = w_seconds
     print(
         f"scaling: shard reduction is {per_shard:.1f} s per shard per CPU; with C CPUs across "
-        f"nodes the reduction takes about ceil({args.shards}/C) x {per_shard:.1f} s, the EM on "
+        f"nodes the reduction takes about ceil({args.shards}/C) x {per_shard:.1f} s, the EM "
         f"the driver {t_total - t_stats:.1f} s (it grows with distinct rows, not sequences)"
     )
     if not args.shard_dir:

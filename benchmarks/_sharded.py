@@ -104,10 +104,12 @@ def run(args: Any, make_data: Any) -> None:
     finally:
         ray.shutdown()
     driver_peak = _peak_mib()
-    print(f"sharded on Ray ({args.ray_cpus} CPUs): {t_total:.1f} s wall ({t_stats:.1f} s shard "
-          f"tasks + merge, {t_total - t_stats:.1f} s EM: E-steps on Ray actors, M-steps on the driver), driver CPU "
-          f"{c_total:.1f} s; k = {fit.k}; {merged.stats.num_distinct} distinct rows on the "
-          f"driver")  # fmt: skip
+    print(
+        f"sharded on Ray ({args.ray_cpus} CPUs): {t_total:.1f} s wall ({t_stats:.1f} s shard "
+        f"tasks + merge, {t_total - t_stats:.1f} s EM: E-steps on Ray actors, M-steps on the "
+        f"driver), driver CPU {c_total:.1f} s; k = {fit.k}; {merged.stats.num_distinct} "
+        "distinct rows on the driver"
+    )
     print(f"peak RSS: driver {driver_peak:.0f} MiB, a worker reducing one shard "
           f"{w_peak:.0f} MiB ({w_seconds:.1f} s per shard)")  # fmt: skip
     if args.data == "study":
@@ -123,8 +125,8 @@ def run(args: Any, make_data: Any) -> None:
     per_shard = w_seconds
     print(
         f"scaling: shard reduction is {per_shard:.1f} s per shard per CPU; with C CPUs across "
-        f"nodes the reduction takes about ceil({args.shards}/C) x {per_shard:.1f} s, the EM "
-        f"the driver {t_total - t_stats:.1f} s (it grows with distinct rows, not sequences)"
+        f"nodes the reduction takes about ceil({args.shards}/C) x {per_shard:.1f} s; the EM "
+        f"took {t_total - t_stats:.1f} s (it grows with distinct rows, not sequences)"
     )
     if not args.shard_dir:
         for p in folder.glob("*.parquet"):

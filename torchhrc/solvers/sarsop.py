@@ -871,7 +871,7 @@ class _SARSOP:
         C: int,
         stale: tuple[np.ndarray, ...] | None,
     ) -> tuple[np.ndarray, np.ndarray, float]:
-        """Upper bounds of a belief's possible children ``nz`` (action ``ia``), ``Q_up``, ``V_up(b)``.
+        """Upper bounds of a belief's possible children ``nz`` (actions ``ia``), ``Q_up``, ``V_up``.
 
         ``value(ids)`` bounds rows ``ids`` of the children (row ``nz.size`` is ``b`` itself).
         Without ``stale`` every child is bounded. With ``stale`` (the node's cached

@@ -273,7 +273,7 @@ def child_solve(path: Path, limit: float, precision: float, out: Path, policyx: 
 
     torch.set_num_threads(1)
     # torch imports torch._refs on the first torch.broadcast_shapes call (which the model's
-    # validation makes): about 0.4 s idle, 1.4 s on a loaded machine, once per process; it
+    # validation makes): 1.4 s measured on a loaded machine, once per process; it
     # is paid here, outside the load time, as a long-running process pays it once
     torch.broadcast_shapes((1,), (1,))
     t0 = time.perf_counter()

@@ -21,10 +21,22 @@ the time limit, as APPL's own loading is. The script limits numpy's BLAS to one 
 multi-threaded BLAS is several times slower on a busy machine. Timings are wall-clock on
 whatever cores the machine gives; print ``uptime`` beside the table.
 
+The public suite (``--suite DIR``, a folder built by ``problems/make_suite.py``): every
+``.pomdp`` file (and ``.pomdpx`` once ``torchhrc.io.read_pomdpx`` exists; skipped with a
+printed reason before) is solved by ours and by APPL's ``pomdpsol``, back to back per problem,
+each in its own process, at every limit. The limits are process CPU seconds for both solvers:
+``pomdpsol`` limits and reports CPU time (``times(2)``), so on a shared machine a wall-clock
+limit would give ours a fraction of APPL's CPU; ours stops through its iteration callback.
+Written to ``--table`` ``.md`` and ``.csv``: lower, upper, gap, CPU seconds to ``--precision``
+where reached, the process's peak resident memory (GNU ``time -f %M``), load time, CPU and
+wall seconds.
+
 Usage::
 
     python benchmarks/bench_sarsop.py [--limits 10 60] [--problems tiger rocksample_4_4 ...]
         [--appl /path/to/pomdpsol] [--precision 1e-3] [--no-momdp] [--no-batch]
+    python benchmarks/bench_sarsop.py --suite SUITE_DIR --limits 10,60 --appl PATH/pomdpsol
+        [--table sarsop_suite] [--only STEM ...]
 """
 
 from __future__ import annotations
@@ -261,7 +273,7 @@ def child_solve(path: Path, limit: float, precision: float, out: Path, policyx: 
 
     torch.set_num_threads(1)
     # torch imports torch._refs on the first torch.broadcast_shapes call (which the model's
-    # validation makes): about 0.4 s idle, 1.4 s on a loaded machine, once per process; it
+    # validation makes): 1.4 s measured on a loaded machine, once per process; it
     # is paid here, outside the load time, as a long-running process pays it once
     torch.broadcast_shapes((1,), (1,))
     t0 = time.perf_counter()
@@ -306,7 +318,6 @@ def suite_table(
 ) -> list[dict]:  # fmt: skip
     """Both solvers on every suite file at every limit, back to back per problem; writes
     ``prefix.csv`` and ``prefix.md`` after every row (a long run leaves a partial table)."""
-    import csv
     import json
 
     files = sorted(p for p in folder.iterdir() if p.suffix in (".pomdp", ".pomdpx"))
@@ -343,7 +354,8 @@ def suite_table(
 
                         if not hasattr(tio, "read_pomdpx"):
                             print(f"{path.name}: skipped (torchhrc.io.read_pomdpx does not "
-                                  "exist: no .pomdpx reader on this branch)", flush=True)  # fmt: skip
+                                  "exist: no .pomdpx reader on this branch)",
+                                  flush=True)  # fmt: skip
                             break
                     with tempfile.TemporaryDirectory() as tmp:
                         res = Path(tmp) / "res.json"
@@ -357,8 +369,8 @@ def suite_table(
                             row.update(lower=r["lower"], upper=r["upper"],
                                        gap=r["upper"] - r["lower"], peak_rss_mb=rss,
                                        time_to_precision_s=r["time_to_precision_s"],
-                                       load_s=r["load_s"], solve_s=r["solve_s"], status="ok",
-                                       wall_s=wall)  # fmt: skip
+                                       load_s=r["load_s"], solve_s=r["solve_s"],
+                                       status="ok", wall_s=wall)  # fmt: skip
                 rows.append(row)
                 print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                for k, v in row.items()), flush=True)  # fmt: skip
@@ -401,8 +413,10 @@ def main(argv: list[str] | None = None) -> int:
         return child_solve(Path(path), float(limit), float(precision), Path(out),
                            Path(rest[0]) if rest else None)  # fmt: skip
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--suite", type=Path, default=None,
-                        help="a suite folder (problems/make_suite.py): both solvers on every file")  # fmt: skip
+    parser.add_argument(
+        "--suite", type=Path, default=None,
+        help="a suite folder (problems/make_suite.py): both solvers, every file",
+    )  # fmt: skip
     parser.add_argument("--table", type=Path, default=Path("sarsop_suite"),
                         help="--suite: the table is written to TABLE.md and TABLE.csv")  # fmt: skip
     parser.add_argument("--only", nargs="*", default=None, help="--suite: only these stems")

@@ -161,8 +161,11 @@ class SARSOPConfig:
             :func:`fib_corner_values` (FIB from QMDP, stopped by ``init_tol`` /
             ``init_max_iterations``).
         init_tol: the default FIB initialisation stops when an iteration changes the corner
-            values by less than this (default ``max(1e-8, 0.01 * precision * (1 - discount))``:
-            the values are then within 1 % of ``precision`` of FIB's fixed point).
+            values by less than this (default ``0.01 * precision``, APPL's residual for its
+            FIB; every FIB iterate from an upper start is an upper bound, so stopping early
+            only leaves the corners looser, which the search then tightens; the former
+            ``0.01 * precision * (1 - discount)`` spent 10,000 iterations, most of a 10 s
+            budget, on aloha-10max's discount 0.999).
         init_max_iterations: cap on the FIB iterations (default 10,000).
         init_time_fraction: share of ``time_limit`` the default FIB initialisation may use at
             most (a safety net: it normally converges long before; when it does not, the
@@ -463,7 +466,7 @@ class _SARSOP:
         if cfg.upper_bound_init is None:
             tol = cfg.init_tol
             if tol is None:
-                tol = max(1e-8, 0.01 * cfg.precision * (1.0 - self.gamma))
+                tol = 0.01 * cfg.precision  # APPL: CB_INITIALIZATION_PRECISION_FACTOR
             corner, fib = form.fib_corner_values(tol, init_deadline, cfg.init_max_iterations)
             self.init_info["upper_iterations"] = fib["iterations"]
             self.init_info["upper_stop"] = fib["stop"]
@@ -629,7 +632,7 @@ class _SARSOP:
         C: int,
         stale: tuple[np.ndarray, ...] | None,
     ) -> tuple[np.ndarray, np.ndarray, float]:
-        """Upper bounds of a belief's possible children ``nz`` (action ``ia``), ``Q_up``, ``V_up(b)``.
+        """Upper bounds of a belief's possible children ``nz`` (actions ``ia``), ``Q_up``, ``V_up``.
 
         ``value(ids)`` bounds rows ``ids`` of the children (row ``nz.size`` is ``b`` itself).
         Without ``stale`` every child is bounded. With ``stale`` (the node's cached

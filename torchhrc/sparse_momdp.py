@@ -19,8 +19,8 @@ Shapes::
 Example:
     >>> from torchhrc.tasks.classic import rock_sample_momdp
     >>> sm = SparseMOMDP.from_dense(rock_sample_momdp(4, 4))
-    >>> sm.num_observed, sm.num_hidden, int(sm.transitions[0].shape[0]) < 9 * 17 * 16
-    (17, 16, True)
+    >>> sm.num_observed, sm.num_hidden, int(sm.transitions[0].shape[0])  # one per (a, x, y)
+    (17, 16, 2448)
 """
 
 from __future__ import annotations
@@ -96,7 +96,8 @@ class SparseMOMDP:
         index, prob = coo
         if not isinstance(index, torch.Tensor) or index.dtype != torch.long or index.dim() != 2:
             raise TypeError("expected transitions index to be an int64 tensor (M, 5)")
-        if index.shape[1] != 5 or not isinstance(prob, torch.Tensor) or prob.shape != index.shape[:1]:
+        if (index.shape[1] != 5 or not isinstance(prob, torch.Tensor)
+                or prob.shape != index.shape[:1]):  # fmt: skip
             raise ModelError(
                 "expected transitions as (index (M, 5), prob (M,)), got shapes "
                 f"{tuple(index.shape)}, {tuple(getattr(prob, 'shape', ()))}"
@@ -231,7 +232,8 @@ class SparseMOMDP:
 
         Example:
             >>> from torchhrc.testing import random_momdp
-            >>> SparseMOMDP.from_dense(random_momdp(3, 2, 2, 2, seed=0)).to_sparse_pomdp().num_states
+            >>> sm = SparseMOMDP.from_dense(random_momdp(3, 2, 2, 2, seed=0))
+            >>> sm.to_sparse_pomdp().num_states
             6
         """
         A, X, Y, O = self.num_actions, self.num_observed, self.num_hidden, self.num_observations

@@ -15,8 +15,8 @@ import pytest
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.io import pomdpx as pomdpx_io
 from torchhrc.io import format_pomdpx, read_pomdpx
+from torchhrc.io import pomdpx as pomdpx_io
 from torchhrc.solvers import PBVIConfig, SARSOPConfig, pbvi, sarsop, solve
 from torchhrc.solvers.forms import MOMDPForm, SparseMOMDPForm, as_solver_model
 from torchhrc.solvers.sarsop import _SARSOP
@@ -92,7 +92,7 @@ def test_initial_bounds_equal_the_dense_momdp_form(name: str) -> None:
         rtol=0, atol=1e-7,
     )  # fmt: skip
     fd, _ = dense.fib_corner_values(1e-11, math.inf, 100_000)
-    fs, info = sparse.fib_corner_values(1e-11, math.inf, 100_000)
+    fs, _ = sparse.fib_corner_values(1e-11, math.inf, 100_000)
     torch.testing.assert_close(fs, fd, rtol=0, atol=1e-8)
     # FIB operator itself, one step from the same vectors
     qd = dense.upper_vectors("qmdp", 1e-11)
@@ -105,7 +105,7 @@ def test_initial_bounds_equal_the_dense_momdp_form(name: str) -> None:
 def test_blind_vectors_iterated_past_the_direct_size_are_a_converging_lower_bound() -> None:
     from torchhrc.solvers.forms import sparse_momdp as module
 
-    dense, sparse = _pair("rock_sample_4_4")
+    _, sparse = _pair("rock_sample_4_4")
     exact = sparse.blind_vectors()
     old = module.DIRECT_SOLVE_SIZE
     module.DIRECT_SOLVE_SIZE = 0  # force the iteration

@@ -128,7 +128,8 @@ def solve(model: POMDP | MOMDP | SparsePOMDP, config: Any) -> Solution:
             return pbvi(model, config)
         if not isinstance(config, SARSOPConfig):
             raise ModelError(
-                f"a {type(model).__name__} (sparse transitions) is solved by SARSOP or PBVI only, got a "
+                f"a {type(model).__name__} (sparse transitions) is solved by SARSOP or PBVI "
+                f"only, got a "
                 f"{type(config).__name__}; pass a SARSOPConfig, a PBVIConfig or a dense POMDP"
             )
         return sarsop(model, config)

@@ -139,7 +139,7 @@ class SparseMOMDPForm(SolverModel):
 
     def predict(self, x: int, beliefs: torch.Tensor) -> torch.Tensor:
         cols, vals = self._ell(x)
-        A, Y, W = cols.shape
+        A, Y, _ = cols.shape
         K = self.reach[x].numel()
         target = self._cached(
             "target", x, lambda: (cols + (torch.arange(A) * K * Y).view(A, 1, 1)).reshape(-1)
@@ -159,7 +159,7 @@ class SparseMOMDPForm(SolverModel):
     # -- numpy ---------------------------------------------------------------------------------
     def predict_np(self, x: int, b: np.ndarray) -> np.ndarray:
         cols, vals = self._ell_np(x)
-        A, Y, W = cols.shape
+        A, Y, _ = cols.shape
         K = self.reach_np(x).size
         target = self._cached("target_np", x, lambda: self.predict_target(x))
         w = b[None, :, None] * vals
@@ -299,7 +299,9 @@ class SparseMOMDPForm(SolverModel):
         beliefs = beliefs.to(self.dtype)
         y = sample_categorical(beliefs, generator)
         rows = ((actions * X + x) * Y + y).cpu().numpy()
-        ptr = self._cached("row_ptr", 0, lambda: np.searchsorted(self.row, np.arange(self.row.max() + 2)))
+        ptr = self._cached(
+            "row_ptr", 0, lambda: np.searchsorted(self.row, np.arange(self.row.max() + 2))
+        )
         start, stop = ptr[rows], ptr[rows + 1]
         W = max(int((stop - start).max()), 1)
         pos = start[:, None] + np.arange(W)[None, :]

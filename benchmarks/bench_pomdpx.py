@@ -44,7 +44,7 @@ def appl_load_time(pomdpsol: str, path: Path) -> float | None:
 
 def describe(model: object) -> str:
     name = type(model).__name__
-    if name == "MOMDP":
+    if name in ("MOMDP", "SparseMOMDP"):
         return f"MOMDP X={model.num_observed} Y={model.num_hidden}"  # type: ignore[attr-defined]
     return f"{name} S={model.num_states}"  # type: ignore[attr-defined]
 

@@ -9,13 +9,14 @@ and upper bounds on the optimal value at the initial belief, and optionally writ
 stderr unless ``--quiet``. With ``--json`` one JSON object is printed with the keys
 ``lower``, ``upper``, ``gap``, ``time_s``, ``n_alphas``, ``solver``, ``stop_reason``,
 ``iterations``, ``policy`` (the written path or null), ``sparse`` and ``model`` (``"POMDP"``,
-``"MOMDP"`` or ``"SparsePOMDP"``).
+``"MOMDP"``, ``"SparseMOMDP"`` or ``"SparsePOMDP"``).
 
 With ``--solver sarsop`` (the default) or ``pbvi``, a model whose dense ``T (A, S, S)`` or
 ``Z (A, S, O)`` would exceed :data:`torchhrc.sparse.MAX_DENSE_ENTRIES` (2e8 entries, 1.6 GB
 in float64; RockSample(7, 8): 2e9) is read as a :class:`~torchhrc.sparse.SparsePOMDP` and
 solved through the solvers' sparse form (``"sparse": true``); QMDP and FIB need the dense
-model.
+model. A ``.pomdpx`` MOMDP whose dense ``Ty`` would not fit (APPL's RockSample_7_8) is read
+as a :class:`~torchhrc.sparse_momdp.SparseMOMDP` and solved as a MOMDP.
 
 Example:
     >>> import argparse
@@ -168,7 +169,9 @@ def run(args: argparse.Namespace) -> int:
         model = read_pomdpx(args.model, sparse=mode)
     else:
         model = read_pomdp(args.model, sparse=mode)
-    sparse = isinstance(model, SparsePOMDP)
+    from torchhrc.sparse_momdp import SparseMOMDP
+
+    sparse = isinstance(model, (SparsePOMDP, SparseMOMDP))
     callback = None if args.quiet else _Progress()
     config = make_config(args, callback)
     start = time.perf_counter()

@@ -82,6 +82,7 @@ from torchhrc.errors import ModelError, ParseError
 from torchhrc.io._atomic import atomic_write_bytes
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.sparse import MAX_DENSE_ENTRIES, SparsePOMDP
+from torchhrc.sparse_momdp import SparseMOMDP
 
 __all__ = [
     "AUTO_SPARSE_ENTRIES",
@@ -943,6 +944,34 @@ class _Builder:
             observations=_group_names(v.observations),
         )
 
+    def sparse_momdp(self, b0: np.ndarray, dtype: torch.dtype) -> SparseMOMDP:
+        """The MOMDP with ``Tx Ty`` as its nonzeros (expanded as the flat sparse ``T``), ``Z``
+        and ``R`` dense (CPU)."""
+        A, X, Y, O, S = self.A, self.X, self.Y, self.O, self.S
+        rows, s2, p, value = self.transitions()
+        R = self.expected_reward((rows, s2, p, value)).reshape(A, X, Y)
+        s = rows % S
+        index = np.stack([rows // S, s // Y, s % Y, s2 // Y, s2 % Y], axis=1)
+        layout = self.act + self.xc + self.yc + self.ob
+        Z = self.product([self.r.observation[n] for n in self.ob], layout).reshape(A, X, Y, O)
+        b = b0.reshape(X, Y)
+        x0 = int(b.sum(-1).argmax())
+        hidden = b[x0] if abs(b[x0].sum() - 1) <= 1e-12 else b[x0] / b[x0].sum()
+        v = self.r.variables
+        t = _tensor_factory(dtype, "cpu")
+        return SparseMOMDP(
+            transitions=(torch.from_numpy(index), torch.from_numpy(p)),
+            Z=t(Z),
+            R=t(R),
+            x0=x0,
+            b0=t(hidden),
+            discount=self.r.discount,
+            observed_states=_group_names(v.observed),
+            hidden_states=_group_names(v.hidden),
+            actions=_group_names(v.actions),
+            observations=_group_names(v.observations),
+        )
+
     def flat(
         self, b0: np.ndarray, sparse: bool, dtype: torch.dtype, device: torch.device | str | None
     ) -> POMDP | SparsePOMDP:
@@ -1074,7 +1103,7 @@ def read_pomdpx(
     momdp: bool = True,
     dtype: torch.dtype = torch.float64,
     device: torch.device | str | None = None,
-) -> POMDP | MOMDP | SparsePOMDP:
+) -> POMDP | MOMDP | SparseMOMDP | SparsePOMDP:
     """Read a ``.pomdpx`` file (a path, or the XML text itself); see the module docstring.
 
     Args:
@@ -1116,7 +1145,7 @@ def parse_pomdpx(
     momdp: bool = True,
     dtype: torch.dtype = torch.float64,
     device: torch.device | str | None = None,
-) -> POMDP | MOMDP | SparsePOMDP:
+) -> POMDP | MOMDP | SparseMOMDP | SparsePOMDP:
     """Parse the text of a ``.pomdpx`` file (``path`` is used in error messages only); see
     :func:`read_pomdpx`.
 
@@ -1138,6 +1167,8 @@ def parse_pomdpx(
         one_x = bool(np.abs(mass.max() - 1) <= 1e-9)
         if one_x and max(tx, ty, z) <= limit:
             return _wrap(lambda: b.momdp(b0, static, dtype, device), path)
+        if one_x and z <= limit and sparse == "auto":  # Tx Ty kept as its nonzeros
+            return _wrap(lambda: b.sparse_momdp(b0, dtype), path)
     b.set_initial_x(b0)
     dense = max(b.A * b.S * b.S, b.A * b.S * b.flat_observations)
     if sparse is False and dense > MAX_DENSE_ENTRIES:

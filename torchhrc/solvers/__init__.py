@@ -39,6 +39,7 @@ from torchhrc.solvers.sparse_model import SparseFlatModel, sparse_blind_policy, 
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.solvers.value_iteration import MDPSolution, policy_evaluation, value_iteration
 from torchhrc.sparse import SparsePOMDP
+from torchhrc.sparse_momdp import SparseMOMDP
 
 __all__ = [
     "AlphaVectorPolicy",
@@ -104,7 +105,8 @@ def solve(model: POMDP | MOMDP | SparsePOMDP, config: Any) -> Solution:
 
     Args:
         model: an unbatched :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`,
-            or (SARSOP and PBVI only) a :class:`~torchhrc.sparse.SparsePOMDP`.
+            or (SARSOP and PBVI only) a :class:`~torchhrc.sparse.SparsePOMDP` or
+            :class:`~torchhrc.sparse_momdp.SparseMOMDP`.
         config: a solver configuration (``QMDPConfig``, ``FIBConfig``, ``PBVIConfig``,
             ``SARSOPConfig`` or a registered type).
 
@@ -121,12 +123,13 @@ def solve(model: POMDP | MOMDP | SparsePOMDP, config: Any) -> Solution:
         >>> round(solve(tiger(), QMDPConfig()).upper, 6)
         189.0
     """
-    if isinstance(model, SparsePOMDP):  # the point-based solvers have a sparse form
+    if isinstance(model, (SparsePOMDP, SparseMOMDP)):  # the point-based solvers' sparse forms
         if isinstance(config, PBVIConfig):
             return pbvi(model, config)
         if not isinstance(config, SARSOPConfig):
             raise ModelError(
-                f"a SparsePOMDP (sparse transitions) is solved by SARSOP or PBVI only, got a "
+                f"a {type(model).__name__} (sparse transitions) is solved by SARSOP or PBVI "
+                f"only, got a "
                 f"{type(config).__name__}; pass a SARSOPConfig, a PBVIConfig or a dense POMDP"
             )
         return sarsop(model, config)

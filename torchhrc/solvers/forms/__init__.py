@@ -7,7 +7,9 @@ each representation of a model implements it in its own module:
 * :class:`~torchhrc.solvers.forms.momdp.MOMDPForm`: a :class:`~torchhrc.pomdp.MOMDP`,
   factored over observed and hidden values (Ong et al. 2010);
 * :class:`~torchhrc.solvers.forms.sparse.SparseForm`: a :class:`~torchhrc.sparse.SparsePOMDP`
-  (or a prepared :class:`~torchhrc.solvers.sparse_model.SparseFlatModel`), ``T`` sparse.
+  (or a prepared :class:`~torchhrc.solvers.sparse_model.SparseFlatModel`), ``T`` sparse;
+* :class:`~torchhrc.solvers.forms.sparse_momdp.SparseMOMDPForm`: a
+  :class:`~torchhrc.sparse_momdp.SparseMOMDP`, factored like a MOMDP with ``Tx Ty`` sparse.
 
 A new form (a device backend, a sparse MOMDP) is one new module with one class, registered
 here with :func:`register_form`.
@@ -31,8 +33,10 @@ from torchhrc.solvers.forms.base import Children, SolverModel
 from torchhrc.solvers.forms.dense import DenseForm
 from torchhrc.solvers.forms.momdp import MOMDPForm
 from torchhrc.solvers.forms.sparse import SparseForm
+from torchhrc.solvers.forms.sparse_momdp import SparseMOMDPForm
 from torchhrc.solvers.sparse_model import SparseFlatModel
 from torchhrc.sparse import SparsePOMDP
+from torchhrc.sparse_momdp import SparseMOMDP
 
 __all__ = [
     "Children",
@@ -40,6 +44,7 @@ __all__ = [
     "MOMDPForm",
     "SolverModel",
     "SparseForm",
+    "SparseMOMDPForm",
     "as_solver_model",
     "register_form",
 ]
@@ -80,6 +85,7 @@ _FORMS: dict[type, FormBuilder] = {
     MOMDP: _tensor_model(MOMDPForm),
     SparsePOMDP: _sparse_model,
     SparseFlatModel: _sparse_model,
+    SparseMOMDP: lambda model, dtype: SparseMOMDPForm(model, dtype),
 }
 
 

@@ -1,0 +1,354 @@
+"""The sparse MOMDP form: a :class:`~torchhrc.sparse_momdp.SparseMOMDP` solved as a MOMDP.
+
+Beliefs are ``(x, b_y)`` (Ong et al. 2010) as in :mod:`~torchhrc.solvers.forms.momdp`, but
+the joint transition ``P(x2, y2 | x, y, a) = Tx Ty`` is held as its nonzeros, never as the
+dense ``Ty (A, X, Y, X, Y)`` (APPL's RockSample(7, 8): 2.1e9 entries, of which 166400 are
+nonzero). For every observed value ``x`` reached by the search the form keeps, built on first
+use, the reachable next observed values ``reach[x] (K,)`` and the successors of every
+``(a, y)`` row padded to the widest row ``W`` (ELL format)::
+
+    cols[x][a, y, w] = k * Y + y2,   vals[x][a, y, w] = P(x2_k, y2 | x, y, a)
+
+so the prediction of paper Eq. 3 is one scatter-add and the back-projection of a backup one
+gather, each costing ``A Y W`` (``W = 1`` for RockSample) instead of ``A K Y^2``::
+
+    predict[a, k, y2]  = sum_y b[y] P(x2_k, y2 | x, y, a)
+    backproject[y]     = sum_{k, y2} P(x2_k, y2 | x, y, a) values[k, y2]
+
+The bounds run on the nonzeros sorted by row ``(a, x, y)``: the blind policies (Hauskrecht
+2000; exact by LU up to :data:`~torchhrc.solvers._factored.DIRECT_SOLVE_SIZE` states),
+QMDP by value iteration (Littman et al. 1995), and the Fast Informed Bound step summed per
+``(a, x, y, x2)`` group (skipped when every group has one ``y2``: then FIB equals QMDP).
+
+Example:
+    >>> from torchhrc.solvers.forms import as_solver_model
+    >>> from torchhrc.sparse_momdp import SparseMOMDP
+    >>> from torchhrc.tasks.classic import rock_sample_momdp
+    >>> form = as_solver_model(SparseMOMDP.from_dense(rock_sample_momdp(4, 4)))
+    >>> xs, J = form.expand(form.x0, form.b0.unsqueeze(0))
+    >>> J.shape[-1], form.factored, type(form).__name__
+    (16, True, 'SparseMOMDPForm')
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+import torch
+
+from torchhrc.errors import ModelError
+from torchhrc.solvers._factored import DIRECT_SOLVE_SIZE
+from torchhrc.solvers.backup import BackupResult, _padded_vectors, _select_action
+from torchhrc.solvers.forms.base import FIBOperator, PerObserved, SolverModel, field
+from torchhrc.solvers.forms.momdp import MOMDPForm
+from torchhrc.solvers.forms.sparse import SparseForm
+from torchhrc.solvers.policy import AlphaVectorPolicy
+from torchhrc.solvers.sampling import sample_categorical
+from torchhrc.solvers.sparse_model import SparseFlatModel
+from torchhrc.sparse_momdp import SparseMOMDP
+
+__all__ = ["SparseMOMDPForm"]
+
+
+class SparseMOMDPForm(SolverModel):
+    """A :class:`~torchhrc.sparse_momdp.SparseMOMDP` under the solver interface.
+
+    Attributes:
+        Z: ``(A, X, Y, O)``; R: ``(A, X, Y)`` in the solve's dtype.
+        row, col, prob: the nonzeros sorted by ``(a, x, y, x2, y2)``: row ``(a X + x) Y + y``,
+            column ``x2 Y + y2`` and probability (duplicates summed), numpy.
+        slices: per ``x`` (built on first use) ``(reach (K,), cols (A, Y, W), vals (A, Y, W),
+            z (A, K, O, Y))`` in torch; ``reach`` is its first field.
+
+    Args:
+        model: the sparse MOMDP.
+        dtype: the solve's floating dtype (default the model's ``R.dtype``).
+    """
+
+    def __init__(self, model: SparseMOMDP, dtype: torch.dtype | None = None) -> None:
+        self.source = model
+        dt = dtype or model.R.dtype
+        self.dtype = dt
+        A, X, Y, O = model.num_actions, model.num_observed, model.num_hidden, model.num_observations
+        self.num_actions, self.num_observed, self.num_hidden, self.num_observations = A, X, Y, O
+        self.discount = float(model.discount)
+        self.Z = model.Z.to("cpu", dt).contiguous()
+        self.R = model.R.to("cpu", dt).contiguous()
+        self.x0, self.b0 = int(model.x0), model.b0.to("cpu", dt).contiguous()
+        self.factored = True
+        self.state_shape, self.state_doc = (X, Y), "(X, Y)"
+        index, prob = model.transitions
+        idx = index.cpu().numpy().astype(np.int64)
+        row = (idx[:, 0] * X + idx[:, 1]) * Y + idx[:, 2]
+        col = idx[:, 3] * Y + idx[:, 4]
+        key = row * (X * Y) + col
+        uniq, inv = np.unique(key, return_inverse=True)
+        vals = np.bincount(inv, weights=prob.cpu().double().numpy(), minlength=uniq.size)
+        keep = vals != 0
+        uniq, vals = uniq[keep], vals[keep]
+        self.row, self.col = uniq // (X * Y), uniq % (X * Y)
+        self.prob = vals.astype(self.R.numpy().dtype)
+        self.nnz = int(uniq.size)
+        self._act = self.row // (X * Y)
+        self._x = self.row // Y % X
+        self._y = self.row % Y
+        # one entry per (a, x, y, x2) group: FIB equals QMDP
+        group = self.row * X + self.col // Y
+        self._group_starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+        self._group_row = self.row[self._group_starts]
+        self._one_per_group = self._group_starts.size == self.nnz
+        # the nonzeros of each x, for the per-x slices
+        order = np.argsort(self._x, kind="stable")
+        self._by_x = order
+        self._x_ptr = np.searchsorted(self._x[order], np.arange(X + 1))
+        self.slices = PerObserved(X, self._slices)
+        self.reach = field(self.slices, 0)
+
+    def _slices(self, x: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        A, Y = self.num_actions, self.num_hidden
+        e = self._by_x[self._x_ptr[x] : self._x_ptr[x + 1]]  # sorted by (a, y, x2, y2)
+        x2, y2 = self.col[e] // Y, self.col[e] % Y
+        reach = np.unique(x2)
+        k = np.searchsorted(reach, x2)
+        r = self._act[e] * Y + self._y[e]  # (a, y) row, ascending
+        counts = np.bincount(r, minlength=A * Y)
+        W = max(int(counts.max()) if e.size else 1, 1)
+        slot = np.arange(e.size) - (np.cumsum(counts) - counts)[r]
+        cols = np.zeros((A * Y, W), dtype=np.int64)
+        vals = np.zeros((A * Y, W), dtype=self.prob.dtype)
+        cols[r, slot] = k * Y + y2
+        vals[r, slot] = self.prob[e]
+        reach_t = torch.from_numpy(reach.astype(np.int64))
+        z = self.Z[:, reach_t].permute(0, 1, 3, 2).contiguous()  # (A, K, O, Y)
+        return (reach_t, torch.from_numpy(cols).view(A, Y, W),
+                torch.from_numpy(vals).view(A, Y, W), z)  # fmt: skip
+
+    def _ell(self, x: int) -> tuple[torch.Tensor, torch.Tensor]:
+        s = self.slices[x]
+        return s[1], s[2]
+
+    def _ell_np(self, x: int) -> tuple[np.ndarray, np.ndarray]:
+        return self._cached("ell_np", x, lambda: tuple(t.numpy() for t in self._ell(x)))
+
+    # -- torch ---------------------------------------------------------------------------------
+    def observation(self, x: int) -> torch.Tensor:
+        return self.slices[x][3]
+
+    def predict(self, x: int, beliefs: torch.Tensor) -> torch.Tensor:
+        cols, vals = self._ell(x)
+        A, Y, _ = cols.shape
+        K = self.reach[x].numel()
+        target = self._cached(
+            "target", x, lambda: (cols + (torch.arange(A) * K * Y).view(A, 1, 1)).reshape(-1)
+        )
+        w = beliefs.to(self.dtype)[:, None, :, None] * vals  # (B, A, Y, W)
+        B = beliefs.shape[0]
+        out = w.new_zeros(B, A * K * Y).index_add_(1, target, w.reshape(B, -1))
+        return out.view(B, A, K, Y)
+
+    def backproject(self, x: int, actions: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        cols, vals = self._ell(x)
+        c, v = cols[actions], vals[actions]  # (B, Y, W)
+        B, Y, W = c.shape
+        g = values.reshape(B, -1).gather(1, c.reshape(B, -1)).view(B, Y, W)
+        return (v * g).sum(-1)
+
+    # -- numpy ---------------------------------------------------------------------------------
+    def predict_np(self, x: int, b: np.ndarray) -> np.ndarray:
+        cols, vals = self._ell_np(x)
+        A, Y, _ = cols.shape
+        K = self.reach_np(x).size
+        target = self._cached("target_np", x, lambda: self.predict_target(x))
+        w = b[None, :, None] * vals
+        out = np.bincount(target, weights=w.reshape(-1), minlength=A * K * Y)
+        return out.astype(b.dtype, copy=False).reshape(A, K, Y)
+
+    def predict_target(self, x: int) -> np.ndarray:
+        """``(A Y W,)`` the flat ``(a, k, y2)`` cell of every padded successor of ``x``."""
+        cols, _ = self._ell_np(x)
+        A, Y, _ = cols.shape
+        K = self.reach_np(x).size
+        return (cols + (np.arange(A) * K * Y)[:, None, None]).reshape(-1)
+
+    def predict_action_np(self, x: int, b: np.ndarray, a: int, k: int) -> np.ndarray:
+        cols, vals = self._ell_np(x)
+        Y = cols.shape[1]
+        c = cols[a]
+        mine = (c >= k * Y) & (c < (k + 1) * Y)
+        w = (b[:, None] * vals[a])[mine]
+        return np.bincount(c[mine] - k * Y, weights=w, minlength=Y).astype(b.dtype, copy=False)
+
+    def backproject_np(self, x: int, a: int, values: np.ndarray) -> np.ndarray:
+        cols, vals = self._ell_np(x)
+        return (vals[a] * values.reshape(-1)[cols[a]]).sum(-1)
+
+    # -- initial bounds ----------------------------------------------------------------------
+    def expect_np(self, V: np.ndarray) -> np.ndarray:
+        """``(A, X, Y)`` ``sum_{x2, y2} P(x2, y2 | x, y, a) V[x2, y2]`` for ``V (X, Y)``, or
+        per action ``V (A, X, Y)``; one pass over the nonzeros."""
+        A, X, Y = self.num_actions, self.num_observed, self.num_hidden
+        if V.ndim == 2:
+            flat = V.reshape(-1)[self.col]
+        else:
+            flat = V.reshape(-1)[self._act * (X * Y) + self.col]
+        out = np.bincount(self.row, weights=self.prob * flat, minlength=A * X * Y)
+        return out.astype(V.dtype, copy=False).reshape(A, X, Y)
+
+    def blind_vectors(self, tol: float = 1e-8, max_iterations: int = 100_000) -> torch.Tensor:
+        """``(A, X, Y)`` blind-policy vectors ``alpha_a = R_a + gamma P_a alpha_a``
+        (Hauskrecht 2000): exact by LU up to ``DIRECT_SOLVE_SIZE`` states, else iterated
+        from ``min R / (1 - gamma)`` with ``max(new, old)`` (every iterate a lower bound)."""
+        A, X, Y = self.num_actions, self.num_observed, self.num_hidden
+        g = self.discount
+        if g >= 1.0:
+            raise ModelError(f"the blind lower bound needs discount < 1, got {g}")
+        S = X * Y
+        R = self.R.numpy()
+        if S <= DIRECT_SOLVE_SIZE:
+            P = np.zeros((A, S, S), dtype=R.dtype)
+            a = self._act
+            np.add.at(P, (a, self.row - a * S, self.col), self.prob)
+            rhs = R.reshape(A, S, 1)
+            out = np.linalg.solve(np.eye(S)[None] - g * P, rhs)
+            return torch.from_numpy(out.reshape(A, X, Y).astype(R.dtype, copy=False))
+        alpha = np.full_like(R, float(R.min()) / (1.0 - g))
+        for _ in range(max_iterations):
+            new = np.maximum(R + g * self.expect_np(alpha), alpha)
+            change = float(np.abs(new - alpha).max())
+            alpha = new
+            if change < tol * (1.0 - g):
+                break
+        return torch.from_numpy(alpha)
+
+    def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
+        if max_iterations is None:  # the discounted tail below 1e-3 of the first step's
+            g = self.discount
+            max_iterations = int(min(1000, math.ceil(math.log(1e-3) / math.log(g)))) if g > 0 else 1
+        vectors = self.blind_vectors(max_iterations=max_iterations)
+        return AlphaVectorPolicy.from_action_vectors(vectors, momdp=True)
+
+    def qmdp_np(self, tol: float = 1e-8, deadline: float = math.inf) -> np.ndarray:
+        """``(A, X, Y)`` QMDP vectors by value iteration from ``max R / (1 - gamma)`` (every
+        iterate an upper bound; stops below ``tol`` or at ``deadline``)."""
+        R = self.R.numpy()
+        g = self.discount
+        V = np.full(R.shape[1:], float(R.max()) / (1.0 - g), dtype=R.dtype)
+        Q = R + g * self.expect_np(V)
+        for _ in range(100_000):
+            if time.perf_counter() > deadline:
+                break
+            new = Q.max(0)
+            change = float(np.abs(V - new).max())
+            V = new
+            np.minimum(R + g * self.expect_np(V), Q, out=Q)
+            if change < tol:
+                break
+        return Q
+
+    def fib_np(self, alpha: np.ndarray) -> np.ndarray:
+        """``(A, X, Y)`` one Fast Informed Bound step (Hauskrecht 2000) from ``alpha (A2, X, Y)``::
+
+            R[a, x, y] + gamma sum_{x2, o} max_a2 sum_y2 P(x2, y2 | x, y, a) Z[a, x2, y2, o]
+                         alpha[a2, x2, y2]
+
+        the ``(O, A2)`` products gathered per nonzero and summed per ``(a, x, y, x2)`` group.
+        """
+        A, X, Y, O = self.num_actions, self.num_observed, self.num_hidden, self.num_observations
+        Zf = self.Z.numpy().reshape(A * X * Y, O)
+        z = Zf[self._act * (X * Y) + self.col]  # (nnz, O)
+        al = alpha.reshape(alpha.shape[0], X * Y)[:, self.col].T  # (nnz, A2)
+        G = (self.prob[:, None] * z)[:, :, None] * al[:, None, :]  # (nnz, O, A2)
+        if not self._one_per_group:
+            G = np.add.reduceat(G, self._group_starts, axis=0)
+        best = G.max(-1).sum(-1)  # (groups,)
+        out = np.bincount(self._group_row, weights=best, minlength=A * X * Y)
+        return self.R.numpy() + self.discount * out.reshape(A, X, Y)
+
+    def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
+                  ) -> tuple[torch.Tensor, FIBOperator | None]:  # fmt: skip
+        """QMDP (sharing the time budget), then :meth:`fib_np`; one ``y2`` per
+        ``(a, x, y, x2)`` makes FIB equal QMDP (``sum_o Z = 1``)."""
+        alpha = torch.from_numpy(self.qmdp_np(tol, deadline=deadline))
+        if time.perf_counter() > deadline:
+            info["stop"] = "time_limit"
+            return alpha, None
+        if self._one_per_group:
+            return alpha, None
+        return alpha, lambda a: torch.from_numpy(self.fib_np(a.numpy()))
+
+    # -- PBVI ----------------------------------------------------------------------------------
+    def flattened(self) -> SparseForm:
+        """The flat sparse form of ``model.to_sparse_pomdp()`` (states ``(x, y)``)."""
+        flat = SparseFlatModel.from_model(self.source.to_sparse_pomdp(), dtype=self.dtype)
+        return SparseForm(flat, self.source)
+
+    def upper_vectors(self, kind: str, tol: float) -> torch.Tensor:
+        if kind == "fib":
+            return self.fib_vectors(tol)[0]
+        return torch.from_numpy(self.qmdp_np(tol))
+
+    def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
+                 generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+        """One sampled step: ``y ~ b``, ``(x2, y2)`` among the stored successors of
+        ``(a, x, y)``, ``o ~ Z[a, x2, y2]``, then the MOMDP belief update (paper Eq. 3),
+        grouped by ``x``."""
+        X, Y = self.num_observed, self.num_hidden
+        beliefs = beliefs.to(self.dtype)
+        y = sample_categorical(beliefs, generator)
+        rows = ((actions * X + x) * Y + y).cpu().numpy()
+        ptr = self._cached(
+            "row_ptr", 0, lambda: np.searchsorted(self.row, np.arange(self.row.max() + 2))
+        )
+        start, stop = ptr[rows], ptr[rows + 1]
+        W = max(int((stop - start).max()), 1)
+        pos = start[:, None] + np.arange(W)[None, :]
+        valid = pos < stop[:, None]
+        pos = np.where(valid, pos, 0)
+        p = torch.from_numpy(np.where(valid, self.prob[pos], 0.0))
+        pick = sample_categorical(p, generator).numpy()
+        nxt = torch.from_numpy(self.col[pos[np.arange(rows.size), pick]])
+        x2, y2 = nxt // Y, nxt % Y
+        o = sample_categorical(self.Z[actions, x2, y2], generator)
+        new = torch.empty_like(beliefs)
+        for xv in torch.unique(x).tolist():  # one expansion per distinct observed value
+            m = (x == xv).nonzero().squeeze(-1)
+            xs, J = self.expand(xv, beliefs[m])  # (B, A, K, O, Y)
+            k = torch.searchsorted(xs, x2[m])
+            child = J[torch.arange(m.numel()), actions[m], k, o[m]]
+            new[m] = child / child.sum(-1, keepdim=True)
+        return x2, new
+
+    def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
+                     beliefs: torch.Tensor) -> BackupResult:  # fmt: skip
+        """The factored point backup (Pineau et al. 2003) of ``(x (M,), beliefs (M, Y))``,
+        grouped by ``x``: the best vector of each child ``J[a, k, o]`` among those tagged
+        ``x2_k``, then every action's vector ``R[a, x] + gamma P_a sum_o Z alpha*``."""
+        A, X, Y = self.num_actions, self.num_observed, self.num_hidden
+        beliefs = beliefs.to(self.dtype)
+        padded, valid = _padded_vectors(policy.to(dtype=self.dtype), X)  # (X, N, Y), (X, N)
+        M = beliefs.shape[0]
+        vectors = beliefs.new_empty(M, A, Y)
+        for xv in torch.unique(x).tolist():
+            m = (x == xv).nonzero().squeeze(-1)
+            B = m.numel()
+            xs, J = self.expand(xv, beliefs[m])  # (B, A, K, O, Y)
+            cand = padded[xs]  # (K, N, Y)
+            scores = torch.einsum("bakoy,kny->bakon", J, cand)
+            scores = scores.masked_fill(~valid[xs].view(1, 1, -1, 1, valid.shape[1]), -torch.inf)
+            best = scores.argmax(-1)  # (B, A, K, O)
+            K = xs.numel()
+            chosen = cand[torch.arange(K).view(1, 1, K, 1), best]  # (B, A, K, O, Y)
+            inner = (self.observation(xv).unsqueeze(0) * chosen).sum(3)  # (B, A, K, Y)
+            acts = torch.arange(A).repeat(B)
+            back = self.backproject(xv, acts, inner.reshape(B * A, K, Y)).view(B, A, Y)
+            vectors[m] = self.R[:, xv, :].unsqueeze(0) + self.discount * back
+        new, actions, values, q = _select_action(beliefs, vectors)
+        return BackupResult(new, actions, values, q, observed=x.clone())
+
+    # -- policies: vectors over Y tagged with their observed value (as the dense MOMDP form) ----
+    policy = MOMDPForm.policy
+    value = MOMDPForm.value
+    prune = MOMDPForm.prune

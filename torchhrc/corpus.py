@@ -573,8 +573,10 @@ class RayEStep:
         chunks: number of blocks (default: the cluster's CPUs).
 
     Example:
-        >>> RayEStep.__call__.__doc__.split(".")[0]
-        'One pass over all rows, as SoftStatistics'
+        >>> from torchhrc.mixture import fit_mixture  # doctest: +SKIP
+        >>> fit = fit_mixture(ShardedCorpus.open("shards/"), ray=True)  # doctest: +SKIP
+        >>> fit.k  # E-steps ran on the Ray actors  # doctest: +SKIP
+        2
     """
 
     def __init__(self, stats: Any, *, dtype: torch.dtype, ray: bool | str = True,

@@ -192,8 +192,12 @@ def main() -> None:
     parser.add_argument("--total", type=int, default=10_000_000)
     parser.add_argument("--ray-cpus", type=int, default=2)
     parser.add_argument("--shard-dir", default=None, help="keep/reuse the shards here")
-    parser.add_argument("--data", choices=("study", "chains"), default="study",
-                        help="--shards data: place-and-drill demonstrations or random chains")  # fmt: skip
+    parser.add_argument(
+        "--data",
+        choices=("study", "chains"),
+        default="study",
+        help="--shards data: place-and-drill demonstrations or random chains",
+    )
     parser.add_argument(
         "--study",
         type=int,

@@ -47,8 +47,10 @@ def main() -> None:
     )
     for i, t in enumerate(result.margins.tolist(), start=1):
         print(f"iteration {i:2d}  margin t = {t:.4f}")
-    print(f"converged: {result.converged} after {result.num_iterations} RL steps "
-          f"(stop: {result.stop_reason}; reward rule: {result.rule})")
+    print(
+        f"converged: {result.converged} after {result.num_iterations} RL steps "
+        f"(stop: {result.stop_reason}; reward rule: {result.rule})"
+    )
 
     truth = world.solve()
     learned = world.solve(result.reward(phi, world.num_actions))

@@ -58,10 +58,22 @@ def _table(rows: list[tuple]) -> object:
     [
         ([("a", "0", 0, "human", "x"), ("a", "0", 2, "robot", "y")], 2, "out of order"),
         ([("a", "0", 0, "human", "x"), ("a", "0", 1, "cat", "y")], 2, "unknown actor"),
-        ([("a", "0", 0, "human", "x"), ("b", "0", 0, "robot", "y"), ("b", "0", 1, "robot", "y")],
-         1, "expected at least 2"),
-        ([("a", "0", 0, "human", "x"), ("a", "0", 1, "robot", "y"), ("b", "0", 0, "human", "x"),
-          ("b", "0", 1, "human", "x"), ("a", "0", 2, "human", "x")], 5, "not contiguous"),
+        (
+            [("a", "0", 0, "human", "x"), ("b", "0", 0, "robot", "y"), ("b", "0", 1, "robot", "y")],
+            1,
+            "expected at least 2",
+        ),
+        (
+            [
+                ("a", "0", 0, "human", "x"),
+                ("a", "0", 1, "robot", "y"),
+                ("b", "0", 0, "human", "x"),
+                ("b", "0", 1, "human", "x"),
+                ("a", "0", 2, "human", "x"),
+            ],
+            5,
+            "not contiguous",
+        ),
     ],
 )
 def test_malformed_parquet_names_file_row_and_reason(
@@ -146,9 +158,7 @@ def test_shards_must_agree(study: Demonstrations, tmp_path: Path) -> None:
     safe.write_csv(tmp_path / "b.csv")  # the same subjects in two shards
     with pytest.raises(ModelError, match="two shards"):
         ShardedCorpus.open(tmp_path).statistics(unit="subject")
-    assert ShardedCorpus.open(tmp_path).statistics(unit="sequence").stats.num_units == 2 * len(
-        safe
-    )
+    assert ShardedCorpus.open(tmp_path).statistics(unit="sequence").stats.num_units == 2 * len(safe)
 
 
 def test_open_errors(tmp_path: Path) -> None:

@@ -265,8 +265,15 @@ def sharded_cluster_report(
         raise ModelError(f"expected k_min <= k_max, got k_min = {k_min} > k_max = {k_max}")
     unit = "subject" if method == "soft" else "sequence"
     merged = corpus.statistics(unit=unit, ray=ray, keep_keys=True)
-    fit = fit_mixture(merged, k_min=k_min, k_max=k_max, restarts=restarts,
-                      method=method, criterion=criterion, seed=seed)  # type: ignore[arg-type]
+    fit = fit_mixture(
+        merged,
+        k_min=k_min,
+        k_max=k_max,
+        restarts=restarts,
+        method=method,
+        criterion=criterion,
+        seed=seed,
+    )  # type: ignore[arg-type]
     if save_model is not None:
         fit.model.save(save_model)
     stats = merged.stats
@@ -275,7 +282,8 @@ def sharded_cluster_report(
     row_cluster = torch.zeros(stats.num_distinct, dtype=torch.long)
     row_cluster.scatter_(0, stats.inverse, assignments)
     weighted = stats.counts * stats.multiplicity[:, None]
-    by_cluster = torch.zeros(fit.k, A * A, dtype=weighted.dtype).index_add_(0, row_cluster, weighted)
+    by_cluster = torch.zeros(fit.k, A * A, dtype=weighted.dtype)
+    by_cluster.index_add_(0, row_cluster, weighted)
     keys = merged.sequence_keys or ()
     report: dict[str, Any] = {
         "k": fit.k,

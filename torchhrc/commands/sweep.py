@@ -116,7 +116,10 @@ def register(subparsers: Any) -> None:
         help="run each job as a Ray task on a local cluster or a running one",
     )
     parser.add_argument(
-        "--workers", type=_positive, default=None, help="worker processes / Ray CPUs (default: cores)"
+        "--workers",
+        type=_positive,
+        default=None,
+        help="worker processes / Ray CPUs (default: cores)",
     )
     parser.add_argument(
         "--resume", action="store_true", help="skip the jobs OUT already holds, run the rest"

@@ -485,13 +485,12 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
                 scale=learned.log_scale.exp().reshape(-1, 2),
             )  # fmt: skip
         speed_model = sub.momdp(sub_obs)
-    speed = (
-        factored_vs_flat(speed_model, precision=settings.precision,
-                         time_limit=settings.flat_time, flat_time=settings.flat_time,
-                         seed=seed)  # fmt: skip
-        if settings.speedup
-        else {"speedup": None, "note": "not measured (settings.speedup = False)"}
-    )
+    if settings.speedup:
+        speed = factored_vs_flat(speed_model, precision=settings.precision,
+                                 time_limit=settings.flat_time, flat_time=settings.flat_time,
+                                 seed=seed)  # fmt: skip
+    else:
+        speed = {"speedup": None, "note": "not measured (settings.speedup = False)"}
     tick("hand-finishing", 5, stages)
     # 6. the arm follows one episode's box moves per true type in the physics scene
     sim = (_replay_in_sapien(task, ep, seed=seed) if settings.sim
@@ -682,7 +681,8 @@ def _report(metrics: dict[str, Any]) -> str:
         f"- MOMDP: {metrics['n_observed']} observed values x {len(metrics['cluster_sides'])} "
         f"types = **{metrics['n_states']} states**; kept box configurations: "
         f"{metrics['reachable_fraction']:.2f} of the grid (reach + comfort).",
-        f"- Types found by clustering {metrics.get('subjects', 6)} simulated subjects: k = {metrics['k']}, cluster "
+        f"- Types found by clustering {metrics.get('subjects', 6)} simulated subjects: "
+        f"k = {metrics['k']}, cluster "
         f"preferences {metrics['cluster_sides']}, subject accuracy "
         f"{metrics['cluster_accuracy']:.2f}.",
         "- Simulated persons: the hand walks from where the person stands "

@@ -300,7 +300,10 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
     cpu_start = time.process_time()
     s = settings
     demos = simulate_study(
-        n_subjects=s.subjects, n_demos=s.demos, n_positions=s.positions, noise=s.noise,
+        n_subjects=s.subjects,
+        n_demos=s.demos,
+        n_positions=s.positions,
+        noise=s.noise,
         seed=s.seed,
     )
     expert = load_expert_model()
@@ -385,7 +388,10 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
         irl_time += time.perf_counter() - t
         t = time.perf_counter()
         learned = solve_model(
-            learned, time_limit=s.solver_time, precision=s.solver_precision, seed=s.seed,
+            learned,
+            time_limit=s.solver_time,
+            precision=s.solver_precision,
+            seed=s.seed,
             max_iterations=s.solver_max_iterations,
         )
         solution = learned

@@ -361,8 +361,11 @@ def _separation_section(metrics: Mapping[str, Any], study: Mapping[str, Any]) ->
         return ""
     if not sep.get("available"):
         return f"\n### Human-robot separation\n\nNot measured: {sep.get('note', '')}\n"
-    lines = ["| case | policy | true type | median (m) | 5th pct (m) | "
-             f"steps < {sep['threshold_m']:g} m | contacts | steps |", "|---|---|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+    lines = [
+        "| case | policy | true type | median (m) | 5th pct (m) | "
+        f"steps < {sep['threshold_m']:g} m | contacts | steps |",
+        "|---|---|---|---:|---:|---:|---:|---:|",
+    ]
     for case in ("offline", "online"):
         for name in _POLICIES:
             for label, v in sorted(sep.get(case, {}).get(name, {}).items()):

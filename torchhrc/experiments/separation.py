@@ -161,9 +161,7 @@ def separation_study(
     from torchhrc.sim.workbench import PlaceAndDrillScene, WorkbenchLayout
 
     start = time.perf_counter()
-    scene = PlaceAndDrillScene(
-        layout or WorkbenchLayout(n_positions=task.n_positions), seed=seed
-    )
+    scene = PlaceAndDrillScene(layout or WorkbenchLayout(n_positions=task.n_positions), seed=seed)
     rows = []
     for execution in executions:
         drill, place = execution_steps(task, execution.states, execution.actions)

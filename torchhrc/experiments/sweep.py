@@ -411,9 +411,7 @@ class LocalExecutor:
                                 pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
                                 resubmit = [*pending.values(), job]
                                 pending = {
-                                    pool.submit(
-                                        run_job, spec.task, j.params, j.seed, spec.quick
-                                    ): j
+                                    pool.submit(run_job, spec.task, j.params, j.seed, spec.quick): j
                                     for j in resubmit
                                 }
                                 break

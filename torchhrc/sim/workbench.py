@@ -104,9 +104,7 @@ class WorkbenchLayout:
             if not getattr(self, name) > 0:
                 raise ModelError(f"expected {name} > 0, got {getattr(self, name)}")
         if not self.person_x > self.screw_x:
-            raise ModelError(
-                f"expected person_x > screw_x (across the bench), got {self.person_x}"
-            )
+            raise ModelError(f"expected person_x > screw_x (across the bench), got {self.person_x}")
 
     def screw_positions(self) -> torch.Tensor:
         """``(n, 3)`` world positions of the screw heads (on the bench top)."""
@@ -405,9 +403,7 @@ class PlaceAndDrillScene:
     def contacts(self) -> int:
         """Robot-person contact points of the last physics step that touch or penetrate
         (separation <= 0; only robot-person shape pairs collide in this scene)."""
-        return sum(
-            1 for c in self.scene.get_contacts() for p in c.points if p.separation <= 0.0
-        )
+        return sum(1 for c in self.scene.get_contacts() for p in c.points if p.separation <= 0.0)
 
     def tip_position(self) -> torch.Tensor:
         """``(3,)`` the drill's tip in the world."""

@@ -123,6 +123,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+def _check_search(k_min: int, k_max: int, restarts: int) -> None:
+    for name, value in (("k_min", k_min), ("k_max", k_max), ("restarts", restarts)):
+        if value < 1:
+            raise ModelError(f"expected {name} >= 1, got {value}")
+    if k_max < k_min:
+        raise ModelError(f"expected k_min <= k_max, got k_min = {k_min} > k_max = {k_max}")
+
+
+def _against_types(types: Any, assignments: torch.Tensor, k: int) -> dict[str, Any]:
+    """Adjusted Rand index, matched accuracy and the type-by-cluster table."""
+    from torchhrc.metrics import adjusted_rand_index, matched_accuracy
+
+    table: dict[str, list[int]] = {}
+    for label, c in zip(types, assignments.tolist(), strict=True):
+        table.setdefault(label, [0] * k)[c] += 1
+    return {
+        "adjusted_rand_index": adjusted_rand_index(types, assignments),
+        "matched_accuracy": matched_accuracy(types, assignments),
+        "type_by_cluster": dict(sorted(table.items())),
+    }
+
+
 def cluster_report(
     demos: Demonstrations,
     *,
@@ -154,14 +176,9 @@ def cluster_report(
         >>> r["k"], r["adjusted_rand_index"], len(r["assignments"])
         (2, 1.0, 12)
     """
-    from torchhrc.metrics import adjusted_rand_index, matched_accuracy
     from torchhrc.mixture import fit_mixture
 
-    for name, value in (("k_min", k_min), ("k_max", k_max), ("restarts", restarts)):
-        if value < 1:
-            raise ModelError(f"expected {name} >= 1, got {value}")
-    if k_max < k_min:
-        raise ModelError(f"expected k_min <= k_max, got k_min = {k_min} > k_max = {k_max}")
+    _check_search(k_min, k_max, restarts)
     if k_min > demos.num_sequences:
         raise ModelError(
             f"expected k_min <= the number of sequences ({demos.num_sequences}), got {k_min}"
@@ -208,12 +225,7 @@ def cluster_report(
     by_cluster.index_add_(0, assignments, counts)  # (k, A, A)
     report["_cluster_counts"] = by_cluster
     if demos.types is not None:
-        report["adjusted_rand_index"] = adjusted_rand_index(demos.types, assignments)
-        report["matched_accuracy"] = matched_accuracy(demos.types, assignments)
-        table: dict[str, list[int]] = {}
-        for label, c in zip(demos.types, assignments.tolist()):
-            table.setdefault(label, [0] * fit.k)[c] += 1
-        report["type_by_cluster"] = dict(sorted(table.items()))
+        report.update(_against_types(demos.types, assignments, fit.k))
     if loo:
         from torchhrc.experiments.loo import leave_one_subject_out
 
@@ -255,14 +267,9 @@ def sharded_cluster_report(
     the fit equals the in-memory one. ``--loo`` and ``--relabel-objects`` need the corpus in
     memory and are not offered here.
     """
-    from torchhrc.metrics import adjusted_rand_index, matched_accuracy
     from torchhrc.mixture import fit_mixture
 
-    for name, value in (("k_min", k_min), ("k_max", k_max), ("restarts", restarts)):
-        if value < 1:
-            raise ModelError(f"expected {name} >= 1, got {value}")
-    if k_max < k_min:
-        raise ModelError(f"expected k_min <= k_max, got k_min = {k_min} > k_max = {k_max}")
+    _check_search(k_min, k_max, restarts)
     unit = "subject" if method == "soft" else "sequence"
     merged = corpus.statistics(unit=unit, ray=ray, keep_keys=True)
     fit = fit_mixture(
@@ -306,12 +313,7 @@ def sharded_cluster_report(
         "_cluster_counts": by_cluster.view(fit.k, A, A),
     }
     if merged.types is not None:
-        report["adjusted_rand_index"] = adjusted_rand_index(merged.types, assignments)
-        report["matched_accuracy"] = matched_accuracy(merged.types, assignments)
-        table: dict[str, list[int]] = {}
-        for label, c in zip(merged.types, assignments.tolist()):
-            table.setdefault(label, [0] * fit.k)[c] += 1
-        report["type_by_cluster"] = dict(sorted(table.items()))
+        report.update(_against_types(merged.types, assignments, fit.k))
     return report
 
 

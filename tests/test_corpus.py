@@ -128,17 +128,26 @@ def test_sharded_fit_equals_the_in_memory_fit(
     assert torch.equal(sharded.assignments, memory.assignments)
 
 
-def test_ray_shard_tasks_give_the_in_memory_fit(study: Demonstrations, tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def local_ray():
     ray = pytest.importorskip("ray", reason="the [ray] extra is not installed")
-    ordered = _write_shards(study, tmp_path, 4, ".parquet")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+@pytest.mark.parametrize("shards", [1, 2, 4])
+def test_ray_shard_tasks_and_e_steps_give_the_in_memory_fit(
+    study: Demonstrations, tmp_path: Path, local_ray, shards: int
+) -> None:
+    """Shards reduced as Ray tasks, every E-step on Ray actors (a local cluster, 2 CPUs)."""
+    ordered = _write_shards(study, tmp_path, shards, ".parquet")
     options = dict(k_min=1, k_max=4, restarts=4, seed=5)
     memory = fit_mixture(ordered, **options)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        on_ray = fit_mixture(ShardedCorpus.open(tmp_path), ray=True, **options)
-    finally:
-        ray.shutdown()
+    on_ray = fit_mixture(ShardedCorpus.open(tmp_path), ray=True, **options)
+    assert local_ray.is_initialized()  # the fit leaves a cluster it did not start
     assert on_ray.k == memory.k
+    assert on_ray.log_likelihood == pytest.approx(memory.log_likelihood, abs=1e-6)
     assert on_ray.bic == pytest.approx(memory.bic, abs=1e-6)
     assert torch.equal(on_ray.assignments, memory.assignments)
 

@@ -287,8 +287,9 @@ class ShardStatistics:
 
 
 def _compact_dtype(largest: int) -> torch.dtype:
+    """The smallest of uint8, int16, int32, int64 that holds ``0..largest``."""
     for dtype in (torch.uint8, torch.int16, torch.int32):
-        if largest <= (255 if dtype == torch.uint8 else torch.iinfo(dtype).max):
+        if largest <= torch.iinfo(dtype).max:
             return dtype
     return torch.int64
 

@@ -136,17 +136,16 @@ def add_capsule_collisions(urdf: str, capsules: tuple[Capsule, ...]) -> str:
         length = float((end - start).norm())
         centre = ((start + end) / 2).tolist()
         collision = ET.SubElement(link, "collision")
-        geometry_parent = collision
         if length < 1e-9:
             ET.SubElement(collision, "origin", xyz=" ".join(f"{v:.9g}" for v in centre))
-            geometry = ET.SubElement(geometry_parent, "geometry")
+            geometry = ET.SubElement(collision, "geometry")
             ET.SubElement(geometry, "sphere", radius=f"{cap.radius:.9g}")
             continue
         direction = ((end - start) / length).tolist()
         rpy = _rpy_of_z_to((direction[0], direction[1], direction[2]))
         ET.SubElement(collision, "origin", xyz=" ".join(f"{v:.9g}" for v in centre),
                       rpy=" ".join(f"{v:.12g}" for v in rpy))  # fmt: skip
-        geometry = ET.SubElement(geometry_parent, "geometry")
+        geometry = ET.SubElement(collision, "geometry")
         ET.SubElement(geometry, "capsule", radius=f"{cap.radius:.9g}", length=f"{length:.9g}")
     return ET.tostring(root, encoding="unicode")
 

@@ -98,6 +98,31 @@ def check_render_device(*, timeout: float = 60.0) -> None:
         )
 
 
+def load_urdf_text(scene: object, text: str, *, render: bool = False) -> object:
+    """Load URDF ``text`` into a SAPIEN ``scene`` as an articulation with a fixed root
+    (collision shapes also drawn when ``render``); the text goes through a temporary file."""
+    loader = scene.create_urdf_loader()  # type: ignore[attr-defined]
+    loader.fix_root_link = True
+    if render:
+        loader.collision_is_visual = True
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "model.urdf"
+        path.write_text(text)
+        return loader.load(str(path))
+
+
+def set_joint_positions(articulation: object, q: torch.Tensor, joints: list | None = None) -> None:
+    """Place ``articulation``'s joints at ``q (DOF,)`` at rest; with ``joints`` (its active
+    joints), also set their drive targets there (the arm holds the pose)."""
+    import numpy as np
+
+    arr = np.asarray(q.tolist(), dtype=np.float32)
+    articulation.set_qpos(arr)  # type: ignore[attr-defined]
+    articulation.set_qvel(np.zeros_like(arr))  # type: ignore[attr-defined]
+    for joint, value in zip(joints or (), arr.tolist(), strict=False):
+        joint.set_drive_target(value)
+
+
 @dataclass(frozen=True)
 class MoveResult:
     """The outcome of a commanded move.
@@ -211,14 +236,9 @@ class HandFinishingScene:
             builder.add_box_visual(half_size=half)
         builder.set_initial_pose(sapien.Pose([0.0, 0.0, self.table_height / 2]))
         self.table = builder.build_static(name="table")
-        loader = self.scene.create_urdf_loader()
-        loader.fix_root_link = True
-        if render:
-            loader.collision_is_visual = True
-        with tempfile.TemporaryDirectory() as tmp:
-            path = Path(tmp) / "panda_box.urdf"
-            path.write_text(_box_urdf(self.geometry, float(box_mass)))
-            self.robot = loader.load(str(path))
+        self.robot = load_urdf_text(
+            self.scene, _box_urdf(self.geometry, float(box_mass)), render=render
+        )
         self.robot.set_root_pose(sapien.Pose([0.0, 0.0, self.table_height]))
         self.joints = self.robot.get_active_joints()
         if len(self.joints) != self.arm.dof:
@@ -234,13 +254,7 @@ class HandFinishingScene:
 
     # ------------------------------------------------------------------ helpers
     def _set_qpos(self, q: torch.Tensor) -> None:
-        import numpy as np
-
-        arr = np.asarray(q.tolist(), dtype=np.float32)
-        self.robot.set_qpos(arr)
-        self.robot.set_qvel(np.zeros_like(arr))
-        for joint, value in zip(self.joints, arr.tolist()):
-            joint.set_drive_target(value)
+        set_joint_positions(self.robot, q, self.joints)
 
     def _home(self) -> torch.Tensor:
         """Joints holding the box at the reachable configuration nearest the grid's centre."""

@@ -33,16 +33,19 @@ Example:
 from __future__ import annotations
 
 import math
-import tempfile
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.kinematics import SerialArm, asset_path, human_arm_urdf
 from torchhrc.sim.capsules import Capsule, add_capsule_collisions, capsules_from_urdf
-from torchhrc.sim.scene import _import_sapien, check_render_device
+from torchhrc.sim.scene import (
+    _import_sapien,
+    check_render_device,
+    load_urdf_text,
+    set_joint_positions,
+)
 
 __all__ = ["DrillResult", "PlaceAndDrillScene", "WorkbenchLayout"]
 
@@ -276,12 +279,10 @@ class PlaceAndDrillScene:
         self.robot.set_root_pose(sapien.Pose([0.0, 0.0, lay.bench_height]))
         self.arm = SerialArm.panda()
         self.person = SerialArm(human_text, "palm")
-        shoulder = self.person.forward(torch.zeros(self.person.dof))  # hanging arm
         offset = -float(_shoulder_y(human_text))
         base = lay.person_base(offset)
         self._person_base = base
         self.human.set_root_pose(_to_sapien_pose(sapien, base))
-        del shoulder
         self.joints = self.robot.get_active_joints()
         self.human_joints = self.human.get_active_joints()
         for joint in self.joints:
@@ -297,15 +298,9 @@ class PlaceAndDrillScene:
     # ------------------------------------------------------------------ construction
     def _load(self, text: str, capsules: tuple[Capsule, ...], groups: list[int],
               render: bool) -> object:  # fmt: skip
-        loader = self.scene.create_urdf_loader()
-        loader.fix_root_link = True
-        if render:
-            loader.collision_is_visual = True
-        with tempfile.TemporaryDirectory() as tmp:
-            path = Path(tmp) / "arm.urdf"
-            path.write_text(add_capsule_collisions(text, capsules))
-            articulation = loader.load(str(path))
-        for link in articulation.get_links():
+        articulation = load_urdf_text(self.scene, add_capsule_collisions(text, capsules),
+                                      render=render)  # fmt: skip
+        for link in articulation.get_links():  # type: ignore[attr-defined]
             for shape in link.collision_shapes:
                 shape.set_collision_groups(groups)
         return articulation
@@ -353,21 +348,11 @@ class PlaceAndDrillScene:
 
     # ------------------------------------------------------------------ state
     def _set_robot(self, q: torch.Tensor) -> None:
-        import numpy as np
-
-        arr = np.asarray(q.tolist(), dtype=np.float32)
-        self.robot.set_qpos(arr)
-        self.robot.set_qvel(np.zeros_like(arr))
-        for joint, value in zip(self.joints, arr.tolist(), strict=True):
-            joint.set_drive_target(value)
+        set_joint_positions(self.robot, q, self.joints)
         self._robot_target = q.clone()
 
     def _set_human(self, q: torch.Tensor) -> None:
-        import numpy as np
-
-        arr = np.asarray(q.tolist(), dtype=np.float32)
-        self.human.set_qpos(arr)
-        self.human.set_qvel(np.zeros_like(arr))
+        set_joint_positions(self.human, q)  # kinematic: no drives
 
     def reset(self) -> None:
         """The robot at home, at rest; the person's arm at rest."""

@@ -15,7 +15,7 @@ from typing import Any
 
 from torchhrc.errors import ModelError
 
-__all__ = ["check_reachable", "import_ray", "init_ray"]
+__all__ = ["check_reachable", "import_ray", "init_ray", "task_error"]
 
 
 def import_ray() -> Any:
@@ -67,3 +67,9 @@ def init_ray(address: str = "local", *, num_cpus: int | None = None) -> bool:
         check_reachable(address)
         ray.init(address=address, log_to_driver=False, configure_logging=False)
     return True
+
+
+def task_error(error: BaseException) -> BaseException:
+    """The exception a Ray task raised (Ray wraps it; ``error.cause`` holds the original)."""
+    cause = getattr(error, "cause", None)
+    return cause if isinstance(cause, Exception) else error

@@ -526,7 +526,7 @@ class ShardedCorpus:
     def _run(self, options: dict[str, Any], ray: bool | str | None) -> list[ShardStatistics]:
         if ray is None or ray is False:
             return [shard_statistics(p, **options) for p in self.paths]
-        from torchhrc._ray import import_ray, init_ray
+        from torchhrc._ray import import_ray, init_ray, task_error
 
         ray_module = import_ray()
         started = init_ray("local" if ray is True else str(ray))
@@ -534,8 +534,7 @@ class ShardedCorpus:
             task = ray_module.remote(num_cpus=1, max_retries=2)(shard_statistics)
             return ray_module.get([task.remote(p, **options) for p in self.paths])
         except Exception as error:  # a shard task failed after its retries
-            cause = getattr(error, "cause", None)
-            raise (cause if isinstance(cause, Exception) else error) from None
+            raise task_error(error) from None
         finally:
             if started:
                 ray_module.shutdown()

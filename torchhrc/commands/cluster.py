@@ -123,6 +123,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+def _fit_scores(fit: Any) -> dict[str, Any]:
+    """The selected model's ``k``, scores, method and criterion (the report's first keys)."""
+    return {
+        "k": fit.k,
+        "bic": _finite(fit.bic),
+        "icl": _finite(fit.icl),
+        "log_likelihood": _finite(fit.log_likelihood),
+        "method": fit.method,
+        "criterion": fit.criterion,
+    }
+
+
+def _per_k(fit: Any) -> dict[str, dict[str, float | None]]:
+    """``{"k": {score: value}}`` of the best run of every k searched."""
+    return {
+        str(k): {name: _finite(v) for name, v in sorted(scores.items())}
+        for k, scores in sorted(fit.per_k.items())
+    }
+
+
 def _check_search(k_min: int, k_max: int, restarts: int) -> None:
     for name, value in (("k_min", k_min), ("k_max", k_max), ("restarts", restarts)):
         if value < 1:
@@ -202,20 +222,12 @@ def cluster_report(
     assignments = fit.assignments.cpu()
     sizes = torch.bincount(assignments, minlength=fit.k).tolist()
     report: dict[str, Any] = {
-        "k": fit.k,
-        "bic": _finite(fit.bic),
-        "icl": _finite(fit.icl),
-        "log_likelihood": _finite(fit.log_likelihood),
-        "method": fit.method,
-        "criterion": fit.criterion,
+        **_fit_scores(fit),
         "num_sequences": demos.num_sequences,
         "num_subjects": len(demos.unique_subjects),
         "num_symbols": demos.num_symbols,
         "symbols": list(demos.symbol_names),
-        "per_k": {
-            str(k): {name: _finite(v) for name, v in sorted(scores.items())}
-            for k, scores in sorted(fit.per_k.items())
-        },
+        "per_k": _per_k(fit),
         "cluster_sizes": sizes,
         "assignments": dict(zip(demos.keys, assignments.tolist())),
     }
@@ -293,21 +305,13 @@ def sharded_cluster_report(
     by_cluster.index_add_(0, row_cluster, weighted)
     keys = merged.sequence_keys or ()
     report: dict[str, Any] = {
-        "k": fit.k,
-        "bic": _finite(fit.bic),
-        "icl": _finite(fit.icl),
-        "log_likelihood": _finite(fit.log_likelihood),
-        "method": fit.method,
-        "criterion": fit.criterion,
+        **_fit_scores(fit),
         "num_sequences": stats.num_sequences,
         "num_subjects": len({k.rsplit("/", 1)[0] for k in keys}),
         "num_symbols": A,
         "symbols": [f"{a}:{b}" for a, b in merged.vocabulary],
         "num_shards": len(corpus.paths),
-        "per_k": {
-            str(k): {name: _finite(v) for name, v in sorted(scores.items())}
-            for k, scores in sorted(fit.per_k.items())
-        },
+        "per_k": _per_k(fit),
         "cluster_sizes": torch.bincount(assignments, minlength=fit.k).tolist(),
         "assignments": dict(zip(keys, assignments.tolist())),
         "_cluster_counts": by_cluster.view(fit.k, A, A),

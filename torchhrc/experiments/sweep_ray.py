@@ -19,7 +19,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from torchhrc._ray import import_ray, init_ray
+from torchhrc._ray import import_ray, init_ray, task_error
 from torchhrc.experiments.sweep import Job, SweepSpec, run_job
 
 __all__ = ["RayExecutor"]
@@ -56,8 +56,7 @@ class RayExecutor:
                     try:
                         result: Any = ray.get(ref)
                     except Exception as error:  # failed after Ray's retries
-                        cause = getattr(error, "cause", None)
-                        result = cause if isinstance(cause, Exception) else error
+                        result = task_error(error)
                     yield job, result
         finally:
             if started:

@@ -132,7 +132,10 @@ def main() -> None:
         import imitation.algorithms.mce_irl  # noqa: F401
         import seals.base_envs  # noqa: F401
     except ImportError as error:
-        raise SystemExit(f"bench_irl needs {error.name}: pip install torchhrc[bench]") from None
+        raise SystemExit(
+            f"bench_irl needs {error.name}: pip install 'torchhrc[bench-imitation]' "
+            "(in a virtual environment of its own: imitation pins gymnasium ~= 0.29)"
+        ) from None
 
     methods = ["torchhrc projection", "torchhrc qp", "torchhrc maxent", "imitation MCE IRL"]
     rows: dict[str, list[tuple[float, float, float, float]]] = {m: [] for m in methods}

@@ -199,3 +199,62 @@ def test_cli_runs_a_small_sweep(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert main(argv) == 2  # the directory is not empty now
     assert main([*argv, "--resume"]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["skipped"] == 1
+
+
+_CRASHING_JOB = """
+import os
+from pathlib import Path
+
+LOG = Path(__file__).with_name("calls")
+
+
+def job(task, params, seed, quick):
+    with open(LOG, "a") as handle:
+        handle.write(f"{seed}\\n")
+    if seed == 0 and LOG.read_text().split().count("0") == 1:
+        os._exit(3)  # the worker process dies on the first try of seed 0
+    return {"seed": seed, "value": float(seed)}
+"""
+
+
+def test_local_executor_survives_a_dead_worker_and_reruns_nothing_that_finished(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import importlib
+    import sys
+
+    (tmp_path / "crashing_job.py").write_text(_CRASHING_JOB)
+    monkeypatch.syspath_prepend(str(tmp_path))  # spawn workers inherit sys.path
+    module = importlib.import_module("crashing_job")
+    spec = SweepSpec.create("place-and-drill", [], seeds="0-5")
+    executor = LocalExecutor(workers=2, retries=1, function=module.job)
+    results = dict(executor.run(spec, spec.jobs()))
+    sys.modules.pop("crashing_job")
+    assert {job.seed: row["value"] for job, row in results.items()} == {
+        s: float(s) for s in range(6)
+    }
+    calls = (tmp_path / "calls").read_text().split()
+    assert calls.count("0") == 2  # the crash, then the retry
+    # a job runs twice only if the crash broke it before it finished
+    assert all(calls.count(str(s)) <= 2 for s in range(1, 6))
+    assert len(calls) <= 6 + 1 + 1  # at most the one other job in flight was lost
+
+
+def test_local_executor_reports_a_job_whose_worker_always_dies(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import importlib
+    import sys
+
+    (tmp_path / "dying_job.py").write_text(
+        "import os\n\ndef job(task, params, seed, quick):\n"
+        "    if seed == 1:\n        os._exit(3)\n    return {'value': float(seed)}\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    module = importlib.import_module("dying_job")
+    spec = SweepSpec.create("place-and-drill", [], seeds="0-2")
+    results = dict(LocalExecutor(workers=1, retries=1, function=module.job).run(spec, spec.jobs()))
+    sys.modules.pop("dying_job")
+    by_seed = {job.seed: row for job, row in results.items()}
+    assert by_seed[0] == {"value": 0.0} and by_seed[2] == {"value": 2.0}
+    assert "BrokenProcessPool" in type(by_seed[1]).__name__

@@ -13,6 +13,7 @@ import torch
 from torchhrc.errors import ModelError
 
 __all__ = [
+    "broadcast_shapes",
     "check_discount",
     "check_probabilities",
     "check_shape",
@@ -21,6 +22,35 @@ __all__ = [
 ]
 
 DEFAULT_ATOL = 1e-6
+
+
+def broadcast_shapes(*shapes: Sequence[int]) -> torch.Size:
+    """The broadcast of ``shapes`` (NumPy/PyTorch rules), as :func:`torch.broadcast_shapes`.
+
+    Pure Python: ``torch.broadcast_shapes`` imports torch's symbolic-shape machinery (sympy
+    and the meta registrations, about 0.6 s) on its first call, which every model
+    constructor would otherwise pay once per process. Raises ``RuntimeError`` (as torch does)
+    when two sizes differ and neither is 1.
+
+    Example:
+        >>> broadcast_shapes((2, 1), (3,), ())
+        torch.Size([2, 3])
+    """
+    ndim = max((len(shape) for shape in shapes), default=0)
+    out = [1] * ndim
+    for shape in shapes:
+        for i, size in enumerate(shape, start=ndim - len(shape)):
+            size = int(size)
+            if size < 0:
+                raise RuntimeError(f"shape {tuple(shape)} has a negative size")
+            if out[i] == 1:
+                out[i] = size
+            elif size not in (1, out[i]):
+                raise RuntimeError(
+                    f"shapes {[tuple(s) for s in shapes]} do not broadcast: "
+                    f"size {size} against {out[i]} at dimension {i - ndim}"
+                )
+    return torch.Size(out)
 
 
 def format_index(index: Sequence[int] | torch.Tensor) -> str:

@@ -59,6 +59,7 @@ from typing import Literal, NamedTuple
 
 import torch
 
+from torchhrc._checks import broadcast_shapes
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
 
@@ -170,7 +171,7 @@ def _take(t: torch.Tensor, core_ndim: int, indices: list[torch.Tensor | None]) -
     kept = [i for i, v in enumerate(indices) if v is None]
     t = t.permute(*range(k), *(k + i for i in chosen), *(k + i for i in kept))
     index_tensors = [indices[i] for i in chosen]
-    full = torch.broadcast_shapes(batch, *(v.shape for v in index_tensors))  # type: ignore[union-attr]
+    full = broadcast_shapes(batch, *(v.shape for v in index_tensors))  # type: ignore[union-attr]
     n = len(full)
     batch_index = []
     for d, size in enumerate(batch):
@@ -357,7 +358,7 @@ def predict(model: POMDP, belief: torch.Tensor, action: Index) -> torch.Tensor:
     if model.T.dim() == 3 and a.dim() > 0:
         # Unbatched model, per-belief actions: one (M, S) @ (S, S) product per action used,
         # A times cheaper than predicting every action (a loop over the few actions only).
-        batch = torch.broadcast_shapes(belief.shape[:-1], a.shape)
+        batch = broadcast_shapes(belief.shape[:-1], a.shape)
         S = belief.shape[-1]
         flat_b = belief.expand(*batch, S).reshape(-1, S)
         flat_a = a.expand(batch).reshape(-1)
@@ -598,7 +599,7 @@ def momdp_predict_all(model: MOMDP, x: Index, belief_y: torch.Tensor) -> torch.T
         # Unbatched model, per-belief x: group the beliefs by x instead of gathering a
         # (..., A, Y, X, Y) slice of Ty per belief (a loop over the distinct x present only).
         A, X, Y = model.num_actions, model.num_observed, model.num_hidden
-        batch = torch.broadcast_shapes(belief_y.shape[:-1], xi.shape)
+        batch = broadcast_shapes(belief_y.shape[:-1], xi.shape)
         flat_b = belief_y.expand(*batch, Y).reshape(-1, Y)
         flat_x = xi.expand(batch).reshape(-1)
         order, parts = [], []

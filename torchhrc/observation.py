@@ -65,7 +65,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from torchhrc._checks import check_shape, check_tensor
+from torchhrc._checks import broadcast_shapes, check_shape, check_tensor
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP
 
@@ -361,7 +361,7 @@ def _rectangle_masses(zx: torch.Tensor, zy: torch.Tensor, rho: torch.Tensor) -> 
     the four corner CDF values are small and their inclusion-exclusion loses little.
     """
     gx, gy = zx.shape[-1] - 1, zy.shape[-1] - 1
-    batch = torch.broadcast_shapes(zx.shape[:-1], zy.shape[:-1], rho.shape)
+    batch = broadcast_shapes(zx.shape[:-1], zy.shape[:-1], rho.shape)
     ax, bx = zx[..., :-1].unsqueeze(-1), zx[..., 1:].unsqueeze(-1)  # (..., Gx, 1)
     ay, by = zy[..., :-1].unsqueeze(-2), zy[..., 1:].unsqueeze(-2)  # (..., 1, Gy)
     fx = (ax + bx) > 0
@@ -445,7 +445,7 @@ def sample_positions(
         generator = torch.Generator(device=mean.device)
         generator.manual_seed(0 if seed is None else int(seed))
     chol = torch.linalg.cholesky(_covariance(scale.to(mean.dtype), correlation))
-    batch = torch.broadcast_shapes(mean.shape[:-1], chol.shape[:-2])
+    batch = broadcast_shapes(mean.shape[:-1], chol.shape[:-2])
     shape = (*(() if num_samples is None else (int(num_samples),)), *batch, 2)
     eps = torch.randn(shape, generator=generator, dtype=mean.dtype, device=mean.device)
     return mean + (chol @ eps.unsqueeze(-1)).squeeze(-1)

@@ -43,7 +43,13 @@ from dataclasses import dataclass, field
 
 import torch
 
-from torchhrc._checks import check_discount, check_probabilities, check_shape, check_tensor
+from torchhrc._checks import (
+    broadcast_shapes,
+    check_discount,
+    check_probabilities,
+    check_shape,
+    check_tensor,
+)
 from torchhrc.errors import ModelError
 
 __all__ = ["MOMDP", "POMDP"]
@@ -121,7 +127,7 @@ class POMDP:
         check_shape("b0", b0, (S,), f"(..., S={S})")
         object.__setattr__(self, "discount", check_discount(self.discount))
         try:
-            torch.broadcast_shapes(T.shape[:-3], Z.shape[:-3], R.shape[:-2], b0.shape[:-1])
+            broadcast_shapes(T.shape[:-3], Z.shape[:-3], R.shape[:-2], b0.shape[:-1])
         except RuntimeError:
             raise ModelError(
                 "batch dims of T, Z, R, b0 do not broadcast: "
@@ -155,7 +161,7 @@ class POMDP:
     @property
     def batch_shape(self) -> torch.Size:
         """The broadcast batch shape of all tensors."""
-        return torch.broadcast_shapes(
+        return broadcast_shapes(
             self.T.shape[:-3], self.Z.shape[:-3], self.R.shape[:-2], self.b0.shape[:-1]
         )
 
@@ -236,7 +242,7 @@ class MOMDP:
         if self.Ty is not None:
             shapes.append(self.Ty.shape[:-5])
         try:
-            torch.broadcast_shapes(*shapes)
+            broadcast_shapes(*shapes)
         except RuntimeError:
             raise ModelError(
                 f"batch dims of Tx, Z, R, b0 (, Ty) do not broadcast: {[tuple(s) for s in shapes]}"
@@ -288,7 +294,7 @@ class MOMDP:
         shapes = [self.Tx.shape[:-4], self.Z.shape[:-4], self.R.shape[:-3], self.b0.shape[:-1]]
         if self.Ty is not None:
             shapes.append(self.Ty.shape[:-5])
-        return torch.broadcast_shapes(*shapes)
+        return broadcast_shapes(*shapes)
 
     def hidden_transition(self) -> torch.Tensor:
         """``Ty`` as a dense tensor ``(..., A, X, Y, X, Y)`` (the identity when static)."""

@@ -34,7 +34,7 @@ from typing import Literal
 
 import torch
 
-from torchhrc._checks import check_probabilities, check_shape, check_tensor
+from torchhrc._checks import broadcast_shapes, check_probabilities, check_shape, check_tensor
 from torchhrc.errors import ModelError
 from torchhrc.irl.trajectories import Trajectories, policy_matrix, sample_trajectories
 
@@ -227,7 +227,7 @@ def discounted_occupancy(
         raise ModelError("an infinite horizon needs discount < 1; pass a finite horizon")
     # P[..., s, s2] = sum_a pi[..., s, a] T[..., a, s, s2]
     P = torch.einsum("...sa,...ast->...st", pi, T)
-    batch = torch.broadcast_shapes(P.shape[:-2], d0.shape[:-1])
+    batch = broadcast_shapes(P.shape[:-2], d0.shape[:-1])
     M = (discount * P).expand(*batch, S, S)
     d0 = d0.expand(*batch, S)
     if horizon is None:

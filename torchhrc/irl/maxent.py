@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import torch
 
-from torchhrc._checks import check_probabilities, check_shape, check_tensor
+from torchhrc._checks import broadcast_shapes, check_probabilities, check_shape, check_tensor
 from torchhrc.errors import ModelError
 from torchhrc.irl.features import (
     check_features,
@@ -108,7 +108,7 @@ class _SoftValueFixedPoint(torch.autograd.Function):
         max_iterations: int,
         initial: torch.Tensor | None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        batch = torch.broadcast_shapes(T.shape[:-3], R.shape[:-2])
+        batch = broadcast_shapes(T.shape[:-3], R.shape[:-2])
         S = T.shape[-1]
         V = R.new_zeros(*batch, S) if initial is None else initial.expand(*batch, S).clone()
         eye = torch.eye(S, dtype=R.dtype, device=R.device)

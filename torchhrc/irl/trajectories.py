@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import torch
 
-from torchhrc._checks import check_probabilities, check_shape, check_tensor
+from torchhrc._checks import broadcast_shapes, check_probabilities, check_shape, check_tensor
 from torchhrc.errors import ModelError
 
 __all__ = ["Trajectories", "check_trajectories", "policy_matrix", "sample_trajectories"]
@@ -307,7 +307,7 @@ def sample_trajectories(
         check_shape("start", d0, (S,), f"(..., S={S})")
         check_probabilities("start", d0)
     batched = max(T.dim() - 3, pi.dim() - 2, d0.dim() - 1) > 0
-    batch = torch.broadcast_shapes(T.shape[:-3], pi.shape[:-2], d0.shape[:-1])
+    batch = broadcast_shapes(T.shape[:-3], pi.shape[:-2], d0.shape[:-1])
     if len(batch) > 1:
         raise ModelError(f"expected at most one batch dim, got batch shape {tuple(batch)}")
     B = batch[0] if batch else 1

@@ -1,4 +1,5 @@
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -76,7 +77,7 @@ def test_transitions_and_rewards_by_hand():
     )
     # right-first (y=1): the same move is unwanted
     assert m.Tx[a, x0, 1, target].item() == pytest.approx(1.0)
-    assert m.R[a, x0, 1].item() == pytest.approx(-rw.move_cost - rw.unwanted_cost)
+    assert m.R[a, x0, 1].item() == pytest.approx(-rw.move_cost - task.unwanted_cost)
     assert m.R[0, x0].tolist() == [0.0, 0.0]  # waiting costs nothing but time
     # progress "done" is absorbing (the box may still move) with zero reward
     done = task.start * P + P - 1
@@ -309,13 +310,13 @@ def test_unwanted_cost_priced_from_the_risk_tolerance_by_hand():
         expected = (1 - tol) / tol * (1 - g) * v_c0 - g * (1 - g) * v_c0 - c * (1 + g)
         task = HandFinishingTask.build(feasible=_feasible(), geometry=GEOMETRY, work_units=1,
                                        rewards=RewardSettings(risk_tolerance=tol))  # fmt: skip
-        assert task.rewards.unwanted_cost == pytest.approx(expected, rel=1e-9)
+        assert task.unwanted_cost == pytest.approx(expected, rel=1e-9)
         assert task.unwanted_cost_for_risk(tol) == pytest.approx(expected, rel=1e-9)
     # the numbers: V_C0 = 1.72653, and at tol = 0.02, U = 49 * 0.086326 - 0.179510 = 4.05048
     assert v_c0 == pytest.approx(1.72653, abs=1e-5)
     two = HandFinishingTask.build(feasible=_feasible(), geometry=GEOMETRY, work_units=1)
     assert two.rewards.risk_tolerance == 0.02
-    assert two.rewards.unwanted_cost == pytest.approx(4.05048, abs=1e-5)
+    assert two.unwanted_cost == pytest.approx(4.05048, abs=1e-5)
     # the closed form of the rule and its clamp
     assert unwanted_cost_for_risk(0.1, 0.2, 0.02) == pytest.approx(0.1 * 49 - 0.2)
     assert unwanted_cost_for_risk(0.1, 10.0, 0.02) == 0.0
@@ -350,11 +351,16 @@ def test_unwanted_cost_set_directly_and_errors():
 
     task = HandFinishingTask.build(feasible=_feasible(), geometry=GEOMETRY, work_units=2,
                                    rewards=RewardSettings(unwanted_cost=2.0))  # fmt: skip
-    assert task.rewards.unwanted_cost == 2.0
+    assert task.unwanted_cost == 2.0
     # a larger tolerance prices a wrong move lower
     low = HandFinishingTask.build(feasible=_feasible(), geometry=GEOMETRY, work_units=2,
                                   rewards=RewardSettings(risk_tolerance=0.1))  # fmt: skip
-    assert 0 < low.rewards.unwanted_cost < _task().rewards.unwanted_cost
+    assert 0 < low.unwanted_cost < _task().unwanted_cost
+    # a task derived with other types is priced for them (one type: no risky first move)
+    assert replace(_task(), first_sides=("left",)).unwanted_cost == 0.0
+    assert replace(_task(sides=("left",)), first_sides=("left", "right")).unwanted_cost == (
+        pytest.approx(_task().unwanted_cost)
+    )
     with pytest.raises(ModelError, match="risk_tolerance"):
         RewardSettings(risk_tolerance=1.0)
     with pytest.raises(ModelError, match="unwanted_cost"):

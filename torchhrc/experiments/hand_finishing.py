@@ -552,7 +552,7 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
         "speedup_detail": speed,
         "observation_fit_error": _fit_error(approach.stationary, noise),
         "mean_belief_at_move": float(ep.belief_at_first_move().amax(-1).mean()),
-        "unwanted_cost": float(robot_task.rewards.unwanted_cost),
+        "unwanted_cost": robot_task.unwanted_cost,
         "risk_tolerance": settings.rewards.risk_tolerance,
         "unwanted_cost_priced": settings.rewards.unwanted_cost is None,
         "baseline_unwanted_cost": baseline,

@@ -40,7 +40,12 @@ Rewards ``R[a, x, y]`` (expected over the next state):
 
 The robot's waiting is therefore not written anywhere: with an uncertain type every move
 risks ``unwanted_cost``, and the solved policy waits for hand observations until the belief
-makes a move worth it.
+makes a move worth it. The price of an unwanted move is a requirement, not a tuning knob: by
+default it is set from the probability of a wrong move the user accepts
+(``RewardSettings.risk_tolerance``, 0.02) as the cost at which moving at belief ``b`` beats
+waiting one step only when ``1 - b <= risk_tolerance``, the type counted as known after that
+step (:func:`unwanted_cost_for_risk`, :meth:`HandFinishingTask.unwanted_cost_for_risk`); it
+can also be set directly (``RewardSettings(unwanted_cost=...)``).
 
 Example:
     >>> import torch
@@ -54,7 +59,8 @@ Example:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
+from functools import cached_property
 
 import torch
 
@@ -185,7 +191,8 @@ class HandFinishingTask:
         work_units: ``W``.
         first_sides: ``(Y,)`` first side of each type value (``"left"`` / ``"right"``).
         start: index of the start configuration in ``kept``.
-        rewards: the :class:`RewardSettings`.
+        rewards: the :class:`RewardSettings` (as given; the unwanted-move cost in effect is
+            :attr:`unwanted_cost`).
     """
 
     geometry: BoxGeometry
@@ -315,10 +322,17 @@ class HandFinishingTask:
             start=start_index,
             rewards=rewards,
         )
-        if rewards.unwanted_cost is None:  # priced from the user's risk tolerance
-            cost = task.unwanted_cost_for_risk(rewards.risk_tolerance)
-            task = replace(task, rewards=replace(rewards, unwanted_cost=cost))
         return task
+
+    @cached_property
+    def unwanted_cost(self) -> float:
+        """The cost of an unwanted move in effect: ``rewards.unwanted_cost`` when set, else
+        priced from ``rewards.risk_tolerance`` for this task's types
+        (:meth:`unwanted_cost_for_risk`; a task derived with other ``first_sides`` is priced
+        again)."""
+        if self.rewards.unwanted_cost is not None:
+            return float(self.rewards.unwanted_cost)
+        return self.unwanted_cost_for_risk(self.rewards.risk_tolerance)
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -397,10 +411,7 @@ class HandFinishingTask:
         Tx = torch.zeros(A, X, Y, X, dtype=dtype)
         Tx.scatter_add_(-1, x_stay.unsqueeze(-1), (1.0 - prob).unsqueeze(-1))
         Tx.scatter_add_(-1, x_work.unsqueeze(-1), prob.unsqueeze(-1))
-        cost = self.rewards.unwanted_cost
-        if cost is None:
-            raise ModelError("rewards.unwanted_cost is None: build the task with build()")
-        return Tx, reward - cost * unwanted
+        return Tx, reward - self.unwanted_cost * unwanted
 
     def known_type_q_values(
         self, unwanted_cost: float, *, dtype: torch.dtype = torch.float64, tol: float = 1e-12

@@ -8,15 +8,24 @@ Pipeline (:func:`reproduce_hand_finishing`):
    clustered with the Markov-chain mixture (BIC picks ``k``); each cluster becomes a value of
    ``y`` and is mapped to a preference by its learned transitions
    (``P(present_right | work_left)`` against ``P(present_left | work_right)``);
-3. at each noise level, the hand-position observation model is learned from hand tracks of
-   the simulated persons (their hands walk towards the side they work on,
-   :mod:`torchhrc.tasks.hand_finishing.person`) with the type unknown
-   (:func:`torchhrc.observation.fit_observation_model`) and compared with the generating one;
-4. the MOMDP with the learned observation model is solved with SARSOP in the factored form;
-   the same solve on the flat POMDP (``to_pomdp``) of a reduced instance gives the speed-up
-   at the same bound gap;
-5. closed-loop episodes against simulated persons of each type: the robot's waiting before
-   its first move and the type accuracy (the MAP type at its first move), over noise levels;
+3. at each noise level, the robot's hand model is learned from hand tracks of the simulated
+   persons (their hands walk towards the side they work on,
+   :mod:`torchhrc.tasks.hand_finishing.person`) with the type unknown: the approach model
+   (:func:`torchhrc.approach_observation.fit_approach_observation`, a learned motion per
+   type), and, for the baseline, the paper's static Gaussian
+   (:func:`torchhrc.observation.fit_observation_model`); both are compared with the
+   generating one;
+4. the MOMDP is solved with SARSOP in the factored form on the approach model's stationary
+   part (the hand at its target: a MOMDP's ``Z`` cannot hold the hand's history), with the
+   unwanted-move cost priced from the risk tolerance
+   (:meth:`~torchhrc.tasks.hand_finishing.HandFinishingTask.unwanted_cost_for_risk`); the
+   same solve on the flat POMDP (``to_pomdp``) of a reduced instance gives the speed-up at
+   the same bound gap;
+5. closed-loop episodes against simulated persons of each type, the approach model as the
+   robot's belief filter: the robot's waiting before its first move and the type accuracy
+   (the MAP type at its first move), over noise levels, beside the baseline robot (the
+   static model as filter and planning model, ``baseline_unwanted_cost``, the robot before
+   issue 12);
 6. when SAPIEN is installed (the ``sim`` extra), one episode per true type is replayed in the
    physics scene (:func:`torchhrc.sim.replay_box_moves`): the arm follows the policy's box
    moves with joint position targets, and the box's settle error at each commanded pose is

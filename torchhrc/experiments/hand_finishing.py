@@ -18,7 +18,7 @@ Pipeline (:func:`reproduce_hand_finishing`):
 4. the MOMDP is solved with SARSOP in the factored form on the approach model's stationary
    part (the hand at its target: a MOMDP's ``Z`` cannot hold the hand's history), with the
    unwanted-move cost priced from the risk tolerance
-   (:meth:`~torchhrc.tasks.hand_finishing.HandFinishingTask.unwanted_cost_for_risk`); the
+   (:meth:`~torchhrc.tasks.hand_finishing.model.HandFinishingTask.unwanted_cost_for_risk`); the
    same solve on the flat POMDP (``to_pomdp``) of a reduced instance gives the speed-up at
    the same bound gap;
 5. closed-loop episodes against simulated persons of each type, the approach model as the

@@ -37,6 +37,8 @@ def test_quick_pipeline_writes_report_plots_and_metrics(quick_run):
     # measured 0.975
     assert on_disk["type_accuracy"] >= 0.98
     assert on_disk["unwanted_cost_priced"] and on_disk["risk_tolerance"] == 0.02
+    # the robot moves on beliefs of at least 1 - tolerance there (measured mean 0.994)
+    assert on_disk["mean_belief_at_move"] >= 0.98
     assert 0.0 <= on_disk["baseline_type_accuracy"] <= 1.0
     assert on_disk["observation_fit_error"] < 0.05  # metres, learned vs true
     table = on_disk["noise_table"]

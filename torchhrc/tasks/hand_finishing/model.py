@@ -310,7 +310,7 @@ class HandFinishingTask:
             if int(g) < 0:
                 raise ModelError(f"start configuration {start} is not a kept configuration")
             start_index = int(g)
-        task = cls(
+        return cls(
             geometry=geometry,
             kept=kept,
             comfortable=comfortable,
@@ -322,7 +322,6 @@ class HandFinishingTask:
             start=start_index,
             rewards=rewards,
         )
-        return task
 
     @cached_property
     def unwanted_cost(self) -> float:

@@ -27,8 +27,9 @@ learned from tracks with the type unknown by maximum marginal likelihood
 differentiable end to end (gradcheck in float64, ``tests/test_approach_observation.py``).
 
 For planning, :attr:`ApproachObservation.stationary` is a MOMDP observation model (the hand
-at its target); the robot can also keep its old static model for planning and use this one
-only to filter (``torchhrc.experiments.hand_finishing``).
+at its target): a MOMDP's ``Z(o | x', y, a)`` cannot depend on the hand's history, so this
+is as far as the motion enters the plan. ``torchhrc reproduce hand-finishing`` solves the
+MOMDP on it and filters with the full model (``torchhrc.experiments.hand_finishing``).
 
 Example:
     >>> import torch

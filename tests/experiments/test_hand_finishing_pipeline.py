@@ -1,3 +1,4 @@
+import itertools
 import json
 
 import pytest
@@ -30,15 +31,21 @@ def test_quick_pipeline_writes_report_plots_and_metrics(quick_run):
     assert on_disk["n_states"] == 90  # 9 configurations x (2 * 2 + 1) progress x 2 types
     # types found by clustering: two clusters, mapped to both preferences
     assert on_disk["k"] == 2 and sorted(on_disk["cluster_sides"]) == ["left", "right"]
-    # at the paper-like noise level; the quick run's accuracy over seeds 0-5 was 0.975,
-    # 0.970, 0.945, 0.965, 0.990, 0.985 (min 0.945): the bar 0.93 leaves a 0.015 margin, and
-    # test_type_accuracy_over_seeds checks it on seeds 1-4
-    assert on_disk["type_accuracy"] >= 0.93
-    assert 0.0 <= on_disk["type_accuracy_approach_filter"] <= 1.0
+    # at the paper-like noise level (issue 12: >= 0.98): the quick run's accuracy over seeds
+    # 0-9 was 0.995, 0.99, 0.99, 1.0, 1.0, 1.0, 0.99, 0.985, 1.0, 1.0 (docs/hand_finishing.md);
+    # seed 0 measured 0.995, the bar 0.98 (margin 0.015); the baseline (static model, cost 2)
+    # measured 0.975
+    assert on_disk["type_accuracy"] >= 0.98
+    assert on_disk["unwanted_cost_priced"] and on_disk["risk_tolerance"] == 0.02
+    # the robot moves on beliefs of at least 1 - tolerance there (measured mean 0.994)
+    assert on_disk["mean_belief_at_move"] >= 0.98
+    assert 0.0 <= on_disk["baseline_type_accuracy"] <= 1.0
     assert on_disk["observation_fit_error"] < 0.05  # metres, learned vs true
     table = on_disk["noise_table"]
     assert [row["noise"] for row in table] == sorted(row["noise"] for row in table)
-    assert table[-1]["mean_wait_steps"] > table[0]["mean_wait_steps"]
+    # the robot waits longer as the noise grows (measured 1.44, 2.44, 4.72 steps)
+    waits = [row["mean_wait_steps"] for row in table]
+    assert all(a < b for a, b in itertools.pairwise(waits)), waits
     assert table[-1]["type_accuracy"] <= table[0]["type_accuracy"]
     report = (out / "report.md").read_text()
     assert "| noise (m) |" in report
@@ -96,13 +103,18 @@ def test_same_seed_same_metrics(quick_run, tmp_path):
 
 
 def test_type_accuracy_over_seeds():
-    """The quick study's accuracy at 0.2 m over seeds 1-4, the bar with its margin stated:
-    measured 0.970, 0.945 (seed 2), 0.965, 0.990 (mean 0.968); bars: every seed >= 0.93
-    (margin 0.015), mean >= 0.95 (margin 0.018)."""
+    """The quick study's robot (approach model as filter, planning on its stationary part,
+    the unwanted cost priced from the risk tolerance 0.02) at 0.2 m over seeds 1-4.
+
+    No setting was tuned on these seeds (the tolerance is the issue's 0.98). Measured over
+    seeds 0-9 (docs/hand_finishing.md): 0.995, 0.99, 0.99, 1.0, 1.0, 1.0, 0.99, 0.985, 1.0,
+    1.0 (min 0.985, mean 0.995); on seeds 1-4 0.99, 0.99, 1.0, 1.0 (mean 0.995). Bars: every
+    seed >= 0.97 (margin 0.015 below the lowest of the ten; the binomial standard error of
+    200 episodes at 0.99 is 0.007), the mean >= 0.98, the issue's goal (margin 0.015)."""
     from torchhrc.experiments.hand_finishing import (
         _accuracy,
         _episodes,
-        _learn_observation,
+        _learn_approach,
     )
     from torchhrc.kinematics import feasible_box_configurations
     from torchhrc.tasks.hand_finishing.model import HandFinishingTask
@@ -114,11 +126,12 @@ def test_type_accuracy_over_seeds():
         task = HandFinishingTask.build(first_sides=("left", "right"), feasible=feas.comfortable,
                                        reachable=feas.reachable, geometry=s.geometry,
                                        work_units=s.work_units)  # fmt: skip
-        learned, _, _ = _learn_observation(task, task, s.paper_noise, s)
-        ep, _, _ = _episodes(task, task.momdp, s.paper_noise, s, learned)
+        approach, _ = _learn_approach(task, task, s.paper_noise, s)
+        ep, _, _ = _episodes(task, task.momdp, s.paper_noise, s, approach.stationary,
+                             observer=approach)  # fmt: skip
         accuracies.append(_accuracy(ep, ("left", "right"), ("left", "right")))
-    assert min(accuracies) >= 0.93, accuracies
-    assert sum(accuracies) / len(accuracies) >= 0.95, accuracies
+    assert min(accuracies) >= 0.97, accuracies
+    assert sum(accuracies) / len(accuracies) >= 0.98, accuracies
 
 
 def test_the_generating_motion_as_filter_is_calibrated_at_the_first_move():

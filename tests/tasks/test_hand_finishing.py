@@ -1,4 +1,5 @@
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -76,7 +77,7 @@ def test_transitions_and_rewards_by_hand():
     )
     # right-first (y=1): the same move is unwanted
     assert m.Tx[a, x0, 1, target].item() == pytest.approx(1.0)
-    assert m.R[a, x0, 1].item() == pytest.approx(-rw.move_cost - rw.unwanted_cost)
+    assert m.R[a, x0, 1].item() == pytest.approx(-rw.move_cost - task.unwanted_cost)
     assert m.R[0, x0].tolist() == [0.0, 0.0]  # waiting costs nothing but time
     # progress "done" is absorbing (the box may still move) with zero reward
     done = task.start * P + P - 1
@@ -283,3 +284,84 @@ def test_hand_tracks_follow_the_motion_and_are_seeded():
         assert (mean - expected).abs().max() < 4.5 * se
     # the cells are those of the sensed positions
     assert torch.equal(tracks.cells, discretize_positions(obs.grid, tracks.positions))
+
+
+def test_unwanted_cost_priced_from_the_risk_tolerance_by_hand():
+    """W = 1, the 3 x 1 x 3 grid: from the centre, tilt+ presents left, tilt- right.
+
+    Left-first, known type (r = work_reward * work_probability = 0.8, c = 0.05, g = 0.95,
+    q = 0.8): presenting right at p = 1, V_R1 = r / (1 - g (1 - q)); at the centre,
+    p = 1, V_C1 = r - c + g (1 - q) V_R1; presenting left at p = 1, V_L1 = -c + g V_C1;
+    presenting left at p = 0, V_L0 = (r + g q V_L1) / (1 - g (1 - q)); at the start,
+    V_C0 = Q(tilt+) = V_L0 - c and Q(wait) = g V_C0, so the gain of moving is
+    (1 - g) V_C0. For a right-first person tilt+ is unwanted: Q(wait) - Q(tilt+) =
+    g V_C0 - (-c - U + g (-c + g V_C0)) = g (1 - g) V_C0 + c (1 + g) + U. The break-even
+    belief 1 - b = tol gives U = (1 - tol) / tol (1 - g) V_C0 - g (1 - g) V_C0 - c (1 + g).
+    """
+    from torchhrc.tasks.hand_finishing import RewardSettings, unwanted_cost_for_risk
+
+    r, c, g, q = 0.8, 0.05, 0.95, 0.8
+    v_r1 = r / (1 - g * (1 - q))
+    v_c1 = r - c + g * (1 - q) * v_r1
+    v_l1 = -c + g * v_c1
+    v_l0 = (r + g * q * v_l1) / (1 - g * (1 - q))
+    v_c0 = v_l0 - c
+    for tol in (0.05, 0.02, 0.01):
+        expected = (1 - tol) / tol * (1 - g) * v_c0 - g * (1 - g) * v_c0 - c * (1 + g)
+        task = HandFinishingTask.build(feasible=_feasible(), geometry=GEOMETRY, work_units=1,
+                                       rewards=RewardSettings(risk_tolerance=tol))  # fmt: skip
+        assert task.unwanted_cost == pytest.approx(expected, rel=1e-9)
+        assert task.unwanted_cost_for_risk(tol) == pytest.approx(expected, rel=1e-9)
+    # the numbers: V_C0 = 1.72653, and at tol = 0.02, U = 49 * 0.086326 - 0.179510 = 4.05048
+    assert v_c0 == pytest.approx(1.72653, abs=1e-5)
+    two = HandFinishingTask.build(feasible=_feasible(), geometry=GEOMETRY, work_units=1)
+    assert two.rewards.risk_tolerance == 0.02
+    assert two.unwanted_cost == pytest.approx(4.05048, abs=1e-5)
+    # the closed form of the rule and its clamp
+    assert unwanted_cost_for_risk(0.1, 0.2, 0.02) == pytest.approx(0.1 * 49 - 0.2)
+    assert unwanted_cost_for_risk(0.1, 10.0, 0.02) == 0.0
+    with pytest.raises(ModelError, match="risk_tolerance"):
+        unwanted_cost_for_risk(0.1, 0.2, 0.0)
+
+
+@pytest.mark.parametrize("tol", [0.05, 0.02, 0.01])
+def test_priced_cost_makes_qmdp_break_even_at_the_tolerance(tol):
+    """Reference: the solvers' QMDP values of the task MOMDP (an independent value
+    iteration). With the priced cost, at the start the best move for a type and waiting are
+    worth the same at belief 1 - tol on that type; the move wins above, waiting below."""
+    from torchhrc.solvers.qmdp import mdp_q_values
+    from torchhrc.tasks.hand_finishing import RewardSettings
+
+    task = HandFinishingTask.build(feasible=_feasible(), geometry=GEOMETRY, work_units=2,
+                                   rewards=RewardSettings(risk_tolerance=tol))  # fmt: skip
+    Q, _ = mdp_q_values(task.momdp())
+    q = Q[:, task.x0]  # (A, Y)
+    move, wait = ACTIONS.index("tilt+"), ACTIONS.index("wait")  # right for left-first (y = 0)
+    for risk, sign in ((tol, 0), (tol / 2, 1), (2 * tol, -1)):
+        b = torch.tensor([1 - risk, risk], dtype=torch.float64)
+        diff = float((q[move] - q[wait]) @ b)
+        if sign == 0:
+            assert diff == pytest.approx(0.0, abs=1e-9)
+        else:
+            assert diff * sign > 0
+
+
+def test_unwanted_cost_set_directly_and_errors():
+    from torchhrc.tasks.hand_finishing import RewardSettings
+
+    task = HandFinishingTask.build(feasible=_feasible(), geometry=GEOMETRY, work_units=2,
+                                   rewards=RewardSettings(unwanted_cost=2.0))  # fmt: skip
+    assert task.unwanted_cost == 2.0
+    # a larger tolerance prices a wrong move lower
+    low = HandFinishingTask.build(feasible=_feasible(), geometry=GEOMETRY, work_units=2,
+                                  rewards=RewardSettings(risk_tolerance=0.1))  # fmt: skip
+    assert 0 < low.unwanted_cost < _task().unwanted_cost
+    # a task derived with other types is priced for them (one type: no risky first move)
+    assert replace(_task(), first_sides=("left",)).unwanted_cost == 0.0
+    assert replace(_task(sides=("left",)), first_sides=("left", "right")).unwanted_cost == (
+        pytest.approx(_task().unwanted_cost)
+    )
+    with pytest.raises(ModelError, match="risk_tolerance"):
+        RewardSettings(risk_tolerance=1.0)
+    with pytest.raises(ModelError, match="unwanted_cost"):
+        RewardSettings(unwanted_cost=-1.0)

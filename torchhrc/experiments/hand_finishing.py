@@ -8,15 +8,24 @@ Pipeline (:func:`reproduce_hand_finishing`):
    clustered with the Markov-chain mixture (BIC picks ``k``); each cluster becomes a value of
    ``y`` and is mapped to a preference by its learned transitions
    (``P(present_right | work_left)`` against ``P(present_left | work_right)``);
-3. at each noise level, the hand-position observation model is learned from hand tracks of
-   the simulated persons (their hands walk towards the side they work on,
-   :mod:`torchhrc.tasks.hand_finishing.person`) with the type unknown
-   (:func:`torchhrc.observation.fit_observation_model`) and compared with the generating one;
-4. the MOMDP with the learned observation model is solved with SARSOP in the factored form;
-   the same solve on the flat POMDP (``to_pomdp``) of a reduced instance gives the speed-up
-   at the same bound gap;
-5. closed-loop episodes against simulated persons of each type: the robot's waiting before
-   its first move and the type accuracy (the MAP type at its first move), over noise levels;
+3. at each noise level, the robot's hand model is learned from hand tracks of the simulated
+   persons (their hands walk towards the side they work on,
+   :mod:`torchhrc.tasks.hand_finishing.person`) with the type unknown: the approach model
+   (:func:`torchhrc.approach_observation.fit_approach_observation`, a learned motion per
+   type), and, for the baseline, the paper's static Gaussian
+   (:func:`torchhrc.observation.fit_observation_model`); both are compared with the
+   generating one;
+4. the MOMDP is solved with SARSOP in the factored form on the approach model's stationary
+   part (the hand at its target: a MOMDP's ``Z`` cannot hold the hand's history), with the
+   unwanted-move cost priced from the risk tolerance
+   (:meth:`~torchhrc.tasks.hand_finishing.model.HandFinishingTask.unwanted_cost_for_risk`); the
+   same solve on the flat POMDP (``to_pomdp``) of a reduced instance gives the speed-up at
+   the same bound gap;
+5. closed-loop episodes against simulated persons of each type, the approach model as the
+   robot's belief filter: the robot's waiting before its first move and the type accuracy
+   (the MAP type at its first move), over noise levels, beside the baseline robot (the
+   static model as filter and planning model, ``baseline_unwanted_cost``, the robot before
+   issue 12);
 6. when SAPIEN is installed (the ``sim`` extra), one episode per true type is replayed in the
    physics scene (:func:`torchhrc.sim.replay_box_moves`): the arm follows the policy's box
    moves with joint position targets, and the box's settle error at each commanded pose is
@@ -39,7 +48,7 @@ import math
 import os
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -56,7 +65,7 @@ from torchhrc.tasks.hand_finishing.collaborative import (
     HandFinishingCollaborativeTask,
     first_sides_from_chains,
 )
-from torchhrc.tasks.hand_finishing.model import SIDES, HandFinishingTask
+from torchhrc.tasks.hand_finishing.model import SIDES, HandFinishingTask, RewardSettings
 from torchhrc.tasks.hand_finishing.person import (
     Episodes,
     HandMotion,
@@ -122,6 +131,12 @@ class HandFinishingSettings:
         flat_time: time limit (s) of each solve of the speed-up measurement (a timing, not
             part of the deterministic results).
         motion: how the simulated persons' hands move.
+        approach_fit_steps: optimiser steps of the approach model's fit.
+        rewards: the task's rewards (default: the unwanted-move cost priced from a risk
+            tolerance of 0.02, :class:`~torchhrc.tasks.hand_finishing.RewardSettings`).
+        baseline_unwanted_cost: the unwanted-move cost of the baseline robot reported beside
+            the study's (the paper's static Gaussian model as filter and planning model, the
+            cost before issue 12: 2.0); ``None`` skips the baseline.
         sim: replay one episode per true type in the SAPIEN scene when SAPIEN is installed.
         speedup: measure factored vs flat SARSOP (a timing; sweeps turn it off).
         subjects: demonstrating subjects whose demonstrations are clustered into types (half
@@ -152,6 +167,8 @@ class HandFinishingSettings:
     speedup_work_units: int | None = None
     motion: HandMotion = field(default_factory=HandMotion)
     approach_fit_steps: int = 150
+    rewards: RewardSettings = field(default_factory=RewardSettings)
+    baseline_unwanted_cost: float | None = 2.0
     sim: bool = True
     speedup: bool = True
     subjects: int = 6
@@ -290,26 +307,37 @@ def _true_observation(task: HandFinishingTask, noise: float) -> Any:
                                   scale=torch.tensor([noise, noise]))  # fmt: skip
 
 
+def _hand_tracks(task: HandFinishingTask, noise: float, settings: HandFinishingSettings) -> Any:
+    """The hand tracks (simulated persons of both types at ``noise``) both models learn from."""
+    true_obs = _true_observation(task, noise)
+    return simulate_hand_tracks(task.momdp(true_obs), true_obs, num_tracks=settings.tracks,
+                                length=settings.track_length, motion=settings.motion,
+                                seed=settings.seed + 1)  # fmt: skip
+
+
+def _fit_error(model: Any, noise: float) -> float:
+    """Max abs error (m) of a stationary model's hand offsets and noise against the
+    generating :data:`TRUE_HAND_LOC` and ``noise``."""
+    with torch.no_grad():
+        loc_err = (model.loc.reshape(-1, 2) - torch.tensor(TRUE_HAND_LOC)).abs().max()
+        scale_err = (model.log_scale.exp().reshape(-1, 2) - noise).abs().max()
+    return float(max(loc_err, scale_err))
+
+
 def _learn_observation(task: HandFinishingTask, robot_task: HandFinishingTask, noise: float,
                        settings: HandFinishingSettings) -> tuple[Any, Any, float]:  # fmt: skip
-    """Learn the robot's observation model from hand tracks at ``noise``, type unknown.
+    """Learn the paper's static observation model from hand tracks at ``noise``, type unknown.
 
     Returns ``(learned model, ObservationFit, max abs error of its means and standard
     deviations against the generating TRUE_HAND_LOC and noise)``.
     """
-    true_obs = _true_observation(task, noise)
-    tracks = simulate_hand_tracks(task.momdp(true_obs), true_obs, num_tracks=settings.tracks,
-                                  length=settings.track_length, motion=settings.motion,
-                                  seed=settings.seed + 1)  # fmt: skip
+    tracks = _hand_tracks(task, noise, settings)
     Y = robot_task.num_types
     learned = robot_task.observation_model(observation_grid(), loc=torch.zeros(Y, 2),
                                            scale=torch.full((Y, 2), 0.35))  # fmt: skip
     fit = fit_observation_model(learned, robot_task.momdp(), tracks, steps=settings.fit_steps,
                                 lr=0.05, seed=settings.seed)  # fmt: skip
-    with torch.no_grad():
-        loc_err = (learned.loc.reshape(-1, 2) - torch.tensor(TRUE_HAND_LOC)).abs().max()
-        scale_err = (learned.log_scale.exp().reshape(-1, 2) - noise).abs().max()
-    return learned, fit, float(max(loc_err, scale_err))
+    return learned, fit, _fit_error(learned, noise)
 
 
 def _learn_approach(
@@ -320,10 +348,7 @@ def _learn_approach(
 ) -> tuple[ApproachObservation, Any]:
     """Learn the approach model (:mod:`torchhrc.approach_observation`) from the same hand
     tracks as :func:`_learn_observation`, type unknown; start at the grid's centre."""
-    true_obs = _true_observation(task, noise)
-    tracks = simulate_hand_tracks(task.momdp(true_obs), true_obs, num_tracks=settings.tracks,
-                                  length=settings.track_length, motion=settings.motion,
-                                  seed=settings.seed + 1)  # fmt: skip
+    tracks = _hand_tracks(task, noise, settings)
     Y = robot_task.num_types
     target = robot_task.observation_model(observation_grid(), loc=torch.zeros(Y, 2),
                                           scale=torch.full((Y, 2), 0.35))  # fmt: skip
@@ -339,10 +364,14 @@ def _episodes(
     noise: float,
     settings: HandFinishingSettings,
     learned: Any,
+    *,
+    observer: ApproachObservation | None = None,
 ) -> tuple[Episodes, Any, float]:
     """Solve the robot's MOMDP (``robot_momdp(learned)``: the task pipeline's model with the
-    ``learned`` observation model) and run it against
-    simulated persons whose sensed hands have ``noise``; half of each true type."""
+    ``learned`` observation model) and run it against simulated persons whose sensed hands
+    have ``noise`` (half of each type; their rewards are ``task``'s); the robot's belief
+    filter is ``observer`` when given (an approach model whose stationary part is
+    ``learned``), else the planning model's ``Z``."""
     true_obs = _true_observation(task, noise)
     truth = task.momdp(true_obs)
     robot = robot_momdp(learned)
@@ -352,7 +381,8 @@ def _episodes(
                                max_iterations=settings.max_iterations)  # fmt: skip
     types = torch.arange(settings.episodes) % task.num_types
     ep = simulate_episodes(robot, solution.policy, truth, true_obs, types, steps=settings.steps,
-                           motion=settings.motion, seed=settings.seed + 7)  # fmt: skip
+                           motion=settings.motion, seed=settings.seed + 7,
+                           observer=observer)  # fmt: skip
     return ep, solution, t_solve
 
 
@@ -427,48 +457,69 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
     true_sides = ("left", "right")
     build = dict(feasible=feasibility.comfortable, reachable=feasibility.reachable,
                  geometry=settings.geometry, work_units=settings.work_units)  # fmt: skip
-    task = HandFinishingTask.build(first_sides=true_sides, **build)
-    robot_task = HandFinishingTask.build(first_sides=robot_sides, **build)
-    # the robot's model goes through the task pipeline (torchhrc.tasks.pipeline), as any task's
-    robot_pipeline = HandFinishingCollaborativeTask(robot_task)
+    task = HandFinishingTask.build(first_sides=true_sides, rewards=settings.rewards, **build)
+    robot_task = HandFinishingTask.build(first_sides=robot_sides, rewards=settings.rewards,
+                                         **build)  # fmt: skip
 
-    def robot_momdp(observation: Any) -> Any:
-        return robot_pipeline.learned_momdp(demos, fit.model.transition, fit.assignments,
-                                            observation)  # fmt: skip
+    def pipeline_momdp(base: HandFinishingTask) -> Callable[[Any], Any]:
+        # the robot's model goes through the task pipeline (torchhrc.tasks.pipeline), as any
+        # task's
+        pipeline = HandFinishingCollaborativeTask(base)
+        return lambda observation: pipeline.learned_momdp(
+            demos, fit.model.transition, fit.assignments, observation
+        )
 
-    # 3.-5. at each noise level: learn the observation model from hand tracks (type
-    # unknown), solve the MOMDP with it, run it against simulated persons
+    robot_momdp = pipeline_momdp(robot_task)
+    baseline = settings.baseline_unwanted_cost
+    if baseline is not None:  # the robot before issue 12: static model, a set cost
+        old_rewards = replace(settings.rewards, unwanted_cost=baseline)
+        task_old = HandFinishingTask.build(first_sides=true_sides, rewards=old_rewards, **build)
+        robot_momdp_old = pipeline_momdp(
+            HandFinishingTask.build(first_sides=robot_sides, rewards=old_rewards, **build)
+        )
+
+    # 3.-5. at each noise level: learn the observation models from hand tracks (type
+    # unknown); solve the MOMDP on the approach model's stationary part (the hand at its
+    # target: the MOMDP's Z cannot hold the hand's history) and run it against simulated
+    # persons with the approach model as the robot's belief filter; the baseline robot
+    # plans and filters with the static model
     noise = settings.paper_noise
     levels = sorted(set(settings.noise_levels) | {noise})
     table, runs = [], {}
     for i, level in enumerate(levels):
-        learned, obs_fit, fit_error = _learn_observation(task, robot_task, level, settings)
-        ep, solution, solve_time = _episodes(task, robot_momdp, level, settings, learned)
-        runs[level] = (learned, obs_fit, fit_error, ep, solution, solve_time)
+        learned, obs_fit, static_error = _learn_observation(task, robot_task, level, settings)
+        approach, approach_fit = _learn_approach(task, robot_task, level, settings)
+        ep, solution, solve_time = _episodes(task, robot_momdp, level, settings,
+                                             approach.stationary, observer=approach)  # fmt: skip
+        runs[level] = (learned, obs_fit, approach, approach_fit, ep, solution, solve_time)
         if level in settings.noise_levels:
-            table.append({
+            row = {
                 "noise": level,
                 "type_accuracy": _accuracy(ep, true_sides, robot_sides),
                 "mean_wait_steps": float(ep.wait_steps().double().mean()),
+                "mean_belief_at_move": float(ep.belief_at_first_move().amax(-1).mean()),
                 "mean_reward": float(ep.rewards.sum(-1).mean()),
-                "observation_fit_error": fit_error,
+                "observation_fit_error": _fit_error(approach.stationary, level),
+                "learned_approach": float(approach.approach().detach()),
+                "static_observation_fit_error": static_error,
                 "solve_gap": solution.gap,
                 "solve_iterations": int(solution.info["iterations"]),
-            })  # fmt: skip
+            }
+            if baseline is not None:
+                ep_old, sol_old, _ = _episodes(task_old, robot_momdp_old, level, settings,
+                                               learned)  # fmt: skip
+                row["baseline_type_accuracy"] = _accuracy(ep_old, true_sides, robot_sides)
+                row["baseline_mean_wait_steps"] = float(ep_old.wait_steps().double().mean())
+                row["baseline_solve_iterations"] = int(sol_old.info["iterations"])
+            table.append(row)
         tick("hand-finishing", 2 + (i + 1) * 2 // len(levels), stages)
-    learned, obs_fit, fit_error, ep, solution, solve_time = runs[noise]
+    learned, obs_fit, approach, approach_fit, ep, solution, solve_time = runs[noise]
     true_obs = _true_observation(task, noise)
-    # the approach model (a learned motion per type) as the robot's belief filter, same
-    # policy and persons: its accuracy beside the static model's (docs/hand_finishing.md)
-    approach, approach_fit = _learn_approach(task, robot_task, noise, settings)
-    ep_approach = simulate_episodes(
-        robot_task.momdp(learned), solution.policy, task.momdp(true_obs), true_obs,
-        torch.arange(settings.episodes) % task.num_types, steps=settings.steps,
-        motion=settings.motion, seed=settings.seed + 7, observer=approach,
-    )  # fmt: skip
+    at_noise = next((r for r in table if r["noise"] == noise), {})
     # factored vs flat (a timing: the factored solve's limit is the flat one's)
+    plan = approach.stationary  # the robot's planning model
     if settings.speedup_horizontal is None:
-        speed_model = robot_task.momdp(learned)
+        speed_model = robot_task.momdp(plan)
     else:
         keep = list(settings.speedup_horizontal)
         geo = settings.geometry
@@ -476,13 +527,13 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
                               tilt=geo.tilt, forward=geo.forward, size=geo.size)  # fmt: skip
         sub = HandFinishingTask.build(
             feasible=feasibility.comfortable[keep], reachable=feasibility.reachable[keep],
-            geometry=sub_geo, first_sides=robot_sides,
+            geometry=sub_geo, first_sides=robot_sides, rewards=settings.rewards,
             work_units=settings.speedup_work_units or settings.work_units,
         )  # fmt: skip
         with torch.no_grad():
             sub_obs = sub.observation_model(
-                observation_grid(), loc=learned.loc.reshape(-1, 2),
-                scale=learned.log_scale.exp().reshape(-1, 2),
+                observation_grid(), loc=plan.loc.reshape(-1, 2),
+                scale=plan.log_scale.exp().reshape(-1, 2),
             )  # fmt: skip
         speed_model = sub.momdp(sub_obs)
     if settings.speedup:
@@ -508,9 +559,14 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
         "solve_stop_reason": solution.info["stop_reason"],
         "factored_speedup": speed["speedup"],
         "speedup_detail": speed,
-        "observation_fit_error": fit_error,
-        "type_accuracy_approach_filter": _accuracy(ep_approach, true_sides, robot_sides),
-        "mean_wait_steps_approach_filter": float(ep_approach.wait_steps().double().mean()),
+        "observation_fit_error": _fit_error(approach.stationary, noise),
+        "mean_belief_at_move": float(ep.belief_at_first_move().amax(-1).mean()),
+        "unwanted_cost": robot_task.unwanted_cost,
+        "risk_tolerance": settings.rewards.risk_tolerance,
+        "unwanted_cost_priced": settings.rewards.unwanted_cost is None,
+        "baseline_unwanted_cost": baseline,
+        "baseline_type_accuracy": at_noise.get("baseline_type_accuracy"),
+        "baseline_mean_wait_steps": at_noise.get("baseline_mean_wait_steps"),
         "approach_fit": {
             "approach": float(approach.approach().detach()),
             "start": approach.start.detach().tolist(),
@@ -521,7 +577,8 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
             "log_likelihood": approach_fit.log_likelihood,
             "static_log_likelihood": obs_fit.log_likelihood,
         },
-        "observation_fit": {
+        "observation_fit": {  # the static (paper's) model, the baseline's
+            "fit_error": _fit_error(learned, noise),
             "learned_loc": learned.loc.detach().reshape(-1, 2).tolist(),
             "learned_scale": learned.log_scale.detach().exp().reshape(-1, 2).tolist(),
             "true_loc": list(TRUE_HAND_LOC),
@@ -544,8 +601,8 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
     }
     tick("hand-finishing", stages, stages)
     return {"metrics": metrics, "episodes": ep, "task": task, "robot_task": robot_task,
-            "learned": learned, "true_obs": true_obs, "feasibility": feasibility,
-            "robot_sides": robot_sides}  # fmt: skip
+            "learned": learned, "approach": approach, "true_obs": true_obs,
+            "feasibility": feasibility, "robot_sides": robot_sides}  # fmt: skip
 
 
 def check_hand_finishing_metrics(metrics: dict[str, Any]) -> None:
@@ -629,6 +686,10 @@ def _plot_fig4b(study: dict[str, Any], path: Path) -> None:
 
 
 def _plot_observation(study: dict[str, Any], path: Path) -> None:
+    """The hand's cell distribution at the start state, for each type: the generating
+    target model, the approach model's stationary part (the robot's planning model, learned)
+    and the paper's static model (learned, the baseline's): the static one is shifted
+    towards the person and wider, since it absorbs the approach."""
     plt = _pyplot()
     task, robot_task = study["task"], study["robot_task"]
     x0 = task.x0
@@ -636,15 +697,18 @@ def _plot_observation(study: dict[str, Any], path: Path) -> None:
     gx, gy = grid.shape
     with torch.no_grad():
         true_p = study["true_obs"].log_probs()[x0].exp()  # (Y, O)
-        learned_p = study["learned"].log_probs()[robot_task.x0].exp()
-    fig, axes = plt.subplots(2, 2, figsize=(9, 5))
+        approach_p = study["approach"].stationary.log_probs()[robot_task.x0].exp()
+        static_p = study["learned"].log_probs()[robot_task.x0].exp()
+    fig, axes = plt.subplots(2, 3, figsize=(12, 5))
     for y, side in enumerate(("left", "right")):
         ly = study["robot_sides"].index(side) if side in study["robot_sides"] else y
-        for col, (name, p) in enumerate((("true", true_p[y]), ("learned", learned_p[ly]))):
+        panels = (("true target", true_p[y]), ("approach model (learned)", approach_p[ly]),
+                  ("static model (learned)", static_p[ly]))  # fmt: skip
+        for col, (name, p) in enumerate(panels):
             ax = axes[y, col]
             ax.imshow(p.reshape(gx, gy).numpy(), origin="lower", aspect="auto",
                       extent=(-1.2, 1.2, 0.45, 1.25))  # fmt: skip
-            ax.set_title(f"{name}: {side}-first, start state")
+            ax.set_title(f"{name}: {side}-first, start state", fontsize=9)
             ax.set_xlabel("y (m)")
             ax.set_ylabel("x (m)")
     fig.tight_layout()
@@ -673,6 +737,7 @@ def _plot_reachable(study: dict[str, Any], path: Path) -> None:
 
 def _report(metrics: dict[str, Any]) -> str:
     sp = metrics["speedup_detail"]
+    af = metrics["approach_fit"]
     st = metrics.get("settings", {})
     motion = st.get("motion", {})
     lines = [
@@ -688,11 +753,23 @@ def _report(metrics: dict[str, Any]) -> str:
         "- Simulated persons: the hand walks from where the person stands "
         f"({motion.get('start', '?')} m) towards the surface they work on next, covering "
         f"{motion.get('approach', '?')} of the remaining distance per step; the sensor adds "
-        "Gaussian noise. The robot's model (a Gaussian around the surface, the paper's form) "
-        "is learned from such tracks, so it must absorb the approach too.",
-        f"- Observation model learned from hand tracks (type unknown): max parameter error "
-        f"{metrics['observation_fit_error']:.3f} m against the generating mean offset and "
-        "noise.",
+        "Gaussian noise.",
+        "- The robot's belief filter is the approach model "
+        "(`torchhrc.approach_observation`: a learned motion per type towards a Gaussian "
+        "around the surface), learned from such tracks with the type unknown: rate "
+        f"{af['approach']:.3f} (true {af['true_approach']}), start "
+        f"({af['start'][0]:.2f}, {af['start'][1]:.2f}) m (true {tuple(af['true_start'])}), "
+        f"max error of the target offset and noise {metrics['observation_fit_error']:.3f} m. "
+        "The MOMDP is solved on its stationary part (the hand at its target): the MOMDP's "
+        "observation function cannot hold the hand's history.",
+        f"- Price of an unwanted move: **{metrics['unwanted_cost']:.2f}**"
+        + (
+            f", set by the risk tolerance {metrics['risk_tolerance']} (the cost at which "
+            "moving at belief b beats waiting a step only when 1 - b <= tolerance, the type "
+            "known afterwards: `HandFinishingTask.unwanted_cost_for_risk`)."
+            if metrics["unwanted_cost_priced"]
+            else " (set directly)."
+        ),
         f"- SARSOP (factored, learned model): {metrics['solve_time_s']:.1f} s, gap "
         f"{metrics['solve_gap']:.3g} after {metrics['solve_iterations']} iterations (stopped "
         f"on: {metrics['solve_stop_reason']}).",
@@ -702,40 +779,41 @@ def _report(metrics: dict[str, Any]) -> str:
         f"(flat reached the gap: {sp['flat_reached_gap']}; flat gap {sp['flat_gap']:.3g}), "
         f"**speed-up {metrics['factored_speedup']:.1f}x**"
         + ("" if sp["flat_reached_gap"] else " (a lower bound: the flat solve hit its limit)")
-        + ".",
+        + "."
+        if sp.get("speedup") is not None
+        else "- Factored vs flat SARSOP: not measured.",
         f"- At noise {metrics['paper_noise']} m: type accuracy (MAP type at the robot's first "
         f"move) **{metrics['type_accuracy']:.3f}**, mean wait before the first move "
-        f"**{metrics['mean_wait_steps']:.2f} steps**.",
-        *(
-            [
-                "- Same policy, belief filter with the approach model "
-                "(`torchhrc.approach_observation`, a learned motion per type: rate "
-                f"{af['approach']:.3f} vs {af['true_approach']}, start "
-                f"({af['start'][0]:.2f}, {af['start'][1]:.2f}) m): type accuracy "
-                f"**{metrics['type_accuracy_approach_filter']:.3f}**, mean wait "
-                f"{metrics['mean_wait_steps_approach_filter']:.2f} steps. The robot moves on "
-                "beliefs of about 0.9 to 0.98 under either model (the reward makes that "
-                "risk worth taking), so a calibrated filter's accuracy stays near the mean "
-                "belief at the move."
-            ]
-            if (af := metrics.get("approach_fit")) is not None
-            else []
+        f"**{metrics['mean_wait_steps']:.2f} steps**, mean belief at the move "
+        f"{metrics['mean_belief_at_move']:.3f}"
+        + (
+            f"; the baseline (the paper's static Gaussian model as filter and planning "
+            f"model, unwanted cost {metrics['baseline_unwanted_cost']}): "
+            f"{metrics['baseline_type_accuracy']:.3f}, wait "
+            f"{metrics['baseline_mean_wait_steps']:.2f} steps."
+            if metrics.get("baseline_type_accuracy") is not None
+            else "."
         ),
         "",
         "## Waiting and accuracy against observation noise",
         "",
-        "At each noise level the robot's observation model is learned from hand tracks at "
-        "that level, and its MOMDP solved to the same precision.",
+        "At each noise level the robot's observation models are learned from hand tracks at "
+        "that level, and its MOMDP solved to the same precision. Baseline: the static model "
+        "as filter and planning model with the unwanted cost before issue 12.",
         "",
-        "| noise (m) | type accuracy | mean wait (steps) | mean reward | fit error (m) "
-        "| SARSOP iterations |",
-        "|---|---|---|---|---|---|",
+        "| noise (m) | type accuracy | mean wait (steps) | belief at move | baseline accuracy "
+        "| baseline wait | mean reward | learned rate | fit error (m) | SARSOP iterations |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in metrics["noise_table"]:
+        old_acc, old_wait = row.get("baseline_type_accuracy"), row.get("baseline_mean_wait_steps")
         lines.append(
             f"| {row['noise']:.2f} | {row['type_accuracy']:.3f} | {row['mean_wait_steps']:.2f} "
-            f"| {row['mean_reward']:.2f} | {row['observation_fit_error']:.3f} "
-            f"| {row['solve_iterations']} |"
+            f"| {row['mean_belief_at_move']:.3f} "
+            f"| {'-' if old_acc is None else f'{old_acc:.3f}'} "
+            f"| {'-' if old_wait is None else f'{old_wait:.2f}'} "
+            f"| {row['mean_reward']:.2f} | {row['learned_approach']:.2f} "
+            f"| {row['observation_fit_error']:.3f} | {row['solve_iterations']} |"
         )
     lines += [
         "",

@@ -11,6 +11,7 @@ from torchhrc.tasks.hand_finishing.model import (
     HandFinishingTask,
     RewardSettings,
     count_states,
+    unwanted_cost_for_risk,
 )
 
 __all__ = [
@@ -19,4 +20,5 @@ __all__ = [
     "HandFinishingTask",
     "RewardSettings",
     "count_states",
+    "unwanted_cost_for_risk",
 ]

@@ -40,7 +40,12 @@ Rewards ``R[a, x, y]`` (expected over the next state):
 
 The robot's waiting is therefore not written anywhere: with an uncertain type every move
 risks ``unwanted_cost``, and the solved policy waits for hand observations until the belief
-makes a move worth it.
+makes a move worth it. The price of an unwanted move is a requirement, not a tuning knob: by
+default it is set from the probability of a wrong move the user accepts
+(``RewardSettings.risk_tolerance``, 0.02) as the cost at which moving at belief ``b`` beats
+waiting one step only when ``1 - b <= risk_tolerance``, the type counted as known after that
+step (:func:`unwanted_cost_for_risk`, :meth:`HandFinishingTask.unwanted_cost_for_risk`); it
+can also be set directly (``RewardSettings(unwanted_cost=...)``).
 
 Example:
     >>> import torch
@@ -53,7 +58,9 @@ Example:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import torch
 
@@ -69,6 +76,7 @@ __all__ = [
     "HandFinishingTask",
     "RewardSettings",
     "count_states",
+    "unwanted_cost_for_risk",
 ]
 
 #: Robot actions: index -> name. ``wait`` is 0.
@@ -101,14 +109,25 @@ class RewardSettings:
         work_reward: reward of one completed work unit.
         work_probability: chance the person completes a unit on a presented side per step.
         move_cost: cost of any move (robot effort).
-        unwanted_cost: cost of a move the person did not want.
+        unwanted_cost: cost of a move the person did not want; ``None`` (the default): priced
+            from ``risk_tolerance`` when the task is built
+            (:meth:`HandFinishingTask.unwanted_cost_for_risk`). A number is used as given and
+            ``risk_tolerance`` is then ignored.
+        risk_tolerance: the probability of a wrong first move the user accepts (default
+            0.02: the robot should act on the person's type only when it is at least 98%
+            sure). It sets ``unwanted_cost`` when that is ``None``.
         discount: discount factor.
+
+    Example:
+        >>> RewardSettings().unwanted_cost is None, RewardSettings(unwanted_cost=2.0).unwanted_cost
+        (True, 2.0)
     """
 
     work_reward: float = 1.0
     work_probability: float = 0.8
     move_cost: float = 0.05
-    unwanted_cost: float = 2.0
+    unwanted_cost: float | None = None
+    risk_tolerance: float = 0.02
     discount: float = 0.95
 
     def __post_init__(self) -> None:
@@ -116,9 +135,44 @@ class RewardSettings:
             raise ModelError(f"expected work_probability in (0, 1], got {self.work_probability}")
         if not 0.0 < self.discount < 1.0:
             raise ModelError(f"expected discount in (0, 1), got {self.discount}")
+        if not 0.0 < self.risk_tolerance < 1.0:
+            raise ModelError(f"expected risk_tolerance in (0, 1), got {self.risk_tolerance}")
         for name in ("work_reward", "move_cost", "unwanted_cost"):
-            if getattr(self, name) < 0:
-                raise ModelError(f"expected {name} >= 0, got {getattr(self, name)}")
+            value = getattr(self, name)
+            if value is not None and not value >= 0:
+                raise ModelError(f"expected {name} >= 0, got {value}")
+
+
+def unwanted_cost_for_risk(gain: float, loss: float, risk_tolerance: float) -> float:
+    """The cost of an unwanted move at which a risky move breaks even at ``1 - b = tolerance``.
+
+    One step, move against wait, the value of what follows taken as if the type were then
+    known (the QMDP comparison, Littman et al. 1995): a move that is right for type ``y``
+    and unwanted for ``y'`` gains ``gain = Q_y(move) - Q_y(wait)`` over waiting if the type is
+    ``y`` and loses ``loss + U = Q_y'(wait) - Q_y'(move)`` if it is ``y'`` (``loss`` without the
+    unwanted cost ``U``: the move back and the delay). At belief ``b`` on ``y`` the move is
+    worth it when ``b gain >= (1 - b)(loss + U)``, i.e. when
+    ``1 - b <= gain / (gain + loss + U)``. Setting that bound to ``tolerance``:
+
+        ``U = gain (1 - tolerance) / tolerance - loss``  (clamped at 0)
+
+    Args:
+        gain: ``Q_y(move) - Q_y(wait)`` (> 0: the move is worth making for its type).
+        loss: ``Q_y'(wait) - Q_y'(move)`` without the unwanted cost.
+        risk_tolerance: the accepted probability of a wrong move, in (0, 1).
+
+    Returns:
+        ``U >= 0``.
+
+    Example:
+        >>> round(unwanted_cost_for_risk(0.1, 0.2, 0.02), 6)  # 0.1 * 49 - 0.2
+        4.7
+    """
+    if not 0.0 < risk_tolerance < 1.0:
+        raise ModelError(f"expected risk_tolerance in (0, 1), got {risk_tolerance}")
+    if not (math.isfinite(gain) and math.isfinite(loss)):
+        raise ModelError(f"expected finite gain and loss, got {gain}, {loss}")
+    return max(0.0, gain * (1.0 - risk_tolerance) / risk_tolerance - loss)
 
 
 @dataclass(frozen=True)
@@ -137,7 +191,8 @@ class HandFinishingTask:
         work_units: ``W``.
         first_sides: ``(Y,)`` first side of each type value (``"left"`` / ``"right"``).
         start: index of the start configuration in ``kept``.
-        rewards: the :class:`RewardSettings`.
+        rewards: the :class:`RewardSettings` (as given; the unwanted-move cost in effect is
+            :attr:`unwanted_cost`).
     """
 
     geometry: BoxGeometry
@@ -268,6 +323,16 @@ class HandFinishingTask:
             rewards=rewards,
         )
 
+    @cached_property
+    def unwanted_cost(self) -> float:
+        """The cost of an unwanted move in effect: ``rewards.unwanted_cost`` when set, else
+        priced from ``rewards.risk_tolerance`` for this task's types
+        (:meth:`unwanted_cost_for_risk`; a task derived with other ``first_sides`` is priced
+        again)."""
+        if self.rewards.unwanted_cost is not None:
+            return float(self.rewards.unwanted_cost)
+        return self.unwanted_cost_for_risk(self.rewards.risk_tolerance)
+
     # ------------------------------------------------------------------ sizes
     @property
     def num_configurations(self) -> int:
@@ -311,7 +376,13 @@ class HandFinishingTask:
         return torch.where(second, 1 - first, first)
 
     # ------------------------------------------------------------------ tensors
-    def _tensors(self, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+    def _parts(
+        self, dtype: torch.dtype
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The task's dynamics and rewards in parts, all ``(A, X, Y)``: ``x_stay`` (the state
+        after the robot's action, no work), ``x_work`` (after a completed unit), ``prob``
+        (the chance of a unit), ``reward`` without the unwanted cost, ``unwanted`` (float
+        0/1, the move is unwanted; 0 once the task is done)."""
         A, C, P, Y = len(ACTIONS), self.num_configurations, self.num_progress, self.num_types
         X = C * P
         rw = self.rewards
@@ -325,18 +396,98 @@ class HandFinishingTask:
         prob = rw.work_probability * work.to(dtype)  # (A, X, Y)
         x_stay = (c2 * P + p).unsqueeze(-1).expand(A, X, Y)  # (A, X, Y)
         x_work = torch.where(work, x_stay + 1, x_stay)
-        Tx = torch.zeros(A, X, Y, X, dtype=dtype)
-        Tx.scatter_add_(-1, x_stay.unsqueeze(-1), (1.0 - prob).unsqueeze(-1))
-        Tx.scatter_add_(-1, x_work.unsqueeze(-1), prob.unsqueeze(-1))
-        # rewards
         is_move = torch.tensor([d != 0 for _, d in _MOVES]).view(A, 1, 1)
         d_before = self.distance[c.unsqueeze(-1), side]  # (X, Y)
         d_after = self.distance[c2.unsqueeze(-1), side.unsqueeze(0)]  # (A, X, Y)
-        unwanted = is_move & (d_after >= d_before.unsqueeze(0))
-        R = rw.work_reward * prob
-        R = R - rw.move_cost * is_move.to(dtype) - rw.unwanted_cost * unwanted.to(dtype)
-        R = torch.where(done.view(1, X, 1), torch.zeros_like(R), R)
-        return Tx, R
+        live = ~done.view(1, X, 1)
+        unwanted = (is_move & (d_after >= d_before.unsqueeze(0)) & live).to(dtype)
+        reward = rw.work_reward * prob - rw.move_cost * (is_move & live).to(dtype)
+        return x_stay, x_work, prob, reward, unwanted
+
+    def _tensors(self, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+        x_stay, x_work, prob, reward, unwanted = self._parts(dtype)
+        A, X, Y = prob.shape
+        Tx = torch.zeros(A, X, Y, X, dtype=dtype)
+        Tx.scatter_add_(-1, x_stay.unsqueeze(-1), (1.0 - prob).unsqueeze(-1))
+        Tx.scatter_add_(-1, x_work.unsqueeze(-1), prob.unsqueeze(-1))
+        return Tx, reward - self.unwanted_cost * unwanted
+
+    def known_type_q_values(
+        self, unwanted_cost: float, *, dtype: torch.dtype = torch.float64, tol: float = 1e-12
+    ) -> torch.Tensor:
+        """``(A, X, Y)`` action values when the type is known (the MDP of each type), with
+        ``unwanted_cost`` for an unwanted move; value iteration on the task's two-successor
+        dynamics, to a residual below ``tol``.
+
+        Example:
+            >>> geometry = BoxGeometry(horizontal=(0.0,), vertical=(0.2,), tilt=(-0.5, 0.0, 0.5))
+            >>> f = torch.ones(1, 1, 3, 2, dtype=torch.bool)
+            >>> f[..., 0, 0] = False; f[..., 2, 1] = False  # tilt -: right only, +: left only
+            >>> task = HandFinishingTask.build(feasible=f, geometry=geometry, work_units=1,
+            ...                                rewards=RewardSettings(unwanted_cost=1.0))
+            >>> task.known_type_q_values(1.0).shape
+            torch.Size([7, 9, 2])
+        """
+        x_stay, x_work, prob, reward, unwanted = self._parts(dtype)
+        R = reward - unwanted_cost * unwanted
+        g = self.rewards.discount
+        Y = prob.shape[-1]
+        ys = torch.arange(Y)
+        V = R.new_zeros(R.shape[1], Y)  # (X, Y)
+        for _ in range(100_000):  # a fixed point: iterations, not a loop over states
+            Q = R + g * ((1.0 - prob) * V[x_stay, ys] + prob * V[x_work, ys])
+            V_new = Q.amax(0)
+            if (V_new - V).abs().max() <= tol * (1.0 - g):
+                V = V_new
+                break
+            V = V_new
+        return R + g * ((1.0 - prob) * V[x_stay, ys] + prob * V[x_work, ys])
+
+    def unwanted_cost_for_risk(self, risk_tolerance: float) -> float:
+        """The unwanted-move cost that a risk tolerance sets (:func:`unwanted_cost_for_risk`).
+
+        At the start state, where the robot chooses its first move without knowing the
+        type, for each type ``y`` take its best move ``a_y`` (the known-type values
+        :meth:`known_type_q_values`) and each type ``y'`` for which ``a_y`` is unwanted; the
+        cost makes the one-step comparison of ``a_y`` against waiting break even at a
+        belief ``1 - risk_tolerance`` on ``y`` (and ``risk_tolerance`` on ``y'``), the
+        strictest pair deciding. The known-type values do not depend on the cost when a
+        robot that knows the type never needs an unwanted move; when they do, the rule is
+        iterated to its fixed point (the values at the cost they set).
+
+        Returns:
+            ``U >= 0`` (0 when no first move is right for one type and unwanted for another).
+
+        Raises:
+            ModelError: ``risk_tolerance`` not in (0, 1), or the iteration does not settle.
+        """
+        if not 0.0 < risk_tolerance < 1.0:
+            raise ModelError(f"expected risk_tolerance in (0, 1), got {risk_tolerance}")
+        x0 = self.x0
+        unwanted = self._parts(torch.float64)[4][:, x0]  # (A, Y)
+        moves = torch.tensor([d != 0 for _, d in _MOVES])
+        cost = 0.0
+        for _ in range(50):
+            Q = self.known_type_q_values(cost)[:, x0]  # (A, Y)
+            Q_free = Q + cost * unwanted  # without the unwanted cost
+            required = 0.0
+            Y = Q.shape[-1]
+            for y in range(Y):  # types and pairs: a handful, not states
+                wanted = moves & (unwanted[:, y] == 0)
+                if not wanted.any():
+                    continue
+                a = int(torch.where(wanted, Q[:, y], -math.inf).argmax())
+                gain = float(Q[a, y] - Q[0, y])
+                if gain <= 0:
+                    continue
+                for y2 in range(Y):
+                    if y2 != y and unwanted[a, y2] > 0:
+                        loss = float(Q[0, y2] - Q_free[a, y2])
+                        required = max(required, unwanted_cost_for_risk(gain, loss, risk_tolerance))
+            if abs(required - cost) <= 1e-9 * (1.0 + required):
+                return required
+            cost = required
+        raise ModelError("the unwanted cost of a risk tolerance did not settle in 50 iterations")
 
     def hand_offset(self, *, dtype: torch.dtype = torch.float64) -> torch.Tensor:
         """``(X, Y, 2)`` the centre of the surface each type works on next, projected on the

@@ -856,6 +856,11 @@ class _SARSOP:
                 v_hat = self.bins.predict(node, up, float(self.entropy[node]), lo)
             else:
                 v_hat = up
+            if up - lo <= 0.5 * eps * g ** (-t):
+                # APPL's final precision: the gap here is within half the trial's target
+                # error, whatever the predictor says (SampleBP::sample, ``finalExcess``);
+                # it ends a trial that a cycle's backups keep raising (shuttle: 238 steps)
+                break
             if v_hat <= L and up <= max(U, lo + eps * g ** (-t)):
                 break
             x = int(tree.x[node])

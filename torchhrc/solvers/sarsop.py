@@ -21,9 +21,13 @@ largest weighted excess uncertainty
 the targets ``L_t``, ``U_t`` solved from
 ``L' = R(b, a*) + gamma (P(o*) L_t + sum_{o != o*} P(o) V_low(tau(b, a*, o)))`` with
 ``L' = max(L, max_a Q_low(b, a))`` and ``U' = max(U, max_a Q_low(b, a) + eps gamma^-t)`` (and
-the same with ``V_up`` for ``U_t``). The path is then backed up leaf to root. Dominated alpha
-vectors, alpha vectors that win at no tree belief, redundant upper-bound points and belief
-nodes reached by sub-optimal actions (``Q_up(b, a) < max_a' Q_low(b, a')``) are pruned.
+the same with ``V_up`` for ``U_t``). The path is then backed up leaf to root; a belief the
+trial reaches a second time (a cycle of the model) is also backed up when reached, as APPL
+backs up every node a trial reaches. Tree nodes holding the same belief share its cached
+evaluation. Dominated alpha vectors, alpha vectors that win at no tree belief (flat models;
+a MOMDP's vectors are pruned by pointwise dominance only, as APPL does), redundant
+upper-bound points and belief nodes reached by sub-optimal actions
+(``Q_up(b, a) < max_a' Q_low(b, a')``) are pruned.
 
 One model interface: the solver asks the model only through
 :class:`~torchhrc.solvers.forms.base.SolverModel` (children of beliefs with their
@@ -180,6 +184,12 @@ class SARSOPConfig:
         lazy_upper: a one-belief backup re-bounds only the children of the action with the
             highest cached ``Q_up`` until that action is one just refreshed (APPL's
             ``getNewUBValueUseCache``); ``False`` re-bounds every child at every backup.
+        forward_backups: a trial that reaches a belief it already passed on its way down (a
+            cycle of the model: aloha-10max's trials of ~700 steps visit 3 distinct beliefs)
+            backs it up at once, as APPL backs up every node a trial reaches, besides the
+            leaf-to-root backups of the path; on discount 0.999 this multiplies the value
+            propagation per trial (aloha-10max at 10 CPU-s: lower 531.9 -> 533.4). A trial
+            also ends, as APPL's, where the gap is within half its target error.
         callback: called after each iteration with the history entry (a dict); returning
             True stops the solve.
         dtype: floating dtype of the solve (default float64).
@@ -203,6 +213,7 @@ class SARSOPConfig:
     prune_nodes: bool = True
     sweep_interval: int = 0
     lazy_upper: bool = True
+    forward_backups: bool = True
     callback: Callable[[dict[str, Any]], bool | None] | None = None
     dtype: torch.dtype = torch.float64
 
@@ -477,10 +488,17 @@ class _SARSOP:
         self.ub = SawtoothUpperBound(corner)
         self.tree = form.new_tree()
         self._child_x: dict[tuple[int, int], torch.Tensor] = {}
+        # per distinct belief (``belief_id``): the last evaluation, shared by the tree nodes
+        # that hold the same belief (its stale bounds stay valid bounds there)
         self._cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._default: torch.Tensor | None = None
         self.entropy = np.zeros(1024)
         self.entropy[0] = float(self._entropy(form.b0.unsqueeze(0))[0])
+        # one id per distinct belief (APPL's belief cache): tree nodes holding the same belief
+        # share its cached evaluation, and a trial that reaches a belief again is in a cycle
+        self._belief_ids: dict[tuple[int, bytes, bytes], int] = {}
+        self.belief_id = np.zeros(1024, dtype=np.int64)
+        self.belief_id[0] = self._belief_key(form.x0, form.b0.cpu().numpy())
         self.children: dict[int, list[int]] = {}
         span = float(form.R.max() - form.R.min()) / (1.0 - self.gamma)
         if cfg.max_depth is not None:
@@ -490,10 +508,12 @@ class _SARSOP:
             depth = math.log(target / max(span, 1e-12)) / math.log(self.gamma) if span > 0 else 1
             self.max_depth = int(min(max(math.ceil(depth), 1), 1000))
         self.bins = _Bins(float(corner.min()), float(corner.max()), math.log(self.Y), cfg.bins)
+
         self.last_alpha_prune = self.alphas.size
         self.last_point_prune = 1
         self.history: list[dict[str, Any]] = []
         self.backups = 0
+        self._forward: set[int] = set()
         # the sequential one-belief path runs in numpy on the CPU, whose per-op overhead at
         # these sizes is several times below torch's dispatch
         self._np = self.device.type == "cpu"
@@ -715,7 +735,7 @@ class _SARSOP:
         """:meth:`backup` of one node in numpy (the sequential path of a trial)."""
         tree = self.tree
         b = tree.beliefs_np[node]
-        stale = self._cache.get(node) if self.cfg.lazy_upper else None
+        stale = self._cache.get(int(self.belief_id[node])) if self.cfg.lazy_upper else None
         q_low, q_up, prob, low_c, up_c, best, lo, cu = self._evaluate_np(x, b, stale)
         a = int(q_low.argmax())
         W = self.alphas.np_vectors[best[a]]  # (K, O, Y)
@@ -723,7 +743,7 @@ class _SARSOP:
         alpha = self._npR[a, x] + self.gamma * self.form.backproject_np(x, a, vals)  # (Y,)
         nl = float(alpha @ b)
         nu = float(q_up.max())
-        self._cache[node] = (q_low, q_up, prob, low_c, up_c)
+        self._cache[int(self.belief_id[node])] = (q_low, q_up, prob, low_c, up_c)
         if nl > lo + 1e-10 * max(abs(nl), 1.0):
             self.alphas.add_np(alpha, a, x)
         if nu < cu - 1e-10 * max(abs(cu), 1.0):
@@ -829,20 +849,27 @@ class _SARSOP:
         L = float(tree.lower[0])
         U = L + eps
         path = [0]
+        seen = {int(self.belief_id[0])}
+        forward = self._forward = set()
         while t < self.max_depth and time.perf_counter() < self.deadline:
             lo, up = float(tree.lower[node]), float(tree.upper[node])
             if self.cfg.prediction == "binning":
                 v_hat = self.bins.predict(node, up, float(self.entropy[node]), lo)
             else:
                 v_hat = up
+            if up - lo <= 0.5 * eps * g ** (-t):
+                # APPL's final precision: the gap here is within half the trial's target
+                # error, whatever the predictor says (SampleBP::sample, ``finalExcess``);
+                # it ends a trial that a cycle's backups keep raising (shuttle: 238 steps)
+                break
             if v_hat <= L and up <= max(U, lo + eps * g ** (-t)):
                 break
             x = int(tree.x[node])
-            cached = self._cache.get(node)
+            cached = self._cache.get(int(self.belief_id[node]))
             if cached is None:
                 if self._np:
                     cached = self._evaluate_np(x, tree.beliefs_np[node])[:5]
-                    self._cache[node] = cached
+                    self._cache[int(self.belief_id[node])] = cached
                 else:
                     ev = self.evaluate(x, tree.beliefs[node].unsqueeze(0))
                     cached = self._store(node, ev, 0)
@@ -875,6 +902,14 @@ class _SARSOP:
             node = child
             t += 1
             path.append(node)
+            bid = int(self.belief_id[node])
+            if self.cfg.forward_backups and bid in seen:
+                # the trial reached a belief it already passed (a cycle of the model): back
+                # it up now, as APPL backs up every node a trial reaches, so that the descent
+                # itself propagates values around the cycle
+                self.backup(x2, np.array([node]))
+                forward.add(node)
+            seen.add(bid)
         return path
 
     def _store(self, node: int, ev: _Evaluation, i: int) -> tuple[np.ndarray, ...]:
@@ -884,7 +919,7 @@ class _SARSOP:
         (upper bounds only decrease and lower bounds only increase afterwards).
         """
         entry = tuple(t[i].cpu().numpy() for t in (ev.q_low, ev.q_up, ev.prob, ev.low, ev.up))
-        self._cache[node] = entry
+        self._cache[int(self.belief_id[node])] = entry
         return entry
 
     def _add_node(self, belief: torch.Tensor, x: int, parent: int, action: int, obs: int) -> int:
@@ -893,14 +928,25 @@ class _SARSOP:
             grown = np.zeros(2 * self.entropy.shape[0])
             grown[: self.entropy.shape[0]] = self.entropy
             self.entropy = grown
+            ids = np.zeros(2 * self.belief_id.shape[0], dtype=np.int64)
+            ids[: self.belief_id.shape[0]] = self.belief_id
+            self.belief_id = ids
         if self._np:
-            p = belief.numpy()
-            p = p[p > 0]
+            row = belief.numpy()
+            p = row[row > 0]
             self.entropy[node] = float(-(p * np.log(p)).sum())
         else:
+            row = belief.cpu().numpy()
             self.entropy[node] = float(self._entropy(belief.unsqueeze(0))[0])
+        self.belief_id[node] = self._belief_key(x, row)
         self.children.setdefault(parent, []).append(node)
         return node
+
+    def _belief_key(self, x: int, row: np.ndarray) -> int:
+        """The id of the distinct belief ``(x, row)`` (support and values to 12 digits)."""
+        nz = np.flatnonzero(row)
+        key = (x, nz.tobytes(), np.round(row[nz], 12).tobytes())
+        return self._belief_ids.setdefault(key, len(self._belief_ids))
 
     def _argmax_tie(self, q: np.ndarray) -> int:
         top = float(q.max())
@@ -918,8 +964,17 @@ class _SARSOP:
             n = self.alphas.size
             vec, obs = self.alphas.vectors[:n], self.alphas.observed[:n]
             groups = obs if self.X > 1 else None
-            act = np.flatnonzero(self.tree.active[: self.tree.size])
-            self.alphas.keep(self.tree.keep_alphas(vec, groups, act))
+            if self.X > 1:
+                # a MOMDP keeps every vector no other vector of its x dominates (APPL prunes
+                # a MOMDP's alpha planes by pointwise dominance only, SARSOPPrune::prune):
+                # each x has few tree beliefs, and a vector that wins at none of them yet
+                # wins at beliefs of x the search reaches later (RockSample(7, 8), 10 CPU-s:
+                # lower 20.24 -> 20.56 in the same minute)
+                keep = prune_dominated(vec, groups)
+            else:
+                act = np.flatnonzero(self.tree.active[: self.tree.size])
+                keep = self.tree.keep_alphas(vec, groups, act)
+            self.alphas.keep(keep)
             self._default = None
             self.last_alpha_prune = self.alphas.size
         self._prune_points()
@@ -984,6 +1039,8 @@ class _SARSOP:
                 # trial and between backups): a long trial is cut short, and what was backed
                 # up so far is kept (every backup leaves valid bounds)
                 path = self.sample(eps)
+                if len(path) > 1 and path[-1] in self._forward:
+                    path = path[:-1]  # the leaf was backed up when the trial reached it
                 for node in reversed(path):
                     self.backup(int(self.tree.x[node]), np.array([node]))
                     if time.perf_counter() >= self.deadline:

@@ -12,16 +12,23 @@ Methods:
 
 * ``"paper"``: the paper's random initialisation and hard EM (:mod:`.hard_em`), its BIC.
 * ``"soft"`` (default, the better one): k-means++ initialisation (:mod:`.init`) and soft
-  EM with Dirichlet smoothing (:mod:`.soft_em`); the BIC also counts the ``k - 1`` free
+  EM with Dirichlet smoothing (:mod:`.soft_em`); its BIC also counts the ``k - 1`` free
   mixture weights (and ``k (A - 1)`` first-symbol parameters when ``initial=True``), and
-  ``l`` is the marginal log-likelihood. BIC's k is then an upper bound: the smallest k whose
-  next cluster gains less than ``min_gain`` (0.015) nats per transition is chosen, so a large
-  corpus is not cut into sub-clusters of one type (issue 12.1, ``docs/clustering.md``).
+  ``l`` is the marginal log-likelihood. It scores each k by the exact ICL (below) by default,
+  and the score's k is an upper bound: the smallest k whose next cluster gains less than
+  ``min_gain`` (0.015) nats per transition is chosen, so a large corpus is not cut into
+  sub-clusters of one type (issue 12.1, ``docs/clustering.md``).
 
 A ``RuntimeWarning`` says when the chosen k lies at the edge of the range searched.
 
-``criterion="icl"`` uses the integrated completed likelihood ``ICL = BIC - H(r)`` (Biernacki,
-Celeux, Govaert 2000), ``H`` the entropy of the responsibilities (0 for hard EM).
+Criteria (``criterion=``): ``"bic"`` (the paper's); ``"icl"``, the integrated completed
+likelihood ``ICL = BIC - H(r)`` (Biernacki, Celeux, Govaert 2000), ``H`` the entropy of the
+responsibilities (0 for hard EM); ``"exact_icl"`` (the soft method's default), the exact
+integrated classification likelihood ``log p(D, z)`` of each k's partition with the chains
+and weights integrated out under Dirichlet priors (Biernacki, Celeux, Govaert 2010;
+:func:`exact_icl`). The exact ICL needs no parameter count: a transition row that a cluster
+never visits costs nothing and a sparsely visited row little, where BIC charges every one of
+the ``A (A - 1)`` transitions of every chain ``1/2 log n`` (``docs/clustering.md``).
 
 Example:
     >>> import torch
@@ -53,10 +60,12 @@ from torchhrc.mixture.soft_em import SoftStatistics, m_step, soft_em
 
 __all__ = [
     "DEFAULT_MIN_GAIN",
+    "EXACT_ICL_PRIOR",
     "DEFAULT_PSEUDO_COUNT",
     "DEFAULT_WEIGHT_PSEUDO_COUNT",
     "MixtureFit",
     "bic",
+    "exact_icl",
     "fit_mixture",
     "gains_per_transition",
     "num_free_parameters",
@@ -64,7 +73,7 @@ __all__ = [
 ]
 
 Method = Literal["soft", "paper"]
-Criterion = Literal["bic", "icl"]
+Criterion = Literal["bic", "icl", "exact_icl"]
 
 
 @dataclass(frozen=True)
@@ -82,10 +91,11 @@ class MixtureFit:
         assignments: ``(N,)`` int64 cluster of every sequence (most responsible one; with
             ``unit="subject"`` all sequences of a subject share their subject's cluster).
         responsibilities: ``(N, k)`` posterior cluster probabilities (one-hot for ``"paper"``).
-        per_k: ``k -> {"bic", "icl", "log_likelihood", "gain"}`` of the best run of every
-            k (``gain``: over the previous k, nats per transition, see ``min_gain``; every k
-            but ``k_min`` has one).
-        method: ``"soft"`` or ``"paper"``; criterion: ``"bic"`` or ``"icl"``.
+        per_k: ``k -> {"bic", "icl", "exact_icl", "log_likelihood", "gain"}`` of the best run
+            of every k (``gain``: over the previous k, nats per transition, see ``min_gain``;
+            every k but ``k_min`` has one; ``exact_icl``: see :func:`exact_icl`).
+        method: ``"soft"`` or ``"paper"``; criterion: ``"bic"``, ``"icl"`` or
+            ``"exact_icl"``.
         converged: whether the selected run converged before ``max_iterations``.
         iterations: EM iterations of the selected run.
         num_distinct: distinct sequences (by transition counts) the EM worked on.
@@ -135,6 +145,85 @@ def bic(log_likelihood: torch.Tensor | float, num_parameters: Any, num_data: int
         -267.537
     """
     return log_likelihood - num_parameters / 2 * math.log(num_data)
+
+
+#: Dirichlet concentration of every transition row (and first-symbol distribution) in
+#: :func:`exact_icl`: Jeffreys' prior for a multinomial, as Biernacki, Celeux, Govaert (2010)
+#: use for the latent class model.
+EXACT_ICL_PRIOR = 0.5
+
+
+def _log_dirichlet_multinomial(counts: torch.Tensor, alpha: float) -> torch.Tensor:
+    """``(...)`` log marginal probability of the ordered draws with counts ``(..., A)`` under
+    a multinomial whose probabilities are integrated out over a symmetric Dirichlet(alpha):
+    ``log B(n + alpha) - log B(alpha)``, ``B`` the multivariate Beta function (0 for a row
+    without counts)."""
+    A = counts.shape[-1]
+    return (
+        torch.lgamma(counts + alpha).sum(-1)
+        - A * math.lgamma(alpha)
+        + math.lgamma(A * alpha)
+        - torch.lgamma(counts.sum(-1) + A * alpha)
+    )
+
+
+def exact_icl(
+    stats: SufficientStatistics,
+    assignments: torch.Tensor,
+    cluster_mask: torch.Tensor,
+    *,
+    prior: float = EXACT_ICL_PRIOR,
+    weight_prior: float = 1.0,
+) -> torch.Tensor:
+    """Exact integrated classification likelihood ``log p(D, z)`` of hard partitions.
+
+    Biernacki, Celeux, Govaert (2010), "Exact and Monte Carlo calculations of integrated
+    likelihoods for the latent class model", for Markov chains: with a symmetric
+    Dirichlet(``prior``) on every transition row of every cluster and a
+    Dirichlet(``weight_prior``) on the weights of the ``k_r`` clusters of run ``r``, the
+    parameters integrate out in closed form:
+
+    ``ICL(z) = sum_k sum_a [log B(n_k(a, .) + prior) - log B(prior)]
+    + log B(m + weight_prior) - log B(weight_prior)``,
+
+    ``n_k(a, b)`` the transitions ``a -> b`` of the units of cluster ``k``, ``m_k`` the units
+    in cluster ``k``, ``B`` the multivariate Beta function (plus the same term for the first
+    symbols when they are modelled). A row that a cluster never visits adds exactly 0, a row
+    visited ``n`` times with ``s`` distinct successors about ``(s - 1)/2 log n``: no count of
+    parameters is needed, unlike BIC's ``k A (A - 1)``.
+
+    Args:
+        stats: the distinct units.
+        assignments: ``(U, R)`` int64 cluster slot of every distinct row in each run.
+        cluster_mask: ``(R, K)`` bool, the slots each run uses (``k_r`` = its row sum).
+        prior: Dirichlet concentration of every transition row (default: Jeffreys, 1/2).
+        weight_prior: Dirichlet concentration of the mixture weights.
+
+    Returns:
+        ``(R,)`` float64 (larger is better).
+
+    Example:
+        >>> seqs = torch.tensor([[0, 1, 0, 1]] * 5 + [[0, 0, 0, 0]] * 5)
+        >>> s = sufficient_statistics(seqs, torch.full((10,), 4), 2)  # 2 distinct rows
+        >>> mask = torch.ones(2, 2, dtype=torch.bool)
+        >>> icl = exact_icl(s, torch.tensor([[0, 0], [1, 0]]), mask)  # split, then merged
+        >>> bool(icl[0] > icl[1])
+        True
+    """
+    R, K = cluster_mask.shape
+    A = stats.num_symbols
+    counts, first = partition_counts(stats, assignments, K, torch.float64)  # (R*K, A*A)
+    out = _log_dirichlet_multinomial(counts.view(R, K, A, A), prior).sum((-1, -2))  # (R,)
+    if first is not None:
+        out = out + _log_dirichlet_multinomial(first.view(R, K, A), prior).sum(-1)
+    sizes = partition_sizes(assignments, stats.multiplicity.double(), K)  # (R, K)
+    k = cluster_mask.sum(-1).double()  # (R,)
+    weights = (torch.lgamma(sizes + weight_prior) - math.lgamma(weight_prior)).masked_fill(
+        ~cluster_mask, 0.0
+    )
+    n = sizes.sum(-1)
+    out = out + weights.sum(-1) + torch.lgamma(k * weight_prior) - torch.lgamma(n + k * weight_prior)
+    return out
 
 
 def _unpack(data: Any) -> tuple[torch.Tensor, torch.Tensor, int, tuple[Any, ...] | None]:
@@ -335,7 +424,7 @@ def fit_mixture(
     k_max: int = 10,
     restarts: int = 20,
     method: Method = "soft",
-    criterion: Criterion = "bic",
+    criterion: Criterion | None = None,
     unit: Literal["auto", "sequence", "subject"] = "auto",
     parameters: Literal["auto", "full", "support"] = "auto",
     seed: int | None = None,
@@ -364,7 +453,10 @@ def fit_mixture(
         restarts: EM runs per k (the paper's numOfIterations, 20).
         method: ``"soft"`` (k-means++ + smoothed soft EM, the default) or ``"paper"``
             (random init + hard EM, exactly the paper's algorithm).
-        criterion: ``"bic"`` (the paper's) or ``"icl"``.
+        criterion: how the score's k is chosen among the best run of every k: ``"bic"``
+            (the paper's), ``"icl"`` (BIC minus the entropy of the responsibilities) or
+            ``"exact_icl"`` (:func:`exact_icl`, Jeffreys' prior; no parameter count).
+            ``None``: ``"exact_icl"`` for ``"soft"``, ``"bic"`` for ``"paper"``.
         unit: what gets one cluster label: ``"sequence"`` (the paper) or ``"subject"`` (all
             demonstrations of a subject share one type, their evidence adds up; needs a
             ``Demonstrations``). ``"auto"``: ``"subject"`` for ``"soft"`` when subject ids
@@ -425,8 +517,12 @@ def fit_mixture(
         raise ValueError(f"expected k_min <= k_max, got k_min = {k_min}, k_max = {k_max}")
     if method not in ("soft", "paper"):
         raise ValueError(f"expected method 'soft' or 'paper', got {method!r}")
-    if criterion not in ("bic", "icl"):
-        raise ValueError(f"expected criterion 'bic' or 'icl', got {criterion!r}")
+    if criterion is None:
+        criterion = "exact_icl" if method == "soft" else "bic"
+    if criterion not in ("bic", "icl", "exact_icl"):
+        raise ValueError(
+            f"expected criterion 'bic', 'icl' or 'exact_icl' (or None), got {criterion!r}"
+        )
     if unit not in ("auto", "sequence", "subject"):
         raise ValueError(f"expected unit 'auto', 'sequence' or 'subject', got {unit!r}")
     if parameters not in ("auto", "full", "support"):
@@ -538,7 +634,9 @@ def fit_mixture(
     n = stats.num_units
     bics = bic(result.log_likelihood, n_params, n)  # (R,)
     icls = bics - result.entropy
-    score = bics if criterion == "bic" else icls
+    # the partition of every run: the most responsible slot of every distinct row
+    exact = exact_icl(stats, result.assignments, cluster_mask).to(bics.dtype)  # (R,)
+    score = {"bic": bics, "icl": icls, "exact_icl": exact}[criterion]
     score = torch.nan_to_num(score, nan=-math.inf)
     grouped = score.view(len(ks), per_group)
     best_run = torch.arange(len(ks), device=device) * per_group + grouped.argmax(-1)
@@ -553,6 +651,7 @@ def fit_mixture(
         int(ks[i]): {
             "bic": float(bics[best_run[i]]),
             "icl": float(icls[best_run[i]]),
+            "exact_icl": float(exact[best_run[i]]),
             "log_likelihood": float(lls[i]),
             **({"gain": float(gains[i])} if i > 0 else {}),
         }

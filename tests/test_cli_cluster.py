@@ -99,8 +99,10 @@ def test_cluster_json_schema_and_values(study, capsys):
     assert set(report["per_k"]) == {"2", "3", "4"}
     for scores in report["per_k"].values():
         assert {"bic", "log_likelihood"} <= set(scores)
-    assert report["criterion"] == "exact_icl"  # the soft method's default
-    best = max(report["per_k"], key=lambda k: report["per_k"][k]["exact_icl"])
+    assert report["criterion"] == "bic_or_exact_icl"  # the soft method's default
+    best = max(
+        max(report["per_k"], key=lambda k: report["per_k"][k][c]) for c in ("bic", "exact_icl")
+    )
     assert int(best) == report["k"]
     assert math.isclose(report["per_k"][best]["bic"], report["bic"])
     assert math.isclose(report["per_k"][best]["log_likelihood"], report["log_likelihood"])
@@ -124,7 +126,9 @@ def test_cluster_min_gain_option_sets_the_rule(study, capsys):
     assert code == 0 and json.loads(out)["k"] == 2
     code, out, _ = _run(capsys, *argv, "--min-gain", "0")
     report = json.loads(out)
-    best = max(report["per_k"], key=lambda k: report["per_k"][k]["exact_icl"])
+    best = max(
+        max(report["per_k"], key=lambda k: report["per_k"][k][c]) for c in ("bic", "exact_icl")
+    )
     assert report["k"] == int(best)
     assert set(report["per_k"]["3"]) == {"bic", "icl", "exact_icl", "log_likelihood", "gain"}
     code, out, _ = _run(capsys, *argv, "--min-gain", "0", "--criterion", "bic")

@@ -86,9 +86,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--criterion",
-        choices=("bic", "icl", "exact_icl"),
+        choices=("bic", "icl", "exact_icl", "bic_or_exact_icl"),
         default=None,
-        help="model selection (soft: exact_icl, paper: bic; see docs/clustering.md)",
+        help="model selection (soft: bic_or_exact_icl, paper: bic; see docs/clustering.md)",
     )
     parser.add_argument(
         "--min-gain",

@@ -87,8 +87,9 @@ def _sq_distances(
     """``(C, U)`` squared Euclidean distances (>= 0) of the columns of ``xt (F', U)`` (squared
     norms ``x2 (U,)``) to ``centers (C, F)``; ``keep (F',)`` are the features that are not
     zero in every row (the others add nothing to the product)."""
-    d = x2 - 2 * (centers[:, keep] @ xt) + (centers * centers).sum(-1, keepdim=True)
-    return d.clamp_min(0.0)
+    # x2 - 2 c.x + |c|^2, in place on the product (the same roundings as written out)
+    d = (centers[:, keep] @ xt).mul_(-2.0).add_(x2).add_((centers * centers).sum(-1, keepdim=True))
+    return d.clamp_min_(0.0)
 
 
 def kmeans_pp_init(

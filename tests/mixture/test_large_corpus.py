@@ -7,8 +7,8 @@ uniformly random action of its actor; 2 types ("safe", "efficient") at 3 positio
 sub-clusters of noise patterns and orders (k = 4 at 10,000 sequences, ARI 0.5); ``min_gain``
 (0.015 nats per transition) was set on seeds 0-2, the default criterion (the larger of BIC's
 and the exact ICL's k, Jeffreys' prior) chosen on seeds 0-5; these tests use seeds 10-18,
-which neither was tuned on. Sizes 100,000 and 1,000,000 are one-off measurements (docs/clustering.md,
-benchmarks/bench_mixture.py --study).
+which neither was tuned on. Sizes 100,000 and 1,000,000 are one-off measurements
+(docs/clustering.md, benchmarks/bench_mixture.py --study).
 """
 
 import warnings

@@ -7,8 +7,8 @@ k with the best log-likelihood runs to convergence), soft EM with a Dirichlet ps
 ``alpha = 0.1`` on every transition and ``beta = 1`` on every cluster size, the larger of the
 k chosen by BIC (``k A (A - 1) + k - 1`` free parameters, ``n`` = the number of subjects) and
 by the exact ICL (the hard partition of each k's final parameters scored with Dirichlet(1/2)
-transition rows and Dirichlet(1) weights integrated out), and the ``min_gain`` rule (the smallest k whose next k gains less than 0.015 nats per
-transition).
+transition rows and Dirichlet(1) weights integrated out), and the ``min_gain`` rule (the
+smallest k whose next k gains less than 0.015 nats per transition).
 
 The reference below re-implements all of it in plain Python (lists, ``math``, loops over
 subjects, sequences, steps, clusters and symbols; no torch, no batching, no deduplication of
@@ -139,7 +139,13 @@ def exact_icl(units, resp, k, A):
 
 
 def reference_fit(
-    sequences, subjects, A, ks, restarts, partitions, min_gain=MIN_GAIN,
+    sequences,
+    subjects,
+    A,
+    ks,
+    restarts,
+    partitions,
+    min_gain=MIN_GAIN,
     criterion="bic_or_exact_icl",
 ):
     """The default ``fit_mixture`` in loops. ``partitions[(k, restart)]``: the starting

@@ -61,9 +61,9 @@ from torchhrc.mixture.soft_em import SoftStatistics, m_step, soft_em
 
 __all__ = [
     "DEFAULT_MIN_GAIN",
-    "EXACT_ICL_PRIOR",
     "DEFAULT_PSEUDO_COUNT",
     "DEFAULT_WEIGHT_PSEUDO_COUNT",
+    "EXACT_ICL_PRIOR",
     "MixtureFit",
     "bic",
     "exact_icl",
@@ -222,8 +222,9 @@ def exact_icl(
         ~cluster_mask, 0.0
     )
     n = sizes.sum(-1)
-    out = out + weights.sum(-1) + torch.lgamma(k * weight_prior) - torch.lgamma(n + k * weight_prior)
-    return out
+    return (
+        out + weights.sum(-1) + torch.lgamma(k * weight_prior) - torch.lgamma(n + k * weight_prior)
+    )
 
 
 def _unpack(data: Any) -> tuple[torch.Tensor, torch.Tensor, int, tuple[Any, ...] | None]:

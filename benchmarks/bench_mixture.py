@@ -43,7 +43,7 @@ k and the ARI against the true types::
 To compare two versions of the library on a shared machine, run this script alternately with
 ``PYTHONPATH`` set to each checkout (old, new, old, new, within minutes of each other) and
 compare the process CPU times: ``docs/clustering.md`` ("Speed") lists the 1,000,000-sequence
-figures measured that way (3 types: CPU ratio new/old 0.77 over four pairs, the same k and
+figures measured that way (3 types: CPU ratio new/old 0.73 over five pairs, the same k and
 ARI).
 """
 

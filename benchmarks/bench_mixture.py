@@ -39,6 +39,12 @@ action of its actor) with ``--n`` sequences, clustered with ``fit_mixture``'s de
 k and the ARI against the true types::
 
     python benchmarks/bench_mixture.py --study 2 --n 1000000 --threads 2
+
+To compare two versions of the library on a shared machine, run this script alternately with
+``PYTHONPATH`` set to each checkout (old, new, old, new, within minutes of each other) and
+compare the process CPU times: ``docs/clustering.md`` ("Speed") lists the 1,000,000-sequence
+figures measured that way (3 types: CPU ratio new/old 0.73 over five pairs, the same k and
+ARI).
 """
 
 from __future__ import annotations

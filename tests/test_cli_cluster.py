@@ -99,7 +99,10 @@ def test_cluster_json_schema_and_values(study, capsys):
     assert set(report["per_k"]) == {"2", "3", "4"}
     for scores in report["per_k"].values():
         assert {"bic", "log_likelihood"} <= set(scores)
-    best = max(report["per_k"], key=lambda k: report["per_k"][k]["bic"])
+    assert report["criterion"] == "bic_or_exact_icl"  # the soft method's default
+    best = max(
+        max(report["per_k"], key=lambda k: report["per_k"][k][c]) for c in ("bic", "exact_icl")
+    )
     assert int(best) == report["k"]
     assert math.isclose(report["per_k"][best]["bic"], report["bic"])
     assert math.isclose(report["per_k"][best]["log_likelihood"], report["log_likelihood"])
@@ -116,16 +119,22 @@ def test_cluster_json_schema_and_values(study, capsys):
 
 
 def test_cluster_min_gain_option_sets_the_rule(study, capsys):
-    """--min-gain is fit_mixture's min_gain: a huge one keeps k_min, 0 is BIC alone."""
+    """--min-gain is fit_mixture's min_gain: a huge one keeps k_min, 0 is the criterion alone."""
     argv = ["cluster", str(study), "--k-max", "4", "--restarts", "3", "--json"]
     with pytest.warns(RuntimeWarning, match="single type"):  # k = 2 gains < 100 over one
         code, out, _ = _run(capsys, *argv, "--min-gain", "100")
     assert code == 0 and json.loads(out)["k"] == 2
     code, out, _ = _run(capsys, *argv, "--min-gain", "0")
     report = json.loads(out)
-    best = max(report["per_k"], key=lambda k: report["per_k"][k]["bic"])
+    best = max(
+        max(report["per_k"], key=lambda k: report["per_k"][k][c]) for c in ("bic", "exact_icl")
+    )
     assert report["k"] == int(best)
-    assert set(report["per_k"]["3"]) == {"bic", "icl", "log_likelihood", "gain"}
+    assert set(report["per_k"]["3"]) == {"bic", "icl", "exact_icl", "log_likelihood", "gain"}
+    code, out, _ = _run(capsys, *argv, "--min-gain", "0", "--criterion", "bic")
+    report = json.loads(out)
+    best = max(report["per_k"], key=lambda k: report["per_k"][k]["bic"])
+    assert report["k"] == int(best) and report["criterion"] == "bic"
 
 
 def test_cluster_same_seed_same_output(study, capsys):

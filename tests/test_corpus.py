@@ -152,6 +152,23 @@ def test_ray_shard_tasks_and_e_steps_give_the_in_memory_fit(
     assert torch.equal(on_ray.assignments, memory.assignments)
 
 
+def test_ray_e_steps_for_data_in_memory(study: Demonstrations, local_ray) -> None:
+    """``ray=`` with demonstrations in memory runs the E-steps on Ray (not ignored)."""
+    options = dict(k_min=1, k_max=3, restarts=3, seed=2)
+    memory = fit_mixture(study, **options)
+    on_ray = fit_mixture(study, ray=True, **options)
+    assert on_ray.k == memory.k
+    assert on_ray.log_likelihood == pytest.approx(memory.log_likelihood, abs=1e-6)
+    assert torch.equal(on_ray.assignments, memory.assignments)
+
+
+def test_ray_with_the_paper_method_in_memory_is_an_error(study: Demonstrations) -> None:
+    with pytest.raises(ValueError, match="method='paper'"):
+        fit_mixture(study, method="paper", ray=True)
+    with pytest.raises(TypeError, match="ray"):
+        fit_mixture(study, ray=3)
+
+
 def test_shards_must_agree(study: Demonstrations, tmp_path: Path) -> None:
     safe = study.select_subjects([s for s, t in zip(study.subjects, study.types) if t == "safe"])
     other = Demonstrations.from_lists([[("human", "x"), ("robot", "y")]], subjects=["Z"])

@@ -4,9 +4,11 @@
 ``Demonstrations``), k-means++ partitions as the starting point, a smoothed M-step from that
 partition, em-EM (``short_iterations`` of soft EM for every restart, then the restart of each
 k with the best log-likelihood runs to convergence), soft EM with a Dirichlet pseudo-count
-``alpha = 0.1`` on every transition and ``beta = 1`` on every cluster size, BIC over k with
-``k A (A - 1) + k - 1`` free parameters and ``n`` = the number of subjects, and the
-``min_gain`` rule (the smallest k whose next k gains less than 0.015 nats per transition).
+``alpha = 0.1`` on every transition and ``beta = 1`` on every cluster size, the larger of the
+k chosen by BIC (``k A (A - 1) + k - 1`` free parameters, ``n`` = the number of subjects) and
+by the exact ICL (the hard partition of each k's final parameters scored with Dirichlet(1/2)
+transition rows and Dirichlet(1) weights integrated out), and the ``min_gain`` rule (the
+smallest k whose next k gains less than 0.015 nats per transition).
 
 The reference below re-implements all of it in plain Python (lists, ``math``, loops over
 subjects, sequences, steps, clusters and symbols; no torch, no batching, no deduplication of
@@ -29,6 +31,7 @@ from torchhrc.tasks.place_and_drill import simulate_study
 ALPHA = 0.1  # transition pseudo-count of the default
 BETA = 1.0  # cluster-size pseudo-count of the default
 MIN_GAIN = 0.015  # nats per transition
+JEFFREYS = 0.5  # Dirichlet concentration of every transition row in the exact ICL
 TOL = 1e-6  # relative log-likelihood change that ends a run
 SHORT = 5  # em-EM short iterations
 CAP = 200  # iteration cap
@@ -113,7 +116,38 @@ def em(units, theta, weights, max_iterations):
     return theta, weights, ll, iterations
 
 
-def reference_fit(sequences, subjects, A, ks, restarts, partitions, min_gain=MIN_GAIN):
+def exact_icl(units, resp, k, A):
+    """``log p(D, z)`` of the hard partition ``z_u = argmax_c r[u][c]`` (first maximum), the
+    transition rows (Dirichlet(1/2)) and weights (Dirichlet(1)) integrated out, written as
+    sequential predictive probabilities: every transition ``a -> b`` of cluster ``c``, in
+    turn, has probability ``(n_c(a, b) + 1/2) / (n_c(a) + A / 2)`` given the ones before it,
+    and every unit joins cluster ``c`` with probability ``(m_c + 1) / (m + k)``."""
+    z = [row.index(max(row)) for row in resp]
+    n = [[[0.0] * A for _ in range(A)] for _ in range(k)]
+    m = [0.0] * k
+    total = 0.0
+    for u, unit in enumerate(units):
+        c = z[u]
+        total += math.log((m[c] + 1.0) / (sum(m) + k))
+        m[c] += 1.0
+        for seq in unit:
+            for j in range(1, len(seq)):
+                a, b = seq[j - 1], seq[j]
+                total += math.log((n[c][a][b] + JEFFREYS) / (sum(n[c][a]) + A * JEFFREYS))
+                n[c][a][b] += 1.0
+    return total
+
+
+def reference_fit(
+    sequences,
+    subjects,
+    A,
+    ks,
+    restarts,
+    partitions,
+    min_gain=MIN_GAIN,
+    criterion="bic_or_exact_icl",
+):
     """The default ``fit_mixture`` in loops. ``partitions[(k, restart)]``: the starting
     cluster of every unit. Returns the selected k, its parameters and responsibilities
     (clusters by decreasing size), its log-likelihood, and per-k BIC and log-likelihood."""
@@ -133,7 +167,9 @@ def reference_fit(sequences, subjects, A, ks, restarts, partitions, min_gain=MIN
         theta, weights, ll, _ = em(units, short[pick][0], short[pick][1], CAP)
         params = k * A * (A - 1) + (k - 1)
         best[k] = dict(theta=theta, weights=weights, ll=ll, bic=ll - params / 2 * math.log(U))
-    by_bic = max(ks, key=lambda k: (best[k]["bic"], -k))
+        best[k]["exact_icl"] = exact_icl(units, e_step(units, theta, weights)[0], k, A)
+    names = ("bic", "exact_icl") if criterion == "bic_or_exact_icl" else (criterion,)
+    by_bic = max(max(ks, key=lambda k: (best[k][c], -k)) for c in names)
     chosen = by_bic
     for k in ks:
         if k >= by_bic:
@@ -214,6 +250,9 @@ def _compare(demos, seed, ks=(2, 3, 4), restarts=3, **options):
             ref["per_k"][k]["ll"], abs=1e-10, rel=1e-13
         )
         assert fit.per_k[k]["bic"] == pytest.approx(ref["per_k"][k]["bic"], abs=1e-10, rel=1e-13)
+        assert fit.per_k[k]["exact_icl"] == pytest.approx(
+            ref["per_k"][k]["exact_icl"], abs=1e-9, rel=1e-12
+        )
     return fit
 
 
@@ -222,6 +261,12 @@ def test_default_fit_equals_the_loop_reference(seed):
     demos = _study(seed)
     fit = _compare(demos, seed)
     assert fit.responsibilities.shape == (demos.num_sequences, fit.k)
+
+
+@pytest.mark.parametrize("criterion", ["bic", "exact_icl"])
+def test_each_criterion_alone_equals_the_loop_reference(criterion):
+    for seed in (4, 5):
+        _compare(_study(seed), seed, criterion=criterion, min_gain=0.0)
 
 
 def _three_chains(seed, subjects=20, demos=2, length=8, A=3):

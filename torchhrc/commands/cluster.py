@@ -85,7 +85,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="soft: k-means++ init + smoothed soft EM (default); paper: random init + hard EM",
     )
     parser.add_argument(
-        "--criterion", choices=("bic", "icl"), default="bic", help="model selection (bic)"
+        "--criterion",
+        choices=("bic", "icl", "exact_icl", "bic_or_exact_icl"),
+        default=None,
+        help="model selection (soft: bic_or_exact_icl, paper: bic; see docs/clustering.md)",
     )
     parser.add_argument(
         "--min-gain",
@@ -172,7 +175,7 @@ def cluster_report(
     k_max: int = 10,
     restarts: int = 20,
     method: str = "soft",
-    criterion: str = "bic",
+    criterion: str | None = None,
     seed: int = 0,
     loo: bool = False,
     inference: str = "vote",
@@ -268,7 +271,7 @@ def sharded_cluster_report(
     k_max: int = 10,
     restarts: int = 20,
     method: str = "soft",
-    criterion: str = "bic",
+    criterion: str | None = None,
     seed: int = 0,
     save_model: str | None = None,
     ray: str | None = None,

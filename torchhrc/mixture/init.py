@@ -81,11 +81,15 @@ def _draw(weights: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
     return idx.clamp_max(cdf.shape[-1] - 1).to(weights.device)
 
 
-def _sq_distances(xt: torch.Tensor, x2: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:
-    """``(C, U)`` squared Euclidean distances (>= 0) of the columns of ``xt (F, U)`` (squared
-    norms ``x2 (U,)``) to ``centers (C, F)``."""
-    d = x2 - 2 * (centers @ xt) + (centers * centers).sum(-1, keepdim=True)
-    return d.clamp_min(0.0)
+def _sq_distances(
+    xt: torch.Tensor, x2: torch.Tensor, centers: torch.Tensor, keep: torch.Tensor
+) -> torch.Tensor:
+    """``(C, U)`` squared Euclidean distances (>= 0) of the columns of ``xt (F', U)`` (squared
+    norms ``x2 (U,)``) to ``centers (C, F)``; ``keep (F',)`` are the features that are not
+    zero in every row (the others add nothing to the product)."""
+    # x2 - 2 c.x + |c|^2, in place on the product (the same roundings as written out)
+    d = (centers[:, keep] @ xt).mul_(-2.0).add_(x2).add_((centers * centers).sum(-1, keepdim=True))
+    return d.clamp_min_(0.0)
 
 
 def kmeans_pp_init(
@@ -114,13 +118,18 @@ def kmeans_pp_init(
     R, K = cluster_mask.shape
     x = _features(stats)  # (U, F)
     U = x.shape[0]
-    xt = x.transpose(0, 1).contiguous()  # (F, U)
+    # the products see only the features that are nonzero in some row (transitions that
+    # occur): the others are 0 in every row and every centre (a mean of rows), so they add
+    # exactly 0; the norms are taken over all features, as written
+    keep = torch.nonzero((x != 0).any(0)).squeeze(-1)  # (F',)
+    xs = x[:, keep]  # (U, F')
+    xt = xs.transpose(0, 1).contiguous()  # (F', U)
     x2 = (x * x).sum(-1)  # (U,)
     w = stats.multiplicity.to(x.dtype)  # (U,)
     k = cluster_mask.sum(-1)  # (R,)
     tiny = torch.finfo(x.dtype).tiny
     idx = _draw(w.expand(R, U), generator).unsqueeze(-1).repeat(1, K)  # (R, K) centre rows
-    d2 = _sq_distances(xt, x2, x[idx[:, 0]])  # (R, U) distance to the nearest centre
+    d2 = _sq_distances(xt, x2, x[idx[:, 0]], keep)  # (R, U) distance to the nearest centre
     for j in range(1, K):
         draw = _draw(d2 * w + tiny * w, generator)  # (R,), never all zero
         active = torch.nonzero(j < k).squeeze(-1)  # runs that seed a j-th centre
@@ -128,32 +137,37 @@ def kmeans_pp_init(
             continue
         nxt = draw[active]
         idx[active, j] = nxt
-        d2[active] = torch.minimum(d2[active], _sq_distances(xt, x2, x[nxt]))
+        d2[active] = torch.minimum(d2[active], _sq_distances(xt, x2, x[nxt], keep))
     groups = run_groups(cluster_mask)
     centers = x.new_zeros(R, K, x.shape[-1])
     for runs, slots in groups:  # the j-th centre seeded goes to the j-th used slot
         centers[runs[:, None], slots] = x[idx[runs, : slots.shape[1]]]
-    zt = _nearest(xt, centers, groups)
-    weighted = torch.cat([x * w[:, None], w[:, None]], -1)  # (U, F + 1)
+    zt = _nearest(xt, centers, groups, keep)
+    weighted = torch.cat([xs * w[:, None], w[:, None]], -1)  # (U, F' + 1)
     for _ in range(lloyd_iterations):
         for runs, slots in groups:
-            sums = onehot_sums(zt[runs], slots, weighted, slots.numel())  # (R_g * k, F + 1)
+            sums = onehot_sums(zt[runs], slots, weighted, slots.numel())  # (R_g * k, F' + 1)
             sums = sums.view(*slots.shape, -1)
             sizes = sums[..., -1:]
-            old = centers[runs[:, None], slots]
-            centers[runs[:, None], slots] = torch.where(
-                sizes > 0, sums[..., :-1] / sizes.clamp_min(tiny), old
+            new = centers[runs[:, None], slots]  # (R_g, k, F), 0 off the kept features
+            new[..., keep] = torch.where(
+                sizes > 0, sums[..., :-1] / sizes.clamp_min(tiny), new[..., keep]
             )
-        zt = _nearest(xt, centers, groups)
+            centers[runs[:, None], slots] = new
+        zt = _nearest(xt, centers, groups, keep)
     return zt.transpose(0, 1).contiguous()
 
 
 def _nearest(
-    xt: torch.Tensor, centers: torch.Tensor, groups: list[tuple[torch.Tensor, torch.Tensor]]
+    xt: torch.Tensor,
+    centers: torch.Tensor,
+    groups: list[tuple[torch.Tensor, torch.Tensor]],
+    keep: torch.Tensor,
 ) -> torch.Tensor:
     """``(R, U)`` slot of the nearest centre of each run (first one on ties), block by block.
 
-    ``argmin_c ||x - c||^2 = argmax_c (2 x.c - ||c||^2)``.
+    ``argmin_c ||x - c||^2 = argmax_c (2 x.c - ||c||^2)``; ``xt (F', U)`` holds the kept
+    features ``keep (F',)`` of ``centers (R, K, F)`` (see :func:`_sq_distances`).
     """
     R, U = centers.shape[0], xt.shape[-1]
     zt = torch.zeros(R, U, dtype=torch.long, device=xt.device)
@@ -161,6 +175,7 @@ def _nearest(
         Rg, k = slots.shape
         c = centers[runs[:, None], slots].reshape(Rg * k, -1)  # (R_g * k, F)
         half_norm = 0.5 * (c * c).sum(-1, keepdim=True)
+        c = c[:, keep]  # (R_g * k, F')
         best = torch.empty(Rg, U, dtype=torch.long, device=xt.device)
         for cols in column_blocks(U, Rg * k):
             score = c @ xt[:, cols] - half_norm  # (R_g * k, b)

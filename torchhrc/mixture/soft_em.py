@@ -67,22 +67,33 @@ EStep = Callable[
 class _Data:
     """The distinct rows laid out for the packed kernels (built once per EM call).
 
-    ``rows (U, D [+ A] + 1)``: transition counts, first-symbol counts (when modelled) and a
-    column of ones side by side (the M-step's right operand: expected counts and sizes in
-    one product); ``xt`` its transpose (the E-step's right operand: with the log weights as
-    the table's last column, the product is the joint log-likelihood); ``mult (U,)``.
+    Only the transitions seen somewhere in the rows (``support (D',)``, indices into the
+    ``D = A * A`` transitions) enter the products: an unseen transition has count 0 in every
+    row, so it adds exactly 0 to every joint log-likelihood and to every expected count.
+    Dropping those columns changes no result (the products add the same nonzero terms in
+    the same order) and shrinks both matrix products of a pass; place-and-drill
+    demonstrations alternate human and robot actions, so half of the ``A * A`` transitions
+    never occur (``D' = D / 2``).
+
+    ``rows (U, D' [+ A] + 1)``: transition counts on the support, first-symbol counts (when
+    modelled) and a column of ones side by side (the M-step's right operand: expected counts
+    and sizes in one product); ``xt`` its transpose (the E-step's right operand: with the
+    log weights as the table's last column, the product is the joint log-likelihood);
+    ``mult (U,)``.
     """
 
     def __init__(self, stats: SufficientStatistics, dtype: torch.dtype) -> None:
         counts = stats.counts.to(dtype)
         U = counts.shape[0]
+        self.support = torch.nonzero((counts != 0).any(0)).squeeze(-1)  # (D',)
+        counts = counts[:, self.support]  # (U, D')
         self.mult = stats.multiplicity.to(dtype)
         first = stats.first_counts.to(dtype) if stats.first_counts is not None else None
         ones = counts.new_ones(U, 1)
-        # E-step operand (D [+ A] + 1, U): the last row of ones adds each cluster's log weight
+        # E-step operand (D' [+ A] + 1, U): the last row of ones adds each cluster's log weight
         parts = [counts, first, ones] if first is not None else [counts, ones]
         self.xt = torch.cat(parts, -1).transpose(0, 1).contiguous()
-        # M-step operand (U, D [+ A] + 1): the last column of ones sums the cluster sizes
+        # M-step operand (U, D' [+ A] + 1): the last column of ones sums the cluster sizes
         self.rows = torch.cat(parts, -1)
         self.num_symbols = stats.num_symbols
 
@@ -97,9 +108,9 @@ def _pass(
 ) -> SoftStatistics:
     """:func:`soft_pass` on prepared data (see there)."""
     R, K, A, _ = log_transition.shape
-    D, U = A * A, data.xt.shape[-1]
-    lt = log_transition.reshape(R, K, D)
-    stat = log_transition.new_zeros(R, K, data.rows.shape[-1])  # (R, K, D [+ A] + 1)
+    D, U, Ds = A * A, data.xt.shape[-1], data.support.shape[0]
+    lt = log_transition.reshape(R, K, D)[..., data.support]  # (R, K, D') the seen transitions
+    stat = log_transition.new_zeros(R, K, data.rows.shape[-1])  # (R, K, D' [+ A] + 1)
     total = log_transition.new_zeros(R)
     entropy = log_transition.new_zeros(R)
     z = torch.empty(U if details else 0, R, dtype=torch.long, device=lt.device)
@@ -107,11 +118,11 @@ def _pass(
     for runs, slots in run_groups(cluster_mask):
         Rg, k = slots.shape
         rows, cols_k = runs[:, None], slots
-        parts = [lt[rows, cols_k]]  # (R_g, k, D)
+        parts = [lt[rows, cols_k]]  # (R_g, k, D')
         if log_initial is not None:
             parts.append(log_initial[rows, cols_k])  # (R_g, k, A)
         parts.append(log_weights[rows, cols_k].unsqueeze(-1))  # (R_g, k, 1)
-        table = torch.cat(parts, -1).view(Rg * k, -1)  # (R_g * k, D [+ A] + 1)
+        table = torch.cat(parts, -1).view(Rg * k, -1)  # (R_g * k, D' [+ A] + 1)
         g_stat = stat.new_zeros(Rg * k, data.rows.shape[-1])
         g_total = stat.new_zeros(Rg)
         g_entropy = stat.new_zeros(Rg)
@@ -137,9 +148,11 @@ def _pass(
         stat[rows, cols_k] = g_stat.view(Rg, k, -1)
         total[runs] = g_total
         entropy[runs] = g_entropy
+    counts = stat.new_zeros(R, K, D)  # unseen transitions: expected count 0
+    counts[..., data.support] = stat[..., :Ds]
     return SoftStatistics(
-        counts=stat[..., :D].reshape(R, K, A, A),
-        initial_counts=stat[..., D:-1] if log_initial is not None else None,
+        counts=counts.view(R, K, A, A),
+        initial_counts=stat[..., Ds:-1] if log_initial is not None else None,
         sizes=stat[..., -1],
         log_likelihood=total,
         entropy=entropy,

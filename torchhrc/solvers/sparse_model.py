@@ -36,6 +36,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -239,23 +240,8 @@ class SparseFlatModel:
 
     def qmdp_np(self, tol: float = 1e-8, deadline: float = math.inf) -> np.ndarray:
         """``(A, S)`` QMDP vectors by value iteration on the underlying MDP (Littman et al.
-        1995) from the upper bound ``max R / (1 - gamma)``; the operator is monotone, so every
-        iterate is an upper bound and stopping at ``deadline`` (``time.perf_counter()``) is
-        safe. Stops when the largest change is below ``tol``."""
-        R = self.R.numpy()
-        g = self.discount
-        V = np.full(self.num_states, float(R.max()) / (1.0 - g), dtype=R.dtype)
-        Q = R + g * self.expect_np(V)
-        for _ in range(100_000):
-            if time.perf_counter() > deadline:
-                break
-            new = Q.max(0)
-            change = float(np.abs(V - new).max())
-            V = new
-            np.minimum(R + g * self.expect_np(V), Q, out=Q)
-            if change < tol:
-                break
-        return Q
+        1995), :func:`qmdp_iteration_np` with this model's ``expect_np``."""
+        return qmdp_iteration_np(self.R.numpy(), self.discount, self.expect_np, tol, deadline)
 
     def fib_np(self, alpha: np.ndarray) -> np.ndarray:
         """``(A, S)`` one Fast Informed Bound step (Hauskrecht 2000) from ``alpha (A2, S)``::
@@ -361,15 +347,72 @@ def sparse_blind_vectors(
     if S <= DIRECT_SOLVE_SIZE:
         eye = torch.eye(S, dtype=R.dtype)
         return torch.linalg.solve(eye - g * model.dense_T(), R.unsqueeze(-1)).squeeze(-1)
-    Rn = R.numpy()
-    alpha = np.full_like(Rn, float(R.min()) / (1.0 - g))
+    return torch.from_numpy(blind_iteration_np(R.numpy(), g, model.expect_np, tol, max_iterations))
+
+
+def qmdp_iteration_np(
+    R: np.ndarray,
+    discount: float,
+    expect_np: Callable[[np.ndarray], np.ndarray],
+    tol: float = 1e-8,
+    deadline: float = math.inf,
+) -> np.ndarray:
+    """QMDP action values ``Q (A, *S)`` by value iteration on the underlying MDP (Littman et
+    al. 1995), for any sparse form: ``expect_np(V)`` maps values ``V (*S)`` to ``(A, *S)``
+    expectations ``sum_s2 P(s2 | s, a) V[s2]`` (``*S`` is ``(S,)`` flat, ``(X, Y)`` for a
+    MOMDP).
+
+    Starts from the upper bound ``max R / (1 - gamma)`` and keeps the pointwise minimum; the
+    operator is monotone, so every iterate is an upper bound and stopping at ``deadline``
+    (``time.perf_counter()``) is safe. Stops when the largest change is below ``tol``.
+
+    Example:
+        >>> R = np.array([[1.0, 0.0]])  # one action, two absorbing states
+        >>> qmdp_iteration_np(R, 0.5, lambda V: V[None, :]).round(6)
+        array([[2., 0.]])
+    """
+    g = discount
+    V = np.full(R.shape[1:], float(R.max()) / (1.0 - g), dtype=R.dtype)
+    Q = R + g * expect_np(V)
+    for _ in range(100_000):
+        if time.perf_counter() > deadline:
+            break
+        new = Q.max(0)
+        change = float(np.abs(V - new).max())
+        V = new
+        np.minimum(R + g * expect_np(V), Q, out=Q)
+        if change < tol:
+            break
+    return Q
+
+
+def blind_iteration_np(
+    R: np.ndarray,
+    discount: float,
+    expect_np: Callable[[np.ndarray], np.ndarray],
+    tol: float = 1e-8,
+    max_iterations: int = 100_000,
+) -> np.ndarray:
+    """Blind-policy vectors ``alpha (A, *S)`` (Hauskrecht 2000), ``alpha_a = R_a + gamma
+    P_a alpha_a``, iterated from ``min R / (1 - gamma)`` with ``max(new, old)`` (every iterate
+    a lower bound); ``expect_np(alpha)`` maps per-action values ``(A, *S)`` to their
+    ``(A, *S)`` expectations (as in :func:`qmdp_iteration_np`). Stops when the largest change
+    is below ``tol (1 - gamma)`` or after ``max_iterations``.
+
+    Example:
+        >>> R = np.array([[1.0, 0.0]])  # one action, two absorbing states
+        >>> blind_iteration_np(R, 0.5, lambda a: a).round(6)
+        array([[2., 0.]])
+    """
+    g = discount
+    alpha = np.full_like(R, float(R.min()) / (1.0 - g))
     for _ in range(max_iterations):
-        new = np.maximum(Rn + g * model.expect_np(alpha), alpha)
+        new = np.maximum(R + g * expect_np(alpha), alpha)
         change = float(np.abs(new - alpha).max())
         alpha = new
         if change < tol * (1.0 - g):
             break
-    return torch.from_numpy(alpha)
+    return alpha
 
 
 def sparse_blind_policy(

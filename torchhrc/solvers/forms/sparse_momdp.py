@@ -47,7 +47,11 @@ from torchhrc.solvers.forms.momdp import MOMDPForm
 from torchhrc.solvers.forms.sparse import SparseForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sampling import sample_categorical
-from torchhrc.solvers.sparse_model import SparseFlatModel
+from torchhrc.solvers.sparse_model import (
+    SparseFlatModel,
+    blind_iteration_np,
+    qmdp_iteration_np,
+)
 from torchhrc.sparse_momdp import SparseMOMDP
 
 __all__ = ["SparseMOMDPForm"]
@@ -214,14 +218,7 @@ class SparseMOMDPForm(SolverModel):
             rhs = R.reshape(A, S, 1)
             out = np.linalg.solve(np.eye(S)[None] - g * P, rhs)
             return torch.from_numpy(out.reshape(A, X, Y).astype(R.dtype, copy=False))
-        alpha = np.full_like(R, float(R.min()) / (1.0 - g))
-        for _ in range(max_iterations):
-            new = np.maximum(R + g * self.expect_np(alpha), alpha)
-            change = float(np.abs(new - alpha).max())
-            alpha = new
-            if change < tol * (1.0 - g):
-                break
-        return torch.from_numpy(alpha)
+        return torch.from_numpy(blind_iteration_np(R, g, self.expect_np, tol, max_iterations))
 
     def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
         if max_iterations is None:  # the discounted tail below 1e-3 of the first step's
@@ -231,22 +228,9 @@ class SparseMOMDPForm(SolverModel):
         return AlphaVectorPolicy.from_action_vectors(vectors, momdp=True)
 
     def qmdp_np(self, tol: float = 1e-8, deadline: float = math.inf) -> np.ndarray:
-        """``(A, X, Y)`` QMDP vectors by value iteration from ``max R / (1 - gamma)`` (every
-        iterate an upper bound; stops below ``tol`` or at ``deadline``)."""
-        R = self.R.numpy()
-        g = self.discount
-        V = np.full(R.shape[1:], float(R.max()) / (1.0 - g), dtype=R.dtype)
-        Q = R + g * self.expect_np(V)
-        for _ in range(100_000):
-            if time.perf_counter() > deadline:
-                break
-            new = Q.max(0)
-            change = float(np.abs(V - new).max())
-            V = new
-            np.minimum(R + g * self.expect_np(V), Q, out=Q)
-            if change < tol:
-                break
-        return Q
+        """``(A, X, Y)`` QMDP vectors (:func:`qmdp_iteration_np` with this form's
+        ``expect_np``)."""
+        return qmdp_iteration_np(self.R.numpy(), self.discount, self.expect_np, tol, deadline)
 
     def fib_np(self, alpha: np.ndarray) -> np.ndarray:
         """``(A, X, Y)`` one Fast Informed Bound step (Hauskrecht 2000) from ``alpha (A2, X, Y)``::

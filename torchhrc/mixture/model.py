@@ -35,7 +35,7 @@ from typing import Any
 
 import torch
 
-from torchhrc._checks import check_shape, check_tensor, format_index
+from torchhrc._checks import broadcast_shapes, check_shape, check_tensor, format_index
 from torchhrc.errors import ModelError, ParseError
 
 __all__ = ["MarkovChainMixture"]
@@ -139,7 +139,7 @@ class MarkovChainMixture:
             check_shape("log_initial", I0, (K, A), f"(..., K={K}, A={A})")
             shapes.append(I0.shape[:-2])
         try:
-            torch.broadcast_shapes(*shapes)
+            broadcast_shapes(*shapes)
         except RuntimeError:
             raise ModelError(
                 "batch dims of log_transition, log_weights (, log_initial) do not broadcast: "
@@ -193,7 +193,7 @@ class MarkovChainMixture:
         shapes = [self.log_transition.shape[:-3], self.log_weights.shape[:-1]]
         if self.log_initial is not None:
             shapes.append(self.log_initial.shape[:-2])
-        return torch.broadcast_shapes(*shapes)
+        return broadcast_shapes(*shapes)
 
     @property
     def transition(self) -> torch.Tensor:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import torch
 
+from torchhrc._checks import broadcast_shapes
 from torchhrc.pomdp import MOMDP, POMDP
 
 __all__: list[str] = []
@@ -170,7 +171,7 @@ class Expectation:
             eye = torch.eye(n, dtype=self.matrix.dtype, device=self.matrix.device)
             rhs = R.transpose(-1, -2).unsqueeze(-1)  # (..., A, Y, X, 1)
             lhs = eye - discount * self.matrix
-            batch = torch.broadcast_shapes(lhs.shape[:-2], rhs.shape[:-2])
+            batch = broadcast_shapes(lhs.shape[:-2], rhs.shape[:-2])
             out = torch.linalg.solve(lhs.expand(*batch, n, n), rhs.expand(*batch, n, 1))
             return out.squeeze(-1).transpose(-1, -2)
         n = self.matrix.shape[-1]
@@ -180,7 +181,7 @@ class Expectation:
         flat_R = R if self.kind == "flat" else R.reshape(*R.shape[:-2], n)
         lhs = eye - discount * self.matrix
         rhs = flat_R.unsqueeze(-1)
-        batch = torch.broadcast_shapes(lhs.shape[:-2], rhs.shape[:-2])
+        batch = broadcast_shapes(lhs.shape[:-2], rhs.shape[:-2])
         out = torch.linalg.solve(lhs.expand(*batch, n, n), rhs.expand(*batch, n, 1)).squeeze(-1)
         return out if self.kind == "flat" else out.reshape(*out.shape[:-1], self.X, self.Y)
 

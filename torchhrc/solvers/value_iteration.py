@@ -28,7 +28,13 @@ from dataclasses import dataclass
 
 import torch
 
-from torchhrc._checks import check_discount, check_probabilities, check_shape, check_tensor
+from torchhrc._checks import (
+    broadcast_shapes,
+    check_discount,
+    check_probabilities,
+    check_shape,
+    check_tensor,
+)
 from torchhrc.errors import ModelError
 
 __all__ = ["MDPSolution", "bellman_expectation", "policy_evaluation", "value_iteration"]
@@ -74,7 +80,7 @@ def _check_mdp(T: object, R: object, discount: object) -> tuple[torch.Tensor, to
     R = _as_float("R", R)
     check_shape("R", R, (A, S), f"(..., A={A}, S={S})")
     try:
-        torch.broadcast_shapes(T.shape[:-3], R.shape[:-2])
+        broadcast_shapes(T.shape[:-3], R.shape[:-2])
     except RuntimeError:
         raise ModelError(
             f"batch dims of T {tuple(T.shape[:-3])} and R {tuple(R.shape[:-2])} do not broadcast"
@@ -148,7 +154,7 @@ def value_iteration(
         raise ValueError(f"expected tol > 0, got {tol}")
     if max_iterations < 1:
         raise ValueError(f"expected max_iterations >= 1, got {max_iterations}")
-    batch = torch.broadcast_shapes(T.shape[:-3], R.shape[:-2])
+    batch = broadcast_shapes(T.shape[:-3], R.shape[:-2])
     S = T.shape[-1]
     if initial_values is None:
         V = R.new_zeros(*batch, S)
@@ -220,6 +226,6 @@ def policy_evaluation(
     P = torch.einsum("...sa,...ast->...st", pi, T)
     r = torch.einsum("...sa,...as->...s", pi, R)
     eye = torch.eye(S, dtype=R.dtype, device=R.device)
-    batch = torch.broadcast_shapes(P.shape[:-2], r.shape[:-1])
+    batch = broadcast_shapes(P.shape[:-2], r.shape[:-1])
     lhs = (eye - g * P).expand(*batch, S, S)
     return torch.linalg.solve(lhs, r.expand(*batch, S).unsqueeze(-1)).squeeze(-1)

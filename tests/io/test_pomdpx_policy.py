@@ -54,7 +54,7 @@ def _values(t: torch.Tensor) -> str:
 def _cond(var: str, parents: str, table: torch.Tensor) -> str:
     dashes = " ".join("-" for _ in range(len(table.shape)))
     return (
-        f"<CondProb><Var>{var}</Var><Parent>{parents}</Parent><Parameter type=\"TBL\">"
+        f'<CondProb><Var>{var}</Var><Parent>{parents}</Parent><Parameter type="TBL">'
         f"<Entry><Instance>{dashes}</Instance><ProbTable>{_values(table)}</ProbTable></Entry>"
         "</Parameter></CondProb>"
     )
@@ -114,8 +114,10 @@ def factored_rocksample() -> tuple[str, MOMDP]:
         "</Variable>",
         "<InitialStateBelief>",
         _cond("robot_0", "null", b0),
-        *(_cond(f"rock{i}_0", "null", torch.full((2,), 0.5, dtype=torch.float64))
-          for i in range(K)),
+        *(
+            _cond(f"rock{i}_0", "null", torch.full((2,), 0.5, dtype=torch.float64))
+            for i in range(K)
+        ),
         "</InitialStateBelief>",
         "<StateTransitionFunction>",
         _cond("robot_1", "act robot_0", Tx),
@@ -168,7 +170,7 @@ def _improvability_gap(m: MOMDP, policy: AlphaVectorPolicy, episodes: int, horiz
     computed exactly from the vectors (<= 0 up to round-off for a uniformly improvable set,
     whose greedy policy then earns at least ``V_low(b0)``)."""
     g = torch.Generator().manual_seed(0)
-    A, X, Y, O = m.Z.shape
+    X, Y = m.num_observed, m.num_hidden
     alphas, actions, observed = policy.alphas, policy.actions, policy.observed
     mine = observed[None, :] == torch.arange(X)[:, None]  # (X, N) vectors of each x
     x = torch.full((episodes,), m.x0)

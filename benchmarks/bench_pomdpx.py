@@ -1,11 +1,14 @@
 """Reading ``.pomdpx`` files: :func:`torchhrc.io.read_pomdpx` against APPL's load time.
 
 For each ``.pomdpx`` file given (APPL's ``examples/POMDPX/*.pomdpx``, fetched by the user; none
-is shipped here), prints the model form and size we read, our read time (median wall time of
-``--repeats`` reads, after a warm-up read), and APPL's "loading time" as ``pomdpsol`` prints
-it (with ``--appl``: ``pomdpsol FILE --timeout 0.01``; APPL's timer is the process CPU time,
-``std::clock``), and the ratio ours / APPL's (goal <= 1). Peak RSS of this process is printed
-at the end. Timings are those of whatever cores the machine gives: print ``uptime`` beside.
+is shipped here), prints the model form and size we read, our read time (median wall time and
+median process CPU time of ``--repeats`` reads, after a warm-up read), and APPL's "loading
+time" as ``pomdpsol`` prints it (with ``--appl``: ``pomdpsol FILE --timeout 0.01``, median of
+``--repeats`` runs; APPL's timer is the process CPU time, ``std::clock``, printed to 0.01 s),
+and the ratio of our CPU time to APPL's (goal <= 1; "-" when APPL prints 0.00). The files are
+timed one after the other, ours then APPL's, so each pair is measured in the same minute.
+Peak RSS of this process is printed at the end. Timings are those of whatever cores the
+machine gives: print ``uptime`` beside.
 
 Usage::
 
@@ -18,14 +21,29 @@ from __future__ import annotations
 import argparse
 import re
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 from _timing import median_time
 
 from torchhrc.io import read_pomdpx
+
+
+def median_cpu_time(fn: Callable[[], object], repeats: int) -> float:
+    """Median process CPU time (user + system, ``time.process_time``) of ``fn()`` over
+    ``repeats`` calls, after one warm-up call: APPL's loading time is CPU time too."""
+    fn()
+    times = []
+    for _ in range(repeats):
+        start = time.process_time()
+        fn()
+        times.append(time.process_time() - start)
+    return statistics.median(times)
 
 
 def appl_load_time(pomdpsol: str, path: Path) -> float | None:
@@ -55,15 +73,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--appl", default=None, help="path to APPL's pomdpsol")
     parser.add_argument("--repeats", type=int, default=3, help="timed reads per file (3)")
     args = parser.parse_args(argv)
-    print("| file | read as | ours (s) | APPL load (s) | ours / APPL |")
-    print("|---|---|---|---|---|")
+    print("| file | read as | ours wall (s) | ours CPU (s) | APPL load CPU (s) | CPU ours / APPL |")
+    print("|---|---|---|---|---|---|")
     for path in args.files:
         model = read_pomdpx(path)
         ours = median_time(lambda: read_pomdpx(path), args.repeats)  # noqa: B023
-        appl = appl_load_time(args.appl, path) if args.appl else None
-        ratio = f"{ours / appl:.2f}" if appl else "-"
+        cpu = median_cpu_time(lambda: read_pomdpx(path), args.repeats)  # noqa: B023
+        appl = None
+        if args.appl:
+            runs = [appl_load_time(args.appl, path) for _ in range(args.repeats)]
+            appl = statistics.median(runs) if None not in runs else None  # type: ignore[type-var]
+        ratio = f"{cpu / appl:.2f}" if appl else "-"
         shown = f"{appl:.2f}" if appl is not None else "-"
-        print(f"| {path.name} | {describe(model)} | {ours:.2f} | {shown} | {ratio} |")
+        print(f"| {path.name} | {describe(model)} | {ours:.3f} | {cpu:.3f} | {shown} | {ratio} |")
         sys.stdout.flush()
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     print(f"\npeak RSS of this process: {peak:.2f} GB")

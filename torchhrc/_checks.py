@@ -105,13 +105,18 @@ def check_probabilities(
 
     The error names the tensor, the first offending index and its value.
     """
-    if not torch.isfinite(value).all():
+    # one pass for the common case: every entry in range (NaN fails both comparisons), so
+    # the full masks below are built only to locate an offending entry
+    if value.numel():
+        lowest, highest = torch.aminmax(value)
+        in_range = bool(lowest >= -atol) and bool(highest <= 1 + atol)
+    else:
+        in_range = True
+    if not in_range and not torch.isfinite(value).all():
         bad = torch.nonzero(~torch.isfinite(value))[0]
         raise ModelError(f"{name}{format_index(bad)} = {value[tuple(bad)].item()} is not finite")
-    low = value < -atol
-    high = value > 1 + atol
-    if low.any() or high.any():
-        bad = torch.nonzero(low | high)[0]
+    if not in_range:
+        bad = torch.nonzero((value < -atol) | (value > 1 + atol))[0]
         raise ModelError(
             f"{name}{format_index(bad)} = {value[tuple(bad)].item():.6g} is not a probability "
             "(expected a value in [0, 1])"

@@ -73,6 +73,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
+from xml.etree import ElementTree
 from xml.parsers import expat
 
 import numpy as np
@@ -212,6 +213,22 @@ class _Node:
     def find(self, tag: str) -> _Node | None:
         return next((c for c in self.children if c.tag == tag), None)
 
+    def __iter__(self) -> Any:
+        return iter(self.children)
+
+    def __len__(self) -> int:
+        return len(self.children)
+
+
+def _text(node: Any) -> str:
+    """The text of an element (a :class:`_Node` or an ``ElementTree`` element)."""
+    return node.text or ""
+
+
+def _line(node: Any) -> int | None:
+    """The 1-based line of a :class:`_Node`; None for an ``ElementTree`` element."""
+    return getattr(node, "line", None)
+
 
 class _Refused(Exception):
     def __init__(self, reason: str, line: int) -> None:
@@ -263,6 +280,24 @@ def _parse_xml(data: bytes | str, path: str) -> _Node:
     return root.children[0]
 
 
+_REFUSED_MARKUP = (b"<!DOCTYPE", b"<!ENTITY")
+
+
+def _parse_xml_fast(data: bytes | str) -> Any:
+    """The root element parsed by ``ElementTree``'s C builder (no line numbers), or None when
+    the document must go through :func:`_parse_xml` (a document type declaration or an entity
+    to refuse, or malformed XML: that path reports the line)."""
+    raw = data.encode("utf-8") if isinstance(data, str) else data
+    if any(marker in raw for marker in _REFUSED_MARKUP):
+        return None
+    parser = ElementTree.XMLParser(encoding="utf-8" if isinstance(data, str) else None)
+    try:
+        parser.feed(raw)
+        return parser.close()
+    except ElementTree.ParseError:
+        return None
+
+
 # ================================================================================ reader
 
 
@@ -282,7 +317,7 @@ class _Reader:
         self.lookup: dict[str, dict[str, int]] = {}
 
     def error(self, reason: str, node: _Node | None) -> ParseError:
-        return ParseError(reason, path=self.path, line=None if node is None else node.line)
+        return ParseError(reason, path=self.path, line=None if node is None else _line(node))
 
     # ------------------------------------------------------------------ document
 
@@ -300,7 +335,7 @@ class _Reader:
             "ObsFunction",
             "RewardFunction",
         }
-        for child in root.children:
+        for child in root:
             if child.tag not in allowed:
                 what = "is not supported" if child.tag.startswith("Terminal") else "is unknown"
                 raise self.error(f"<{child.tag}> {what} (expected one of {sorted(allowed)})", child)
@@ -326,7 +361,7 @@ class _Reader:
         self._check_coverage(sections)
 
     def _discount(self, node: _Node) -> float:
-        text = node.text.strip()
+        text = _text(node).strip()
         try:
             value = float(text)
         except ValueError:
@@ -342,7 +377,7 @@ class _Reader:
         if enum is not None and num is not None:
             raise self.error(f"<{node.tag}> has both <ValueEnum> and <NumValues>", node)
         if enum is not None:
-            names = tuple(enum.text.split())
+            names = tuple(_text(enum).split())
             if not names:
                 raise self.error(f"<{node.tag}>: empty <ValueEnum>", enum)
             if len(set(names)) != len(names):
@@ -350,7 +385,7 @@ class _Reader:
                 raise self.error(f"<{node.tag}>: value {dup!r} appears twice in <ValueEnum>", enum)
             return names, True
         if num is not None:
-            text = num.text.strip()
+            text = _text(num).strip()
             if not text.isdigit() or int(text) < 1:
                 raise self.error(f"<NumValues>: expected a positive integer, got {text!r}", num)
             count = int(text)
@@ -370,7 +405,7 @@ class _Reader:
 
     def _variables(self, node: _Node) -> None:
         observed, hidden, actions, observations, rewards = [], [], [], [], []
-        for child in node.children:
+        for child in node:
             if child.tag == "StateVar":
                 prev, curr = child.attrib.get("vnamePrev"), child.attrib.get("vnameCurr")
                 flag = child.attrib.get("fullyObs", "false").strip().lower()
@@ -425,9 +460,9 @@ class _Reader:
         element = "Func" if kind == "reward" else "CondProb"
         out: dict[str, _Table] = {}
         for section in sections:
-            if not section.children:
+            if len(section) == 0:
                 raise self.error(f"<{section.tag}> has no <{element}>", section)
-            for node in section.children:
+            for node in section:
                 if node.tag != element:
                     raise self.error(
                         f"<{section.tag}>: expected <{element}>, got <{node.tag}>", node
@@ -443,7 +478,7 @@ class _Reader:
         child = node.find(tag)
         if child is None:
             raise self.error(f"<{node.tag}> has no <{tag}>", node)
-        names = child.text.split()
+        names = _text(child).split()
         if not names:
             raise self.error(f"<{node.tag}>: empty <{tag}>", child)
         return names
@@ -527,13 +562,122 @@ class _Reader:
             raise self.error(f'<Parameter type="{ptype}"> is not supported (expected TBL)', param)
         table = np.zeros(dims, dtype=np.float64)
         value_tag = "ValueTable" if kind == "reward" else "ProbTable"
-        for entry in param.children:
-            if entry.tag != "Entry":
-                raise self.error(f"<Parameter>: expected <Entry>, got <{entry.tag}>", entry)
-            self._entry(entry, table, axes, var, kind, value_tag)
+        if not self._entries_batched(param, table, axes, kind, value_tag):
+            for entry in param:
+                if entry.tag != "Entry":
+                    raise self.error(f"<Parameter>: expected <Entry>, got <{entry.tag}>", entry)
+                self._entry(entry, table, axes, var, kind, value_tag)
         if kind != "reward":
             self._normalise(table, axes, var, node)
-        return _Table(var=var, axes=tuple(axes), values=table, line=node.line)
+        return _Table(var=var, axes=tuple(axes), values=table, line=_line(node))
+
+    def _entries_batched(
+        self, param: Any, table: np.ndarray, axes: list[str], kind: str, value_tag: str
+    ) -> bool:
+        """Fill ``table`` from the ``<Entry>`` elements of ``param`` in one numpy pass.
+
+        Each entry names a block of cells: its ``*`` and ``-`` tokens span their axes, the
+        other tokens fix theirs. The cells of every entry and the index of each cell's number
+        are gathered in Python (one dict lookup per token), the numbers of all entries are
+        converted at once, and where entries overlap the later one wins (as the per-entry
+        assignment of :meth:`_entry`). Returns False, leaving ``table`` untouched, for anything
+        that path handles or reports (``identity`` / ``uniform`` tables, an unknown value, a
+        wrong count, a bad number, a probability out of range, an unexpected element): the
+        caller then runs :meth:`_entry` per entry, which raises the precise error.
+        """
+        sizes = [self.size(a) for a in axes]
+        strides = [1] * len(axes)
+        for k in range(len(axes) - 2, -1, -1):
+            strides[k] = strides[k + 1] * sizes[k + 1]
+        lookups = [self.lookup[a] for a in axes]
+        patterns: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray, int]] = {}
+        bases: dict[tuple[str, ...], list[int]] = {}  # per pattern: base cell of each entry
+        starts: dict[tuple[str, ...], list[int]] = {}  # per pattern: its first number's index
+        orders: dict[tuple[str, ...], list[int]] = {}  # per pattern: the entries' ordinals
+        words: list[str] = []
+        for ordinal, entry in enumerate(param):
+            if entry.tag != "Entry":
+                return False
+            inst, value = entry.find("Instance"), entry.find(value_tag)
+            if inst is None or value is None:
+                return False
+            tokens = _text(inst).split()
+            if len(tokens) != len(axes):
+                return False
+            base = 0
+            key = []
+            for tok, lookup, stride, size in zip(tokens, lookups, strides, sizes):
+                if tok == "*" or tok == "-":
+                    key.append(tok)
+                    continue
+                i = lookup.get(tok)
+                if i is None:
+                    if not (_is_index(tok) and int(tok) < size):
+                        return False
+                    i = int(tok)
+                base += i * stride
+                key.append("")
+            pattern = tuple(key)
+            if pattern not in patterns:
+                patterns[pattern] = self._pattern(pattern, sizes, strides)
+                bases[pattern], starts[pattern], orders[pattern] = [], [], []
+            numbers = _text(value).split()
+            if len(numbers) != patterns[pattern][2]:
+                return False  # also "identity" and "uniform"
+            bases[pattern].append(base)
+            starts[pattern].append(len(words))
+            orders[pattern].append(ordinal)
+            words.extend(numbers)
+        if not patterns:
+            return True
+        try:
+            numbers_all = np.array(words, dtype=np.float64)
+        except ValueError:
+            return False
+        if not np.isfinite(numbers_all).all():
+            return False
+        if kind != "reward" and ((numbers_all < 0) | (numbers_all > 1 + _ROW_TOL)).any():
+            return False
+        cells, ords, vals = [], [], []
+        for pattern, (offsets, value_index, _) in patterns.items():
+            b = np.asarray(bases[pattern], dtype=np.int64)[:, None]
+            st = np.asarray(starts[pattern], dtype=np.int64)[:, None]
+            cells.append((b + offsets[None, :]).reshape(-1))
+            vals.append(numbers_all[(st + value_index[None, :]).reshape(-1)])
+            ords.append(np.repeat(np.asarray(orders[pattern], dtype=np.int64), offsets.size))
+        cell = np.concatenate(cells)
+        order = np.concatenate(ords)
+        val = np.concatenate(vals)
+        # the last entry covering a cell wins: sort by (cell, ordinal), keep each cell's last
+        idx = np.lexsort((order, cell))
+        cell, val = cell[idx], val[idx]
+        last = np.ones(cell.size, dtype=bool)
+        last[:-1] = cell[1:] != cell[:-1]
+        table.reshape(-1)[cell[last]] = val[last]
+        return True
+
+    @staticmethod
+    def _pattern(
+        pattern: tuple[str, ...], sizes: list[int], strides: list[int]
+    ) -> tuple[np.ndarray, np.ndarray, int]:
+        """For an instance whose tokens are ``pattern`` (``"*"``, ``"-"`` or ``""`` for a fixed
+        value): the cell offsets it spans ``(n,)`` (row-major over its ``*``/``-`` axes), the
+        index of each cell's number among the entry's numbers ``(n,)`` (row-major over the
+        ``-`` axes, the same number across a ``*`` axis), and how many numbers it lists."""
+        offsets = np.zeros(1, dtype=np.int64)
+        value_index = np.zeros(1, dtype=np.int64)
+        count = 1
+        for tok, size, stride in zip(pattern, sizes, strides):
+            if not tok:
+                continue
+            r = np.arange(size, dtype=np.int64)
+            offsets = (offsets[:, None] + r[None, :] * stride).reshape(-1)
+            if tok == "-":
+                value_index = (value_index[:, None] * size + r[None, :]).reshape(-1)
+                count *= size
+            else:
+                value_index = np.repeat(value_index, size)
+        return offsets, value_index, count
 
     def _entry(
         self, entry: _Node, table: np.ndarray, axes: list[str], var: str, kind: str, value_tag: str
@@ -541,7 +685,7 @@ class _Reader:
         inst_node = entry.find("Instance")
         if inst_node is None:
             raise self.error("<Entry> has no <Instance>", entry)
-        tokens = inst_node.text.split()
+        tokens = _text(inst_node).split()
         if len(tokens) != len(axes):
             raise self.error(
                 f"<Instance> {' '.join(tokens)!r} has {len(tokens)} tokens, expected "
@@ -566,7 +710,7 @@ class _Reader:
         value_node = entry.find(value_tag)
         if value_node is None:
             raise self.error(f"<Entry> has no <{value_tag}>", entry)
-        text = value_node.text.strip()
+        text = _text(value_node).strip()
         keyword = text.lower()
         n = math.prod(shape) if shape else 1
         if keyword == "identity" and kind != "reward":
@@ -1085,15 +1229,24 @@ def read_pomdpx_variables(source: str | os.PathLike[str]) -> PomdpxVariables:
         (['x_1'], ['y_1'], 3)
     """
     data, path = _read_source(source)
-    reader = _Reader(_parse_xml(data, path), path)
-    root = reader.root
-    if root.tag != "pomdpx":
-        raise reader.error(f"expected the root element <pomdpx>, got <{root.tag}>", root)
-    node = root.find("Variable")
-    if node is None:
-        raise reader.error("<pomdpx> has no <Variable>", root)
-    reader._variables(node)
-    return reader.variables
+
+    def variables(root: Any) -> PomdpxVariables:
+        reader = _Reader(root, path)
+        if root.tag != "pomdpx":
+            raise reader.error(f"expected the root element <pomdpx>, got <{root.tag}>", root)
+        node = root.find("Variable")
+        if node is None:
+            raise reader.error("<pomdpx> has no <Variable>", root)
+        reader._variables(node)
+        return reader.variables
+
+    root = _parse_xml_fast(data)
+    if root is not None:
+        try:
+            return variables(root)
+        except ParseError:
+            pass
+    return variables(_parse_xml(data, path))  # errors with their line
 
 
 def read_pomdpx(
@@ -1156,7 +1309,26 @@ def parse_pomdpx(
     """
     if sparse not in (True, False, "auto"):
         raise ValueError(f"expected sparse to be True, False or 'auto', got {sparse!r}")
-    reader = _Reader(_parse_xml(text, path), path)
+    # ElementTree's C builder first (no line numbers); a file it cannot read or that turns out
+    # malformed is read again through the expat tree, whose errors carry the line
+    root = _parse_xml_fast(text)
+    if root is not None:
+        try:
+            return _parse_tree(root, path, sparse, momdp, dtype, device)
+        except ParseError:
+            pass
+    return _parse_tree(_parse_xml(text, path), path, sparse, momdp, dtype, device)
+
+
+def _parse_tree(
+    root: Any,
+    path: str,
+    sparse: bool | Literal["auto"],
+    momdp: bool,
+    dtype: torch.dtype,
+    device: torch.device | str | None,
+) -> POMDP | MOMDP | SparseMOMDP | SparsePOMDP:
+    reader = _Reader(root, path)
     reader.read()
     b = _Builder(reader)
     b0 = b.initial_belief()

@@ -292,18 +292,26 @@ class _AlphaSet:
         if self.np_vectors is None or self.np_observed is None or not kept.size:
             return out
         V, obs, Y = self.np_vectors, self.np_observed, self.np_vectors.shape[1]
+        probe = np.linspace(0, Y - 1, min(Y, 8)).astype(np.int64)
         for x in np.unique(obs[need]).tolist():
             rows = np.flatnonzero(obs[need] == x)
             cand = kept[obs[kept] == x]
             if not cand.size or rows.size * cand.size * Y > 2e8:
                 continue
             C = V[cand]  # (c, Y)
-            step = max(1, (1 << 24) // (cand.size * Y))
+            # a few probe entries first (a candidate dominates only if it does there; most
+            # pairs fail), the full rows for the survivors; the first dominating candidate
+            # wins, as an argmax over the full comparison would pick
+            Cp = C[:, probe]  # (c, k)
+            step = max(1, (1 << 24) // (cand.size * probe.size))
             for start in range(0, rows.size, step):
                 chunk = rows[start : start + step]
-                ge = (C[None, :, :] >= V[need[chunk]][:, None, :]).all(-1)  # (n, c)
-                hit = ge.any(-1)
-                out[chunk[hit]] = cand[ge[hit].argmax(-1)]
+                Vn = V[need[chunk]]  # (n, Y)
+                ii, jj = np.nonzero((Cp[None, :, :] >= Vn[:, None, probe]).all(-1))
+                ok = (C[jj] >= Vn[ii]).all(-1)
+                ii, jj = ii[ok], jj[ok]
+                first, at = np.unique(ii, return_index=True)  # ii is sorted, jj rising
+                out[chunk[first]] = cand[jj[at]]
         return out
 
     def keep_columns(self) -> None:

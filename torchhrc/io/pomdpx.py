@@ -1058,7 +1058,7 @@ class _Builder:
     def momdp(
         self, b0: np.ndarray, static: bool, dtype: torch.dtype, device: torch.device | str | None
     ) -> MOMDP:
-        A, X, Y, O = self.A, self.X, self.Y, self.O
+        A, X, Y = self.A, self.X, self.Y
         layout = self.act + self.xp + self.yp + self.xc
         Tx = self.product([self.r.transition[n] for n in self.xc], layout).reshape(A, X, Y, X)
         Ty = None
@@ -1066,14 +1066,9 @@ class _Builder:
             layout = self.act + self.xp + self.yp + self.xc + self.yc
             Ty = self.product([self.r.transition[n] for n in self.yc], layout)
             Ty = Ty.reshape(A, X, Y, X, Y)
-        layout = self.act + self.xc + self.yc + self.ob
-        Z = self.product([self.r.observation[n] for n in self.ob], layout).reshape(A, X, Y, O)
         R = self.expected_reward().reshape(A, X, Y)
-        b = b0.reshape(X, Y)
-        x0 = int(b.sum(-1).argmax())
-        hidden = b[x0] if abs(b[x0].sum() - 1) <= 1e-12 else b[x0] / b[x0].sum()
-        v = self.r.variables
         t = _tensor_factory(dtype, device)
+        Z, x0, hidden, names = self._momdp_parts(b0)
         return MOMDP(
             Tx=t(Tx),
             Ty=None if Ty is None else t(Ty),
@@ -1082,27 +1077,38 @@ class _Builder:
             x0=x0,
             b0=t(hidden),
             discount=self.r.discount,
-            observed_states=_group_names(v.observed),
-            hidden_states=_group_names(v.hidden),
-            actions=_group_names(v.actions),
-            observations=_group_names(v.observations),
+            **names,
         )
+
+    def _momdp_parts(
+        self, b0: np.ndarray
+    ) -> tuple[np.ndarray, int, np.ndarray, dict[str, tuple[str, ...]]]:
+        """What the dense and sparse MOMDP share: ``Z (A, X, Y, O)``, ``x0`` (the observed
+        value with the most initial mass), the hidden belief there ``(Y,)``, and the names."""
+        layout = self.act + self.xc + self.yc + self.ob
+        Z = self.product([self.r.observation[n] for n in self.ob], layout)
+        b = b0.reshape(self.X, self.Y)
+        x0 = int(b.sum(-1).argmax())
+        hidden = b[x0] if abs(b[x0].sum() - 1) <= 1e-12 else b[x0] / b[x0].sum()
+        v = self.r.variables
+        names = {
+            "observed_states": _group_names(v.observed),
+            "hidden_states": _group_names(v.hidden),
+            "actions": _group_names(v.actions),
+            "observations": _group_names(v.observations),
+        }
+        return Z.reshape(self.A, self.X, self.Y, self.O), x0, hidden, names
 
     def sparse_momdp(self, b0: np.ndarray, dtype: torch.dtype) -> SparseMOMDP:
         """The MOMDP with ``Tx Ty`` as its nonzeros (expanded as the flat sparse ``T``), ``Z``
         and ``R`` dense (CPU)."""
-        A, X, Y, O, S = self.A, self.X, self.Y, self.O, self.S
+        A, X, Y, S = self.A, self.X, self.Y, self.S
         rows, s2, p, value = self.transitions()
         R = self.expected_reward((rows, s2, p, value)).reshape(A, X, Y)
         s = rows % S
         index = np.stack([rows // S, s // Y, s % Y, s2 // Y, s2 % Y], axis=1)
-        layout = self.act + self.xc + self.yc + self.ob
-        Z = self.product([self.r.observation[n] for n in self.ob], layout).reshape(A, X, Y, O)
-        b = b0.reshape(X, Y)
-        x0 = int(b.sum(-1).argmax())
-        hidden = b[x0] if abs(b[x0].sum() - 1) <= 1e-12 else b[x0] / b[x0].sum()
-        v = self.r.variables
         t = _tensor_factory(dtype, "cpu")
+        Z, x0, hidden, names = self._momdp_parts(b0)
         return SparseMOMDP(
             transitions=(torch.from_numpy(index), torch.from_numpy(p)),
             Z=t(Z),
@@ -1110,10 +1116,7 @@ class _Builder:
             x0=x0,
             b0=t(hidden),
             discount=self.r.discount,
-            observed_states=_group_names(v.observed),
-            hidden_states=_group_names(v.hidden),
-            actions=_group_names(v.actions),
-            observations=_group_names(v.observations),
+            **names,
         )
 
     def flat(

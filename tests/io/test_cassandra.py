@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import os
-import re
 import stat
 from pathlib import Path
 
 import pytest
 import torch
+from _fuzz import corrupt
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -370,21 +370,9 @@ _BASES = [
 
 @st.composite
 def corrupted(draw):
-    pieces = re.split(r"(\s+)", draw(st.sampled_from(_BASES)))
-    for _ in range(draw(st.integers(1, 3))):
-        if not pieces:
-            break
-        op = draw(st.sampled_from(["delete", "duplicate", "replace", "truncate"]))
-        k = draw(st.integers(0, len(pieces) - 1))
-        if op == "delete":
-            pieces[k] = ""
-        elif op == "duplicate":
-            pieces[k] = pieces[k] + " " + pieces[k]
-        elif op == "replace":
-            pieces[k] = draw(st.sampled_from(_JUNK))
-        else:
-            pieces = pieces[:k]
-    return "".join(pieces) + draw(st.sampled_from(["", "\n", " :", "\nT"]))
+    return corrupt(draw, draw(st.sampled_from(_BASES)), _JUNK) + draw(
+        st.sampled_from(["", "\n", " :", "\nT"])
+    )
 
 
 @settings(

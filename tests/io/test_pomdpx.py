@@ -4,12 +4,12 @@ hand-worked models, a brute-force reference, round trips and corruptions."""
 from __future__ import annotations
 
 import itertools
-import re
 import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
 import torch
+from _fuzz import corrupt
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -647,21 +647,7 @@ _PX_JUNK = [
 
 @st.composite
 def corrupted(draw):
-    pieces = re.split(r"(\s+|>)", draw(st.sampled_from(_PX_BASES)))
-    for _ in range(draw(st.integers(1, 3))):
-        if not pieces:
-            break
-        op = draw(st.sampled_from(["delete", "duplicate", "replace", "truncate"]))
-        k = draw(st.integers(0, len(pieces) - 1))
-        if op == "delete":
-            pieces[k] = ""
-        elif op == "duplicate":
-            pieces[k] = pieces[k] + " " + pieces[k]
-        elif op == "replace":
-            pieces[k] = draw(st.sampled_from(_PX_JUNK))
-        else:
-            pieces = pieces[:k]
-    return "".join(pieces)
+    return corrupt(draw, draw(st.sampled_from(_PX_BASES)), _PX_JUNK, r"(\s+|>)")
 
 
 @settings(

@@ -28,6 +28,21 @@ def check_probability(name: str, value: object, *, upper_open: bool = False) -> 
     return value
 
 
+def check_type_probabilities(type_probabilities: object, num_types: int) -> torch.Tensor:
+    """The distribution types are drawn from, ``(Y,)`` float64: uniform for ``None``, else
+    the given one, which must have ``Y`` non-negative entries summing to 1 (to 1e-9)."""
+    Y = num_types
+    if type_probabilities is None:
+        return torch.full((Y,), 1.0 / Y, dtype=torch.float64)
+    probs = torch.as_tensor(type_probabilities, dtype=torch.float64)
+    if probs.shape != (Y,) or (probs < 0).any() or abs(float(probs.sum()) - 1.0) > 1e-9:
+        raise ValueError(
+            f"expected type_probabilities of shape (Y={Y},), non-negative, summing to "
+            f"1, got {list(type_probabilities)!r}"
+        )
+    return probs
+
+
 def check_action(action: object, num_actions: int) -> int:
     """The action as an int in ``[0, A)``; a ValueError naming the range otherwise."""
     a = np.asarray(action)

@@ -40,7 +40,13 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import torch
 
-from torchhrc.envs._base import check_action, check_horizon, check_probability, torch_generator
+from torchhrc.envs._base import (
+    check_action,
+    check_horizon,
+    check_probability,
+    check_type_probabilities,
+    torch_generator,
+)
 from torchhrc.tasks.hand_finishing.model import HandFinishingTask
 
 __all__ = ["HandFinishingEnv", "quick_hand_finishing_task"]
@@ -115,16 +121,7 @@ class HandFinishingEnv(gym.Env):
         self.discount = float(self.model.discount)
         self.motion = HandMotion()
         Y = self.model.num_hidden
-        if type_probabilities is None:
-            probs = torch.full((Y,), 1.0 / Y, dtype=torch.float64)
-        else:
-            probs = torch.as_tensor(type_probabilities, dtype=torch.float64)
-            if probs.shape != (Y,) or (probs < 0).any() or abs(float(probs.sum()) - 1) > 1e-9:
-                raise ValueError(
-                    f"expected type_probabilities of shape (Y={Y},), non-negative, summing to "
-                    f"1, got {list(type_probabilities)!r}"
-                )
-        self._type_probs = probs
+        self._type_probs = check_type_probabilities(type_probabilities, Y)
         with torch.no_grad():
             self._means = self.person.mean().detach()  # (X, Y, 2)
             self._scales = self.person.scale().detach()  # (X, Y, 2)

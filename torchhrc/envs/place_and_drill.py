@@ -54,6 +54,7 @@ from torchhrc.envs._base import (
     check_action,
     check_horizon,
     check_probability,
+    check_type_probabilities,
     torch_generator,
 )
 from torchhrc.pomdp import MOMDP
@@ -106,15 +107,7 @@ class PlaceAndDrillHuman:
         self.type_names: tuple[str, ...] = expert.type_names
         self.model: MOMDP = build_expert_momdp(expert)
         Y = len(self.type_names)
-        if type_probabilities is None:
-            probs = torch.full((Y,), 1.0 / Y, dtype=torch.float64)
-        else:
-            probs = torch.as_tensor(type_probabilities, dtype=torch.float64)
-            if probs.shape != (Y,) or (probs < 0).any() or abs(float(probs.sum()) - 1.0) > 1e-9:
-                raise ValueError(
-                    f"expected type_probabilities of shape (Y={Y},), non-negative, summing to "
-                    f"1, got {list(type_probabilities)!r}"
-                )
+        probs = check_type_probabilities(type_probabilities, Y)
         self.type_probabilities = probs
         self._type_cdf = probs.cumsum(0)
         self._type_cdf[-1] = 1.0

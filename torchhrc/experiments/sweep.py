@@ -412,21 +412,19 @@ class LocalExecutor:
         suspects: deque[Job] = deque()  # in flight when a worker died: rerun one at a time
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
         running: dict[Any, Job] = {}
+
+        def submit(job: Job) -> None:
+            future = pool.submit(self.function, spec.task, job.params, job.seed, spec.quick)
+            running[future] = job
+
         try:
             while todo or suspects or running:
-                if not running:  # a suspect runs alone, so a death is its own
-                    queue, room = (suspects, 1) if suspects else (todo, workers)
-                    while queue and len(running) < room:
-                        job = queue.popleft()
-                        future = pool.submit(
-                            self.function, spec.task, job.params, job.seed, spec.quick
-                        )
-                        running[future] = job
-                elif todo and not suspects and len(running) < workers:
-                    job = todo.popleft()
-                    future = pool.submit(self.function, spec.task, job.params, job.seed, spec.quick)
-                    running[future] = job
-                    continue
+                if suspects:  # a suspect runs alone, so a death is its own
+                    if not running:
+                        submit(suspects.popleft())
+                else:
+                    while todo and len(running) < workers:
+                        submit(todo.popleft())
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 alone = len(running) == 1
                 if any(isinstance(f.exception(), BrokenProcessPool) for f in done):

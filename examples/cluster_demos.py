@@ -43,7 +43,7 @@ def main() -> None:
     places = [i for i, s in enumerate(symbols) if s.startswith("human:place_")]
     drills = [i for i, s in enumerate(symbols) if s.startswith("robot:drill_")]
     wait = symbols.index("robot:wait")
-    transition = fit.model.transition.detach().to(torch.float64)  # (k, A, A)
+    transition = fit.transition_over(demos).detach().to(torch.float64)  # (k, A, A)
     print("\nP(robot's next action | human placed screw p), per learned type:")
     for c in range(fit.k):
         drill = torch.stack([transition[c, p, d] for p, d in zip(places, drills)])

@@ -121,7 +121,7 @@ def test_sharded_fit_equals_the_in_memory_fit(
     ordered = _write_shards(study, tmp_path, shards, suffix)
     options = dict(k_min=1, k_max=4, restarts=4, method=method, seed=3)
     sharded = fit_mixture(ShardedCorpus.open(tmp_path), **options)
-    memory = fit_mixture(ordered, **options)
+    memory = fit_mixture(ordered, objects="raw", **options)  # a sharded corpus is fitted raw
     assert sharded.k == memory.k
     assert sharded.log_likelihood == pytest.approx(memory.log_likelihood, abs=1e-6)
     assert sharded.bic == pytest.approx(memory.bic, abs=1e-6)
@@ -143,7 +143,7 @@ def test_ray_shard_tasks_and_e_steps_give_the_in_memory_fit(
     """Shards reduced as Ray tasks, every E-step on Ray actors (a local cluster, 2 CPUs)."""
     ordered = _write_shards(study, tmp_path, shards, ".parquet")
     options = dict(k_min=1, k_max=4, restarts=4, seed=5)
-    memory = fit_mixture(ordered, **options)
+    memory = fit_mixture(ordered, objects="raw", **options)  # a sharded corpus is fitted raw
     on_ray = fit_mixture(ShardedCorpus.open(tmp_path), ray=True, **options)
     assert local_ray.is_initialized()  # the fit leaves a cluster it did not start
     assert on_ray.k == memory.k

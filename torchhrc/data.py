@@ -611,6 +611,97 @@ class Demonstrations:
         sequences[self.mask] = lut[inverse]
         return dataclasses.replace(self, vocabulary=vocabulary, sequences=sequences)
 
+    def _object_of_symbol(self, separator: str) -> tuple[torch.Tensor, int]:
+        """``(A,)`` int64 object index of every symbol (-1: acts on none), and the number
+        ``M`` of distinct objects (``relabel_objects``'s split at the last separator)."""
+        if not isinstance(separator, str) or not separator:
+            raise TypeError(f"expected separator to be a non-empty str, got {separator!r}")
+        split = [a.rpartition(separator) for _, a in self.vocabulary]
+        objects = sorted({obj for verb, sep, obj in split if sep and verb and obj})
+        index = [objects.index(o) if (s and v and o) else -1 for v, s, o in split]
+        return torch.tensor(index, dtype=torch.long, device=self.device), len(objects)
+
+    def num_objects(self, *, separator: str = "_") -> int:
+        """``M``, the number of distinct objects named by ``<verb><separator><object>`` actions.
+
+        Example:
+            >>> d = Demonstrations.from_lists([[("human", "place_A"), ("robot", "drill_B")]])
+            >>> d.num_objects(), d.num_objects(separator=":")
+            (2, 0)
+        """
+        return self._object_of_symbol(separator)[1]
+
+    def relabel_log_multiplicity(
+        self, *, separator: str = "_", given_first: bool = True
+    ) -> torch.Tensor:
+        """Log of the number of demonstrations :meth:`relabel_objects` maps onto each one's image.
+
+        A sequence that touches ``m`` of the ``M`` objects is one of ``M! / (M - m)!``
+        sequences (one per injective renaming of its objects) with the same relabelled form,
+        so if the objects are exchangeable (each demonstration's objects a uniformly random
+        injection of its relabelled ones) ``log p(x) = log p(relabel(x)) - log(M! / (M - m)!)``
+        for every sequence ``x``: a likelihood of the original demonstrations, comparable with
+        a model of the original symbols. With ``given_first`` the first step is given (models
+        that do not score the first symbol, the paper's Eq. 1): if it touches an object, that
+        object is fixed and the count is ``(M - 1)! / (M - m)!``.
+
+        Args:
+            separator: as in :meth:`relabel_objects`.
+            given_first: condition on the first step (see above).
+
+        Returns:
+            ``(N,)`` float64, ``log((M - f)! / (M - m)!)``, ``f`` = 1 if the first step is
+            given and touches an object, else 0.
+
+        Example:
+            >>> d = Demonstrations.from_lists([
+            ...     [("human", "place_A"), ("robot", "drill_A"), ("human", "place_C")],
+            ...     [("human", "wait"), ("human", "place_B")]],
+            ...     vocabulary=[("human", "place_A"), ("human", "place_B"), ("human", "place_C"),
+            ...                 ("human", "wait"), ("robot", "drill_A")])
+            >>> d.relabel_log_multiplicity().exp().round().tolist()  # (3-1)!/1!, 3!/2!
+            [2.0, 3.0]
+            >>> d.relabel_log_multiplicity(given_first=False).exp().round().tolist()  # 3!/1!
+            [6.0, 3.0]
+        """
+        obj_t, M = self._object_of_symbol(separator)
+        N = self.num_sequences
+        obj = torch.where(self.mask, obj_t[self.sequences], -1)  # (N, L)
+        touched = torch.zeros(N, M + 1, dtype=torch.bool, device=self.device)
+        touched.scatter_(1, obj + 1, True)  # column 0: no object
+        m = touched[:, 1:].sum(-1).double()  # (N,)
+        f = (obj[:, 0] >= 0).double() if (given_first and N) else torch.zeros_like(m)
+        return torch.lgamma(M - f + 1) - torch.lgamma(M - m + 1)
+
+    def with_vocabulary(self, vocabulary: Iterable[Step]) -> Demonstrations:
+        """The same steps over another vocabulary (which must hold every symbol used).
+
+        Used to score new demonstrations with a model fitted over ``vocabulary``.
+
+        Raises:
+            ModelError: a symbol used by a sequence is not in ``vocabulary`` (named).
+
+        Example:
+            >>> d = Demonstrations.from_lists([[("human", "a"), ("robot", "b")]])
+            >>> d.with_vocabulary([("robot", "b"), ("robot", "c"), ("human", "a")]).sequences
+            tensor([[2, 0]])
+        """
+        vocab = _check_vocabulary(vocabulary)
+        if vocab == self.vocabulary:
+            return self
+        where = {s: i for i, s in enumerate(vocab)}
+        used = torch.unique(self.sequences[self.mask]).tolist()
+        missing = [self.symbol_names[u] for u in used if self.vocabulary[u] not in where]
+        if missing:
+            raise ModelError(
+                f"symbol(s) {missing} used by the demonstrations are not in the vocabulary "
+                f"{tuple(f'{a}:{b}' for a, b in vocab)}"
+            )
+        lut = torch.tensor([where.get(s, 0) for s in self.vocabulary], device=self.device)
+        return dataclasses.replace(
+            self, vocabulary=vocab, sequences=torch.where(self.mask, lut[self.sequences], 0)
+        )
+
     # ------------------------------------------------------------------ statistics
     def transition_counts(self, *, per_sequence: bool = False) -> torch.Tensor:
         """Counts of transitions ``a -> b`` (paper's ``n_{b|a}``), by one bincount.

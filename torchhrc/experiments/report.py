@@ -412,10 +412,9 @@ def write_report(
     plot_fig3(metrics, out / "fig3.png")
     fit = study["full_fit"]
     demos = study["demonstrations"]
-    names = interpret_clusters(study["task"], fit.model.transition, demos.vocabulary)
-    plot_transitions(
-        fit.model.transition.detach(), demos.symbol_names, names, out / "transitions.png"
-    )
+    chains = fit.transition_over(demos)  # (k, A, A) over the recorded symbols
+    names = interpret_clusters(study["task"], chains, demos.vocabulary)
+    plot_transitions(chains.detach(), demos.symbol_names, names, out / "transitions.png")
     plot_type_posterior(study["folds"], out / "type_posterior.png")
     if study.get("separation") and study["separation"].get("available"):
         plot_separation(study["separation"], out / "separation.png")

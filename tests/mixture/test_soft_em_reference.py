@@ -407,9 +407,9 @@ def _indexed(steps):
 @pytest.mark.parametrize("seed", [3, 4])
 def test_auto_objects_equals_the_loop_reference(seed):
     """``objects="auto"``: the reference fits the recorded symbols and the relabelled ones (in
-    loops), subtracts from the latter's BIC the log of the number of injections counted by
-    enumeration, and keeps the larger BIC; the library agrees on the form, k, the parameters
-    and the comparison."""
+    loops), subtracts from the latter's scores the log of the number of injections counted by
+    enumeration, and keeps the form whose selected partition has the larger exact ICL; the
+    library agrees on the form, k, the parameters and the comparison (BIC and exact ICL)."""
     from torchhrc.data import Demonstrations
 
     sim = simulate_study(n_subjects=9, n_demos=3, n_positions=3, noise=0.1, robot_noise=0.1,
@@ -436,8 +436,11 @@ def test_auto_objects_equals_the_loop_reference(seed):
             assert [[lib.vocabulary[i] for i in row] for row in _symbols(lib)] == data
             ref[form] = reference_fit(symbols, demos.subjects, A, ks, restarts,
                                       _partitions(lib, ks, restarts, seed))  # fmt: skip
+        for r in ref.values():
+            r["exact_icl"] = r["per_k"][r["k"]]["exact_icl"]
         ref["exchangeable"]["bic"] -= shift
-        best = max(ref, key=lambda form: ref[form]["bic"])
+        ref["exchangeable"]["exact_icl"] -= shift
+        best = max(ref, key=lambda form: ref[form]["exact_icl"])
         fit = fit_mixture(demos, k_min=2, k_max=4, restarts=restarts, seed=seed)
         assert fit.objects == best == fit.model.objects
         assert fit.k == ref[best]["k"]
@@ -445,7 +448,9 @@ def test_auto_objects_equals_the_loop_reference(seed):
                                    torch.tensor(ref[best]["theta"], dtype=torch.float64),
                                    atol=1e-10, rtol=0)  # fmt: skip
         for form in ref:
-            assert fit.object_comparison[form]["bic"] == pytest.approx(ref[form]["bic"], abs=1e-9)
+            compared = fit.object_comparison[form]
+            assert compared["bic"] == pytest.approx(ref[form]["bic"], abs=1e-9)
+            assert compared["exact_icl"] == pytest.approx(ref[form]["exact_icl"], abs=1e-8)
             assert fit.object_comparison[form]["k"] == ref[form]["k"]
         forms[name] = best
     # both forms are exercised: exchangeable for the random orders, raw for the fixed one

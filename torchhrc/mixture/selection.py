@@ -557,17 +557,21 @@ def fit_mixture(
             "Exchangeable objects"): ``"raw"``, the symbols as recorded (the paper);
             ``"exchangeable"``, every demonstration's objects renamed in order of first use
             (:meth:`~torchhrc.data.Demonstrations.relabel_objects`: a type is then a strategy
-            whatever objects it was applied to); ``"auto"``: fit both and keep the one whose
-            model explains the recorded demonstrations better by BIC. Both are likelihoods of
-            the same data: under exchangeable objects a demonstration touching ``m`` of the
-            ``M`` objects is its relabelled form times a uniformly random injection of its
-            objects, ``log p(x) = log p(relabel(x)) - log(M! / (M - m)!)``
-            (:meth:`~torchhrc.data.Demonstrations.relabel_log_multiplicity`), and each BIC
-            counts its own model's parameters. ``None``: ``"auto"`` for ``"soft"``, ``"raw"``
-            for ``"paper"``. Data without object names (a tuple of tensors, a sharded corpus,
-            fewer than 2 objects) are fitted raw by ``"auto"``. The fit records the choice
-            (``objects``, ``object_comparison``, ``model.objects``); score new demonstrations
-            through ``fit.model.prepare``.
+            whatever objects it was applied to); ``"auto"``: select a model in both forms and
+            keep the one whose selected partition has the larger exact ICL
+            (:func:`exact_icl`, ``log p(D, z)`` with the chains integrated out) on the
+            recorded demonstrations. Both forms are models of the same data: under
+            exchangeable objects a demonstration touching ``m`` of the ``M`` objects is its
+            relabelled form times a uniformly random injection of its objects,
+            ``log p(x) = log p(relabel(x)) - log(M! / (M - m)!)``
+            (:meth:`~torchhrc.data.Demonstrations.relabel_log_multiplicity`). Types that are
+            mirror images (one strategy on different objects, e.g. "left first" and "right
+            first") are one type in the exchangeable form: pass ``"raw"`` when such
+            object preferences are the types sought. ``None``: ``"auto"`` for ``"soft"``,
+            ``"raw"`` for ``"paper"``. Data without object names (a tuple of tensors, a
+            sharded corpus, fewer than 2 objects) are fitted raw by ``"auto"``. The fit
+            records the choice (``objects``, ``object_comparison``, ``model.objects``); score
+            new demonstrations through ``fit.model.prepare``.
         object_separator: the separator between verb and object (``place_A``: ``"_"``).
         objects_sample: ``"auto"`` compares the two forms on the whole corpus when it has at
             most this many units (subjects, or sequences), else on a random sample of this
@@ -657,7 +661,11 @@ def fit_mixture(
         }
         for form, f in fits.items()
     }
-    best = "exchangeable" if fits["exchangeable"].bic > fits["raw"].bic else "raw"
+    # the exact ICL of each form's selected partition, log p(D, z) of the recorded data: no
+    # parameter count (BIC charges every chain A (A - 1) parameters; the forms' selected k
+    # may differ, and a chain visits a fraction of its transitions, docs/clustering.md)
+    score = {form: comparison[form]["exact_icl"] for form in fits}
+    best = "exchangeable" if score["exchangeable"] > score["raw"] else "raw"
     if sample is data:
         fit = fits[best]
         _rewarn(caught[best])
@@ -672,7 +680,7 @@ def fit_mixture(
 #: ``fit_mixture(objects="auto")`` compares the raw and the exchangeable-object forms on the
 #: whole corpus up to this many units, else on a random sample of this many (and then fits the
 #: corpus once, in the chosen form). At 3,000 units (9,000 sequences of the issue-12 study)
-#: the BIC margin is hundreds of nats either way (``docs/clustering.md``).
+#: the exact-ICL margin is thousands of nats either way (``docs/clustering.md``).
 DEFAULT_OBJECTS_SAMPLE = 3000
 
 

@@ -528,6 +528,7 @@ def metrics_from_study(study: dict[str, Any]) -> dict[str, Any]:
     return {
         "subjects": len(rob.subjects),
         "k": int(study["full_fit"].k),
+        "objects": study["full_fit"].objects,
         "k_per_fold": [f["k"] for f in folds],
         "loo_accuracy": sum(f["correct"] for f in folds) / len(folds),
         "epsilon": list(rob.epsilon),

@@ -435,8 +435,12 @@ def write_report(
     k_rule = (
         "BIC picks k"
         if s.mixture_method == "paper"
-        else "the larger of BIC's and the exact ICL's k bounds it, min_gain picks it"
+        else "the larger of BIC's and the exact ICL's k bounds it, min_gain picks it; "
+        "the screw positions read as recorded or as exchangeable objects, whichever has the "
+        "larger exact ICL"
     )
+    objects = metrics.get("objects")
+    objects_text = f"; objects on all subjects: {objects}" if objects else ""
     text = f"""# Place-and-drill reproduction
 
 Reproduces the evaluation of Nikolaidis, Gu, Ramakrishnan, Shah, "Efficient Model Learning
@@ -471,7 +475,7 @@ for Human-Robot Collaborative Tasks" (section "Evaluation", Fig. 3) on a simulat
 ## Results
 
 Leave-one-subject-out accuracy: **{metrics["loo_accuracy"]:.3f}** (paper: 0.965);
-k selected per fold: {k_counts}; k on all subjects: {metrics["k"]} (paper: 2).
+k selected per fold: {k_counts}; k on all subjects: {metrics["k"]} (paper: 2){objects_text}.
 Misclassified subjects: {", ".join(f"{f['subject']} ({f['true_type']})" for f in wrong) or "none"}.
 
 Mean accumulated reward ± 95% CI half-width (over all runs of an epsilon):

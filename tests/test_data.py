@@ -432,3 +432,16 @@ def test_with_vocabulary_reindexes_and_names_a_missing_symbol():
     assert d.with_vocabulary(d.vocabulary) is d
     with pytest.raises(ModelError, match="robot:b"):
         d.with_vocabulary([(H, "a")])
+
+
+def test_relabel_objects_can_keep_every_symbol_the_vocabulary_allows():
+    vocab = [(H, "place_A"), (H, "place_B"), (H, "place_C"), (H, "wait"), (R, "drill_A")]
+    d = Demonstrations.from_lists([[(H, "place_C"), (R, "drill_A")]], vocabulary=vocab)
+    used = d.relabel_objects()
+    full = d.relabel_objects(keep_unused=True)
+    assert used.symbol_names == ("human:place_1", "robot:drill_2")
+    assert full.symbol_names == (
+        "human:place_1", "human:place_2", "human:place_3", "human:wait",
+        "robot:drill_1", "robot:drill_2", "robot:drill_3",
+    )  # fmt: skip
+    assert full.to_lists() == used.to_lists()

@@ -540,7 +540,7 @@ class Demonstrations:
             self, vocabulary=vocabulary, sequences=torch.where(self.mask, lut[self.sequences], 0)
         )
 
-    def relabel_objects(self, *, separator: str = "_") -> Demonstrations:
+    def relabel_objects(self, *, separator: str = "_", keep_unused: bool = False) -> Demonstrations:
         """The same demonstrations with interchangeable objects renamed in order of first use.
 
         An action ``<verb><separator><object>`` (split at the last separator, e.g.
@@ -561,6 +561,11 @@ class Demonstrations:
 
         Args:
             separator: the string between verb and object in an action name (non-empty).
+            keep_unused: the relabelled vocabulary holds every symbol the original one can
+                relabel to (each verb with objects ``1..M``, every symbol without an object),
+                used or not, as the original vocabulary may hold symbols no sequence uses
+                (a model fitted on it can then score new demonstrations that use them).
+                Default: only the symbols the relabelled sequences use.
 
         Returns:
             Demonstrations over the relabelled vocabulary (canonical order), same steps,
@@ -601,12 +606,18 @@ class Demonstrations:
         code = group_t[self.sequences] * (n_obj + 1) + new_obj + 1  # (N, L)
         used, inverse = torch.unique(code[self.mask], return_inverse=True)
         names = {g: k for k, g in groups.items()}
-        steps_new: list[Step] = []
-        for c in used.tolist():
+
+        def name(c: int) -> Step:
             (actor, verb), r = names[c // (n_obj + 1)], c % (n_obj + 1)
-            steps_new.append((actor, f"{verb}{separator}{r}") if r else (actor, verb[:-1]))
-        vocabulary = _sorted_vocabulary(steps_new)
-        lut = torch.tensor([vocabulary.index(s) for s in steps_new], device=self.device)
+            return (actor, f"{verb}{separator}{r}") if r else (actor, verb[:-1])
+
+        codes = used.tolist()
+        if keep_unused:  # every (group, object rank) the original vocabulary allows
+            ranks = range(1, len(objects) + 1)
+            codes = [g * (n_obj + 1) + r for (_, v), g in groups.items()
+                     for r in ((0,) if v.endswith("\0") else ranks)]  # fmt: skip
+        vocabulary = _sorted_vocabulary(name(c) for c in codes)
+        lut = torch.tensor([vocabulary.index(name(c)) for c in used.tolist()], device=self.device)
         sequences = torch.zeros_like(self.sequences)
         sequences[self.mask] = lut[inverse]
         return dataclasses.replace(self, vocabulary=vocabulary, sequences=sequences)

@@ -709,8 +709,10 @@ def _select_form(
     """Select-Best-Model on ``data`` read as ``objects`` (``"raw"`` or ``"exchangeable"``)."""
     if objects == "raw":
         return _select(data, seed=seed, generator=generator, **options)
-    fit = _select(data.relabel_objects(separator=separator), seed=seed, generator=generator,
-                  **options)  # fmt: skip
+    # every symbol the recorded vocabulary can relabel to, so that a new subject's
+    # demonstrations (over the same recorded vocabulary) can be scored
+    relabelled = data.relabel_objects(separator=separator, keep_unused=True)
+    fit = _select(relabelled, seed=seed, generator=generator, **options)
     # the likelihood of the recorded demonstrations: each is its relabelled form times one
     # of M!/(M-m)! equally likely injections of its objects (the first step's given, unless
     # the first symbol is modelled)

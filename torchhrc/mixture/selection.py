@@ -506,7 +506,8 @@ def fit_mixture(
             lengths (N,) int64, num_symbols)``, or a corpus in shards
             (:class:`torchhrc.corpus.ShardedCorpus`: CSV or Parquet files), whose shards are
             reduced to their distinct units one by one (or as Ray tasks, ``ray=``) and merged
-            exactly: the same fit as the corpus in memory.
+            exactly: the same fit as the corpus in memory with ``objects="raw"`` (a sharded
+            corpus is fitted over its recorded symbols).
         k_min, k_max: the range of k (``1 <= k_min <= k_max``).
         restarts: EM runs per k (the paper's numOfIterations, 20).
         method: ``"soft"`` (k-means++ + smoothed soft EM, the default) or ``"paper"``

@@ -384,12 +384,12 @@ def _print_table(report: dict[str, Any], path: str, out: Any) -> None:
         w(f"objects: {report['objects']}")
         if compared:
             w(
-                " (BIC on the recorded demonstrations: "
+                " (exact ICL on the recorded demonstrations, the larger kept: "
                 + ", ".join(
-                    f"{form} k = {int(c['k'])} {fmt(c['bic'])}" for form, c in compared.items()
+                    f"{form} k = {int(c['k'])} {fmt(c['exact_icl'])}"
+                    for form, c in compared.items()
                 )
-                + (f"; compared on {int(compared['raw']['units'])} units")
-                + ")"
+                + f"; compared on {int(compared['raw']['units'])} units)"
             )
         w("\n")
     w("\n")

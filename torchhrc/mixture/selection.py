@@ -162,9 +162,14 @@ class MixtureFit:
                 f"expected the {N} fitted demonstrations, got {demonstrations.num_sequences}"
             )
         alpha = DEFAULT_PSEUDO_COUNT if pseudo_count is None else float(pseudo_count)
-        counts = demonstrations.transition_counts(per_sequence=True)  # (N, A, A)
-        r = self.responsibilities.to(counts)  # (N, k)
-        chains = torch.einsum("nk,nab->kab", r, counts) + alpha  # (k, A, A)
+        A = demonstrations.num_symbols
+        chains = self.responsibilities.new_zeros(self.k, A, A, dtype=torch.float64)
+        for start in range(0, N, 65536):  # (chunk, A, A) counts at a time
+            part = demonstrations.subset(torch.arange(start, min(start + 65536, N)))
+            counts = part.transition_counts(per_sequence=True)  # (n, A, A)
+            r = self.responsibilities[start : start + 65536].to(counts)  # (n, k)
+            chains += torch.einsum("nk,nab->kab", r, counts)
+        chains = chains + alpha  # (k, A, A)
         rows = chains.sum(-1, keepdim=True)
         uniform = torch.full_like(chains, 1.0 / chains.shape[-1])
         return torch.where(rows > 0, chains / rows.clamp_min(1e-300), uniform)

@@ -8,7 +8,9 @@ sub-clusters of noise patterns and orders (k = 4 at 10,000 sequences, ARI 0.5); 
 (0.015 nats per transition) was set on seeds 0-2, the default criterion (the larger of BIC's
 and the exact ICL's k, Jeffreys' prior) chosen on seeds 0-5; these tests use seeds 10-18,
 which neither was tuned on. Sizes 100,000 and 1,000,000 are one-off measurements
-(docs/clustering.md, benchmarks/bench_mixture.py --study).
+(docs/clustering.md, benchmarks/bench_mixture.py --study). Since the third round the default
+reads the positions of this corpus as exchangeable objects (``test_objects.py``); the tests
+of the raw position symbols below say ``objects="raw"``.
 """
 
 import warnings

@@ -35,8 +35,9 @@ Study mode (issue 12.1), ``--study 2`` or ``--study 3``: the place-and-drill cor
 plus "lagging", at 4 positions; 3 demonstrations per subject, a fresh random placement
 order in every demonstration, every step replaced with probability 0.1 by a uniformly random
 action of its actor) with ``--n`` sequences, clustered with ``fit_mixture``'s defaults
-(float64, all 20 restarts of k = 2..10); prints the simulation and fit times (wall and CPU),
-k and the ARI against the true types::
+(float64, all 20 restarts of k = 2..10, objects detected: ``--objects raw`` for the recorded
+symbols); prints the simulation and fit times (wall and CPU), k, the ARI against the true
+types and which form of the objects was kept (with the two forms' scores)::
 
     python benchmarks/bench_mixture.py --study 2 --n 1000000 --threads 2
 
@@ -165,7 +166,8 @@ def run_study(args: argparse.Namespace) -> None:
         f"{args.study} types, {demos.num_symbols} symbols; simulated in {sim_wall:.2f} s wall, "
         f"{sim_cpu:.2f} s CPU; torch threads = {torch.get_num_threads()}"
     )
-    for name, kwargs in (("soft", {}), ("paper", {"method": "paper"})):
+    soft = {} if args.objects is None else {"objects": args.objects}
+    for name, kwargs in (("soft", soft), ("paper", {"method": "paper"})):
         if name == "paper" and args.skip_baselines:
             continue
         t0, c0 = time.perf_counter(), time.process_time()
@@ -174,8 +176,13 @@ def run_study(args: argparse.Namespace) -> None:
         ari = adjusted_rand_index(list(demos.types), fit.assignments.tolist())
         print(
             f"torchhrc {name:5s}: {wall:7.2f} s wall, {cpu:7.2f} s CPU  (k = {fit.k}, "
-            f"ARI = {ari:.3f}, {fit.num_distinct} distinct units)"
+            f"ARI = {ari:.3f}, {fit.num_distinct} distinct units, objects {fit.objects})"
         )
+        for form, c in (fit.object_comparison or {}).items():
+            print(
+                f"  {form:12s}: k = {int(c['k'])}, exact ICL {c['exact_icl']:.1f}, BIC "
+                f"{c['bic']:.1f} (compared on {int(c['units'])} units)"
+            )
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"peak resident memory: {peak_mb:.0f} MiB")
 
@@ -196,6 +203,12 @@ def main() -> None:
                         help="corpus-scale run: --total sequences in this many Parquet shards "
                         "on a local Ray cluster, against the in-memory fit of --n")  # fmt: skip
     parser.add_argument("--total", type=int, default=10_000_000)
+    parser.add_argument(
+        "--objects",
+        choices=("auto", "raw", "exchangeable"),
+        default=None,
+        help="study mode: fit_mixture's objects (default: its default, auto)",
+    )
     parser.add_argument("--ray-cpus", type=int, default=2)
     parser.add_argument("--shard-dir", default=None, help="keep/reuse the shards here")
     parser.add_argument(

@@ -5,7 +5,8 @@ Simulates the paper's study (18 subjects x 3 demonstrations, 3 screw positions, 
 BIC, shows how each learned type's robot responds to a placement, and evaluates the
 leave-one-subject-out type accuracy with the paper's likelihood-weighted vote (paper:
 96.5%). Then a harder study (three strategies, 4 positions, 150 subjects) clustered with the
-positions treated as exchangeable objects (docs/clustering.md). Runs in seconds on a CPU:
+positions read as recorded and as the default reads them (exchangeable objects detected,
+docs/clustering.md). Runs in seconds on a CPU:
 
     python examples/cluster_demos.py
 """
@@ -43,7 +44,7 @@ def main() -> None:
     places = [i for i, s in enumerate(symbols) if s.startswith("human:place_")]
     drills = [i for i, s in enumerate(symbols) if s.startswith("robot:drill_")]
     wait = symbols.index("robot:wait")
-    transition = fit.model.transition.detach().to(torch.float64)  # (k, A, A)
+    transition = fit.transition_over(demos).detach().to(torch.float64)  # (k, A, A)
     print("\nP(robot's next action | human placed screw p), per learned type:")
     for c in range(fit.k):
         drill = torch.stack([transition[c, p, d] for p, d in zip(places, drills)])
@@ -65,7 +66,9 @@ def main() -> None:
 
     # Harder: every subject keeps its own placement order, so over place_A..place_D the
     # best-scoring clusters are placement orders; renaming the positions by first use in
-    # each sequence (place_1, place_2, ...) leaves the strategies.
+    # each sequence (place_1, place_2, ...) leaves the strategies. The default detects that
+    # (objects="auto": both forms fitted and scored on the recorded data); objects="raw"
+    # forces the recorded position symbols.
     harder = simulate_study(
         n_subjects=150,
         n_positions=4,
@@ -73,10 +76,13 @@ def main() -> None:
         noise=0.1,
         seed=SEED,
     )
-    for name, data in (("position symbols", harder), ("relabelled", harder.relabel_objects())):
-        fit = fit_mixture(data, seed=SEED)
+    for name, objects in (("position symbols", "raw"), ("default", "auto")):
+        fit = fit_mixture(harder, seed=SEED, objects=objects)
         ari = adjusted_rand_index(harder.types, fit.assignments)
-        print(f"harder study, {name:<16}: k = {fit.k}, ARI vs the 3 strategies = {ari:.3f}")
+        print(
+            f"harder study, {name:<16}: k = {fit.k}, ARI vs the 3 strategies = {ari:.3f} "
+            f"(objects: {fit.objects})"
+        )
 
 
 if __name__ == "__main__":

@@ -29,7 +29,8 @@ print(f"clusters selected by BIC: k = {fit.k}")
 
 # 2. The learned MOMDP (Tx from each cluster's chain, reward by IRL), solved by SARSOP.
 task = PlaceAndDrillTask(3)
-learned = build_learned_model(task, fit.model, train, fit.assignments, seed=SEED)
+chains = fit.transition_over(train)  # each type's chain over the recorded symbols
+learned = build_learned_model(task, chains, train, fit.assignments, seed=SEED)
 print("cluster interpretations:", learned.type_names)
 config = SARSOPConfig(
     time_limit=3.0, precision=1e-3, seed=SEED, lower_bound_init=type_policy_lower_bound
@@ -40,6 +41,7 @@ print(f"SARSOP bounds at b0: [{solution.lower:.3f}, {solution.upper:.3f}]")
 # 3. The new subject: its type from its 3 demonstrations (paper Eq. 1), or no prior at all.
 truth = dict(zip(demos.subjects, demos.types))[new_subject]
 mine = demos.select_subjects([new_subject])
+mine = fit.model.prepare(mine)  # in the form the model is over (fit.objects)
 inferred = infer_type(fit.model, mine.sequences, mine.lengths).double()
 uniform = torch.full_like(inferred, 1.0 / len(inferred))
 print(f"new subject {new_subject} is truly '{truth}'")

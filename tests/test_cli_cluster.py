@@ -245,3 +245,30 @@ def test_real_entry_point_reports_a_bad_file_in_one_line(tmp_path):
     assert completed.stderr == (
         f"torchhrc cluster: error: {path}:2:4: unknown actor 'hmn' (expected one of human, robot)\n"
     )
+
+
+def test_cluster_detects_exchangeable_objects_and_reports_the_choice(tmp_path, capsys):
+    """The default (--objects auto) on a study with a fresh placement order in every
+    demonstration keeps the exchangeable form and says so; --objects raw forces the recorded
+    symbols; --relabel-objects keeps its meaning (the relabelled file, fitted as it is)."""
+    path = tmp_path / "orders.csv"
+    argv = ["simulate-demos", "--subjects", "18", "--positions", "4", "--noise", "0.1"]
+    argv += ["--strategies", "safe,efficient,lagging", "--out", str(path), "--seed", "60"]
+    argv += ["--order-change", "1"]
+    assert _run(capsys, *argv)[0] == 0
+    base = ["cluster", str(path), "--k-max", "5", "--restarts", "5"]
+    code, out, _ = _run(capsys, *base, "--json")
+    report = json.loads(out)
+    assert code == 0 and report["objects"] == "exchangeable"
+    assert set(report["object_comparison"]) == {"raw", "exchangeable"}
+    assert report["symbols"] == list(Demonstrations.read_csv(path).symbol_names)  # recorded
+    code, out, _ = _run(capsys, *base)
+    assert code == 0 and "objects: exchangeable (" in out
+    code, out, _ = _run(capsys, *base, "--json", "--objects", "raw")
+    raw = json.loads(out)
+    assert raw["objects"] == "raw" and "object_comparison" not in raw
+    code, out, _ = _run(capsys, *base, "--json", "--relabel-objects")
+    relabelled = json.loads(out)
+    assert relabelled["objects"] == "raw" and "human:place_1" in relabelled["symbols"]
+    code, _, err = _run(capsys, *base, "--relabel-objects", "--objects", "exchangeable")
+    assert code == 2 and "--relabel-objects" in err

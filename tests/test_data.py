@@ -391,3 +391,57 @@ def test_relabel_objects_is_invariant_to_renaming_the_objects():
     assert d.relabel_objects(separator=":").to_lists() == [[(H, "pick:1"), (H, "_"), (R, "pick:2")]]
     with pytest.raises(TypeError, match="separator"):
         d.relabel_objects(separator="")
+
+
+def test_relabel_log_multiplicity_counts_the_injections_by_enumeration():
+    """Every injective renaming of a sequence's objects (with its first step kept, or not)
+    relabels to the same sequence; the count is ``(M - f)! / (M - m)!``."""
+    import math
+
+    g = torch.Generator().manual_seed(1)
+    objects = "ABCD"
+    actions = [(H, f"place_{p}") for p in objects] + [(R, f"drill_{p}") for p in objects]
+    actions += [(H, "wait"), (R, "wait")]
+    seqs = []
+    for _ in range(30):
+        length = int(torch.randint(2, 9, (1,), generator=g))
+        seqs.append([actions[i] for i in torch.randint(len(actions), (length,), generator=g)])
+    d = Demonstrations.from_lists(seqs, vocabulary=actions)
+    given = d.relabel_log_multiplicity().exp()
+    free = d.relabel_log_multiplicity(given_first=False).exp()
+    for n, seq in enumerate(seqs):
+        used = sorted({a.rpartition("_")[2] for _, a in seq if "_" in a})
+        image = d.subset([n]).relabel_objects().to_lists()[0]
+        same = same_first = 0
+        for perm in itertools.permutations(objects, len(used)):
+            rename = dict(zip(used, perm))
+            other = [(x, f"{a[:-1]}{rename[a[-1]]}") if "_" in a else (x, a) for x, a in seq]
+            again = Demonstrations.from_lists([other], vocabulary=actions).relabel_objects()
+            assert again.to_lists()[0] == image
+            same += 1
+            same_first += other[0] == seq[0]
+        assert math.isclose(float(free[n]), same, rel_tol=1e-12)
+        assert math.isclose(float(given[n]), same_first, rel_tol=1e-12)
+    assert d.num_objects() == 4
+
+
+def test_with_vocabulary_reindexes_and_names_a_missing_symbol():
+    d = Demonstrations.from_lists([[(H, "a"), (R, "b"), (H, "a")]])
+    other = d.with_vocabulary([(R, "b"), (H, "c"), (H, "a")])
+    assert other.to_lists() == d.to_lists() and other.sequences.tolist() == [[2, 0, 2]]
+    assert d.with_vocabulary(d.vocabulary) is d
+    with pytest.raises(ModelError, match="robot:b"):
+        d.with_vocabulary([(H, "a")])
+
+
+def test_relabel_objects_can_keep_every_symbol_the_vocabulary_allows():
+    vocab = [(H, "place_A"), (H, "place_B"), (H, "place_C"), (H, "wait"), (R, "drill_A")]
+    d = Demonstrations.from_lists([[(H, "place_C"), (R, "drill_A")]], vocabulary=vocab)
+    used = d.relabel_objects()
+    full = d.relabel_objects(keep_unused=True)
+    assert used.symbol_names == ("human:place_1", "robot:drill_2")
+    assert full.symbol_names == (
+        "human:place_1", "human:place_2", "human:place_3", "human:wait",
+        "robot:drill_1", "robot:drill_2", "robot:drill_3",
+    )  # fmt: skip
+    assert full.to_lists() == used.to_lists()

@@ -59,7 +59,8 @@ def _check_ten_line_example(ns: dict) -> None:
     assert set(train.unique_subjects) | held_out == set(demos.unique_subjects)
     # the posterior's most likely cluster is the one that holds most training subjects of
     # the new user's true type
-    posterior = infer_type(fit.model, new.sequences, new.lengths)
+    mine = fit.model.prepare(new)  # the form the model is over (fit.objects)
+    posterior = infer_type(fit.model, mine.sequences, mine.lengths)
     label = new.types[0]
     mine = torch.tensor([t == label for t in train.types])
     majority = int(fit.assignments[mine].mode().values)

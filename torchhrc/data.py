@@ -540,7 +540,7 @@ class Demonstrations:
             self, vocabulary=vocabulary, sequences=torch.where(self.mask, lut[self.sequences], 0)
         )
 
-    def relabel_objects(self, *, separator: str = "_") -> Demonstrations:
+    def relabel_objects(self, *, separator: str = "_", keep_unused: bool = False) -> Demonstrations:
         """The same demonstrations with interchangeable objects renamed in order of first use.
 
         An action ``<verb><separator><object>`` (split at the last separator, e.g.
@@ -561,6 +561,11 @@ class Demonstrations:
 
         Args:
             separator: the string between verb and object in an action name (non-empty).
+            keep_unused: the relabelled vocabulary holds every symbol the original one can
+                relabel to (each verb with objects ``1..M``, every symbol without an object),
+                used or not, as the original vocabulary may hold symbols no sequence uses
+                (a model fitted on it can then score new demonstrations that use them).
+                Default: only the symbols the relabelled sequences use.
 
         Returns:
             Demonstrations over the relabelled vocabulary (canonical order), same steps,
@@ -601,15 +606,112 @@ class Demonstrations:
         code = group_t[self.sequences] * (n_obj + 1) + new_obj + 1  # (N, L)
         used, inverse = torch.unique(code[self.mask], return_inverse=True)
         names = {g: k for k, g in groups.items()}
-        steps_new: list[Step] = []
-        for c in used.tolist():
+
+        def name(c: int) -> Step:
             (actor, verb), r = names[c // (n_obj + 1)], c % (n_obj + 1)
-            steps_new.append((actor, f"{verb}{separator}{r}") if r else (actor, verb[:-1]))
-        vocabulary = _sorted_vocabulary(steps_new)
-        lut = torch.tensor([vocabulary.index(s) for s in steps_new], device=self.device)
+            return (actor, f"{verb}{separator}{r}") if r else (actor, verb[:-1])
+
+        codes = used.tolist()
+        if keep_unused:  # every (group, object rank) the original vocabulary allows
+            ranks = range(1, len(objects) + 1)
+            codes = [g * (n_obj + 1) + r for (_, v), g in groups.items()
+                     for r in ((0,) if v.endswith("\0") else ranks)]  # fmt: skip
+        vocabulary = _sorted_vocabulary(name(c) for c in codes)
+        lut = torch.tensor([vocabulary.index(name(c)) for c in used.tolist()], device=self.device)
         sequences = torch.zeros_like(self.sequences)
         sequences[self.mask] = lut[inverse]
         return dataclasses.replace(self, vocabulary=vocabulary, sequences=sequences)
+
+    def _object_of_symbol(self, separator: str) -> tuple[torch.Tensor, int]:
+        """``(A,)`` int64 object index of every symbol (-1: acts on none), and the number
+        ``M`` of distinct objects (``relabel_objects``'s split at the last separator)."""
+        if not isinstance(separator, str) or not separator:
+            raise TypeError(f"expected separator to be a non-empty str, got {separator!r}")
+        split = [a.rpartition(separator) for _, a in self.vocabulary]
+        objects = sorted({obj for verb, sep, obj in split if sep and verb and obj})
+        index = [objects.index(o) if (s and v and o) else -1 for v, s, o in split]
+        return torch.tensor(index, dtype=torch.long, device=self.device), len(objects)
+
+    def num_objects(self, *, separator: str = "_") -> int:
+        """``M``, the number of distinct objects named by ``<verb><separator><object>`` actions.
+
+        Example:
+            >>> d = Demonstrations.from_lists([[("human", "place_A"), ("robot", "drill_B")]])
+            >>> d.num_objects(), d.num_objects(separator=":")
+            (2, 0)
+        """
+        return self._object_of_symbol(separator)[1]
+
+    def relabel_log_multiplicity(
+        self, *, separator: str = "_", given_first: bool = True
+    ) -> torch.Tensor:
+        """Log of the number of demonstrations :meth:`relabel_objects` maps onto each one's image.
+
+        A sequence that touches ``m`` of the ``M`` objects is one of ``M! / (M - m)!``
+        sequences (one per injective renaming of its objects) with the same relabelled form,
+        so if the objects are exchangeable (each demonstration's objects a uniformly random
+        injection of its relabelled ones) ``log p(x) = log p(relabel(x)) - log(M! / (M - m)!)``
+        for every sequence ``x``: a likelihood of the original demonstrations, comparable with
+        a model of the original symbols. With ``given_first`` the first step is given (models
+        that do not score the first symbol, the paper's Eq. 1): if it touches an object, that
+        object is fixed and the count is ``(M - 1)! / (M - m)!``.
+
+        Args:
+            separator: as in :meth:`relabel_objects`.
+            given_first: condition on the first step (see above).
+
+        Returns:
+            ``(N,)`` float64, ``log((M - f)! / (M - m)!)``, ``f`` = 1 if the first step is
+            given and touches an object, else 0.
+
+        Example:
+            >>> d = Demonstrations.from_lists([
+            ...     [("human", "place_A"), ("robot", "drill_A"), ("human", "place_C")],
+            ...     [("human", "wait"), ("human", "place_B")]],
+            ...     vocabulary=[("human", "place_A"), ("human", "place_B"), ("human", "place_C"),
+            ...                 ("human", "wait"), ("robot", "drill_A")])
+            >>> d.relabel_log_multiplicity().exp().round().tolist()  # (3-1)!/1!, 3!/2!
+            [2.0, 3.0]
+            >>> d.relabel_log_multiplicity(given_first=False).exp().round().tolist()  # 3!/1!
+            [6.0, 3.0]
+        """
+        obj_t, M = self._object_of_symbol(separator)
+        N = self.num_sequences
+        obj = torch.where(self.mask, obj_t[self.sequences], -1)  # (N, L)
+        touched = torch.zeros(N, M + 1, dtype=torch.bool, device=self.device)
+        touched.scatter_(1, obj + 1, True)  # column 0: no object
+        m = touched[:, 1:].sum(-1).double()  # (N,)
+        f = (obj[:, 0] >= 0).double() if (given_first and N) else torch.zeros_like(m)
+        return torch.lgamma(M - f + 1) - torch.lgamma(M - m + 1)
+
+    def with_vocabulary(self, vocabulary: Iterable[Step]) -> Demonstrations:
+        """The same steps over another vocabulary (which must hold every symbol used).
+
+        Used to score new demonstrations with a model fitted over ``vocabulary``.
+
+        Raises:
+            ModelError: a symbol used by a sequence is not in ``vocabulary`` (named).
+
+        Example:
+            >>> d = Demonstrations.from_lists([[("human", "a"), ("robot", "b")]])
+            >>> d.with_vocabulary([("robot", "b"), ("robot", "c"), ("human", "a")]).sequences
+            tensor([[2, 0]])
+        """
+        vocab = _check_vocabulary(vocabulary)
+        if vocab == self.vocabulary:
+            return self
+        where = {s: i for i, s in enumerate(vocab)}
+        used = torch.unique(self.sequences[self.mask]).tolist()
+        missing = [self.symbol_names[u] for u in used if self.vocabulary[u] not in where]
+        if missing:
+            raise ModelError(
+                f"symbol(s) {missing} used by the demonstrations are not in the vocabulary "
+                f"{tuple(f'{a}:{b}' for a, b in vocab)}"
+            )
+        lut = torch.tensor([where.get(s, 0) for s in self.vocabulary], device=self.device)
+        return dataclasses.replace(
+            self, vocabulary=vocab, sequences=torch.where(self.mask, lut[self.sequences], 0)
+        )
 
     # ------------------------------------------------------------------ statistics
     def transition_counts(self, *, per_sequence: bool = False) -> torch.Tensor:

@@ -44,7 +44,8 @@ def test_one_fold_equals_the_protocol_done_by_hand():
     test = demos.select_subjects([subject])
     fit = fit_mixture(train, method="soft", seed=5, **FAST)
     names = match_clusters(train.types, fit.assignments)
-    probs = infer_type(fit.model, test.sequences, test.lengths, method="posterior")
+    scored = fit.model.prepare(test)
+    probs = infer_type(fit.model, scored.sequences, scored.lengths, method="posterior")
     fold = result.folds[3]
     assert fold.subject == subject and fold.k == fit.k
     torch.testing.assert_close(fold.cluster_probabilities, probs.double())

@@ -187,6 +187,7 @@ def reference_fit(
         weights=[weights[c] for c in order],
         resp=[[row[c] for c in order] for row in resp],
         ll=ll,
+        bic=best[chosen]["bic"],
         per_k=best,
     )
 
@@ -230,8 +231,9 @@ def _compare(demos, seed, ks=(2, 3, 4), restarts=3, **options):
         list(ks),
         restarts,
         _partitions(demos, list(ks), restarts, seed),
-        **options,
+        **{k: v for k, v in options.items() if k != "objects"},
     )
+    options.setdefault("objects", "raw")  # the automatic choice: test_auto_objects_* below
     fit = fit_mixture(demos, k_min=ks[0], k_max=ks[-1], restarts=restarts, seed=seed, **options)
     assert fit.k == ref["k"]
     torch.testing.assert_close(
@@ -358,3 +360,98 @@ def test_a_wrong_default_prior_is_caught(monkeypatch, name, value):
     monkeypatch.setattr(selection, name, value)
     with pytest.raises(AssertionError):
         _compare(_study(0), 0)
+
+
+# ----------------------------------------------------------------------------- objects="auto"
+def reference_relabel(steps):
+    """Objects of ``verb_object`` actions renamed 1, 2, ... by first use, sequence by sequence."""
+    out = []
+    for seq in steps:
+        names, new = {}, []
+        for actor, action in seq:
+            verb, sep, obj = action.rpartition("_")
+            if sep and verb and obj:
+                names.setdefault(obj, str(len(names) + 1))
+                new.append((actor, f"{verb}_{names[obj]}"))
+            else:
+                new.append((actor, action))
+        out.append(new)
+    return out
+
+
+def reference_multiplicity(seq, objects):
+    """How many sequences relabel to the same form as ``seq`` with the same first step: every
+    injective renaming of its objects into ``objects``, counted by enumeration."""
+    import itertools
+
+    relabelled = reference_relabel([seq])[0]
+    count = 0
+    for image in itertools.permutations(objects, len({a.rpartition("_")[2] for _, a in
+                                                      relabelled if "_" in a})):  # fmt: skip
+        renamed = [
+            (actor, f"{a.rpartition('_')[0]}_{image[int(a.rpartition('_')[2]) - 1]}")
+            if "_" in a
+            else (actor, a)
+            for actor, a in relabelled
+        ]
+        count += renamed[0] == seq[0]
+    return count
+
+
+def _indexed(steps):
+    """Symbol indices over the canonical vocabulary (human first, action names sorted)."""
+    vocab = sorted({s for seq in steps for s in seq}, key=lambda s: (s[0] != "human", s[1]))
+    return [[vocab.index(s) for s in seq] for seq in steps], len(vocab)
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_auto_objects_equals_the_loop_reference(seed):
+    """``objects="auto"``: the reference fits the recorded symbols and the relabelled ones (in
+    loops), subtracts from the latter's scores the log of the number of injections counted by
+    enumeration, and keeps the form whose selected partition has the larger exact ICL; the
+    library agrees on the form, k, the parameters and the comparison (BIC and exact ICL)."""
+    from torchhrc.data import Demonstrations
+
+    sim = simulate_study(n_subjects=9, n_demos=3, n_positions=3, noise=0.1, robot_noise=0.1,
+                         order_change=1.0, deviation="uniform",
+                         strategies=("safe", "efficient", "lagging"), seed=seed)  # fmt: skip
+    raw_steps = sim.to_lists()
+    # the same corpus with every type's screws in one fixed order: positions now matter
+    ordered = Demonstrations.from_lists(
+        [[(a, f"{v.rpartition('_')[0]}_{'ABC'[int(v.rpartition('_')[2]) - 1]}") if "_" in v
+          else (a, v) for a, v in seq] for seq in reference_relabel(raw_steps)],
+        subjects=sim.subjects, sequence_ids=sim.sequence_ids, types=sim.types,
+        vocabulary=sim.vocabulary,
+    )  # fmt: skip
+    ks, restarts = [2, 3, 4], 3
+    forms = {}
+    for name, demos in (("random orders", sim), ("fixed order", ordered)):
+        steps = demos.to_lists()
+        relabelled = reference_relabel(steps)
+        shift = sum(math.log(reference_multiplicity(seq, "ABC")) for seq in steps)
+        ref = {}
+        for form, data in (("raw", steps), ("exchangeable", relabelled)):
+            symbols, A = _indexed(data)
+            lib = demos if form == "raw" else demos.relabel_objects()
+            assert [[lib.vocabulary[i] for i in row] for row in _symbols(lib)] == data
+            ref[form] = reference_fit(symbols, demos.subjects, A, ks, restarts,
+                                      _partitions(lib, ks, restarts, seed))  # fmt: skip
+        for r in ref.values():
+            r["exact_icl"] = r["per_k"][r["k"]]["exact_icl"]
+        ref["exchangeable"]["bic"] -= shift
+        ref["exchangeable"]["exact_icl"] -= shift
+        best = max(ref, key=lambda form: ref[form]["exact_icl"])
+        fit = fit_mixture(demos, k_min=2, k_max=4, restarts=restarts, seed=seed)
+        assert fit.objects == best == fit.model.objects
+        assert fit.k == ref[best]["k"]
+        torch.testing.assert_close(fit.model.transition,
+                                   torch.tensor(ref[best]["theta"], dtype=torch.float64),
+                                   atol=1e-10, rtol=0)  # fmt: skip
+        for form in ref:
+            compared = fit.object_comparison[form]
+            assert compared["bic"] == pytest.approx(ref[form]["bic"], abs=1e-9)
+            assert compared["exact_icl"] == pytest.approx(ref[form]["exact_icl"], abs=1e-8)
+            assert fit.object_comparison[form]["k"] == ref[form]["k"]
+        forms[name] = best
+    # both forms are exercised: exchangeable for the random orders, raw for the fixed one
+    assert forms == {"random orders": "exchangeable", "fixed order": "raw"}

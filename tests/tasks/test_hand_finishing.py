@@ -123,7 +123,8 @@ def test_impossible_observation_raises_clear_error():
 def test_demonstrations_cluster_into_the_two_preferences():
     demos = simulate_demonstrations(["left"] * 3 + ["right"] * 3, seed=0)
     assert demos.num_sequences == 18
-    fit = fit_mixture(demos, k_min=1, k_max=4, seed=0, initial=True)
+    # the types are side preferences: objects (left, right) must stay raw
+    fit = fit_mixture(demos, k_min=1, k_max=4, seed=0, initial=True, objects="raw")
     assert fit.k == 2
     sides = cluster_preferences(fit, demos.vocabulary)
     assert sorted(sides) == ["left", "right"]

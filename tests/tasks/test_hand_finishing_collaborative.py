@@ -33,7 +33,7 @@ def _base(sides=("left", "right")) -> HandFinishingTask:
 @pytest.fixture(scope="module")
 def clusters():
     demos = simulate_demonstrations(["left"] * 3 + ["right"] * 3, seed=0)
-    fit = fit_mixture(demos, k_min=1, k_max=4, seed=0, initial=True)
+    fit = fit_mixture(demos, k_min=1, k_max=4, seed=0, initial=True, objects="raw")
     return demos, fit
 
 

@@ -38,7 +38,7 @@ def study():
 def test_build_model_equals_the_hand_assembled_place_and_drill_model(study):
     demos, fit = study
     task = PlaceAndDrillTask(3)
-    chains = fit.model.transition.detach().double()
+    chains = fit.transition_over(demos).detach().double()  # over the recorded symbols
     model = build_model(task, demos, chains, fit.assignments, irl_iterations=5, seed=0)
     # reference: the place-and-drill functions, assembled by hand
     Tx = placement_transition(task, placement_probabilities(task, chains, demos.vocabulary),

@@ -12,6 +12,8 @@ JSON keys: ``k``, ``bic``, ``icl``, ``log_likelihood``, ``method``, ``criterion`
 ``{"bic", "icl", "log_likelihood"}``), ``cluster_sizes``, ``assignments``
 (``"subject/sequence"`` -> cluster), and with types ``adjusted_rand_index`` and
 ``matched_accuracy``; with ``--loo`` also ``loo`` (accuracy, k per fold, predictions).
+``objects``: the form the model is over (``"raw"`` or ``"exchangeable"``, ``--objects``), and
+``object_comparison`` when ``--objects auto`` compared the two (k, BIC, exact ICL per form).
 Non-finite numbers are written as ``null``.
 
 Example:
@@ -116,6 +118,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "by first use in each sequence (types become strategies, not placement orders)",
     )
     parser.add_argument(
+        "--objects",
+        choices=("auto", "raw", "exchangeable"),
+        default=None,
+        help="how objects of verb_object actions are read: auto (soft default) fits the raw "
+        "symbols and exchangeable objects (renamed by first use) and keeps the better by BIC; "
+        "raw (paper default) or exchangeable force one (see docs/clustering.md)",
+    )
+    parser.add_argument(
         "--ray",
         metavar="local|HOST:PORT",
         default=None,
@@ -182,13 +192,16 @@ def cluster_report(
     save_model: str | None = None,
     relabel_objects: bool = False,
     min_gain: float | None = None,
+    objects: str | None = None,
 ) -> dict[str, Any]:
     """Fit, score and summarise: the dict that ``--json`` prints.
 
     ``min_gain`` is passed to ``fit_mixture`` (``None``: its default).
     With ``relabel_objects`` the demonstrations are first passed through
     :meth:`~torchhrc.data.Demonstrations.relabel_objects` (symbols, counts and the model are
-    then over the relabelled vocabulary).
+    then over the relabelled vocabulary, and fitted as they are: ``objects="raw"``).
+    ``objects`` is passed to ``fit_mixture`` (``None``: its default, ``"auto"`` for the soft
+    method: the report's ``objects`` says which form was kept).
 
     Raises:
         ModelError: ``loo`` without types, or a ``k`` range or ``restarts`` out of range.
@@ -209,7 +222,13 @@ def cluster_report(
     if loo and demos.types is None:
         raise ModelError("leave-one-out needs ground-truth types (a 'type' column in the file)")
     if relabel_objects:
+        if objects not in (None, "raw"):
+            raise ModelError(
+                f"--relabel-objects relabels the file itself and fits it raw; with --objects "
+                f"{objects} leave it out"
+            )
         demos = demos.relabel_objects()
+        objects = "raw"
     fit = fit_mixture(
         demos,
         k_min=k_min,
@@ -219,6 +238,7 @@ def cluster_report(
         criterion=criterion,  # type: ignore[arg-type]
         seed=seed,
         min_gain=min_gain,
+        objects=objects,  # type: ignore[arg-type]
     )
     if save_model is not None:
         fit.model.save(save_model)
@@ -231,6 +251,8 @@ def cluster_report(
         "num_symbols": demos.num_symbols,
         "symbols": list(demos.symbol_names),
         "per_k": _per_k(fit),
+        "objects": fit.objects,
+        **({"object_comparison": fit.object_comparison} if fit.object_comparison else {}),
         "cluster_sizes": sizes,
         "assignments": dict(zip(demos.keys, assignments.tolist())),
     }
@@ -253,6 +275,7 @@ def cluster_report(
             inference=inference,  # type: ignore[arg-type]
             seed=seed,
             **({} if min_gain is None else {"min_gain": min_gain}),
+            **({} if objects is None else {"objects": objects}),
         )
         report["loo"] = {
             "accuracy": result.accuracy,
@@ -315,6 +338,7 @@ def sharded_cluster_report(
         "symbols": [f"{a}:{b}" for a, b in merged.vocabulary],
         "num_shards": len(corpus.paths),
         "per_k": _per_k(fit),
+        "objects": fit.objects,  # a sharded corpus is fitted raw
         "cluster_sizes": torch.bincount(assignments, minlength=fit.k).tolist(),
         "assignments": dict(zip(keys, assignments.tolist())),
         "_cluster_counts": by_cluster.view(fit.k, A, A),
@@ -354,7 +378,21 @@ def _print_table(report: dict[str, Any], path: str, out: Any) -> None:
             f"{k:>4} {fmt(scores.get('bic')):>12} {fmt(scores.get('icl')):>12} "
             f"{fmt(scores.get('log_likelihood')):>15}{mark}\n"
         )
-    w(f"\nselected k = {report['k']}, BIC {fmt(report['bic'])}\n\n")
+    w(f"\nselected k = {report['k']}, BIC {fmt(report['bic'])}\n")
+    compared = report.get("object_comparison")
+    if report.get("objects") == "exchangeable" or compared:
+        w(f"objects: {report['objects']}")
+        if compared:
+            w(
+                " (exact ICL on the recorded demonstrations, the larger kept: "
+                + ", ".join(
+                    f"{form} k = {int(c['k'])} {fmt(c['exact_icl'])}"
+                    for form, c in compared.items()
+                )
+                + f"; compared on {int(compared['raw']['units'])} units)"
+            )
+        w("\n")
+    w("\n")
     symbols = report["symbols"]
     counts = report["_cluster_counts"]
     for c, size in enumerate(report["cluster_sizes"]):
@@ -402,7 +440,11 @@ def run(args: argparse.Namespace) -> int:
     if _is_sharded(paths) or args.ray is not None:
         from torchhrc.corpus import ShardedCorpus
 
-        for flag, value in (("--loo", args.loo), ("--relabel-objects", args.relabel_objects)):
+        for flag, value in (
+            ("--loo", args.loo),
+            ("--relabel-objects", args.relabel_objects),
+            ("--objects exchangeable", args.objects == "exchangeable"),
+        ):
             if value:
                 raise ModelError(f"{flag} needs one demonstrations file, not a sharded corpus")
         if args.ray is not None:
@@ -433,6 +475,7 @@ def run(args: argparse.Namespace) -> int:
         save_model=args.save_model,
         relabel_objects=args.relabel_objects,
         min_gain=args.min_gain,
+        objects=args.objects,
     )
     _emit(report, paths[0], args.json)
     return 0

@@ -444,7 +444,9 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
     demos = simulate_demonstrations(
         ["left"] * half + ["right"] * (settings.subjects - half), seed=seed
     )
-    fit = fit_mixture(demos, k_min=1, k_max=4, seed=seed, initial=True)
+    # objects="raw": the types are side preferences (left/right first), mirror images of one
+    # strategy, which exchangeable objects would merge into one type (docs/clustering.md)
+    fit = fit_mixture(demos, k_min=1, k_max=4, seed=seed, initial=True, objects="raw")
     robot_sides = cluster_preferences(fit, demos.vocabulary)
     subject_cluster = {}
     for s, c in zip(demos.subjects, fit.assignments.tolist(), strict=True):

@@ -230,7 +230,8 @@ def leave_one_subject_out(
         )
         assert train.types is not None
         names = _cluster_labels(train.types, fit.assignments, fit.k, matching)
-        probs = infer_type(fit.model, test.sequences, test.lengths, method=inference)
+        scored = fit.model.prepare(test)  # the form the chains are over (fit.objects)
+        probs = infer_type(fit.model, scored.sequences, scored.lengths, method=inference)
         probs = probs.detach().to(device="cpu", dtype=torch.float64)  # (k,)
         by_label: dict[str | None, float] = {}
         for name, p in zip(names, probs.tolist()):

@@ -365,8 +365,9 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
         assert train.types is not None
         mapping = match_clusters(train.types, fit.assignments.tolist())
         cluster_labels = tuple(mapping.get(c) for c in range(fit.k))
-        vote = infer_type(fit.model, test.sequences, test.lengths, method="vote")
-        posterior = infer_type(fit.model, test.sequences, test.lengths, method="posterior")
+        scored = fit.model.prepare(test)  # the form the chains are over (fit.objects)
+        vote = infer_type(fit.model, scored.sequences, scored.lengths, method="vote")
+        posterior = infer_type(fit.model, scored.sequences, scored.lengths, method="posterior")
         vote, posterior = vote.detach().double(), posterior.detach().double()
         by_label: dict[str | None, float] = {}
         for name, p in zip(cluster_labels, vote.tolist()):
@@ -379,7 +380,7 @@ def run_study(settings: StudySettings, *, progress: Progress | None = None) -> d
         learned = build_model(
             learner_task,
             train,
-            fit.model.transition,
+            fit.transition_over(train),  # over the recorded symbols, whatever fit.objects
             fit.assignments,
             b0=posterior,
             irl_iterations=s.irl_iterations,
@@ -527,6 +528,7 @@ def metrics_from_study(study: dict[str, Any]) -> dict[str, Any]:
     return {
         "subjects": len(rob.subjects),
         "k": int(study["full_fit"].k),
+        "objects": study["full_fit"].objects,
         "k_per_fold": [f["k"] for f in folds],
         "loo_accuracy": sum(f["correct"] for f in folds) / len(folds),
         "epsilon": list(rob.epsilon),

@@ -412,10 +412,9 @@ def write_report(
     plot_fig3(metrics, out / "fig3.png")
     fit = study["full_fit"]
     demos = study["demonstrations"]
-    names = interpret_clusters(study["task"], fit.model.transition, demos.vocabulary)
-    plot_transitions(
-        fit.model.transition.detach(), demos.symbol_names, names, out / "transitions.png"
-    )
+    chains = fit.transition_over(demos)  # (k, A, A) over the recorded symbols
+    names = interpret_clusters(study["task"], chains, demos.vocabulary)
+    plot_transitions(chains.detach(), demos.symbol_names, names, out / "transitions.png")
     plot_type_posterior(study["folds"], out / "type_posterior.png")
     if study.get("separation") and study["separation"].get("available"):
         plot_separation(study["separation"], out / "separation.png")
@@ -436,8 +435,12 @@ def write_report(
     k_rule = (
         "BIC picks k"
         if s.mixture_method == "paper"
-        else "the larger of BIC's and the exact ICL's k bounds it, min_gain picks it"
+        else "the larger of BIC's and the exact ICL's k bounds it, min_gain picks it; "
+        "the screw positions read as recorded or as exchangeable objects, whichever has the "
+        "larger exact ICL"
     )
+    objects = metrics.get("objects")
+    objects_text = f"; objects on all subjects: {objects}" if objects else ""
     text = f"""# Place-and-drill reproduction
 
 Reproduces the evaluation of Nikolaidis, Gu, Ramakrishnan, Shah, "Efficient Model Learning
@@ -472,7 +475,7 @@ for Human-Robot Collaborative Tasks" (section "Evaluation", Fig. 3) on a simulat
 ## Results
 
 Leave-one-subject-out accuracy: **{metrics["loo_accuracy"]:.3f}** (paper: 0.965);
-k selected per fold: {k_counts}; k on all subjects: {metrics["k"]} (paper: 2).
+k selected per fold: {k_counts}; k on all subjects: {metrics["k"]} (paper: 2){objects_text}.
 Misclassified subjects: {", ".join(f"{f['subject']} ({f['true_type']})" for f in wrong) or "none"}.
 
 Mean accumulated reward ± 95% CI half-width (over all runs of an epsilon):

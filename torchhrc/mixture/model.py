@@ -97,6 +97,12 @@ class MarkovChainMixture:
         vocabulary: optional names of the ``A`` symbols, e.g. ``(("human", "place_A"), ...)``
             as in :class:`torchhrc.data.Demonstrations`.
         atol: tolerance of the normalisation check.
+        objects: which form of the demonstrations the chains are over: ``"raw"`` (the
+            symbols as recorded) or ``"exchangeable"`` (objects renamed in order of first use
+            by :meth:`~torchhrc.data.Demonstrations.relabel_objects`, so ``vocabulary`` names
+            ``place_1, place_2, ...``). :meth:`prepare` puts new demonstrations in that form.
+        object_separator: the separator between verb and object in action names
+            (``relabel_objects``'s ``separator``).
 
     Raises:
         TypeError: a field is not a floating tensor.
@@ -115,6 +121,8 @@ class MarkovChainMixture:
     log_initial: torch.Tensor | None = None
     vocabulary: tuple[Any, ...] | None = None
     atol: float = dataclasses.field(default=1e-6, repr=False, compare=False)
+    objects: str = "raw"
+    object_separator: str = "_"
 
     def __post_init__(self) -> None:
         self.validate()
@@ -154,6 +162,44 @@ class MarkovChainMixture:
             if len(vocab) != A:
                 raise ModelError(f"expected a vocabulary of A = {A} symbols, got {len(vocab)}")
             object.__setattr__(self, "vocabulary", vocab)
+        if self.objects not in ("raw", "exchangeable"):
+            raise ModelError(f"expected objects 'raw' or 'exchangeable', got {self.objects!r}")
+        if not isinstance(self.object_separator, str) or not self.object_separator:
+            raise ModelError(
+                f"expected object_separator to be a non-empty str, got {self.object_separator!r}"
+            )
+
+    def prepare(self, demonstrations: Any) -> Any:
+        """New demonstrations in the form and symbol order the chains are over.
+
+        ``objects="exchangeable"``: :meth:`~torchhrc.data.Demonstrations.relabel_objects`
+        first. Then, when the model has a vocabulary, the symbols are re-indexed to it
+        (:meth:`~torchhrc.data.Demonstrations.with_vocabulary`). Score or classify the result
+        (:func:`~torchhrc.mixture.infer_type`, :func:`~torchhrc.mixture.sequence_log_likelihood`).
+
+        Args:
+            demonstrations: a :class:`~torchhrc.data.Demonstrations`.
+
+        Returns:
+            The demonstrations to score (the same object when nothing changes).
+
+        Raises:
+            ModelError: a symbol of the demonstrations is not in the model's vocabulary.
+
+        Example:
+            >>> from torchhrc.data import Demonstrations
+            >>> T = torch.zeros(1, 2, 2, dtype=torch.float64) - math.log(2)
+            >>> m = MarkovChainMixture(T, torch.zeros(1, dtype=torch.float64),
+            ...     vocabulary=(("human", "place_1"), ("human", "place_2")), objects="exchangeable")
+            >>> d = Demonstrations.from_lists([[("human", "place_B"), ("human", "place_A")]])
+            >>> m.prepare(d).sequences
+            tensor([[0, 1]])
+        """
+        if self.objects == "exchangeable":
+            demonstrations = demonstrations.relabel_objects(separator=self.object_separator)
+        if self.vocabulary is not None:
+            demonstrations = demonstrations.with_vocabulary(self.vocabulary)
+        return demonstrations
 
     @classmethod
     def uniform(
@@ -239,7 +285,13 @@ class MarkovChainMixture:
         """
         path = Path(path)
         suffix = path.suffix.lower()
-        meta = {"format": _FORMAT, "version": _VERSION, "vocabulary": self.vocabulary}
+        meta: dict[str, Any] = {
+            "format": _FORMAT,
+            "version": _VERSION,
+            "vocabulary": self.vocabulary,
+        }
+        if self.objects != "raw":  # files of raw models stay as before
+            meta.update(objects=self.objects, object_separator=self.object_separator)
         tensors = {"log_transition": self.log_transition, "log_weights": self.log_weights}
         if self.log_initial is not None:
             tensors["log_initial"] = self.log_initial
@@ -295,6 +347,7 @@ class MarkovChainMixture:
                     raise ParseError(f"field {key!r}: {err}", path=str(path)) from None
                 tensors[f"log_{key}"] = t.log().to(dtype)
             vocabulary = doc.get("vocabulary")
+            objects = doc.get("objects", "raw"), doc.get("object_separator", "_")
         elif suffix == ".safetensors":
             from safetensors import SafetensorError, safe_open
 
@@ -310,7 +363,14 @@ class MarkovChainMixture:
                 if key not in tensors:
                     raise ParseError(f"missing tensor {key!r}", path=str(path))
             tensors = {k: v.to(device) for k, v in tensors.items()}
-            vocabulary = json.loads(metadata.get("vocabulary", "null"))
+            try:
+                vocabulary = json.loads(metadata.get("vocabulary", "null"))
+                objects = (
+                    json.loads(metadata.get("objects", '"raw"')),
+                    json.loads(metadata.get("object_separator", '"_"')),
+                )
+            except json.JSONDecodeError as err:
+                raise ParseError(f"invalid metadata: {err.msg}", path=str(path)) from None
         else:
             raise ValueError(f"expected path to end in .json or .safetensors, got {str(path)!r}")
         try:
@@ -319,6 +379,8 @@ class MarkovChainMixture:
                 log_weights=tensors["log_weights"],
                 log_initial=tensors.get("log_initial"),
                 vocabulary=tuple(vocabulary) if vocabulary is not None else None,
+                objects=objects[0],
+                object_separator=objects[1],
             )
         except (ModelError, TypeError) as err:
             raise ParseError(f"invalid model: {err}", path=str(path)) from None

@@ -42,6 +42,7 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Callable
@@ -61,6 +62,7 @@ from torchhrc.mixture.soft_em import SoftStatistics, m_step, soft_em
 
 __all__ = [
     "DEFAULT_MIN_GAIN",
+    "DEFAULT_OBJECTS_SAMPLE",
     "DEFAULT_PSEUDO_COUNT",
     "DEFAULT_WEIGHT_PSEUDO_COUNT",
     "EXACT_ICL_PRIOR",
@@ -75,6 +77,7 @@ __all__ = [
 
 Method = Literal["soft", "paper"]
 Criterion = Literal["bic", "icl", "exact_icl", "bic_or_exact_icl"]
+Objects = Literal["auto", "raw", "exchangeable"]
 
 
 @dataclass(frozen=True)
@@ -99,6 +102,12 @@ class MixtureFit:
         converged: whether the selected run converged before ``max_iterations``.
         iterations: EM iterations of the selected run.
         num_distinct: distinct sequences (by transition counts) the EM worked on.
+        objects: the form of the demonstrations the model is over, ``"raw"`` or
+            ``"exchangeable"`` (see ``fit_mixture(objects=...)``; also ``model.objects``).
+        object_comparison: with ``objects="auto"`` on data with objects, the two forms'
+            selected fits, ``form -> {"k", "bic", "exact_icl", "log_likelihood", "units"}``
+            (on the recorded demonstrations; ``units``: the units compared, a sample of a
+            large corpus); else ``None``.
     """
 
     model: MarkovChainMixture
@@ -114,6 +123,56 @@ class MixtureFit:
     converged: bool
     iterations: int
     num_distinct: int = field(repr=False)
+    objects: str = "raw"
+    object_comparison: dict[str, dict[str, float]] | None = field(default=None, repr=False)
+
+    def transition_over(
+        self, demonstrations: Any, *, pseudo_count: float | None = None
+    ) -> torch.Tensor:
+        """Each cluster's chain over the fitted demonstrations' own (recorded) symbols.
+
+        ``objects="raw"``: the model's transition probabilities. ``"exchangeable"``: the
+        model's chains are over relabelled symbols, so the chains over the recorded ones are
+        estimated from the fit's clusters: ``theta_k(b | a) ∝ sum_n r_nk n_n(a, b) + alpha``,
+        ``r`` the responsibilities, ``n_n`` the transition counts of sequence ``n`` (the
+        soft method's M-step; a row without counts is uniform).
+
+        Args:
+            demonstrations: the :class:`~torchhrc.data.Demonstrations` that were fitted
+                (``N`` sequences, in the same order).
+            pseudo_count: ``alpha`` (default ``DEFAULT_PSEUDO_COUNT``; unused for raw fits).
+
+        Returns:
+            ``(k, A, A)`` transition probabilities over ``demonstrations.vocabulary``.
+
+        Raises:
+            ModelError: ``demonstrations`` has a different number of sequences.
+
+        Example:
+            >>> seqs = torch.tensor([[0, 1, 0, 1]] * 5 + [[0, 0, 0, 0]] * 5)
+            >>> fit = fit_mixture((seqs, torch.full((10,), 4), 2), k_min=1, k_max=3, restarts=2)
+            >>> fit.transition_over(None).shape
+            torch.Size([2, 2, 2])
+        """
+        if self.objects == "raw":
+            return self.model.transition
+        N = self.responsibilities.shape[0]
+        if demonstrations.num_sequences != N:
+            raise ModelError(
+                f"expected the {N} fitted demonstrations, got {demonstrations.num_sequences}"
+            )
+        alpha = DEFAULT_PSEUDO_COUNT if pseudo_count is None else float(pseudo_count)
+        A = demonstrations.num_symbols
+        chains = self.responsibilities.new_zeros(self.k, A, A, dtype=torch.float64)
+        for start in range(0, N, 65536):  # (chunk, A, A) counts at a time
+            part = demonstrations.subset(torch.arange(start, min(start + 65536, N)))
+            counts = part.transition_counts(per_sequence=True)  # (n, A, A)
+            r = self.responsibilities[start : start + 65536].to(counts)  # (n, k)
+            chains += torch.einsum("nk,nab->kab", r, counts)
+        chains = chains + alpha  # (k, A, A)
+        rows = chains.sum(-1, keepdim=True)
+        uniform = torch.full_like(chains, 1.0 / chains.shape[-1])
+        return torch.where(rows > 0, chains / rows.clamp_min(1e-300), uniform)
 
 
 def num_free_parameters(
@@ -438,6 +497,9 @@ def fit_mixture(
     floor: float = 1e-10,
     initial: bool = False,
     min_gain: float | None = None,
+    objects: Objects | None = None,
+    object_separator: str = "_",
+    objects_sample: int | None = None,
     dtype: torch.dtype = torch.float64,
     progress: Callable[[int, int], None] | None = None,
     ray: bool | str | None = None,
@@ -449,7 +511,8 @@ def fit_mixture(
             lengths (N,) int64, num_symbols)``, or a corpus in shards
             (:class:`torchhrc.corpus.ShardedCorpus`: CSV or Parquet files), whose shards are
             reduced to their distinct units one by one (or as Ray tasks, ``ray=``) and merged
-            exactly: the same fit as the corpus in memory.
+            exactly: the same fit as the corpus in memory with ``objects="raw"`` (a sharded
+            corpus is fitted over its recorded symbols).
         k_min, k_max: the range of k (``1 <= k_min <= k_max``).
         restarts: EM runs per k (the paper's numOfIterations, 20).
         method: ``"soft"`` (k-means++ + smoothed soft EM, the default) or ``"paper"``
@@ -496,6 +559,30 @@ def fit_mixture(
             ``log n`` while the misfit of first-order chains to real data grows like ``n``, so
             on large corpora BIC alone cuts every type into sub-clusters of noise patterns
             and orders (``docs/clustering.md``).
+        objects: how object names in the actions are read (``docs/clustering.md``,
+            "Exchangeable objects"): ``"raw"``, the symbols as recorded (the paper);
+            ``"exchangeable"``, every demonstration's objects renamed in order of first use
+            (:meth:`~torchhrc.data.Demonstrations.relabel_objects`: a type is then a strategy
+            whatever objects it was applied to); ``"auto"``: select a model in both forms and
+            keep the one whose selected partition has the larger exact ICL
+            (:func:`exact_icl`, ``log p(D, z)`` with the chains integrated out) on the
+            recorded demonstrations. Both forms are models of the same data: under
+            exchangeable objects a demonstration touching ``m`` of the ``M`` objects is its
+            relabelled form times a uniformly random injection of its objects,
+            ``log p(x) = log p(relabel(x)) - log(M! / (M - m)!)``
+            (:meth:`~torchhrc.data.Demonstrations.relabel_log_multiplicity`). Types that are
+            mirror images (one strategy on different objects, e.g. "left first" and "right
+            first") are one type in the exchangeable form: pass ``"raw"`` when such
+            object preferences are the types sought. ``None``: ``"auto"`` for ``"soft"``,
+            ``"raw"`` for ``"paper"``. Data without object names (a tuple of tensors, a
+            sharded corpus, fewer than 2 objects) are fitted raw by ``"auto"``. The fit
+            records the choice (``objects``, ``object_comparison``, ``model.objects``); score
+            new demonstrations through ``fit.model.prepare``.
+        object_separator: the separator between verb and object (``place_A``: ``"_"``).
+        objects_sample: ``"auto"`` compares the two forms on the whole corpus when it has at
+            most this many units (subjects, or sequences), else on a random sample of this
+            many units (``seed``), and fits the whole corpus once, in the chosen form.
+            ``None``: ``DEFAULT_OBJECTS_SAMPLE`` (3,000).
         dtype: float dtype of the computation (float32 halves time and memory on big data).
         progress: ``progress(iteration, runs_still_running)`` after every EM iteration.
         ray: run every soft-EM E-step on a Ray cluster (:class:`torchhrc.corpus.RayEStep`,
@@ -507,7 +594,9 @@ def fit_mixture(
             with data in memory it is an error rather than silently ignored.
 
     Returns:
-        :class:`MixtureFit`.
+        :class:`MixtureFit`. With ``objects="exchangeable"`` (chosen or given) its
+        log-likelihoods, BICs and ICLs (also in ``per_k``) are those of the recorded
+        demonstrations (the relabelled ones' minus the injection terms above).
 
     Raises:
         TypeError, ValueError, ModelError: invalid data or options (the message names them).
@@ -518,6 +607,169 @@ def fit_mixture(
         >>> fit_mixture((seqs, torch.full((10,), 4), 2), k_min=1, k_max=3, restarts=2).k
         2
     """
+    if objects is None:
+        objects = "auto" if method == "soft" else "raw"
+    if objects not in ("auto", "raw", "exchangeable"):
+        raise ValueError(f"expected objects 'auto', 'raw' or 'exchangeable', got {objects!r}")
+    if not isinstance(object_separator, str) or not object_separator:
+        raise TypeError(
+            f"expected object_separator to be a non-empty str, got {object_separator!r}"
+        )
+    if objects_sample is None:
+        objects_sample = DEFAULT_OBJECTS_SAMPLE
+    bad_sample = isinstance(objects_sample, bool) or not isinstance(objects_sample, int)
+    if bad_sample or objects_sample < 2:
+        raise ValueError(f"expected objects_sample to be an int >= 2, got {objects_sample!r}")
+    options: dict[str, Any] = dict(
+        k_min=k_min, k_max=k_max, restarts=restarts, method=method, criterion=criterion,
+        unit=unit, parameters=parameters, pseudo_count=pseudo_count,
+        weight_pseudo_count=weight_pseudo_count, max_iterations=max_iterations,
+        short_iterations=short_iterations, tol=tol, floor=floor, initial=initial,
+        min_gain=min_gain, dtype=dtype, progress=progress, ray=ray,
+    )  # fmt: skip
+    has_objects = callable(getattr(data, "relabel_objects", None)) and not isinstance(data, tuple)
+    if objects == "exchangeable" and not has_objects:
+        raise TypeError(
+            "objects='exchangeable' needs a Demonstrations (action names <verb>_<object>), "
+            f"got {type(data).__name__}"
+        )
+    if objects == "auto" and (not has_objects or data.num_objects(separator=object_separator) < 2):
+        objects = "raw"  # nothing to exchange
+    if objects != "auto":
+        fit, caught = _caught(
+            lambda: _select_form(data, objects, object_separator, options, seed, generator)
+        )
+        _rewarn(caught)
+        return fit
+
+    # "auto": compare the two forms (on a sample of units for a large corpus)
+    groups = _groups(data, unit, method)
+    units = data.num_sequences if groups is None else int(groups.max()) + 1
+    sample = data
+    if units > objects_sample:
+        pick = _generator(seed, generator)
+        chosen_units = torch.randperm(units, generator=pick)[:objects_sample]
+        keep = torch.zeros(units, dtype=torch.bool)
+        keep[chosen_units] = True
+        sample = data.subset(keep if groups is None else keep[groups])
+    fits, caught = {}, {}
+    for form in ("raw", "exchangeable"):
+        fits[form], caught[form] = _caught(
+            lambda form=form: _select_form(sample, form, object_separator, options, seed, generator)
+        )
+    comparison = {
+        form: {
+            "k": float(f.k),
+            "bic": f.bic,
+            "exact_icl": f.per_k[f.k]["exact_icl"],
+            "log_likelihood": f.log_likelihood,
+            "units": float(min(units, objects_sample)),
+        }
+        for form, f in fits.items()
+    }
+    # the exact ICL of each form's selected partition, log p(D, z) of the recorded data: no
+    # parameter count (BIC charges every chain A (A - 1) parameters; the forms' selected k
+    # may differ, and a chain visits a fraction of its transitions, docs/clustering.md)
+    score = {form: comparison[form]["exact_icl"] for form in fits}
+    best = "exchangeable" if score["exchangeable"] > score["raw"] else "raw"
+    if sample is data:
+        fit = fits[best]
+        _rewarn(caught[best])
+    else:
+        fit, found = _caught(
+            lambda: _select_form(data, best, object_separator, options, seed, generator)
+        )
+        _rewarn(found)
+    return dataclasses.replace(fit, object_comparison=comparison)
+
+
+#: ``fit_mixture(objects="auto")`` compares the raw and the exchangeable-object forms on the
+#: whole corpus up to this many units, else on a random sample of this many (and then fits the
+#: corpus once, in the chosen form). At 3,000 units (9,000 sequences of the issue-12 study)
+#: the exact-ICL margin is thousands of nats either way (``docs/clustering.md``).
+DEFAULT_OBJECTS_SAMPLE = 3000
+
+
+def _caught(run: Callable[[], MixtureFit]) -> tuple[MixtureFit, list[warnings.WarningMessage]]:
+    """``run()`` and the warnings it raised (not shown)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fit = run()
+    return fit, list(caught)
+
+
+def _rewarn(caught: list[warnings.WarningMessage]) -> None:
+    """Show warnings caught by :func:`_caught` as fit_mixture's own."""
+    for w in caught:
+        warnings.warn(w.message, w.category, stacklevel=3)
+
+
+def _select_form(
+    data: Any,
+    objects: str,
+    separator: str,
+    options: dict[str, Any],
+    seed: int | None,
+    generator: torch.Generator | None,
+) -> MixtureFit:
+    """Select-Best-Model on ``data`` read as ``objects`` (``"raw"`` or ``"exchangeable"``)."""
+    if objects == "raw":
+        return _select(data, seed=seed, generator=generator, **options)
+    # every symbol the recorded vocabulary can relabel to, so that a new subject's
+    # demonstrations (over the same recorded vocabulary) can be scored
+    relabelled = data.relabel_objects(separator=separator, keep_unused=True)
+    fit = _select(relabelled, seed=seed, generator=generator, **options)
+    # the likelihood of the recorded demonstrations: each is its relabelled form times one
+    # of M!/(M-m)! equally likely injections of its objects (the first step's given, unless
+    # the first symbol is modelled)
+    shift = float(
+        data.relabel_log_multiplicity(separator=separator, given_first=not options["initial"]).sum()
+    )
+    per_k = {
+        k: {
+            name: (value - shift if name in ("bic", "icl", "exact_icl", "log_likelihood")
+                   else value)
+            for name, value in row.items()
+        }
+        for k, row in fit.per_k.items()
+    }  # fmt: skip
+    model = dataclasses.replace(fit.model, objects="exchangeable", object_separator=separator)
+    return dataclasses.replace(
+        fit,
+        model=model,
+        bic=fit.bic - shift,
+        icl=fit.icl - shift,
+        log_likelihood=fit.log_likelihood - shift,
+        per_k=per_k,
+        objects="exchangeable",
+    )
+
+
+def _select(
+    data: Any,
+    *,
+    k_min: int,
+    k_max: int,
+    restarts: int,
+    method: Method,
+    criterion: Criterion | None,
+    unit: str,
+    parameters: str,
+    seed: int | None,
+    generator: torch.Generator | None,
+    pseudo_count: float | None,
+    weight_pseudo_count: float | None,
+    max_iterations: int | None,
+    short_iterations: int,
+    tol: float,
+    floor: float,
+    initial: bool,
+    min_gain: float | None,
+    dtype: torch.dtype,
+    progress: Callable[[int, int], None] | None,
+    ray: bool | str | None,
+) -> MixtureFit:
+    """:func:`fit_mixture` for one form of the data (its options, ``objects`` aside)."""
     # a ShardedCorpus (or its merged CorpusStatistics): statistics computed shard by shard
     sharded = callable(getattr(data, "statistics", None))
     if not sharded:

@@ -536,7 +536,8 @@ def learn(
                       seed=seed)  # type: ignore[arg-type]  # fmt: skip
     info = {"k": int(fit.k), "bic": float(fit.bic), "log_likelihood": float(fit.log_likelihood),
             "seed": seed}  # fmt: skip
-    model = build_model(task, demonstrations, fit.model.transition, fit.assignments, noise=noise,
+    chains = fit.transition_over(demonstrations)  # over the recorded symbols (fit.objects)
+    model = build_model(task, demonstrations, chains, fit.assignments, noise=noise,
                         pause=pause, irl_iterations=irl_iterations, seed=seed,
                         info=info)  # fmt: skip
     if solve:

@@ -308,7 +308,13 @@ class _AlphaSet:
                 chunk = rows[start : start + step]
                 Vn = V[need[chunk]]  # (n, Y)
                 ii, jj = np.nonzero((Cp[None, :, :] >= Vn[:, None, probe]).all(-1))
-                ok = (C[jj] >= Vn[ii]).all(-1)
+                # the survivors' full rows in blocks of about 1M floats (8 MB), not all at
+                # once (up to 2e8 floats: the peak memory of a solve)
+                ok = np.empty(ii.size, dtype=bool)
+                block = max(1, (1 << 20) // Y)
+                for b0 in range(0, ii.size, block):
+                    sl = slice(b0, b0 + block)
+                    ok[sl] = (C[jj[sl]] >= Vn[ii[sl]]).all(-1)
                 ii, jj = ii[ok], jj[ok]
                 first, at = np.unique(ii, return_index=True)  # ii is sorted, jj rising
                 out[chunk[first]] = cand[jj[at]]

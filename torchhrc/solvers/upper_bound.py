@@ -93,8 +93,13 @@ _DENSE_FLAT = 2048
 _WIDE = 4
 _Q_MAX = 1e250  # dense 1 / b_i(y) clipped here (a smaller ratio only raises the bound)
 # dense tables of at least _PROBE_MIN_Y states and _PROBE_MIN_P points bound each point's term
-# from its _PROBES largest states first and evaluate exactly only the pairs that can win
-_PROBES = 16  # RockSample_7_8.pomdpx: 44% of the pairs survive the bound of 4 probes, 23% of 16
+# from its largest states first (_PROBES of them, Y // _PROBE_SHARE from _WIDE_PROBE_Y states) and
+# evaluate exactly only the pairs that can win. RockSample_7_8.pomdpx (Y = 256): 44% of the
+# pairs survive the bound of 4 probes, 23% of 16 (sawtooth time -15%); a probe is a gather,
+# several times a dense entry's cost: random_S100 (Y = 100) lost 10% with 6 probes, 2x with 16
+_PROBES = 4
+_PROBE_SHARE = 16
+_WIDE_PROBE_Y = 128
 _PROBE_MIN_Y = 16
 _PROBE_MIN_P = 32
 
@@ -501,7 +506,8 @@ class SawtoothUpperBound:
         only grows between prunes; a prune rebuilds it and resets the probes).
         """
         m = q.shape[1]
-        k = min(_PROBES, q.shape[0])
+        Y = q.shape[0]
+        k = min(max(_PROBES, Y // _PROBE_SHARE) if Y >= _WIDE_PROBE_Y else _PROBES, Y)
         done = self._probed.get(xv)
         start = 0 if done is None else done[0].shape[1]
         if done is not None and start == m:

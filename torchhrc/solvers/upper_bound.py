@@ -240,10 +240,15 @@ class SawtoothUpperBound:
             while new_cap < need:
                 new_cap *= 2
             new_k = max(K, width)
-            idx = self._idx.new_full((new_cap, new_k), self.num_hidden)
-            inv = self._inv.new_ones(new_cap, new_k)
+            # empty, not full: a point's row is written whole when it is added, so only the
+            # stored rows are filled and the free slots stay untouched pages (not resident;
+            # RockSample_7_8.pomdpx: 2 x 16 MB at 8,192 slots of 256 entries)
+            idx = self._idx.new_empty(new_cap, new_k)
+            inv = self._inv.new_empty(new_cap, new_k)
             idx[: self.size, :K] = self._idx[: self.size]
             inv[: self.size, :K] = self._inv[: self.size]
+            idx[: self.size, K:] = self.num_hidden
+            inv[: self.size, K:] = 1.0
             self._idx, self._inv = idx, inv
             if new_cap > cap:
                 for name in ("_x", "_v", "_gain", "_w"):

@@ -36,7 +36,8 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"{type(model).__name__} read_cpu={c1 - c0:.2f} solve_cpu={time.process_time() - c1:.2f} "
         f"wall={time.perf_counter() - w0:.1f} lower={sol.lower:.4f} upper={sol.upper:.4f} "
-        f"gap={sol.upper - sol.lower:.4f} iterations={sol.info.get('iterations')} backups={sol.info.get('backups')} "
+        f"gap={sol.upper - sol.lower:.4f} iterations={sol.info.get('iterations')} "
+        f"backups={sol.info.get('backups')} "
         f"alphas={sol.policy.num_vectors} peak_rss_MB={rss:.0f}"
     )
     return 0

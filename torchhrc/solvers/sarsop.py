@@ -261,9 +261,7 @@ class SARSOPConfig:
         if not isinstance(self.dtype, torch.dtype) or not self.dtype.is_floating_point:
             raise TypeError(f"expected dtype to be a floating torch.dtype, got {self.dtype!r}")
         if self.clock not in ("wall", "process") and not callable(self.clock):
-            raise ValueError(
-                f"expected clock 'wall', 'process' or a callable, got {self.clock!r}"
-            )
+            raise ValueError(f"expected clock 'wall', 'process' or a callable, got {self.clock!r}")
 
 
 def _clock(clock: str | Callable[[], float]) -> Callable[[], float]:

@@ -38,7 +38,9 @@ from torchhrc.errors import ModelError
 
 __all__ = ["SawtoothUpperBound"]
 
-_CHUNK = 1 << 22  # elements of the (B, P, K) ratio tensor computed at once
+# elements of the (B, P, K) ratio tensor computed at once (4 MB in float64; 1 << 22 made 32 MB
+# temporaries, each a fresh mmap and its page faults: RockSample_11_11.pomdpx, Y = 2048)
+_CHUNK = 1 << 19
 _DENSE_CHUNK = 1 << 16  # elements of a dense (b, Y, P_x) product (512 kB in float64)
 
 

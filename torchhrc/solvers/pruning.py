@@ -217,8 +217,8 @@ def _grouped_winners(alphas: torch.Tensor, beliefs: torch.Tensor, groups: torch.
     against its vectors ``(N_g, S)`` as a broadcast ``(m, N_g, S)`` product summed over
     ``S`` (the same products and sums as a pair-by-pair gather, so the same scores bit for
     bit, without gathering a belief row and a vector row per pair: RockSample_7_8.pomdpx,
-    2,200 vectors at 3,500 beliefs, 0.4 s -> 0.02 s), in blocks of about
-    ``_GATHER_ELEMENTS`` floats.
+    a 10 CPU-s solve's prunings 1.4 s -> 0.2 s), in blocks of about ``_GATHER_ELEMENTS``
+    floats.
     """
     N, S = alphas.shape
     keep = torch.zeros(N, dtype=torch.bool, device=alphas.device)

@@ -272,10 +272,9 @@ def child_solve(path: Path, limit: float, precision: float, out: Path, policyx: 
     import json
 
     torch.set_num_threads(1)
-    # torch imports torch._refs on the first torch.broadcast_shapes call (which the model's
-    # validation makes): 1.4 s measured on a loaded machine, once per process; it
-    # is paid here, outside the load time, as a long-running process pays it once
-    torch.broadcast_shapes((1,), (1,))
+    # no torch.broadcast_shapes warm-up any more: the model's validation stopped calling it
+    # (torchhrc._checks.broadcast_shapes), and the call imported sympy, 21 MB of our peak
+    # memory and 0.6 s that a solve never pays
     t0 = time.perf_counter()
     model = _read_suite_model(path)
     load = time.perf_counter() - t0

@@ -443,6 +443,47 @@ def test_time_limit_is_checked_inside_an_iteration(monkeypatch):
     assert cut.lower <= full.upper + 1e-9 and full.lower <= cut.upper + 1e-9
 
 
+def test_time_limit_of_a_given_clock_is_honoured_at_every_check(monkeypatch):
+    """Structurally, without measuring time: on a clock that counts the work done (one unit
+    per new tree belief and per backup), the solve stops within one unit of the limit: the
+    budget is read inside trials, between backups and before prunings, so no step runs
+    unchecked, and no iteration begins after the limit."""
+    from torchhrc.tasks.classic import rock_sample_momdp
+
+    sarsop_module = sys.modules[_SARSOP.__module__]
+    work = [0]
+    for name in ("_add_node", "_backup_one_np"):
+        method = getattr(sarsop_module._SARSOP, name)
+
+        def counted(self, *args, _method=method):
+            work[0] += 1
+            return _method(self, *args)
+
+        monkeypatch.setattr(sarsop_module._SARSOP, name, counted)
+    seen: list[int] = []  # the work done at each iteration's end
+    limit = 150.0
+    cfg = SARSOPConfig(time_limit=limit, precision=1e-9, clock=lambda: float(work[0]),
+                       callback=lambda entry: seen.append(work[0]))  # fmt: skip
+    sol = sarsop(rock_sample_momdp(4, 4), cfg)
+    assert sol.info["stop_reason"] == "time_limit"
+    assert sol.info["iterations"] == len(seen) > 5
+    assert sum(w >= limit for w in seen) <= 1  # no iteration began after the limit
+    assert limit <= work[0] <= limit + 1  # at most one step past it
+    assert sol.lower <= sol.upper
+
+
+def test_process_clock_limits_cpu_time():
+    from torchhrc.tasks.classic import rock_sample_momdp
+
+    cpu = time.process_time()
+    sol = sarsop(rock_sample_momdp(4, 4),
+                 SARSOPConfig(time_limit=0.5, precision=1e-9, clock="process"))  # fmt: skip
+    assert sol.info["stop_reason"] == "time_limit"
+    assert time.process_time() - cpu >= 0.5  # it ran until its CPU budget was spent
+    with pytest.raises(ValueError, match="clock"):
+        SARSOPConfig(clock="cpu")  # type: ignore[arg-type]
+
+
 def test_tiny_time_limit_returns_soon_with_valid_bounds():
     from torchhrc.tasks.classic import rock_sample_momdp
 

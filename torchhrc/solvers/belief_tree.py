@@ -82,7 +82,9 @@ class BeliefTree:
         return self._beliefs[: self.size]
 
     def _grow_beliefs(self, cap: int) -> None:
-        new = self._beliefs.new_zeros(cap, self._beliefs.shape[1])
+        # empty, not zeros: a row is written whole when its node is added, and the slots
+        # past ``size`` stay untouched pages (not resident) until then
+        new = self._beliefs.new_empty(cap, self._beliefs.shape[1])
         new[: self.size] = self._beliefs[: self.size]
         self._beliefs = new
         self._np_beliefs = None

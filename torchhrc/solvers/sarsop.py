@@ -82,6 +82,7 @@ Example:
 
 from __future__ import annotations
 
+import hashlib
 import math
 import time
 from collections.abc import Callable
@@ -146,7 +147,7 @@ class SARSOPConfig:
     """Settings of :func:`sarsop` (keyword-only; a typo is a TypeError).
 
     Attributes:
-        time_limit: wall-clock budget in seconds, including the bound initialisation
+        time_limit: budget in seconds of ``clock``, including the bound initialisation
             (default 10). The solver is anytime: it returns the best policy so far.
         precision: target gap ``upper - lower`` at ``b0``, absolute (as APPL's ``pomdpsol
             --precision``; default 1e-3). The solve stops once the gap is at most this.
@@ -195,6 +196,14 @@ class SARSOPConfig:
         callback: called after each iteration with the history entry (a dict); returning
             True stops the solve.
         dtype: floating dtype of the solve (default float64).
+        clock: what ``time_limit`` counts: ``"wall"`` (``time.perf_counter``, default),
+            ``"process"`` (``time.process_time``: the process's CPU time, user and system, as
+            APPL's ``pomdpsol --timeout`` counts it, so that a solve on a shared machine gets
+            the CPU seconds it is given), or any callable returning seconds (e.g. a
+            deterministic clock in tests). The limit is checked between iterations, at every
+            step of a trial, between the backups of its path, and before a pruning that the
+            last one's duration says would end past the limit. The initial bounds' safety net
+            (``init_time_fraction``) stays on the wall clock.
     """
 
     time_limit: float = 10.0
@@ -218,6 +227,7 @@ class SARSOPConfig:
     forward_backups: bool = True
     callback: Callable[[dict[str, Any]], bool | None] | None = None
     dtype: torch.dtype = torch.float64
+    clock: Literal["wall", "process"] | Callable[[], float] = "wall"
 
     def __post_init__(self) -> None:
         for name in ("time_limit", "precision", "kappa", "prune_growth", "init_time_fraction"):
@@ -250,6 +260,18 @@ class SARSOPConfig:
             )
         if not isinstance(self.dtype, torch.dtype) or not self.dtype.is_floating_point:
             raise TypeError(f"expected dtype to be a floating torch.dtype, got {self.dtype!r}")
+        if self.clock not in ("wall", "process") and not callable(self.clock):
+            raise ValueError(f"expected clock 'wall', 'process' or a callable, got {self.clock!r}")
+
+
+def _clock(clock: str | Callable[[], float]) -> Callable[[], float]:
+    """The function reading :attr:`SARSOPConfig.clock`."""
+    if clock == "wall":
+        return time.perf_counter
+    if clock == "process":
+        return time.process_time
+    assert callable(clock)
+    return clock
 
 
 class _AlphaSet:
@@ -308,7 +330,13 @@ class _AlphaSet:
                 chunk = rows[start : start + step]
                 Vn = V[need[chunk]]  # (n, Y)
                 ii, jj = np.nonzero((Cp[None, :, :] >= Vn[:, None, probe]).all(-1))
-                ok = (C[jj] >= Vn[ii]).all(-1)
+                # the survivors' full rows in blocks of about 1M floats (8 MB), not all at
+                # once (up to 2e8 floats: the peak memory of a solve)
+                ok = np.empty(ii.size, dtype=bool)
+                block = max(1, (1 << 20) // Y)
+                for b0 in range(0, ii.size, block):
+                    sl = slice(b0, b0 + block)
+                    ok[sl] = (C[jj[sl]] >= Vn[ii[sl]]).all(-1)
                 ii, jj = ii[ok], jj[ok]
                 first, at = np.unique(ii, return_index=True)  # ii is sorted, jj rising
                 out[chunk[first]] = cand[jj[at]]
@@ -395,7 +423,9 @@ class _AlphaSet:
             cap *= 2
         for name in ("vectors", "actions", "observed"):
             old = getattr(self, name)
-            new = old.new_zeros(cap, *old.shape[1:])
+            # rows past ``size`` are written before they are read; empty leaves their pages
+            # untouched (not resident) until then
+            new = old.new_empty(cap, *old.shape[1:])
             new[: self.size] = old[: self.size]
             setattr(self, name, new)
         self._views()
@@ -513,9 +543,16 @@ class _Bins:
 
 class _SARSOP:
     def __init__(self, model: POMDP | MOMDP | SparsePOMDP | SolverModel, cfg: SARSOPConfig,
-                 start: float) -> None:  # fmt: skip
+                 start: float, clock_start: float | None = None) -> None:  # fmt: skip
         self.cfg = cfg
         self.start = start
+        # the clock of time_limit (wall: the deadline counts from ``start``; another clock
+        # from ``clock_start``, its reading when the solve began)
+        self.clock: Callable[[], float] = _clock(cfg.clock)
+        if cfg.clock == "wall":
+            clock_start = start
+        elif clock_start is None:
+            clock_start = self.clock()
         # the one place the model's form is chosen; everything below asks the form
         self.form = form = as_solver_model(model, dtype=cfg.dtype)
         if form.discount >= 1.0:
@@ -524,7 +561,7 @@ class _SARSOP:
         self.X, self.Y = form.num_observed, form.num_hidden
         self.rng = np.random.default_rng(int(cfg.seed))
         self.device = form.b0.device
-        self.deadline = start + cfg.time_limit
+        self.deadline = clock_start + cfg.time_limit
         init_deadline = start + cfg.time_limit * cfg.init_time_fraction
         t_init = time.perf_counter()
         # lower bound: alpha vectors of a policy (blind policies by default)
@@ -566,7 +603,7 @@ class _SARSOP:
         self.entropy[0] = float(self._entropy(form.b0.unsqueeze(0))[0])
         # one id per distinct belief (APPL's belief cache): tree nodes holding the same belief
         # share its cached evaluation, and a trial that reaches a belief again is in a cycle
-        self._belief_ids: dict[tuple[int, bytes, bytes], int] = {}
+        self._belief_ids: dict[tuple[int, bytes], int] = {}
         self.belief_id = np.zeros(1024, dtype=np.int64)
         self.belief_id[0] = self._belief_key(form.x0, form.b0.cpu().numpy())
         self.children: dict[int, list[int]] = {}
@@ -581,6 +618,7 @@ class _SARSOP:
 
         self.last_alpha_prune = self.alphas.size
         self.last_point_prune = 1
+        self._prune_cost: dict[str, tuple[float, int]] = {}  # kind -> (seconds, size) of last
         self.history: list[dict[str, Any]] = []
         self.backups = 0
         self._forward: set[int] = set()
@@ -923,7 +961,7 @@ class _SARSOP:
         path = [0]
         seen = {int(self.belief_id[0])}
         forward = self._forward = set()
-        while t < self.max_depth and time.perf_counter() < self.deadline:
+        while t < self.max_depth and self.clock() < self.deadline:
             lo, up = float(tree.lower[node]), float(tree.upper[node])
             if self.cfg.prediction == "binning":
                 v_hat = self.bins.predict(node, up, float(self.entropy[node]), lo)
@@ -1015,10 +1053,16 @@ class _SARSOP:
         return node
 
     def _belief_key(self, x: int, row: np.ndarray) -> int:
-        """The id of the distinct belief ``(x, row)`` (support and values to 12 digits)."""
+        """The id of the distinct belief ``(x, row)`` (support and values to 12 digits).
+
+        Keyed by a 128-bit digest of the support and the rounded values rather than their
+        bytes (RockSample_7_8.pomdpx: 4 kB a belief, 16 MB after 10 s), with the same ids
+        unless two of the beliefs collide (probability about ``n^2 / 2^129``).
+        """
         nz = np.flatnonzero(row)
-        key = (x, nz.tobytes(), np.round(row[nz], 12).tobytes())
-        return self._belief_ids.setdefault(key, len(self._belief_ids))
+        digest = hashlib.blake2b(nz.tobytes(), digest_size=16)
+        digest.update(np.round(row[nz], 12).tobytes())  # same length: the split is unambiguous
+        return self._belief_ids.setdefault((x, digest.digest()), len(self._belief_ids))
 
     def _argmax_tie(self, q: np.ndarray) -> int:
         top = float(q.max())
@@ -1028,11 +1072,25 @@ class _SARSOP:
         return int(ties[self.rng.integers(ties.size)])
 
     # -- pruning ---------------------------------------------------------------------------
+    def _affordable(self, kind: str, size: int) -> bool:
+        """Whether a pruning of ``kind`` at ``size`` items ends before the deadline, judged by
+        the last one's duration scaled to ``size`` (its cost grows about linearly): a pruning
+        is skipped near the end rather than overrun the limit (it only bounds the sets'
+        growth; the bounds stay valid without it)."""
+        last = self._prune_cost.get(kind)
+        if last is None:
+            return True
+        seconds, at = last
+        return self.clock() + seconds * size / max(at, 1) < self.deadline
+
     def prune(self) -> None:
         cfg = self.cfg
-        if cfg.prune_alphas and self.alphas.size > cfg.prune_growth * max(
-            self.last_alpha_prune, 16
+        if (
+            cfg.prune_alphas
+            and self.alphas.size > cfg.prune_growth * max(self.last_alpha_prune, 16)
+            and self._affordable("alphas", self.alphas.size)
         ):
+            t0 = self.clock()
             n = self.alphas.size
             vec, obs = self.alphas.vectors[:n], self.alphas.observed[:n]
             groups = obs if self.X > 1 else None
@@ -1044,13 +1102,17 @@ class _SARSOP:
             self.alphas.keep(self.tree.keep_alphas(vec, groups, act))
             self._default = None
             self.last_alpha_prune = self.alphas.size
+            self._prune_cost["alphas"] = (self.clock() - t0, n)
         self._prune_points()
 
     def _prune_points(self) -> None:
         cfg = self.cfg
-        if self.ub.size > cfg.prune_growth * max(self.last_point_prune, 64):
+        n = self.ub.size
+        if n > cfg.prune_growth * max(self.last_point_prune, 64) and self._affordable("points", n):
+            t0 = self.clock()
             self.ub.prune()
             self.last_point_prune = self.ub.size
+            self._prune_cost["points"] = (self.clock() - t0, n)
         if cfg.prune_nodes:
             self.tree.refresh_active()
 
@@ -1097,7 +1159,7 @@ class _SARSOP:
                 if cfg.max_iterations is not None and iteration >= cfg.max_iterations:
                     reason = "max_iterations"
                     break
-                if time.perf_counter() >= self.deadline:
+                if self.clock() >= self.deadline:
                     reason = "time_limit"
                     break
                 iteration += 1
@@ -1110,9 +1172,9 @@ class _SARSOP:
                     path = path[:-1]  # the leaf was backed up when the trial reached it
                 for node in reversed(path):
                     self.backup(int(self.tree.x[node]), np.array([node]))
-                    if time.perf_counter() >= self.deadline:
+                    if self.clock() >= self.deadline:
                         break
-                late = time.perf_counter() >= self.deadline
+                late = self.clock() >= self.deadline
                 if cfg.sweep_interval and iteration % cfg.sweep_interval == 0 and not late:
                     self.sweep()
                 if not late:
@@ -1181,9 +1243,10 @@ def sarsop(model: POMDP | MOMDP | SparsePOMDP, config: SARSOPConfig | None = Non
         config = SARSOPConfig()
     if not isinstance(config, SARSOPConfig):
         raise TypeError(f"expected config to be a SARSOPConfig, got {type(config).__name__}")
+    clock_start = _clock(config.clock)()
     # The sequential path multiplies small matrices (tens of rows) in numpy; a multi-threaded
     # OpenBLAS spends more time waking and spinning threads than computing (measured:
     # RockSample(7, 8), 2 busy cores, 28 ms against 1.6 ms per lower-bound evaluation; dense
     # RockSample(4, 4), 300 iterations: 7.4-8.1 s with 2 BLAS threads, 5.4-6.3 s with one).
     with threadpool_limits(limits=1, user_api="blas"):
-        return _SARSOP(model, config, start).run()
+        return _SARSOP(model, config, start, clock_start).run()

@@ -38,7 +38,9 @@ from torchhrc.errors import ModelError
 
 __all__ = ["SawtoothUpperBound"]
 
-_CHUNK = 1 << 22  # elements of the (B, P, K) ratio tensor computed at once
+# elements of the (B, P, K) ratio tensor computed at once (4 MB in float64; 1 << 22 made 32 MB
+# temporaries, each a fresh mmap and its page faults: RockSample_11_11.pomdpx, Y = 2048)
+_CHUNK = 1 << 19
 _DENSE_CHUNK = 1 << 16  # elements of a dense (b, Y, P_x) product (512 kB in float64)
 
 
@@ -93,8 +95,13 @@ _DENSE_FLAT = 2048
 _WIDE = 4
 _Q_MAX = 1e250  # dense 1 / b_i(y) clipped here (a smaller ratio only raises the bound)
 # dense tables of at least _PROBE_MIN_Y states and _PROBE_MIN_P points bound each point's term
-# from its _PROBES largest states first and evaluate exactly only the pairs that can win
+# from its largest states first (_PROBES of them, Y // _PROBE_SHARE from _WIDE_PROBE_Y states) and
+# evaluate exactly only the pairs that can win. RockSample_7_8.pomdpx (Y = 256): 44% of the
+# pairs survive the bound of 4 probes, 23% of 16 (sawtooth time -15%); a probe is a gather,
+# several times a dense entry's cost: random_S100 (Y = 100) lost 10% with 6 probes, 2x with 16
 _PROBES = 4
+_PROBE_SHARE = 16
+_WIDE_PROBE_Y = 128
 _PROBE_MIN_Y = 16
 _PROBE_MIN_P = 32
 
@@ -235,10 +242,15 @@ class SawtoothUpperBound:
             while new_cap < need:
                 new_cap *= 2
             new_k = max(K, width)
-            idx = self._idx.new_full((new_cap, new_k), self.num_hidden)
-            inv = self._inv.new_ones(new_cap, new_k)
+            # empty, not full: a point's row is written whole when it is added, so only the
+            # stored rows are filled and the free slots stay untouched pages (not resident;
+            # RockSample_7_8.pomdpx: 2 x 16 MB at 8,192 slots of 256 entries)
+            idx = self._idx.new_empty(new_cap, new_k)
+            inv = self._inv.new_empty(new_cap, new_k)
             idx[: self.size, :K] = self._idx[: self.size]
             inv[: self.size, :K] = self._inv[: self.size]
+            idx[: self.size, K:] = self.num_hidden
+            inv[: self.size, K:] = 1.0
             self._idx, self._inv = idx, inv
             if new_cap > cap:
                 for name in ("_x", "_v", "_gain", "_w"):
@@ -501,7 +513,8 @@ class SawtoothUpperBound:
         only grows between prunes; a prune rebuilds it and resets the probes).
         """
         m = q.shape[1]
-        k = min(_PROBES, q.shape[0])
+        Y = q.shape[0]
+        k = min(max(_PROBES, Y // _PROBE_SHARE) if Y >= _WIDE_PROBE_Y else _PROBES, Y)
         done = self._probed.get(xv)
         start = 0 if done is None else done[0].shape[1]
         if done is not None and start == m:
@@ -523,8 +536,11 @@ class SawtoothUpperBound:
         minimum over fewer states), so with ``g_i < 0`` the point's term is at least
         ``g_i r_i``. The point with the lowest ``g_i r_i`` is evaluated exactly for each query;
         then only the (query, point) pairs with ``g_i r_i`` below that are (Hallway2: a few per
-        cent of the pairs). Exact: the result equals the dense minimum. Returns ``None`` when
-        too many pairs survive (the dense product is then cheaper).
+        cent of the pairs); when many pairs survive, the dense product over the points with a
+        surviving pair (RockSample_7_8.pomdpx: a third of the points). Exact: every term is
+        the same product, and the minimum is taken over a set holding the smallest, so the
+        result equals the dense minimum bit for bit. Returns ``None`` when nearly every point
+        survives (the dense product over all of them is then cheaper).
         """
         B, Y = b.shape
         m = q.shape[1]
@@ -538,7 +554,16 @@ class SawtoothUpperBound:
         cand[np.arange(B), j0] = False
         rr, jj = np.nonzero(cand)
         if rr.size * 3 > B * m:
-            return None
+            cols = np.flatnonzero(cand.any(0))  # the points with a surviving pair
+            if cols.size * 4 > m * 3:
+                return None
+            qc, gc = q[:, cols], g[cols]  # (Y, c), (c,)
+            step = max(1, _DENSE_CHUNK // max(1, cols.size * Y))
+            for start in range(0, B, step):
+                ratio = (b[start : start + step, :, None] * qc[None]).min(1)  # (b, c)
+                low = (ratio * gc).min(-1)
+                best[start : start + step] = np.minimum(best[start : start + step], low)
+            return best
         step = max(1, _DENSE_CHUNK // Y)
         for start in range(0, rr.size, step):
             ri, ji = rr[start : start + step], jj[start : start + step]

@@ -206,24 +206,33 @@ def _same_group_pairs(left: torch.Tensor, right: torch.Tensor, chunk: int):
 
 def _grouped_winners(alphas: torch.Tensor, beliefs: torch.Tensor, groups: torch.Tensor,
                      belief_groups: torch.Tensor) -> torch.Tensor:  # fmt: skip
-    """:func:`prune_by_beliefs` scoring only the (belief, vector) pairs of the same group.
+    """:func:`prune_by_beliefs` scoring each group's beliefs against that group's vectors only.
 
-    Of the vectors tied for the maximum at a belief the lowest index wins, as ``argmax`` over
-    all of the group's vectors would pick.
+    One ``(M_g, S) x (S, N_g)`` product per group present on both sides (in row chunks that
+    bound the scores to about ``_CHUNK_ELEMENTS``), instead of gathering every same-group
+    (belief, vector) pair: RockSample(7, 8) as a MOMDP (50 observed positions, 256 hidden
+    states, ~2,500 vectors against ~3,000 beliefs) took 0.24 s per pruning with the pair
+    gather. Of the vectors tied for the maximum at a belief the lowest index wins, as
+    ``argmax`` over all of the group's vectors would pick.
     """
-    N, S = alphas.shape
-    M = beliefs.shape[0]
-    keep = torch.zeros(N, dtype=torch.bool, device=alphas.device)
-    chunk = max(1, _CHUNK_ELEMENTS // max(1, S))
-    for i, j in _same_group_pairs(belief_groups, groups, chunk):
-        score = (beliefs[i] * alphas[j]).sum(-1)  # (P,)
-        top = score.new_full((M,), -torch.inf).scatter_reduce(0, i, score, "amax")
-        win = score >= top[i]
-        first = torch.full((M,), N, dtype=torch.long, device=alphas.device)
-        first = first.scatter_reduce(0, i[win], j[win], "amin")
-        keep[first[first < N]] = True
+    N = alphas.shape[0]
+    dev = alphas.device
+    keep = torch.zeros(N, dtype=torch.bool, device=dev)
+    G = int(max(int(groups.max()), int(belief_groups.max()))) + 1
+    a_order = torch.argsort(groups, stable=True)  # each group's vectors in rising index
+    b_order = torch.argsort(belief_groups, stable=True)
+    a_counts = torch.bincount(groups, minlength=G)
+    b_counts = torch.bincount(belief_groups, minlength=G)
+    a_ends, b_ends = torch.cumsum(a_counts, 0).tolist(), torch.cumsum(b_counts, 0).tolist()
+    na, nb = a_counts.tolist(), b_counts.tolist()
+    for g in ((a_counts > 0) & (b_counts > 0)).nonzero().squeeze(-1).tolist():
+        ia = a_order[a_ends[g] - na[g] : a_ends[g]]
+        ib = b_order[b_ends[g] - nb[g] : b_ends[g]]
+        V = alphas[ia].T  # (S, N_g)
+        rows = max(1, _CHUNK_ELEMENTS // max(1, ia.numel()))
+        for start in range(0, ib.numel(), rows):
+            scores = beliefs[ib[start : start + rows]] @ V  # (m, N_g)
+            keep[ia[scores.argmax(-1)]] = True
     # groups without any belief keep everything
-    has_belief = torch.zeros(int(groups.max()) + 1, dtype=torch.bool, device=alphas.device)
-    has_belief[belief_groups[belief_groups <= groups.max()]] = True
-    keep |= ~has_belief[groups]
+    keep |= b_counts[groups] == 0
     return keep

@@ -24,10 +24,11 @@ the targets ``L_t``, ``U_t`` solved from
 the same with ``V_up`` for ``U_t``). The path is then backed up leaf to root; a belief the
 trial reaches a second time (a cycle of the model) is also backed up when reached, as APPL
 backs up every node a trial reaches. Tree nodes holding the same belief share its cached
-evaluation. Dominated alpha vectors and alpha vectors that win at no tree belief, unless a
-kept vector was built from them (so that the greedy policy of the written vectors keeps the
-lower bound's value), redundant upper-bound points and belief nodes reached by sub-optimal
-actions
+evaluation. Dominated alpha vectors and alpha vectors that win at no tree belief, unless
+they were the best at a child of an active tree belief at its last evaluation (as APPL keeps
+the vectors best at the unexpanded children in its belief cache) or a kept vector was built
+from them (so that the greedy policy of the written vectors keeps the lower bound's value),
+redundant upper-bound points and belief nodes reached by sub-optimal actions
 (``Q_up(b, a) < max_a' Q_low(b, a')``) are pruned.
 
 One model interface: the solver asks the model only through
@@ -177,7 +178,9 @@ class SARSOPConfig:
             result depends on the machine's speed, reported as
             ``Solution.info["init"]["upper_stop"] == "time_limit"``).
         prune_alphas: prune dominated alpha vectors and those that win at no tree belief,
-            except the vectors a kept vector was built from.
+            except the vectors best at a child of an active tree belief (at the belief's last
+            evaluation, under an action not sub-optimal) and those a kept vector was built
+            from.
         prune_growth: prune when the number of alpha vectors (or upper-bound points) has
             grown by this factor since the last pruning.
         prune_nodes: deactivate tree nodes reached by sub-optimal actions.

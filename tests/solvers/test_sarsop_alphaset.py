@@ -63,9 +63,7 @@ def _children_bounds_after_pruning(model, iterations: int, monkeypatch, rule: bo
 
     monkeypatch.setattr(_SARSOP, "prune", prune)
     if not rule:
-        monkeypatch.setattr(
-            _SARSOP, "_child_winners", lambda self, nodes: np.zeros(0, np.int64)
-        )
+        monkeypatch.setattr(_SARSOP, "_child_winners", lambda self, nodes: np.zeros(0, np.int64))
     sarsop(model, SARSOPConfig(time_limit=1e9, precision=1e-9, max_iterations=iterations))
     return tuple(counts)
 

@@ -1030,7 +1030,8 @@ class _SARSOP:
             parts.append(best[(q_up >= q_low.max())[:, None, None] & (prob > 0)])
         if not parts:
             return np.zeros(0, dtype=np.int64)
-        return np.unique(np.concatenate(parts))
+        ids = np.unique(np.concatenate(parts))
+        return ids[ids >= 0]  # (an entry is -1 only if its vector was dropped: never counted)
 
     def _add_node(self, belief: torch.Tensor, x: int, parent: int, action: int, obs: int) -> int:
         node = self.tree.add(belief, x, parent, action, obs)

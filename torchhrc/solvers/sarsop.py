@@ -24,10 +24,11 @@ the targets ``L_t``, ``U_t`` solved from
 the same with ``V_up`` for ``U_t``). The path is then backed up leaf to root; a belief the
 trial reaches a second time (a cycle of the model) is also backed up when reached, as APPL
 backs up every node a trial reaches. Tree nodes holding the same belief share its cached
-evaluation. Dominated alpha vectors and alpha vectors that win at no tree belief, unless a
-kept vector was built from them (so that the greedy policy of the written vectors keeps the
-lower bound's value), redundant upper-bound points and belief nodes reached by sub-optimal
-actions
+evaluation. Dominated alpha vectors and alpha vectors that win at no tree belief, unless
+they were the best at a child of an active tree belief at its last evaluation (as APPL keeps
+the vectors best at the unexpanded children in its belief cache) or a kept vector was built
+from them (so that the greedy policy of the written vectors keeps the lower bound's value),
+redundant upper-bound points and belief nodes reached by sub-optimal actions
 (``Q_up(b, a) < max_a' Q_low(b, a')``) are pruned.
 
 One model interface: the solver asks the model only through
@@ -178,7 +179,9 @@ class SARSOPConfig:
             result depends on the machine's speed, reported as
             ``Solution.info["init"]["upper_stop"] == "time_limit"``).
         prune_alphas: prune dominated alpha vectors and those that win at no tree belief,
-            except the vectors a kept vector was built from.
+            except the vectors best at a child of an active tree belief (at the belief's last
+            evaluation, under an action not sub-optimal) and those a kept vector was built
+            from.
         prune_growth: prune when the number of alpha vectors (or upper-bound points) has
             grown by this factor since the last pruning.
         prune_nodes: deactivate tree nodes reached by sub-optimal actions.
@@ -450,10 +453,13 @@ class _AlphaSet:
             for i in range(s.start, s.stop):
                 self._append_group(int(self.np_observed[i]), self.np_vectors[i], i)
 
-    def keep(self, mask: torch.Tensor) -> None:
+    def keep(self, mask: torch.Tensor) -> np.ndarray:
         """Keep the vectors of ``mask (N,)`` and, transitively, those they refer to; a
         referred vector that a kept one of its ``x`` dominates pointwise is replaced by it in
-        the references instead (the plan only gains)."""
+        the references instead (the plan only gains).
+
+        Returns ``(N,)`` the new index of each old vector (of its replacement, for a replaced
+        one; -1 for a dropped one)."""
         m = mask[: self.size].cpu().numpy().copy()
         target = np.arange(self.size)  # reference i now means vector target[i]
         frontier = np.flatnonzero(m)
@@ -473,6 +479,7 @@ class _AlphaSet:
         kept = np.flatnonzero(m)
         remap[kept] = np.arange(kept.size)
         self.refs = [remap[target[self.refs[i]]] for i in kept.tolist()]
+        moved = remap[target]
         idx = torch.from_numpy(kept).to(self.vectors.device)
         n = idx.numel()
         self.vectors[:n] = self.vectors[idx]
@@ -482,6 +489,7 @@ class _AlphaSet:
             self.columns[:, :n] = self.columns[:, idx.numpy()]
         self.size = n
         self._regroup()
+        return moved
 
 
 @dataclass
@@ -598,6 +606,9 @@ class _SARSOP:
         # per distinct belief (``belief_id``): the last evaluation, shared by the tree nodes
         # that hold the same belief (its stale bounds stay valid bounds there)
         self._cache: dict[int, tuple[np.ndarray, ...]] = {}
+        # per distinct belief: the best alpha vector at each child ``(A, K, O)`` of the
+        # evaluation in ``_cache``; pruning keeps them (see :meth:`_child_winners`)
+        self._child_best: dict[int, np.ndarray] = {}
         self._default: torch.Tensor | None = None
         self.entropy = np.zeros(1024)
         self.entropy[0] = float(self._entropy(form.b0.unsqueeze(0))[0])
@@ -852,6 +863,7 @@ class _SARSOP:
         nl = float(alpha @ b)
         nu = float(q_up.max())
         self._cache[int(self.belief_id[node])] = (q_low, q_up, prob, low_c, up_c)
+        self._child_best[int(self.belief_id[node])] = best
         if nl > lo + 1e-10 * max(abs(nl), 1.0):
             self.alphas.add_np(alpha, a, x, best[a][prob[a] > 0])
         if nu < cu - 1e-10 * max(abs(cu), 1.0):
@@ -978,8 +990,10 @@ class _SARSOP:
             cached = self._cache.get(int(self.belief_id[node]))
             if cached is None:
                 if self._np:
-                    cached = self._evaluate_np(x, tree.beliefs_np[node])[:5]
+                    full = self._evaluate_np(x, tree.beliefs_np[node])
+                    cached = full[:5]
                     self._cache[int(self.belief_id[node])] = cached
+                    self._child_best[int(self.belief_id[node])] = full[5]
                 else:
                     ev = self.evaluate(x, tree.beliefs[node].unsqueeze(0))
                     cached = self._store(node, ev, 0)
@@ -1030,7 +1044,32 @@ class _SARSOP:
         """
         entry = tuple(t[i].cpu().numpy() for t in (ev.q_low, ev.q_up, ev.prob, ev.low, ev.up))
         self._cache[int(self.belief_id[node])] = entry
+        self._child_best[int(self.belief_id[node])] = ev.best[i].cpu().numpy()
         return entry
+
+    def _child_winners(self, nodes: np.ndarray) -> np.ndarray:
+        """The alpha vectors best at a child of the beliefs of ``nodes`` at their last
+        evaluation, for the children a later backup of the belief may combine: possible ones
+        (``P > 0``) under an action whose ``Q_up`` reaches ``max_a Q_low`` (the others are
+        never the backup's action again: upper bounds only fall, lower bounds only rise).
+
+        APPL's SARSOP keeps, besides the vectors certified at tree beliefs, the vector best at
+        each belief of its cache when the belief was created, the unexpanded children of the
+        tree included, until a newer vector beats it there (``AlphaPlaneMaxMeta``,
+        ``PruneAlphaPlane::updateMax``); here a child's best vector is refreshed at every
+        evaluation of its parent.
+        """
+        parts = []
+        for b in np.unique(self.belief_id[nodes]).tolist():
+            best = self._child_best.get(b)
+            if best is None:
+                continue
+            q_low, q_up, prob = self._cache[b][:3]
+            parts.append(best[(q_up >= q_low.max())[:, None, None] & (prob > 0)])
+        if not parts:
+            return np.zeros(0, dtype=np.int64)
+        ids = np.unique(np.concatenate(parts))
+        return ids[ids >= 0]  # (an entry is -1 only if its vector was dropped: never counted)
 
     def _add_node(self, belief: torch.Tensor, x: int, parent: int, action: int, obs: int) -> int:
         node = self.tree.add(belief, x, parent, action, obs)
@@ -1099,7 +1138,17 @@ class _SARSOP:
             # from: a backup chooses child vectors at children outside the tree, and without
             # them the greedy policy cannot realise a kept vector's value (before:
             # RockSample_7_8.pomdpx, written policy 16.4 simulated against a lower bound 20.3)
-            self.alphas.keep(self.tree.keep_alphas(vec, groups, act))
+            mask = self.tree.keep_alphas(vec, groups, act)
+            # and the best vectors at the children of the active tree beliefs (APPL certifies
+            # a vector at any belief of its cache, the unexpanded children of the tree
+            # included): a backup of a tree belief combines the best vectors at its children,
+            # and pruning those would lower the children's bounds, which only a search that
+            # reaches each child again restores
+            mask[torch.from_numpy(self._child_winners(act)).to(mask.device)] = True
+            moved = self.alphas.keep(mask)
+            live = set(np.unique(self.belief_id[act]).tolist())
+            # the recorded child vectors of the active beliefs (all kept) under their new index
+            self._child_best = {b: moved[v] for b, v in self._child_best.items() if b in live}
             self._default = None
             self.last_alpha_prune = self.alphas.size
             self._prune_cost["alphas"] = (self.clock() - t0, n)

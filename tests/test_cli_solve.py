@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 
 import pytest
 
 from torchhrc.cli import main
+from torchhrc.commands.solve import make_config
 from torchhrc.io.cassandra import write_pomdp
 from torchhrc.io.policyx import load_policy
 from torchhrc.tasks.classic import tiger
@@ -137,3 +139,17 @@ def test_pomdpx_files_are_chosen_by_suffix(capsys, tmp_path, monkeypatch):
     code, out, err = _run(capsys, "solve", bad)
     assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
     assert "bad.pomdpx" in err and "Discount" in err
+
+
+@pytest.mark.parametrize("solver", ["sarsop", "pbvi"])
+def test_cpu_time_limits_the_solve_by_process_time(capsys, tiger_file, solver):
+    code, out, _ = _run(
+        capsys, "solve", tiger_file, "--solver", solver, "--cpu-time", "--time-limit", "5",
+        "--json", "--quiet",
+    )  # fmt: skip
+    assert code == 0
+    report = json.loads(out)
+    assert report["lower"] <= report["upper"] + 1e-12
+    ns = argparse.Namespace(solver=solver, time_limit=3.0, precision=0.1, seed=0, cpu_time=True)
+    assert make_config(ns).clock == "process"
+    assert make_config(argparse.Namespace(**{**vars(ns), "cpu_time": False})).clock == "wall"

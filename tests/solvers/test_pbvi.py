@@ -132,3 +132,16 @@ def test_solve_dispatches_on_the_config_type():
     assert solution.lower <= solution.upper
     with pytest.raises(TypeError, match="no solver for config of type object"):
         solve(model, object())
+
+
+def test_time_limit_counts_the_given_clock():
+    """A clock that advances one second per reading: the limit stops the loop after a few
+    sweeps, whatever the wall clock says; a bad clock is refused by name."""
+    ticks = iter(range(10**6))
+    solution = pbvi(
+        tiger(), PBVIConfig(time_limit=5.0, precision=0.0, clock=lambda: float(next(ticks)))
+    )
+    assert solution.info["stop_reason"] == "time_limit"
+    assert solution.info["iterations"] <= 6
+    with pytest.raises(ValueError, match="clock"):
+        PBVIConfig(clock="cpu")

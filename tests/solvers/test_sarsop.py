@@ -427,6 +427,7 @@ def test_time_limit_is_checked_inside_an_iteration(monkeypatch):
     assert full.info["n_beliefs"] > 5
     clock = _JumpingClock()
     monkeypatch.setattr(sarsop_module, "time", clock)
+    monkeypatch.setattr(sys.modules["torchhrc.solvers.clock"], "time", clock)  # the limit's clock
     add_node = sarsop_module._SARSOP._add_node
 
     def add_then_jump(self, *args):

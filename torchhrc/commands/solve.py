@@ -90,6 +90,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--time-limit", type=_positive, default=10.0, help="seconds (10; PBVI and SARSOP)"
     )
     parser.add_argument(
+        "--cpu-time",
+        action="store_true",
+        help="the time limit counts the process's CPU seconds, as APPL's pomdpsol --timeout "
+        "(PBVI and SARSOP; default: wall-clock seconds)",
+    )
+    parser.add_argument(
         "--precision", type=_non_negative, default=1e-3, help="target gap upper - lower (1e-3)"
     )
     parser.add_argument(
@@ -111,6 +117,7 @@ def make_config(args: argparse.Namespace, callback: Any = None) -> Any:
     """
     from torchhrc import solvers
 
+    clock = "process" if getattr(args, "cpu_time", False) else "wall"
     if args.solver == "qmdp":
         return solvers.QMDPConfig()
     if args.solver == "fib":
@@ -121,9 +128,14 @@ def make_config(args: argparse.Namespace, callback: Any = None) -> Any:
             precision=args.precision,
             seed=args.seed,
             callback=callback,
+            clock=clock,
         )
     return solvers.SARSOPConfig(
-        time_limit=args.time_limit, precision=args.precision, seed=args.seed, callback=callback
+        time_limit=args.time_limit,
+        precision=args.precision,
+        seed=args.seed,
+        callback=callback,
+        clock=clock,
     )
 
 

@@ -96,6 +96,7 @@ from threadpoolctl import threadpool_limits
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.solvers.clock import Clock, check_clock, clock_function
 from torchhrc.solvers.forms import SolverModel, as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.pruning import prune_dominated
@@ -230,7 +231,7 @@ class SARSOPConfig:
     forward_backups: bool = True
     callback: Callable[[dict[str, Any]], bool | None] | None = None
     dtype: torch.dtype = torch.float64
-    clock: Literal["wall", "process"] | Callable[[], float] = "wall"
+    clock: Clock = "wall"
 
     def __post_init__(self) -> None:
         for name in ("time_limit", "precision", "kappa", "prune_growth", "init_time_fraction"):
@@ -263,18 +264,7 @@ class SARSOPConfig:
             )
         if not isinstance(self.dtype, torch.dtype) or not self.dtype.is_floating_point:
             raise TypeError(f"expected dtype to be a floating torch.dtype, got {self.dtype!r}")
-        if self.clock not in ("wall", "process") and not callable(self.clock):
-            raise ValueError(f"expected clock 'wall', 'process' or a callable, got {self.clock!r}")
-
-
-def _clock(clock: str | Callable[[], float]) -> Callable[[], float]:
-    """The function reading :attr:`SARSOPConfig.clock`."""
-    if clock == "wall":
-        return time.perf_counter
-    if clock == "process":
-        return time.process_time
-    assert callable(clock)
-    return clock
+        check_clock(self.clock)
 
 
 class _AlphaSet:
@@ -556,7 +546,7 @@ class _SARSOP:
         self.start = start
         # the clock of time_limit (wall: the deadline counts from ``start``; another clock
         # from ``clock_start``, its reading when the solve began)
-        self.clock: Callable[[], float] = _clock(cfg.clock)
+        self.clock: Callable[[], float] = clock_function(cfg.clock)
         if cfg.clock == "wall":
             clock_start = start
         elif clock_start is None:
@@ -1292,7 +1282,7 @@ def sarsop(model: POMDP | MOMDP | SparsePOMDP, config: SARSOPConfig | None = Non
         config = SARSOPConfig()
     if not isinstance(config, SARSOPConfig):
         raise TypeError(f"expected config to be a SARSOPConfig, got {type(config).__name__}")
-    clock_start = _clock(config.clock)()
+    clock_start = clock_function(config.clock)()
     # The sequential path multiplies small matrices (tens of rows) in numpy; a multi-threaded
     # OpenBLAS spends more time waking and spinning threads than computing (measured:
     # RockSample(7, 8), 2 busy cores, 28 ms against 1.6 ms per lower-bound evaluation; dense

@@ -7,7 +7,6 @@ and SARSOP and PBVI must reach the same bounds through either form.
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -18,6 +17,7 @@ from torchhrc.errors import ModelError
 from torchhrc.io import format_pomdpx, read_pomdpx
 from torchhrc.io import pomdpx as pomdpx_io
 from torchhrc.solvers import PBVIConfig, SARSOPConfig, pbvi, sarsop, solve
+from torchhrc.solvers.clock import NEVER
 from torchhrc.solvers.forms import MOMDPForm, SparseMOMDPForm, as_solver_model
 from torchhrc.solvers.sarsop import _SARSOP
 from torchhrc.sparse_momdp import SparseMOMDP
@@ -91,8 +91,8 @@ def test_initial_bounds_equal_the_dense_momdp_form(name: str) -> None:
         sparse.blind_policy(100_000).alphas, dense.blind_policy(100_000).alphas,
         rtol=0, atol=1e-7,
     )  # fmt: skip
-    fd, _ = dense.fib_corner_values(1e-11, math.inf, 100_000)
-    fs, _ = sparse.fib_corner_values(1e-11, math.inf, 100_000)
+    fd, _ = dense.fib_corner_values(1e-11, NEVER, 100_000)
+    fs, _ = sparse.fib_corner_values(1e-11, NEVER, 100_000)
     torch.testing.assert_close(fs, fd, rtol=0, atol=1e-8)
     # FIB operator itself, one step from the same vectors
     qd = dense.upper_vectors("qmdp", 1e-11)
@@ -126,7 +126,7 @@ def test_sarsop_reaches_the_dense_momdp_bounds() -> None:
     sparse = SparseMOMDP.from_dense(model)
     dense = as_solver_model(model)
     low = dense.blind_policy()
-    up = dense.fib_corner_values(1e-10, math.inf, 100_000)[0]
+    up = dense.fib_corner_values(1e-10, NEVER, 100_000)[0]
     cfg = SARSOPConfig(time_limit=1e9, precision=1e-9, max_iterations=25,
                        lower_bound_init=lambda m: low, upper_bound_init=lambda m: up)  # fmt: skip
     ref = _SARSOP(model, cfg, time.perf_counter()).run()

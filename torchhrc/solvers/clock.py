@@ -13,11 +13,13 @@ Example:
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Literal
 
-__all__ = ["Clock", "check_clock", "clock_function"]
+__all__ = ["NEVER", "Clock", "Deadline", "check_clock", "clock_function"]
 
 Clock = Literal["wall", "process"] | Callable[[], float]
 """``"wall"`` (``time.perf_counter``), ``"process"`` (``time.process_time``) or a callable."""
@@ -46,3 +48,35 @@ def clock_function(clock: Clock) -> Callable[[], float]:
     if clock == "process":
         return time.process_time
     return clock  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class Deadline:
+    """A point in time on a clock: ``at`` seconds of ``clock`` (``math.inf``: never).
+
+    The solvers' inner loops (FIB, QMDP and blind-policy iterations) stop at a ``Deadline``,
+    so a budget on the process's CPU time reaches them as it reaches the search.
+
+    Example:
+        >>> Deadline.after(60.0, "process").passed()
+        False
+        >>> NEVER.passed()
+        False
+    """
+
+    at: float = math.inf
+    clock: Callable[[], float] = field(default=time.perf_counter, compare=False)
+
+    @classmethod
+    def after(cls, seconds: float, clock: Clock = "wall") -> Deadline:
+        """The deadline ``seconds`` from now on ``clock``."""
+        read = clock_function(clock)
+        return cls(read() + seconds, read)
+
+    def passed(self) -> bool:
+        """Whether ``clock`` has passed ``at``."""
+        return self.at != math.inf and self.clock() > self.at
+
+
+NEVER = Deadline()
+"""The deadline that never passes."""

@@ -96,7 +96,7 @@ from threadpoolctl import threadpool_limits
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
-from torchhrc.solvers.clock import Clock, check_clock, clock_function
+from torchhrc.solvers.clock import Clock, Deadline, check_clock, clock_function
 from torchhrc.solvers.forms import SolverModel, as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.pruning import prune_dominated
@@ -140,7 +140,7 @@ def fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, *,
         >>> round(float(fib_corner_values(tiger())[0]), 2)  # FIB ignores listening noise
         92.82
     """
-    deadline = time.perf_counter() + time_limit
+    deadline = Deadline.after(time_limit)
     return as_solver_model(model).fib_corner_values(tol, deadline, max_iterations)[0]
 
 
@@ -206,8 +206,8 @@ class SARSOPConfig:
             the CPU seconds it is given), or any callable returning seconds (e.g. a
             deterministic clock in tests). The limit is checked between iterations, at every
             step of a trial, between the backups of its path, and before a pruning that the
-            last one's duration says would end past the limit. The initial bounds' safety net
-            (``init_time_fraction``) stays on the wall clock.
+            last one's duration says would end past the limit; the initial bounds' safety net
+            (``init_time_fraction``) counts on the same clock.
     """
 
     time_limit: float = 10.0
@@ -560,24 +560,11 @@ class _SARSOP:
         self.rng = np.random.default_rng(int(cfg.seed))
         self.device = form.b0.device
         self.deadline = clock_start + cfg.time_limit
-        init_deadline = start + cfg.time_limit * cfg.init_time_fraction
-        t_init = time.perf_counter()
-        # lower bound: alpha vectors of a policy (blind policies by default)
-        if cfg.lower_bound_init is None:
-            policy = form.blind_policy()
-        else:
-            policy = cfg.lower_bound_init(form.init_argument)
-        policy = form.check_policy(policy, "lower_bound_init")
-        self.init_info: dict[str, Any] = {"lower_s": time.perf_counter() - t_init}
-        observed = torch.zeros_like(policy.actions) if policy.observed is None else policy.observed
-        if self.X > 1 and int(torch.bincount(observed, minlength=self.X).min()) == 0:
-            raise ModelError("lower_bound_init's policy must have a vector for every observed x")
-        self.alphas = _AlphaSet(
-            policy.alphas.to(cfg.dtype), policy.actions.long(), observed.long(), self.X
-        )
-        n = self.alphas.size
-        self.alphas.keep(prune_dominated(self.alphas.vectors[:n], self.alphas.observed[:n]))
-        # upper bound: corner values (FIB by default)
+        # the initial bounds' safety net, on the same clock as the limit
+        init_deadline = Deadline(clock_start + cfg.time_limit * cfg.init_time_fraction, self.clock)
+        # upper bound: corner values (FIB by default), first: it is the part the safety net
+        # (init_deadline) may cut, so it gets its share of the budget before the lower bound
+        self.init_info: dict[str, Any] = {}
         t_upper = time.perf_counter()
         if cfg.upper_bound_init is None:
             tol = cfg.init_tol
@@ -591,6 +578,22 @@ class _SARSOP:
         self.init_info["upper_s"] = time.perf_counter() - t_upper
         corner = form.corner_values(corner.to(dtype=cfg.dtype), "upper_bound_init")
         self.ub = SawtoothUpperBound(corner)
+        t_init = time.perf_counter()
+        # lower bound: alpha vectors of a policy (blind policies by default)
+        if cfg.lower_bound_init is None:
+            policy = form.blind_policy()
+        else:
+            policy = cfg.lower_bound_init(form.init_argument)
+        policy = form.check_policy(policy, "lower_bound_init")
+        self.init_info["lower_s"] = time.perf_counter() - t_init
+        observed = torch.zeros_like(policy.actions) if policy.observed is None else policy.observed
+        if self.X > 1 and int(torch.bincount(observed, minlength=self.X).min()) == 0:
+            raise ModelError("lower_bound_init's policy must have a vector for every observed x")
+        self.alphas = _AlphaSet(
+            policy.alphas.to(cfg.dtype), policy.actions.long(), observed.long(), self.X
+        )
+        n = self.alphas.size
+        self.alphas.keep(prune_dominated(self.alphas.vectors[:n], self.alphas.observed[:n]))
         self.tree = form.new_tree()
         self._child_x: dict[tuple[int, int], torch.Tensor] = {}
         # per distinct belief (``belief_id``): the last evaluation, shared by the tree nodes

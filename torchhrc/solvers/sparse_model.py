@@ -34,7 +34,6 @@ Example:
 from __future__ import annotations
 
 import math
-import time
 import warnings
 from collections.abc import Callable
 
@@ -44,6 +43,7 @@ import torch
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import POMDP
 from torchhrc.solvers._factored import DIRECT_SOLVE_SIZE
+from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.sparse import SparsePOMDP, check_dense_size
 
@@ -238,7 +238,7 @@ class SparseFlatModel:
         ``sum_o max_a2 Z[a, s2, o] alpha[a2, s2] = max_a2 alpha[a2, s2]`` for the one ``s2``)."""
         return self._one_per_row
 
-    def qmdp_np(self, tol: float = 1e-8, deadline: float = math.inf) -> np.ndarray:
+    def qmdp_np(self, tol: float = 1e-8, deadline: Deadline = NEVER) -> np.ndarray:
         """``(A, S)`` QMDP vectors by value iteration on the underlying MDP (Littman et al.
         1995), :func:`qmdp_iteration_np` with this model's ``expect_np``."""
         return qmdp_iteration_np(self.R.numpy(), self.discount, self.expect_np, tol, deadline)
@@ -355,7 +355,7 @@ def qmdp_iteration_np(
     discount: float,
     expect_np: Callable[[np.ndarray], np.ndarray],
     tol: float = 1e-8,
-    deadline: float = math.inf,
+    deadline: Deadline = NEVER,
 ) -> np.ndarray:
     """QMDP action values ``Q (A, *S)`` by value iteration on the underlying MDP (Littman et
     al. 1995), for any sparse form: ``expect_np(V)`` maps values ``V (*S)`` to ``(A, *S)``
@@ -364,7 +364,7 @@ def qmdp_iteration_np(
 
     Starts from the upper bound ``max R / (1 - gamma)`` and keeps the pointwise minimum; the
     operator is monotone, so every iterate is an upper bound and stopping at ``deadline``
-    (``time.perf_counter()``) is safe. Stops when the largest change is below ``tol``.
+    is safe. Stops when the largest change is below ``tol``.
 
     Example:
         >>> R = np.array([[1.0, 0.0]])  # one action, two absorbing states
@@ -375,15 +375,24 @@ def qmdp_iteration_np(
     V = np.full(R.shape[1:], float(R.max()) / (1.0 - g), dtype=R.dtype)
     Q = R + g * expect_np(V)
     for _ in range(100_000):
-        if time.perf_counter() > deadline:
+        if deadline.passed():
             break
         new = Q.max(0)
         change = float(np.abs(V - new).max())
         V = new
-        np.minimum(R + g * expect_np(V), Q, out=Q)
+        E = _fresh(expect_np(V), V)  # updated in place: no further temporaries
+        E *= g
+        E += R  # = R + g E exactly (addition commutes in IEEE arithmetic)
+        np.minimum(E, Q, out=Q)
         if change < tol:
             break
     return Q
+
+
+def _fresh(out: np.ndarray, source: np.ndarray) -> np.ndarray:
+    """``out``, copied if it may share memory with ``source`` (an ``expect_np`` that returns
+    a view), so that the iterations can update it in place."""
+    return out.copy() if np.may_share_memory(out, source) else out
 
 
 def blind_iteration_np(
@@ -407,8 +416,12 @@ def blind_iteration_np(
     g = discount
     alpha = np.full_like(R, float(R.min()) / (1.0 - g))
     for _ in range(max_iterations):
-        new = np.maximum(R + g * expect_np(alpha), alpha)
-        change = float(np.abs(new - alpha).max())
+        new = _fresh(expect_np(alpha), alpha)  # updated in place
+        new *= g
+        new += R
+        np.maximum(new, alpha, out=new)
+        alpha -= new  # <= 0 (new >= alpha): its most negative entry is minus the largest change
+        change = -float(alpha.min())
         alpha = new
         if change < tol * (1.0 - g):
             break

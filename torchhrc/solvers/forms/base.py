@@ -55,7 +55,6 @@ Example:
 from __future__ import annotations
 
 import math
-import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -68,6 +67,7 @@ from torchhrc.errors import ModelError
 from torchhrc.solvers.backup import BackupResult
 from torchhrc.solvers.belief_tree import BeliefTree
 from torchhrc.solvers.blind import blind_policy
+from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.fib import fib_vectors
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.qmdp import qmdp_vectors
@@ -142,7 +142,7 @@ class Children:
 
 
 def _iterate_fib(start: torch.Tensor, step: Callable[[torch.Tensor], torch.Tensor],
-                 tol: float, deadline: float, max_iterations: int,
+                 tol: float, deadline: Deadline, max_iterations: int,
                  info: dict[str, Any]) -> torch.Tensor:  # fmt: skip
     """``alpha <- min(step(alpha), alpha)`` from the upper bound ``start`` (Hauskrecht 2000).
 
@@ -153,7 +153,7 @@ def _iterate_fib(start: torch.Tensor, step: Callable[[torch.Tensor], torch.Tenso
     alpha = start
     info["stop"] = "max_iterations"
     for i in range(max_iterations):
-        if time.perf_counter() > deadline:
+        if deadline.passed():
             info["stop"] = "time_limit"
             break
         new = torch.minimum(step(alpha), alpha)
@@ -309,7 +309,7 @@ class SolverModel(ABC):
         every iterate of its evaluation is a lower bound (``max_iterations=None``: the
         form's default for SARSOP, where the discounted tail is negligible)."""
 
-    def fib_corner_values(self, tol: float, deadline: float, max_iterations: int,
+    def fib_corner_values(self, tol: float, deadline: Deadline, max_iterations: int,
                           ) -> tuple[torch.Tensor, dict[str, Any]]:  # fmt: skip
         """Fast Informed Bound corner values ``max_a alpha_a`` (:attr:`state_shape`) from
         QMDP, and how the iteration stopped: ``{"iterations", "stop"}``.
@@ -320,7 +320,7 @@ class SolverModel(ABC):
         vectors, info = self.fib_vectors(tol, deadline, max_iterations)
         return vectors.amax(0), info
 
-    def fib_vectors(self, tol: float, deadline: float = math.inf, max_iterations: int = 100_000,
+    def fib_vectors(self, tol: float, deadline: Deadline = NEVER, max_iterations: int = 100_000,
                     ) -> tuple[torch.Tensor, dict[str, Any]]:  # fmt: skip
         """``(A, *state_shape)`` the per-action FIB vectors of :meth:`fib_corner_values`."""
         info: dict[str, Any] = {"iterations": 0, "stop": "converged"}
@@ -330,7 +330,7 @@ class SolverModel(ABC):
         return _iterate_fib(start, step, tol, deadline, max_iterations, info), info
 
     @abstractmethod
-    def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
+    def fib_start(self, tol: float, deadline: Deadline, info: dict[str, Any],
                   ) -> tuple[torch.Tensor, FIBOperator | None]:  # fmt: skip
         """QMDP vectors ``(A, *state_shape)`` (an upper bound) and the FIB operator, or None
         when no FIB iteration is needed (FIB = QMDP, or ``info["stop"]`` set)."""

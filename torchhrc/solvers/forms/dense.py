@@ -25,6 +25,7 @@ import torch
 
 from torchhrc.pomdp import POMDP
 from torchhrc.solvers.backup import BackupResult, point_backup
+from torchhrc.solvers.clock import Deadline
 from torchhrc.solvers.fib import fib_backup
 from torchhrc.solvers.forms.base import FIBOperator, FlatFields, TensorModelForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
@@ -79,7 +80,7 @@ class DenseForm(FlatFields, TensorModelForm):
         return self._T_np()[a] @ values[0]
 
     # -- initial bounds ----------------------------------------------------------------------
-    def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
+    def fib_start(self, tol: float, deadline: Deadline, info: dict[str, Any],
                   ) -> tuple[torch.Tensor, FIBOperator]:  # fmt: skip
         """QMDP and FIB (Hauskrecht 2000) on per-action CSR ``T`` when it is sparse::
 

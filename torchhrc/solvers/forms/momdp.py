@@ -30,6 +30,7 @@ import torch
 
 from torchhrc.pomdp import MOMDP
 from torchhrc.solvers.backup import BackupResult, momdp_point_backup
+from torchhrc.solvers.clock import Deadline
 from torchhrc.solvers.fib import fib_backup
 from torchhrc.solvers.forms.base import FIBOperator, PerObserved, TensorModelForm, field
 from torchhrc.solvers.forms.dense import DenseForm
@@ -131,7 +132,7 @@ class MOMDPForm(TensorModelForm):
         return (tx[a] * values).sum(-1)
 
     # -- initial bounds ----------------------------------------------------------------------
-    def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
+    def fib_start(self, tol: float, deadline: Deadline, info: dict[str, Any],
                   ) -> tuple[torch.Tensor, FIBOperator | None]:  # fmt: skip
         """QMDP, and the FIB operator summed over the reachable ``x2`` only::
 

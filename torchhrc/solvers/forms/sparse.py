@@ -19,7 +19,6 @@ Example:
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import numpy as np
@@ -27,6 +26,7 @@ import torch
 
 from torchhrc.solvers.backup import CHUNK_ELEMENTS, BackupResult
 from torchhrc.solvers.belief_tree import BeliefTree, SparseBeliefTree
+from torchhrc.solvers.clock import Deadline
 from torchhrc.solvers.forms.base import Children, FIBOperator, FlatFields, SolverModel
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sampling import sample_categorical
@@ -87,12 +87,12 @@ class SparseForm(FlatFields, SolverModel):
     def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
         return sparse_blind_policy(self.sparse, max_iterations=max_iterations)
 
-    def fib_start(self, tol: float, deadline: float, info: dict[str, Any],
+    def fib_start(self, tol: float, deadline: Deadline, info: dict[str, Any],
                   ) -> tuple[torch.Tensor, FIBOperator | None]:  # fmt: skip
         """QMDP by sparse value iteration (sharing the time budget: models here are large),
         then :meth:`SparseFlatModel.fib_np`; deterministic moves make FIB equal QMDP."""
         alpha = torch.from_numpy(self.sparse.qmdp_np(tol, deadline=deadline))
-        if time.perf_counter() > deadline:
+        if deadline.passed():
             info["stop"] = "time_limit"
             return alpha, None
         if self.sparse.deterministic:  # one successor per (a, s)

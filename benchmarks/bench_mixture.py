@@ -138,20 +138,9 @@ def per_sequence_paper_run(
 
 def study_corpus(n_sequences: int, types: int, seed: int):
     """The issue-12 place-and-drill corpus with about ``n_sequences`` sequences (3 per subject)."""
-    from torchhrc.tasks.place_and_drill import simulate_study
+    from torchhrc.tasks.place_and_drill import scaling_study
 
-    three = types == 3
-    return simulate_study(
-        n_subjects=max(1, n_sequences // 3),
-        n_demos=3,
-        n_positions=4 if three else 3,
-        strategies=("safe", "efficient", "lagging") if three else ("safe", "efficient"),
-        noise=0.1,
-        robot_noise=0.1,
-        order_change=1.0,
-        deviation="uniform",
-        seed=seed,
-    )
+    return scaling_study(max(3, n_sequences), types, seed=seed)
 
 
 def run_study(args: argparse.Namespace) -> None:

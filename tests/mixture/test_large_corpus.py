@@ -19,22 +19,11 @@ import pytest
 
 from torchhrc.metrics import adjusted_rand_index
 from torchhrc.mixture import fit_mixture
-from torchhrc.tasks.place_and_drill import simulate_study
+from torchhrc.tasks.place_and_drill import scaling_study, simulate_study
 
 
 def corpus(n_sequences, types, seed):
-    three = types == 3
-    return simulate_study(
-        n_subjects=n_sequences // 3,
-        n_demos=3,
-        n_positions=4 if three else 3,
-        strategies=("safe", "efficient", "lagging") if three else ("safe", "efficient"),
-        noise=0.1,
-        robot_noise=0.1,
-        order_change=1.0,
-        deviation="uniform",
-        seed=seed,
-    )
+    return scaling_study(n_sequences, types, seed=seed)
 
 
 def _fit(demos, seed, **options):

@@ -89,6 +89,7 @@ __all__ = [
     "demonstration",
     "placement_orders",
     "position_names",
+    "scaling_study",
     "simulate_demonstrations",
     "simulate_study",
     "task_vocabulary",
@@ -334,6 +335,48 @@ def _noise_rates(
         raise ModelError(f"expected noise rates with 0 <= low <= high <= 1, got {noise!r}")
     u = torch.rand(n_subjects, generator=generator, dtype=torch.float64)
     return low + (high - low) * u
+
+
+def scaling_study(n_sequences: int, types: int = 2, *, seed: int = 0) -> Demonstrations:
+    """The corpus of the clustering-at-scale study (issue 12, ``docs/clustering.md``).
+
+    :func:`simulate_study` with ``n_sequences // 3`` subjects of 3 demonstrations, a fresh
+    random placement order in every demonstration, every step (human and robot) replaced with
+    probability 0.1 by a uniformly random action of its actor; 2 types (``"safe"``,
+    ``"efficient"``) at 3 positions, or 3 (adding ``"lagging"``) at 4 positions.
+
+    Args:
+        n_sequences: about how many sequences (at least 3).
+        types: 2 or 3.
+        seed: the simulation's seed.
+
+    Returns:
+        :class:`~torchhrc.data.Demonstrations` with ground-truth ``types``.
+
+    Raises:
+        ModelError: ``types`` is not 2 or 3, or fewer than 3 sequences.
+
+    Example:
+        >>> d = scaling_study(54, 3, seed=0)
+        >>> len(d.types), sorted(set(d.types))
+        (54, ['efficient', 'lagging', 'safe'])
+    """
+    if types not in (2, 3):
+        raise ModelError(f"expected types to be 2 or 3, got {types!r}")
+    if not isinstance(n_sequences, int) or n_sequences < 3:
+        raise ModelError(f"expected n_sequences to be an int >= 3, got {n_sequences!r}")
+    three = types == 3
+    return simulate_study(
+        n_subjects=n_sequences // 3,
+        n_demos=3,
+        n_positions=4 if three else 3,
+        strategies=("safe", "efficient", "lagging") if three else ("safe", "efficient"),
+        noise=0.1,
+        robot_noise=0.1,
+        order_change=1.0,
+        deviation="uniform",
+        seed=seed,
+    )
 
 
 def simulate_study(

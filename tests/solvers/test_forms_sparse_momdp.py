@@ -227,12 +227,18 @@ def test_invalid_models_are_rejected_with_the_reason() -> None:
 def test_read_pomdpx_returns_the_sparse_momdp_when_the_dense_one_does_not_fit(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """A file whose hidden variable changes: with the size limit lowered below its dense
-    ``Ty`` (but above ``Tx`` and ``Z``) it is read as a SparseMOMDP equal to the MOMDP."""
+    """A file whose hidden variable changes: with the size limits lowered below its dense
+    ``Ty`` (but above ``Tx`` and ``Z``) it is read as a SparseMOMDP equal to the MOMDP, by
+    either limit (``AUTO_SPARSE_ENTRIES`` for every dense tensor, ``AUTO_SPARSE_MOMDP_ENTRIES``
+    for a MOMDP's ``Tx`` and ``Ty`` alone)."""
     model = random_momdp(3, 4, 2, 2, static=False, sparsity=0.3, seed=5)
     text = format_pomdpx(model)
     dense = read_pomdpx(text)
     assert type(dense).__name__ == "MOMDP" and dense.Ty is not None
+    with monkeypatch.context() as m:
+        m.setattr(pomdpx_io, "AUTO_SPARSE_MOMDP_ENTRIES", 100)  # Tx 72, Ty 288
+        assert isinstance(read_pomdpx(text), SparseMOMDP)
+        assert type(read_pomdpx(text, sparse=False)).__name__ == "MOMDP"  # only for "auto"
     monkeypatch.setattr(pomdpx_io, "AUTO_SPARSE_ENTRIES", 100)  # Tx 72, Z 48, Ty 288
     sm = read_pomdpx(text)
     assert isinstance(sm, SparseMOMDP)

@@ -1350,7 +1350,7 @@ def _parse_tree(
         mass = b0.reshape(b.X, b.Y).sum(-1)
         tx, ty, z, static = b.momdp_sizes()
         one_x = bool(np.abs(mass.max() - 1) <= 1e-9)
-        dense_limit = AUTO_SPARSE_MOMDP_ENTRIES if sparse == "auto" else limit
+        dense_limit = min(AUTO_SPARSE_MOMDP_ENTRIES, limit) if sparse == "auto" else limit
         if one_x and max(tx, ty) <= dense_limit and z <= limit:
             return _wrap(lambda: b.momdp(b0, static, dtype, device), path)
         if one_x and z <= limit and sparse == "auto":  # Tx Ty kept as its nonzeros

@@ -51,7 +51,7 @@ def infer_type(
         model: the fitted mixture, ``log_transition (..., K, A, A)``.
         sequences: ``(M, L)`` int64, the subject's ``M >= 1`` sequences, encoded in the
             model's form and symbol order: pass recorded demonstrations through
-            :meth:`~torchhrc.mixture.MarkovChainMixture.prepare` first (a model fitted with
+            :meth:`~torchhrc.mixture.model.MarkovChainMixture.prepare` first (a model fitted with
             exchangeable objects is over relabelled symbols; tensors carry no vocabulary, so
             this function cannot tell); lengths: ``(M,)``.
         method: ``"posterior"`` (Bayesian, default) or ``"vote"`` (the paper's weighted vote).

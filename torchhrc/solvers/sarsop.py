@@ -154,6 +154,10 @@ class SARSOPConfig:
             --precision``; default 1e-3). The solve stops once the gap is at most this.
         max_iterations: cap on the number of sampling iterations (None: no cap).
         seed: seed of the tie-breaking among actions with equal upper bound.
+        tie_break: how a trial picks among actions of equal upper bound (within 1e-12
+            relative): ``"random"`` (default; seeded by ``seed``, as ``pomdpsol
+            --randomization``) or ``"first"`` (the lowest action index, as ``pomdpsol`` by
+            default).
         kappa: a trial's ``eps`` is ``kappa * gap(b0)`` (default 0.5).
         max_depth: cap on the depth of a trial (default: where ``gamma^t`` times the reward
             span over ``1 - gamma`` falls below the precision).
@@ -213,6 +217,7 @@ class SARSOPConfig:
     precision: float = 1e-3
     max_iterations: int | None = None
     seed: int = 0
+    tie_break: Literal["random", "first"] = "random"
     kappa: float = 0.5
     max_depth: int | None = None
     prediction: Literal["binning", "upper"] = "binning"
@@ -253,6 +258,8 @@ class SARSOPConfig:
             value = getattr(self, name)
             if value is not None and (not isinstance(value, int) or value < 0):
                 raise ValueError(f"expected {name} to be None or an int >= 0, got {value!r}")
+        if self.tie_break not in ("random", "first"):
+            raise ValueError(f"expected tie_break 'random' or 'first', got {self.tie_break!r}")
         if self.prediction not in ("binning", "upper"):
             raise ValueError(f"expected prediction 'binning' or 'upper', got {self.prediction!r}")
         if not isinstance(self.bins, int) or self.bins < 1:
@@ -1166,7 +1173,7 @@ class _SARSOP:
     def _argmax_tie(self, q: np.ndarray) -> int:
         top = float(q.max())
         ties = np.flatnonzero(q >= top - 1e-12 * max(1.0, abs(top)))
-        if ties.size == 1:
+        if ties.size == 1 or self.cfg.tie_break == "first":
             return int(ties[0])
         return int(ties[self.rng.integers(ties.size)])
 

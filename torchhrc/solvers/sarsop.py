@@ -655,7 +655,6 @@ class _SARSOP:
         # per distinct belief: the best alpha vector at each child ``(A, K, O)`` of the
         # evaluation in ``_cache``; pruning keeps them (see :meth:`_child_winners`)
         self._child_best: dict[int, np.ndarray] = {}
-        self._default: torch.Tensor | None = None
         self.entropy = np.zeros(1024)
         self.entropy[0] = float(self._entropy(form.b0.unsqueeze(0))[0])
         # one id per distinct belief (APPL's belief cache): tree nodes holding the same belief
@@ -684,7 +683,6 @@ class _SARSOP:
         self._np = self.device.type == "cpu"
         if self._np:
             self._npR = form.R.contiguous().numpy()  # (A, X, Y)
-            self._default_np: tuple[torch.Tensor, np.ndarray] | None = None
         lo, up = self._root_bounds()
         self.tree.lower[0], self.tree.upper[0] = lo, up
 
@@ -720,7 +718,8 @@ class _SARSOP:
         if nz.numel() * 4 < C * 3:
             # most children are impossible (deterministic moves, observations tied to the
             # state): bound only the possible ones; the others weigh 0 (the bounds are
-            # homogeneous) and take any vector of their x2 in a backup
+            # homogeneous) and take the best vector of their x2 at the parent belief
+            # (:meth:`_impossible_best`)
             rows = torch.cat([J.reshape(C, Y)[nz], beliefs])
             rows_x = torch.cat([cx[nz], cx[C:]])
             low_r, best_r = self.lower_value(rows, rows_x)
@@ -728,28 +727,32 @@ class _SARSOP:
             m = nz.numel()
             low_c = J.new_zeros(C).index_copy_(0, nz, low_r[:m]).view(shape)
             up_c = J.new_zeros(C).index_copy_(0, nz, up_r[:m]).view(shape)
-            best_c = self._default_alpha()[cx[:C]].index_copy_(0, nz, best_r[:m]).view(shape)
+            best_c = self._impossible_best(beliefs, xs, shape).index_copy_(0, nz, best_r[:m])
+            best_c = best_c.view(shape)
             self_low, self_up = low_r[m:], up_r[m:]
         else:
             flat = torch.cat([J.reshape(C, Y), beliefs])  # (C + B, Y)
             low, best = self.lower_value(flat, cx)
             up = self.ub.value(flat, cx)
-            low_c, best_c, up_c = low[:C].view(shape), best[:C].view(shape), up[:C].view(shape)
+            best_c = torch.where(prob.reshape(-1) > 0, best[:C],
+                                 self._impossible_best(beliefs, xs, shape)).view(shape)  # fmt: skip
+            low_c, up_c = low[:C].view(shape), up[:C].view(shape)
             self_low, self_up = low[C:], up[C:]
         reward = self.form.reward(x, beliefs)  # (B, A)
         q_low = reward + self.gamma * low_c.sum((-1, -2))
         q_up = reward + self.gamma * up_c.sum((-1, -2))
         return _Evaluation(xs, J, prob, low_c, best_c, up_c, q_low, q_up, self_low, self_up)
 
-    def _default_alpha(self) -> torch.Tensor:
-        """``(X,)`` the index of one alpha vector of each observed value (kept up to date)."""
-        if self._default is None:
-            n = self.alphas.size
-            dev = self.alphas.observed.device
-            d = torch.zeros(self.X, dtype=torch.long, device=dev)
-            d.scatter_(0, self.alphas.observed[:n], torch.arange(n, device=dev))
-            self._default = d
-        return self._default
+    def _impossible_best(self, beliefs: torch.Tensor, xs: torch.Tensor,
+                         shape: tuple[int, int, int, int]) -> torch.Tensor:  # fmt: skip
+        """``(B * A * K * O,)`` the best vector of each child's ``x2`` at its parent belief.
+
+        What a backup uses at an impossible child (:meth:`_impossible_best_np`).
+        """
+        B, A, K, O = shape
+        rows = beliefs.unsqueeze(1).expand(B, K, beliefs.shape[-1]).reshape(B * K, -1)
+        _, ids = self.lower_value(rows, xs.repeat(B))  # (B * K,)
+        return ids.view(B, 1, K, 1).expand(shape).reshape(-1)
 
     # -- numpy path (CPU, one belief) -------------------------------------------------------
     def _lower_np(self, rows: np.ndarray, rows_x: np.ndarray, cols: np.ndarray | None = None,
@@ -1216,7 +1219,6 @@ class _SARSOP:
             live = set(np.unique(self.belief_id[act]).tolist())
             # the recorded child vectors of the active beliefs (all kept) under their new index
             self._child_best = {b: moved[v] for b, v in self._child_best.items() if b in live}
-            self._default = None
             self.last_alpha_prune = self.alphas.size
             self._prune_cost["alphas"] = (self.clock() - t0, n)
         self._prune_points()

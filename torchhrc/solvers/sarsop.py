@@ -883,7 +883,7 @@ class _SARSOP:
         m = ch.nz.size
         low = np.zeros(A * K * O, dtype=b.dtype)
         low[ch.nz] = low_r[:m]
-        best = self._impossible_best_np(x, b, ch.child_x, ch.nz)
+        best = self._impossible_best_np(x, b, ch.child_x, ch.nz, int(best_r[m]))
         best[ch.nz] = best_r[:m]
         q_low = ch.reward + self.gamma * low.reshape(A, K * O).sum(-1)
         rows, rows_x, cols = ch.rows, ch.rows_x, ch.cols
@@ -896,7 +896,7 @@ class _SARSOP:
                 float(low_r[m]), cu)  # fmt: skip
 
     def _impossible_best_np(self, x: int, b: np.ndarray, child_x: np.ndarray, nz: np.ndarray,
-                            ) -> np.ndarray:  # fmt: skip
+                            own: int | None = None) -> np.ndarray:  # fmt: skip
         """``(C,)`` the vector a backup of ``b`` uses at each impossible child (``P = 0``).
 
         An impossible child weighs 0 in ``V_low(b)``, but its vector still shapes the new
@@ -906,15 +906,21 @@ class _SARSOP:
         of its ``x2`` at ``b`` itself, not an arbitrary vector of ``x2`` (formerly the last
         one added: on RockSample_7_8 as a MOMDP its new vectors then generalised poorly to
         the beliefs the search had not backed up). Possible children's entries are left to
-        the caller.
+        the caller. ``own``: the best vector at ``b`` under ``x`` when the caller has it (an
+        evaluation scores ``b`` itself), used for the children that stay at ``x``.
         """
         best = np.zeros(child_x.shape[0], dtype=np.int64)
         imp = np.ones(child_x.shape[0], dtype=bool)
         imp[nz] = False
-        if imp.any():
-            ux, inv = np.unique(child_x[imp], return_inverse=True)
-            _, ids = self._lower_np(np.broadcast_to(b, (ux.size, b.shape[0])), ux)
-            best[imp] = ids[inv]
+        if not imp.any():
+            return best
+        cx = child_x[imp]
+        if own is not None and (cx == x).all():  # a flat model: always
+            best[imp] = own
+            return best
+        ux, inv = np.unique(cx, return_inverse=True)
+        _, ids = self._lower_np(np.broadcast_to(b, (ux.size, b.shape[0])), ux)
+        best[imp] = ids[inv]
         return best
 
     def _backup_one_np(self, x: int, node: int) -> None:

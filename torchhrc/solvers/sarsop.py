@@ -752,7 +752,7 @@ class _SARSOP:
         B, A, K, O = shape
         rows = beliefs.unsqueeze(1).expand(B, K, beliefs.shape[-1]).reshape(B * K, -1)
         _, ids = self.lower_value(rows, xs.repeat(B))  # (B * K,)
-        return ids.view(B, 1, K, 1).expand(shape).reshape(-1)
+        return ids.view(B, 1, K, 1).expand(shape).contiguous().view(-1)
 
     # -- numpy path (CPU, one belief) -------------------------------------------------------
     def _lower_np(self, rows: np.ndarray, rows_x: np.ndarray, cols: np.ndarray | None = None,

@@ -670,7 +670,8 @@ class _SARSOP:
             target = max(cfg.precision, 1e-6 * max(span, 1.0))
             depth = math.log(target / max(span, 1e-12)) / math.log(self.gamma) if span > 0 else 1
             self.max_depth = int(min(max(math.ceil(depth), 1), 1000))
-        self.bins = _Bins(corner.reshape(self.X, -1).cpu().double().numpy(), math.log(self.Y), cfg.bins)
+        corners = corner.reshape(self.X, -1).cpu().double().numpy()
+        self.bins = _Bins(corners, math.log(self.Y), cfg.bins)
 
         self.last_alpha_prune = self.alphas.size
         self.last_point_prune = 1
@@ -749,7 +750,7 @@ class _SARSOP:
 
         What a backup uses at an impossible child (:meth:`_impossible_best_np`).
         """
-        B, A, K, O = shape
+        B, _, K, _ = shape
         rows = beliefs.unsqueeze(1).expand(B, K, beliefs.shape[-1]).reshape(B * K, -1)
         _, ids = self.lower_value(rows, xs.repeat(B))  # (B * K,)
         return ids.view(B, 1, K, 1).expand(shape).contiguous().view(-1)

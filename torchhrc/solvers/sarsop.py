@@ -163,7 +163,9 @@ class SARSOPConfig:
             span over ``1 - gamma`` falls below the precision).
         prediction: ``"binning"`` (SARSOP's learned ``V_hat``) or ``"upper"`` (``V_hat = V_up``,
             i.e. a pure gap-driven search, as HSVI).
-        bins: number of bins per axis (upper bound, entropy) of the ``V_hat`` predictor.
+        bins: number of bins per axis (initial upper bound, entropy) of the finer of the two
+            levels of the ``V_hat`` predictor, one predictor per observed value (the coarser
+            level has ``ceil(bins / 2)``; default 10, APPL's 10 and 5).
         lower_bound_init: ``model -> AlphaVectorPolicy`` whose vectors are lower bounds
             (flat ``(N, S)``; MOMDP ``(N, Y)`` with ``observed`` covering every ``x``), e.g. a
             PBVI solution's policy; default :func:`~torchhrc.solvers.blind.blind_policy`.

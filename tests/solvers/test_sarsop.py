@@ -620,17 +620,22 @@ def test_flat_sawtooth_value_np_mixed_widths_matches_formula():
 
 
 def test_bins_predict_new_node_at_upper_and_clamps():
-    """SARSOP's predictor: a node alone in its bin is predicted at its upper bound (explore
-    it); otherwise the bin's mean lower bound, clamped to the node's [lower, upper]."""
+    """SARSOP's predictor: a belief alone in its bin is predicted at its upper bound (explore
+    it); otherwise the bin's mean lower bound, clamped to the node's [lower, upper]. (APPL's
+    per-x, two-level bins: tests/solvers/test_sarsop_search.py.)"""
+    import numpy as np
+
     from torchhrc.solvers.sarsop import _Bins
 
-    bins = _Bins(0.0, 10.0, 1.0, 2)
-    assert bins.predict(0, 4.0, 0.1, 1.0) == 4.0  # no data at all
-    bins.update(0, 4.0, 0.1, 1.0)
-    assert bins.predict(0, 4.0, 0.1, 1.0) == 4.0  # only itself in the bin
-    bins.update(1, 3.0, 0.2, 3.0)  # same bin (upper in [0, 5), entropy in [0, 0.5))
-    assert bins.predict(0, 4.0, 0.1, 1.0) == pytest.approx(2.0)  # mean of 1 and 3
-    assert bins.predict(2, 4.0, 0.1, 2.5) == 2.5  # mean below the node's lower bound
-    assert bins.predict(2, 1.5, 0.1, 0.0) == 1.5  # mean above the node's upper bound
-    bins.update(0, 9.0, 0.1, 1.0)  # node 0 moves to the other upper-bound bin
-    assert bins.predict(1, 3.0, 0.2, 3.0) == 3.0  # node 1 now alone: its upper bound
+    bins = _Bins(np.array([[0.0, 10.0]]), 1.0, 2)  # one x; levels of 1 and 2 bins per axis
+    b = np.array([0.8, 0.2])  # initial upper bound 2.0: the lower half
+    assert bins.predict(0, 4.0, 1.0) == 4.0  # no data at all
+    bins.update(0, 0, b, 0.1, 4.0, 1.0)
+    assert bins.predict(0, 4.0, 1.0) == 4.0  # only itself in the bin
+    bins.update(1, 0, b, 0.2, 3.0, 3.0)  # same bin (initial upper 2.0, entropy in [0, 0.5))
+    assert bins.predict(0, 4.0, 1.0) == pytest.approx(2.0)  # mean of 1 and 3
+    assert bins.predict(0, 4.0, 2.5) == 2.5  # mean below the node's lower bound
+    assert bins.predict(0, 1.5, 0.0) == 1.5  # mean above the node's upper bound
+    bins.update(0, 0, b, 0.1, 1.0, 1.0)  # a lower upper bound does not move its bin
+    assert bins.predict(1, 3.0, 3.0) == 3.0  # clamped, still two in the bin
+    assert bins.predict(1, 5.0, 0.0) == pytest.approx(2.0)

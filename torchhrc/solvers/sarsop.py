@@ -155,12 +155,18 @@ class SARSOPConfig:
             --precision``; default 1e-3). The solve stops once the gap is at most this.
         max_iterations: cap on the number of sampling iterations (None: no cap).
         seed: seed of the tie-breaking among actions with equal upper bound.
+        tie_break: how a trial picks among actions of equal upper bound (within 1e-12
+            relative): ``"random"`` (default; seeded by ``seed``, as ``pomdpsol
+            --randomization``) or ``"first"`` (the lowest action index, as ``pomdpsol`` by
+            default).
         kappa: a trial's ``eps`` is ``kappa * gap(b0)`` (default 0.5).
         max_depth: cap on the depth of a trial (default: where ``gamma^t`` times the reward
             span over ``1 - gamma`` falls below the precision).
         prediction: ``"binning"`` (SARSOP's learned ``V_hat``) or ``"upper"`` (``V_hat = V_up``,
             i.e. a pure gap-driven search, as HSVI).
-        bins: number of bins per axis (upper bound, entropy) of the ``V_hat`` predictor.
+        bins: number of bins per axis (initial upper bound, entropy) of the finer of the two
+            levels of the ``V_hat`` predictor, one predictor per observed value (the coarser
+            level has ``ceil(bins / 2)``; default 10, APPL's 10 and 5).
         lower_bound_init: ``model -> AlphaVectorPolicy`` whose vectors are lower bounds
             (flat ``(N, S)``; MOMDP ``(N, Y)`` with ``observed`` covering every ``x``), e.g. a
             PBVI solution's policy; default :func:`~torchhrc.solvers.blind.blind_policy`.
@@ -214,6 +220,7 @@ class SARSOPConfig:
     precision: float = 1e-3
     max_iterations: int | None = None
     seed: int = 0
+    tie_break: Literal["random", "first"] = "random"
     kappa: float = 0.5
     max_depth: int | None = None
     prediction: Literal["binning", "upper"] = "binning"
@@ -254,6 +261,8 @@ class SARSOPConfig:
             value = getattr(self, name)
             if value is not None and (not isinstance(value, int) or value < 0):
                 raise ValueError(f"expected {name} to be None or an int >= 0, got {value!r}")
+        if self.tie_break not in ("random", "first"):
+            raise ValueError(f"expected tie_break 'random' or 'first', got {self.tie_break!r}")
         if self.prediction not in ("binning", "upper"):
             raise ValueError(f"expected prediction 'binning' or 'upper', got {self.prediction!r}")
         if not isinstance(self.bins, int) or self.bins < 1:
@@ -499,44 +508,83 @@ class _Evaluation:
 
 
 class _Bins:
-    """SARSOP's lower-bound predictor: mean lower bound of beliefs binned by (upper, entropy)."""
+    """SARSOP's lower-bound predictor ``V_hat``, as APPL's ``BinManagerSet`` computes it.
 
-    def __init__(self, lo: float, hi: float, max_entropy: float, n: int) -> None:
-        self.lo, self.span = lo, max(hi - lo, 1e-12)
+    One predictor per observed value ``x`` (a flat model has one), two levels of bins over
+    (initial upper bound, entropy): ``ceil(n / 2)`` and ``n`` bins per axis (APPL: 5 and 10).
+    A belief is binned once, by the value at it of the *initial* upper bound (the corner
+    values, fixed: its bin never moves) over the range of its ``x``'s corner values, and by
+    its entropy over ``log Y``; a bin holds the mean of the latest lower bounds of its beliefs
+    (one entry per distinct belief, not per tree node) and the sum of its beliefs' squared
+    prediction errors, and the prediction comes from the level whose bin has the smaller
+    error (Kurniawati et al. 2008, section 4.2; APPL ``BinManager.cpp``). A belief alone in
+    its coarse bin is predicted at its upper bound, which sends the search on to explore it.
+    """
+
+    def __init__(self, corner: np.ndarray, max_entropy: float, n: int) -> None:
+        self.corner = corner  # (X, Y) initial upper-bound corner values
+        X = corner.shape[0]
+        self.lo = corner.min(1)
+        self.span = np.maximum(corner.max(1) - self.lo, 1e-12)
         self.max_entropy = max(max_entropy, 1e-12)
-        self.n = n
-        self.total = np.zeros((n, n))
-        self.count = np.zeros((n, n))
-        self.contribution: dict[int, tuple[int, int, float]] = {}
+        self.sizes = (max(1, (n + 1) // 2), n) if n > 1 else (1,)
+        self.total = [np.zeros((X, k, k)) for k in self.sizes]
+        self.count = [np.zeros((X, k, k)) for k in self.sizes]
+        self.error = [np.zeros((X, k, k)) for k in self.sizes]
+        # belief id -> (x, bin (i, j) per level, last lower bound, squared error per level)
+        self.state: dict[int, tuple[int, list[tuple[int, int]], float, list[float]]] = {}
 
-    def _key(self, upper: float, entropy: float) -> tuple[int, int]:
-        i = int(min(self.n - 1, max(0.0, (upper - self.lo) / self.span * self.n)))
-        j = int(min(self.n - 1, max(0.0, entropy / self.max_entropy * self.n)))
-        return i, j
+    def update(self, key: int, x: int, belief: np.ndarray, entropy: float, upper: float,
+               lower: float) -> None:  # fmt: skip
+        """Record the lower bound ``lower`` of the belief ``key`` (of observed value ``x``)."""
+        st = self.state.get(key)
+        if st is None:
+            u0 = float(self.corner[x] @ belief)
+            cells = []
+            errs = []
+            for lv, k in enumerate(self.sizes):
+                i = int(min(k - 1, max(0.0, (u0 - self.lo[x]) / self.span[x] * k)))
+                j = int(min(k - 1, max(0.0, entropy / self.max_entropy * k)))
+                c = self.count[lv][x, i, j]
+                err = upper - lower if c == 0 else self.total[lv][x, i, j] / c - lower
+                self.error[lv][x, i, j] += err * err
+                self.total[lv][x, i, j] += lower
+                self.count[lv][x, i, j] = c + 1
+                cells.append((i, j))
+                errs.append(err * err)
+            self.state[key] = (x, cells, lower, errs)
+            return
+        _, cells, prev, errs = st
+        for lv, (i, j) in enumerate(cells):
+            c = self.count[lv][x, i, j]
+            if c == 1:
+                err = upper - lower
+                self.error[lv][x, i, j] = err * err
+            else:
+                err = self.total[lv][x, i, j] / c - lower
+                self.error[lv][x, i, j] += err * err - errs[lv]
+            errs[lv] = err * err
+            self.total[lv][x, i, j] += lower - prev
+        self.state[key] = (x, cells, lower, errs)
 
-    def update(self, node: int, upper: float, entropy: float, lower: float) -> None:
-        old = self.contribution.get(node)
-        if old is not None:
-            self.total[old[0], old[1]] -= old[2]
-            self.count[old[0], old[1]] -= 1
-        i, j = self._key(upper, entropy)
-        self.total[i, j] += lower
-        self.count[i, j] += 1
-        self.contribution[node] = (i, j, lower)
-
-    def predict(self, node: int, upper: float, entropy: float, lower: float) -> float:
-        """The predicted optimal value at ``node``, within ``[lower, upper]``.
-
-        A node alone in its bin (no other belief with a similar upper bound and entropy
-        backed up yet) is predicted at its upper bound, which encourages exploring it (as
-        APPL's SARSOP does for a new node; Kurniawati et al. 2008, section 4.2).
-        """
-        i, j = self._key(upper, entropy)
-        own = self.contribution.get(node)
-        others = self.count[i, j] - (1 if own is not None and own[:2] == (i, j) else 0)
-        if others <= 0:
+    def predict(self, key: int, upper: float, lower: float) -> float:
+        """The predicted optimal value at the belief ``key``, within ``[lower, upper]``."""
+        st = self.state.get(key)
+        if st is None:
             return upper
-        return min(upper, max(lower, float(self.total[i, j] / self.count[i, j])))
+        x, cells, _, _ = st
+        i, j = cells[0]
+        if self.count[0][x, i, j] <= 1:
+            return upper
+        best = 0
+        smallest = self.error[0][x, i, j]
+        for lv in range(1, len(cells)):
+            e = self.error[lv][x, cells[lv][0], cells[lv][1]]
+            if e + 1e-10 < smallest:
+                best, smallest = lv, e
+        i, j = cells[best]
+        mean = float(self.total[best][x, i, j] / self.count[best][x, i, j])
+        return min(upper, max(lower, mean))
 
 
 class _SARSOP:
@@ -602,7 +650,6 @@ class _SARSOP:
         # per distinct belief: the best alpha vector at each child ``(A, K, O)`` of the
         # evaluation in ``_cache``; pruning keeps them (see :meth:`_child_winners`)
         self._child_best: dict[int, np.ndarray] = {}
-        self._default: torch.Tensor | None = None
         self.entropy = np.zeros(1024)
         self.entropy[0] = float(self._entropy(form.b0.unsqueeze(0))[0])
         # one id per distinct belief (APPL's belief cache): tree nodes holding the same belief
@@ -618,7 +665,8 @@ class _SARSOP:
             target = max(cfg.precision, 1e-6 * max(span, 1.0))
             depth = math.log(target / max(span, 1e-12)) / math.log(self.gamma) if span > 0 else 1
             self.max_depth = int(min(max(math.ceil(depth), 1), 1000))
-        self.bins = _Bins(float(corner.min()), float(corner.max()), math.log(self.Y), cfg.bins)
+        corners = corner.reshape(self.X, -1).cpu().double().numpy()
+        self.bins = _Bins(corners, math.log(self.Y), cfg.bins)
 
         self.last_alpha_prune = self.alphas.size
         self.last_point_prune = 1
@@ -631,7 +679,6 @@ class _SARSOP:
         self._np = self.device.type == "cpu"
         if self._np:
             self._npR = form.R.contiguous().numpy()  # (A, X, Y)
-            self._default_np: tuple[torch.Tensor, np.ndarray] | None = None
         lo, up = self._root_bounds()
         self.tree.lower[0], self.tree.upper[0] = lo, up
 
@@ -667,7 +714,8 @@ class _SARSOP:
         if nz.numel() * 4 < C * 3:
             # most children are impossible (deterministic moves, observations tied to the
             # state): bound only the possible ones; the others weigh 0 (the bounds are
-            # homogeneous) and take any vector of their x2 in a backup
+            # homogeneous) and take the best vector of their x2 at the parent belief
+            # (:meth:`_impossible_best`)
             rows = torch.cat([J.reshape(C, Y)[nz], beliefs])
             rows_x = torch.cat([cx[nz], cx[C:]])
             low_r, best_r = self.lower_value(rows, rows_x)
@@ -675,28 +723,32 @@ class _SARSOP:
             m = nz.numel()
             low_c = J.new_zeros(C).index_copy_(0, nz, low_r[:m]).view(shape)
             up_c = J.new_zeros(C).index_copy_(0, nz, up_r[:m]).view(shape)
-            best_c = self._default_alpha()[cx[:C]].index_copy_(0, nz, best_r[:m]).view(shape)
+            best_c = self._impossible_best(beliefs, xs, shape).index_copy_(0, nz, best_r[:m])
+            best_c = best_c.view(shape)
             self_low, self_up = low_r[m:], up_r[m:]
         else:
             flat = torch.cat([J.reshape(C, Y), beliefs])  # (C + B, Y)
             low, best = self.lower_value(flat, cx)
             up = self.ub.value(flat, cx)
-            low_c, best_c, up_c = low[:C].view(shape), best[:C].view(shape), up[:C].view(shape)
+            best_c = torch.where(prob.reshape(-1) > 0, best[:C],
+                                 self._impossible_best(beliefs, xs, shape)).view(shape)  # fmt: skip
+            low_c, up_c = low[:C].view(shape), up[:C].view(shape)
             self_low, self_up = low[C:], up[C:]
         reward = self.form.reward(x, beliefs)  # (B, A)
         q_low = reward + self.gamma * low_c.sum((-1, -2))
         q_up = reward + self.gamma * up_c.sum((-1, -2))
         return _Evaluation(xs, J, prob, low_c, best_c, up_c, q_low, q_up, self_low, self_up)
 
-    def _default_alpha(self) -> torch.Tensor:
-        """``(X,)`` the index of one alpha vector of each observed value (kept up to date)."""
-        if self._default is None:
-            n = self.alphas.size
-            dev = self.alphas.observed.device
-            d = torch.zeros(self.X, dtype=torch.long, device=dev)
-            d.scatter_(0, self.alphas.observed[:n], torch.arange(n, device=dev))
-            self._default = d
-        return self._default
+    def _impossible_best(self, beliefs: torch.Tensor, xs: torch.Tensor,
+                         shape: tuple[int, int, int, int]) -> torch.Tensor:  # fmt: skip
+        """``(B * A * K * O,)`` the best vector of each child's ``x2`` at its parent belief.
+
+        What a backup uses at an impossible child (:meth:`_impossible_best_np`).
+        """
+        B, _, K, _ = shape
+        rows = beliefs.unsqueeze(1).expand(B, K, beliefs.shape[-1]).reshape(B * K, -1)
+        _, ids = self.lower_value(rows, xs.repeat(B))  # (B * K,)
+        return ids.view(B, 1, K, 1).expand(shape).contiguous().view(-1)
 
     # -- numpy path (CPU, one belief) -------------------------------------------------------
     def _lower_np(self, rows: np.ndarray, rows_x: np.ndarray, cols: np.ndarray | None = None,
@@ -827,11 +879,7 @@ class _SARSOP:
         m = ch.nz.size
         low = np.zeros(A * K * O, dtype=b.dtype)
         low[ch.nz] = low_r[:m]
-        # impossible children weigh 0 and take any vector of their x2 in a backup
-        d = self._default_alpha()
-        if self._default_np is None or self._default_np[0] is not d:
-            self._default_np = (d, d.numpy())
-        best = self._default_np[1][ch.child_x]
+        best = self._impossible_best_np(x, b, ch.child_x, ch.nz, int(best_r[m]))
         best[ch.nz] = best_r[:m]
         q_low = ch.reward + self.gamma * low.reshape(A, K * O).sum(-1)
         rows, rows_x, cols = ch.rows, ch.rows_x, ch.cols
@@ -842,6 +890,34 @@ class _SARSOP:
         shape = (A, K, O)
         return (q_low, q_up, ch.prob, low.reshape(shape), up.reshape(shape), best.reshape(shape),
                 float(low_r[m]), cu)  # fmt: skip
+
+    def _impossible_best_np(self, x: int, b: np.ndarray, child_x: np.ndarray, nz: np.ndarray,
+                            own: int | None = None) -> np.ndarray:  # fmt: skip
+        """``(C,)`` the vector a backup of ``b`` uses at each impossible child (``P = 0``).
+
+        An impossible child weighs 0 in ``V_low(b)``, but its vector still shapes the new
+        alpha vector away from ``b``'s support, i.e. its value at the other beliefs of the
+        same ``x``. As APPL's ``BackupAlphaPlaneMOMDP::getNewAlphaPlaneQ`` (a ``NULL`` edge
+        takes ``getBestAlphaPlane`` of the belief ``b`` under ``x2``), it is the best vector
+        of its ``x2`` at ``b`` itself, not an arbitrary vector of ``x2`` (formerly the last
+        one added: on RockSample_7_8 as a MOMDP its new vectors then generalised poorly to
+        the beliefs the search had not backed up). Possible children's entries are left to
+        the caller. ``own``: the best vector at ``b`` under ``x`` when the caller has it (an
+        evaluation scores ``b`` itself), used for the children that stay at ``x``.
+        """
+        best = np.zeros(child_x.shape[0], dtype=np.int64)
+        imp = np.ones(child_x.shape[0], dtype=bool)
+        imp[nz] = False
+        if not imp.any():
+            return best
+        cx = child_x[imp]
+        if own is not None and (cx == x).all():  # a flat model: always
+            best[imp] = own
+            return best
+        ux, inv = np.unique(cx, return_inverse=True)
+        _, ids = self._lower_np(np.broadcast_to(b, (ux.size, b.shape[0])), ux)
+        best[imp] = ids[inv]
+        return best
 
     def _backup_one_np(self, x: int, node: int) -> None:
         """:meth:`backup` of one node in numpy (the sequential path of a trial)."""
@@ -871,7 +947,7 @@ class _SARSOP:
                     if bad[tree.action[c]]:
                         tree.active[c] = False
         if self.cfg.prediction == "binning":
-            self.bins.update(node, up, float(self.entropy[node]), low)
+            self.bins.update(int(self.belief_id[node]), x, b, float(self.entropy[node]), up, low)
 
     def _root_bounds(self) -> tuple[float, float]:
         if self._np:
@@ -949,8 +1025,11 @@ class _SARSOP:
                         tree.active[c] = False
         if self.cfg.prediction == "binning":
             ent = self.entropy[nodes]
-            for n, u, e, lo in zip(nodes.tolist(), up.tolist(), ent.tolist(), low.tolist()):
-                self.bins.update(n, u, e, lo)
+            rows = beliefs.cpu().double().numpy()
+            for i, (n, u, e, lo) in enumerate(
+                zip(nodes.tolist(), up.tolist(), ent.tolist(), low.tolist())
+            ):
+                self.bins.update(int(self.belief_id[n]), x, rows[i], e, u, lo)
 
     @staticmethod
     def _entropy(beliefs: torch.Tensor) -> torch.Tensor:
@@ -969,7 +1048,7 @@ class _SARSOP:
         while t < self.max_depth and self.clock() < self.deadline:
             lo, up = float(tree.lower[node]), float(tree.upper[node])
             if self.cfg.prediction == "binning":
-                v_hat = self.bins.predict(node, up, float(self.entropy[node]), lo)
+                v_hat = self.bins.predict(int(self.belief_id[node]), up, lo)
             else:
                 v_hat = up
             if up - lo <= 0.5 * eps * g ** (-t):
@@ -1099,7 +1178,7 @@ class _SARSOP:
     def _argmax_tie(self, q: np.ndarray) -> int:
         top = float(q.max())
         ties = np.flatnonzero(q >= top - 1e-12 * max(1.0, abs(top)))
-        if ties.size == 1:
+        if ties.size == 1 or self.cfg.tie_break == "first":
             return int(ties[0])
         return int(ties[self.rng.integers(ties.size)])
 
@@ -1142,7 +1221,6 @@ class _SARSOP:
             live = set(np.unique(self.belief_id[act]).tolist())
             # the recorded child vectors of the active beliefs (all kept) under their new index
             self._child_best = {b: moved[v] for b, v in self._child_best.items() if b in live}
-            self._default = None
             self.last_alpha_prune = self.alphas.size
             self._prune_cost["alphas"] = (self.clock() - t0, n)
         self._prune_points()

@@ -181,9 +181,10 @@ class SARSOPConfig:
             ``0.01 * precision * (1 - discount)`` spent 10,000 iterations, most of a 10 s
             budget, on aloha-10max's discount 0.999).
         init_max_iterations: cap on the FIB iterations (default 10,000).
-        init_time_fraction: share of ``time_limit`` the default FIB initialisation may use at
-            most (a safety net: it normally converges long before; when it does not, the
-            result depends on the machine's speed, reported as
+        init_time_fraction: share of ``time_limit`` (of what is left of it once the model's
+            solver form is built) the default FIB initialisation may use at most (a safety
+            net: it normally converges long before; when it does not, the result depends on
+            the machine's speed, reported as
             ``Solution.info["init"]["upper_stop"] == "time_limit"``).
         prune_alphas: prune dominated alpha vectors and those that win at no tree belief,
             except the vectors best at a child of an active tree belief (at the belief's last
@@ -608,8 +609,12 @@ class _SARSOP:
         self.rng = np.random.default_rng(int(cfg.seed))
         self.device = form.b0.device
         self.deadline = clock_start + cfg.time_limit
-        # the initial bounds' safety net, on the same clock as the limit
-        init_deadline = Deadline(clock_start + cfg.time_limit * cfg.init_time_fraction, self.clock)
+        # the initial bounds' safety net, on the same clock as the limit: a share of what is
+        # left once the model's form is built (building it can take seconds on a large model)
+        now = self.clock()
+        init_deadline = Deadline(
+            now + max(0.0, self.deadline - now) * cfg.init_time_fraction, self.clock
+        )
         # upper bound: corner values (FIB by default), first: it is the part the safety net
         # (init_deadline) may cut, so it gets its share of the budget before the lower bound
         self.init_info: dict[str, Any] = {}

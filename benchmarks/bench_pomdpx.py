@@ -26,24 +26,11 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 from _timing import median_time
 
 from torchhrc.io import read_pomdpx
-
-
-def median_cpu_time(fn: Callable[[], object], repeats: int) -> float:
-    """Median process CPU time (user + system, ``time.process_time``) of ``fn()`` over
-    ``repeats`` calls, after one warm-up call: APPL's loading time is CPU time too."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        start = time.process_time()
-        fn()
-        times.append(time.process_time() - start)
-    return statistics.median(times)
 
 
 def appl_load_time(pomdpsol: str, path: Path) -> float | None:
@@ -78,7 +65,8 @@ def main(argv: list[str] | None = None) -> int:
     for path in args.files:
         model = read_pomdpx(path)
         ours = median_time(lambda: read_pomdpx(path), args.repeats)  # noqa: B023
-        cpu = median_cpu_time(lambda: read_pomdpx(path), args.repeats)  # noqa: B023
+        cpu = median_time(lambda: read_pomdpx(path), args.repeats, time.process_time)  # noqa: B023
+        # (CPU time: APPL's printed loading time is CPU time too)
         appl = None
         if args.appl:
             runs = [appl_load_time(args.appl, path) for _ in range(args.repeats)]

@@ -578,21 +578,15 @@ class Demonstrations:
             >>> [r.symbol_names[i] for i in r.sequences[0].tolist()]
             ['human:place_1', 'robot:drill_1', 'human:place_2']
         """
-        if not isinstance(separator, str) or not separator:
-            raise TypeError(f"expected separator to be a non-empty str, got {separator!r}")
-        split = [a.rpartition(separator) for _, a in self.vocabulary]
-        objects = sorted({obj for verb, sep, obj in split if sep and verb and obj})
-        n_obj = max(len(objects), 1)
-        # Each symbol: its (actor, verb) group and object index, or its own group and -1.
+        obj_t, M = self._object_of_symbol(separator)  # (A,) object index or -1; M objects
+        n_obj = max(M, 1)
+        # Each symbol: its (actor, verb) group, or its own group when it acts on no object.
         groups: dict[tuple[str, str], int] = {}
-        sym_group, sym_obj = [], []
-        for (actor, action), (verb, sep, obj) in zip(self.vocabulary, split, strict=True):
-            acts_on = bool(sep and verb and obj)
-            key = (actor, verb) if acts_on else (actor, action + "\0")
+        sym_group = []
+        for (actor, action), o in zip(self.vocabulary, obj_t.tolist(), strict=True):
+            key = (actor, action.rpartition(separator)[0]) if o >= 0 else (actor, action + "\0")
             sym_group.append(groups.setdefault(key, len(groups)))
-            sym_obj.append(objects.index(obj) if acts_on else -1)
         group_t = torch.tensor(sym_group, device=self.device)  # (A,)
-        obj_t = torch.tensor(sym_obj, device=self.device)  # (A,)
         N, L = self.sequences.shape
         obj = torch.where(self.mask, obj_t[self.sequences], -1)  # (N, L)
         # First step at which each sequence touches each object (L: never).
@@ -613,7 +607,7 @@ class Demonstrations:
 
         codes = used.tolist()
         if keep_unused:  # every (group, object rank) the original vocabulary allows
-            ranks = range(1, len(objects) + 1)
+            ranks = range(1, M + 1)
             codes = [g * (n_obj + 1) + r for (_, v), g in groups.items()
                      for r in ((0,) if v.endswith("\0") else ranks)]  # fmt: skip
         vocabulary = _sorted_vocabulary(name(c) for c in codes)

@@ -27,83 +27,17 @@ Example:
 
 from __future__ import annotations
 
-import itertools
-from collections.abc import Callable
-from typing import Any
-
 import numpy as np
 import torch
 
 from torchhrc.errors import ModelError
+from torchhrc.solvers.sawtooth_kernel import sawtooth_corrections
 
 __all__ = ["SawtoothUpperBound"]
 
-# elements of the (B, P, K) ratio tensor computed at once (4 MB in float64; 1 << 22 made 32 MB
-# temporaries, each a fresh mmap and its page faults: RockSample_11_11.pomdpx, Y = 2048)
+# elements of the (B, P, K) ratio tensor computed at once by the tensor path :meth:`value` (4 MB
+# in float64; 1 << 22 made 32 MB temporaries, each a fresh mmap and its page faults)
 _CHUNK = 1 << 19
-_DENSE_CHUNK = 1 << 16  # elements of a dense (b, Y, P_x) product (512 kB in float64)
-
-
-def _pair_minima(
-    r: np.ndarray,
-    p: np.ndarray,
-    wp: np.ndarray,
-    gain: np.ndarray,
-    B: int,
-    ratios: Callable[[np.ndarray, np.ndarray, int], np.ndarray],
-) -> np.ndarray:
-    """``(B,)`` sawtooth corrections ``min(0, min_i gain_i * min_y b(y) / b_i(y))`` per query.
-
-    Args:
-        r: ``(M,)`` sorted query index of each candidate (query, point) pair.
-        p: ``(M,)`` point index of each pair; wp: ``(M,)`` its support width.
-        gain: ``(P,)`` the points' gains; B: number of queries.
-        ratios: ``ratios(rr (m,), pp (m,), Kb) -> (m, Kb)`` the ratios ``b(y) / b_i(y)`` on
-            the first ``Kb`` support entries of each pair's point (``inf`` past its width).
-
-    Pairs are bucketed by point width, so narrow points are not padded to the widest.
-    """
-    M = r.size
-    K = int(wp.max())
-    term = np.empty(M, dtype=gain.dtype)
-    edges = (0, 16, 64, 256, K) if K > 64 else (0, K)
-    for lo, hi in itertools.pairwise(edges):
-        ids = np.flatnonzero((wp > lo) & (wp <= hi)) if len(edges) > 2 else np.arange(M)
-        if ids.size == 0:
-            continue
-        Kb = int(wp[ids].max())
-        step = max(1, _CHUNK // Kb)
-        for start in range(0, ids.size, step):
-            sub = ids[start : start + step]
-            pp = np.take(p, sub)
-            g = ratios(np.take(r, sub), pp, Kb)
-            # the min over a short last axis is slow in numpy: reduce (Kb, m) over axis 0
-            t = np.ascontiguousarray(g.T).min(0)
-            t *= np.take(gain, pp)
-            term[sub] = t
-    starts = np.flatnonzero(np.concatenate([[True], r[1:] != r[:-1]]))
-    best = np.zeros(B, dtype=gain.dtype)
-    best[r[starts]] = np.minimum(np.minimum.reduceat(term, starts), 0.0)
-    return best
-
-
-_DENSE_HIDDEN = 256  # MOMDPs with at most this many hidden values keep dense per-x point tables
-# flat POMDPs with at most this many states switch to a dense point table once the points are
-# wide (mean support width >= states / _WIDE): a per-pair gather of nearly whole rows costs
-# several times a contiguous (B, Y, P) product (Hallway2: 88 of 92 states, 12 -> 2.5 ms)
-_DENSE_FLAT = 2048
-_WIDE = 4
-_Q_MAX = 1e250  # dense 1 / b_i(y) clipped here (a smaller ratio only raises the bound)
-# dense tables of at least _PROBE_MIN_Y states and _PROBE_MIN_P points bound each point's term
-# from its largest states first (_PROBES of them, Y // _PROBE_SHARE from _WIDE_PROBE_Y states) and
-# evaluate exactly only the pairs that can win. RockSample_7_8.pomdpx (Y = 256): 44% of the
-# pairs survive the bound of 4 probes, 23% of 16 (sawtooth time -15%); a probe is a gather,
-# several times a dense entry's cost: random_S100 (Y = 100) lost 10% with 6 probes, 2x with 16
-_PROBES = 4
-_PROBE_SHARE = 16
-_WIDE_PROBE_Y = 128
-_PROBE_MIN_Y = 16
-_PROBE_MIN_P = 32
 
 
 class SawtoothUpperBound:
@@ -138,6 +72,7 @@ class SawtoothUpperBound:
         self._v = torch.zeros(cap, dtype=dt, device=dev)  # (P,) upper value v_i at b_i
         self._gain = torch.zeros(cap, dtype=dt, device=dev)  # (P,) v_i - b_i . c (<= 0 useful)
         self._w = torch.ones(cap, dtype=torch.long, device=dev)  # (P,) support width of point
+        self._mass = torch.ones(cap, dtype=dt, device=dev)  # (P,) sum_y b_i(y) (1 up to round-off)
         self.size = 0
         self._alive_after_prune = 0
         self._views()
@@ -145,13 +80,9 @@ class SawtoothUpperBound:
         # looks at x's points (Ong et al. 2010), not at all of them
         self._members = [np.empty(4, dtype=np.int64) for _ in range(X)] if self._np else []
         self._count = np.zeros(X, dtype=np.int64)
-        # MOMDP with a narrow hidden factor: each x's points also as a dense (Y, P_x) table of
-        # 1 / b_i(y) (inf off the support), so an evaluation is a few contiguous array ops
-        self._dense = self._np is not None and X > 1 and Y <= _DENSE_HIDDEN
-        self._width_sum = 0  # sum of the stored points' support widths (flat dense switch)
-        self._probed: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # see _probes
-        dt = corner.numpy().dtype if self._dense else None
-        self._q = [np.empty((Y, 4), dtype=dt) for _ in range(X)] if self._dense else []  # (Y, cap)
+        # per observed value, its points with a negative gain by increasing key g_i / s_i and
+        # those keys (the order of the compiled loop, sawtooth_kernel); None: to be rebuilt
+        self._sorted: list[tuple[np.ndarray, np.ndarray] | None] = [None] * X
 
     # -- storage -----------------------------------------------------------------------------
     def _views(self) -> None:
@@ -160,7 +91,8 @@ class SawtoothUpperBound:
             self._np = None
             return
         self._np = (self.corner.numpy(), self._idx.numpy(), self._inv.numpy(), self._x.numpy(),
-                    self._v.numpy(), self._gain.numpy(), self._w.numpy())  # fmt: skip
+                    self._v.numpy(), self._gain.numpy(), self._w.numpy(),
+                    self._mass.numpy())  # fmt: skip
 
     def _add_member(self, x: int, i: int) -> None:
         if self._np is None:
@@ -170,22 +102,39 @@ class SawtoothUpperBound:
         if m == arr.shape[0]:
             arr = np.concatenate([arr, np.empty(m, dtype=np.int64)])
             self._members[x] = arr
-            if self._dense:
-                self._q[x] = np.concatenate([self._q[x], np.empty_like(self._q[x])], axis=1)
         arr[m] = i
         self._count[x] = m + 1
-        self._width_sum += int(self._np[6][i])
-        if self._dense:
-            self._q[x][:, m] = self._dense_row(i)
+        self._insert_sorted(x, i)
 
-    def _dense_row(self, i: int) -> np.ndarray:
-        """``(Y,)`` point ``i``'s ``1 / b_i(y)`` on its support, ``inf`` elsewhere."""
-        assert self._np is not None
-        _, idx, inv, _, _, _, wid = self._np
-        w = int(wid[i])
-        row = np.full(self.num_hidden, np.inf, dtype=inv.dtype)
-        row[idx[i, :w]] = np.minimum(inv[i, :w], _Q_MAX)
-        return row
+    def _insert_sorted(self, x: int, i: int) -> None:
+        """Put a new point ``i`` of ``x`` into ``x``'s key order (if built and it can help)."""
+        cur = self._sorted[x]
+        if cur is None:
+            return
+        gain, mass = self._np[5], self._np[7]  # type: ignore[index]
+        if gain[i] >= 0:
+            return
+        ids, keys = cur
+        k = gain[i] / mass[i]
+        pos = int(keys.searchsorted(k, side="right"))
+        new_ids = np.empty(ids.size + 1, dtype=ids.dtype)  # np.insert: 5x the overhead
+        new_keys = np.empty(ids.size + 1, dtype=keys.dtype)
+        new_ids[:pos], new_ids[pos], new_ids[pos + 1 :] = ids[:pos], i, ids[pos:]
+        new_keys[:pos], new_keys[pos], new_keys[pos + 1 :] = keys[:pos], k, keys[pos:]
+        self._sorted[x] = (new_ids, new_keys)
+
+    def _sorted_points(self, x: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(P',)`` x's points with a negative gain by increasing key ``g_i / s_i``; keys."""
+        cur = self._sorted[x]
+        if cur is None:
+            gain, mass = self._np[5], self._np[7]  # type: ignore[index]
+            ids = self.members(x)
+            ids = ids[gain[ids] < 0]
+            key = gain[ids] / mass[ids]
+            order = np.argsort(key, kind="stable")
+            cur = (ids[order], key[order])
+            self._sorted[x] = cur
+        return cur
 
     def _rebuild_members(self) -> None:
         if self._np is None:
@@ -200,36 +149,8 @@ class SawtoothUpperBound:
             arr = np.empty(max(4, 2 * ids.size), dtype=np.int64)
             arr[: ids.size] = ids
             self._members[x] = arr
-            if self._dense:
-                _, idx, inv = self._np[:3]
-                rows = np.full((ids.size, self.num_hidden + 1), np.inf, dtype=inv.dtype)
-                # pads land in column Y
-                np.put_along_axis(rows, idx[ids], np.minimum(inv[ids], _Q_MAX), axis=1)
-                q = np.empty((self.num_hidden, arr.shape[0]), dtype=inv.dtype)
-                q[:, : ids.size] = rows[:, :-1].T
-                self._q[x] = q
         self._count[:] = counts
-        self._width_sum = int(self._np[6][:n].sum())
-        self._probed = {}
-
-    def _use_dense_flat(self) -> bool:
-        """Whether a flat bound evaluates through a dense ``(Y, P)`` table (built on first use).
-
-        Once the stored points' mean support width reaches ``Y / _WIDE`` (e.g. Hallway2, whose
-        beliefs cover nearly every state), the dense table is built and kept up to date.
-        """
-        if self._dense:
-            return True
-        Y = self.num_hidden
-        if self.num_observed > 1 or Y > _DENSE_FLAT or self._np is None or self.size == 0:
-            return False
-        if self._width_sum * _WIDE < Y * self.size:
-            return False
-        self._dense = True
-        arr = self._members[0]
-        self._q = [np.empty((Y, arr.shape[0]), dtype=self._np[2].dtype)]
-        self._rebuild_members()
-        return True
+        self._sorted = [None] * self.num_observed
 
     def members(self, x: int) -> np.ndarray:
         """``(P_x,)`` the indices of the points of observed value ``x`` (CPU storage only)."""
@@ -253,7 +174,7 @@ class SawtoothUpperBound:
             inv[: self.size, K:] = 1.0
             self._idx, self._inv = idx, inv
             if new_cap > cap:
-                for name in ("_x", "_v", "_gain", "_w"):
+                for name in ("_x", "_v", "_gain", "_w", "_mass"):
                     old = getattr(self, name)
                     new = old.new_zeros(new_cap)
                     new[: self.size] = old[: self.size]
@@ -263,12 +184,14 @@ class SawtoothUpperBound:
     def _refresh_gain(self, x: int | None = None) -> None:
         """Recompute the gains after a corner change (only ``x``'s points when given)."""
         if x is not None and self._np is not None:
-            corner, idx, inv, _, v, gain, _ = self._np
+            corner, idx, inv, _, v, gain = self._np[:6]
             ids = self.members(x)
             if ids.size:
                 c = np.append(corner[x], 0.0)  # (Y + 1,), the pad index Y maps to 0
                 gain[ids] = v[ids] - (c[idx[ids]] / inv[ids]).sum(-1)
+            self._sorted[x] = None
             return
+        self._sorted = [None] * self.num_observed
         n = self.size
         c = torch.cat([self.corner, self.corner.new_zeros(self.num_observed, 1)], dim=1)
         cx = c[self._x[:n]]  # (P, Y+1)
@@ -333,10 +256,11 @@ class SawtoothUpperBound:
     ) -> np.ndarray:
         """:meth:`value` on numpy arrays (CPU storage only), for the sequential solver path.
 
-        The same formula with far less per-call overhead than tensor ops at small sizes, and
-        a stronger point filter: a point can lower the bound at ``b`` only if ``b`` covers
-        its whole support and its gain is negative, so points whose support is not covered
-        by the union of the queries' supports are skipped before the gather.
+        The same formula with far less per-call overhead than tensor ops at small sizes:
+        each query's observed value's points are visited by increasing key in a compiled loop
+        that stops as soon as no remaining point can lower the bound
+        (:func:`~torchhrc.solvers.sawtooth_kernel.sawtooth_corrections`); the result is the
+        exhaustive minimum, bit for bit.
 
         Args:
             beliefs: ``(B, Y)`` non-negative weights (the dtype of the bound's storage).
@@ -349,227 +273,35 @@ class SawtoothUpperBound:
             ``(B,)`` upper bounds.
         """
         assert self._np is not None
-        corner, idx, inv, px, _, gain, wid = self._np
-        if columns is not None:
-            return self._value_columns_np(beliefs, x, columns)
-        base = (beliefs * corner[x]).sum(-1)  # (B,)
-        n = self.size
+        corner, idx, inv, _, _, gain, wid = self._np[:7]
         B = beliefs.shape[0]
-        if n == 0 or B == 0:
-            return base
-        if self._use_dense_flat():
-            return base + self._dense_min(beliefs, x)
-        pos = beliefs > 0  # (B, Y)
-        wr = pos.sum(-1)  # (B,) support widths of the queries
-        # a point (width w_i) can lower the bound at b only if b covers its support, so
-        # |supp b| >= w_i, b(first) > 0 and b(last) > 0 for its first and last support entries
-        several = False
-        if self.num_observed > 1:  # only the points of the queried observed values
-            first = int(x[0])
-            several = not bool((x == first).all())
-            if several:
-                sel = np.concatenate([self.members(int(u)) for u in np.unique(x)])
+        local = None
+        if columns is None:
+            base = (beliefs * corner[x]).sum(-1)  # (B,)
+        else:
+            if self.num_observed == 1:
+                base = beliefs @ corner[0, columns]  # (B,)
             else:
-                sel = self.members(first)
-            sel = sel[(gain[sel] < 0) & (wid[sel] <= wr.max())]
-        else:
-            sel = np.flatnonzero((gain[:n] < 0) & (wid[:n] <= wr.max()))
-        if sel.size == 0:
+                base = (beliefs * corner[x[:, None], columns[None, :]]).sum(-1)
+            # hidden value -> column of ``beliefs``; C where the column is not given (b = 0)
+            local = np.full(self.num_hidden, columns.size, dtype=np.int64)
+            local[columns] = np.arange(columns.size)
+        if self.size == 0 or B == 0:
             return base
-        ws = np.take(wid, sel)
-        # np.take: several times cheaper than fancy indexing at these sizes
-        Kc = idx.shape[1]
-        first = np.take(pos, np.take(idx, sel * Kc), axis=1)  # (B, P') b covers first entry
-        last = np.take(pos, np.take(idx, sel * Kc + ws - 1), axis=1)
-        pair = first & last & (ws[None, :] <= wr[:, None])
-        if several:
-            pair &= px[sel][None, :] == x[:, None]
-        r, j = np.nonzero(pair)  # candidate (query, point) pairs, r sorted
-        if r.size == 0:
-            return base
-        p = np.take(sel, j)
-        wp = np.take(ws, j)
-        Y1 = beliefs.shape[1] + 1
-        ext = np.concatenate([beliefs, np.full((B, 1), np.inf, dtype=beliefs.dtype)], axis=1)
-
-        def ratios(rr: np.ndarray, pp: np.ndarray, Kb: int) -> np.ndarray:
-            if 2 * Kb >= Kc:  # whole rows: np.take (several times cheaper)
-                flat = np.take(idx, pp, axis=0)[:, :Kb]  # (m, Kb) fresh copy
-                w = np.take(inv, pp, axis=0)[:, :Kb]
-            else:  # narrow bucket of wide storage: gather only Kb columns
-                flat, w = idx[pp, :Kb], inv[pp, :Kb]
-            flat += (rr * Y1)[:, None]  # index into ext.ravel()
-            g = np.take(ext, flat)  # (m, Kb) b(y) on each point's support (inf: padding)
-            g *= w
-            return g
-
-        best = _pair_minima(r, p, wp, gain, B, ratios)
-        return base + best
-
-    def _value_columns_np(
-        self, beliefs: np.ndarray, x: np.ndarray, columns: np.ndarray
-    ) -> np.ndarray:
-        """:meth:`value_np` of beliefs given on the columns ``columns`` only (zero elsewhere).
-
-        A point lowers the bound at ``b`` only if ``b`` covers its support, so only points
-        whose support lies inside ``columns`` are gathered, through a global-to-local map.
-        """
-        assert self._np is not None
-        corner, idx, inv, px, _, gain, wid = self._np
-        B, C = beliefs.shape
-        if self.num_observed == 1:
-            base = beliefs @ corner[0, columns]  # (B,)
-        else:
-            base = (beliefs * corner[x[:, None], columns[None, :]]).sum(-1)
-        n = self.size
-        if n == 0 or B == 0:
-            return base
-        # global -> local column: outside ``columns`` -> C (b = 0), padding Y -> C + 1 (+inf)
-        local = np.full(self.num_hidden + 1, C, dtype=np.int64)
-        local[self.num_hidden] = C + 1
-        local[columns] = np.arange(C)
-        pos = np.concatenate([beliefs > 0, np.zeros((B, 1), dtype=bool)], axis=1)  # (B, C+1)
-        wr = pos.sum(-1)
-        cand = (gain[:n] < 0) & (wid[:n] <= wr.max())
-        if self.num_observed > 1:
-            cand &= np.isin(px[:n], x)
-        sel = np.flatnonzero(cand)
-        if sel.size == 0:
-            return base
-        ws = wid[sel]
-        first, last = local[idx[sel, 0]], local[idx[sel, ws - 1]]
-        inside = (first < C) & (last < C)  # support ends inside the columns
-        sel, ws, first, last = sel[inside], ws[inside], first[inside], last[inside]
-        if sel.size == 0:
-            return base
-        pair = pos[:, first] & pos[:, last] & (ws[None, :] <= wr[:, None])
-        if self.num_observed > 1:
-            pair &= px[sel][None, :] == x[:, None]
-        r, j = np.nonzero(pair)
-        if r.size == 0:
-            return base
-        p = sel[j]
-        wp = ws[j]
-        pad = np.zeros((B, 2), dtype=beliefs.dtype)
-        pad[:, 1] = np.inf
-        ext = np.concatenate([beliefs, pad], axis=1)  # (B, C + 2)
-
-        def ratios(rr: np.ndarray, pp: np.ndarray, Kb: int) -> np.ndarray:
-            return ext[rr[:, None], local[idx[pp, :Kb]]] * inv[pp, :Kb]  # (m, Kb)
-
-        best = _pair_minima(r, p, wp, gain, B, ratios)
-        return base + best
-
-    def _dense_min(self, beliefs: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """``(B,)`` ``min(0, min_i gain_i * min_{y in supp b_i} b(y) / b_i(y))`` per query.
-
-        From the dense per-``x`` tables ``q_i(y) = 1 / b_i(y)`` (``inf`` off the support):
-        the zeros of ``b`` are replaced by the smallest positive float, so ``b(y) q_i(y)`` is
-        ``inf`` off the support (never the minimum) and on the support ``b(y) / b_i(y)``, or a
-        ratio below ``1e-290`` where ``b(y) = 0`` (the point then moves the bound by less than
-        that, as it should not move it at all).
-        """
-        gain = self._np[5]  # type: ignore[index]
-        out = np.zeros(beliefs.shape[0], dtype=beliefs.dtype)
-        b_all = np.where(beliefs > 0, beliefs, np.finfo(beliefs.dtype).tiny)
+        beliefs = np.ascontiguousarray(beliefs)
         first = int(x[0])
-        if (x == first).all():
-            parts: Any = ((first, slice(None)),)
+        if self.num_observed == 1 or (x == first).all():
+            groups: list[tuple[int, np.ndarray]] = [(first, np.arange(B))]
         else:
             order = np.argsort(x, kind="stable")
             sx = x[order]
-            edges = [0, *(np.flatnonzero(sx[1:] != sx[:-1]) + 1).tolist(), sx.size]
-            parts = (
-                (int(sx[lo]), order[lo:hi]) for lo, hi in itertools.pairwise(edges)
-            )  # (observed value, rows) per group
-        Y = self.num_hidden
-        for xv, sel in parts:
-            m = int(self._count[xv])
-            if m == 0:
-                continue
-            q = self._q[xv][:, :m]  # (Y, P_x)
-            g = gain[self._members[xv][:m]]  # (P_x,)
-            b = b_all[sel]  # (B_x, Y)
-            if Y >= _PROBE_MIN_Y and m >= _PROBE_MIN_P:
-                low = self._pruned_min(xv, b, q, g)
-                if low is not None:
-                    out[sel] = low
-                    continue
-            # (step, Y, P_x) products sized to stay in cache: 2x faster than one big temporary
-            step = max(1, _DENSE_CHUNK // max(1, m * Y))
-            for start in range(0, b.shape[0], step):
-                ratio = (b[start : start + step, :, None] * q[None]).min(1)  # (b, P_x)
-                low = (ratio * g).min(-1)
-                if isinstance(sel, slice):
-                    out[start : start + step] = low
-                else:
-                    out[sel[start : start + step]] = low
-        return np.minimum(out, 0.0)
-
-    def _probes(self, xv: int, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(k, P_x)`` each point's ``k`` largest-probability states and their ``1 / b_i``.
-
-        Kept per observed value and extended to points added since the last call (the table
-        only grows between prunes; a prune rebuilds it and resets the probes).
-        """
-        m = q.shape[1]
-        Y = q.shape[0]
-        k = min(max(_PROBES, Y // _PROBE_SHARE) if Y >= _WIDE_PROBE_Y else _PROBES, Y)
-        done = self._probed.get(xv)
-        start = 0 if done is None else done[0].shape[1]
-        if done is not None and start == m:
-            return done
-        fresh = np.argpartition(q[:, start:m], k - 1, axis=0)[:k]  # (k, new) smallest 1/b_i
-        vals = np.take_along_axis(q[:, start:m], fresh, axis=0)
-        if done is not None and start:
-            fresh = np.concatenate([done[0], fresh], axis=1)
-            vals = np.concatenate([done[1], vals], axis=1)
-        self._probed[xv] = (fresh, vals)
-        return fresh, vals
-
-    def _pruned_min(
-        self, xv: int, b: np.ndarray, q: np.ndarray, g: np.ndarray
-    ) -> np.ndarray | None:
-        """``(B,)`` ``min_i g_i min_y b(y) q_i(y)`` by bounding before computing.
-
-        For each point, ``r_i = min_{y in probes_i} b(y) q_i(y) >= min_y b(y) q_i(y)`` (a
-        minimum over fewer states), so with ``g_i < 0`` the point's term is at least
-        ``g_i r_i``. The point with the lowest ``g_i r_i`` is evaluated exactly for each query;
-        then only the (query, point) pairs with ``g_i r_i`` below that are (Hallway2: a few per
-        cent of the pairs); when many pairs survive, the dense product over the points with a
-        surviving pair (RockSample_7_8.pomdpx: a third of the points). Exact: every term is
-        the same product, and the minimum is taken over a set holding the smallest, so the
-        result equals the dense minimum bit for bit. Returns ``None`` when nearly every point
-        survives (the dense product over all of them is then cheaper).
-        """
-        B, Y = b.shape
-        m = q.shape[1]
-        probe, qp = self._probes(xv, q)  # (k, m)
-        r = (b[:, probe] * qp[None]).min(1)  # (B, m) >= the true ratios
-        bound = r * g  # (B, m) <= the true terms where g < 0
-        j0 = bound.argmin(-1)  # (B,) most promising point per query
-        best = (b * q[:, j0].T).min(-1) * g[j0]  # (B,) exact term of that point
-        best = np.minimum(best, 0.0)
-        cand = bound < best[:, None]
-        cand[np.arange(B), j0] = False
-        rr, jj = np.nonzero(cand)
-        if rr.size * 3 > B * m:
-            cols = np.flatnonzero(cand.any(0))  # the points with a surviving pair
-            if cols.size * 4 > m * 3:
-                return None
-            qc, gc = q[:, cols], g[cols]  # (Y, c), (c,)
-            step = max(1, _DENSE_CHUNK // max(1, cols.size * Y))
-            for start in range(0, B, step):
-                ratio = (b[start : start + step, :, None] * qc[None]).min(1)  # (b, c)
-                low = (ratio * gc).min(-1)
-                best[start : start + step] = np.minimum(best[start : start + step], low)
-            return best
-        step = max(1, _DENSE_CHUNK // Y)
-        for start in range(0, rr.size, step):
-            ri, ji = rr[start : start + step], jj[start : start + step]
-            terms = (b[ri] * q[:, ji].T).min(-1) * g[ji]
-            np.minimum.at(best, ri, terms)
-        return best
+            cuts = np.flatnonzero(sx[1:] != sx[:-1]) + 1
+            groups = [(int(x[g[0]]), g) for g in np.split(order, cuts)]
+        out = np.empty(B, dtype=base.dtype)
+        for xv, rows in groups:
+            pts, key = self._sorted_points(xv)
+            out[rows] = sawtooth_corrections(beliefs, rows, pts, idx, inv, wid, gain, key, local)
+        return base + out
 
     # -- updates -----------------------------------------------------------------------------
     def add(self, beliefs: torch.Tensor, x: torch.Tensor, values: torch.Tensor) -> None:
@@ -612,6 +344,7 @@ class SawtoothUpperBound:
         c = torch.cat([self.corner, self.corner.new_zeros(self.num_observed, 1)], dim=1)
         self._gain[s] = bv - (c[bx].gather(1, idx) * val).sum(-1)
         self._w[s] = width[rows]
+        self._mass[s] = b.sum(-1)
         self.size += m
         if self._np is not None:
             for i, xi in enumerate(bx.tolist()):
@@ -641,6 +374,7 @@ class SawtoothUpperBound:
         self._v[n] = value[0]
         self._gain[n] = value[0] - (self.corner[x, idx] * val).sum()
         self._w[n] = w
+        self._mass[n] = val.sum()
         self.size = n + 1
 
     def add_np(self, belief: np.ndarray, x: int, value: float) -> None:
@@ -664,7 +398,7 @@ class SawtoothUpperBound:
         self._grow(self.size + 1, w)
         n = self.size
         val = belief[idx]
-        _, I, inv, px, v, gain, wid = self._np
+        _, I, inv, px, v, gain, wid, mass = self._np
         I[n, :w] = idx
         I[n, w:] = self.num_hidden
         inv[n, :w] = 1.0 / val
@@ -673,6 +407,7 @@ class SawtoothUpperBound:
         v[n] = value
         gain[n] = value - float(corner[x, idx] @ val)
         wid[n] = w
+        mass[n] = val.sum()
         self.size = n + 1
         self._add_member(x, n)
 
@@ -697,11 +432,13 @@ class SawtoothUpperBound:
             # Temporarily disable the evaluated points (one at a time in each block would be
             # exact; disabling the whole block is conservative: it only keeps more points).
             self._gain[start:stop] = 0.0
+            self._sorted = [None] * self.num_observed  # the key order follows the gains
             if self._np is not None:
                 others = torch.from_numpy(self.value_np(beliefs[rows].numpy(), x[rows].numpy()))
             else:
                 others = self.value(beliefs[rows], x[rows])
             self._gain[start:stop] = saved[start:stop]
+            self._sorted = [None] * self.num_observed
             keep[start:stop] &= v[rows] < others - 1e-12 * others.abs().clamp(min=1.0)
         sel = keep.nonzero().squeeze(-1)
         removed = n - sel.numel()
@@ -712,6 +449,7 @@ class SawtoothUpperBound:
             self._v[: sel.numel()] = self._v[sel]
             self._gain[: sel.numel()] = self._gain[sel]
             self._w[: sel.numel()] = self._w[sel]
+            self._mass[: sel.numel()] = self._mass[sel]
             self.size = sel.numel()
             self._rebuild_members()
         self._alive_after_prune = self.size

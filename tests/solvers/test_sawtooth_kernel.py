@@ -1,0 +1,110 @@
+"""The sawtooth's inner loop: the C extension equals its Python reference and the exhaustive
+formula bit for bit, and rejects arrays that would make it read stray memory."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from torchhrc.solvers import sawtooth_kernel
+from torchhrc.solvers.sawtooth_kernel import _corrections, sawtooth_corrections
+
+try:
+    from torchhrc.solvers._sawtooth import corrections as compiled
+except ImportError:  # pragma: no cover - the extension is built by pip install
+    compiled = None
+
+needs_extension = pytest.mark.skipif(compiled is None, reason="the C extension is not built")
+
+
+def _problem(seed: int, *, mapped: bool):
+    """Random points (supports of 1..8 of Y values, negative and positive gains), queries."""
+    rng = np.random.default_rng(seed)
+    Y, P, K, B = 30, 40, 8, 12
+    idx = np.zeros((P + 5, K), dtype=np.int64)  # 5 free slots, as in the bound's storage
+    inv = np.ones((P + 5, K))
+    wid = np.zeros(P + 5, dtype=np.int64)
+    mass = np.ones(P + 5)
+    for i in range(P):
+        w = int(rng.integers(1, K + 1))
+        supp = np.sort(rng.choice(Y, w, replace=False))
+        p = rng.random(w) + 0.05
+        p /= p.sum()
+        idx[i, :w], inv[i, :w], wid[i] = supp, 1.0 / p, w
+        mass[i] = p.sum()
+    gain = rng.normal(-1.0, 1.0, P + 5)
+    beliefs = rng.random((B, Y)) * (rng.random((B, Y)) < 0.8) * rng.uniform(0.2, 1.0, (B, 1))
+    ids = np.flatnonzero(gain[:P] < 0)
+    key = gain[ids] / mass[ids]
+    order = ids[np.argsort(key, kind="stable")]
+    key = np.sort(key, kind="stable")
+    local = None
+    if mapped:  # the beliefs given on some columns only (zero elsewhere)
+        cols = np.sort(rng.choice(Y, 20, replace=False))
+        local = np.full(Y, cols.size, dtype=np.int64)
+        local[cols] = np.arange(cols.size)
+        beliefs = np.ascontiguousarray(beliefs[:, cols])
+    return beliefs, order, idx, inv, wid, gain, key, local
+
+
+def _exhaustive(beliefs, order, idx, inv, wid, gain, local):
+    """``min(0, min_i g_i min_k b(y_k) / b_i(y_k))`` over every candidate point."""
+    out = np.zeros(beliefs.shape[0])
+    for q, b in enumerate(beliefs):
+        full = b if local is None else np.append(b, 0.0)[np.minimum(local, b.size)]
+        for j in order:
+            r = (full[idx[j, : wid[j]]] * inv[j, : wid[j]]).min()
+            out[q] = min(out[q], gain[j] * r)
+    return out
+
+
+@pytest.mark.parametrize("mapped", [False, True])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_early_stops_give_the_exhaustive_minimum(seed, mapped, monkeypatch):
+    beliefs, order, idx, inv, wid, gain, key, local = _problem(seed, mapped=mapped)
+    rows = np.arange(beliefs.shape[0], dtype=np.int64)
+    want = _exhaustive(beliefs, order, idx, inv, wid, gain, local)
+    assert (want < 0).sum() >= 6  # the points do lower the bound at most queries
+    monkeypatch.setattr(sawtooth_kernel, "_KERNEL", _corrections)
+    ref = sawtooth_corrections(beliefs, rows, order, idx, inv, wid, gain, key, local)
+    np.testing.assert_array_equal(ref, want)  # bit for bit: the same products are kept
+    if compiled is not None:
+        monkeypatch.setattr(sawtooth_kernel, "_KERNEL", compiled)
+        got = sawtooth_corrections(beliefs, rows, order, idx, inv, wid, gain, key, local)
+        np.testing.assert_array_equal(got, want)
+        sub = rows[::3][::-1].copy()  # a subset of the rows, in any order
+        part = sawtooth_corrections(beliefs, sub, order, idx, inv, wid, gain, key, local)
+        np.testing.assert_array_equal(part, want[sub])
+
+
+def test_no_candidate_point_gives_zero():
+    beliefs, _, idx, inv, wid, gain, _, _ = _problem(0, mapped=False)
+    rows = np.arange(3, dtype=np.int64)
+    empty = np.empty(0, dtype=np.int64)
+    out = sawtooth_corrections(beliefs, rows, empty, idx, inv, wid, gain, empty.astype(float))
+    np.testing.assert_array_equal(out, np.zeros(3))
+
+
+@needs_extension
+def test_extension_rejects_bad_arrays():
+    beliefs, order, idx, inv, wid, gain, key, _ = _problem(0, mapped=False)
+    rows = np.arange(2, dtype=np.int64)
+    out = np.empty(2)
+    none = np.empty(0, dtype=np.int64)
+    args = [beliefs, rows, order, idx, inv, wid, gain, key, none, out]
+    with pytest.raises(TypeError, match="inv"):
+        compiled(*args[:4], inv.astype(np.float32), *args[5:])
+    with pytest.raises(TypeError, match="beliefs"):
+        compiled(np.asfortranarray(beliefs), *args[1:])
+    with pytest.raises(TypeError, match="10 arguments"):
+        compiled(*args[:9])
+    with pytest.raises(IndexError, match="row"):
+        compiled(beliefs, np.array([0, beliefs.shape[0]]), *args[2:])
+    with pytest.raises(IndexError, match="point"):
+        compiled(*args[:2], np.array([idx.shape[0]]), *args[3:7], key[:1], none, out)
+    bad = idx.copy()
+    bad[order[0], 0] = 10_000  # a support index past the columns
+    with pytest.raises(IndexError, match="support index"):
+        compiled(*args[:3], bad, *args[4:])
+    with pytest.raises(ValueError, match="shapes"):
+        compiled(*args[:9], np.empty(5))

@@ -1,0 +1,167 @@
+"""Compiled inner loop of the sawtooth upper bound (CPU): one pass over points sorted by gain.
+
+The sawtooth correction at a (possibly unnormalised) belief ``b`` is (Hauskrecht 2000;
+Smith & Simmons 2004; Kurniawati, Hsu & Lee 2008)::
+
+    corr(b) = min(0, min_i g_i * r_i(b)),   r_i(b) = min_{y in supp b_i} b(y) / b_i(y)
+
+with the gains ``g_i = v_i - b_i . c`` (only points with ``g_i < 0`` can lower the bound).
+Two exact bounds let the loop skip most of the work without changing the result:
+
+* ``r_i(b) <= m(b) / s_i`` where ``m(b) = sum_y b(y)`` and ``s_i = sum_y b_i(y)`` (a minimum
+  of ratios is at most the ratio of the sums), so ``g_i r_i(b) >= k_i m(b)`` with the key
+  ``k_i = g_i / s_i``. Points visited in increasing key order: once ``k_i m(b)`` reaches the
+  best term so far, no later point can lower it, and the scan over points stops.
+* ``r_i`` only decreases while a point's support is scanned, so ``g_i r_i`` only increases;
+  once it reaches the best term the point is abandoned (a zero of ``b`` on the support, the
+  usual case for a point of another region of the belief space, ends it at once).
+
+Every term that is kept is the same product ``g_i * min_k (b(y_k) * (1 / b_i(y_k)))`` as a
+full evaluation, so the result equals the exhaustive minimum bit for bit. APPL evaluates its
+sawtooth the same way, over the points' sparse supports with early termination
+(``FullObsUBInitializer`` / ``SawtoothUpperBound::getValue`` in its public source); the key
+order and the stop on it are this module's.
+
+The loop is C (``_sawtooth.c``, built by ``pip install``: a CPython extension with no
+dependency beyond Python's headers); :func:`_corrections` below is the same loop in Python,
+the reference of the tests and the fallback where the extension was not built (no C
+compiler at install time: a warning says so once). ``TORCHHRC_NO_EXTENSION=1`` forces the
+Python loop.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Callable
+
+import numpy as np
+
+__all__ = ["sawtooth_corrections"]
+
+_SLACK = 1.0 + 1e-12  # the key bound with room for the round-off of the products
+
+
+def _corrections(
+    beliefs: np.ndarray,
+    rows: np.ndarray,
+    order: np.ndarray,
+    idx: np.ndarray,
+    inv: np.ndarray,
+    wid: np.ndarray,
+    gain: np.ndarray,
+    key: np.ndarray,
+    local: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """The loop of ``_sawtooth.c`` in Python (arguments of :func:`sawtooth_corrections`)."""
+    C = beliefs.shape[1]
+    mapped = local.shape[0] > 0
+    for q in range(rows.shape[0]):
+        row = rows[q]
+        mass = 0.0
+        for c in range(C):
+            mass += beliefs[row, c]
+        best = 0.0
+        for t in range(order.shape[0]):
+            j = order[t]
+            if key[t] * mass * _SLACK >= best:
+                break  # no later point has a lower bound on its term
+            g = gain[j]
+            r = np.inf
+            for k in range(wid[j]):
+                y = idx[j, k]
+                if mapped:
+                    y = local[y]
+                    if y >= C:  # outside the given columns: b(y) = 0
+                        r = 0.0
+                        break
+                v = beliefs[row, y] * inv[j, k]
+                if v < r:
+                    r = v
+                    if g * r >= best:
+                        break
+            term = g * r
+            if term < best:
+                best = term
+        out[q] = best
+
+
+_KERNEL: Callable[..., None] | None = None
+_NO_MAP = np.empty(0, dtype=np.int64)
+
+
+def _kernel() -> Callable[..., None]:
+    """The compiled loop, or the Python one (with a warning) where it was not built."""
+    global _KERNEL
+    if _KERNEL is None:
+        if os.environ.get("TORCHHRC_NO_EXTENSION", "") not in ("", "0"):
+            _KERNEL = _corrections
+        else:
+            try:
+                from torchhrc.solvers._sawtooth import corrections
+            except ImportError:
+                warnings.warn(
+                    "torchhrc's compiled sawtooth loop (torchhrc/solvers/_sawtooth.c) is not "
+                    "built, so SARSOP's upper bound runs a Python loop, many times slower: "
+                    "reinstall with a C compiler present (pip install -e .), or build it in "
+                    "place with python setup.py build_ext --inplace",
+                    RuntimeWarning,
+                    stacklevel=3,
+                )
+                _KERNEL = _corrections
+            else:
+                _KERNEL = corrections
+    return _KERNEL
+
+
+def sawtooth_corrections(
+    beliefs: np.ndarray,
+    rows: np.ndarray,
+    order: np.ndarray,
+    idx: np.ndarray,
+    inv: np.ndarray,
+    wid: np.ndarray,
+    gain: np.ndarray,
+    key: np.ndarray,
+    local: np.ndarray | None = None,
+) -> np.ndarray:
+    """``(R,)`` sawtooth corrections ``min(0, min_i g_i min_y b(y) / b_i(y))`` of some rows.
+
+    Args:
+        beliefs: ``(B, C)`` float64 non-negative weights, C-contiguous.
+        rows: ``(R,)`` int64 the rows of ``beliefs`` to evaluate.
+        order: ``(P',)`` int64 the candidate points, by increasing ``key`` (only ``key < 0``).
+        idx: ``(cap, K)`` int64 support of each point (hidden values; entries past ``wid``
+            unused). inv: ``(cap, K)`` float64 ``1 / b_i(y)`` on the support.
+        wid: ``(cap,)`` int64 support widths. gain: ``(cap,)`` the gains ``g_i``.
+        key: ``(P',)`` the keys ``g_i / s_i`` of the points of ``order`` (see the module
+            docstring), increasing.
+        local: optional ``(Y,)`` int64 map from hidden value to column of ``beliefs``, ``C``
+            (or more) where the column is not given (``b = 0`` there); without it the columns
+            are the hidden values themselves.
+
+    Returns:
+        ``(R,)`` float64 corrections (``<= 0``).
+
+    Example:
+        >>> import numpy as np
+        >>> b = np.array([[0.2, 0.8]])  # one query; one point b_1 = (0.4, 0.6) with gain -1
+        >>> idx, inv, g = np.array([[0, 1]]), np.array([[1 / 0.4, 1 / 0.6]]), np.array([-1.0])
+        >>> sawtooth_corrections(b, np.array([0]), np.array([0]), idx, inv, np.array([2]), g, g)
+        array([-0.5])
+    """
+    out = np.empty(rows.shape[0], dtype=np.float64)
+    if rows.shape[0] == 0:
+        return out
+    if order.shape[0] == 0:
+        out.fill(0.0)
+        return out
+    loc = _NO_MAP if local is None else local
+    f, i = np.float64, np.int64
+    if inv.dtype != f:  # a float32 bound: the loop runs in float64
+        beliefs, inv, gain, key = (a.astype(f) for a in (beliefs, inv, gain, key))
+    _kernel()(np.ascontiguousarray(beliefs, dtype=f), np.ascontiguousarray(rows, dtype=i),
+              np.ascontiguousarray(order, dtype=i), idx, inv, wid, gain,
+              np.ascontiguousarray(key, dtype=f), loc, out)  # fmt: skip
+    return out

@@ -875,8 +875,11 @@ class _SARSOP:
         they live on); they and ``b`` are bounded by one product against the alpha vectors
         and one sawtooth evaluation. Returns ``q_low (A,)``, ``q_up (A,)``, ``prob``, ``low``,
         ``up`` (``(A, K, O)`` each, as :class:`_Evaluation`), ``best (A, K, O)``,
-        ``V_low(b)``, ``V_up(b)``. ``stale``: the node's cached evaluation, see
-        :meth:`_upper_np`.
+        ``V_low(b)``, ``V_up(b)``, the children's observed values ``child_x (A * K * O,)`` and
+        the best vector at ``b`` itself. ``best`` holds the possible children's vectors only
+        (0 elsewhere): a backup fills the impossible children of the one action it takes
+        (:meth:`_impossible_best_np`); the sampling and the pruning read possible ones only.
+        ``stale``: the node's cached evaluation, see :meth:`_upper_np`.
         """
         ch = self.form.children_np(x, b)
         A, K, O = ch.prob.shape
@@ -884,7 +887,7 @@ class _SARSOP:
         m = ch.nz.size
         low = np.zeros(A * K * O, dtype=b.dtype)
         low[ch.nz] = low_r[:m]
-        best = self._impossible_best_np(x, b, ch.child_x, ch.nz, int(best_r[m]))
+        best = np.zeros(A * K * O, dtype=np.int64)
         best[ch.nz] = best_r[:m]
         q_low = ch.reward + self.gamma * low.reshape(A, K * O).sum(-1)
         rows, rows_x, cols = ch.rows, ch.rows_x, ch.cols
@@ -894,7 +897,7 @@ class _SARSOP:
         )  # fmt: skip
         shape = (A, K, O)
         return (q_low, q_up, ch.prob, low.reshape(shape), up.reshape(shape), best.reshape(shape),
-                float(low_r[m]), cu)  # fmt: skip
+                float(low_r[m]), cu, ch.child_x, int(best_r[m]))  # fmt: skip
 
     def _impossible_best_np(self, x: int, b: np.ndarray, child_x: np.ndarray, nz: np.ndarray,
                             own: int | None = None) -> np.ndarray:  # fmt: skip
@@ -929,9 +932,15 @@ class _SARSOP:
         tree = self.tree
         b = tree.beliefs_np[node]
         stale = self._cache.get(int(self.belief_id[node])) if self.cfg.lazy_upper else None
-        q_low, q_up, prob, low_c, up_c, best, lo, cu = self._evaluate_np(x, b, stale)
+        q_low, q_up, prob, low_c, up_c, best, lo, cu, child_x, own = self._evaluate_np(x, b, stale)
         a = int(q_low.argmax())
-        W = self.alphas.np_vectors[best[a]]  # (K, O, Y)
+        use = best[a]  # (K, O); the impossible children's vectors for this action only
+        ch_a = child_x.reshape(best.shape[0], -1)[a]
+        possible = np.flatnonzero(prob[a].reshape(-1) > 0)
+        if possible.size < use.size:
+            use = self._impossible_best_np(x, b, ch_a, possible, own).reshape(use.shape)
+            use.reshape(-1)[possible] = best[a].reshape(-1)[possible]
+        W = self.alphas.np_vectors[use]  # (K, O, Y)
         vals = (self.form.observation_np(x)[a] * W).sum(1)  # (K, Y)
         alpha = self._npR[a, x] + self.gamma * self.form.backproject_np(x, a, vals)  # (Y,)
         nl = float(alpha @ b)

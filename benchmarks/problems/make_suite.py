@@ -73,9 +73,7 @@ def check_problems() -> dict[str, object]:
     return {
         "rnd_S30_A3_O6.pomdp": random_pomdp(30, 3, 6, seed=101, discount=0.95),
         "rnd_S80_A4_O10_sp.pomdp": random_pomdp(80, 4, 10, sparsity=0.9, seed=102, discount=0.95),
-        "rnd_S200_A5_O6_sp.pomdp": random_pomdp(
-            200, 5, 6, sparsity=0.95, seed=103, discount=0.95
-        ),
+        "rnd_S200_A5_O6_sp.pomdp": random_pomdp(200, 5, 6, sparsity=0.95, seed=103, discount=0.95),
         "rnd_S40_A8_O3_peaky.pomdp": random_pomdp(
             40, 8, 3, concentration=0.3, seed=104, discount=0.9
         ),

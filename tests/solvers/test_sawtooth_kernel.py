@@ -3,6 +3,8 @@ formula bit for bit, and rejects arrays that would make it read stray memory."""
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -108,3 +110,31 @@ def test_extension_rejects_bad_arrays():
         compiled(*args[:3], bad, *args[4:])
     with pytest.raises(ValueError, match="shapes"):
         compiled(*args[:9], np.empty(5))
+
+
+def test_without_the_extension_the_python_loop_runs_with_a_warning(monkeypatch):
+    beliefs, order, idx, inv, wid, gain, key, _ = _problem(1, mapped=False)
+    rows = np.arange(beliefs.shape[0], dtype=np.int64)
+    want = _exhaustive(beliefs, order, idx, inv, wid, gain, None)
+    monkeypatch.setitem(sys.modules, "torchhrc.solvers._sawtooth", None)  # import fails
+    monkeypatch.setattr(sawtooth_kernel, "_KERNEL", None)
+    monkeypatch.delenv("TORCHHRC_NO_EXTENSION", raising=False)
+    with pytest.warns(RuntimeWarning, match="build_ext --inplace"):
+        got = sawtooth_corrections(beliefs, rows, order, idx, inv, wid, gain, key)
+    np.testing.assert_array_equal(got, want)
+    assert sawtooth_kernel._KERNEL is _corrections
+    monkeypatch.setattr(sawtooth_kernel, "_KERNEL", None)
+    monkeypatch.setenv("TORCHHRC_NO_EXTENSION", "1")  # forced: no warning
+    got = sawtooth_corrections(beliefs, rows, order, idx, inv, wid, gain, key)
+    assert sawtooth_kernel._KERNEL is _corrections
+
+
+def test_a_float32_bound_is_evaluated_in_float64():
+    beliefs, order, idx, inv, wid, gain, key, _ = _problem(2, mapped=False)
+    rows = np.arange(beliefs.shape[0], dtype=np.int64)
+    f = np.float32
+    got = sawtooth_corrections(beliefs.astype(f), rows, order, idx, inv.astype(f),
+                               wid, gain.astype(f), key.astype(f))  # fmt: skip
+    b64, inv64, gain64 = (a.astype(f).astype(float) for a in (beliefs, inv, gain))
+    want = _exhaustive(b64, order, idx, inv64, wid, gain64, None)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)

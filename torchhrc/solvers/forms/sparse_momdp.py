@@ -51,6 +51,7 @@ from torchhrc.solvers.sparse_model import (
     SparseFlatModel,
     blind_iteration_np,
     qmdp_iteration_np,
+    self_loop_probs,
 )
 from torchhrc.sparse_momdp import SparseMOMDP
 
@@ -230,7 +231,8 @@ class SparseMOMDPForm(SolverModel):
     def blind_vectors(self, tol: float = 1e-8, max_iterations: int = 100_000) -> torch.Tensor:
         """``(A, X, Y)`` blind-policy vectors ``alpha_a = R_a + gamma P_a alpha_a``
         (Hauskrecht 2000): exact by LU up to ``DIRECT_SOLVE_SIZE`` states, else iterated
-        from ``min R / (1 - gamma)`` with ``max(new, old)`` (every iterate a lower bound)."""
+        from ``min R / (1 - gamma)`` with ``max(new, old)`` (every iterate a lower bound),
+        each state's self-loop solved exactly (:func:`blind_iteration_np`)."""
         A, X, Y = self.num_actions, self.num_observed, self.num_hidden
         g = self.discount
         if g >= 1.0:
@@ -244,7 +246,10 @@ class SparseMOMDPForm(SolverModel):
             rhs = R.reshape(A, S, 1)
             out = np.linalg.solve(np.eye(S)[None] - g * P, rhs)
             return torch.from_numpy(out.reshape(A, X, Y).astype(R.dtype, copy=False))
-        return torch.from_numpy(blind_iteration_np(R, g, self.expect_np, tol, max_iterations))
+        loops = self_loop_probs(self.row, self.col, self.prob, A, S).reshape(A, X, Y)
+        return torch.from_numpy(
+            blind_iteration_np(R, g, self.expect_np, tol, max_iterations, self_prob=loops)
+        )
 
     def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
         if max_iterations is None:  # the discounted tail below 1e-3 of the first step's

@@ -110,12 +110,17 @@ def test_blind_vectors_iterated_past_the_direct_size_are_a_converging_lower_boun
     old = module.DIRECT_SOLVE_SIZE
     module.DIRECT_SOLVE_SIZE = 0  # force the iteration
     try:
-        few = sparse.blind_vectors(max_iterations=30)
+        few = sparse.blind_vectors(max_iterations=3)
+        chain = sparse.blind_vectors(max_iterations=5)
         many = sparse.blind_vectors()
     finally:
         module.DIRECT_SOLVE_SIZE = old
     assert bool((few <= exact + 1e-12).all()) and bool((few < exact - 1e-3).any())
     torch.testing.assert_close(many, exact, rtol=0, atol=1e-6)
+    # every blind chain of RockSample(4, 4) is at most 4 deterministic moves into a state that
+    # loops on itself (a wall, a check, the exit), whose value each step solves exactly: the
+    # fifth iterate is the exact value (plain iteration needs log(tol) / log(gamma) steps)
+    torch.testing.assert_close(chain, exact, rtol=0, atol=1e-9)
 
 
 def test_sarsop_reaches_the_dense_momdp_bounds() -> None:

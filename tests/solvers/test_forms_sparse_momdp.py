@@ -123,6 +123,60 @@ def test_blind_vectors_iterated_past_the_direct_size_are_a_converging_lower_boun
     torch.testing.assert_close(chain, exact, rtol=0, atol=1e-9)
 
 
+@pytest.mark.parametrize("name", sorted(MODELS))
+def test_expectations_of_the_distinct_actions_equal_the_dense_products(name: str) -> None:
+    dense, sparse = _pair(name)
+    m = dense.model
+    A, X, Y = sparse.num_actions, sparse.num_observed, sparse.num_hidden
+    P = m.Tx.unsqueeze(-1) * (torch.eye(Y).view(1, 1, Y, 1, Y) if m.Ty is None else m.Ty)
+    P = P.to(torch.float64)  # (A, X, Y, X2, Y2)
+    g = torch.Generator().manual_seed(2)
+    V = torch.randn(X, Y, generator=g, dtype=torch.float64)
+    per_action = torch.randn(A, X, Y, generator=g, dtype=torch.float64)
+    want = torch.einsum("axyzw,zw->axy", P, V)
+    got = torch.from_numpy(sparse.expect_np(V.numpy()))
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
+    want_pa = torch.einsum("axyzw,azw->axy", P, per_action)
+    torch.testing.assert_close(torch.from_numpy(sparse.expect_np(per_action.numpy())), want_pa,
+                               rtol=0, atol=1e-12)  # fmt: skip
+    # actions are merged exactly when their rewards and transitions are equal
+    rows, inverse = sparse.distinct_actions()
+    R = sparse.R
+    for a in range(A):
+        for b in range(A):
+            same = bool((R[a] == R[b]).all()) and bool((P[a] == P[b]).all())
+            assert (inverse[a] == inverse[b]) == same, (a, b)
+        assert rows.acts[inverse[a]] in [b for b in range(A) if inverse[b] == inverse[a]]
+    # the distinct actions' expectations, spread back, are every action's
+    assert torch.equal(
+        torch.from_numpy(rows.expect(V.numpy())[inverse]), got
+    )  # bit-identical: the same products in the same order
+    if name == "rock_sample_4_4":  # the four checks stay put: one kind (moves, sample, check)
+        assert len(rows.acts) == A - 3
+
+
+def test_momdp_bounds_on_distinct_actions_equal_those_on_every_action() -> None:
+    # bit-identical: the iterations on the distinct actions take the same maxima of the same
+    # floats as on all of them
+    from torchhrc.solvers.forms import sparse_momdp as module
+    from torchhrc.solvers.sparse_model import blind_iteration_np, qmdp_iteration_np
+
+    _, sparse = _pair("rock_sample_4_4")
+    R, g = sparse.R.numpy(), sparse.discount
+    every = qmdp_iteration_np(R, g, sparse.expect_np, 1e-9)
+    assert np.array_equal(sparse.qmdp_np(1e-9), every)
+    old = module.DIRECT_SOLVE_SIZE
+    module.DIRECT_SOLVE_SIZE = 0  # the iteration, as on a large model
+    try:
+        got = sparse.blind_vectors(max_iterations=3).numpy()
+    finally:
+        module.DIRECT_SOLVE_SIZE = old
+    A, X, Y = R.shape
+    loops = module.self_loop_probs(sparse.row, sparse.col, sparse.prob, A, X * Y)
+    want = blind_iteration_np(R, g, sparse.expect_np, 1e-8, 3, self_prob=loops.reshape(R.shape))
+    assert np.array_equal(got, want)
+
+
 def test_sarsop_reaches_the_dense_momdp_bounds() -> None:
     """From the same initial bounds the search is the same up to round-off of the products
     (so the bounds agree after a fixed number of iterations); with each form's own initial

@@ -86,20 +86,29 @@ class SparseMOMDPForm(SolverModel):
         self.factored = True
         self.state_shape, self.state_doc = (X, Y), "(X, Y)"
         index, prob = model.transitions
-        idx = index.cpu().numpy().astype(np.int64)
+        idx = index.cpu().numpy().astype(np.int64, copy=False)
         row = (idx[:, 0] * X + idx[:, 1]) * Y + idx[:, 2]
         col = idx[:, 3] * Y + idx[:, 4]
         key = row * (X * Y) + col
-        uniq, inv = np.unique(key, return_inverse=True)
-        vals = np.bincount(inv, weights=prob.cpu().double().numpy(), minlength=uniq.size)
+        vals = prob.cpu().numpy().astype(np.float64, copy=False)
+        if key.size and bool((key[1:] > key[:-1]).all()):
+            # already sorted without duplicates (read_pomdpx's order): no sort, no divisions
+            vals = vals + 0.0  # as the sum below: -0.0 becomes 0.0
+            act = idx[:, 0].copy()
+        else:
+            uniq, inv = np.unique(key, return_inverse=True)
+            vals = np.bincount(inv, weights=vals, minlength=uniq.size)
+            row, col = uniq // (X * Y), uniq % (X * Y)
+            act = row // (X * Y)
         keep = vals != 0
-        uniq, vals = uniq[keep], vals[keep]
-        self.row, self.col = uniq // (X * Y), uniq % (X * Y)
+        if not keep.all():
+            row, col, vals, act = row[keep], col[keep], vals[keep], act[keep]
+        self.row, self.col = row, col
         self.prob = vals.astype(self.R.numpy().dtype)
-        self.nnz = int(uniq.size)
-        self._act = self.row // (X * Y)
-        self._x = self.row // Y % X
-        self._y = self.row % Y
+        self.nnz = int(row.size)
+        self._act = act
+        self._x = row // Y % X
+        self._y = row % Y
         # one entry per (a, x, y, x2) group: FIB equals QMDP
         group = self.row * X + self.col // Y
         self._group_starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])

@@ -311,3 +311,25 @@ def test_read_pomdpx_returns_the_sparse_momdp_when_the_dense_one_does_not_fit(
     cfg = SARSOPConfig(time_limit=1e9, precision=1e-6, max_iterations=40)
     a, b = solve(dense, cfg), solve(sm, cfg)
     assert b.lower <= a.upper + 1e-9 and a.lower <= b.upper + 1e-9
+
+
+def test_unsorted_and_duplicated_nonzeros_give_the_same_form() -> None:
+    # read_pomdpx gives the nonzeros sorted and unique (the form then skips its sort); a user's
+    # may come in any order, a cell split in parts: the form sums and sorts them
+    import dataclasses
+
+    model = SparseMOMDP.from_dense(rock_sample_momdp(4, 4))
+    index, prob = model.transitions
+    g = torch.Generator().manual_seed(0)
+    order = torch.randperm(prob.numel(), generator=g)
+    split = order[: prob.numel() // 3]  # a third of the cells in two halves
+    index2 = torch.cat([index[order], index[split]])
+    prob2 = torch.cat([prob[order], torch.zeros(0, dtype=prob.dtype)])
+    prob2[: split.numel()] *= 0.5
+    prob2 = torch.cat([prob2, prob[split] * 0.5])
+    messy = dataclasses.replace(model, transitions=(index2, prob2))
+    a, b = SparseMOMDPForm(model), SparseMOMDPForm(messy)
+    assert np.array_equal(a.row, b.row) and np.array_equal(a.col, b.col)
+    np.testing.assert_allclose(a.prob, b.prob, rtol=0, atol=1e-15)
+    assert np.array_equal(a._act, b._act) and np.array_equal(a._x, b._x)
+    torch.testing.assert_close(a.blind_vectors(), b.blind_vectors(), rtol=0, atol=1e-12)

@@ -18,7 +18,10 @@ gather, each costing ``A Y W`` (``W = 1`` for RockSample) instead of ``A K Y^2``
 The bounds run on the nonzeros sorted by row ``(a, x, y)``: the blind policies (Hauskrecht
 2000; exact by LU up to :data:`~torchhrc.solvers._factored.DIRECT_SOLVE_SIZE` states),
 QMDP by value iteration (Littman et al. 1995), and the Fast Informed Bound step summed per
-``(a, x, y, x2)`` group (skipped when every group has one ``y2``: then FIB equals QMDP).
+``(a, x, y, x2)`` group (skipped when every group has one ``y2``: then FIB equals QMDP). The
+blind and QMDP iterations run on one action of each kind
+(:meth:`SparseMOMDPForm.distinct_actions`: actions with the same rewards and transitions
+have the same vectors) and take a deterministic move of ``x`` that keeps ``y`` as row copies.
 
 Example:
     >>> from torchhrc.solvers.forms import as_solver_model
@@ -204,7 +207,7 @@ class SparseMOMDPForm(SolverModel):
     # -- initial bounds ----------------------------------------------------------------------
     def expect_np(self, V: np.ndarray) -> np.ndarray:
         """``(A, X, Y)`` ``sum_{x2, y2} P(x2, y2 | x, y, a) V[x2, y2]`` for ``V (X, Y)``, or
-        per action ``V (A, X, Y)`` (:class:`_ActionRows` of every action)."""
+        per action ``V (A, X, Y)`` (``_ActionRows`` of every action)."""
         rows = self._cached("rows", 0, lambda: _ActionRows(self, np.arange(self.num_actions)))
         return rows.expect(V)
 
@@ -212,7 +215,7 @@ class SparseMOMDPForm(SolverModel):
         """The actions with distinct rewards and transitions, and where each action's are.
 
         Returns:
-            ``rows``, the :class:`_ActionRows` of one action of each kind (``rows.acts``,
+            ``rows``, the ``_ActionRows`` of one action of each kind (``rows.acts``,
             those whose rows are copies first), and ``inverse (A,)``, the position in
             ``rows.acts`` of the action with the same ``R[a]`` and ``P(. | ., a)`` as ``a``.
             Such actions (RockSample's checks, which differ only in what they observe) have

@@ -277,7 +277,16 @@ class SparseMOMDPForm(SolverModel):
             g = self.discount
             max_iterations = int(min(1000, math.ceil(math.log(1e-3) / math.log(g)))) if g > 0 else 1
         vectors = self.blind_vectors(max_iterations=max_iterations)
-        return AlphaVectorPolicy.from_action_vectors(vectors, momdp=True)
+        # one vector per kind of action (the first of each: identical actions have identical
+        # vectors, and of equal vectors pruning keeps the first anyway); RockSample(11, 11):
+        # 732 vectors instead of 1952, the same value function and the same pruned set
+        kinds = torch.from_numpy(np.sort(self.distinct_actions()[0].acts))
+        X, U = self.num_observed, kinds.numel()
+        return AlphaVectorPolicy(
+            alphas=vectors[kinds].transpose(0, 1).reshape(X * U, self.num_hidden),
+            actions=kinds.repeat(X),
+            observed=torch.arange(X).repeat_interleave(U),
+        )
 
     def qmdp_np(self, tol: float = 1e-8, deadline: Deadline = NEVER) -> np.ndarray:
         """``(A, X, Y)`` QMDP vectors (:func:`qmdp_iteration_np` on the

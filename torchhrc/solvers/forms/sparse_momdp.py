@@ -221,6 +221,15 @@ class SparseMOMDPForm(SolverModel):
             Such actions (RockSample's checks, which differ only in what they observe) have
             the same QMDP and blind vectors: the MDP bounds iterate on ``rows.acts`` alone
             (RockSample(11, 11): 6 of 16 actions).
+
+        Example:
+            >>> from torchhrc.solvers.forms import as_solver_model
+            >>> from torchhrc.sparse_momdp import SparseMOMDP
+            >>> from torchhrc.tasks.classic import rock_sample_momdp
+            >>> form = as_solver_model(SparseMOMDP.from_dense(rock_sample_momdp(4, 4)))
+            >>> rows, inverse = form.distinct_actions()  # 4 moves, sample (4), 4 checks
+            >>> rows.acts.tolist(), inverse.tolist()
+            ([0, 1, 2, 3, 5, 4], [0, 1, 2, 3, 5, 4, 4, 4, 4])
         """
         return self._cached("distinct", 0, self._distinct_actions)
 

@@ -19,7 +19,10 @@ from torchhrc.io import pomdpx as pomdpx_io
 from torchhrc.solvers import PBVIConfig, SARSOPConfig, pbvi, sarsop, solve
 from torchhrc.solvers.clock import NEVER
 from torchhrc.solvers.forms import MOMDPForm, SparseMOMDPForm, as_solver_model
+from torchhrc.solvers.forms import sparse_momdp as sparse_momdp_module
+from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sarsop import _SARSOP
+from torchhrc.solvers.sparse_model import blind_iteration_np, qmdp_iteration_np
 from torchhrc.sparse_momdp import SparseMOMDP
 from torchhrc.tasks.classic import rock_sample_momdp
 from torchhrc.testing import random_momdp
@@ -87,10 +90,16 @@ def test_every_operation_equals_the_dense_momdp_form(name: str) -> None:
 @pytest.mark.parametrize("name", sorted(MODELS))
 def test_initial_bounds_equal_the_dense_momdp_form(name: str) -> None:
     dense, sparse = _pair(name)
-    torch.testing.assert_close(
-        sparse.blind_policy(100_000).alphas, dense.blind_policy(100_000).alphas,
-        rtol=0, atol=1e-7,
-    )  # fmt: skip
+    # the sparse form keeps one vector per kind of action (identical actions, identical
+    # vectors): each of its vectors is the dense form's of the same (action, x), and every
+    # dense vector it drops equals one it keeps at the same x
+    got, want = sparse.blind_policy(100_000), dense.blind_policy(100_000)
+    key = {(int(a), int(x)): v for a, x, v in zip(want.actions, want.observed, want.alphas)}
+    for a, x, v in zip(got.actions, got.observed, got.alphas):
+        torch.testing.assert_close(v, key[int(a), int(x)], rtol=0, atol=1e-7)
+    for (a, x), v in key.items():
+        kept = got.alphas[got.observed == x]
+        assert bool(((kept - v).abs().amax(-1) <= 1e-7).any()), (a, x)
     fd, _ = dense.fib_corner_values(1e-11, NEVER, 100_000)
     fs, _ = sparse.fib_corner_values(1e-11, NEVER, 100_000)
     torch.testing.assert_close(fs, fd, rtol=0, atol=1e-8)
@@ -110,12 +119,66 @@ def test_blind_vectors_iterated_past_the_direct_size_are_a_converging_lower_boun
     old = module.DIRECT_SOLVE_SIZE
     module.DIRECT_SOLVE_SIZE = 0  # force the iteration
     try:
-        few = sparse.blind_vectors(max_iterations=30)
+        few = sparse.blind_vectors(max_iterations=3)
+        chain = sparse.blind_vectors(max_iterations=5)
         many = sparse.blind_vectors()
     finally:
         module.DIRECT_SOLVE_SIZE = old
     assert bool((few <= exact + 1e-12).all()) and bool((few < exact - 1e-3).any())
     torch.testing.assert_close(many, exact, rtol=0, atol=1e-6)
+    # every blind chain of RockSample(4, 4) is at most 4 deterministic moves into a state that
+    # loops on itself (a wall, a check, the exit), whose value each step solves exactly: the
+    # fifth iterate is the exact value (plain iteration needs log(tol) / log(gamma) steps)
+    torch.testing.assert_close(chain, exact, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", sorted(MODELS))
+def test_expectations_of_the_distinct_actions_equal_the_dense_products(name: str) -> None:
+    dense, sparse = _pair(name)
+    m = dense.model
+    A, X, Y = sparse.num_actions, sparse.num_observed, sparse.num_hidden
+    P = m.Tx.unsqueeze(-1) * (torch.eye(Y).view(1, 1, Y, 1, Y) if m.Ty is None else m.Ty)
+    P = P.to(torch.float64)  # (A, X, Y, X2, Y2)
+    g = torch.Generator().manual_seed(2)
+    V = torch.randn(X, Y, generator=g, dtype=torch.float64)
+    per_action = torch.randn(A, X, Y, generator=g, dtype=torch.float64)
+    want = torch.einsum("axyzw,zw->axy", P, V)
+    got = torch.from_numpy(sparse.expect_np(V.numpy()))
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
+    want_pa = torch.einsum("axyzw,azw->axy", P, per_action)
+    torch.testing.assert_close(torch.from_numpy(sparse.expect_np(per_action.numpy())), want_pa,
+                               rtol=0, atol=1e-12)  # fmt: skip
+    # actions are merged exactly when their rewards and transitions are equal
+    rows, inverse = sparse.distinct_actions()
+    R = sparse.R
+    for a in range(A):
+        for b in range(A):
+            same = bool((R[a] == R[b]).all()) and bool((P[a] == P[b]).all())
+            assert (inverse[a] == inverse[b]) == same, (a, b)
+        assert rows.acts[inverse[a]] in [b for b in range(A) if inverse[b] == inverse[a]]
+    # the distinct actions' expectations, spread back, are every action's
+    assert torch.equal(
+        torch.from_numpy(rows.expect(V.numpy())[inverse]), got
+    )  # bit-identical: the same products in the same order
+    if name == "rock_sample_4_4":  # the four checks stay put: one kind (moves, sample, check)
+        assert len(rows.acts) == A - 3
+
+
+def test_momdp_bounds_on_distinct_actions_equal_those_on_every_action(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # bit-identical: the iterations on the distinct actions take the same maxima of the same
+    # floats as on all of them
+    _, sparse = _pair("rock_sample_4_4")
+    R, g = sparse.R.numpy(), sparse.discount
+    every = qmdp_iteration_np(R, g, sparse.expect_np, 1e-9)
+    assert np.array_equal(sparse.qmdp_np(1e-9), every)
+    monkeypatch.setattr(sparse_momdp_module, "DIRECT_SOLVE_SIZE", 0)  # iterate, as on a large model
+    got = sparse.blind_vectors(max_iterations=3).numpy()
+    A, X, Y = R.shape
+    loops = sparse_momdp_module.self_loop_probs(sparse.row, sparse.col, sparse.prob, A, X * Y)
+    want = blind_iteration_np(R, g, sparse.expect_np, 1e-8, 3, self_prob=loops.reshape(R.shape))
+    assert np.array_equal(got, want)
 
 
 def test_sarsop_reaches_the_dense_momdp_bounds() -> None:
@@ -163,7 +226,18 @@ def test_pbvi_gives_the_dense_momdp_result(factored: bool) -> None:
     # form runs the FIB operator, this one QMDP: equal for one y2 per (a, x, y, x2))
     assert got.upper == pytest.approx(ref.upper, abs=1e-3)
     if factored:  # (flat: the sparse and dense flat forms prune ties near 0 differently)
-        assert got.policy.num_vectors == ref.policy.num_vectors
+        # the same value function; the sparse form's blind policy does not repeat the
+        # identical checks' vectors, so PBVI keeps fewer
+        form = as_solver_model(model)
+        g = torch.Generator().manual_seed(0)
+        b = torch.rand(64, form.num_hidden, generator=g, dtype=torch.float64)
+        b = b / b.sum(-1, keepdim=True)
+        for x in range(form.num_observed):
+            xs = torch.full((64,), x)
+            torch.testing.assert_close(
+                form.value(got.policy, xs, b), form.value(ref.policy, xs, b), rtol=0, atol=1e-6
+            )
+        assert got.policy.num_vectors < ref.policy.num_vectors
 
 
 def test_point_backup_and_simulation_equal_the_dense_form() -> None:
@@ -252,3 +326,42 @@ def test_read_pomdpx_returns_the_sparse_momdp_when_the_dense_one_does_not_fit(
     cfg = SARSOPConfig(time_limit=1e9, precision=1e-6, max_iterations=40)
     a, b = solve(dense, cfg), solve(sm, cfg)
     assert b.lower <= a.upper + 1e-9 and a.lower <= b.upper + 1e-9
+
+
+def test_unsorted_and_duplicated_nonzeros_give_the_same_form() -> None:
+    # read_pomdpx gives the nonzeros sorted and unique (the form then skips its sort); a user's
+    # may come in any order, a cell split in parts: the form sums and sorts them
+    import dataclasses
+
+    model = SparseMOMDP.from_dense(rock_sample_momdp(4, 4))
+    index, prob = model.transitions
+    g = torch.Generator().manual_seed(0)
+    order = torch.randperm(prob.numel(), generator=g)
+    split = order[: prob.numel() // 3]  # a third of the cells in two halves
+    index2 = torch.cat([index[order], index[split]])
+    prob2 = torch.cat([prob[order], torch.zeros(0, dtype=prob.dtype)])
+    prob2[: split.numel()] *= 0.5
+    prob2 = torch.cat([prob2, prob[split] * 0.5])
+    messy = dataclasses.replace(model, transitions=(index2, prob2))
+    a, b = SparseMOMDPForm(model), SparseMOMDPForm(messy)
+    assert np.array_equal(a.row, b.row) and np.array_equal(a.col, b.col)
+    np.testing.assert_allclose(a.prob, b.prob, rtol=0, atol=1e-15)
+    assert np.array_equal(a._act, b._act) and np.array_equal(a._x, b._x)
+    torch.testing.assert_close(a.blind_vectors(), b.blind_vectors(), rtol=0, atol=1e-12)
+
+
+def test_sarsop_is_unchanged_by_the_blind_policy_without_repeated_vectors() -> None:
+    # the form's blind policy drops the vectors of actions identical to an earlier one; SARSOP
+    # prunes dominated vectors (of equal ones the first stays) before it starts, so the solve
+    # is bit-identical to one given every action's vector
+    model = SparseMOMDP.from_dense(rock_sample_momdp(4, 4))
+    form = as_solver_model(model)
+    every = AlphaVectorPolicy.from_action_vectors(form.blind_vectors(), momdp=True)
+    assert form.blind_policy().num_vectors < every.num_vectors
+    cfg = {"time_limit": 1e9, "precision": 1e-9, "max_iterations": 25}
+    a = sarsop(model, SARSOPConfig(**cfg))
+    b = sarsop(model, SARSOPConfig(**cfg, lower_bound_init=lambda m: every))
+    assert (a.lower, a.upper) == (b.lower, b.upper)
+    assert [h["lower"] for h in a.history] == [h["lower"] for h in b.history]
+    assert torch.equal(a.policy.alphas, b.policy.alphas)
+    assert torch.equal(a.policy.actions, b.policy.actions)

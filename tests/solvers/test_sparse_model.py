@@ -15,9 +15,12 @@ from torchhrc.solvers import sparse_model as sparse_module
 from torchhrc.solvers.belief_tree import SparseBeliefTree
 from torchhrc.solvers.blind import blind_policy, blind_vectors
 from torchhrc.solvers.forms import as_solver_model
+from torchhrc.solvers.qmdp import mdp_q_values, qmdp_vectors
 from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig, fib_corner_values, sarsop
 from torchhrc.solvers.sparse_model import (
     SparseFlatModel,
+    blind_iteration_np,
+    qmdp_iteration_np,
     sparse_blind_policy,
     sparse_blind_vectors,
 )
@@ -288,3 +291,69 @@ def test_solve_dispatches_sparse_models_to_sarsop_and_pbvi_only() -> None:
     assert sol.lower <= 19.3714 <= sol.upper
     with pytest.raises(ModelError, match="SARSOP or PBVI only"):
         solve(sp, QMDPConfig())
+
+
+def _negative_random() -> POMDP:
+    """:func:`_sparse_random` with rewards shifted below zero (``V* < 0``: value iteration from
+    zero starts above ``V*``) and some self-loops with probability below one."""
+    m = _sparse_random(S=10, A=3, O=2, seed=5)
+    T = m.T.clone()
+    T[0] = 0.6 * T[0] + 0.4 * torch.eye(10, dtype=torch.float64)  # a stochastic self-loop
+    return POMDP(T=T, Z=m.Z, R=m.R - 3.0, b0=m.b0, discount=0.9)
+
+
+def _exact_q(model: POMDP) -> torch.Tensor:
+    """``Q* (A, S)`` of the underlying MDP by dense value iteration to round-off."""
+    Q, err = mdp_q_values(model, tol=1e-13)
+    assert err < 1e-11
+    return Q
+
+
+@pytest.mark.parametrize(
+    "build", [tiger, _sparse_random, _negative_random, lambda: rock_sample(4, 4)]
+)
+def test_qmdp_iteration_is_an_upper_bound_wherever_it_stops(build) -> None:
+    model = build()
+    sm = SparseFlatModel.from_model(SparsePOMDP.from_dense(model))
+    exact = _exact_q(model).numpy()
+    R, g = sm.R.numpy(), sm.discount
+    last = None
+    for k in (0, 1, 2, 5, 20, 100_000):  # 0: the constant max R / (1 - g) alone
+        Q = qmdp_iteration_np(R, g, sm.expect_np, tol=1e-12, max_iterations=k)
+        assert Q.shape == exact.shape
+        assert (Q >= exact - 1e-9).all(), k  # Q_a >= Q*_a everywhere, at every stop
+        if last is not None:  # the running minimum only tightens
+            assert (Q <= last + 1e-12).all(), k
+        last = Q
+    np.testing.assert_allclose(last, exact, rtol=0, atol=1e-9)  # converged: Q*
+    # the default tolerance of the solvers' QMDP agrees with the dense QMDP vectors
+    np.testing.assert_allclose(sm.qmdp_np(1e-8), qmdp_vectors(model).numpy(), rtol=0, atol=1e-6)
+
+
+def test_qmdp_iteration_is_exact_after_the_longest_optimal_path_on_rocksample() -> None:
+    # RockSample's moves are deterministic and V* >= 0 (the exit pays 10): from zero the
+    # iterate after L steps is V* exactly, so the change drops to 0 (not below a tolerance)
+    model = rock_sample(4, 4)
+    sm = SparseFlatModel.from_model(SparsePOMDP.from_dense(model))
+    exact = _exact_q(model).numpy()
+    Q = qmdp_iteration_np(sm.R.numpy(), sm.discount, sm.expect_np, tol=1e-300)
+    np.testing.assert_allclose(Q, exact, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("build", [_sparse_random, _negative_random, lambda: rock_sample(4, 4)])
+def test_blind_iteration_with_self_loops_solved_is_a_tighter_lower_bound(build) -> None:
+    model = build()
+    sm = SparseFlatModel.from_model(SparsePOMDP.from_dense(model))
+    eye = torch.eye(model.num_states, dtype=model.T.dtype)
+    exact = torch.linalg.solve(eye - model.discount * model.T, model.R.unsqueeze(-1))
+    exact = exact.squeeze(-1).numpy()
+    p = sm.self_loop_probs()
+    np.testing.assert_array_equal(p, torch.diagonal(model.T, dim1=-2, dim2=-1).numpy())
+    R, g = sm.R.numpy(), sm.discount
+    for k in (1, 2, 3, 10, 40):
+        plain = blind_iteration_np(R, g, sm.expect_np, 1e-14, k)
+        jacobi = blind_iteration_np(R, g, sm.expect_np, 1e-14, k, self_prob=p)
+        assert (jacobi <= exact + 1e-9).all(), k  # still a lower bound at every stop
+        assert (jacobi >= plain - 1e-9).all(), k  # and never below the plain iterate
+    converged = blind_iteration_np(R, g, sm.expect_np, 1e-14, 100_000, self_prob=p)
+    np.testing.assert_allclose(converged, exact, rtol=0, atol=1e-9)

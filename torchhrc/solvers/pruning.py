@@ -91,9 +91,14 @@ def prune_dominated(
             i, j = i[off], j[off]
             maybe = (sub[j] >= sub[i] - atol).all(-1)
             i, j = i[maybe], j[maybe]
-            ge = (alphas[j] >= alphas[i] - atol).all(-1)
-            le = (alphas[i] >= alphas[j] - atol).all(-1)
-            keep[i[ge & (~le | (j < i))]] = False
+            ai, aj = alphas[i], alphas[j]  # gathered once
+            ge = (aj >= ai - atol).all(-1)
+            # the reverse test only where j dominates i and comes after it (same result)
+            i, j, ai, aj = i[ge], j[ge], ai[ge], aj[ge]
+            later = j > i
+            le = torch.zeros_like(later)
+            le[later] = (ai[later] >= aj[later] - atol).all(-1)
+            keep[i[~le]] = False
         return keep
     index = torch.arange(N, device=alphas.device)
     chunk = max(1, _CHUNK_ELEMENTS // max(1, N * S))

@@ -232,6 +232,11 @@ class SparseFlatModel:
         out = np.bincount(self._row, weights=self._val * flat, minlength=A * S)
         return out.astype(V.dtype, copy=False).reshape(A, S)
 
+    def self_loop_probs(self) -> np.ndarray:
+        """``(A, S)`` ``T[a, s, s]`` (:func:`self_loop_probs`)."""
+        A, S = self.num_actions, self.num_states
+        return self_loop_probs(self._row, self._col, self._val, A, S)
+
     @property
     def deterministic(self) -> bool:
         """True when every ``(a, s)`` has exactly one successor (then FIB equals QMDP:
@@ -347,7 +352,10 @@ def sparse_blind_vectors(
     if S <= DIRECT_SOLVE_SIZE:
         eye = torch.eye(S, dtype=R.dtype)
         return torch.linalg.solve(eye - g * model.dense_T(), R.unsqueeze(-1)).squeeze(-1)
-    return torch.from_numpy(blind_iteration_np(R.numpy(), g, model.expect_np, tol, max_iterations))
+    loops = model.self_loop_probs()
+    return torch.from_numpy(
+        blind_iteration_np(R.numpy(), g, model.expect_np, tol, max_iterations, self_prob=loops)
+    )
 
 
 def qmdp_iteration_np(
@@ -356,15 +364,31 @@ def qmdp_iteration_np(
     expect_np: Callable[[np.ndarray], np.ndarray],
     tol: float = 1e-8,
     deadline: Deadline = NEVER,
+    max_iterations: int = 100_000,
 ) -> np.ndarray:
-    """QMDP action values ``Q (A, *S)`` by value iteration on the underlying MDP (Littman et
-    al. 1995), for any sparse form: ``expect_np(V)`` maps values ``V (*S)`` to ``(A, *S)``
-    expectations ``sum_s2 P(s2 | s, a) V[s2]`` (``*S`` is ``(S,)`` flat, ``(X, Y)`` for a
-    MOMDP).
+    """QMDP action values ``Q (A, *S)``, an upper bound, by value iteration on the underlying
+    MDP (Littman et al. 1995), for any sparse form: ``expect_np(V)`` maps values ``V (*S)`` to
+    ``(A, *S)`` expectations ``sum_s2 P(s2 | s, a) V[s2]`` (``*S`` is ``(S,)`` flat, ``(X, Y)``
+    for a MOMDP).
 
-    Starts from the upper bound ``max R / (1 - gamma)`` and keeps the pointwise minimum; the
-    operator is monotone, so every iterate is an upper bound and stopping at ``deadline``
-    is safe. Stops when the largest change is below ``tol``.
+    The iteration ``V_{k+1} = max_a (R_a + gamma P_a V_k)`` starts from ``V_0 = 0`` (as APPL's
+    ``FullObsUBInitializer`` and :func:`~torchhrc.solvers.qmdp.mdp_q_values`) and stops when
+    the largest change ``r_k = |V_{k+1} - V_k|`` is below ``tol``, after ``max_iterations``
+    or at ``deadline``. Whatever the start, the operator is a ``gamma``-contraction, so
+    ``|V_{k+1} - V*| <= gamma r_k / (1 - gamma)`` (Puterman 1994, Thm. 6.3.1): the running
+    minimum ``U = min_k (V_{k+1} + gamma r_k / (1 - gamma))``, and ``max R / (1 - gamma)``
+    before the first step, bounds ``V*`` from above at every ``k``, and stopping anywhere is
+    safe. The returned vectors are ``Q_a = min(R_a + gamma P_a U, U) >= Q*_a`` (as
+    ``Q*_a <= V* <= U``).
+
+    Why from zero and not from the upper bound ``max R / (1 - gamma)`` (every iterate of which
+    is an upper bound too): from above, the excess over ``V*`` shrinks by ``gamma`` per
+    iteration wherever a cycle (a move and its reverse) carries it, so reaching ``tol`` takes
+    ``log(tol (1 - gamma) / max R) / log(gamma)`` iterations (about 300 on RockSample(11, 11),
+    5 CPU-s). From zero, when ``V* >= 0`` and the optimal policy reaches zero-reward
+    absorbing states within ``L`` steps of deterministic moves (RockSample), ``V_L = V*``
+    exactly and the change is 0 one step later (60 iterations on RockSample(11, 11)); on
+    other models both starts converge at the rate ``gamma``.
 
     Example:
         >>> R = np.array([[1.0, 0.0]])  # one action, two absorbing states
@@ -372,20 +396,26 @@ def qmdp_iteration_np(
         array([[2., 0.]])
     """
     g = discount
-    V = np.full(R.shape[1:], float(R.max()) / (1.0 - g), dtype=R.dtype)
-    Q = R + g * expect_np(V)
-    for _ in range(100_000):
+    shape = R.shape[1:]
+    V = np.zeros(shape, dtype=R.dtype)
+    U = np.full(shape, float(R.max()) / (1.0 - g), dtype=R.dtype)  # V* <= max R / (1 - g)
+    slack = g / (1.0 - g)
+    for _ in range(max_iterations):
         if deadline.passed():
             break
-        new = Q.max(0)
-        change = float(np.abs(V - new).max())
-        V = new
         E = _fresh(expect_np(V), V)  # updated in place: no further temporaries
         E *= g
-        E += R  # = R + g E exactly (addition commutes in IEEE arithmetic)
-        np.minimum(E, Q, out=Q)
+        E += R
+        new = E.max(0)
+        change = float(np.abs(new - V).max()) if new.size else 0.0
+        V = new
+        np.minimum(U, V + slack * change, out=U)  # |V - V*| <= g change / (1 - g)
         if change < tol:
             break
+    Q = _fresh(expect_np(U), U)
+    Q *= g
+    Q += R
+    np.minimum(Q, U, out=Q)
     return Q
 
 
@@ -395,12 +425,31 @@ def _fresh(out: np.ndarray, source: np.ndarray) -> np.ndarray:
     return out.copy() if np.may_share_memory(out, source) else out
 
 
+def self_loop_probs(
+    row: np.ndarray, col: np.ndarray, prob: np.ndarray, num_actions: int, num_states: int
+) -> np.ndarray:
+    """``(A, S)`` ``P(s | s, a)``, the probability that action ``a`` leaves state ``s`` where
+    it is, from the nonzeros ``prob`` at rows ``a S + s`` and columns ``s2`` (duplicates of a
+    cell summed).
+
+    Example:
+        >>> self_loop_probs(np.array([0, 0, 1]), np.array([0, 1, 0]), np.array([0.3, 0.7, 1.0]),
+        ...                 1, 2)
+        array([[0.3, 0. ]])
+    """
+    A, S = num_actions, num_states
+    loop = col == row % S
+    out = np.bincount(row[loop], weights=prob[loop], minlength=A * S)
+    return out.astype(prob.dtype, copy=False).reshape(A, S)
+
+
 def blind_iteration_np(
     R: np.ndarray,
     discount: float,
     expect_np: Callable[[np.ndarray], np.ndarray],
     tol: float = 1e-8,
     max_iterations: int = 100_000,
+    self_prob: np.ndarray | None = None,
 ) -> np.ndarray:
     """Blind-policy vectors ``alpha (A, *S)`` (Hauskrecht 2000), ``alpha_a = R_a + gamma
     P_a alpha_a``, iterated from ``min R / (1 - gamma)`` with ``max(new, old)`` (every iterate
@@ -408,17 +457,40 @@ def blind_iteration_np(
     ``(A, *S)`` expectations (as in :func:`qmdp_iteration_np`). Stops when the largest change
     is below ``tol (1 - gamma)`` or after ``max_iterations``.
 
+    With ``self_prob`` ``(A, *S)``, ``p = P(s | s, a)`` (:func:`self_loop_probs`), each step
+    solves every state's own self-loop exactly (Jacobi value iteration, Puterman 1994,
+    Sec. 6.3.3)::
+
+        alpha_a(s) <- (R_a(s) + gamma (P_a alpha_a)(s) - gamma p alpha_a(s)) / (1 - gamma p)
+
+    This is still monotone, its fixed point is the same ``alpha_a`` (solve the fixed-point
+    equation for ``alpha_a(s)``), and from a lower bound ``L <= alpha_a`` it gives a lower
+    bound (replace ``L`` by ``alpha_a`` on the right: the result is ``alpha_a``), so every
+    iterate is still a lower bound; it contracts by ``gamma (1 - p) / (1 - gamma p) <= gamma``
+    per row. A state that only loops on itself (RockSample: a move into the wall, a check, the
+    exit's absorbing state) gets its exact value ``R / (1 - gamma)`` at once instead of after
+    ``log(tol) / log(gamma)`` steps, and chains of deterministic moves ending there are exact
+    after their length (13 iterations on RockSample(11, 11), where 135 plain iterations left
+    the bound about 2 below the exact value everywhere).
+
     Example:
         >>> R = np.array([[1.0, 0.0]])  # one action, two absorbing states
         >>> blind_iteration_np(R, 0.5, lambda a: a).round(6)
         array([[2., 0.]])
+        >>> blind_iteration_np(R, 0.5, lambda a: a, max_iterations=1, self_prob=np.ones((1, 2)))
+        array([[2., 0.]])
     """
     g = discount
     alpha = np.full_like(R, float(R.min()) / (1.0 - g))
+    scale = None if self_prob is None else 1.0 / (1.0 - g * self_prob)
     for _ in range(max_iterations):
         new = _fresh(expect_np(alpha), alpha)  # updated in place
+        if self_prob is not None:
+            new -= self_prob * alpha  # the state's own share, solved for below
         new *= g
         new += R
+        if scale is not None:
+            new *= scale
         np.maximum(new, alpha, out=new)
         alpha -= new  # <= 0 (new >= alpha): its most negative entry is minus the largest change
         change = -float(alpha.min())

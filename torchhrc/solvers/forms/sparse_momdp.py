@@ -18,7 +18,10 @@ gather, each costing ``A Y W`` (``W = 1`` for RockSample) instead of ``A K Y^2``
 The bounds run on the nonzeros sorted by row ``(a, x, y)``: the blind policies (Hauskrecht
 2000; exact by LU up to :data:`~torchhrc.solvers._factored.DIRECT_SOLVE_SIZE` states),
 QMDP by value iteration (Littman et al. 1995), and the Fast Informed Bound step summed per
-``(a, x, y, x2)`` group (skipped when every group has one ``y2``: then FIB equals QMDP).
+``(a, x, y, x2)`` group (skipped when every group has one ``y2``: then FIB equals QMDP). The
+blind and QMDP iterations run on one action of each kind
+(:meth:`SparseMOMDPForm.distinct_actions`: actions with the same rewards and transitions
+have the same vectors) and take a deterministic move of ``x`` that keeps ``y`` as row copies.
 
 Example:
     >>> from torchhrc.solvers.forms import as_solver_model
@@ -51,6 +54,7 @@ from torchhrc.solvers.sparse_model import (
     SparseFlatModel,
     blind_iteration_np,
     qmdp_iteration_np,
+    self_loop_probs,
 )
 from torchhrc.sparse_momdp import SparseMOMDP
 
@@ -85,36 +89,36 @@ class SparseMOMDPForm(SolverModel):
         self.factored = True
         self.state_shape, self.state_doc = (X, Y), "(X, Y)"
         index, prob = model.transitions
-        idx = index.cpu().numpy().astype(np.int64)
+        idx = index.cpu().numpy().astype(np.int64, copy=False)
         row = (idx[:, 0] * X + idx[:, 1]) * Y + idx[:, 2]
         col = idx[:, 3] * Y + idx[:, 4]
         key = row * (X * Y) + col
-        uniq, inv = np.unique(key, return_inverse=True)
-        vals = np.bincount(inv, weights=prob.cpu().double().numpy(), minlength=uniq.size)
+        vals = prob.cpu().numpy().astype(np.float64, copy=False)
+        if key.size and bool((key[1:] > key[:-1]).all()):
+            # already sorted without duplicates (read_pomdpx's order): no sort, no divisions
+            vals = vals + 0.0  # as the sum below: -0.0 becomes 0.0
+            act = idx[:, 0].copy()
+        else:
+            uniq, inv = np.unique(key, return_inverse=True)
+            vals = np.bincount(inv, weights=vals, minlength=uniq.size)
+            row, col = uniq // (X * Y), uniq % (X * Y)
+            act = row // (X * Y)
         keep = vals != 0
-        uniq, vals = uniq[keep], vals[keep]
-        self.row, self.col = uniq // (X * Y), uniq % (X * Y)
+        if not keep.all():
+            row, col, vals, act = row[keep], col[keep], vals[keep], act[keep]
+        self.row, self.col = row, col
         self.prob = vals.astype(self.R.numpy().dtype)
-        self.nnz = int(uniq.size)
-        self._act = self.row // (X * Y)
-        self._x = self.row // Y % X
-        self._y = self.row % Y
+        self.nnz = int(row.size)
+        self._act = act
+        self._x = row // Y % X
+        self._y = row % Y
         # one entry per (a, x, y, x2) group: FIB equals QMDP
         group = self.row * X + self.col // Y
         self._group_starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
         self._group_row = self.row[self._group_starts]
         self._one_per_group = self._group_starts.size == self.nnz
-        # the nonzeros are sorted by row: one per row exactly when the rows are 0, 1, 2, ...
-        self._one_per_row = self.nnz == A * X * Y and bool((self.row == np.arange(self.nnz)).all())
-        # ... and of those, the moves that keep y (a static hidden state: RockSample's rocks, a
-        # human type) with a deterministic x: (a, x) -> x2 for every y. The expectations are
-        # then row copies of V (a third of the time of the gather over every state)
-        self._x2_rows: np.ndarray | None = None
-        if self._one_per_row and bool((self.prob == 1.0).all()):
-            c = self.col.reshape(A * X, Y)
-            x2 = c[:, 0] // Y
-            if bool((c == (x2 * Y)[:, None] + np.arange(Y)).all()):
-                self._x2_rows = x2
+        # the nonzeros of each action: a slice (sorted by row, action first)
+        self._act_ptr = np.searchsorted(self._act, np.arange(A + 1))
         # the nonzeros of each x, for the per-x slices
         order = np.argsort(self._x, kind="stable")
         self._by_x = order
@@ -203,34 +207,61 @@ class SparseMOMDPForm(SolverModel):
     # -- initial bounds ----------------------------------------------------------------------
     def expect_np(self, V: np.ndarray) -> np.ndarray:
         """``(A, X, Y)`` ``sum_{x2, y2} P(x2, y2 | x, y, a) V[x2, y2]`` for ``V (X, Y)``, or
-        per action ``V (A, X, Y)``; one pass over the nonzeros."""
-        A, X, Y = self.num_actions, self.num_observed, self.num_hidden
-        if self._x2_rows is not None:
-            if V.ndim == 2:
-                out = V[self._x2_rows]  # (A X, Y): row (a, x) is V[x2(a, x)]
-            else:
-                at = self._cached("action_rows", 0, lambda: np.repeat(np.arange(A) * X, X))
-                out = V.reshape(A * X, Y)[at + self._x2_rows]
-            out += 0.0  # as below: -0.0 becomes 0.0
-            return out.reshape(A, X, Y)
-        if V.ndim == 2:
-            flat = V.reshape(-1)[self.col]
-        else:
-            at = self._cached("action_col", 0, lambda: self._act * (X * Y) + self.col)
-            flat = V.reshape(-1)[at]
-        if self._one_per_row:
-            # every row one nonzero (RockSample: deterministic moves, rocks fixed): the sum
-            # is its one product (+ 0.0, as bincount's sum from zero turns -0.0 into 0.0);
-            # half the time of the bincount
-            out = self.prob * flat + 0.0
-        else:
-            out = np.bincount(self.row, weights=self.prob * flat, minlength=A * X * Y)
-        return out.astype(V.dtype, copy=False).reshape(A, X, Y)
+        per action ``V (A, X, Y)`` (``_ActionRows`` of every action)."""
+        rows = self._cached("rows", 0, lambda: _ActionRows(self, np.arange(self.num_actions)))
+        return rows.expect(V)
+
+    def distinct_actions(self) -> tuple[_ActionRows, np.ndarray]:
+        """The actions with distinct rewards and transitions, and where each action's are.
+
+        Returns:
+            ``rows``, the ``_ActionRows`` of one action of each kind (``rows.acts``,
+            those whose rows are copies first), and ``inverse (A,)``, the position in
+            ``rows.acts`` of the action with the same ``R[a]`` and ``P(. | ., a)`` as ``a``.
+            Such actions (RockSample's checks, which differ only in what they observe) have
+            the same QMDP and blind vectors: the MDP bounds iterate on ``rows.acts`` alone
+            (RockSample(11, 11): 6 of 16 actions).
+
+        Example:
+            >>> from torchhrc.solvers.forms import as_solver_model
+            >>> from torchhrc.sparse_momdp import SparseMOMDP
+            >>> from torchhrc.tasks.classic import rock_sample_momdp
+            >>> form = as_solver_model(SparseMOMDP.from_dense(rock_sample_momdp(4, 4)))
+            >>> rows, inverse = form.distinct_actions()  # 4 moves, sample (4), 4 checks
+            >>> rows.acts.tolist(), inverse.tolist()
+            ([0, 1, 2, 3, 5, 4], [0, 1, 2, 3, 5, 4, 4, 4, 4])
+        """
+        return self._cached("distinct", 0, self._distinct_actions)
+
+    def _distinct_actions(self) -> tuple[_ActionRows, np.ndarray]:
+        A, XY = self.num_actions, self.num_observed * self.num_hidden
+        R, ptr = self.R.numpy(), self._act_ptr
+
+        def nonzeros(a: int) -> tuple[np.ndarray, ...]:
+            lo, hi = ptr[a], ptr[a + 1]
+            return self.row[lo:hi] - a * XY, self.col[lo:hi], self.prob[lo:hi]
+
+        reps: list[int] = []
+        kind = np.empty(A, dtype=np.int64)
+        for a in range(A):
+            kind[a] = len(reps)
+            for k, b in enumerate(reps):
+                if ptr[a + 1] - ptr[a] == ptr[b + 1] - ptr[b] and np.array_equal(R[a], R[b]):
+                    if all(map(np.array_equal, nonzeros(a), nonzeros(b))):
+                        kind[a] = k
+                        break
+            if kind[a] == len(reps):
+                reps.append(a)
+        rows = _ActionRows(self, np.array(reps, dtype=np.int64), copies_first=True)
+        position = np.empty(len(reps), dtype=np.int64)
+        position[np.searchsorted(reps, rows.acts)] = np.arange(len(reps))
+        return rows, position[kind]
 
     def blind_vectors(self, tol: float = 1e-8, max_iterations: int = 100_000) -> torch.Tensor:
         """``(A, X, Y)`` blind-policy vectors ``alpha_a = R_a + gamma P_a alpha_a``
         (Hauskrecht 2000): exact by LU up to ``DIRECT_SOLVE_SIZE`` states, else iterated
-        from ``min R / (1 - gamma)`` with ``max(new, old)`` (every iterate a lower bound)."""
+        from ``min R / (1 - gamma)`` with ``max(new, old)`` (every iterate a lower bound),
+        each state's self-loop solved exactly (:func:`blind_iteration_np`)."""
         A, X, Y = self.num_actions, self.num_observed, self.num_hidden
         g = self.discount
         if g >= 1.0:
@@ -244,19 +275,35 @@ class SparseMOMDPForm(SolverModel):
             rhs = R.reshape(A, S, 1)
             out = np.linalg.solve(np.eye(S)[None] - g * P, rhs)
             return torch.from_numpy(out.reshape(A, X, Y).astype(R.dtype, copy=False))
-        return torch.from_numpy(blind_iteration_np(R, g, self.expect_np, tol, max_iterations))
+        rows, inverse = self.distinct_actions()  # identical actions: identical vectors
+        loops = self_loop_probs(self.row, self.col, self.prob, A, S).reshape(A, X, Y)
+        alpha = blind_iteration_np(R[rows.acts], g, rows.expect, tol, max_iterations,
+                                   self_prob=loops[rows.acts])  # fmt: skip
+        return torch.from_numpy(alpha[inverse])
 
     def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
         if max_iterations is None:  # the discounted tail below 1e-3 of the first step's
             g = self.discount
             max_iterations = int(min(1000, math.ceil(math.log(1e-3) / math.log(g)))) if g > 0 else 1
         vectors = self.blind_vectors(max_iterations=max_iterations)
-        return AlphaVectorPolicy.from_action_vectors(vectors, momdp=True)
+        # one vector per kind of action (the first of each: identical actions have identical
+        # vectors, and of equal vectors pruning keeps the first anyway); RockSample(11, 11):
+        # 732 vectors instead of 1952, the same value function and the same pruned set
+        kinds = torch.from_numpy(np.sort(self.distinct_actions()[0].acts))
+        X, U = self.num_observed, kinds.numel()
+        return AlphaVectorPolicy(
+            alphas=vectors[kinds].transpose(0, 1).reshape(X * U, self.num_hidden),
+            actions=kinds.repeat(X),
+            observed=torch.arange(X).repeat_interleave(U),
+        )
 
     def qmdp_np(self, tol: float = 1e-8, deadline: Deadline = NEVER) -> np.ndarray:
-        """``(A, X, Y)`` QMDP vectors (:func:`qmdp_iteration_np` with this form's
-        ``expect_np``)."""
-        return qmdp_iteration_np(self.R.numpy(), self.discount, self.expect_np, tol, deadline)
+        """``(A, X, Y)`` QMDP vectors (:func:`qmdp_iteration_np` on the
+        :meth:`distinct_actions`: the same as on all of them, identical actions giving
+        identical vectors)."""
+        rows, inverse = self.distinct_actions()
+        R = self.R.numpy()[rows.acts]
+        return qmdp_iteration_np(R, self.discount, rows.expect, tol, deadline)[inverse]
 
     def fib_np(self, alpha: np.ndarray) -> np.ndarray:
         """``(A, X, Y)`` one Fast Informed Bound step (Hauskrecht 2000) from ``alpha (A2, X, Y)``::
@@ -362,3 +409,82 @@ class SparseMOMDPForm(SolverModel):
     policy = MOMDPForm.policy
     value = MOMDPForm.value
     prune = MOMDPForm.prune
+
+
+class _ActionRows:
+    """The MDP expectation of some actions ``acts (U,)`` of a :class:`SparseMOMDPForm`, the
+    kernel of its QMDP and blind bounds::
+
+        E[u, x, y] = sum_{x2, y2} P(x2, y2 | x, y, acts[u]) V[x2, y2]     (V (X, Y))
+
+    or with per-action values ``V[u, x2, y2]`` (``V (U, X, Y)``). An action whose every row
+    ``(x, y)`` moves to one ``x2(x)`` with probability 1 and keeps ``y`` (RockSample's moves
+    and checks, a static human type) takes it as row copies ``V[x2(x), :]`` (a third of the
+    time of a gather); the others gather over their nonzeros (one product per row when each
+    row has one, else a sum per row). Both add ``0.0`` (``-0.0`` becomes ``0.0``, as a sum
+    from zero), so the results do not depend on which way an action is taken.
+
+    Args:
+        form: the sparse MOMDP form.
+        acts: the actions.
+        copies_first: reorder ``acts`` so that the row-copy actions come first (one ``take``
+            writes them in place); :attr:`acts` is the order of the output.
+    """
+
+    def __init__(self, form: SparseMOMDPForm, acts: np.ndarray, copies_first: bool = False,
+                 ) -> None:  # fmt: skip
+        X, Y = form.num_observed, form.num_hidden
+        XY = X * Y
+        ptr, ramp = form._act_ptr, np.arange(XY)
+        copy: dict[int, np.ndarray] = {}
+        for a in acts.tolist():
+            lo, hi = ptr[a], ptr[a + 1]
+            if hi - lo != XY or not (form.row[lo:hi] - a * XY == ramp).all():
+                continue
+            if not (form.prob[lo:hi] == 1.0).all():
+                continue
+            c = form.col[lo:hi].reshape(X, Y)
+            x2 = c[:, 0] // Y
+            if (c == (x2 * Y)[:, None] + ramp[:Y]).all():
+                copy[a] = x2
+        if copies_first:
+            acts = np.array(sorted(acts.tolist(), key=lambda a: a not in copy), dtype=np.int64)
+        self.acts = acts
+        self.shape = (acts.size, X, Y)
+        is_copy = np.array([a in copy for a in acts.tolist()], dtype=bool)
+        self._copy_u = np.flatnonzero(is_copy)
+        self._copy_prefix = bool(is_copy[: self._copy_u.size].all())
+        x2s = np.array([copy[a] for a in acts[is_copy].tolist()], dtype=np.int64).reshape(-1, X)
+        self._copy_x2 = x2s  # (Uc, X)
+        self._copy_rows = self._copy_u[:, None] * X + x2s  # rows of V (U X, Y), per action
+        self._gather_u = np.flatnonzero(~is_copy)
+        spans = [np.arange(ptr[a], ptr[a + 1]) for a in acts[~is_copy].tolist()]
+        e = np.concatenate(spans) if spans else np.zeros(0, dtype=np.int64)
+        k = np.repeat(np.arange(len(spans)), [s.size for s in spans]).astype(np.int64)
+        self._row = form.row[e] - form._act[e] * XY + k * XY  # rebased to the gathered ones
+        self._col, self._prob = form.col[e], form.prob[e]
+        self._col_per_action = self._col + self._gather_u[k] * XY  # into V (U X Y,)
+        n = self._gather_u.size * XY
+        self._one_per_row = self._row.size == n and bool((self._row == np.arange(n)).all())
+
+    def expect(self, V: np.ndarray) -> np.ndarray:
+        """``(U, X, Y)`` the expectations of ``V (X, Y)`` or per action ``V (U, X, Y)``."""
+        U, X, Y = self.shape
+        out = np.empty(self.shape, dtype=V.dtype)
+        if self._copy_u.size:
+            src, at = (V, self._copy_x2) if V.ndim == 2 else (V.reshape(U * X, Y), self._copy_rows)
+            if self._copy_prefix:
+                np.take(src, at, axis=0, out=out[: self._copy_u.size])
+            else:
+                out[self._copy_u] = np.take(src, at, axis=0)
+        if self._gather_u.size:
+            flat = V.reshape(-1)[self._col if V.ndim == 2 else self._col_per_action]
+            if self._one_per_row:
+                # one nonzero a row (deterministic moves): the sum is its one product
+                vals = self._prob * flat
+            else:
+                n = self._gather_u.size * X * Y
+                vals = np.bincount(self._row, weights=self._prob * flat, minlength=n)
+            out[self._gather_u] = vals.reshape(-1, X, Y)
+        out += 0.0
+        return out

@@ -158,10 +158,14 @@ def sawtooth_corrections(
         out.fill(0.0)
         return out
     loc = _NO_MAP if local is None else local
-    f, i = np.float64, np.int64
-    if inv.dtype != f:  # a float32 bound: the loop runs in float64
-        beliefs, inv, gain, key = (a.astype(f) for a in (beliefs, inv, gain, key))
-    _kernel()(np.ascontiguousarray(beliefs, dtype=f), np.ascontiguousarray(rows, dtype=i),
-              np.ascontiguousarray(order, dtype=i), idx, inv, wid, gain,
-              np.ascontiguousarray(key, dtype=f), loc, out)  # fmt: skip
+    kernel = _kernel()
+    try:  # the arrays of a float64 bound go as they are (the extension checks them)
+        kernel(beliefs, rows, order, idx, inv, wid, gain, key, loc, out)
+    except TypeError:  # a float32 bound, or strided arrays: the loop runs on float64 copies
+        f, i = np.float64, np.int64
+        kernel(np.ascontiguousarray(beliefs, dtype=f), np.ascontiguousarray(rows, dtype=i),
+               np.ascontiguousarray(order, dtype=i), np.ascontiguousarray(idx, dtype=i),
+               np.ascontiguousarray(inv, dtype=f), np.ascontiguousarray(wid, dtype=i),
+               np.ascontiguousarray(gain, dtype=f), np.ascontiguousarray(key, dtype=f),
+               np.ascontiguousarray(loc, dtype=i), out)  # fmt: skip
     return out

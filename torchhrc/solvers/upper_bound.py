@@ -288,7 +288,6 @@ class SawtoothUpperBound:
             local[columns] = np.arange(columns.size)
         if self.size == 0 or B == 0:
             return base
-        beliefs = np.ascontiguousarray(beliefs)
         first = int(x[0])
         if self.num_observed == 1 or (x == first).all():
             groups: list[tuple[int, np.ndarray]] = [(first, np.arange(B))]

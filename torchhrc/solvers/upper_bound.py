@@ -13,8 +13,12 @@ k V_up(b)`` for ``k >= 0``), so it can be evaluated at unnormalised beliefs, e.g
 ``P(o | b, a) * tau(b, a, o)``, which is what the solvers sum.
 
 Points are stored sparsely: the support of each point (indices and probabilities, padded to
-the widest point seen), so one evaluation costs ``B * P * K`` for ``B`` beliefs, ``P`` points
-and supports of at most ``K`` entries, done as one gather and one ``min`` over tensors.
+the widest point seen). On any device :meth:`SawtoothUpperBound.value` evaluates ``B``
+beliefs against ``P`` points of supports of at most ``K`` entries as one gather and one
+``min`` over tensors (``B * P * K``); on the CPU, :meth:`SawtoothUpperBound.value_np` (the
+solvers' sequential path) runs a compiled loop over each ``x``'s points sorted by gain that
+stops as soon as no remaining point can lower the bound
+(:mod:`~torchhrc.solvers.sawtooth_kernel`), with the same result.
 
 Example:
     >>> import torch

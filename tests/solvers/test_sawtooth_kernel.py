@@ -138,3 +138,13 @@ def test_a_float32_bound_is_evaluated_in_float64():
     b64, inv64, gain64 = (a.astype(f).astype(float) for a in (beliefs, inv, gain))
     want = _exhaustive(b64, order, idx, inv64, wid, gain64, None)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+@needs_extension
+def test_extension_writes_only_a_writable_out():
+    beliefs, order, idx, inv, wid, gain, key, _ = _problem(0, mapped=False)
+    out = np.empty(2)
+    out.flags.writeable = False
+    rows = np.arange(2, dtype=np.int64)
+    with pytest.raises(TypeError, match="out"):
+        compiled(beliefs, rows, order, idx, inv, wid, gain, key, np.empty(0, dtype=np.int64), out)

@@ -16,11 +16,14 @@
 #define SLACK (1.0 + 1e-12)
 
 /* Get a C-contiguous buffer of ndim dims whose items are 8 bytes of the given kind. */
-static int get(PyObject *obj, Py_buffer *view, int ndim, char kind, const char *name) {
-    if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
+static int get(PyObject *obj, Py_buffer *view, int ndim, char kind, const char *name,
+               int writable) {
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, view, flags) < 0) {
         PyErr_Clear();
-        PyErr_Format(PyExc_TypeError, "expected %s to be a C-contiguous %d-D %s array, got %s",
-                     name, ndim, kind == 'd' ? "float64" : "int64", Py_TYPE(obj)->tp_name);
+        PyErr_Format(PyExc_TypeError, "expected %s to be a C-contiguous%s %d-D %s array, got %s",
+                     name, writable ? " writable" : "", ndim, kind == 'd' ? "float64" : "int64",
+                     Py_TYPE(obj)->tp_name);
         return -1;
     }
     const char *f = view->format ? view->format : "B";
@@ -52,7 +55,7 @@ static PyObject *corrections(PyObject *self, PyObject *const *args, Py_ssize_t n
         return NULL;
     }
     for (; got < 10; got++)
-        if (get(args[got], &v[got], dims[got], kinds[got], names[got]) < 0) goto fail;
+        if (get(args[got], &v[got], dims[got], kinds[got], names[got], got == 9) < 0) goto fail;
     {
         const double *beliefs = v[0].buf;
         const int64_t *rows = v[1].buf, *order = v[2].buf, *idx = v[3].buf;

@@ -42,6 +42,8 @@ __all__ = ["SawtoothUpperBound"]
 # elements of the (B, P, K) ratio tensor computed at once by the tensor path :meth:`value` (4 MB
 # in float64; 1 << 22 made 32 MB temporaries, each a fresh mmap and its page faults)
 _CHUNK = 1 << 19
+_ROWS = np.arange(1024)  # row indices 0..B-1 of a query, sliced (read only)
+_ROWS.flags.writeable = False
 
 
 class SawtoothUpperBound:
@@ -293,16 +295,15 @@ class SawtoothUpperBound:
         if self.size == 0 or B == 0:
             return base
         first = int(x[0])
-        if self.num_observed == 1 or (x == first).all():
-            groups: list[tuple[int, np.ndarray]] = [(first, np.arange(B))]
-        else:
-            order = np.argsort(x, kind="stable")
-            sx = x[order]
-            cuts = np.flatnonzero(sx[1:] != sx[:-1]) + 1
-            groups = [(int(x[g[0]]), g) for g in np.split(order, cuts)]
+        if self.num_observed == 1 or (x == first).all():  # one observed value: all rows at once
+            rows = _ROWS[:B] if B <= _ROWS.size else np.arange(B)
+            pts, key = self._sorted_points(first)
+            return base + sawtooth_corrections(beliefs, rows, pts, idx, inv, wid, gain, key, local)
+        order = np.argsort(x, kind="stable")
+        sx = x[order]
         out = np.empty(B, dtype=base.dtype)
-        for xv, rows in groups:
-            pts, key = self._sorted_points(xv)
+        for rows in np.split(order, np.flatnonzero(sx[1:] != sx[:-1]) + 1):
+            pts, key = self._sorted_points(int(x[rows[0]]))
             out[rows] = sawtooth_corrections(beliefs, rows, pts, idx, inv, wid, gain, key, local)
         return base + out
 

@@ -293,10 +293,16 @@ class SolverModel(ABC):
         zt = self._cached("zt", x, lambda: np.ascontiguousarray(z.transpose(0, 1, 3, 2)))
         prob = np.matmul(pred[:, :, None, :], zt)[:, :, 0, :]  # (A, K, O)
         nz = np.flatnonzero(prob)
-        ia, ik, io = np.unravel_index(nz, (A, K, O))
-        rows = np.concatenate([pred[ia, ik] * z[ia, ik, io], b[None]])
+        Y = b.shape[0]
+        J = (pred[:, :, None, :] * z).reshape(-1, Y)  # (A K O, Y) every child, unnormalised
+        rows = np.empty((nz.size + 1, Y), dtype=J.dtype)
+        J.take(nz, axis=0, out=rows[:-1])
+        rows[-1] = b
+        rows_x = np.empty(nz.size + 1, dtype=cx.dtype)
+        cx.take(nz, out=rows_x[:-1])
+        rows_x[-1] = x
         reward = b @ self.reward_np(x)  # (A,)
-        return Children(rows, np.append(cx[nz], x), None, nz, prob, cx, reward)
+        return Children(rows, rows_x, None, nz, prob, cx, reward)
 
     def reward_np(self, x: int) -> np.ndarray:
         """``(Y, A)`` ``R[:, x, :]`` transposed, contiguous (numpy, CPU)."""

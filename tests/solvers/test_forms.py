@@ -224,3 +224,26 @@ def test_pbvi_solves_a_sparse_model_as_its_dense_form() -> None:
     assert sol.lower == pytest.approx(ref.lower, abs=1e-6)
     assert sol.upper >= sol.lower and abs(sol.upper - ref.upper) < 1e-3
     torch.testing.assert_close(sol.info["beliefs"], ref.info["beliefs"])
+
+
+@pytest.mark.parametrize("build", [tiger, lambda: random_pomdp(70, 3, 4, discount=0.9, seed=4),
+                                   lambda: random_pomdp(80, 3, 3, discount=0.95, sparsity=0.95,
+                                                        seed=5)])  # fmt: skip
+def test_dense_fib_start_bounds_qmdp_and_its_step_is_the_fib_operator(build) -> None:  # type: ignore[no-untyped-def]
+    """The CPU path of the dense form (numpy QMDP from zero with the contraction bound; the
+    FIB step in numpy, or per-action sparse products when ``T`` is sparse): the QMDP vectors
+    bound the exact ``Q*`` from above within the tolerance's slack, and one step equals
+    :func:`~torchhrc.solvers.fib.fib_backup`."""
+    from torchhrc.solvers.clock import NEVER
+    from torchhrc.solvers.fib import fib_backup
+    from torchhrc.solvers.qmdp import mdp_q_values
+
+    model = build()
+    form = as_solver_model(model)
+    tol = 1e-6
+    Q, step = form.fib_start(tol, NEVER, {})
+    exact, err = mdp_q_values(model, tol=1e-12)
+    g = model.discount
+    assert bool((Q >= exact - err - 1e-12).all())  # an upper bound
+    assert float((Q - exact).max()) <= 2 * g * tol / (1 - g) + 1e-9  # and a tight one
+    torch.testing.assert_close(step(Q), fib_backup(model, Q), rtol=1e-12, atol=1e-12)

@@ -54,7 +54,10 @@ def _corrections(
     local: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """The loop of ``_sawtooth.c`` in Python (arguments of :func:`sawtooth_corrections`)."""
+    """The loop of ``_sawtooth.c`` in Python (arguments of :func:`sawtooth_corrections`).
+
+    Runs in float64 whatever the storage's dtype, as the C loop does."""
+    beliefs, inv, gain, key = (np.asarray(a, dtype=np.float64) for a in (beliefs, inv, gain, key))
     C = beliefs.shape[1]
     mapped = local.shape[0] > 0
     for q in range(rows.shape[0]):
@@ -89,6 +92,9 @@ def _corrections(
 
 _KERNEL: Callable[..., None] | None = None
 _NO_MAP = np.empty(0, dtype=np.int64)
+# the dtypes the extension takes, argument by argument (``out`` aside)
+_DTYPES = (np.float64, np.int64, np.int64, np.int64, np.float64, np.int64, np.float64,
+           np.float64, np.int64)  # fmt: skip
 
 
 def _kernel() -> Callable[..., None]:
@@ -157,15 +163,10 @@ def sawtooth_corrections(
     if order.shape[0] == 0:
         out.fill(0.0)
         return out
-    loc = _NO_MAP if local is None else local
+    args = (beliefs, rows, order, idx, inv, wid, gain, key, _NO_MAP if local is None else local)
     kernel = _kernel()
     try:  # the arrays of a float64 bound go as they are (the extension checks them)
-        kernel(beliefs, rows, order, idx, inv, wid, gain, key, loc, out)
+        kernel(*args, out)
     except TypeError:  # a float32 bound, or strided arrays: the loop runs on float64 copies
-        f, i = np.float64, np.int64
-        kernel(np.ascontiguousarray(beliefs, dtype=f), np.ascontiguousarray(rows, dtype=i),
-               np.ascontiguousarray(order, dtype=i), np.ascontiguousarray(idx, dtype=i),
-               np.ascontiguousarray(inv, dtype=f), np.ascontiguousarray(wid, dtype=i),
-               np.ascontiguousarray(gain, dtype=f), np.ascontiguousarray(key, dtype=f),
-               np.ascontiguousarray(loc, dtype=i), out)  # fmt: skip
+        kernel(*(np.ascontiguousarray(a, dtype=d) for a, d in zip(args, _DTYPES)), out)
     return out

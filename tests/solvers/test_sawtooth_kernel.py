@@ -20,20 +20,27 @@ needs_extension = pytest.mark.skipif(compiled is None, reason="the C extension i
 
 
 def _problem(seed: int, *, mapped: bool):
-    """Random points (supports of 1..8 of Y values, negative and positive gains), queries."""
+    """Random points (supports of 1..8 of Y values, negative and positive gains), queries.
+
+    The supports lie end to end in one flat array, as in the bound's storage, but in shuffled
+    order and with unused entries between them (the offsets, not the order, locate them)."""
     rng = np.random.default_rng(seed)
     Y, P, K, B = 30, 40, 8, 12
-    idx = np.zeros((P + 5, K), dtype=np.int64)  # 5 free slots, as in the bound's storage
-    inv = np.ones((P + 5, K))
-    wid = np.zeros(P + 5, dtype=np.int64)
+    wid = np.zeros(P + 5, dtype=np.int64)  # 5 free slots, as in the bound's storage
+    off = np.zeros(P + 5, dtype=np.int64)
     mass = np.ones(P + 5)
-    for i in range(P):
+    idx = np.full(P * (K + 2), Y + 7, dtype=np.int64)  # stray values where no point lies
+    inv = np.full(P * (K + 2), np.nan)
+    start = 0
+    for i in rng.permutation(P):
         w = int(rng.integers(1, K + 1))
         supp = np.sort(rng.choice(Y, w, replace=False))
         p = rng.random(w) + 0.05
         p /= p.sum()
-        idx[i, :w], inv[i, :w], wid[i] = supp, 1.0 / p, w
+        off[i], wid[i] = start, w
+        idx[start : start + w], inv[start : start + w] = supp, 1.0 / p
         mass[i] = p.sum()
+        start += w + int(rng.integers(0, 3))
     gain = rng.normal(-1.0, 1.0, P + 5)
     beliefs = rng.random((B, Y)) * (rng.random((B, Y)) < 0.8) * rng.uniform(0.2, 1.0, (B, 1))
     ids = np.flatnonzero(gain[:P] < 0)
@@ -46,16 +53,18 @@ def _problem(seed: int, *, mapped: bool):
         local = np.full(Y, cols.size, dtype=np.int64)
         local[cols] = np.arange(cols.size)
         beliefs = np.ascontiguousarray(beliefs[:, cols])
-    return beliefs, order, idx, inv, wid, gain, key, local
+    return beliefs, order, (idx, inv, off, wid, gain), key, local
 
 
-def _exhaustive(beliefs, order, idx, inv, wid, gain, local):
+def _exhaustive(beliefs, order, points, local):
     """``min(0, min_i g_i min_k b(y_k) / b_i(y_k))`` over every candidate point."""
+    idx, inv, off, wid, gain = points
     out = np.zeros(beliefs.shape[0])
     for q, b in enumerate(beliefs):
         full = b if local is None else np.append(b, 0.0)[np.minimum(local, b.size)]
         for j in order:
-            r = (full[idx[j, : wid[j]]] * inv[j, : wid[j]]).min()
+            seg = slice(off[j], off[j] + wid[j])
+            r = (full[idx[seg]] * inv[seg]).min()
             out[q] = min(out[q], gain[j] * r)
     return out
 
@@ -63,88 +72,96 @@ def _exhaustive(beliefs, order, idx, inv, wid, gain, local):
 @pytest.mark.parametrize("mapped", [False, True])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_early_stops_give_the_exhaustive_minimum(seed, mapped, monkeypatch):
-    beliefs, order, idx, inv, wid, gain, key, local = _problem(seed, mapped=mapped)
+    beliefs, order, pts, key, local = _problem(seed, mapped=mapped)
     rows = np.arange(beliefs.shape[0], dtype=np.int64)
-    want = _exhaustive(beliefs, order, idx, inv, wid, gain, local)
+    want = _exhaustive(beliefs, order, pts, local)
     assert (want < 0).sum() >= 6  # the points do lower the bound at most queries
     monkeypatch.setattr(sawtooth_kernel, "_KERNEL", _corrections)
-    ref = sawtooth_corrections(beliefs, rows, order, idx, inv, wid, gain, key, local)
+    ref = sawtooth_corrections(beliefs, rows, order, *pts, key, local)
     np.testing.assert_array_equal(ref, want)  # bit for bit: the same products are kept
     if compiled is not None:
         monkeypatch.setattr(sawtooth_kernel, "_KERNEL", compiled)
-        got = sawtooth_corrections(beliefs, rows, order, idx, inv, wid, gain, key, local)
+        got = sawtooth_corrections(beliefs, rows, order, *pts, key, local)
         np.testing.assert_array_equal(got, want)
         sub = rows[::3][::-1].copy()  # a subset of the rows, in any order
-        part = sawtooth_corrections(beliefs, sub, order, idx, inv, wid, gain, key, local)
+        part = sawtooth_corrections(beliefs, sub, order, *pts, key, local)
         np.testing.assert_array_equal(part, want[sub])
 
 
 def test_no_candidate_point_gives_zero():
-    beliefs, _, idx, inv, wid, gain, _, _ = _problem(0, mapped=False)
+    beliefs, _, pts, _, _ = _problem(0, mapped=False)
     rows = np.arange(3, dtype=np.int64)
     empty = np.empty(0, dtype=np.int64)
-    out = sawtooth_corrections(beliefs, rows, empty, idx, inv, wid, gain, empty.astype(float))
+    out = sawtooth_corrections(beliefs, rows, empty, *pts, empty.astype(float))
     np.testing.assert_array_equal(out, np.zeros(3))
 
 
 @needs_extension
 def test_extension_rejects_bad_arrays():
-    beliefs, order, idx, inv, wid, gain, key, _ = _problem(0, mapped=False)
+    beliefs, order, pts, key, _ = _problem(0, mapped=False)
+    idx, inv, off, wid, gain = pts
     rows = np.arange(2, dtype=np.int64)
     out = np.empty(2)
     none = np.empty(0, dtype=np.int64)
-    args = [beliefs, rows, order, idx, inv, wid, gain, key, none, out]
+    args = [beliefs, rows, order, idx, inv, off, wid, gain, key, none, out]
     with pytest.raises(TypeError, match="inv"):
         compiled(*args[:4], inv.astype(np.float32), *args[5:])
+    with pytest.raises(TypeError, match="idx"):
+        compiled(*args[:3], idx.reshape(-1, 2), *args[4:])  # 2-D: the old padded layout
     with pytest.raises(TypeError, match="beliefs"):
         compiled(np.asfortranarray(beliefs), *args[1:])
-    with pytest.raises(TypeError, match="10 arguments"):
-        compiled(*args[:9])
+    with pytest.raises(TypeError, match="11 arguments"):
+        compiled(*args[:10])
     with pytest.raises(IndexError, match="row"):
         compiled(beliefs, np.array([0, beliefs.shape[0]]), *args[2:])
     with pytest.raises(IndexError, match="point"):
-        compiled(*args[:2], np.array([idx.shape[0]]), *args[3:7], key[:1], none, out)
+        compiled(*args[:2], np.array([off.shape[0]]), *args[3:8], key[:1], none, out)
+    far = off.copy()
+    far[order[0]] = idx.shape[0] - wid[order[0]] + 1  # a support running past the array
+    with pytest.raises(IndexError, match="point"):
+        compiled(*args[:5], far, *args[6:])
     bad = idx.copy()
-    bad[order[0], 0] = 10_000  # a support index past the columns
+    bad[off[order[0]]] = 10_000  # a support index past the columns
     with pytest.raises(IndexError, match="support index"):
         compiled(*args[:3], bad, *args[4:])
     with pytest.raises(ValueError, match="shapes"):
-        compiled(*args[:9], np.empty(5))
+        compiled(*args[:10], np.empty(5))
 
 
 def test_without_the_extension_the_python_loop_runs_with_a_warning(monkeypatch):
-    beliefs, order, idx, inv, wid, gain, key, _ = _problem(1, mapped=False)
+    beliefs, order, pts, key, _ = _problem(1, mapped=False)
     rows = np.arange(beliefs.shape[0], dtype=np.int64)
-    want = _exhaustive(beliefs, order, idx, inv, wid, gain, None)
+    want = _exhaustive(beliefs, order, pts, None)
     monkeypatch.setitem(sys.modules, "torchhrc.solvers._sawtooth", None)  # import fails
     monkeypatch.setattr(sawtooth_kernel, "_KERNEL", None)
     monkeypatch.delenv("TORCHHRC_NO_EXTENSION", raising=False)
     with pytest.warns(RuntimeWarning, match="build_ext --inplace"):
-        got = sawtooth_corrections(beliefs, rows, order, idx, inv, wid, gain, key)
+        got = sawtooth_corrections(beliefs, rows, order, *pts, key)
     np.testing.assert_array_equal(got, want)
     assert sawtooth_kernel._KERNEL is _corrections
     monkeypatch.setattr(sawtooth_kernel, "_KERNEL", None)
     monkeypatch.setenv("TORCHHRC_NO_EXTENSION", "1")  # forced: no warning
-    got = sawtooth_corrections(beliefs, rows, order, idx, inv, wid, gain, key)
+    got = sawtooth_corrections(beliefs, rows, order, *pts, key)
+    np.testing.assert_array_equal(got, want)
     assert sawtooth_kernel._KERNEL is _corrections
 
 
 def test_a_float32_bound_is_evaluated_in_float64():
-    beliefs, order, idx, inv, wid, gain, key, _ = _problem(2, mapped=False)
+    beliefs, order, (idx, inv, off, wid, gain), key, _ = _problem(2, mapped=False)
     rows = np.arange(beliefs.shape[0], dtype=np.int64)
     f = np.float32
     got = sawtooth_corrections(beliefs.astype(f), rows, order, idx, inv.astype(f),
-                               wid, gain.astype(f), key.astype(f))  # fmt: skip
+                               off, wid, gain.astype(f), key.astype(f))  # fmt: skip
     b64, inv64, gain64 = (a.astype(f).astype(float) for a in (beliefs, inv, gain))
-    want = _exhaustive(b64, order, idx, inv64, wid, gain64, None)
+    want = _exhaustive(b64, order, (idx, inv64, off, wid, gain64), None)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
 
 
 @needs_extension
 def test_extension_writes_only_a_writable_out():
-    beliefs, order, idx, inv, wid, gain, key, _ = _problem(0, mapped=False)
+    beliefs, order, pts, key, _ = _problem(0, mapped=False)
     out = np.empty(2)
     out.flags.writeable = False
     rows = np.arange(2, dtype=np.int64)
     with pytest.raises(TypeError, match="out"):
-        compiled(beliefs, rows, order, idx, inv, wid, gain, key, np.empty(0, dtype=np.int64), out)
+        compiled(beliefs, rows, order, *pts, key, np.empty(0, dtype=np.int64), out)

@@ -2,10 +2,12 @@
  * which documents the formula, the two exact bounds that let the loop stop early, and the
  * arguments; _corrections there is the same loop in Python (the reference of the tests).
  *
- * corrections(beliefs, rows, order, idx, inv, wid, gain, key, local, out) -> None
- *   beliefs (B, C) float64, rows (R,) int64, order (P',) int64, idx (cap, K) int64,
- *   inv (cap, K) float64, wid (cap,) int64, gain (cap,) float64, key (P',) float64,
- *   local (Y,) int64 or empty, out (R,) float64 (written). All C-contiguous.
+ * corrections(beliefs, rows, order, idx, inv, off, wid, gain, key, local, out) -> None
+ *   beliefs (B, C) float64, rows (R,) int64, order (P',) int64, idx (E,) int64 and
+ *   inv (E,) float64 the points' supports end to end (point j: entries off[j] to
+ *   off[j] + wid[j]), off (cap,) int64, wid (cap,) int64, gain (cap,) float64,
+ *   key (P',) float64, local (Y,) int64 or empty, out (R,) float64 (written).
+ *   All C-contiguous.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -43,34 +45,34 @@ static int get(PyObject *obj, Py_buffer *view, int ndim, char kind, const char *
 }
 
 static PyObject *corrections(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    static const char *names[10] = {"beliefs", "rows", "order", "idx", "inv",
+    static const char *names[11] = {"beliefs", "rows", "order", "idx",   "inv", "off",
                                     "wid",     "gain", "key",   "local", "out"};
-    static const int dims[10] = {2, 1, 1, 2, 2, 1, 1, 1, 1, 1};
-    static const char kinds[10] = {'d', 'q', 'q', 'q', 'd', 'q', 'd', 'd', 'q', 'd'};
-    Py_buffer v[10];
+    static const int dims[11] = {2, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1};
+    static const char kinds[11] = {'d', 'q', 'q', 'q', 'd', 'q', 'q', 'd', 'd', 'q', 'd'};
+    Py_buffer v[11];
     int got = 0;
     (void)self;
-    if (nargs != 10) {
-        PyErr_Format(PyExc_TypeError, "corrections() takes 10 arguments (%zd given)", nargs);
+    if (nargs != 11) {
+        PyErr_Format(PyExc_TypeError, "corrections() takes 11 arguments (%zd given)", nargs);
         return NULL;
     }
-    for (; got < 10; got++)
-        if (get(args[got], &v[got], dims[got], kinds[got], names[got], got == 9) < 0) goto fail;
+    for (; got < 11; got++)
+        if (get(args[got], &v[got], dims[got], kinds[got], names[got], got == 10) < 0) goto fail;
     {
         const double *beliefs = v[0].buf;
         const int64_t *rows = v[1].buf, *order = v[2].buf, *idx = v[3].buf;
         const double *inv = v[4].buf;
-        const int64_t *wid = v[5].buf;
-        const double *gain = v[6].buf, *key = v[7].buf;
-        const int64_t *local = v[8].buf;
-        double *out = v[9].buf;
+        const int64_t *off = v[5].buf, *wid = v[6].buf;
+        const double *gain = v[7].buf, *key = v[8].buf;
+        const int64_t *local = v[9].buf;
+        double *out = v[10].buf;
         const Py_ssize_t B = v[0].shape[0], C = v[0].shape[1];
         const Py_ssize_t R = v[1].shape[0], P = v[2].shape[0];
-        const Py_ssize_t cap = v[3].shape[0], K = v[3].shape[1];
-        const Py_ssize_t Y = v[8].shape[0];
+        const Py_ssize_t E = v[3].shape[0], cap = v[5].shape[0];
+        const Py_ssize_t Y = v[9].shape[0];
         const int mapped = Y > 0;
-        if (v[9].shape[0] != R || v[7].shape[0] != P || v[4].shape[0] != cap ||
-            v[4].shape[1] != K || v[5].shape[0] != cap || v[6].shape[0] != cap) {
+        if (v[10].shape[0] != R || v[8].shape[0] != P || v[4].shape[0] != E ||
+            v[6].shape[0] != cap || v[7].shape[0] != cap) {
             PyErr_SetString(PyExc_ValueError, "corrections(): inconsistent array shapes");
             goto fail;
         }
@@ -82,7 +84,7 @@ static PyObject *corrections(PyObject *self, PyObject *const *args, Py_ssize_t n
             }
         for (Py_ssize_t t = 0; t < P; t++) {
             int64_t j = order[t];
-            if (j < 0 || j >= cap || wid[j] < 0 || wid[j] > K) {
+            if (j < 0 || j >= cap || wid[j] < 0 || off[j] < 0 || off[j] > E - wid[j]) {
                 PyErr_SetString(PyExc_IndexError, "corrections(): a point is out of range");
                 goto fail;
             }
@@ -99,8 +101,8 @@ static PyObject *corrections(PyObject *self, PyObject *const *args, Py_ssize_t n
                 const int64_t j = order[t];
                 if (key[t] * mass * SLACK >= best) break; /* no later point can win */
                 const double g = gain[j];
-                const int64_t *yj = idx + j * K;
-                const double *wj = inv + j * K;
+                const int64_t *yj = idx + off[j];
+                const double *wj = inv + off[j];
                 double r = INFINITY;
                 for (int64_t k = 0; k < wid[j]; k++) {
                     int64_t y = yj[k];

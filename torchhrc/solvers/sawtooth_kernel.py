@@ -48,6 +48,7 @@ def _corrections(
     order: np.ndarray,
     idx: np.ndarray,
     inv: np.ndarray,
+    off: np.ndarray,
     wid: np.ndarray,
     gain: np.ndarray,
     key: np.ndarray,
@@ -72,14 +73,14 @@ def _corrections(
                 break  # no later point has a lower bound on its term
             g = gain[j]
             r = np.inf
-            for k in range(wid[j]):
-                y = idx[j, k]
+            for e in range(off[j], off[j] + wid[j]):
+                y = idx[e]
                 if mapped:
                     y = local[y]
                     if y >= C:  # outside the given columns: b(y) = 0
                         r = 0.0
                         break
-                v = beliefs[row, y] * inv[j, k]
+                v = beliefs[row, y] * inv[e]
                 if v < r:
                     r = v
                     if g * r >= best:
@@ -93,8 +94,8 @@ def _corrections(
 _KERNEL: Callable[..., None] | None = None
 _NO_MAP = np.empty(0, dtype=np.int64)
 # the dtypes the extension takes, argument by argument (``out`` aside)
-_DTYPES = (np.float64, np.int64, np.int64, np.int64, np.float64, np.int64, np.float64,
-           np.float64, np.int64)  # fmt: skip
+_DTYPES = (np.float64, np.int64, np.int64, np.int64, np.float64, np.int64, np.int64,
+           np.float64, np.float64, np.int64)  # fmt: skip
 
 
 def _kernel() -> Callable[..., None]:
@@ -127,6 +128,7 @@ def sawtooth_corrections(
     order: np.ndarray,
     idx: np.ndarray,
     inv: np.ndarray,
+    off: np.ndarray,
     wid: np.ndarray,
     gain: np.ndarray,
     key: np.ndarray,
@@ -138,8 +140,10 @@ def sawtooth_corrections(
         beliefs: ``(B, C)`` float64 non-negative weights, C-contiguous.
         rows: ``(R,)`` int64 the rows of ``beliefs`` to evaluate.
         order: ``(P',)`` int64 the candidate points, by increasing ``key`` (only ``key < 0``).
-        idx: ``(cap, K)`` int64 support of each point (hidden values; entries past ``wid``
-            unused). inv: ``(cap, K)`` float64 ``1 / b_i(y)`` on the support.
+        idx: ``(E,)`` int64 the points' supports (hidden values) end to end: point ``j``'s
+            are entries ``off[j]`` to ``off[j] + wid[j]``. inv: ``(E,)`` float64
+            ``1 / b_i(y)`` on the supports, entry by entry.
+        off: ``(cap,)`` int64 where each point's support starts in ``idx`` and ``inv``.
         wid: ``(cap,)`` int64 support widths. gain: ``(cap,)`` the gains ``g_i``.
         key: ``(P',)`` the keys ``g_i / s_i`` of the points of ``order`` (see the module
             docstring), increasing.
@@ -153,8 +157,9 @@ def sawtooth_corrections(
     Example:
         >>> import numpy as np
         >>> b = np.array([[0.2, 0.8]])  # one query; one point b_1 = (0.4, 0.6) with gain -1
-        >>> idx, inv, g = np.array([[0, 1]]), np.array([[1 / 0.4, 1 / 0.6]]), np.array([-1.0])
-        >>> sawtooth_corrections(b, np.array([0]), np.array([0]), idx, inv, np.array([2]), g, g)
+        >>> idx, inv, g = np.array([0, 1]), np.array([1 / 0.4, 1 / 0.6]), np.array([-1.0])
+        >>> one = np.array([0])  # the row, the point, its offset
+        >>> sawtooth_corrections(b, one, one, idx, inv, one, np.array([2]), g, g)
         array([-0.5])
     """
     out = np.empty(rows.shape[0], dtype=np.float64)
@@ -163,7 +168,8 @@ def sawtooth_corrections(
     if order.shape[0] == 0:
         out.fill(0.0)
         return out
-    args = (beliefs, rows, order, idx, inv, wid, gain, key, _NO_MAP if local is None else local)
+    args = (beliefs, rows, order, idx, inv, off, wid, gain, key,
+            _NO_MAP if local is None else local)  # fmt: skip
     kernel = _kernel()
     try:  # the arrays of a float64 bound go as they are (the extension checks them)
         kernel(*args, out)

@@ -12,10 +12,13 @@ A flat POMDP is the case ``X = 1``. ``V_up`` is positively homogeneous (``V_up(k
 k V_up(b)`` for ``k >= 0``), so it can be evaluated at unnormalised beliefs, e.g.
 ``P(o | b, a) * tau(b, a, o)``, which is what the solvers sum.
 
-Points are stored sparsely: the support of each point (indices and probabilities, padded to
-the widest point seen). On any device :meth:`SawtoothUpperBound.value` evaluates ``B``
-beliefs against ``P`` points of supports of at most ``K`` entries as one gather and one
-``min`` over tensors (``B * P * K``); on the CPU, :meth:`SawtoothUpperBound.value_np` (the
+Points are stored sparsely: the supports of all points (indices and probabilities) end to
+end in one flat array, each point's found by its offset and width, so a point costs its
+support and not the widest support seen (TagAvoid: most points cover a few dozen of 870
+states, the widest 841). On any device :meth:`SawtoothUpperBound.value` evaluates ``B``
+beliefs against ``P`` points, their supports padded to the widest ``K`` (built on demand
+and kept until the points change), as one gather and one ``min`` over tensors
+(``B * P * K``); on the CPU, :meth:`SawtoothUpperBound.value_np` (the
 solvers' sequential path) runs a compiled loop over each ``x``'s points sorted by gain that
 stops as soon as no remaining point can lower the bound
 (:mod:`~torchhrc.solvers.sawtooth_kernel`), with the same result.
@@ -30,6 +33,8 @@ Example:
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 import torch
@@ -72,8 +77,14 @@ class SawtoothUpperBound:
         self.num_observed, self.num_hidden = X, Y
         dev, dt = corner.device, corner.dtype
         cap = max(int(capacity), 1)
-        self._idx = torch.full((cap, 1), Y, dtype=torch.long, device=dev)  # (P, K) support, Y = pad
-        self._inv = torch.ones(cap, 1, dtype=dt, device=dev)  # (P, K) 1 / b_i(y) on the support
+        # the supports end to end: point i's are entries _off[i] to _off[i] + _w[i]
+        self._fidx = torch.empty(cap * 4, dtype=torch.long, device=dev)  # (E,) hidden values
+        self._finv = torch.empty(cap * 4, dtype=dt, device=dev)  # (E,) 1 / b_i(y) on them
+        self._off = torch.zeros(cap, dtype=torch.long, device=dev)  # (P,) start of a support
+        self._used = 0  # entries of _fidx / _finv in use
+        self._kmax = 1  # the widest support ever stored (the width of the padded rows)
+        self._padded_cache: tuple[int, torch.Tensor, torch.Tensor] | None = None
+        self._stamp = 0  # counts changes of the stored supports (for _padded_cache)
         self._x = torch.zeros(cap, dtype=torch.long, device=dev)  # (P,) observed value of point
         self._v = torch.zeros(cap, dtype=dt, device=dev)  # (P,) upper value v_i at b_i
         self._gain = torch.zeros(cap, dtype=dt, device=dev)  # (P,) v_i - b_i . c (<= 0 useful)
@@ -96,9 +107,9 @@ class SawtoothUpperBound:
         if self.corner.device.type != "cpu":
             self._np = None
             return
-        self._np = (self.corner.numpy(), self._idx.numpy(), self._inv.numpy(), self._x.numpy(),
-                    self._v.numpy(), self._gain.numpy(), self._w.numpy(),
-                    self._mass.numpy())  # fmt: skip
+        self._np = (self.corner.numpy(), self._fidx.numpy(), self._finv.numpy(), self._x.numpy(),
+                    self._v.numpy(), self._gain.numpy(), self._w.numpy(), self._mass.numpy(),
+                    self._off.numpy())  # fmt: skip
 
     def _add_member(self, x: int, i: int) -> None:
         if self._np is None:
@@ -162,54 +173,101 @@ class SawtoothUpperBound:
         """``(P_x,)`` the indices of the points of observed value ``x`` (CPU storage only)."""
         return self._members[x][: self._count[x]]
 
-    def _grow(self, need: int, width: int) -> None:
-        cap, K = self._idx.shape
-        if need > cap or width > K:
+    def _grow(self, need: int, entries: int) -> None:
+        """Room for ``need`` points and ``entries`` support entries (capacities doubled)."""
+        cap = self._off.shape[0]
+        if need > cap:
             new_cap = max(cap, 1)
             while new_cap < need:
                 new_cap *= 2
-            new_k = max(K, width)
-            # empty, not full: a point's row is written whole when it is added, so only the
-            # stored rows are filled and the free slots stay untouched pages (not resident;
-            # RockSample_7_8.pomdpx: 2 x 16 MB at 8,192 slots of 256 entries)
-            idx = self._idx.new_empty(new_cap, new_k)
-            inv = self._inv.new_empty(new_cap, new_k)
-            idx[: self.size, :K] = self._idx[: self.size]
-            inv[: self.size, :K] = self._inv[: self.size]
-            idx[: self.size, K:] = self.num_hidden
-            inv[: self.size, K:] = 1.0
-            self._idx, self._inv = idx, inv
-            if new_cap > cap:
-                for name in ("_x", "_v", "_gain", "_w", "_mass"):
-                    old = getattr(self, name)
-                    new = old.new_zeros(new_cap)
-                    new[: self.size] = old[: self.size]
-                    setattr(self, name, new)
+            for name in ("_x", "_v", "_gain", "_w", "_mass", "_off"):
+                old = getattr(self, name)
+                new = old.new_zeros(new_cap)
+                new[: self.size] = old[: self.size]
+                setattr(self, name, new)
+        ecap = self._fidx.shape[0]
+        if entries > ecap:
+            new_e = max(ecap, 1)
+            while new_e < entries:
+                new_e *= 2
+            # empty, not zeros: only the entries written are touched, so the free room stays
+            # pages that are not resident
+            fidx, finv = self._fidx.new_empty(new_e), self._finv.new_empty(new_e)
+            fidx[: self._used] = self._fidx[: self._used]
+            finv[: self._used] = self._finv[: self._used]
+            self._fidx, self._finv = fidx, finv
+        if need > cap or entries > ecap:
             self._views()
 
+    def _padded(self, ids: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(n, K)`` supports and ``1 / b_i(y)`` of points ``ids (n,)``, padded to the widest
+        support ever stored with the index ``Y`` and ``1`` (what the tensor path gathers)."""
+        k = torch.arange(self._kmax, device=ids.device)
+        inside = k < self._w[ids].unsqueeze(-1)  # (n, K)
+        pos = torch.where(inside, self._off[ids].unsqueeze(-1) + k, 0)
+        idx = torch.where(inside, self._fidx[pos], self.num_hidden)
+        inv = torch.where(inside, self._finv[pos], 1.0)
+        return idx, inv
+
+    def _padded_all(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`_padded` of every point, kept until the stored supports change."""
+        cached = self._padded_cache
+        if cached is None or cached[0] != self._stamp:
+            ids = torch.arange(self.size, device=self._off.device)
+            cached = (self._stamp, *self._padded(ids))
+            self._padded_cache = cached
+        return cached[1], cached[2]
+
+    def _append(self, idx: Any, inv: Any) -> int:
+        """Store one more point's support ``idx (w,)`` and ``1 / b(y)`` there, ``inv (w,)``,
+        at the end of the flat arrays (numpy arrays on the CPU storage, tensors elsewhere);
+        returns its offset. The point's other fields are the caller's."""
+        w = idx.shape[0]
+        start = self._used
+        self._grow(self.size + 1, start + w)
+        fidx, finv = (self._fidx, self._finv) if self._np is None else self._np[1:3]
+        fidx[start : start + w] = idx
+        finv[start : start + w] = inv
+        self._used = start + w
+        self._kmax = max(self._kmax, w)
+        self._stamp += 1
+        return start
+
     def _refresh_gain(self, x: int | None = None) -> None:
-        """Recompute the gains after a corner change (only ``x``'s points when given)."""
+        """Recompute the gains after a corner change (only ``x``'s points when given).
+
+        ``b_i . c`` is summed over each point's padded row (numpy for one ``x`` on the CPU,
+        torch otherwise), as before the supports were stored end to end, so the gains are the
+        same floats; a block of points at a time keeps the padded temporaries small."""
         if x is not None and self._np is not None:
-            corner, idx, inv, _, v, gain = self._np[:6]
-            ids = self.members(x)
-            if ids.size:
-                c = np.append(corner[x], 0.0)  # (Y + 1,), the pad index Y maps to 0
-                gain[ids] = v[ids] - (c[idx[ids]] / inv[ids]).sum(-1)
+            corner, v, gain = self._np[0], self._np[4], self._np[5]
+            c = np.append(corner[x], 0.0)  # (Y + 1,), the pad index Y maps to 0
+            ids, step = self.members(x), self._block()
+            for blk in (ids[i : i + step] for i in range(0, ids.size, step)):
+                idx, inv = (t.numpy() for t in self._padded(torch.from_numpy(blk)))
+                gain[blk] = v[blk] - (c[idx] / inv).sum(-1)
             self._sorted[x] = None
             return
         self._sorted = [None] * self.num_observed
-        n = self.size
         c = torch.cat([self.corner, self.corner.new_zeros(self.num_observed, 1)], dim=1)
-        cx = c[self._x[:n]]  # (P, Y+1)
-        self._gain[:n] = self._v[:n] - (cx.gather(1, self._idx[:n]) / self._inv[:n]).sum(-1)
+        ids = torch.arange(self.size, device=c.device)
+        for blk in ids.split(self._block()):
+            idx, inv = self._padded(blk)
+            self._gain[blk] = self._v[blk] - (c[self._x[blk]].gather(1, idx) / inv).sum(-1)
+
+    def _block(self) -> int:
+        """Points per block of padded rows (about ``_CHUNK`` entries)."""
+        return max(1, _CHUNK // self._kmax)
 
     @property
     def points(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The stored points as dense tensors: ``beliefs (P, Y)``, ``x (P,)``, ``values (P,)``."""
-        n = self.size
-        dense = self.corner.new_zeros(n, self.num_hidden + 1)
-        dense.scatter_(1, self._idx[:n], 1.0 / self._inv[:n])
-        return dense[:, :-1], self._x[:n].clone(), self._v[:n].clone()
+        n, used = self.size, self._used
+        dense = self.corner.new_zeros(n, self.num_hidden)
+        # the supports lie end to end in point order (appended, and compacted by prune)
+        rows = torch.repeat_interleave(torch.arange(n, device=dense.device), self._w[:n])
+        dense[rows, self._fidx[:used]] = 1.0 / self._finv[:used]
+        return dense, self._x[:n].clone(), self._v[:n].clone()
 
     # -- evaluation --------------------------------------------------------------------------
     def value(self, beliefs: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -228,7 +286,8 @@ class SawtoothUpperBound:
         B = beliefs.shape[0]
         if n == 0 or B == 0:
             return base
-        idx, inv, px, gain = self._idx[:n], self._inv[:n], self._x[:n], self._gain[:n]
+        idx, inv = self._padded_all()
+        px, gain = self._x[:n], self._gain[:n]
         if self.num_observed > 1:  # only the points of the queried observed values compete
             sel = torch.isin(px, x).nonzero().squeeze(-1)
             if sel.numel() == 0:
@@ -279,7 +338,7 @@ class SawtoothUpperBound:
             ``(B,)`` upper bounds.
         """
         assert self._np is not None
-        corner, idx, inv, _, _, gain, wid = self._np[:7]
+        corner, idx, inv, _, _, gain, wid, _, off = self._np
         B = beliefs.shape[0]
         local = None
         if columns is None:
@@ -298,13 +357,15 @@ class SawtoothUpperBound:
         if self.num_observed == 1 or (x == first).all():  # one observed value: all rows at once
             rows = _ROWS[:B] if B <= _ROWS.size else np.arange(B)
             pts, key = self._sorted_points(first)
-            return base + sawtooth_corrections(beliefs, rows, pts, idx, inv, wid, gain, key, local)
+            return base + sawtooth_corrections(beliefs, rows, pts, idx, inv, off, wid, gain, key,
+                                               local)  # fmt: skip
         order = np.argsort(x, kind="stable")
         sx = x[order]
         out = np.empty(B, dtype=base.dtype)
         for rows in np.split(order, np.flatnonzero(sx[1:] != sx[:-1]) + 1):
             pts, key = self._sorted_points(int(x[rows[0]]))
-            out[rows] = sawtooth_corrections(beliefs, rows, pts, idx, inv, wid, gain, key, local)
+            out[rows] = sawtooth_corrections(beliefs, rows, pts, idx, inv, off, wid, gain, key,
+                                             local)  # fmt: skip
         return base + out
 
     # -- updates -----------------------------------------------------------------------------
@@ -334,22 +395,27 @@ class SawtoothUpperBound:
             self._refresh_gain()
         if rows.numel() == 0:
             return
-        b, bx, bv = beliefs[rows], x[rows], values[rows]
-        K = int(width[rows].max())
-        m = rows.numel()
-        self._grow(self.size + m, K)
-        Kc = self._idx.shape[1]
+        b, bx, bv, w = beliefs[rows], x[rows], values[rows], width[rows]
+        self._kmax = Kc = max(self._kmax, int(w.max()))
+        m, total = rows.numel(), int(w.sum())
+        self._grow(self.size + m, self._used + total)
+        # each row's support by increasing hidden value, padded to Kc (the gains are summed
+        # over the padded rows, as the tensor path evaluates them)
         order = torch.argsort((~support[rows]).to(torch.int8), dim=-1, stable=True)[:, :Kc]
         keep = support[rows].gather(1, order)
         idx = torch.where(keep, order, order.new_full((), self.num_hidden))
         val = torch.where(keep, b.gather(1, order), b.new_ones(()))
-        s = slice(self.size, self.size + m)
-        self._idx[s], self._inv[s], self._x[s], self._v[s] = idx, 1.0 / val, bx, bv
+        s, e = slice(self.size, self.size + m), slice(self._used, self._used + total)
+        self._fidx[e], self._finv[e] = idx[keep], 1.0 / val[keep]
+        self._off[s] = self._used + torch.cumsum(w, 0) - w
+        self._x[s], self._v[s] = bx, bv
         c = torch.cat([self.corner, self.corner.new_zeros(self.num_observed, 1)], dim=1)
         self._gain[s] = bv - (c[bx].gather(1, idx) * val).sum(-1)
-        self._w[s] = width[rows]
+        self._w[s] = w
         self._mass[s] = b.sum(-1)
         self.size += m
+        self._used += total
+        self._stamp += 1
         if self._np is not None:
             for i, xi in enumerate(bx.tolist()):
                 self._add_member(xi, s.start + i)
@@ -367,13 +433,10 @@ class SawtoothUpperBound:
                 self.corner[x, y] = value[0]
                 self._refresh_gain()
             return
-        self._grow(self.size + 1, w)
         n = self.size
         val = belief[idx]
-        self._idx[n, :w] = idx
-        self._idx[n, w:] = self.num_hidden
-        self._inv[n, :w] = 1.0 / val
-        self._inv[n, w:] = 1.0
+        start = self._append(idx, 1.0 / val)
+        self._off[n] = start
         self._x[n] = x
         self._v[n] = value[0]
         self._gain[n] = value[0] - (self.corner[x, idx] * val).sum()
@@ -399,14 +462,11 @@ class SawtoothUpperBound:
                 corner[x, y] = value
                 self._refresh_gain(x)
             return
-        self._grow(self.size + 1, w)
         n = self.size
         val = belief[idx]
-        _, I, inv, px, v, gain, wid, mass = self._np
-        I[n, :w] = idx
-        I[n, w:] = self.num_hidden
-        inv[n, :w] = 1.0 / val
-        inv[n, w:] = 1.0
+        start = self._append(idx, 1.0 / val)
+        _, _, _, px, v, gain, wid, mass, off = self._np
+        off[n] = start
         px[n] = x
         v[n] = value
         gain[n] = value - float(corner[x, idx] @ val)
@@ -447,8 +507,18 @@ class SawtoothUpperBound:
         sel = keep.nonzero().squeeze(-1)
         removed = n - sel.numel()
         if removed:
-            self._idx[: sel.numel()] = self._idx[sel]
-            self._inv[: sel.numel()] = self._inv[sel]
+            # the kept supports, moved to the front end to end in their order
+            w = self._w[sel]
+            start = torch.cumsum(w, 0) - w
+            total = int(w.sum())
+            pos = torch.repeat_interleave(self._off[sel] - start, w) + torch.arange(
+                total, device=w.device
+            )
+            self._fidx[:total] = self._fidx[pos]
+            self._finv[:total] = self._finv[pos]
+            self._off[: sel.numel()] = start
+            self._used = total
+            self._stamp += 1
             self._x[: sel.numel()] = self._x[sel]
             self._v[: sel.numel()] = self._v[sel]
             self._gain[: sel.numel()] = self._gain[sel]

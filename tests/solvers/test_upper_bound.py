@@ -1,0 +1,104 @@
+"""The sawtooth bound's point storage: supports end to end (a point costs its own support),
+the same values through the tensor and the numpy path, and a pruning that keeps the
+surviving points exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from torchhrc.solvers.upper_bound import SawtoothUpperBound
+
+
+def _reference(corner: np.ndarray, pts: list[tuple[np.ndarray, float]], b: np.ndarray) -> float:
+    """``b . c + min(0, min_i (v_i - b_i . c) min_{b_i(y) > 0} b(y) / b_i(y))`` by hand."""
+    base = float(b @ corner)
+    corr = 0.0
+    for bi, vi in pts:
+        s = bi > 0
+        corr = min(corr, (vi - float(bi @ corner)) * float((b[s] / bi[s]).min()))
+    return base + corr
+
+
+def _random_points(rng: np.random.Generator, Y: int, widths: list[int]):
+    pts = []
+    for w in widths:
+        b = np.zeros(Y)
+        b[np.sort(rng.choice(Y, w, replace=False))] = rng.random(w) + 0.05
+        b /= b.sum()
+        pts.append((b, float(b @ np.full(Y, 10.0)) - float(rng.random()) * 4))
+    return pts
+
+
+@pytest.mark.parametrize("batched", [False, True])
+def test_a_point_costs_its_own_support_not_the_widest(batched):
+    rng = np.random.default_rng(0)
+    Y = 60
+    widths = [Y] + [int(w) for w in rng.integers(2, 6, 200)]  # one wide point, then narrow ones
+    pts = _random_points(rng, Y, widths)
+    ub = SawtoothUpperBound(torch.full((1, Y), 10.0, dtype=torch.float64), capacity=4)
+    beliefs = torch.from_numpy(np.stack([b for b, _ in pts]))
+    values = torch.tensor([v for _, v in pts], dtype=torch.float64)
+    if batched:
+        ub.add(beliefs, torch.zeros(len(pts), dtype=torch.long), values)
+    else:
+        for b, v in pts:
+            ub.add_np(b, 0, v)
+    assert ub.size == len(pts)
+    assert ub._used == sum(widths)  # padded rows would hold len(pts) * Y entries
+    assert ub._fidx.numel() <= 2 * sum(widths)  # the flat capacity is doubled, no more
+    stored, _, v = ub.points
+    torch.testing.assert_close(stored, beliefs, rtol=1e-15, atol=0)  # b = 1 / (1 / b)
+    assert v.tolist() == values.tolist()
+    q = rng.random((25, Y)) * (rng.random((25, Y)) < 0.9)
+    q /= q.sum(-1, keepdims=True)
+    want = np.array([_reference(np.full(Y, 10.0), pts, row) for row in q])
+    x = np.zeros(25, dtype=np.int64)
+    np.testing.assert_allclose(ub.value_np(q, x), want, rtol=1e-12, atol=1e-12)
+    got = ub.value(torch.from_numpy(q), torch.from_numpy(x)).numpy()
+    # the tensor path agrees (its base term b . c is summed in another order)
+    np.testing.assert_allclose(got, ub.value_np(q, x), rtol=1e-14, atol=0)
+
+
+def test_pruning_moves_the_kept_supports_to_the_front_unchanged():
+    rng = np.random.default_rng(1)
+    Y = 12
+    corner = np.full(Y, 10.0)
+    ub = SawtoothUpperBound(torch.from_numpy(corner[None].copy()), capacity=2)
+    pts = _random_points(rng, Y, [int(w) for w in rng.integers(2, Y, 40)])
+    # points no lower than the corners bound nothing (gain >= 0): pruning removes them
+    pts += [(b, float(b @ corner) + 1.0) for b, _ in _random_points(rng, Y, [3, 5, 4])]
+    for b, v in pts:
+        ub.add_np(b, 0, v)
+    before, _, vals = ub.points
+    removed = ub.prune()
+    assert removed >= 3
+    after, _, kept_vals = ub.points
+    # every kept point is an original one, whole, in the original order
+    rows = [int(np.flatnonzero(vals.numpy() == kv)[0]) for kv in kept_vals.tolist()]
+    assert rows == sorted(rows)
+    torch.testing.assert_close(after, before[rows], rtol=0, atol=0)
+    assert ub._used == int((after > 0).sum())
+    kept = [pts[i] for i in rows]
+    q = rng.random((10, Y))
+    q /= q.sum(-1, keepdims=True)
+    want = np.array([_reference(corner, kept, row) for row in q])
+    np.testing.assert_allclose(ub.value_np(q, np.zeros(10, dtype=np.int64)), want, rtol=1e-12,
+                               atol=1e-12)  # fmt: skip
+    # new points go after the compacted ones
+    b, v = _random_points(rng, Y, [4])[0]
+    ub.add_np(b, 0, v)
+    assert ub.points[0][-1].tolist() == pytest.approx(b.tolist(), rel=1e-15)
+
+
+def test_a_corner_change_refreshes_the_gains_of_its_observed_value_only():
+    corner = torch.tensor([[4.0, 4.0, 4.0], [2.0, 2.0, 2.0]], dtype=torch.float64)
+    ub = SawtoothUpperBound(corner)
+    ub.add_np(np.array([0.5, 0.5, 0.0]), 0, 3.0)  # gain 3 - 4 = -1
+    ub.add_np(np.array([0.0, 0.25, 0.75]), 1, 1.0)  # gain 1 - 2 = -1
+    ub.add_np(np.array([1.0, 0.0, 0.0]), 0, 2.0)  # a corner of x = 0: c = (2, 4, 4)
+    assert ub.corner[0].tolist() == [2.0, 4.0, 4.0] and ub.size == 2
+    assert ub._gain[:2].tolist() == [3.0 - (0.5 * 2 + 0.5 * 4), -1.0]
+    b = np.array([[0.5, 0.5, 0.0], [0.0, 0.25, 0.75]])
+    assert ub.value_np(b, np.array([0, 1])).tolist() == [3.0, 1.0]

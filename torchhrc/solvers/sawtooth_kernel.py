@@ -42,22 +42,12 @@ __all__ = ["sawtooth_corrections"]
 _SLACK = 1.0 + 1e-12  # the key bound with room for the round-off of the products
 
 
-def _corrections(
-    beliefs: np.ndarray,
-    rows: np.ndarray,
-    order: np.ndarray,
-    idx: np.ndarray,
-    inv: np.ndarray,
-    off: np.ndarray,
-    wid: np.ndarray,
-    gain: np.ndarray,
-    key: np.ndarray,
-    local: np.ndarray,
-    out: np.ndarray,
-) -> None:
-    """The loop of ``_sawtooth.c`` in Python (arguments of :func:`sawtooth_corrections`).
+def _corrections(*args: np.ndarray) -> None:
+    """The loop of ``_sawtooth.c`` in Python: the arguments of :func:`sawtooth_corrections`
+    in their order (``local`` an empty array when not given), then ``out (R,)``.
 
     Runs in float64 whatever the storage's dtype, as the C loop does."""
+    beliefs, rows, order, idx, inv, off, wid, gain, key, local, out = args
     beliefs, inv, gain, key = (np.asarray(a, dtype=np.float64) for a in (beliefs, inv, gain, key))
     C = beliefs.shape[1]
     mapped = local.shape[0] > 0

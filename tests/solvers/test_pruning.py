@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from torchhrc.errors import ModelError
 from torchhrc.solvers import pruning
 
 
@@ -55,3 +56,43 @@ def test_grouped_pruning_with_ties_keeps_the_value_at_every_belief():
     distinct = {(int(x), tuple(a.tolist())) for a, x in zip(alphas, groups, strict=True)}
     kept = [(int(x), tuple(a.tolist())) for a, x in zip(alphas[keep], groups[keep], strict=True)]
     assert len(kept) == len(set(kept)) <= len(distinct)
+
+
+def _winners_by_hand(alphas, beliefs, groups=None, bgroups=None):
+    """Vectors that are the (first) maximum of their group at some belief; groups without a
+    belief keep all their vectors."""
+    keep = torch.zeros(alphas.shape[0], dtype=torch.bool)
+    for m in range(beliefs.shape[0]):
+        mine = torch.ones_like(keep) if groups is None else groups == bgroups[m]
+        if mine.any():
+            scores = torch.where(mine, alphas @ beliefs[m], -torch.inf)
+            keep[int(scores.argmax())] = True
+    if groups is not None:
+        keep |= ~torch.isin(groups, bgroups)
+    return keep
+
+
+@pytest.mark.parametrize("grouped", [False, True])
+@pytest.mark.parametrize("block", [1, 3, 1 << 20])
+def test_beliefs_scored_a_block_at_a_time_and_by_rows(monkeypatch, grouped, block):
+    g = torch.Generator().manual_seed(4)
+    N, S, M = 50, 4, 60
+    alphas = torch.randn(N, S, generator=g, dtype=torch.float64)
+    beliefs = torch.rand(M, S, generator=g, dtype=torch.float64)
+    groups = torch.randint(0, 3, (N,), generator=g) if grouped else None
+    bgroups = torch.randint(0, 2, (M,), generator=g) if grouped else None  # group 2: no belief
+    monkeypatch.setattr(pruning, "_GATHER_ELEMENTS", block * N)  # `block` beliefs per block
+    if grouped:
+        assert not pruning._pairs_pay(bgroups, groups)  # the blocked dense path
+    want = _winners_by_hand(alphas, beliefs, groups, bgroups)
+    assert 0 < int(want.sum()) < N
+    assert torch.equal(pruning.prune_by_beliefs(alphas, beliefs, groups, bgroups), want)
+    rows = torch.tensor([5, 0, 41, 17, 17, 59])  # some rows, in any order, repeated
+    sub = None if bgroups is None else bgroups[rows]
+    want = _winners_by_hand(alphas, beliefs[rows], groups, sub)
+    assert torch.equal(pruning.prune_by_beliefs(alphas, beliefs, groups, sub, rows=rows), want)
+    with pytest.raises(ModelError, match="rows"):
+        pruning.prune_by_beliefs(alphas, beliefs, rows=torch.tensor([M]))
+    if grouped:
+        with pytest.raises(ModelError, match="belief_groups"):
+            pruning.prune_by_beliefs(alphas, beliefs, groups, bgroups, rows=rows)

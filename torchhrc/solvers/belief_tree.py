@@ -149,11 +149,12 @@ class BeliefTree:
         of each vector (None: one observed value); a vector competes only at beliefs of its
         own observed value.
         """
-        beliefs = self.beliefs[torch.from_numpy(nodes).to(self._beliefs.device)]
+        dev = self._beliefs.device
         bgroups = None
         if groups is not None:
-            bgroups = torch.from_numpy(self.x[nodes]).to(self._beliefs.device)
-        keep = prune_by_beliefs(vectors, beliefs, groups, bgroups)
+            bgroups = torch.from_numpy(self.x[nodes]).to(dev)
+        rows = torch.from_numpy(nodes).to(dev)
+        keep = prune_by_beliefs(vectors, self.beliefs, groups, bgroups, rows=rows)
         idx = keep.nonzero().squeeze(-1)
         keep[idx] = prune_dominated(vectors[idx], None if groups is None else groups[idx])
         return keep
@@ -227,9 +228,11 @@ class SparseBeliefTree(BeliefTree):
         The pointwise-dominance test is skipped: it costs ``N^2 S`` comparisons (large ``S``
         is why this storage exists), and a dominated vector never wins at a belief unless tied.
         """
-        scores = self.csr(nodes) @ vectors.T.contiguous()  # (M, N)
         keep = torch.zeros(vectors.shape[0], dtype=torch.bool)
-        keep[scores.argmax(-1)] = True
+        vt = vectors.T.contiguous()
+        step = max(1, (1 << 20) // max(1, vectors.shape[0]))  # (m, N) scores a block at a time
+        for start in range(0, len(nodes), step):
+            keep[(self.csr(nodes[start : start + step]) @ vt).argmax(-1)] = True
         return keep
 
     def support_sizes(self) -> np.ndarray:

@@ -29,7 +29,7 @@ from torchhrc.errors import ModelError
 
 __all__ = ["prune_by_beliefs", "prune_dominated"]
 
-_CHUNK_ELEMENTS = 1 << 24  # booleans of the (chunk, N, S) comparison tensor held at once
+_CHUNK_ELEMENTS = 1 << 22  # booleans of the (chunk, N, S) comparison tensor held at once
 # floats of one gathered (pairs, S) block of the grouped tests (8 MB in float64): with
 # 1 << 24 the gathers, products and comparisons of one chunk took 128 MB each, the peak
 # memory of a whole solve (RockSample_7_8.pomdpx: 790 MB, against 410 MB between prunings)
@@ -121,14 +121,23 @@ def prune_by_beliefs(
     beliefs: torch.Tensor,
     groups: torch.Tensor | None = None,
     belief_groups: torch.Tensor | None = None,
+    *,
+    rows: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Mask of the vectors that are the maximum at one or more of the given beliefs.
+
+    The beliefs are scored a block at a time (about ``2^20`` scores each), so memory stays
+    bounded however many there are (SARSOP prunes against every active tree belief: TagAvoid,
+    12,000 beliefs x 2,000 vectors, was one 190 MB score matrix).
 
     Args:
         alphas: ``(N, S)`` alpha vectors.
         beliefs: ``(M, S)`` belief points (rows need not be normalised).
         groups: optional ``(N,)`` group (observed ``x``) of each vector.
-        belief_groups: ``(M,)`` group of each belief; required with ``groups``.
+        belief_groups: ``(M,)`` group of each belief (of each of ``rows`` when given);
+            required with ``groups``.
+        rows: optional ``(M',)`` long, the rows of ``beliefs`` to use (gathered a block at a
+            time, never copied whole); default every row.
 
     Returns:
         ``(N,)`` bool, True for vectors that win at some belief of their group. Groups with
@@ -138,6 +147,8 @@ def prune_by_beliefs(
         >>> a = torch.tensor([[1.0, 0.0], [0.0, 1.0], [0.4, 0.4]])
         >>> prune_by_beliefs(a, torch.tensor([[0.9, 0.1], [0.2, 0.8]])).tolist()
         [True, True, False]
+        >>> prune_by_beliefs(a, torch.tensor([[0.9, 0.1], [0.2, 0.8]]), rows=torch.tensor([1]))
+        tensor([False,  True, False])
     """
     alphas, groups = _check_alphas(alphas, groups)
     beliefs = check_tensor("beliefs", beliefs)
@@ -146,32 +157,47 @@ def prune_by_beliefs(
         raise ModelError(
             f"expected beliefs to have shape (M, S), actual shape = {tuple(beliefs.shape)}"
         )
+    if rows is None:
+        rows = torch.arange(beliefs.shape[0], device=beliefs.device)
+    else:
+        rows = check_tensor("rows", rows, floating=False)
+        inside = rows.numel() == 0 or (0 <= int(rows.min()) and int(rows.max()) < len(beliefs))
+        if rows.dim() != 1 or not inside:
+            raise ModelError(
+                f"expected rows to be a 1-D index of the {beliefs.shape[0]} beliefs, got "
+                f"shape {tuple(rows.shape)}"
+            )
     N = alphas.shape[0]
     keep = torch.zeros(N, dtype=torch.bool, device=alphas.device)
     if N == 0:
         return keep
+    seen = None  # (N,) the vectors whose group has a belief
     if groups is not None:
         if belief_groups is None:
             raise ModelError("belief_groups is required when groups is given")
         belief_groups = check_tensor("belief_groups", belief_groups, floating=False)
-        if belief_groups.shape != beliefs.shape[:1]:
+        if belief_groups.shape != rows.shape:
             raise ModelError(
-                f"expected belief_groups to have shape (M={beliefs.shape[0]},), "
+                f"expected belief_groups to have shape (M={rows.shape[0]},), "
                 f"actual shape = {tuple(belief_groups.shape)}"
             )
         if _pairs_pay(belief_groups, groups):
-            return _grouped_winners(alphas, beliefs.to(alphas.dtype), groups, belief_groups)
-    scores = beliefs.to(alphas.dtype) @ alphas.T  # (M, N)
-    if groups is not None:
-        assert belief_groups is not None
-        same = belief_groups.unsqueeze(1) == groups.unsqueeze(0)  # (M, N)
+            return _grouped_winners(alphas, beliefs, rows, groups, belief_groups)
+        seen = torch.zeros(N, dtype=torch.bool, device=alphas.device)
+    step = max(1, _GATHER_ELEMENTS // N)
+    for start in range(0, rows.shape[0], step):
+        blk = beliefs.index_select(0, rows[start : start + step]).to(alphas.dtype)
+        scores = blk @ alphas.T  # (m, N)
+        if groups is None:
+            keep[scores.argmax(-1)] = True
+            continue
+        assert belief_groups is not None and seen is not None
+        same = belief_groups[start : start + step].unsqueeze(1) == groups.unsqueeze(0)  # (m, N)
         scores = scores.masked_fill(~same, -torch.inf)
-        has_vector = same.any(-1)
-        best = scores.argmax(-1)[has_vector]
-        keep[best] = True
-        keep |= ~same.any(0)  # groups without any belief keep everything
-    else:
-        keep[scores.argmax(-1)] = True
+        keep[scores.argmax(-1)[same.any(-1)]] = True
+        seen |= same.any(0)
+    if seen is not None:
+        keep |= ~seen  # groups without any belief keep everything
     return keep
 
 
@@ -213,8 +239,13 @@ def _same_group_pairs(left: torch.Tensor, right: torch.Tensor, chunk: int):
         lo = hi
 
 
-def _grouped_winners(alphas: torch.Tensor, beliefs: torch.Tensor, groups: torch.Tensor,
-                     belief_groups: torch.Tensor) -> torch.Tensor:  # fmt: skip
+def _grouped_winners(
+    alphas: torch.Tensor,
+    beliefs: torch.Tensor,
+    rows: torch.Tensor,
+    groups: torch.Tensor,
+    belief_groups: torch.Tensor,
+) -> torch.Tensor:
     """:func:`prune_by_beliefs` scoring only the (belief, vector) pairs of the same group.
 
     Of the vectors tied for the maximum at a belief the lowest index wins, as ``argmax`` over
@@ -243,7 +274,7 @@ def _grouped_winners(alphas: torch.Tensor, beliefs: torch.Tensor, groups: torch.
             keep[ja] = True
             continue
         vec = alphas.index_select(0, ja)  # (N_g, S)
-        bel = beliefs.index_select(0, ib)  # (M_g, S)
+        bel = beliefs.index_select(0, rows[ib]).to(alphas.dtype)  # (M_g, S)
         step = max(1, _GATHER_ELEMENTS // (ja.numel() * max(1, S)))
         for start in range(0, bel.shape[0], step):
             score = (bel[start : start + step, None, :] * vec[None]).sum(-1)  # (m, N_g)

@@ -262,12 +262,25 @@ class SawtoothUpperBound:
     @property
     def points(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The stored points as dense tensors: ``beliefs (P, Y)``, ``x (P,)``, ``values (P,)``."""
-        n, used = self.size, self._used
-        dense = self.corner.new_zeros(n, self.num_hidden)
-        # the supports lie end to end in point order (appended, and compacted by prune)
-        rows = torch.repeat_interleave(torch.arange(n, device=dense.device), self._w[:n])
-        dense[rows, self._fidx[:used]] = 1.0 / self._finv[:used]
-        return dense, self._x[:n].clone(), self._v[:n].clone()
+        n = self.size
+        ids = torch.arange(n, device=self._off.device)
+        return self._dense(ids), self._x[:n].clone(), self._v[:n].clone()
+
+    def _entries(self, ids: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The positions ``(E',)`` in the flat arrays of the supports of points ``ids (n,)``,
+        one after the other, and their widths ``(n,)``."""
+        w = self._w[ids]
+        start = torch.cumsum(w, 0) - w  # (n,) where each point's entries begin in the result
+        pos = torch.repeat_interleave(self._off[ids] - start, w)
+        return pos + torch.arange(pos.shape[0], device=w.device), w
+
+    def _dense(self, ids: torch.Tensor) -> torch.Tensor:
+        """``(n, Y)`` the beliefs of points ``ids (n,)`` as dense rows."""
+        pos, w = self._entries(ids)
+        rows = torch.repeat_interleave(torch.arange(ids.shape[0], device=w.device), w)
+        dense = self.corner.new_zeros(ids.shape[0], self.num_hidden)
+        dense[rows, self._fidx[pos]] = 1.0 / self._finv[pos]
+        return dense
 
     # -- evaluation --------------------------------------------------------------------------
     def value(self, beliefs: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -484,7 +497,7 @@ class SawtoothUpperBound:
         n = self.size
         if n == 0:
             return 0
-        beliefs, x, v = self.points
+        x, v = self._x[:n], self._v[:n]
         useful = self._gain[:n] < 0
         # Evaluate each point against all others, excluding itself, by masking its own gain.
         saved = self._gain[:n].clone()
@@ -497,10 +510,11 @@ class SawtoothUpperBound:
             # exact; disabling the whole block is conservative: it only keeps more points).
             self._gain[start:stop] = 0.0
             self._sorted = [None] * self.num_observed  # the key order follows the gains
+            beliefs = self._dense(rows)  # (block, Y), a block at a time
             if self._np is not None:
-                others = torch.from_numpy(self.value_np(beliefs[rows].numpy(), x[rows].numpy()))
+                others = torch.from_numpy(self.value_np(beliefs.numpy(), x[rows].numpy()))
             else:
-                others = self.value(beliefs[rows], x[rows])
+                others = self.value(beliefs, x[rows])
             self._gain[start:stop] = saved[start:stop]
             self._sorted = [None] * self.num_observed
             keep[start:stop] &= v[rows] < others - 1e-12 * others.abs().clamp(min=1.0)
@@ -508,15 +522,11 @@ class SawtoothUpperBound:
         removed = n - sel.numel()
         if removed:
             # the kept supports, moved to the front end to end in their order
-            w = self._w[sel]
-            start = torch.cumsum(w, 0) - w
-            total = int(w.sum())
-            pos = torch.repeat_interleave(self._off[sel] - start, w) + torch.arange(
-                total, device=w.device
-            )
+            pos, w = self._entries(sel)
+            total = pos.shape[0]
             self._fidx[:total] = self._fidx[pos]
             self._finv[:total] = self._finv[pos]
-            self._off[: sel.numel()] = start
+            self._off[: sel.numel()] = torch.cumsum(w, 0) - w
             self._used = total
             self._stamp += 1
             self._x[: sel.numel()] = self._x[sel]

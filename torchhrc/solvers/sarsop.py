@@ -652,6 +652,7 @@ class _SARSOP:
         # per distinct belief (``belief_id``): the last evaluation, shared by the tree nodes
         # that hold the same belief (its stale bounds stay valid bounds there)
         self._cache: dict[int, tuple[np.ndarray, ...]] = {}
+        self._rows_cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray]]] = {}
         # per distinct belief: the best alpha vector at each child ``(A, K, O)`` of the
         # evaluation in ``_cache``; pruning keeps them (see :meth:`_child_winners`)
         self._child_best: dict[int, np.ndarray] = {}
@@ -809,19 +810,18 @@ class _SARSOP:
                 scores = rows @ V.T
         else:
             scores = rows @ V.T  # (B, N)
-        j = scores.argmax(-1)
-        return scores[np.arange(scores.shape[0]), j], ids[j]
+        return scores.max(-1), ids[scores.argmax(-1)]
 
     def _upper_np(
         self,
         value: Any,
-        ia: np.ndarray,
         nz: np.ndarray,
         reward: np.ndarray,
         C: int,
         stale: tuple[np.ndarray, ...] | None,
     ) -> tuple[np.ndarray, np.ndarray, float]:
-        """Upper bounds of a belief's possible children ``nz`` (actions ``ia``), ``Q_up``, ``V_up``.
+        """Upper bounds of a belief's possible children ``nz`` (of ``C``, ``C / A`` per
+        action, in action order), ``Q_up``, ``V_up``.
 
         ``value(ids)`` bounds rows ``ids`` of the children (row ``nz.size`` is ``b`` itself).
         Without ``stale`` every child is bounded. With ``stale`` (the node's cached
@@ -845,7 +845,11 @@ class _SARSOP:
         q = q_up.tolist()
         fresh = [False] * A
         top = None  # the highest Q_up of a refreshed action
-        ends = np.searchsorted(ia, np.arange(A + 1)).tolist()  # action a: ia[ends[a]:ends[a+1]]
+        every = m == C  # every child possible (dense models): action a's rows are a block
+        if every:
+            blocks = self._action_rows(A, C)
+        else:  # action a: rows ends[a] to ends[a + 1] of nz
+            ends = np.searchsorted(nz // (C // A), np.arange(A + 1)).tolist()
         cu = None
         while True:
             # refresh the best stale action while it beats every fresh one (ties within
@@ -861,18 +865,39 @@ class _SARSOP:
             best = max(q[i] for i in cand)
             floor = best - 1e-12 * max(1.0, abs(best))
             a = next(i for i in cand if q[i] >= floor)
-            sel = np.arange(ends[a], ends[a + 1])
-            vals = value(sel if cu is not None else np.append(sel, m))
+            if every:
+                sel, with_b = blocks[a]
+                ids = sel if cu is not None else with_b
+            else:
+                sel = np.arange(ends[a], ends[a + 1])
+                ids = sel if cu is not None else np.append(sel, m)
+            vals = value(ids)
             if cu is None:
                 cu, vals = float(vals[-1]), vals[:-1]
-            up.reshape(A, -1)[a] = 0.0
-            up[nz[sel]] = vals
+            if every:
+                up[sel] = vals
+            else:
+                up.reshape(A, -1)[a] = 0.0
+                up[nz[sel]] = vals
             q_up[a] = reward[a] + self.gamma * up.reshape(A, -1)[a].sum()
             q[a] = float(q_up[a])
             fresh[a] = True
             top = q[a] if top is None else max(top, q[a])
         assert cu is not None
         return up, q_up, cu
+
+    def _action_rows(self, A: int, C: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        """When all ``C`` children of a belief are possible (``C / A`` per action): per action
+        ``a``, its rows ``(C / A,)`` and the same with the belief's own row ``C`` appended
+        (built once per ``(A, C)``)."""
+        key = (A, C)
+        rows = self._rows_cache.get(key)
+        if rows is None:
+            n = C // A
+            rows = [(np.arange(a * n, (a + 1) * n), np.append(np.arange(a * n, (a + 1) * n), C))
+                    for a in range(A)]  # fmt: skip
+            self._rows_cache[key] = rows
+        return rows
 
     def _evaluate_np(
         self, x: int, b: np.ndarray, stale: tuple[np.ndarray, ...] | None = None
@@ -893,15 +918,18 @@ class _SARSOP:
         A, K, O = ch.prob.shape
         low_r, best_r = self._lower_np(ch.rows, ch.rows_x, ch.cols)
         m = ch.nz.size
-        low = np.zeros(A * K * O, dtype=b.dtype)
-        low[ch.nz] = low_r[:m]
-        best = np.zeros(A * K * O, dtype=np.int64)
-        best[ch.nz] = best_r[:m]
+        if m == A * K * O:  # every child possible: the rows are the children in order
+            low, best = low_r[:m], best_r[:m]
+        else:
+            low = np.zeros(A * K * O, dtype=b.dtype)
+            low[ch.nz] = low_r[:m]
+            best = np.zeros(A * K * O, dtype=np.int64)
+            best[ch.nz] = best_r[:m]
         q_low = ch.reward + self.gamma * low.reshape(A, K * O).sum(-1)
         rows, rows_x, cols = ch.rows, ch.rows_x, ch.cols
         up, q_up, cu = self._upper_np(
             lambda ids: self.ub.value_np(rows[ids], rows_x[ids], cols),
-            ch.nz // (K * O), ch.nz, ch.reward, A * K * O, stale,
+            ch.nz, ch.reward, A * K * O, stale,
         )  # fmt: skip
         shape = (A, K, O)
         return (q_low, q_up, ch.prob, low.reshape(shape), up.reshape(shape), best.reshape(shape),
@@ -944,8 +972,8 @@ class _SARSOP:
         a = int(q_low.argmax())
         use = best[a]  # (K, O); the impossible children's vectors for this action only
         ch_a = child_x.reshape(best.shape[0], -1)[a]
-        possible = np.flatnonzero(prob[a].reshape(-1) > 0)
-        if possible.size < use.size:
+        if not (prob[a] > 0).all():
+            possible = np.flatnonzero(prob[a].reshape(-1) > 0)
             use = self._impossible_best_np(x, b, ch_a, possible, own).reshape(use.shape)
             use.reshape(-1)[possible] = best[a].reshape(-1)[possible]
         W = self.alphas.np_vectors[use]  # (K, O, Y)
@@ -963,7 +991,7 @@ class _SARSOP:
         tree.lower[node], tree.upper[node] = low, up
         self.backups += 1
         if self.cfg.prune_nodes:
-            bad = q_up < q_low.max()  # (A,)
+            bad = q_up < q_low[a]  # (A,); q_low[a] = max Q_low
             if bad.any():
                 for c in self.children.get(node, ()):
                     if bad[tree.action[c]]:

@@ -242,9 +242,14 @@ class SawtoothUpperBound:
         if x is not None and self._np is not None:
             corner, v, gain = self._np[0], self._np[4], self._np[5]
             c = np.append(corner[x], 0.0)  # (Y + 1,), the pad index Y maps to 0
+            fidx, finv, wid, off = self._np[1], self._np[2], self._np[6], self._np[8]
             ids, step = self.members(x), self._block()
+            k = np.arange(self._kmax)
             for blk in (ids[i : i + step] for i in range(0, ids.size, step)):
-                idx, inv = (t.numpy() for t in self._padded(torch.from_numpy(blk)))
+                inside = k < wid[blk][:, None]  # (n, K): the padded rows, as in _padded
+                pos = np.where(inside, off[blk][:, None] + k, 0)
+                idx = np.where(inside, fidx[pos], self.num_hidden)
+                inv = np.where(inside, finv[pos], 1.0)
                 gain[blk] = v[blk] - (c[idx] / inv).sum(-1)
             self._sorted[x] = None
             return

@@ -284,25 +284,34 @@ class SolverModel(ABC):
         possible ones are formed: ``J[a, k, o] = pred[a, k] * Z[a, x2_k, ., o]``.
         """
         pred = self.predict_np(x, b)  # (A, K, Y)
-        z = self.observation_np(x)  # (A, K, O, Y)
-        A, K, O, _ = z.shape
-        cx = self._cached(
-            "child_x", x,
-            lambda: np.broadcast_to(self.reach_np(x)[None, :, None], (A, K, O)).reshape(-1).copy(),
-        )  # fmt: skip
-        zt = self._cached("zt", x, lambda: np.ascontiguousarray(z.transpose(0, 1, 3, 2)))
+        z, zt, cx, cx_all, RT = self._cached("children", x, lambda: self._children_tables(x))
+        A, K, O, Y = z.shape
         prob = np.matmul(pred[:, :, None, :], zt)[:, :, 0, :]  # (A, K, O)
         nz = np.flatnonzero(prob)
-        Y = b.shape[0]
-        J = (pred[:, :, None, :] * z).reshape(-1, Y)  # (A K O, Y) every child, unnormalised
-        rows = np.empty((nz.size + 1, Y), dtype=J.dtype)
-        J.take(nz, axis=0, out=rows[:-1])
+        rows = np.empty((nz.size + 1, Y), dtype=z.dtype)
+        if nz.size == cx.size:  # every child possible (dense models): formed in place
+            np.multiply(pred[:, :, None, :], z, out=rows[:-1].reshape(A, K, O, Y))
+            rows_x = cx_all
+        else:
+            J = (pred[:, :, None, :] * z).reshape(-1, Y)  # (A K O, Y) every child, unnormalised
+            J.take(nz, axis=0, out=rows[:-1])
+            rows_x = np.empty(nz.size + 1, dtype=cx.dtype)
+            cx.take(nz, out=rows_x[:-1])
+            rows_x[-1] = x
         rows[-1] = b
-        rows_x = np.empty(nz.size + 1, dtype=cx.dtype)
-        cx.take(nz, out=rows_x[:-1])
-        rows_x[-1] = x
-        reward = b @ self.reward_np(x)  # (A,)
+        reward = b @ RT  # (A,)
         return Children(rows, rows_x, None, nz, prob, cx, reward)
+
+    def _children_tables(self, x: int) -> tuple[np.ndarray, ...]:
+        """What :meth:`children_np` reads at ``x`` (built once): ``Z (A, K, O, Y)``, the same
+        ``(A, K, Y, O)``, the children's observed values ``(A K O,)``, those with ``x``
+        appended (read only) and ``R[:, x, :]`` transposed ``(Y, A)``."""
+        z = self.observation_np(x)
+        A, K, O, _ = z.shape
+        cx = np.broadcast_to(self.reach_np(x)[None, :, None], (A, K, O)).reshape(-1).copy()
+        cx_all = np.append(cx, x).astype(cx.dtype)
+        cx_all.flags.writeable = False
+        return z, np.ascontiguousarray(z.transpose(0, 1, 3, 2)), cx, cx_all, self.reward_np(x)
 
     def reward_np(self, x: int) -> np.ndarray:
         """``(Y, A)`` ``R[:, x, :]`` transposed, contiguous (numpy, CPU)."""

@@ -360,7 +360,8 @@ class SawtoothUpperBound:
         B = beliefs.shape[0]
         local = None
         if columns is None:
-            base = (beliefs * corner[x]).sum(-1)  # (B,)
+            # (B,); one observed value: the same products without gathering B rows of corner
+            base = (beliefs * (corner[0] if self.num_observed == 1 else corner[x])).sum(-1)
         else:
             if self.num_observed == 1:
                 base = beliefs @ corner[0, columns]  # (B,)

@@ -68,8 +68,8 @@ class DenseForm(FlatFields, TensorModelForm):
 
     def predict_np(self, x: int, b: np.ndarray) -> np.ndarray:
         T = self._T_np()
-        supp = np.flatnonzero(b)
-        if supp.size * 4 <= b.shape[0]:  # only the rows of T on the support of b
+        if np.count_nonzero(b) * 4 <= b.shape[0]:  # only the rows of T on the support of b
+            supp = np.flatnonzero(b)
             return (b[supp] @ T[:, supp, :])[:, None, :]  # (A, 1, S)
         return (b @ T)[:, None, :]
 

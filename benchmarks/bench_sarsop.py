@@ -291,6 +291,9 @@ def child_solve(path: Path, limit: float, precision: float, out: Path, policyx: 
     sol = sarsop(model, SARSOPConfig(time_limit=limit, clock="process", precision=precision,
                                      callback=record))  # fmt: skip
     reached = next((t for t, gap in cpu if gap <= precision), None)
+    if reached is None and sol.upper - sol.lower <= precision:
+        # the initial bounds already met (no iteration ran, so no callback): the solve's time
+        reached = time.process_time() - cpu0
     if policyx is not None:
         from torchhrc.io import write_policyx
 

@@ -64,6 +64,7 @@ import numpy as np
 import torch
 
 from torchhrc.errors import ModelError
+from torchhrc.solvers._factored import Expectation
 from torchhrc.solvers.backup import BackupResult
 from torchhrc.solvers.belief_tree import BeliefTree
 from torchhrc.solvers.blind import blind_policy
@@ -71,6 +72,7 @@ from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.fib import fib_vectors
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.qmdp import qmdp_vectors
+from torchhrc.solvers.sparse_model import qmdp_iteration_np
 
 __all__ = ["Children", "FIBOperator", "PerObserved", "SolverModel", "TensorModelForm"]
 
@@ -464,6 +466,40 @@ class TensorModelForm(SolverModel):
         if kind == "fib":
             return fib_vectors(self.model, tol=tol)
         return qmdp_vectors(self.model, tol=tol)
+
+    def qmdp_start(
+        self,
+        tol: float,
+        deadline: Deadline = NEVER,
+        expect: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> torch.Tensor:
+        """``(A, *state_shape)`` QMDP vectors, where SARSOP's FIB iteration starts.
+
+        On the CPU by :func:`~torchhrc.solvers.sparse_model.qmdp_iteration_np`, as the sparse
+        forms: from zero with the contraction bound, an upper bound wherever it stops, and it
+        stops at ``deadline``; ``expect(V)`` maps values ``(*state_shape)`` to their
+        expectations under each action ``(A, *state_shape)`` (default: the model's
+        :class:`~torchhrc.solvers._factored.Expectation`). Elsewhere
+        :func:`~torchhrc.solvers.qmdp.qmdp_vectors`, to its tolerance.
+
+        Example:
+            >>> from torchhrc.solvers.forms import as_solver_model
+            >>> from torchhrc.tasks.classic import tiger
+            >>> q = as_solver_model(tiger()).qmdp_start(1e-8)
+            >>> tuple(q.shape), bool((q >= -100).all())
+            ((3, 2), True)
+        """
+        model = self.model
+        if model.R.device.type != "cpu":
+            return qmdp_vectors(model, tol=tol)
+        if expect is None:
+            E = Expectation(model)
+
+            def expect(V: np.ndarray) -> np.ndarray:
+                return E(torch.from_numpy(V)).numpy()
+
+        R = model.R.numpy()
+        return torch.from_numpy(qmdp_iteration_np(R, self.discount, expect, tol, deadline))
 
 
 class FlatFields:

@@ -29,9 +29,7 @@ from torchhrc.solvers.clock import Deadline
 from torchhrc.solvers.fib import fib_backup
 from torchhrc.solvers.forms.base import FIBOperator, FlatFields, TensorModelForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.qmdp import qmdp_vectors
 from torchhrc.solvers.sampling import flat_step, sample_categorical
-from torchhrc.solvers.sparse_model import qmdp_iteration_np
 
 __all__ = ["DenseForm"]
 
@@ -98,7 +96,7 @@ qmdp_iteration_np` (from zero, with the contraction bound: an upper bound wherev
         """
         T, model = self.T, self.model
         if T.device.type != "cpu":
-            return qmdp_vectors(model, tol=tol), lambda alpha: fib_backup(model, alpha)
+            return self.qmdp_start(tol, deadline), lambda alpha: fib_backup(model, alpha)
         R, Z, g = model.R, model.Z, self.discount
         A, S, O = Z.shape
         if int((T != 0).sum()) * 10 > T.numel() or S < 64:  # dense products
@@ -128,8 +126,7 @@ qmdp_iteration_np` (from zero, with the contraction bound: an upper bound wherev
                 G = torch.stack([Ts[a] @ Yv[a].reshape(S, O * A) for a in range(A)])
                 return R + g * G.view(A, S, O, A).amax(-1).sum(-1)
 
-        Q = qmdp_iteration_np(R.numpy(), g, expect, tol, deadline)
-        return torch.from_numpy(Q), fib
+        return self.qmdp_start(tol, deadline, expect), fib
 
     # -- PBVI ----------------------------------------------------------------------------------
     def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,

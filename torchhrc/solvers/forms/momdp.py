@@ -35,7 +35,6 @@ from torchhrc.solvers.fib import fib_backup
 from torchhrc.solvers.forms.base import FIBOperator, PerObserved, TensorModelForm, field
 from torchhrc.solvers.forms.dense import DenseForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.qmdp import qmdp_vectors
 from torchhrc.solvers.sampling import momdp_step, sample_categorical
 
 __all__ = ["MOMDPForm"]
@@ -141,9 +140,10 @@ class MOMDPForm(TensorModelForm):
 
         one batched ``(A, K, Y, Y2) x (A, K, Y2, O A)`` product per ``x``. With a static
         hidden value FIB equals QMDP (the next hidden value is known given the current one),
-        so no FIB iteration runs.
+        so no FIB iteration runs. QMDP by :meth:`~.base.TensorModelForm.qmdp_start` (on the
+        CPU from zero, stopping at ``deadline``, as the other forms).
         """
-        alpha = qmdp_vectors(self.model, tol=tol)
+        alpha = self.qmdp_start(tol, deadline)
         if self.Ty is None:
             return alpha, None
         if self.Tx.device.type != "cpu":

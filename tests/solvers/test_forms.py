@@ -247,3 +247,26 @@ def test_dense_fib_start_bounds_qmdp_and_its_step_is_the_fib_operator(build) -> 
     assert bool((Q >= exact - err - 1e-12).all())  # an upper bound
     assert float((Q - exact).max()) <= 2 * g * tol / (1 - g) + 1e-9  # and a tight one
     torch.testing.assert_close(step(Q), fib_backup(model, Q), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("static", [True, False])
+def test_momdp_qmdp_start_bounds_q_star_and_stops_at_the_deadline(static) -> None:  # type: ignore[no-untyped-def]
+    """The MOMDP form starts FIB from the same CPU QMDP as the flat forms: an upper bound on
+    the exact ``Q*`` within the tolerance's slack, and still one when the deadline has passed
+    before the first iteration (``max R / (1 - gamma)`` then)."""
+    from torchhrc.solvers.clock import NEVER, Deadline
+    from torchhrc.solvers.qmdp import mdp_q_values
+
+    model = random_momdp(4, 3, 3, 2, discount=0.9, static=static, seed=6)
+    form = as_solver_model(model)
+    exact, err = mdp_q_values(model, tol=1e-12)
+    g, tol = model.discount, 1e-6
+    Q = form.qmdp_start(tol, NEVER)
+    assert Q.shape == exact.shape == (3, 4, 3)
+    assert bool((Q >= exact - err - 1e-12).all())
+    assert float((Q - exact).max()) <= 2 * g * tol / (1 - g) + 1e-9
+    late = form.qmdp_start(tol, Deadline(0.0, lambda: 1.0))  # already passed
+    assert bool((late >= exact - err - 1e-12).all())
+    assert float(late.max()) <= float(model.R.max()) / (1 - g) + 1e-9
+    start, _ = form.fib_start(tol, NEVER, {})
+    torch.testing.assert_close(start, Q, rtol=0, atol=0)  # what FIB starts from

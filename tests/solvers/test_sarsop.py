@@ -381,7 +381,8 @@ def test_fixed_max_iterations_gives_bit_identical_solves(kind):
 
 def test_fib_initialisation_stops_on_its_tolerance_not_the_clock():
     from torchhrc.solvers.fib import fib_backup
-    from torchhrc.solvers.qmdp import qmdp_vectors
+    from torchhrc.solvers.forms import as_solver_model
+    from torchhrc.solvers.qmdp import mdp_q_values, qmdp_vectors
 
     model = random_momdp(4, 3, 3, 3, static=False, discount=0.95, concentration=0.3, seed=4)
     tol = 1e-6
@@ -395,11 +396,19 @@ def test_fib_initialisation_stops_on_its_tolerance_not_the_clock():
             break
     got = fib_corner_values(model, tol=tol, time_limit=LONG)
     torch.testing.assert_close(got, alpha.amax(0), atol=1e-12, rtol=0)
-    # a static hidden value: FIB is QMDP, no iteration at all
+    # a static hidden value: FIB is QMDP, no FIB iteration at all
     static = random_momdp(4, 3, 3, 3, static=True, seed=4)
-    torch.testing.assert_close(
-        fib_corner_values(static, time_limit=0.0), qmdp_vectors(static).amax(0)
-    )
+    form = as_solver_model(static)
+    _, info = form.fib_vectors(1e-8)
+    assert info["iterations"] == 0
+    corner = fib_corner_values(static)
+    torch.testing.assert_close(corner, form.qmdp_start(1e-8).amax(0), atol=0, rtol=0)
+    torch.testing.assert_close(corner, qmdp_vectors(static).amax(0), atol=1e-6, rtol=0)
+    # no time at all: the QMDP start stops at once too (the limit covers it), an upper bound
+    exact, err = mdp_q_values(static, tol=1e-12)
+    zero = fib_corner_values(static, time_limit=0.0)
+    assert bool((zero >= exact.amax(0) - err).all())
+    assert float(zero.max()) <= float(static.R.max()) / (1 - static.discount) + 1e-9
     # no time for the FIB iterations: the solve reports it (a time-dependent start)
     sol = sarsop(model, SARSOPConfig(time_limit=LONG, max_iterations=1, init_time_fraction=0.0))
     assert sol.info["init"]["upper_stop"] == "time_limit"

@@ -90,7 +90,10 @@ class BeliefTree:
         self._np_beliefs = None
 
     def _set_belief(self, n: int, belief: torch.Tensor) -> None:
-        self._beliefs[n] = belief
+        if belief.device.type == "cpu" and self._beliefs.device.type == "cpu":
+            self.beliefs_np[n] = belief.numpy()  # a row copy without tensor indexing (~15 us)
+        else:
+            self._beliefs[n] = belief
 
     def _grow(self) -> None:
         cap = self.x.shape[0] * 2

@@ -58,7 +58,7 @@ from torchhrc.solvers.sparse_model import (
 )
 from torchhrc.sparse_momdp import SparseMOMDP
 
-__all__ = ["SparseMOMDPForm"]
+__all__ = ["ActionRows", "SparseMOMDPForm"]
 
 
 class SparseMOMDPForm(SolverModel):
@@ -207,15 +207,15 @@ class SparseMOMDPForm(SolverModel):
     # -- initial bounds ----------------------------------------------------------------------
     def expect_np(self, V: np.ndarray) -> np.ndarray:
         """``(A, X, Y)`` ``sum_{x2, y2} P(x2, y2 | x, y, a) V[x2, y2]`` for ``V (X, Y)``, or
-        per action ``V (A, X, Y)`` (``_ActionRows`` of every action)."""
-        rows = self._cached("rows", 0, lambda: _ActionRows(self, np.arange(self.num_actions)))
+        per action ``V (A, X, Y)`` (``ActionRows`` of every action)."""
+        rows = self._cached("rows", 0, lambda: ActionRows(self, np.arange(self.num_actions)))
         return rows.expect(V)
 
-    def distinct_actions(self) -> tuple[_ActionRows, np.ndarray]:
+    def distinct_actions(self) -> tuple[ActionRows, np.ndarray]:
         """The actions with distinct rewards and transitions, and where each action's are.
 
         Returns:
-            ``rows``, the ``_ActionRows`` of one action of each kind (``rows.acts``,
+            ``rows``, the ``ActionRows`` of one action of each kind (``rows.acts``,
             those whose rows are copies first), and ``inverse (A,)``, the position in
             ``rows.acts`` of the action with the same ``R[a]`` and ``P(. | ., a)`` as ``a``.
             Such actions (RockSample's checks, which differ only in what they observe) have
@@ -233,7 +233,7 @@ class SparseMOMDPForm(SolverModel):
         """
         return self._cached("distinct", 0, self._distinct_actions)
 
-    def _distinct_actions(self) -> tuple[_ActionRows, np.ndarray]:
+    def _distinct_actions(self) -> tuple[ActionRows, np.ndarray]:
         A, XY = self.num_actions, self.num_observed * self.num_hidden
         R, ptr = self.R.numpy(), self._act_ptr
 
@@ -252,7 +252,7 @@ class SparseMOMDPForm(SolverModel):
                         break
             if kind[a] == len(reps):
                 reps.append(a)
-        rows = _ActionRows(self, np.array(reps, dtype=np.int64), copies_first=True)
+        rows = ActionRows(self, np.array(reps, dtype=np.int64), copies_first=True)
         position = np.empty(len(reps), dtype=np.int64)
         position[np.searchsorted(reps, rows.acts)] = np.arange(len(reps))
         return rows, position[kind]
@@ -411,7 +411,7 @@ class SparseMOMDPForm(SolverModel):
     prune = MOMDPForm.prune
 
 
-class _ActionRows:
+class ActionRows:
     """The MDP expectation of some actions ``acts (U,)`` of a :class:`SparseMOMDPForm`, the
     kernel of its QMDP and blind bounds::
 
@@ -429,6 +429,17 @@ class _ActionRows:
         acts: the actions.
         copies_first: reorder ``acts`` so that the row-copy actions come first (one ``take``
             writes them in place); :attr:`acts` is the order of the output.
+
+    Example:
+        >>> import numpy as np
+        >>> from torchhrc.solvers.forms import as_solver_model
+        >>> from torchhrc.sparse_momdp import SparseMOMDP
+        >>> from torchhrc.tasks.classic import rock_sample_momdp
+        >>> form = as_solver_model(SparseMOMDP.from_dense(rock_sample_momdp(4, 4)))
+        >>> rows = ActionRows(form, np.arange(form.num_actions))
+        >>> V = np.ones((form.num_observed, form.num_hidden))  # next values all 1
+        >>> bool((rows.expect(V) == 1.0).all())  # so is every expectation
+        True
     """
 
     def __init__(self, form: SparseMOMDPForm, acts: np.ndarray, copies_first: bool = False,

@@ -35,7 +35,8 @@ def test_bins_levels_and_alone_predicts_upper():
     # an update replaces the belief's entry (one per distinct belief, not per visit)
     bins.update(7, 0, b, math.log(2.0), upper=9.0, lower=6.0)
     assert bins.predict(8, upper=8.0, lower=0.0) == pytest.approx(5.0)
-    assert bins.count[0][0].sum() == 2 and bins.count[1][0].sum() == 2
+    counts = [sum(c[1] for (x, _, _), c in level.items() if x == 0) for level in bins.cells]
+    assert counts == [2, 2]
     # never binned: its upper bound
     assert bins.predict(99, upper=1.5, lower=0.0) == 1.5
 

@@ -524,16 +524,18 @@ class _Bins:
 
     def __init__(self, corner: np.ndarray, max_entropy: float, n: int) -> None:
         self.corner = corner  # (X, Y) initial upper-bound corner values
-        X = corner.shape[0]
         self.lo = corner.min(1)
         self.span = np.maximum(corner.max(1) - self.lo, 1e-12)
         self.max_entropy = max(max_entropy, 1e-12)
         self.sizes = (max(1, (n + 1) // 2), n) if n > 1 else (1,)
-        self.total = [np.zeros((X, k, k)) for k in self.sizes]
-        self.count = [np.zeros((X, k, k)) for k in self.sizes]
-        self.error = [np.zeros((X, k, k)) for k in self.sizes]
-        # belief id -> (x, bin (i, j) per level, last lower bound, squared error per level)
-        self.state: dict[int, tuple[int, list[tuple[int, int]], float, list[float]]] = {}
+        # per level, the bins in use: (x, i, j) -> [sum of lower bounds, count, squared error]
+        # (plain floats in lists: a backup updates two bins, where numpy scalar access cost
+        # more than the arithmetic)
+        self.cells: list[dict[tuple[int, int, int], list[float]]] = [{} for _ in self.sizes]
+        # belief id -> (x, its bin (i, j) per level, last lower bound, squared error per
+        # level, those bins' cells)
+        self.state: dict[int, tuple[int, list[tuple[int, int]], float, list[float],
+                                    list[list[float]]]] = {}  # fmt: skip
 
     def update(self, key: int, x: int, belief: np.ndarray, entropy: float, upper: float,
                lower: float) -> None:  # fmt: skip
@@ -541,51 +543,50 @@ class _Bins:
         st = self.state.get(key)
         if st is None:
             u0 = float(self.corner[x] @ belief)
-            cells = []
-            errs = []
+            where, cells, errs = [], [], []
             for lv, k in enumerate(self.sizes):
                 i = int(min(k - 1, max(0.0, (u0 - self.lo[x]) / self.span[x] * k)))
                 j = int(min(k - 1, max(0.0, entropy / self.max_entropy * k)))
-                c = self.count[lv][x, i, j]
-                err = upper - lower if c == 0 else self.total[lv][x, i, j] / c - lower
-                self.error[lv][x, i, j] += err * err
-                self.total[lv][x, i, j] += lower
-                self.count[lv][x, i, j] = c + 1
-                cells.append((i, j))
+                cell = self.cells[lv].setdefault((x, i, j), [0.0, 0.0, 0.0])
+                c = cell[1]
+                err = upper - lower if c == 0 else cell[0] / c - lower
+                cell[2] += err * err
+                cell[0] += lower
+                cell[1] = c + 1
+                where.append((i, j))
+                cells.append(cell)
                 errs.append(err * err)
-            self.state[key] = (x, cells, lower, errs)
+            self.state[key] = (x, where, lower, errs, cells)
             return
-        _, cells, prev, errs = st
-        for lv, (i, j) in enumerate(cells):
-            c = self.count[lv][x, i, j]
+        _, where, prev, errs, cells = st
+        for lv, cell in enumerate(cells):
+            c = cell[1]
             if c == 1:
                 err = upper - lower
-                self.error[lv][x, i, j] = err * err
+                cell[2] = err * err
             else:
-                err = self.total[lv][x, i, j] / c - lower
-                self.error[lv][x, i, j] += err * err - errs[lv]
+                err = cell[0] / c - lower
+                cell[2] += err * err - errs[lv]
             errs[lv] = err * err
-            self.total[lv][x, i, j] += lower - prev
-        self.state[key] = (x, cells, lower, errs)
+            cell[0] += lower - prev
+        self.state[key] = (x, where, lower, errs, cells)
 
     def predict(self, key: int, upper: float, lower: float) -> float:
         """The predicted optimal value at the belief ``key``, within ``[lower, upper]``."""
         st = self.state.get(key)
         if st is None:
             return upper
-        x, cells, _, _ = st
-        i, j = cells[0]
-        if self.count[0][x, i, j] <= 1:
+        cells = st[4]
+        if cells[0][1] <= 1:
             return upper
         best = 0
-        smallest = self.error[0][x, i, j]
+        smallest = cells[0][2]
         for lv in range(1, len(cells)):
-            e = self.error[lv][x, cells[lv][0], cells[lv][1]]
+            e = cells[lv][2]
             if e + 1e-10 < smallest:
                 best, smallest = lv, e
-        i, j = cells[best]
-        mean = float(self.total[best][x, i, j] / self.count[best][x, i, j])
-        return min(upper, max(lower, mean))
+        total, count, _ = cells[best]
+        return min(upper, max(lower, total / count))
 
 
 class _SARSOP:

@@ -199,15 +199,22 @@ class SawtoothUpperBound:
         if need > cap or entries > ecap:
             self._views()
 
-    def _padded(self, ids: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _padded(self, ids: Any) -> tuple[Any, Any]:
         """``(n, K)`` supports and ``1 / b_i(y)`` of points ``ids (n,)``, padded to the widest
-        support ever stored with the index ``Y`` and ``1`` (what the tensor path gathers)."""
-        k = torch.arange(self._kmax, device=ids.device)
-        inside = k < self._w[ids].unsqueeze(-1)  # (n, K)
-        pos = torch.where(inside, self._off[ids].unsqueeze(-1) + k, 0)
-        idx = torch.where(inside, self._fidx[pos], self.num_hidden)
-        inv = torch.where(inside, self._finv[pos], 1.0)
-        return idx, inv
+        support ever stored with the index ``Y`` and ``1`` (what the tensor path gathers).
+
+        ``ids`` a tensor: tensors of the storage's device; a numpy array (CPU storage):
+        numpy arrays, from the storage's numpy views."""
+        if isinstance(ids, np.ndarray):
+            assert self._np is not None
+            fidx, finv, wid, off = self._np[1], self._np[2], self._np[6], self._np[8]
+            where, k = np.where, np.arange(self._kmax)
+        else:
+            fidx, finv, wid, off = self._fidx, self._finv, self._w, self._off
+            where, k = torch.where, torch.arange(self._kmax, device=ids.device)
+        inside = k < wid[ids][:, None]  # (n, K)
+        pos = where(inside, off[ids][:, None] + k, 0)
+        return where(inside, fidx[pos], self.num_hidden), where(inside, finv[pos], 1.0)
 
     def _padded_all(self) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`_padded` of every point, kept until the stored supports change."""
@@ -242,14 +249,9 @@ class SawtoothUpperBound:
         if x is not None and self._np is not None:
             corner, v, gain = self._np[0], self._np[4], self._np[5]
             c = np.append(corner[x], 0.0)  # (Y + 1,), the pad index Y maps to 0
-            fidx, finv, wid, off = self._np[1], self._np[2], self._np[6], self._np[8]
             ids, step = self.members(x), self._block()
-            k = np.arange(self._kmax)
             for blk in (ids[i : i + step] for i in range(0, ids.size, step)):
-                inside = k < wid[blk][:, None]  # (n, K): the padded rows, as in _padded
-                pos = np.where(inside, off[blk][:, None] + k, 0)
-                idx = np.where(inside, fidx[pos], self.num_hidden)
-                inv = np.where(inside, finv[pos], 1.0)
+                idx, inv = self._padded(blk)
                 gain[blk] = v[blk] - (c[idx] / inv).sum(-1)
             self._sorted[x] = None
             return

@@ -972,9 +972,10 @@ class _SARSOP:
         q_low, q_up, prob, low_c, up_c, best, lo, cu, child_x, own = self._evaluate_np(x, b, stale)
         a = int(q_low.argmax())
         use = best[a]  # (K, O); the impossible children's vectors for this action only
-        ch_a = child_x.reshape(best.shape[0], -1)[a]
-        if not (prob[a] > 0).all():
-            possible = np.flatnonzero(prob[a].reshape(-1) > 0)
+        possible_a = prob[a].reshape(-1) > 0
+        if not possible_a.all():
+            possible = np.flatnonzero(possible_a)
+            ch_a = child_x.reshape(best.shape[0], -1)[a]
             use = self._impossible_best_np(x, b, ch_a, possible, own).reshape(use.shape)
             use.reshape(-1)[possible] = best[a].reshape(-1)[possible]
         W = self.alphas.np_vectors[use]  # (K, O, Y)

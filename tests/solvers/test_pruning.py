@@ -91,8 +91,10 @@ def test_beliefs_scored_a_block_at_a_time_and_by_rows(monkeypatch, grouped, bloc
     sub = None if bgroups is None else bgroups[rows]
     want = _winners_by_hand(alphas, beliefs[rows], groups, sub)
     assert torch.equal(pruning.prune_by_beliefs(alphas, beliefs, groups, sub, rows=rows), want)
-    with pytest.raises(ModelError, match="rows"):
+    with pytest.raises(ModelError, match=f"rows in \\[0, {M}\\).*from {M} to {M}"):
         pruning.prune_by_beliefs(alphas, beliefs, rows=torch.tensor([M]))
+    with pytest.raises(ModelError, match="rows to be a 1-D index"):
+        pruning.prune_by_beliefs(alphas, beliefs, rows=torch.tensor([[0]]))
     if grouped:
         with pytest.raises(ModelError, match="belief_groups"):
             pruning.prune_by_beliefs(alphas, beliefs, groups, bgroups, rows=rows)

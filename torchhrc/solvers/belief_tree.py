@@ -22,7 +22,7 @@ import warnings
 import numpy as np
 import torch
 
-from torchhrc.solvers.pruning import prune_by_beliefs, prune_dominated
+from torchhrc.solvers.pruning import _GATHER_ELEMENTS, prune_by_beliefs, prune_dominated
 
 __all__ = ["BeliefTree", "SparseBeliefTree"]
 
@@ -233,7 +233,7 @@ class SparseBeliefTree(BeliefTree):
         """
         keep = torch.zeros(vectors.shape[0], dtype=torch.bool)
         vt = vectors.T.contiguous()
-        step = max(1, (1 << 20) // max(1, vectors.shape[0]))  # (m, N) scores a block at a time
+        step = max(1, _GATHER_ELEMENTS // max(1, vectors.shape[0]))  # (m, N) scores a block at once
         for start in range(0, len(nodes), step):
             keep[(self.csr(nodes[start : start + step]) @ vt).argmax(-1)] = True
         return keep

@@ -161,11 +161,15 @@ def prune_by_beliefs(
         rows = torch.arange(beliefs.shape[0], device=beliefs.device)
     else:
         rows = check_tensor("rows", rows, floating=False)
-        inside = rows.numel() == 0 or (0 <= int(rows.min()) and int(rows.max()) < len(beliefs))
-        if rows.dim() != 1 or not inside:
+        if rows.dim() != 1:
             raise ModelError(
                 f"expected rows to be a 1-D index of the {beliefs.shape[0]} beliefs, got "
                 f"shape {tuple(rows.shape)}"
+            )
+        if rows.numel() and not (0 <= int(rows.min()) and int(rows.max()) < len(beliefs)):
+            raise ModelError(
+                f"expected rows in [0, {beliefs.shape[0]}) (the beliefs), got values from "
+                f"{int(rows.min())} to {int(rows.max())}"
             )
     N = alphas.shape[0]
     keep = torch.zeros(N, dtype=torch.bool, device=alphas.device)

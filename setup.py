@@ -1,12 +1,15 @@
 """Build steps: copy the top-level ``assets/`` and ``models/`` (the single source of the
 shipped files) into the package of a wheel, as ``torchhrc/assets`` and ``torchhrc/models``;
-compile the C inner loop of the sawtooth upper bound (``torchhrc/solvers/_sawtooth.c``, the
-CPython API only: no numpy headers, no torch headers).
+compile the C inner loops of SARSOP: the sawtooth upper bound (``torchhrc/solvers/_sawtooth.c``)
+and the one-belief evaluation of a model with one observed value
+(``torchhrc/solvers/_backup.c``), both on the CPython API only: no numpy headers, no torch
+headers.
 
 Metadata lives in pyproject.toml; :mod:`torchhrc.resources` finds the files in a wheel and,
-for an editable install or a checkout, at the top level. The extension is optional: without a
-C compiler the install goes on and :mod:`torchhrc.solvers.sawtooth_kernel` runs the same loop
-in Python (correct, much slower, with a warning).
+for an editable install or a checkout, at the top level. The extensions are optional: without a
+C compiler the install goes on; :mod:`torchhrc.solvers.sawtooth_kernel` then runs the same loop
+in Python (correct, much slower, with a warning) and SARSOP its numpy evaluation
+(:mod:`torchhrc.solvers.backup_kernel`).
 """
 
 import shutil
@@ -32,11 +35,12 @@ class BuildPyWithShippedFiles(build_py):
                                 dirs_exist_ok=True)  # fmt: skip
 
 
-SAWTOOTH = Extension(
-    "torchhrc.solvers._sawtooth",
-    sources=["torchhrc/solvers/_sawtooth.c"],
-    extra_compile_args=["-O3"] if not sys.platform.startswith("win") else [],
-    optional=True,
-)
+FLAGS = ["-O3"] if not sys.platform.startswith("win") else []
+SHARED = ["torchhrc/solvers/_kernel_util.h"]
+EXTENSIONS = [
+    Extension(f"torchhrc.solvers.{name}", sources=[f"torchhrc/solvers/{name}.c"], depends=SHARED,
+              extra_compile_args=FLAGS, optional=True)  # fmt: skip
+    for name in ("_sawtooth", "_backup")
+]
 
-setup(cmdclass={"build_py": BuildPyWithShippedFiles}, ext_modules=[SAWTOOTH])
+setup(cmdclass={"build_py": BuildPyWithShippedFiles}, ext_modules=EXTENSIONS)

@@ -9,40 +9,7 @@
  *   key (P',) float64, local (Y,) int64 or empty, out (R,) float64 (written).
  *   All C-contiguous.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
-#include <math.h>
-#include <stdint.h>
-#include <string.h>
-
-#define SLACK (1.0 + 1e-12)
-
-/* Get a C-contiguous buffer of ndim dims whose items are 8 bytes of the given kind. */
-static int get(PyObject *obj, Py_buffer *view, int ndim, char kind, const char *name,
-               int writable) {
-    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
-    if (PyObject_GetBuffer(obj, view, flags) < 0) {
-        PyErr_Clear();
-        PyErr_Format(PyExc_TypeError, "expected %s to be a C-contiguous%s %d-D %s array, got %s",
-                     name, writable ? " writable" : "", ndim, kind == 'd' ? "float64" : "int64",
-                     Py_TYPE(obj)->tp_name);
-        return -1;
-    }
-    const char *f = view->format ? view->format : "B";
-    if (*f == '<' || *f == '=' || *f == '@') f++;
-    int ok = view->ndim == ndim && view->itemsize == 8 &&
-             (kind == 'd' ? (f[0] == 'd' && f[1] == 0)
-                          : ((f[0] == 'q' || f[0] == 'l') && f[1] == 0));
-    if (!ok) {
-        PyErr_Format(PyExc_TypeError,
-                     "expected %s to be a C-contiguous %d-D %s array, got format '%s' with "
-                     "%d dims",
-                     name, ndim, kind == 'd' ? "float64" : "int64", f, view->ndim);
-        PyBuffer_Release(view);
-        return -1;
-    }
-    return 0;
-}
+#include "_kernel_util.h"
 
 static PyObject *corrections(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     static const char *names[11] = {"beliefs", "rows", "order", "idx",   "inv", "off",
@@ -57,7 +24,8 @@ static PyObject *corrections(PyObject *self, PyObject *const *args, Py_ssize_t n
         return NULL;
     }
     for (; got < 11; got++)
-        if (get(args[got], &v[got], dims[got], kinds[got], names[got], got == 10) < 0) goto fail;
+        if (get_buffer(args[got], &v[got], dims[got], kinds[got], names[got], got == 10) < 0)
+            goto fail;
     {
         const double *beliefs = v[0].buf;
         const int64_t *rows = v[1].buf, *order = v[2].buf, *idx = v[3].buf;
@@ -82,12 +50,9 @@ static PyObject *corrections(PyObject *self, PyObject *const *args, Py_ssize_t n
                 PyErr_SetString(PyExc_IndexError, "corrections(): a row is out of range");
                 goto fail;
             }
-        for (Py_ssize_t t = 0; t < P; t++) {
-            int64_t j = order[t];
-            if (j < 0 || j >= cap || wid[j] < 0 || off[j] < 0 || off[j] > E - wid[j]) {
-                PyErr_SetString(PyExc_IndexError, "corrections(): a point is out of range");
-                goto fail;
-            }
+        if (!points_in_range(order, P, off, wid, cap, E)) {
+            PyErr_SetString(PyExc_IndexError, "corrections(): a point is out of range");
+            goto fail;
         }
         /* support indices are checked where they are read (a predictable branch) */
         const uint64_t limit = (uint64_t)(mapped ? Y : C);
@@ -95,39 +60,10 @@ static PyObject *corrections(PyObject *self, PyObject *const *args, Py_ssize_t n
         Py_BEGIN_ALLOW_THREADS
         for (Py_ssize_t q = 0; q < R; q++) {
             const double *b = beliefs + rows[q] * C;
-            double mass = 0.0, best = 0.0;
+            double mass = 0.0;
             for (Py_ssize_t c = 0; c < C; c++) mass += b[c];
-            for (Py_ssize_t t = 0; t < P; t++) {
-                const int64_t j = order[t];
-                if (key[t] * mass * SLACK >= best) break; /* no later point can win */
-                const double g = gain[j];
-                const int64_t *yj = idx + off[j];
-                const double *wj = inv + off[j];
-                double r = INFINITY;
-                for (int64_t k = 0; k < wid[j]; k++) {
-                    int64_t y = yj[k];
-                    if ((uint64_t)y >= limit) {
-                        stray = 1;
-                        r = 0.0;
-                        break;
-                    }
-                    if (mapped) {
-                        y = local[y];
-                        if ((uint64_t)y >= (uint64_t)C) { /* outside the given columns: b = 0 */
-                            r = 0.0;
-                            break;
-                        }
-                    }
-                    const double ratio = b[y] * wj[k];
-                    if (ratio < r) {
-                        r = ratio;
-                        if (g * r >= best) break; /* this point cannot win */
-                    }
-                }
-                const double term = g * r;
-                if (term < best) best = term;
-            }
-            out[q] = best;
+            out[q] = sawtooth_row(b, C, mass, order, P, key, idx, inv, off, wid, gain, local,
+                                  limit, mapped, &stray);
         }
         Py_END_ALLOW_THREADS
         if (stray) {

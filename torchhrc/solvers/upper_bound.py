@@ -336,6 +336,23 @@ class SawtoothUpperBound:
         assert best is not None
         return base + best.clamp(max=0.0)
 
+    def loop_arrays(self, x: int) -> tuple[np.ndarray, ...]:
+        """``(corner (Y,), order, idx, inv, off, wid, gain, key)`` of observed value ``x``:
+        the arrays :meth:`value_np` hands the compiled loop, for a caller that runs the loop
+        itself (:func:`~torchhrc.solvers.backup_kernel.bound_children`); CPU storage only.
+
+        Example:
+            >>> import torch
+            >>> ub = SawtoothUpperBound(torch.tensor([[1.0, 2.0]], dtype=torch.float64))
+            >>> corner, order = ub.loop_arrays(0)[:2]
+            >>> corner.tolist(), order.shape  # no point yet
+            ([1.0, 2.0], (0,))
+        """
+        assert self._np is not None
+        corner, idx, inv, _, _, gain, wid, _, off = self._np
+        order, key = self._sorted_points(x)
+        return corner[x], order, idx, inv, off, wid, gain, key
+
     def value_np(
         self, beliefs: np.ndarray, x: np.ndarray, columns: np.ndarray | None = None
     ) -> np.ndarray:

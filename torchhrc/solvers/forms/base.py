@@ -315,6 +315,22 @@ class SolverModel(ABC):
         cx_all.flags.writeable = False
         return z, np.ascontiguousarray(z.transpose(0, 1, 3, 2)), cx, cx_all, self.reward_np(x)
 
+    def backup_vector_np(self, x: int, a: int, use: np.ndarray, vectors: np.ndarray,
+                         gamma: float) -> np.ndarray:  # fmt: skip
+        """``(Y,)`` the alpha vector a point-based backup builds at ``x`` for action ``a``::
+
+            alpha(y) = R(a, x, y) + gamma sum_{x2_k, y2, o} Tx Ty Z(a, x2_k, y2, o)
+                                                          vectors[use[k, o], y2]
+
+        Args:
+            use: ``(K, O)`` int the vector taken at each child ``(x2_k, o)``.
+            vectors: ``(N, Y)`` the alpha vectors ``use`` indexes.
+        """
+        W = vectors[use]  # (K, O, Y)
+        vals = (self.observation_np(x)[a] * W).sum(1)  # (K, Y)
+        R = self._cached("R_np", 0, lambda: self.R.contiguous().numpy())  # (A, X, Y)
+        return R[a, x] + gamma * self.backproject_np(x, a, vals)
+
     def reward_np(self, x: int) -> np.ndarray:
         """``(Y, A)`` ``R[:, x, :]`` transposed, contiguous (numpy, CPU)."""
         return self._cached("RT_np", x, lambda: self._reward_table(x).numpy())

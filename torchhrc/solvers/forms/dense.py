@@ -24,10 +24,11 @@ import numpy as np
 import torch
 
 from torchhrc.pomdp import POMDP
+from torchhrc.solvers import backup_kernel
 from torchhrc.solvers.backup import BackupResult, point_backup
 from torchhrc.solvers.clock import Deadline
 from torchhrc.solvers.fib import fib_backup
-from torchhrc.solvers.forms.base import FIBOperator, FlatFields, TensorModelForm
+from torchhrc.solvers.forms.base import Children, FIBOperator, FlatFields, TensorModelForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sampling import flat_step, sample_categorical
 
@@ -42,6 +43,7 @@ class DenseForm(FlatFields, TensorModelForm):
         super().__init__(model, source)
         self._flat(model.Z, model.R, model.b0, model.discount)
         self.T = model.T.contiguous()  # (A, S, S)
+        self._kernel = backup_kernel.load()  # None: the numpy children (base class)
 
     # -- torch ---------------------------------------------------------------------------------
     def predict(self, x: int, beliefs: torch.Tensor) -> torch.Tensor:
@@ -77,6 +79,43 @@ class DenseForm(FlatFields, TensorModelForm):
 
     def backproject_np(self, x: int, a: int, values: np.ndarray) -> np.ndarray:
         return self._T_np()[a] @ values[0]
+
+    def children_np(self, x: int, b: np.ndarray) -> Children:
+        """:meth:`~.base.SolverModel.children_np` in one compiled call
+        (:func:`~torchhrc.solvers.backup_kernel.dense_children`) where the extension is
+        built and the model is float64; the numpy body of the base class otherwise."""
+        if self._kernel is None or b.dtype != np.float64 or not b.flags.c_contiguous:
+            return super().children_np(x, b)
+        T, z, RT, cx, cx_all = self._cached("kernel", x, lambda: self._kernel_tables(x))
+        A, O, S = z.shape
+        C = A * O
+        rows, prob = np.empty((C + 1, S)), np.empty(C)
+        nz, reward = np.empty(C, dtype=np.int64), np.empty(A)
+        m = backup_kernel.dense_children(self._kernel, b, T, z, RT, rows, prob, nz, reward)
+        if m == C:
+            return Children(rows, cx_all, None, nz, prob.reshape(A, 1, O), cx, reward)
+        rows_x = np.full(m + 1, x, dtype=cx.dtype)
+        return Children(rows[: m + 1], rows_x, None, nz[:m], prob.reshape(A, 1, O), cx, reward)
+
+    def backup_vector_np(self, x: int, a: int, use: np.ndarray, vectors: np.ndarray,
+                         gamma: float) -> np.ndarray:  # fmt: skip
+        """:meth:`~.base.SolverModel.backup_vector_np` in one compiled call where the extension
+        is built and the model is float64 (the numpy body of the base class otherwise)."""
+        if self._kernel is None or vectors.dtype != np.float64 or not vectors.flags.c_contiguous:
+            return super().backup_vector_np(x, a, use, vectors, gamma)
+        T, z, _, _, _ = self._cached("kernel", x, lambda: self._kernel_tables(x))
+        R = self._cached("R_np", 0, lambda: self.R.contiguous().numpy())  # (A, 1, S)
+        out = np.empty(T.shape[1])
+        self._kernel.backup_vector(T, z, R[a, x], vectors, use.reshape(-1), a, gamma, out)
+        return out
+
+    def _kernel_tables(self, x: int) -> tuple[np.ndarray, ...]:
+        """``T``, ``Z`` as ``(A, O, S)``, ``R`` as ``(S, A)`` (float64, C-contiguous) and the
+        children's observed values (all ``x``: one observed value) for :meth:`children_np`."""
+        z, _, cx, cx_all, RT = self._cached("children", x, lambda: self._children_tables(x))
+        A, _, O, S = z.shape
+        return (np.ascontiguousarray(self._T_np()), np.ascontiguousarray(z.reshape(A, O, S)),
+                np.ascontiguousarray(RT), cx, cx_all)  # fmt: skip
 
     # -- initial bounds ----------------------------------------------------------------------
     def fib_start(self, tol: float, deadline: Deadline, info: dict[str, Any],

@@ -1,0 +1,199 @@
+"""The compiled steps of a one-belief evaluation (:mod:`torchhrc.solvers.backup_kernel`)
+agree with their numpy references (``SolverModel.children_np``'s numpy body and
+``_SARSOP._upper_np``) up to the order of the sums, and reject arrays they cannot read."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from torchhrc.pomdp import POMDP
+from torchhrc.solvers import SARSOPConfig, backup_kernel
+from torchhrc.solvers.forms import as_solver_model
+from torchhrc.solvers.forms.base import TensorModelForm
+from torchhrc.testing import random_pomdp
+
+kernel = backup_kernel.load()
+needs_extension = pytest.mark.skipif(kernel is None, reason="the C extension is not built")
+SARSOP = __import__("torchhrc.solvers.sarsop", fromlist=["_SARSOP"])._SARSOP
+
+
+def _impossible(seed: int) -> POMDP:
+    """A random POMDP whose observations are tied to some states (many children have
+    probability 0) and with a sparse transition matrix."""
+    m = random_pomdp(7, 3, 4, sparsity=0.5, discount=0.9, seed=seed)
+    gen = torch.Generator().manual_seed(seed)
+    mask = (torch.rand(m.Z.shape, generator=gen, dtype=m.Z.dtype) < 0.4).to(m.Z.dtype)
+    mask.scatter_(-1, m.Z.argmax(-1, keepdim=True), 1.0)  # each (a, s2) keeps one
+    Z = m.Z * mask
+    return POMDP(T=m.T, Z=Z / Z.sum(-1, keepdim=True), R=m.R, b0=m.b0, discount=m.discount)
+
+
+def _beliefs(S: int, seed: int) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(6):
+        b = rng.random(S) * (rng.random(S) < (0.5 if i % 2 else 1.0))
+        b[rng.integers(S)] += 0.1
+        out.append(b / b.sum())
+    return out
+
+
+@needs_extension
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_dense_children_equal_the_numpy_children(seed: int) -> None:
+    model = _impossible(seed) if seed else random_pomdp(6, 3, 3, seed=seed)
+    form = as_solver_model(model)
+    assert form._kernel is not None
+    for b in _beliefs(model.num_states, seed):
+        got = form.children_np(0, b)
+        ref = TensorModelForm.children_np(form, 0, b)  # the numpy body
+        np.testing.assert_array_equal(got.nz, ref.nz)
+        np.testing.assert_array_equal(got.rows_x, ref.rows_x)
+        np.testing.assert_array_equal(got.child_x, ref.child_x)
+        assert got.cols is None and ref.cols is None
+        for name in ("rows", "prob", "reward"):
+            np.testing.assert_allclose(getattr(got, name), getattr(ref, name), rtol=1e-13,
+                                       atol=1e-15, err_msg=name)  # fmt: skip
+        assert got.rows.flags.c_contiguous
+        # the impossible children are exactly those of probability 0
+        assert set(got.nz.tolist()) == set(np.flatnonzero(ref.prob.reshape(-1) > 0).tolist())
+
+
+@needs_extension
+@pytest.mark.parametrize("seed", [0, 1])
+def test_backup_vector_equals_the_numpy_one(seed: int) -> None:
+    model = _impossible(seed) if seed else random_pomdp(6, 3, 4, seed=seed)
+    form = as_solver_model(model)
+    rng = np.random.default_rng(seed)
+    vectors = rng.normal(size=(9, model.num_states))
+    for a in range(model.num_actions):
+        use = rng.integers(0, 9, size=(1, model.num_observations))
+        got = form.backup_vector_np(0, a, use, vectors, 0.9)
+        ref = TensorModelForm.backup_vector_np(form, 0, a, use, vectors, 0.9)
+        np.testing.assert_allclose(got, ref, rtol=1e-13, atol=1e-13)
+    # by hand: R[a] + gamma T[a] (sum_o Z[a, :, o] * vectors[use[o]])
+    T, Z, R = model.T.numpy(), model.Z.numpy(), model.R.numpy()
+    hand = R[0] + 0.9 * T[0] @ sum(Z[0, :, o] * vectors[use[0, o]] for o in range(Z.shape[-1]))
+    np.testing.assert_allclose(form.backup_vector_np(0, 0, use, vectors, 0.9), hand, rtol=1e-12)
+    with pytest.raises(IndexError, match="a vector index in use is out of range"):
+        form.backup_vector_np(0, 0, np.full((1, model.num_observations), 9), vectors, 0.9)
+
+
+def _solver(model: POMDP, iterations: int) -> object:
+    cfg = SARSOPConfig(time_limit=1e9, max_iterations=iterations, precision=1e-9)
+    solver = SARSOP(model, cfg, time.perf_counter())
+    solver.run()
+    return solver
+
+
+@needs_extension
+@pytest.mark.parametrize("seed", [0, 3])
+def test_compiled_evaluation_equals_the_numpy_one(seed: int) -> None:
+    """Fresh and stale (lazy) evaluations of the tree's beliefs after a short solve, whose
+    upper bound has points: the same bounds, vectors and Q values both ways."""
+    model = _impossible(seed) if seed else random_pomdp(8, 4, 3, discount=0.95, seed=seed)
+    solver = _solver(model, 6)
+    assert solver._kernel is not None and solver.ub.size > 0
+    tree = solver.tree
+    nodes = range(min(tree.size, 40))
+    assert sum(int(solver.belief_id[n]) in solver._cache for n in nodes) >= 5
+    for node in nodes:
+        b = tree.beliefs_np[node]
+        stale = solver._cache.get(int(solver.belief_id[node]))
+        for st in (None, stale):
+            got = solver._evaluate_np(0, b, st)
+            kernels = solver._kernel, solver.form._kernel
+            solver._kernel = solver.form._kernel = None
+            try:
+                ref = solver._evaluate_np(0, b, st)
+            finally:
+                solver._kernel, solver.form._kernel = kernels
+            names = ("q_low", "q_up", "prob", "low", "up", "best", "lo", "cu", "child_x", "own")
+            for name, g, r in zip(names, got, ref):
+                if name in ("best", "child_x", "own"):
+                    np.testing.assert_array_equal(g, r, err_msg=name)
+                else:
+                    np.testing.assert_allclose(g, r, rtol=1e-12, atol=1e-12, err_msg=name)
+
+
+@needs_extension
+def test_a_stale_evaluation_refreshes_only_what_can_win() -> None:
+    """A hand-made case of the lazy loop: two actions, one child each, no sawtooth point.
+    Action 1's cached Q_up (5) beats action 0's (3): it is refreshed to 1 + 0.5 * 2 = 2,
+    then action 0 (3 > 2) is refreshed to 0 + 0.5 * 4 = 2; both now fresh, the loop stops."""
+    rows = np.array([[1.0, 0.0], [0.0, 1.0], [0.5, 0.5]])  # children of a=0, a=1, then b
+    corner = np.array([4.0, 2.0])
+    nz = np.array([0, 1])
+    empty_i, empty_f = np.empty(0, dtype=np.int64), np.empty(0)
+    saw = (corner, empty_i, empty_i, empty_f, empty_i, empty_i, empty_f, empty_f)
+    low_r, best_r = np.array([1.0, 2.0, 1.5]), np.array([3, 4, 5])
+    reward = np.array([0.0, 1.0])
+    stale = (np.array([3.0, 5.0]), np.array([7.0, 9.0]))
+    low, best, q_low, up, q_up, cu = backup_kernel.bound_children(
+        kernel, rows, nz, low_r, best_r, reward, 0.5, stale, saw, 2
+    )
+    assert up.tolist() == [4.0, 2.0] and q_up.tolist() == [2.0, 2.0] and cu == 3.0
+    assert low.tolist() == [1.0, 2.0] and best.tolist() == [3, 4]
+    assert q_low.tolist() == [0.5, 2.0]
+    # action 0 cached below what action 1 refreshes to: it stays stale (1 < 2)
+    stale = (np.array([1.0, 5.0]), np.array([7.0, 9.0]))
+    _, _, _, up, q_up, _ = backup_kernel.bound_children(
+        kernel, rows, nz, low_r, best_r, reward, 0.5, stale, saw, 2
+    )
+    assert up.tolist() == [7.0, 2.0] and q_up.tolist() == [1.0, 2.0]
+    # an impossible child (nz = [1]): 0 in low, best and up; its action sums nothing
+    _, best, q_low, up, q_up, cu = backup_kernel.bound_children(
+        kernel, rows[1:], nz[1:], low_r[1:], best_r[1:], reward, 0.5, None, saw, 2
+    )
+    assert best.tolist() == [0, 4] and q_low.tolist() == [0.0, 2.0] and up.tolist() == [0.0, 2.0]
+    assert q_up.tolist() == [0.0, 2.0] and cu == 3.0
+
+
+@needs_extension
+def test_bad_arrays_get_clear_errors() -> None:
+    S, A, O = 3, 2, 2
+    b, T = np.full(S, 1 / 3), np.full((A, S, S), 1 / 3)
+    z, RT = np.full((A, O, S), 0.5), np.zeros((S, A))
+    rows, prob = np.empty((A * O + 1, S)), np.empty(A * O)
+    nz, reward = np.empty(A * O, dtype=np.int64), np.empty(A)
+    assert backup_kernel.dense_children(kernel, b, T, z, RT, rows, prob, nz, reward) == A * O
+    np.testing.assert_allclose(prob, 0.5)
+    with pytest.raises(TypeError, match="expected T to be a C-contiguous 3-D float64"):
+        backup_kernel.dense_children(kernel, b, T.astype(np.float32), z, RT, rows, prob, nz,
+                                     reward)  # fmt: skip
+    with pytest.raises(TypeError, match="expected rows to be a C-contiguous writable"):
+        ro = rows.copy()
+        ro.flags.writeable = False
+        backup_kernel.dense_children(kernel, b, T, z, RT, ro, prob, nz, reward)
+    with pytest.raises(ValueError, match=r"S=3 states, A=2 actions, O=2 observations"):
+        backup_kernel.dense_children(kernel, b, T, z, RT, rows[:-1], prob, nz, reward)
+    empty_i, empty_f = np.empty(0, dtype=np.int64), np.empty(0)
+    saw = (np.zeros(S), empty_i, empty_i, empty_f, empty_i, empty_i, empty_f, empty_f)
+    args = (rows, np.arange(A * O), np.zeros(A * O + 1), np.zeros(A * O + 1, dtype=np.int64),
+            np.zeros(A), 0.9, None, saw, A * O)  # fmt: skip
+    backup_kernel.bound_children(kernel, *args)
+    with pytest.raises(IndexError, match="nz must increase strictly"):
+        backup_kernel.bound_children(kernel, rows, np.array([0, 2, 1, 3]), *args[2:])
+    with pytest.raises(ValueError, match="m \\+ 1 rows"):
+        backup_kernel.bound_children(kernel, rows[:-1], *args[1:])
+    with pytest.raises(ValueError, match="multiple of A actions"):
+        backup_kernel.bound_children(kernel, *args[:-1], 5)
+    with pytest.raises(ValueError, match="stale_q"):
+        backup_kernel.bound_children(kernel, *args[:6], (np.zeros(A), np.zeros(1)), *args[7:])
+    bad = (saw[0], np.array([7]), *saw[2:7], np.array([-1.0]))  # a point past the storage
+    with pytest.raises(IndexError, match="a point is out of range"):
+        backup_kernel.bound_children(kernel, *args[:7], bad, A * O)
+
+
+def test_the_environment_switch_selects_the_numpy_path(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("TORCHHRC_NO_EXTENSION", "1")
+    assert backup_kernel.load() is None
+    form = as_solver_model(random_pomdp(4, 2, 2, seed=0))
+    assert form._kernel is None
+    b = np.full(4, 0.25)
+    ch = form.children_np(0, b)  # the numpy body
+    np.testing.assert_allclose(ch.prob.sum((-1, -2)), 1.0)

@@ -1,0 +1,362 @@
+/* Compiled steps of SARSOP's one-belief evaluation for models with one observed value: see
+ * torchhrc/solvers/backup_kernel.py, which documents both functions and their numpy
+ * references (DenseForm.children_np's numpy body and _SARSOP._upper_np), and checks the
+ * arguments' dtypes before the call. The per-call work is small (tens of states and
+ * actions): what this saves is the forty-odd numpy calls of a few microseconds each.
+ *
+ * dense_children(b, T, z, RT, rows, prob, nz, reward) -> m
+ *   b (S,), T (A, S, S), z (A, O, S), RT (S, A) float64; written: rows (A O + 1, S),
+ *   prob (A O,), nz (A O,) int64, reward (A,). Returns the number m of possible children.
+ *
+ * bound_children(rows, nz, low_r, best_r, reward, stale_q, stale_up, corner, order, idx,
+ *                inv, off, wid, gain, key, low, best, q_low, up, q_up, gamma) -> cu
+ *   rows (m + 1, S), nz (m,) int64, low_r (m + 1,), best_r (m + 1,) int64, reward (A,),
+ *   stale_q (A,) and stale_up (C,) or both empty, corner (S,), then the sawtooth storage
+ *   as in _sawtooth.c (order, idx, inv, off, wid, gain, key); written: low (C,),
+ *   best (C,) int64, q_low (A,), up (C,), q_up (A,); gamma a float. Returns V_up(b).
+ *
+ * backup_vector(T, z, r, V, use, a, gamma, out) -> None
+ *   T (A, S, S), z (A, O, S), r (S,) = R[a], V (N, S) alpha vectors, use (O,) int64 the
+ *   vector of each observation; written: out (S,) the new alpha vector
+ *   r + gamma sum_s2 T[a, s, s2] sum_o Z[a, s2, o] V[use[o], s2].
+ */
+#include "_kernel_util.h"
+
+#include <string.h>
+
+typedef struct {
+    const char *name;
+    int ndim;
+    char kind;
+    int writable;
+} spec_t;
+
+/* Get buffers for args[0..n) by spec; on failure release what was taken and return -1. */
+static int get_all(PyObject *const *args, Py_buffer *v, const spec_t *spec, int n) {
+    for (int i = 0; i < n; i++)
+        if (get_buffer(args[i], &v[i], spec[i].ndim, spec[i].kind, spec[i].name,
+                       spec[i].writable) < 0) {
+            for (int j = 0; j < i; j++) PyBuffer_Release(&v[j]);
+            return -1;
+        }
+    return 0;
+}
+
+static void release_all(Py_buffer *v, int n) {
+    for (int i = 0; i < n; i++) PyBuffer_Release(&v[i]);
+}
+
+static PyObject *dense_children(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    static const spec_t spec[8] = {
+        {"b", 1, 'd', 0},    {"T", 3, 'd', 0},    {"z", 3, 'd', 0},  {"RT", 2, 'd', 0},
+        {"rows", 2, 'd', 1}, {"prob", 1, 'd', 1}, {"nz", 1, 'q', 1}, {"reward", 1, 'd', 1},
+    };
+    Py_buffer v[8];
+    (void)self;
+    if (nargs != 8) {
+        PyErr_Format(PyExc_TypeError, "dense_children() takes 8 arguments (%zd given)", nargs);
+        return NULL;
+    }
+    if (get_all(args, v, spec, 8) < 0) return NULL;
+    const Py_ssize_t S = v[0].shape[0], A = v[1].shape[0], O = v[2].shape[1];
+    if (v[1].shape[1] != S || v[1].shape[2] != S || v[2].shape[0] != A || v[2].shape[2] != S ||
+        v[3].shape[0] != S || v[3].shape[1] != A || v[4].shape[0] != A * O + 1 ||
+        v[4].shape[1] != S || v[5].shape[0] != A * O || v[6].shape[0] != A * O ||
+        v[7].shape[0] != A) {
+        PyErr_Format(PyExc_ValueError,
+                     "dense_children(): inconsistent shapes for S=%zd states, A=%zd actions, "
+                     "O=%zd observations (b (S,), T (A, S, S), z (A, O, S), RT (S, A), "
+                     "rows (A O + 1, S), prob (A O,), nz (A O,), reward (A,))",
+                     S, A, O);
+        release_all(v, 8);
+        return NULL;
+    }
+    double *pred = PyMem_Malloc((size_t)(S > 0 ? S : 1) * sizeof(double));
+    if (pred == NULL) {
+        release_all(v, 8);
+        return PyErr_NoMemory();
+    }
+    const double *b = v[0].buf, *T = v[1].buf, *z = v[2].buf, *RT = v[3].buf;
+    double *rows = v[4].buf, *prob = v[5].buf, *reward = v[7].buf;
+    int64_t *nz = v[6].buf;
+    Py_ssize_t m = 0;
+    for (Py_ssize_t a = 0; a < A; a++) {
+        /* pred = b T[a], over the support of b (in order of the state) */
+        memset(pred, 0, (size_t)S * sizeof(double));
+        for (Py_ssize_t s1 = 0; s1 < S; s1++) {
+            const double w = b[s1];
+            if (w == 0.0) continue;
+            const double *row = T + (a * S + s1) * S;
+            for (Py_ssize_t s = 0; s < S; s++) pred[s] += w * row[s];
+        }
+        for (Py_ssize_t o = 0; o < O; o++) {
+            const double *zo = z + (a * O + o) * S;
+            double *out = rows + m * S; /* written in place; kept when possible */
+            double p = 0.0;
+            for (Py_ssize_t s = 0; s < S; s++) {
+                const double c = pred[s] * zo[s];
+                out[s] = c;
+                p += c;
+            }
+            prob[a * O + o] = p;
+            if (p > 0.0) nz[m++] = a * O + o;
+        }
+        double r = 0.0;
+        for (Py_ssize_t s = 0; s < S; s++) r += b[s] * RT[s * A + a];
+        reward[a] = r;
+    }
+    memcpy(rows + m * S, b, (size_t)S * sizeof(double));
+    PyMem_Free(pred);
+    release_all(v, 8);
+    return PyLong_FromSsize_t(m);
+}
+
+/* V_up of row i: corner . row + the sawtooth correction. */
+typedef struct {
+    const double *rows, *corner, *key, *inv, *gain;
+    const int64_t *order, *idx, *off, *wid;
+    Py_ssize_t S, P;
+    int stray;
+} upper_t;
+
+static double upper_value(upper_t *u, Py_ssize_t i) {
+    const double *b = u->rows + i * u->S;
+    double base = 0.0, mass = 0.0;
+    for (Py_ssize_t s = 0; s < u->S; s++) {
+        base += b[s] * u->corner[s];
+        mass += b[s];
+    }
+    if (u->P == 0) return base;
+    return base + sawtooth_row(b, u->S, mass, u->order, u->P, u->key, u->idx, u->inv, u->off,
+                               u->wid, u->gain, NULL, (uint64_t)u->S, 0, &u->stray);
+}
+
+/* Re-bound action a's possible children (rows lo..hi of nz) into up, return its Q_up. */
+static double refresh(upper_t *u, const int64_t *nz, Py_ssize_t lo, Py_ssize_t hi,
+                      Py_ssize_t a, Py_ssize_t n, double *up, double reward, double gamma) {
+    double *blk = up + a * n;
+    memset(blk, 0, (size_t)n * sizeof(double));
+    for (Py_ssize_t i = lo; i < hi; i++) up[nz[i]] = upper_value(u, i);
+    double s = 0.0;
+    for (Py_ssize_t j = 0; j < n; j++) s += blk[j];
+    return reward + gamma * s;
+}
+
+static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    enum { NB = 20 };
+    static const spec_t spec[NB] = {
+        {"rows", 2, 'd', 0},    {"nz", 1, 'q', 0},       {"low_r", 1, 'd', 0},
+        {"best_r", 1, 'q', 0},  {"reward", 1, 'd', 0},   {"stale_q", 1, 'd', 0},
+        {"stale_up", 1, 'd', 0}, {"corner", 1, 'd', 0},  {"order", 1, 'q', 0},
+        {"idx", 1, 'q', 0},     {"inv", 1, 'd', 0},      {"off", 1, 'q', 0},
+        {"wid", 1, 'q', 0},     {"gain", 1, 'd', 0},     {"key", 1, 'd', 0},
+        {"low", 1, 'd', 1},     {"best", 1, 'q', 1},     {"q_low", 1, 'd', 1},
+        {"up", 1, 'd', 1},      {"q_up", 1, 'd', 1},
+    };
+    Py_buffer v[NB];
+    (void)self;
+    if (nargs != NB + 1) {
+        PyErr_Format(PyExc_TypeError, "bound_children() takes %d arguments (%zd given)", NB + 1,
+                     nargs);
+        return NULL;
+    }
+    const double gamma = PyFloat_AsDouble(args[NB]);
+    if (gamma == -1.0 && PyErr_Occurred()) return NULL;
+    if (get_all(args, v, spec, NB) < 0) return NULL;
+    const Py_ssize_t m = v[1].shape[0], S = v[0].shape[1], A = v[4].shape[0];
+    const Py_ssize_t C = v[15].shape[0], P = v[8].shape[0], E = v[9].shape[0];
+    const Py_ssize_t cap = v[11].shape[0];
+    const int stale = v[5].shape[0] > 0;
+    const char *bad = NULL;
+    if (A == 0 || C % A != 0 || m > C)
+        bad = "C children (low's length), a multiple of A actions (reward's), at least m";
+    else if (v[0].shape[0] != m + 1 || v[2].shape[0] != m + 1 || v[3].shape[0] != m + 1)
+        bad = "m + 1 rows, low_r and best_r for m possible children (nz's length)";
+    else if (v[16].shape[0] != C || v[18].shape[0] != C || v[17].shape[0] != A ||
+             v[19].shape[0] != A)
+        bad = "best and up of C entries, q_low and q_up of A";
+    else if (stale ? (v[5].shape[0] != A || v[6].shape[0] != C) : v[6].shape[0] != 0)
+        bad = "stale_q (A,) and stale_up (C,), or both empty";
+    else if (v[7].shape[0] != S)
+        bad = "corner of S entries (the rows' width)";
+    else if (v[14].shape[0] != P || v[10].shape[0] != E || v[12].shape[0] != cap ||
+             v[13].shape[0] != cap)
+        bad = "the sawtooth storage of _sawtooth.corrections";
+    if (bad != NULL) {
+        PyErr_Format(PyExc_ValueError, "bound_children(): inconsistent shapes: expected %s", bad);
+        release_all(v, NB);
+        return NULL;
+    }
+    const int64_t *nz = v[1].buf;
+    for (Py_ssize_t i = 0; i < m; i++)
+        if (nz[i] < 0 || nz[i] >= C || (i > 0 && nz[i] <= nz[i - 1])) {
+            PyErr_SetString(PyExc_IndexError,
+                            "bound_children(): nz must increase strictly within [0, C)");
+            release_all(v, NB);
+            return NULL;
+        }
+    upper_t u = {v[0].buf, v[7].buf, v[14].buf, v[10].buf, v[13].buf,
+                 v[8].buf, v[9].buf, v[11].buf, v[12].buf, S, P, 0};
+    if (!points_in_range(u.order, P, u.off, u.wid, cap, E)) {
+        PyErr_SetString(PyExc_IndexError, "bound_children(): a point is out of range");
+        release_all(v, NB);
+        return NULL;
+    }
+    Py_ssize_t *ends = PyMem_Malloc((size_t)(A + 1) * sizeof(Py_ssize_t));
+    char *fresh = PyMem_Malloc((size_t)A);
+    if (ends == NULL || fresh == NULL) {
+        PyMem_Free(ends);
+        PyMem_Free(fresh);
+        release_all(v, NB);
+        return PyErr_NoMemory();
+    }
+    const double *low_r = v[2].buf, *reward = v[4].buf;
+    const int64_t *best_r = v[3].buf;
+    double *low = v[15].buf, *q_low = v[17].buf, *up = v[18].buf, *q_up = v[19].buf;
+    int64_t *best = v[16].buf;
+    const Py_ssize_t n = C / A;
+    /* the lower bounds of every child (0 where impossible) and Q_low */
+    memset(low, 0, (size_t)C * sizeof(double));
+    memset(best, 0, (size_t)C * sizeof(int64_t));
+    for (Py_ssize_t i = 0; i < m; i++) {
+        low[nz[i]] = low_r[i];
+        best[nz[i]] = best_r[i];
+    }
+    for (Py_ssize_t a = 0; a < A; a++) {
+        double s = 0.0;
+        for (Py_ssize_t j = 0; j < n; j++) s += low[a * n + j];
+        q_low[a] = reward[a] + gamma * s;
+    }
+    /* action a's possible children: entries ends[a] to ends[a + 1] of nz (nz increases) */
+    Py_ssize_t i = 0;
+    for (Py_ssize_t a = 0; a <= A; a++) {
+        while (i < m && nz[i] < a * n) i++;
+        ends[a] = i;
+    }
+    double cu;
+    if (!stale) {
+        for (Py_ssize_t a = 0; a < A; a++)
+            q_up[a] = refresh(&u, nz, ends[a], ends[a + 1], a, n, up, reward[a], gamma);
+        cu = upper_value(&u, m);
+    } else {
+        /* the lazy loop of _SARSOP._upper_np: refresh the best stale action while it beats
+         * every fresh one (ties within 1e-12 relative go to the lowest index) */
+        memcpy(q_up, v[5].buf, (size_t)A * sizeof(double));
+        memcpy(up, v[6].buf, (size_t)C * sizeof(double));
+        for (Py_ssize_t a = 0; a < A; a++) fresh[a] = 0;
+        int have_top = 0;
+        double top = 0.0;
+        cu = 0.0;
+        for (;;) {
+            double over = 0.0, hi = -INFINITY;
+            int any = 0;
+            if (have_top) over = top + 1e-12 * fmax(1.0, fabs(top));
+            for (Py_ssize_t a = 0; a < A; a++)
+                if (!have_top || (!fresh[a] && q_up[a] > over)) {
+                    if (!any || q_up[a] > hi) hi = q_up[a];
+                    any = 1;
+                }
+            if (!any) break;
+            const double floor_ = hi - 1e-12 * fmax(1.0, fabs(hi));
+            Py_ssize_t pick = -1;
+            for (Py_ssize_t a = 0; a < A && pick < 0; a++)
+                if ((!have_top || (!fresh[a] && q_up[a] > over)) && q_up[a] >= floor_) pick = a;
+            if (pick < 0) break; /* NaN values: nothing compares */
+            if (!have_top) cu = upper_value(&u, m);
+            q_up[pick] = refresh(&u, nz, ends[pick], ends[pick + 1], pick, n, up, reward[pick],
+                                 gamma);
+            fresh[pick] = 1;
+            top = have_top ? fmax(top, q_up[pick]) : q_up[pick];
+            have_top = 1;
+        }
+    }
+    PyMem_Free(ends);
+    PyMem_Free(fresh);
+    release_all(v, NB);
+    if (u.stray) {
+        PyErr_SetString(PyExc_IndexError, "bound_children(): a support index is out of range");
+        return NULL;
+    }
+    return PyFloat_FromDouble(cu);
+}
+
+
+static PyObject *backup_vector(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    static const spec_t spec[6] = {
+        {"T", 3, 'd', 0}, {"z", 3, 'd', 0},   {"r", 1, 'd', 0},
+        {"V", 2, 'd', 0}, {"use", 1, 'q', 0}, {"out", 1, 'd', 1},
+    };
+    Py_buffer v[6];
+    (void)self;
+    if (nargs != 8) {
+        PyErr_Format(PyExc_TypeError, "backup_vector() takes 8 arguments (%zd given)", nargs);
+        return NULL;
+    }
+    const Py_ssize_t a = PyNumber_AsSsize_t(args[5], PyExc_OverflowError);
+    if (a == -1 && PyErr_Occurred()) return NULL;
+    const double gamma = PyFloat_AsDouble(args[6]);
+    if (gamma == -1.0 && PyErr_Occurred()) return NULL;
+    PyObject *const arrays[6] = {args[0], args[1], args[2], args[3], args[4], args[7]};
+    if (get_all(arrays, v, spec, 6) < 0) return NULL;
+    const Py_ssize_t A = v[0].shape[0], S = v[0].shape[1], O = v[1].shape[1];
+    const Py_ssize_t N = v[3].shape[0];
+    if (v[0].shape[2] != S || v[1].shape[0] != A || v[1].shape[2] != S || v[2].shape[0] != S ||
+        v[3].shape[1] != S || v[4].shape[0] != O || v[5].shape[0] != S) {
+        PyErr_Format(PyExc_ValueError,
+                     "backup_vector(): inconsistent shapes for S=%zd states, A=%zd actions, "
+                     "O=%zd observations (T (A, S, S), z (A, O, S), r (S,), V (N, S), "
+                     "use (O,), out (S,))",
+                     S, A, O);
+        release_all(v, 6);
+        return NULL;
+    }
+    const int64_t *use = v[4].buf;
+    const char *bad = NULL;
+    if (a < 0 || a >= A) bad = "the action";
+    for (Py_ssize_t o = 0; o < O && bad == NULL; o++)
+        if (use[o] < 0 || use[o] >= N) bad = "a vector index in use";
+    if (bad != NULL) {
+        PyErr_Format(PyExc_IndexError, "backup_vector(): %s is out of range", bad);
+        release_all(v, 6);
+        return NULL;
+    }
+    double *vals = PyMem_Malloc((size_t)(S > 0 ? S : 1) * sizeof(double));
+    if (vals == NULL) {
+        release_all(v, 6);
+        return PyErr_NoMemory();
+    }
+    const double *T = v[0].buf, *z = v[1].buf, *r = v[2].buf, *V = v[3].buf;
+    double *out = v[5].buf;
+    /* vals[s2] = sum_o Z[a, s2, o] alpha_o[s2]; out[s] = r[s] + gamma T[a, s] . vals */
+    memset(vals, 0, (size_t)S * sizeof(double));
+    for (Py_ssize_t o = 0; o < O; o++) {
+        const double *zo = z + (a * O + o) * S, *w = V + use[o] * S;
+        for (Py_ssize_t s = 0; s < S; s++) vals[s] += zo[s] * w[s];
+    }
+    for (Py_ssize_t s = 0; s < S; s++) {
+        const double *row = T + (a * S + s) * S;
+        double acc = 0.0;
+        for (Py_ssize_t s2 = 0; s2 < S; s2++) acc += row[s2] * vals[s2];
+        out[s] = r[s] + gamma * acc;
+    }
+    PyMem_Free(vals);
+    release_all(v, 6);
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef methods[] = {
+    {"dense_children", (PyCFunction)(void (*)(void))dense_children, METH_FASTCALL,
+     "Children of one belief of a dense flat model (see torchhrc.solvers.backup_kernel)."},
+    {"bound_children", (PyCFunction)(void (*)(void))bound_children, METH_FASTCALL,
+     "Bounds of one belief's children, lazily (see torchhrc.solvers.backup_kernel)."},
+    {"backup_vector", (PyCFunction)(void (*)(void))backup_vector, METH_FASTCALL,
+     "The backed-up alpha vector of one action (see torchhrc.solvers.backup_kernel)."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, "_backup",
+    "Compiled steps of torchhrc's one-belief SARSOP evaluation.", -1, methods,
+};
+
+PyMODINIT_FUNC PyInit__backup(void) { return PyModule_Create(&module); }

@@ -1,0 +1,135 @@
+"""Compiled steps of SARSOP's one-belief evaluation (CPU, float64, one observed value).
+
+A backup of one belief on the CPU is about a hundred numpy calls of one to three
+microseconds each on the small models of the public suite (tiger, 4x3, aloha-10max,
+bridge-repair): the arithmetic is a fraction of it. Two steps are compiled (``_backup.c``,
+built by ``pip install`` beside the sawtooth loop, the CPython API only):
+
+* :func:`dense_children`: the children of one belief of a dense flat model,
+  ``J[a, o] = (b T[a]) * Z[a, :, o]``, their probabilities, the possible ones packed first,
+  and the expected rewards ``R(b, a)`` (the numpy reference:
+  :meth:`~torchhrc.solvers.forms.base.SolverModel.children_np`).
+* :func:`bound_children`: from the lower bounds of the possible children (one BLAS product
+  against the alpha vectors, left to numpy), every child's bounds and ``Q_low``, ``Q_up``,
+  with the sawtooth upper bound evaluated lazily: only the children of the action with the
+  highest cached ``Q_up`` are re-bounded until the best action is one just refreshed (the
+  numpy reference: ``_SARSOP._upper_np``, APPL's ``getNewUBValueUseCache``).
+
+The algorithm is the same; the floats are not always bit-identical to the numpy path, whose
+sums are BLAS's and numpy's pairwise ones where these are sequential (they agree to about
+``1e-15`` relative; a near tie may then go the other way, so a long solve can take another
+path). ``TORCHHRC_NO_EXTENSION=1`` (read when a solver form or a solve is set up) selects the
+numpy path, as it selects the Python sawtooth loop; the tests compare both.
+
+Example:
+    >>> import numpy as np
+    >>> kernel = load()
+    >>> if kernel is not None:  # one state, one action, one observation: J = b, P = 1
+    ...     rows, prob = np.empty((2, 1)), np.empty(1)
+    ...     nz, reward = np.empty(1, dtype=np.int64), np.empty(1)
+    ...     one = np.ones((1, 1, 1))
+    ...     m = dense_children(kernel, np.ones(1), one, one, np.full((1, 1), 2.0),
+    ...                        rows, prob, nz, reward)
+    ...     assert (m, float(prob[0]), float(reward[0])) == (1, 1.0, 2.0)
+"""
+
+from __future__ import annotations
+
+import os
+from types import ModuleType
+
+import numpy as np
+
+__all__ = ["bound_children", "dense_children", "load"]
+
+
+def load() -> ModuleType | None:
+    """The compiled module, or ``None`` when it is not built or ``TORCHHRC_NO_EXTENSION`` is
+    set (the callers then take their numpy path; the sawtooth kernel warns once that the
+    extensions are missing)."""
+    if os.environ.get("TORCHHRC_NO_EXTENSION", "") not in ("", "0"):
+        return None
+    try:
+        from torchhrc.solvers import _backup
+    except ImportError:
+        return None
+    return _backup
+
+
+def dense_children(
+    kernel: ModuleType,
+    b: np.ndarray,
+    T: np.ndarray,
+    z: np.ndarray,
+    RT: np.ndarray,
+    rows: np.ndarray,
+    prob: np.ndarray,
+    nz: np.ndarray,
+    reward: np.ndarray,
+) -> int:
+    """The children of one belief ``b (S,)`` of a dense flat model, written in place.
+
+    Args:
+        kernel: the module of :func:`load`.
+        b: ``(S,)`` float64 belief. T: ``(A, S, S)`` ``T[a, s, s2]``. z: ``(A, O, S)``
+            ``Z[a, s2, o]`` transposed. RT: ``(S, A)`` rewards. All C-contiguous float64.
+        rows: ``(A O + 1, S)`` written: the ``m`` possible unnormalised children
+            (``P > 0``) in ``(a, o)`` order, then ``b`` (rows past ``m + 1`` are scratch).
+        prob: ``(A O,)`` written: ``P(o | b, a)`` of every child.
+        nz: ``(A O,)`` int64 written: the first ``m`` are the possible children's indices.
+        reward: ``(A,)`` written: ``R(b, a)``.
+
+    Returns:
+        ``m``, the number of possible children.
+
+    Raises:
+        TypeError: an array of another dtype, rank, or not C-contiguous (named).
+        ValueError: shapes that do not agree.
+    """
+    return int(kernel.dense_children(b, T, z, RT, rows, prob, nz, reward))
+
+
+def bound_children(
+    kernel: ModuleType,
+    rows: np.ndarray,
+    nz: np.ndarray,
+    low_r: np.ndarray,
+    best_r: np.ndarray,
+    reward: np.ndarray,
+    gamma: float,
+    stale: tuple[np.ndarray, np.ndarray] | None,
+    sawtooth: tuple[np.ndarray, ...],
+    num_children: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """Every child's bounds and the belief's ``Q`` values (see the module docstring).
+
+    Args:
+        kernel: the module of :func:`load`.
+        rows: ``(m + 1, S)`` the possible children, then the belief ``b`` itself.
+        nz: ``(m,)`` int64 increasing indices of the possible children among the ``C``.
+        low_r: ``(m + 1,)`` the rows' lower bounds; best_r: ``(m + 1,)`` int64 their best
+            alpha vectors.
+        reward: ``(A,)`` ``R(b, a)``; the ``C`` children are ``C / A`` per action, in order.
+        gamma: the discount.
+        stale: ``(Q_up (A,), up (C,))`` of the belief's last evaluation (their values stay
+            upper bounds), or ``None``: every possible child is bounded.
+        sawtooth: ``(corner (S,), order, idx, inv, off, wid, gain, key)`` of the upper bound
+            (:meth:`~torchhrc.solvers.upper_bound.SawtoothUpperBound.loop_arrays`).
+        num_children: ``C``.
+
+    Returns:
+        ``low (C,)``, ``best (C,)`` int64 (0 at impossible children), ``q_low (A,)``,
+        ``up (C,)``, ``q_up (A,)`` and ``V_up(b)``.
+    """
+    A = reward.shape[0]
+    low = np.empty(num_children)
+    best = np.empty(num_children, dtype=np.int64)
+    up = np.empty(num_children)
+    q_low, q_up = np.empty(A), np.empty(A)
+    sq, su = stale if stale is not None else (_EMPTY, _EMPTY)
+    cu = kernel.bound_children(rows, nz, low_r, best_r, reward, sq, su, *sawtooth,
+                               low, best, q_low, up, q_up, float(gamma))  # fmt: skip
+    return low, best, q_low, up, q_up, float(cu)
+
+
+_EMPTY = np.empty(0)

@@ -374,45 +374,41 @@ class _AlphaSet:
         counts = np.bincount(obs, minlength=self.num_observed)
         ends = np.cumsum(counts)
         self._gn = counts.astype(np.int64)
-        self._gvec: list[np.ndarray] = []
         self._gcol: list[np.ndarray] = []
         self._gid: list[np.ndarray] = []
         for x in range(self.num_observed):
             ids = order[ends[x] - counts[x] : ends[x]]
             cap = max(4, 2 * ids.size)
-            vec = np.empty((cap, Y), dtype=self.np_vectors.dtype)
-            vec[: ids.size] = self.np_vectors[ids]
             col = np.empty((Y, cap), dtype=self.np_vectors.dtype)
-            col[:, : ids.size] = vec[: ids.size].T
+            col[:, : ids.size] = self.np_vectors[ids].T
             gid = np.empty(cap, dtype=np.int64)
             gid[: ids.size] = ids
-            self._gvec.append(vec)
             self._gcol.append(col)
             self._gid.append(gid)
 
     def group(self, x: int) -> tuple[np.ndarray, np.ndarray]:
-        """``(N_x, Y)`` the vectors of observed value ``x`` and ``(N_x,)`` their indices."""
-        m = self._gn[x]
-        return self._gvec[x][:m], self._gid[x][:m]
+        """``(N_x, Y)`` the vectors of observed value ``x`` (a transposed view of
+        :meth:`group_columns`) and ``(N_x,)`` their indices."""
+        cols, ids = self.group_columns(x)
+        return cols.T, ids
 
     def group_columns(self, x: int) -> tuple[np.ndarray, np.ndarray]:
-        """``(Y, N_x)`` :meth:`group`'s vectors as columns (a view of a ``(Y, capacity)``
-        copy: ``rows @ columns`` is a plain BLAS product, a third faster than
-        ``rows @ vectors.T`` on aloha-10max's 28 x 30 x 600) and ``(N_x,)`` their indices."""
+        """``(Y, N_x)`` the vectors of observed value ``x`` as columns (a view of the group's
+        ``(Y, capacity)`` copy: ``rows @ columns`` is a plain BLAS product, a third faster
+        than ``rows @ vectors.T`` on aloha-10max's 28 x 30 x 600) and ``(N_x,)`` their
+        indices in the flat storage."""
         m = self._gn[x]
         return self._gcol[x][:, :m], self._gid[x][:m]
 
     def _append_group(self, x: int, alpha: np.ndarray, index: int) -> None:
         m = self._gn[x]
         if m == self._gid[x].shape[0]:
-            vec = np.empty((2 * m, self._gvec[x].shape[1]), dtype=self._gvec[x].dtype)
-            vec[:m] = self._gvec[x]
-            col = np.empty((vec.shape[1], 2 * m), dtype=vec.dtype)
-            col[:, :m] = self._gcol[x][:, :m]
+            old = self._gcol[x]
+            col = np.empty((old.shape[0], 2 * m), dtype=old.dtype)
+            col[:, :m] = old[:, :m]
             gid = np.empty(2 * m, dtype=np.int64)
             gid[:m] = self._gid[x]
-            self._gvec[x], self._gcol[x], self._gid[x] = vec, col, gid
-        self._gvec[x][m] = alpha
+            self._gcol[x], self._gid[x] = col, gid
         self._gcol[x][:, m] = alpha
         self._gid[x][m] = index
         self._gn[x] = m + 1
@@ -808,11 +804,11 @@ class _SARSOP:
         # one product against the vectors of all the rows' observed values, masked to each
         # row's own: fewer array ops than one product per observed value
         xs = np.unique(rows_x)
-        blocks = [self.alphas.group(int(u)) for u in xs]
-        V = np.concatenate([v for v, _ in blocks])  # (sum N_x, Y)
+        blocks = [self.alphas.group_columns(int(u)) for u in xs]
+        Vt = np.concatenate([v for v, _ in blocks], axis=1)  # (Y, sum N_x)
         ids = np.concatenate([i for _, i in blocks])
         label = np.repeat(xs, [i.size for _, i in blocks])  # (sum N_x,) observed value
-        scores = rows @ V.T  # (B, sum N_x)
+        scores = rows @ Vt  # (B, sum N_x)
         scores[rows_x[:, None] != label[None, :]] = -np.inf
         j = scores.argmax(-1)
         return scores[np.arange(B), j], ids[j]

@@ -999,15 +999,15 @@ class _SARSOP:
         q_low, q_up, prob, low_c, up_c, best, lo, cu, child_x, own = self._evaluate_np(x, b, stale)
         a = int(q_low.argmax())
         use = best[a]  # (K, O); the impossible children's vectors for this action only
-        possible_a = prob[a].reshape(-1) > 0
-        if not possible_a.all():
-            possible = np.flatnonzero(possible_a)
+        if np.count_nonzero(prob[a]) < prob[a].size:  # P >= 0: some child of a is impossible
+            possible = np.flatnonzero(prob[a].reshape(-1) > 0)
             ch_a = child_x.reshape(best.shape[0], -1)[a]
             use = self._impossible_best_np(x, b, ch_a, possible, own).reshape(use.shape)
             use.reshape(-1)[possible] = best[a].reshape(-1)[possible]
         alpha = self.form.backup_vector_np(x, a, use, self.alphas.np_vectors, self.gamma)
         nl = float(alpha @ b)
-        nu = float(q_up.max())
+        q_up_list = q_up.tolist()
+        nu = max(q_up_list)
         self._cache[int(self.belief_id[node])] = (q_low, q_up, prob, low_c, up_c)
         self._child_best[int(self.belief_id[node])] = best
         if nl > lo + 1e-10 * max(abs(nl), 1.0):
@@ -1017,12 +1017,11 @@ class _SARSOP:
         low, up = max(lo, nl), min(cu, nu)
         tree.lower[node], tree.upper[node] = low, up
         self.backups += 1
-        if self.cfg.prune_nodes:
-            bad = q_up < q_low[a]  # (A,); q_low[a] = max Q_low
-            if bad.any():
-                for c in self.children.get(node, ()):
-                    if bad[tree.action[c]]:
-                        tree.active[c] = False
+        if self.cfg.prune_nodes and min(q_up_list) < q_low[a]:  # q_low[a] = max Q_low
+            bad = q_up < q_low[a]  # (A,)
+            for c in self.children.get(node, ()):
+                if bad[tree.action[c]]:
+                    tree.active[c] = False
         if self.cfg.prediction == "binning":
             self.bins.update(int(self.belief_id[node]), x, b, float(self.entropy[node]), up, low)
 

@@ -106,7 +106,7 @@ class DenseForm(FlatFields, TensorModelForm):
         T, z, _, _, _ = self._cached("kernel", x, lambda: self._kernel_tables(x))
         R = self._cached("R_np", 0, lambda: self.R.contiguous().numpy())  # (A, 1, S)
         out = np.empty(T.shape[1])
-        self._kernel.backup_vector(T, z, R[a, x], vectors, use.reshape(-1), a, gamma, out)
+        self._kernel.backup_vector(T, z, R[a, x], vectors, use.ravel(), a, gamma, out)
         return out
 
     def _kernel_tables(self, x: int) -> tuple[np.ndarray, ...]:

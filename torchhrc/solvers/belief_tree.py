@@ -135,11 +135,15 @@ class BeliefTree:
         n = self.size
         if n <= 1:
             return
-        order = np.argsort(self.depth[:n], kind="stable")
+        depth = self.depth[:n]
+        order = np.argsort(depth, kind="stable")
+        # level d is order[starts[d]:starts[d + 1]] (one pass, not one scan per level: a
+        # trial of a discount-0.99 model is hundreds of levels deep)
+        starts = np.searchsorted(depth[order], np.arange(int(depth.max()) + 2))
         parent = self.parent[:n]
         act = self.active[:n]
-        for d in range(1, int(self.depth[:n].max()) + 1):
-            nodes = order[self.depth[order] == d]
+        for d in range(1, starts.size - 1):
+            nodes = order[starts[d] : starts[d + 1]]
             act[nodes] &= act[parent[nodes]]
 
     def keep_alphas(self, vectors: torch.Tensor, groups: torch.Tensor | None,

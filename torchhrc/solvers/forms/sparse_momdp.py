@@ -16,7 +16,8 @@ gather, each costing ``A Y W`` (``W = 1`` for RockSample) instead of ``A K Y^2``
     backproject[y]     = sum_{k, y2} P(x2_k, y2 | x, y, a) values[k, y2]
 
 The bounds run on the nonzeros sorted by row ``(a, x, y)``: the blind policies (Hauskrecht
-2000; exact by LU up to :data:`~torchhrc.solvers._factored.DIRECT_SOLVE_SIZE` states),
+2000; exact by LU up to :data:`~torchhrc.solvers._factored.SPARSE_DIRECT_SOLVE_SIZE` states,
+iterated above),
 QMDP by value iteration (Littman et al. 1995), and the Fast Informed Bound step summed per
 ``(a, x, y, x2)`` group (skipped when every group has one ``y2``: then FIB equals QMDP). The
 blind and QMDP iterations run on one action of each kind
@@ -35,14 +36,13 @@ Example:
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.solvers._factored import DIRECT_SOLVE_SIZE
+from torchhrc.solvers._factored import SPARSE_DIRECT_SOLVE_SIZE
 from torchhrc.solvers.backup import BackupResult, _padded_vectors, _select_action
 from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.forms.base import FIBOperator, PerObserved, SolverModel, field
@@ -53,6 +53,7 @@ from torchhrc.solvers.sampling import sample_categorical
 from torchhrc.solvers.sparse_model import (
     SparseFlatModel,
     blind_iteration_np,
+    default_blind_iterations,
     qmdp_iteration_np,
     self_loop_probs,
 )
@@ -259,16 +260,17 @@ class SparseMOMDPForm(SolverModel):
 
     def blind_vectors(self, tol: float = 1e-8, max_iterations: int = 100_000) -> torch.Tensor:
         """``(A, X, Y)`` blind-policy vectors ``alpha_a = R_a + gamma P_a alpha_a``
-        (Hauskrecht 2000): exact by LU up to ``DIRECT_SOLVE_SIZE`` states, else iterated
-        from ``min R / (1 - gamma)`` with ``max(new, old)`` (every iterate a lower bound),
-        each state's self-loop solved exactly (:func:`blind_iteration_np`)."""
+        (Hauskrecht 2000): exact by LU up to ``SPARSE_DIRECT_SOLVE_SIZE`` states, else
+        iterated from ``min R / (1 - gamma)`` with ``max(new, old)`` (every iterate a lower
+        bound), each state's self-loop solved exactly (:func:`blind_iteration_np`), as
+        :func:`~torchhrc.solvers.sparse_model.sparse_blind_vectors`."""
         A, X, Y = self.num_actions, self.num_observed, self.num_hidden
         g = self.discount
         if g >= 1.0:
             raise ModelError(f"the blind lower bound needs discount < 1, got {g}")
         S = X * Y
         R = self.R.numpy()
-        if S <= DIRECT_SOLVE_SIZE:
+        if S <= SPARSE_DIRECT_SOLVE_SIZE:
             P = np.zeros((A, S, S), dtype=R.dtype)
             a = self._act
             np.add.at(P, (a, self.row - a * S, self.col), self.prob)
@@ -282,9 +284,9 @@ class SparseMOMDPForm(SolverModel):
         return torch.from_numpy(alpha[inverse])
 
     def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
-        if max_iterations is None:  # the discounted tail below 1e-3 of the first step's
-            g = self.discount
-            max_iterations = int(min(1000, math.ceil(math.log(1e-3) / math.log(g)))) if g > 0 else 1
+        if max_iterations is None:
+            S = self.num_observed * self.num_hidden
+            max_iterations = default_blind_iterations(S, self.discount)
         vectors = self.blind_vectors(max_iterations=max_iterations)
         # one vector per kind of action (the first of each: identical actions have identical
         # vectors, and of equal vectors pruning keeps the first anyway); RockSample(11, 11):

@@ -1,6 +1,8 @@
 """The compiled steps of a one-belief evaluation (:mod:`torchhrc.solvers.backup_kernel`)
-agree with their numpy references (``SolverModel.children_np``'s numpy body and
-``_SARSOP._upper_np``) up to the order of the sums, and reject arrays they cannot read."""
+agree with their numpy references (``SolverModel.children_np``'s numpy body,
+``_SARSOP._upper_np``, and for several observed values ``_SARSOP._lower_np``'s masked product
+and ``SawtoothUpperBound.value_np``'s loop over ``x``) up to the order of the sums, and reject
+arrays they cannot read."""
 
 from __future__ import annotations
 
@@ -14,7 +16,9 @@ from torchhrc.pomdp import POMDP
 from torchhrc.solvers import SARSOPConfig, backup_kernel
 from torchhrc.solvers.forms import as_solver_model
 from torchhrc.solvers.forms.base import TensorModelForm
-from torchhrc.testing import random_pomdp
+from torchhrc.sparse_momdp import SparseMOMDP
+from torchhrc.tasks.classic import rock_sample_momdp
+from torchhrc.testing import random_momdp, random_pomdp
 
 kernel = backup_kernel.load()
 needs_extension = pytest.mark.skipif(kernel is None, reason="the C extension is not built")
@@ -187,6 +191,82 @@ def test_bad_arrays_get_clear_errors() -> None:
     bad = (saw[0], np.array([7]), *saw[2:7], np.array([-1.0]))  # a point past the storage
     with pytest.raises(IndexError, match="a point is out of range"):
         backup_kernel.bound_children(kernel, *args[:7], bad, A * O)
+
+
+@needs_extension
+@pytest.mark.parametrize("name", ["random_dynamic", "random_static", "rocksample_sparse"])
+def test_grouped_evaluation_equals_the_numpy_one(name: str) -> None:
+    """A MOMDP's children have several observed values: each is scored against its own
+    ``x``'s vectors and bounded by its own ``x``'s points, compiled or in numpy, fresh and
+    stale, at the beliefs of a short solve: the same vectors and bounds."""
+    model = {
+        "random_dynamic": lambda: random_momdp(5, 4, 3, 3, static=False, sparsity=0.3, seed=2),
+        "random_static": lambda: random_momdp(6, 3, 2, 4, seed=5, discount=0.9),
+        "rocksample_sparse": lambda: SparseMOMDP.from_dense(rock_sample_momdp(4, 4)),
+    }[name]()
+    solver = _solver(model, 12)
+    assert solver._group_kernel is not None and solver.ub._group_kernel is not None
+    assert solver._kernel is None and solver.ub.size > 0
+    tree = solver.tree
+    nodes = range(min(tree.size, 40))
+    mixed = 0
+    for node in nodes:
+        x, b = int(tree.x[node]), tree.beliefs_np[node]
+        stale = solver._cache.get(int(solver.belief_id[node]))
+        for st in (None, stale):
+            got = solver._evaluate_np(x, b, st)
+            kernels = solver._group_kernel, solver.ub._group_kernel
+            solver._group_kernel = solver.ub._group_kernel = None
+            try:
+                ref = solver._evaluate_np(x, b, st)
+            finally:
+                solver._group_kernel, solver.ub._group_kernel = kernels
+            names = ("q_low", "q_up", "prob", "low", "up", "best", "lo", "cu", "child_x", "own")
+            for nm, g, r in zip(names, got, ref):
+                if nm in ("best", "child_x", "own"):
+                    np.testing.assert_array_equal(g, r, err_msg=nm)
+                else:
+                    np.testing.assert_allclose(g, r, rtol=1e-12, atol=1e-12, err_msg=nm)
+            mixed += np.unique(got[8]).size > 1
+    assert mixed > 0  # the children of some belief lie at several observed values
+
+
+@needs_extension
+def test_group_scores_and_upper_by_hand() -> None:
+    # x = 0 has vectors 5: (1, 0) and 7: (0, 2); x = 1 has 2: (1, 1) and 9: (2, 0)
+    gcol = [np.array([[1.0, 0.0, -9.0], [0.0, 2.0, -9.0]]), np.array([[1.0, 2.0], [1.0, 0.0]])]
+    gid = [np.array([5, 7, -1]), np.array([2, 9])]
+    gn = np.array([2, 2])
+    rows = np.array([[1.0, 0.0], [0.5, 0.5], [0.2, 0.4]])
+    val, best = backup_kernel.group_scores(kernel, rows, np.array([0, 1, 0]), gcol, gid, gn)
+    # row 0 at x=0: 1 vs 0; row 1 at x=1: 1 vs 1, a tie to the first; row 2 at x=0: 0.2 vs 0.8
+    assert val.tolist() == [1.0, 1.0, 0.8] and best.tolist() == [5, 2, 7]
+    # the upper bound: corner[x] . b, lowered by x's one point b_1 = (0.5, 0.5) of value 1
+    # at x = 1 (corner (4, 2): gain 1 - 3 = -2): row (0.2, 0.4) at x = 1: 1.6 - 2 * 0.4 = 0.8
+    corner = np.array([[1.0, 1.0], [4.0, 2.0]])
+    idx, inv = np.array([0, 1]), np.array([2.0, 2.0])
+    off, wid, gain = np.array([0]), np.array([2]), np.array([-2.0])
+    sorted_points = [(np.zeros(0, dtype=np.int64), np.zeros(0)), (np.array([0]), np.array([-2.0]))]
+    out = np.empty(3)
+    backup_kernel.group_upper(kernel, rows, np.array([0, 1, 1]), corner, sorted_points, idx, inv,
+                              off, wid, gain, out)  # fmt: skip
+    np.testing.assert_allclose(out, [1.0, 3.0 - 2.0, 1.6 - 0.8], rtol=0, atol=1e-15)
+    # errors name the argument
+    with pytest.raises(TypeError, match="gcol to be a list"):
+        backup_kernel.group_scores(kernel, rows, np.array([0, 1, 0]), tuple(gcol), gid, gn)
+    with pytest.raises(IndexError, match="observed value 2, outside"):
+        backup_kernel.group_scores(kernel, rows, np.array([0, 2, 0]), gcol, gid, gn)
+    with pytest.raises(ValueError, match="n=0 >= 1 vectors"):
+        backup_kernel.group_scores(kernel, rows, np.array([0, 1, 0]), gcol, gid, np.array([0, 2]))
+    with pytest.raises(ValueError, match="rows_x, val and best of B=3"):
+        backup_kernel.group_scores(kernel, rows, np.array([0, 1]), gcol, gid, gn)
+    with pytest.raises(TypeError, match="sorted\\[0\\] to be an \\(order, key\\) pair"):
+        backup_kernel.group_upper(kernel, rows, np.array([0, 1, 1]), corner, [None, None], idx,
+                                  inv, off, wid, gain, out)  # fmt: skip
+    far = [sorted_points[0], (np.array([3]), np.array([-2.0]))]  # a point past the storage
+    with pytest.raises(IndexError, match="a point is out of range"):
+        backup_kernel.group_upper(kernel, rows, np.array([0, 1, 1]), corner, far, idx, inv,
+                                  off, wid, gain, out)  # fmt: skip
 
 
 def test_the_environment_switch_selects_the_numpy_path(monkeypatch: pytest.MonkeyPatch) -> None:

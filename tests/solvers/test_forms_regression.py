@@ -9,8 +9,9 @@ form (dense flat, MOMDP-factored, sparse flat) the model is held in.
 Each SARSOP case is recorded twice: on the numpy path (``backup_kernel.load`` returning
 ``None``: the rows recorded before the compiled steps existed, unchanged) and with the compiled
 steps of :mod:`torchhrc.solvers.backup_kernel` (key ``"<case>#compiled"``), whose sequential
-sums may differ from BLAS's in the last bit. A case without a compiled step (a MOMDP) records
-the same numbers both ways.
+sums may differ from BLAS's in the last bit (with several observed values, a MOMDP, the
+compiled steps are the children's scores and sawtooth values of ``group_scores`` and
+``group_upper``).
 
 Regenerate (only when a change of the algorithm is intended, and say so in the commit)::
 

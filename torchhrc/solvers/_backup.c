@@ -15,6 +15,19 @@
  *   as in _sawtooth.c (order, idx, inv, off, wid, gain, key); written: low (C,),
  *   best (C,) int64, q_low (A,), up (C,), q_up (A,); gamma a float. Returns V_up(b).
  *
+ * group_scores(rows, rows_x, gcol, gid, gn, val, best) -> None
+ *   rows (B, Y) float64, rows_x (B,) int64 each row's observed value, gcol and gid lists of
+ *   (at least) X arrays: gcol[x] (Y, cap_x) float64 the vectors of x as columns, gid[x]
+ *   (cap_x,) int64 their indices; gn (X,) int64 how many of each are in use. Written:
+ *   val (B,) the best score of each row among its own x's vectors, best (B,) int64 that
+ *   vector's index (the first maximum in group order, as numpy's argmax).
+ *
+ * group_upper(rows, rows_x, corner, sorted, idx, inv, off, wid, gain, out) -> None
+ *   rows (B, Y) float64, rows_x (B,) int64, corner (X, Y) float64, sorted a list of X
+ *   (order (P_x,) int64, key (P_x,) float64) pairs (each row's x built), then the sawtooth
+ *   storage (idx, inv, off, wid, gain) as in _sawtooth.c. Written: out (B,) the sawtooth
+ *   upper bound of each row at its own x, corner[x] . b + the correction of x's points.
+ *
  * backup_vector(T, z, r, V, use, a, gamma, out) -> None
  *   T (A, S, S), z (A, O, S), r (S,) = R[a], V (N, S) alpha vectors, use (O,) int64 the
  *   vector of each observation; written: out (S,) the new alpha vector
@@ -343,11 +356,267 @@ static PyObject *backup_vector(PyObject *self, PyObject *const *args, Py_ssize_t
     Py_RETURN_NONE;
 }
 
+/* Borrowed item x of a list, checked to be one. */
+static PyObject *list_item(PyObject *list, const char *name, Py_ssize_t x) {
+    if (!PyList_Check(list)) {
+        PyErr_Format(PyExc_TypeError, "group_scores(): expected %s to be a list of arrays, got %s",
+                     name, Py_TYPE(list)->tp_name);
+        return NULL;
+    }
+    if (x >= PyList_GET_SIZE(list)) {
+        PyErr_Format(PyExc_ValueError,
+                     "group_scores(): %s has %zd entries, observed value %zd has none", name,
+                     PyList_GET_SIZE(list), x);
+        return NULL;
+    }
+    return PyList_GET_ITEM(list, x);
+}
+
+static PyObject *group_scores(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    static const spec_t spec[5] = {
+        {"rows", 2, 'd', 0}, {"rows_x", 1, 'q', 0}, {"gn", 1, 'q', 0},
+        {"val", 1, 'd', 1},  {"best", 1, 'q', 1},
+    };
+    Py_buffer v[5];
+    (void)self;
+    if (nargs != 7) {
+        PyErr_Format(PyExc_TypeError, "group_scores() takes 7 arguments (%zd given)", nargs);
+        return NULL;
+    }
+    PyObject *const arrays[5] = {args[0], args[1], args[4], args[5], args[6]};
+    PyObject *gcol = args[2], *gid = args[3];
+    if (get_all(arrays, v, spec, 5) < 0) return NULL;
+    const Py_ssize_t B = v[0].shape[0], Y = v[0].shape[1], X = v[2].shape[0];
+    if (v[1].shape[0] != B || v[3].shape[0] != B || v[4].shape[0] != B) {
+        PyErr_Format(PyExc_ValueError,
+                     "group_scores(): expected rows_x, val and best of B=%zd entries (rows' "
+                     "rows), got %zd, %zd and %zd",
+                     B, v[1].shape[0], v[3].shape[0], v[4].shape[0]);
+        release_all(v, 5);
+        return NULL;
+    }
+    /* each group's buffers are taken once, on its first row */
+    Py_buffer *cb = PyMem_Calloc((size_t)(X > 0 ? X : 1), 2 * sizeof(Py_buffer));
+    char *got = PyMem_Calloc((size_t)(X > 0 ? X : 1), 1);
+    double *acc = NULL;
+    Py_ssize_t acc_size = 0;
+    int failed = 0;
+    if (cb == NULL || got == NULL) {
+        PyErr_NoMemory();
+        failed = 1;
+    }
+    const double *rows = v[0].buf;
+    const int64_t *rows_x = v[1].buf, *gn = v[2].buf;
+    double *val = v[3].buf;
+    int64_t *best = v[4].buf;
+    for (Py_ssize_t i = 0; i < B && !failed; i++) {
+        const int64_t x = rows_x[i];
+        if (x < 0 || x >= X) {
+            PyErr_Format(PyExc_IndexError,
+                         "group_scores(): row %zd has observed value %lld, outside [0, %zd)", i,
+                         (long long)x, X);
+            failed = 1;
+            break;
+        }
+        const int64_t n = gn[x];
+        Py_buffer *col = &cb[2 * x], *ids = &cb[2 * x + 1];
+        if (!got[x]) {
+            PyObject *c = list_item(gcol, "gcol", x), *d = c ? list_item(gid, "gid", x) : NULL;
+            if (d == NULL || get_buffer(c, col, 2, 'd', "gcol[x]", 0) < 0) {
+                failed = 1;
+                break;
+            }
+            if (get_buffer(d, ids, 1, 'q', "gid[x]", 0) < 0) {
+                PyBuffer_Release(col);
+                failed = 1;
+                break;
+            }
+            got[x] = 1;
+            if (col->shape[0] != Y || col->shape[1] < n || ids->shape[0] < n || n < 1) {
+                PyErr_Format(PyExc_ValueError,
+                             "group_scores(): observed value %lld: expected gcol[x] (Y=%zd, "
+                             "cap >= n) and gid[x] (cap,) with n=%lld >= 1 vectors, got (%zd, "
+                             "%zd) and (%zd,)",
+                             (long long)x, Y, (long long)n, col->shape[0], col->shape[1],
+                             ids->shape[0]);
+                failed = 1;
+                break;
+            }
+        }
+        if (n > acc_size) {
+            PyMem_Free(acc);
+            acc = PyMem_Malloc((size_t)n * sizeof(double));
+            acc_size = n;
+            if (acc == NULL) {
+                PyErr_NoMemory();
+                failed = 1;
+                break;
+            }
+        }
+        /* scores of every vector of x: the sum over the row's support, column by column */
+        const double *b = rows + i * Y, *c = col->buf;
+        const Py_ssize_t cap = col->shape[1];
+        memset(acc, 0, (size_t)n * sizeof(double));
+        for (Py_ssize_t y = 0; y < Y; y++) {
+            const double w = b[y];
+            if (w == 0.0) continue;
+            const double *cy = c + y * cap;
+            for (int64_t j = 0; j < n; j++) acc[j] += w * cy[j];
+        }
+        int64_t arg = 0;
+        double top = acc[0];
+        if (top == top)
+            for (int64_t j = 1; j < n; j++) {
+                if (acc[j] != acc[j]) { /* NaN: numpy's argmax takes the first */
+                    arg = j;
+                    top = acc[j];
+                    break;
+                }
+                if (acc[j] > top) {
+                    top = acc[j];
+                    arg = j;
+                }
+            }
+        val[i] = top;
+        best[i] = ((const int64_t *)ids->buf)[arg];
+    }
+    for (Py_ssize_t x = 0; cb != NULL && got != NULL && x < X; x++)
+        if (got[x]) {
+            PyBuffer_Release(&cb[2 * x]);
+            PyBuffer_Release(&cb[2 * x + 1]);
+        }
+    PyMem_Free(cb);
+    PyMem_Free(got);
+    PyMem_Free(acc);
+    release_all(v, 5);
+    if (failed) return NULL;
+    Py_RETURN_NONE;
+}
+
+static PyObject *group_upper(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    enum { NB = 9 };
+    static const spec_t spec[NB] = {
+        {"rows", 2, 'd', 0}, {"rows_x", 1, 'q', 0}, {"corner", 2, 'd', 0},
+        {"idx", 1, 'q', 0},  {"inv", 1, 'd', 0},    {"off", 1, 'q', 0},
+        {"wid", 1, 'q', 0},  {"gain", 1, 'd', 0},   {"out", 1, 'd', 1},
+    };
+    Py_buffer v[NB];
+    (void)self;
+    if (nargs != NB + 1) {
+        PyErr_Format(PyExc_TypeError, "group_upper() takes %d arguments (%zd given)", NB + 1,
+                     nargs);
+        return NULL;
+    }
+    PyObject *const arrays[NB] = {args[0], args[1], args[2], args[4], args[5],
+                                  args[6], args[7], args[8], args[9]};
+    PyObject *sorted = args[3];
+    if (get_all(arrays, v, spec, NB) < 0) return NULL;
+    const Py_ssize_t B = v[0].shape[0], Y = v[0].shape[1], X = v[2].shape[0];
+    const Py_ssize_t E = v[3].shape[0], cap = v[5].shape[0];
+    if (v[1].shape[0] != B || v[8].shape[0] != B || v[2].shape[1] != Y || v[4].shape[0] != E ||
+        v[6].shape[0] != cap || v[7].shape[0] != cap) {
+        PyErr_Format(PyExc_ValueError,
+                     "group_upper(): inconsistent shapes: expected rows (B, Y), rows_x and out "
+                     "(B,), corner (X, Y), the sawtooth storage of _sawtooth.corrections "
+                     "(B=%zd, Y=%zd)",
+                     B, Y);
+        release_all(v, NB);
+        return NULL;
+    }
+    if (!PyList_Check(sorted) || PyList_GET_SIZE(sorted) < X) {
+        PyErr_Format(PyExc_TypeError,
+                     "group_upper(): expected sorted to be a list of X=%zd (order, key) pairs, "
+                     "got %s",
+                     X, Py_TYPE(sorted)->tp_name);
+        release_all(v, NB);
+        return NULL;
+    }
+    Py_buffer *pb = PyMem_Calloc((size_t)(X > 0 ? X : 1), 2 * sizeof(Py_buffer));
+    char *got = PyMem_Calloc((size_t)(X > 0 ? X : 1), 1);
+    int failed = 0, stray = 0;
+    if (pb == NULL || got == NULL) {
+        PyErr_NoMemory();
+        failed = 1;
+    }
+    const double *rows = v[0].buf, *corner = v[2].buf, *inv = v[4].buf, *gain = v[7].buf;
+    const int64_t *rows_x = v[1].buf, *idx = v[3].buf, *off = v[5].buf, *wid = v[6].buf;
+    double *out = v[8].buf;
+    for (Py_ssize_t i = 0; i < B && !failed; i++) {
+        const int64_t x = rows_x[i];
+        if (x < 0 || x >= X) {
+            PyErr_Format(PyExc_IndexError,
+                         "group_upper(): row %zd has observed value %lld, outside [0, %zd)", i,
+                         (long long)x, X);
+            failed = 1;
+            break;
+        }
+        Py_buffer *order = &pb[2 * x], *key = &pb[2 * x + 1];
+        if (!got[x]) {
+            PyObject *pair = PyList_GET_ITEM(sorted, x);
+            if (!PyTuple_Check(pair) || PyTuple_GET_SIZE(pair) != 2) {
+                PyErr_Format(PyExc_TypeError,
+                             "group_upper(): expected sorted[%lld] to be an (order, key) pair, "
+                             "got %s",
+                             (long long)x, Py_TYPE(pair)->tp_name);
+                failed = 1;
+                break;
+            }
+            if (get_buffer(PyTuple_GET_ITEM(pair, 0), order, 1, 'q', "order", 0) < 0) {
+                failed = 1;
+                break;
+            }
+            if (get_buffer(PyTuple_GET_ITEM(pair, 1), key, 1, 'd', "key", 0) < 0) {
+                PyBuffer_Release(order);
+                failed = 1;
+                break;
+            }
+            got[x] = 1;
+            if (key->shape[0] != order->shape[0] ||
+                !points_in_range(order->buf, order->shape[0], off, wid, cap, E)) {
+                PyErr_Format(PyExc_IndexError,
+                             "group_upper(): observed value %lld: a point is out of range, or "
+                             "order and key differ in length",
+                             (long long)x);
+                failed = 1;
+                break;
+            }
+        }
+        const double *b = rows + i * Y, *c = corner + x * Y;
+        double base = 0.0, mass = 0.0;
+        for (Py_ssize_t y = 0; y < Y; y++) {
+            base += b[y] * c[y];
+            mass += b[y];
+        }
+        const Py_ssize_t P = order->shape[0];
+        out[i] = P == 0 ? base
+                        : base + sawtooth_row(b, Y, mass, order->buf, P, key->buf, idx, inv, off,
+                                              wid, gain, NULL, (uint64_t)Y, 0, &stray);
+    }
+    for (Py_ssize_t x = 0; pb != NULL && got != NULL && x < X; x++)
+        if (got[x]) {
+            PyBuffer_Release(&pb[2 * x]);
+            PyBuffer_Release(&pb[2 * x + 1]);
+        }
+    PyMem_Free(pb);
+    PyMem_Free(got);
+    release_all(v, NB);
+    if (failed) return NULL;
+    if (stray) {
+        PyErr_SetString(PyExc_IndexError, "group_upper(): a support index is out of range");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"dense_children", (PyCFunction)(void (*)(void))dense_children, METH_FASTCALL,
      "Children of one belief of a dense flat model (see torchhrc.solvers.backup_kernel)."},
     {"bound_children", (PyCFunction)(void (*)(void))bound_children, METH_FASTCALL,
      "Bounds of one belief's children, lazily (see torchhrc.solvers.backup_kernel)."},
+    {"group_scores", (PyCFunction)(void (*)(void))group_scores, METH_FASTCALL,
+     "Best alpha vector of each row among its observed value's (see backup_kernel)."},
+    {"group_upper", (PyCFunction)(void (*)(void))group_upper, METH_FASTCALL,
+     "Sawtooth upper bound of each row at its own observed value (see backup_kernel)."},
     {"backup_vector", (PyCFunction)(void (*)(void))backup_vector, METH_FASTCALL,
      "The backed-up alpha vector of one action (see torchhrc.solvers.backup_kernel)."},
     {NULL, NULL, 0, NULL},

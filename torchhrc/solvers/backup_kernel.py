@@ -15,6 +15,16 @@ built by ``pip install`` beside the sawtooth loop, the CPython API only):
   highest cached ``Q_up`` are re-bounded until the best action is one just refreshed (the
   numpy reference: ``_SARSOP._upper_np``, APPL's ``getNewUBValueUseCache``).
 
+* :func:`group_scores`: the best alpha vector at each of a belief's children when they have
+  several observed values (a MOMDP): each child against its own ``x``'s vectors only (the
+  numpy reference, ``_SARSOP._lower_np``, takes one product against the vectors of every
+  ``x`` among the children and masks the others out: twenty times the arithmetic on a
+  20-position random MOMDP).
+
+* :func:`group_upper`: the sawtooth upper bound of rows of several observed values, each at
+  its own ``x``'s points (the numpy reference: the per-``x`` loop of
+  :meth:`~torchhrc.solvers.upper_bound.SawtoothUpperBound.value_np`).
+
 The algorithm is the same; the floats are not always bit-identical to the numpy path, whose
 sums are BLAS's and numpy's pairwise ones where these are sequential (they agree to about
 ``1e-15`` relative; a near tie may then go the other way, so a long solve can take another
@@ -40,7 +50,7 @@ from types import ModuleType
 
 import numpy as np
 
-__all__ = ["bound_children", "dense_children", "load"]
+__all__ = ["bound_children", "dense_children", "group_scores", "group_upper", "load"]
 
 
 def load() -> ModuleType | None:
@@ -130,6 +140,77 @@ def bound_children(
     cu = kernel.bound_children(rows, nz, low_r, best_r, reward, sq, su, *sawtooth,
                                low, best, q_low, up, q_up, float(gamma))  # fmt: skip
     return low, best, q_low, up, q_up, float(cu)
+
+
+def group_scores(
+    kernel: ModuleType,
+    rows: np.ndarray,
+    rows_x: np.ndarray,
+    gcol: list[np.ndarray],
+    gid: list[np.ndarray],
+    gn: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``max_n rows[i] . V_n`` over the vectors ``n`` of row ``i``'s own observed value, and
+    the argmax (the first maximum in group order, as ``numpy.argmax``).
+
+    Args:
+        kernel: the module of :func:`load`.
+        rows: ``(B, Y)`` C-contiguous float64 (unnormalised) beliefs.
+        rows_x: ``(B,)`` int64 their observed values.
+        gcol, gid: per observed value ``x``, ``(Y, cap_x)`` float64 its vectors as columns
+            and ``(cap_x,)`` int64 their indices (``_AlphaSet``'s group storage).
+        gn: ``(X,)`` int64 the vectors in use per group (at least one where a row needs it).
+
+    Returns:
+        ``(B,)`` the best scores and ``(B,)`` int64 the indices of the vectors.
+
+    Raises:
+        TypeError: an array of another dtype or rank, not C-contiguous, or ``gcol`` / ``gid``
+            not lists (named).
+        ValueError: shapes that do not agree, or a group without vectors.
+        IndexError: an observed value outside ``[0, X)``.
+    """
+    B = rows.shape[0]
+    val = np.empty(B)
+    best = np.empty(B, dtype=np.int64)
+    kernel.group_scores(rows, rows_x, gcol, gid, gn, val, best)
+    return val, best
+
+
+def group_upper(
+    kernel: ModuleType,
+    rows: np.ndarray,
+    rows_x: np.ndarray,
+    corner: np.ndarray,
+    sorted_points: list[tuple[np.ndarray, np.ndarray] | None],
+    idx: np.ndarray,
+    inv: np.ndarray,
+    off: np.ndarray,
+    wid: np.ndarray,
+    gain: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """The sawtooth upper bound ``corner[x] . b + correction`` of each row at its own ``x``,
+    written into ``out (B,)``.
+
+    Args:
+        kernel: the module of :func:`load`.
+        rows: ``(B, Y)`` C-contiguous float64 non-negative weights; rows_x: ``(B,)`` int64.
+        corner: ``(X, Y)`` float64 corner values.
+        sorted_points: per observed value, ``(order (P_x,) int64, key (P_x,) float64)``: its
+            points with a negative gain by increasing key (built for every ``x`` of
+            ``rows_x``; :meth:`~torchhrc.solvers.upper_bound.SawtoothUpperBound.value_np`).
+        idx, inv, off, wid, gain: the points' storage, as
+            :func:`~torchhrc.solvers.sawtooth_kernel.sawtooth_corrections`.
+        out: ``(B,)`` float64, written.
+
+    Raises:
+        TypeError: an array of another dtype or rank, not C-contiguous, or an entry of
+            ``sorted_points`` that is not a pair (named).
+        ValueError: shapes that do not agree. IndexError: an observed value or a point out
+            of range.
+    """
+    kernel.group_upper(rows, rows_x, corner, sorted_points, idx, inv, off, wid, gain, out)
 
 
 _EMPTY = np.empty(0)

@@ -705,8 +705,10 @@ class _SARSOP:
         self._np = self.device.type == "cpu"
         # the compiled bounds of a belief's children (backup_kernel): one observed value,
         # float64 on the CPU
-        usable = self._np and self.X == 1 and cfg.dtype == torch.float64
-        self._kernel = backup_kernel.load() if usable else None
+        kernel = backup_kernel.load() if self._np and cfg.dtype == torch.float64 else None
+        self._kernel = kernel if self.X == 1 else None
+        # and, with several observed values, each child's best vector among its own x's
+        self._group_kernel = kernel if self.X > 1 else None
         lo, up = self._root_bounds()
         self.tree.lower[0], self.tree.upper[0] = lo, up
 
@@ -804,6 +806,12 @@ class _SARSOP:
             scores[rows_x[:, None] != self.alphas.np_observed[None, :n]] = -np.inf
             best = scores.argmax(-1)
             return scores[np.arange(scores.shape[0]), best], best
+        if self._group_kernel is not None:
+            a = self.alphas
+            return backup_kernel.group_scores(
+                self._group_kernel, np.ascontiguousarray(rows), rows_x.astype(np.int64, copy=False),
+                a._gcol, a._gid, a._gn,
+            )  # fmt: skip
         B = rows.shape[0]
         first = rows_x[0]
         if (rows_x == first).all():

@@ -40,6 +40,7 @@ import numpy as np
 import torch
 
 from torchhrc.errors import ModelError
+from torchhrc.solvers import backup_kernel
 from torchhrc.solvers.sawtooth_kernel import sawtooth_corrections
 
 __all__ = ["SawtoothUpperBound"]
@@ -100,6 +101,10 @@ class SawtoothUpperBound:
         # per observed value, its points with a negative gain by increasing key g_i / s_i and
         # those keys (the order of the compiled loop, sawtooth_kernel); None: to be rebuilt
         self._sorted: list[tuple[np.ndarray, np.ndarray] | None] = [None] * X
+        # several observed values, float64 on the CPU: queries of mixed x in one compiled
+        # call (backup_kernel.group_upper) instead of one loop call per x
+        usable = self._np is not None and X > 1 and dt == torch.float64
+        self._group_kernel = backup_kernel.load() if usable else None
 
     # -- storage -----------------------------------------------------------------------------
     def _views(self) -> None:
@@ -391,6 +396,14 @@ class SawtoothUpperBound:
             local[columns] = np.arange(columns.size)
         if self.size == 0 or B == 0:
             return base
+        if self._group_kernel is not None and local is None:
+            for u in set(x.tolist()):  # every row's x in key order
+                self._sorted_points(u)
+            out = np.empty(B)
+            backup_kernel.group_upper(self._group_kernel, np.ascontiguousarray(beliefs),
+                                      x.astype(np.int64, copy=False), corner, self._sorted,
+                                      idx, inv, off, wid, gain, out)  # fmt: skip
+            return out
         first = int(x[0])
         if self.num_observed == 1 or (x == first).all():  # one observed value: all rows at once
             rows = _ROWS[:B] if B <= _ROWS.size else np.arange(B)

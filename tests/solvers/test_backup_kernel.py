@@ -258,7 +258,10 @@ def test_group_scores_and_upper_by_hand() -> None:
         backup_kernel.group_scores(kernel, rows, np.array([0, 2, 0]), gcol, gid, gn)
     with pytest.raises(ValueError, match="n=0 >= 1 vectors"):
         backup_kernel.group_scores(kernel, rows, np.array([0, 1, 0]), gcol, gid, np.array([0, 2]))
-    with pytest.raises(ValueError, match="rows_x, val and best of B=3"):
+    # one row, scored under each x: (0.5, 0.5) at x = 0 (0.5 vs 1) and at x = 1 (the tie)
+    val, best = backup_kernel.group_scores(kernel, rows[1:2], np.array([0, 1]), gcol, gid, gn)
+    assert val.tolist() == [1.0, 1.0] and best.tolist() == [7, 2]
+    with pytest.raises(ValueError, match="rows of B=2 rows"):
         backup_kernel.group_scores(kernel, rows, np.array([0, 1]), gcol, gid, gn)
     with pytest.raises(TypeError, match="sorted\\[0\\] to be an \\(order, key\\) pair"):
         backup_kernel.group_upper(kernel, rows, np.array([0, 1, 1]), corner, [None, None], idx,

@@ -16,7 +16,8 @@
  *   best (C,) int64, q_low (A,), up (C,), q_up (A,); gamma a float. Returns V_up(b).
  *
  * group_scores(rows, rows_x, gcol, gid, gn, val, best) -> None
- *   rows (B, Y) float64, rows_x (B,) int64 each row's observed value, gcol and gid lists of
+ *   rows (B, Y) or (1, Y) float64 (one row: scored at each x of rows_x), rows_x (B,) int64
+ *   each row's observed value, gcol and gid lists of
  *   (at least) X arrays: gcol[x] (Y, cap_x) float64 the vectors of x as columns, gid[x]
  *   (cap_x,) int64 their indices; gn (X,) int64 how many of each are in use. Written:
  *   val (B,) the best score of each row among its own x's vectors, best (B,) int64 that
@@ -386,12 +387,14 @@ static PyObject *group_scores(PyObject *self, PyObject *const *args, Py_ssize_t 
     PyObject *const arrays[5] = {args[0], args[1], args[4], args[5], args[6]};
     PyObject *gcol = args[2], *gid = args[3];
     if (get_all(arrays, v, spec, 5) < 0) return NULL;
-    const Py_ssize_t B = v[0].shape[0], Y = v[0].shape[1], X = v[2].shape[0];
-    if (v[1].shape[0] != B || v[3].shape[0] != B || v[4].shape[0] != B) {
+    const Py_ssize_t B = v[1].shape[0], Y = v[0].shape[1], X = v[2].shape[0];
+    const Py_ssize_t step = v[0].shape[0] == 1 ? 0 : Y; /* one row: scored at every x */
+    if ((v[0].shape[0] != B && v[0].shape[0] != 1) || v[3].shape[0] != B ||
+        v[4].shape[0] != B) {
         PyErr_Format(PyExc_ValueError,
-                     "group_scores(): expected rows_x, val and best of B=%zd entries (rows' "
-                     "rows), got %zd, %zd and %zd",
-                     B, v[1].shape[0], v[3].shape[0], v[4].shape[0]);
+                     "group_scores(): expected rows of B=%zd rows (rows_x's length) or one, "
+                     "val and best of B entries, got %zd, %zd and %zd",
+                     B, v[0].shape[0], v[3].shape[0], v[4].shape[0]);
         release_all(v, 5);
         return NULL;
     }
@@ -454,7 +457,7 @@ static PyObject *group_scores(PyObject *self, PyObject *const *args, Py_ssize_t 
             }
         }
         /* scores of every vector of x: the sum over the row's support, column by column */
-        const double *b = rows + i * Y, *c = col->buf;
+        const double *b = rows + i * step, *c = col->buf;
         const Py_ssize_t cap = col->shape[1];
         memset(acc, 0, (size_t)n * sizeof(double));
         for (Py_ssize_t y = 0; y < Y; y++) {

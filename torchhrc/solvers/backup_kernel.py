@@ -155,8 +155,9 @@ def group_scores(
 
     Args:
         kernel: the module of :func:`load`.
-        rows: ``(B, Y)`` C-contiguous float64 (unnormalised) beliefs.
-        rows_x: ``(B,)`` int64 their observed values.
+        rows: ``(B, Y)`` C-contiguous float64 (unnormalised) beliefs, or ``(1, Y)``: one
+            belief, scored under each observed value of ``rows_x``.
+        rows_x: ``(B,)`` int64 the rows' observed values.
         gcol, gid: per observed value ``x``, ``(Y, cap_x)`` float64 its vectors as columns
             and ``(cap_x,)`` int64 their indices (``_AlphaSet``'s group storage).
         gn: ``(X,)`` int64 the vectors in use per group (at least one where a row needs it).
@@ -170,7 +171,7 @@ def group_scores(
         ValueError: shapes that do not agree, or a group without vectors.
         IndexError: an observed value outside ``[0, X)``.
     """
-    B = rows.shape[0]
+    B = rows_x.shape[0]
     val = np.empty(B)
     best = np.empty(B, dtype=np.int64)
     kernel.group_scores(rows, rows_x, gcol, gid, gn, val, best)

@@ -1005,6 +1005,12 @@ class _SARSOP:
         if own is not None and (cx == x).all():  # a flat model: always
             best[imp] = own
             return best
+        if self._group_kernel is not None:  # b itself under each child's x, one call
+            best[imp] = backup_kernel.group_scores(
+                self._group_kernel, b.reshape(1, -1), cx.astype(np.int64, copy=False),
+                self.alphas._gcol, self.alphas._gid, self.alphas._gn,
+            )[1]  # fmt: skip
+            return best
         ux, inv = np.unique(cx, return_inverse=True)
         _, ids = self._lower_np(np.broadcast_to(b, (ux.size, b.shape[0])), ux)
         best[imp] = ids[inv]

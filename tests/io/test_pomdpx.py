@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from torchhrc.errors import ParseError
+from torchhrc.io import pomdpx as pomdpx_module
 from torchhrc.io.pomdpx import (
     format_pomdpx,
     parse_pomdpx,
@@ -239,6 +240,37 @@ def _corridor() -> MOMDP:
         actions=("left", "right", "push"),
         observations=("see-open", "see-closed"),
     )
+
+
+@pytest.mark.parametrize("overlap", [True, False])
+def test_numeric_entries_read_in_one_pass_later_ones_win(overlap, monkeypatch):
+    """Entries of numbers only are read in one numpy pass (never per entry); where two name
+    the same cell the later one wins, as APPL reads them."""
+    first = "* - -" if overlap else "open-left - -"
+    obs = f"""<Entry><Instance>{first}</Instance><ProbTable>0.5 0.5 0.5 0.5</ProbTable></Entry>
+        <Entry><Instance>listen - -</Instance><ProbTable>0.85 0.15 0.15 0.85</ProbTable></Entry>
+        <Entry><Instance>open-right - -</Instance><ProbTable>0.5 0.5 0.5 0.5</ProbTable></Entry>"""
+    if overlap:  # and an earlier, overridden value of the listen rows
+        obs = obs.replace("</Entry>", "</Entry><Entry><Instance>listen - -</Instance>"
+                          "<ProbTable>1 0 0 1</ProbTable></Entry>", 1)  # fmt: skip
+        obs += """<Entry><Instance>listen - -</Instance>
+            <ProbTable>0.85 0.15 0.15 0.85</ProbTable></Entry>"""
+    start = TIGER_PX.index("<ObsFunction>")
+    end = TIGER_PX.index("</ObsFunction>")
+    text = (TIGER_PX[:start] + '<ObsFunction><CondProb><Var>hear</Var><Parent>act tiger_1</Parent>'
+            f'<Parameter type="TBL">{obs}</Parameter></CondProb>' + TIGER_PX[end:])  # fmt: skip
+
+    batched = pomdpx_module._Reader._entries_batched
+    took: dict[str, bool] = {}
+
+    def spy(self, param, table, axes, kind, value_tag):
+        took[kind] = batched(self, param, table, axes, kind, value_tag)
+        return took[kind]
+
+    monkeypatch.setattr(pomdpx_module._Reader, "_entries_batched", spy)
+    m = read_pomdpx(text)
+    assert took["observation"]  # (the transitions name "identity": read per entry)
+    _same_pomdp(m, tiger())
 
 
 def test_two_variable_momdp_by_hand():

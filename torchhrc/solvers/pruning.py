@@ -30,10 +30,12 @@ from torchhrc.errors import ModelError
 __all__ = ["prune_by_beliefs", "prune_dominated"]
 
 _CHUNK_ELEMENTS = 1 << 22  # booleans of the (chunk, N, S) comparison tensor held at once
-# floats of one gathered (pairs, S) block of the grouped tests (8 MB in float64): with
-# 1 << 24 the gathers, products and comparisons of one chunk took 128 MB each, the peak
-# memory of a whole solve (RockSample_7_8.pomdpx: 790 MB, against 410 MB between prunings)
-_GATHER_ELEMENTS = 1 << 20
+# floats of one gathered (pairs, S) block of the grouped tests, and of one (beliefs, vectors)
+# score block (2 MB in float64): with 1 << 24 the gathers, products and comparisons of one
+# chunk took 128 MB each, the peak memory of a whole solve (RockSample_7_8.pomdpx: 790 MB,
+# against 410 MB between prunings); with 1 << 20 a pruning still raised Hallway2's peak by
+# 22 MB (60 CPU-s: 364 MB, APPL 172 MB), at no measurable gain in speed over 1 << 18
+_GATHER_ELEMENTS = 1 << 18
 _PROBE_STATES = 8  # states compared first in the grouped dominance test
 
 

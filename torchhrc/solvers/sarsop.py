@@ -102,6 +102,7 @@ from threadpoolctl import threadpool_limits
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers import backup_kernel
+from torchhrc.solvers._memory import release_free_memory
 from torchhrc.solvers.clock import Clock, Deadline, check_clock, clock_function
 from torchhrc.solvers.forms import SolverModel, as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
@@ -334,15 +335,16 @@ class _AlphaSet:
             # pairs fail), the full rows for the survivors; the first dominating candidate
             # wins, as an argmax over the full comparison would pick
             Cp = C[:, probe]  # (c, k)
-            step = max(1, (1 << 24) // (cand.size * probe.size))
+            # (step, c, k) booleans at once: 4 MB (16 MB raised Hallway2's peak memory)
+            step = max(1, (1 << 22) // (cand.size * probe.size))
             for start in range(0, rows.size, step):
                 chunk = rows[start : start + step]
                 Vn = V[need[chunk]]  # (n, Y)
                 ii, jj = np.nonzero((Cp[None, :, :] >= Vn[:, None, probe]).all(-1))
-                # the survivors' full rows in blocks of about 1M floats (8 MB), not all at
+                # the survivors' full rows in blocks of about 256k floats (2 MB), not all at
                 # once (up to 2e8 floats: the peak memory of a solve)
                 ok = np.empty(ii.size, dtype=bool)
-                block = max(1, (1 << 20) // Y)
+                block = max(1, (1 << 18) // Y)
                 for b0 in range(0, ii.size, block):
                     sl = slice(b0, b0 + block)
                     ok[sl] = (C[jj[sl]] >= Vn[ii[sl]]).all(-1)
@@ -1307,45 +1309,57 @@ class _SARSOP:
         return self.clock() + seconds * size / max(at, 1) < self.deadline
 
     def prune(self) -> None:
+        pruned = self._prune_alphas()
+        if self._prune_points() or pruned:
+            release_free_memory()  # what the pruning freed, back to the OS (see _memory)
+        if self.cfg.prune_nodes:
+            self.tree.refresh_active()
+
+    def _prune_alphas(self) -> bool:
+        """Prune the alpha vectors when the set has grown enough; whether it ran."""
         cfg = self.cfg
-        if (
+        if not (
             cfg.prune_alphas
             and self.alphas.size > cfg.prune_growth * max(self.last_alpha_prune, 16)
             and self._affordable("alphas", self.alphas.size)
         ):
-            t0 = self.clock()
-            n = self.alphas.size
-            vec, obs = self.alphas.vectors[:n], self.alphas.observed[:n]
-            groups = obs if self.X > 1 else None
-            act = np.flatnonzero(self.tree.active[: self.tree.size])
-            # the winners at the tree beliefs, and (in keep) every vector they were built
-            # from: a backup chooses child vectors at children outside the tree, and without
-            # them the greedy policy cannot realise a kept vector's value (before:
-            # RockSample_7_8.pomdpx, written policy 16.4 simulated against a lower bound 20.3)
-            mask = self.tree.keep_alphas(vec, groups, act)
-            # and the best vectors at the children of the active tree beliefs (APPL certifies
-            # a vector at any belief of its cache, the unexpanded children of the tree
-            # included): a backup of a tree belief combines the best vectors at its children,
-            # and pruning those would lower the children's bounds, which only a search that
-            # reaches each child again restores
-            mask[torch.from_numpy(self._child_winners(act)).to(mask.device)] = True
-            self.alphas.keep(mask)
-            # the next pruning protects the children of the beliefs evaluated from now on
-            self._child_best = {}
-            self.last_alpha_prune = self.alphas.size
-            self._prune_cost["alphas"] = (self.clock() - t0, n)
-        self._prune_points()
+            return False
+        t0 = self.clock()
+        n = self.alphas.size
+        vec, obs = self.alphas.vectors[:n], self.alphas.observed[:n]
+        groups = obs if self.X > 1 else None
+        act = np.flatnonzero(self.tree.active[: self.tree.size])
+        # the winners at the tree beliefs, and (in keep) every vector they were built
+        # from: a backup chooses child vectors at children outside the tree, and without
+        # them the greedy policy cannot realise a kept vector's value (before:
+        # RockSample_7_8.pomdpx, written policy 16.4 simulated against a lower bound 20.3)
+        mask = self.tree.keep_alphas(vec, groups, act)
+        # and the best vectors at the children of the active tree beliefs (APPL certifies
+        # a vector at any belief of its cache, the unexpanded children of the tree
+        # included): a backup of a tree belief combines the best vectors at its children,
+        # and pruning those would lower the children's bounds, which only a search that
+        # reaches each child again restores
+        mask[torch.from_numpy(self._child_winners(act)).to(mask.device)] = True
+        self.alphas.keep(mask)
+        # the next pruning protects the children of the beliefs evaluated from now on
+        self._child_best = {}
+        self.last_alpha_prune = self.alphas.size
+        self._prune_cost["alphas"] = (self.clock() - t0, n)
+        return True
 
-    def _prune_points(self) -> None:
+    def _prune_points(self) -> bool:
+        """Prune the upper-bound points when they have grown enough; whether it ran."""
         cfg = self.cfg
         n = self.ub.size
-        if n > cfg.prune_growth * max(self.last_point_prune, 64) and self._affordable("points", n):
-            t0 = self.clock()
-            self.ub.prune()
-            self.last_point_prune = self.ub.size
-            self._prune_cost["points"] = (self.clock() - t0, n)
-        if cfg.prune_nodes:
-            self.tree.refresh_active()
+        if n <= cfg.prune_growth * max(self.last_point_prune, 64) or not self._affordable(
+            "points", n
+        ):
+            return False
+        t0 = self.clock()
+        self.ub.prune()
+        self.last_point_prune = self.ub.size
+        self._prune_cost["points"] = (self.clock() - t0, n)
+        return True
 
     def sweep(self) -> None:
         """Back up every active tree node, one batched backup per observed value."""

@@ -390,3 +390,18 @@ def test_corrupted_files_raise_parse_error_or_parse_to_a_valid_model(text):
             m = m.to_dense()
         m.validate()  # a file that still parses gives a valid model
         assert torch.isfinite(m.R).all()
+
+
+_TOKEN_CHARS = list("T:0a-_.# \t\n\r\x0b\x0c\x1c\x85\u00a0\u2003\u2028x9")
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.text(alphabet=st.sampled_from(_TOKEN_CHARS), max_size=80))
+def test_tokens_are_the_grammar_tokens(text: str) -> None:
+    """The tokenizer (str.split after dropping comments and spacing the colons) gives exactly
+    the tokens of the grammar's regex: runs of characters other than whitespace, ':' and '#',
+    and each ':' alone, with '#' to the end of the line a comment."""
+    from torchhrc.io.cassandra import _TOKEN, _Parser
+
+    want = [t for t in _TOKEN.findall(text) if t]
+    assert _Parser(text, "<text>").tokens == want

@@ -86,7 +86,10 @@ static PyObject *dense_children(PyObject *self, PyObject *const *args, Py_ssize_
         return NULL;
     }
     double *pred = PyMem_Malloc((size_t)(S > 0 ? S : 1) * sizeof(double));
-    if (pred == NULL) {
+    Py_ssize_t *supp = PyMem_Malloc((size_t)(S > 0 ? S : 1) * sizeof(Py_ssize_t));
+    if (pred == NULL || supp == NULL) {
+        PyMem_Free(pred);
+        PyMem_Free(supp);
         release_all(v, 8);
         return PyErr_NoMemory();
     }
@@ -103,17 +106,22 @@ static PyObject *dense_children(PyObject *self, PyObject *const *args, Py_ssize_
             const double *row = T + (a * S + s1) * S;
             for (Py_ssize_t s = 0; s < S; s++) pred[s] += w * row[s];
         }
+        /* the support of pred: a child is pred * Z[a, :, o], 0 elsewhere (TagAvoid as a flat
+         * POMDP: 870 observations, a handful of predicted states; every row written in full
+         * was 30 MB of stores per belief) */
+        Py_ssize_t n = 0;
+        for (Py_ssize_t s = 0; s < S; s++)
+            if (pred[s] != 0.0) supp[n++] = s;
         for (Py_ssize_t o = 0; o < O; o++) {
             const double *zo = z + (a * O + o) * S;
-            double *out = rows + m * S; /* written in place; kept when possible */
-            double p = 0.0;
-            for (Py_ssize_t s = 0; s < S; s++) {
-                const double c = pred[s] * zo[s];
-                out[s] = c;
-                p += c;
-            }
+            double p = 0.0; /* the same sum, in the same order, as over every state */
+            for (Py_ssize_t k = 0; k < n; k++) p += pred[supp[k]] * zo[supp[k]];
             prob[a * O + o] = p;
-            if (p > 0.0) nz[m++] = a * O + o;
+            if (!(p > 0.0)) continue;
+            double *out = rows + m * S; /* the m-th possible child */
+            memset(out, 0, (size_t)S * sizeof(double));
+            for (Py_ssize_t k = 0; k < n; k++) out[supp[k]] = pred[supp[k]] * zo[supp[k]];
+            nz[m++] = a * O + o;
         }
         double r = 0.0;
         for (Py_ssize_t s = 0; s < S; s++) r += b[s] * RT[s * A + a];
@@ -121,6 +129,7 @@ static PyObject *dense_children(PyObject *self, PyObject *const *args, Py_ssize_
     }
     memcpy(rows + m * S, b, (size_t)S * sizeof(double));
     PyMem_Free(pred);
+    PyMem_Free(supp);
     release_all(v, 8);
     return PyLong_FromSsize_t(m);
 }

@@ -366,6 +366,43 @@ static PyObject *backup_vector(PyObject *self, PyObject *const *args, Py_ssize_t
     Py_RETURN_NONE;
 }
 
+/* Two buffers per observed value x (a group's arrays), taken on the group's first row and
+ * released together. */
+typedef struct {
+    Py_buffer *buf; /* (2 X,): buf[2 x], buf[2 x + 1] */
+    char *got;      /* (X,) */
+    Py_ssize_t X;
+} groups_t;
+
+static int groups_init(groups_t *g, Py_ssize_t X) {
+    g->X = X;
+    g->buf = PyMem_Calloc((size_t)(X > 0 ? X : 1), 2 * sizeof(Py_buffer));
+    g->got = PyMem_Calloc((size_t)(X > 0 ? X : 1), 1);
+    if (g->buf == NULL || g->got == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    return 0;
+}
+
+static void groups_release(groups_t *g) {
+    for (Py_ssize_t x = 0; g->buf != NULL && g->got != NULL && x < g->X; x++)
+        if (g->got[x]) {
+            PyBuffer_Release(&g->buf[2 * x]);
+            PyBuffer_Release(&g->buf[2 * x + 1]);
+        }
+    PyMem_Free(g->buf);
+    PyMem_Free(g->got);
+}
+
+/* Whether row i's observed value x lies in [0, X); an IndexError names the function if not. */
+static int row_x_ok(const char *fn, Py_ssize_t i, int64_t x, Py_ssize_t X) {
+    if (x >= 0 && x < X) return 1;
+    PyErr_Format(PyExc_IndexError, "%s(): row %zd has observed value %lld, outside [0, %zd)", fn,
+                 i, (long long)x, X);
+    return 0;
+}
+
 /* Borrowed item x of a list, checked to be one. */
 static PyObject *list_item(PyObject *list, const char *name, Py_ssize_t x) {
     if (!PyList_Check(list)) {
@@ -407,32 +444,23 @@ static PyObject *group_scores(PyObject *self, PyObject *const *args, Py_ssize_t 
         release_all(v, 5);
         return NULL;
     }
-    /* each group's buffers are taken once, on its first row */
-    Py_buffer *cb = PyMem_Calloc((size_t)(X > 0 ? X : 1), 2 * sizeof(Py_buffer));
-    char *got = PyMem_Calloc((size_t)(X > 0 ? X : 1), 1);
+    groups_t g; /* each group's buffers are taken once, on its first row */
     double *acc = NULL;
     Py_ssize_t acc_size = 0;
-    int failed = 0;
-    if (cb == NULL || got == NULL) {
-        PyErr_NoMemory();
-        failed = 1;
-    }
+    int failed = groups_init(&g, X) < 0;
     const double *rows = v[0].buf;
     const int64_t *rows_x = v[1].buf, *gn = v[2].buf;
     double *val = v[3].buf;
     int64_t *best = v[4].buf;
     for (Py_ssize_t i = 0; i < B && !failed; i++) {
         const int64_t x = rows_x[i];
-        if (x < 0 || x >= X) {
-            PyErr_Format(PyExc_IndexError,
-                         "group_scores(): row %zd has observed value %lld, outside [0, %zd)", i,
-                         (long long)x, X);
+        if (!row_x_ok("group_scores", i, x, X)) {
             failed = 1;
             break;
         }
         const int64_t n = gn[x];
-        Py_buffer *col = &cb[2 * x], *ids = &cb[2 * x + 1];
-        if (!got[x]) {
+        Py_buffer *col = &g.buf[2 * x], *ids = &g.buf[2 * x + 1];
+        if (!g.got[x]) {
             PyObject *c = list_item(gcol, "gcol", x), *d = c ? list_item(gid, "gid", x) : NULL;
             if (d == NULL || get_buffer(c, col, 2, 'd', "gcol[x]", 0) < 0) {
                 failed = 1;
@@ -443,7 +471,7 @@ static PyObject *group_scores(PyObject *self, PyObject *const *args, Py_ssize_t 
                 failed = 1;
                 break;
             }
-            got[x] = 1;
+            g.got[x] = 1;
             if (col->shape[0] != Y || col->shape[1] < n || ids->shape[0] < n || n < 1) {
                 PyErr_Format(PyExc_ValueError,
                              "group_scores(): observed value %lld: expected gcol[x] (Y=%zd, "
@@ -492,13 +520,7 @@ static PyObject *group_scores(PyObject *self, PyObject *const *args, Py_ssize_t 
         val[i] = top;
         best[i] = ((const int64_t *)ids->buf)[arg];
     }
-    for (Py_ssize_t x = 0; cb != NULL && got != NULL && x < X; x++)
-        if (got[x]) {
-            PyBuffer_Release(&cb[2 * x]);
-            PyBuffer_Release(&cb[2 * x + 1]);
-        }
-    PyMem_Free(cb);
-    PyMem_Free(got);
+    groups_release(&g);
     PyMem_Free(acc);
     release_all(v, 5);
     if (failed) return NULL;
@@ -543,27 +565,19 @@ static PyObject *group_upper(PyObject *self, PyObject *const *args, Py_ssize_t n
         release_all(v, NB);
         return NULL;
     }
-    Py_buffer *pb = PyMem_Calloc((size_t)(X > 0 ? X : 1), 2 * sizeof(Py_buffer));
-    char *got = PyMem_Calloc((size_t)(X > 0 ? X : 1), 1);
-    int failed = 0, stray = 0;
-    if (pb == NULL || got == NULL) {
-        PyErr_NoMemory();
-        failed = 1;
-    }
+    groups_t g; /* each x's (order, key), taken on its first row */
+    int stray = 0, failed = groups_init(&g, X) < 0;
     const double *rows = v[0].buf, *corner = v[2].buf, *inv = v[4].buf, *gain = v[7].buf;
     const int64_t *rows_x = v[1].buf, *idx = v[3].buf, *off = v[5].buf, *wid = v[6].buf;
     double *out = v[8].buf;
     for (Py_ssize_t i = 0; i < B && !failed; i++) {
         const int64_t x = rows_x[i];
-        if (x < 0 || x >= X) {
-            PyErr_Format(PyExc_IndexError,
-                         "group_upper(): row %zd has observed value %lld, outside [0, %zd)", i,
-                         (long long)x, X);
+        if (!row_x_ok("group_upper", i, x, X)) {
             failed = 1;
             break;
         }
-        Py_buffer *order = &pb[2 * x], *key = &pb[2 * x + 1];
-        if (!got[x]) {
+        Py_buffer *order = &g.buf[2 * x], *key = &g.buf[2 * x + 1];
+        if (!g.got[x]) {
             PyObject *pair = PyList_GET_ITEM(sorted, x);
             if (!PyTuple_Check(pair) || PyTuple_GET_SIZE(pair) != 2) {
                 PyErr_Format(PyExc_TypeError,
@@ -582,7 +596,7 @@ static PyObject *group_upper(PyObject *self, PyObject *const *args, Py_ssize_t n
                 failed = 1;
                 break;
             }
-            got[x] = 1;
+            g.got[x] = 1;
             if (key->shape[0] != order->shape[0] ||
                 !points_in_range(order->buf, order->shape[0], off, wid, cap, E)) {
                 PyErr_Format(PyExc_IndexError,
@@ -604,13 +618,7 @@ static PyObject *group_upper(PyObject *self, PyObject *const *args, Py_ssize_t n
                         : base + sawtooth_row(b, Y, mass, order->buf, P, key->buf, idx, inv, off,
                                               wid, gain, NULL, (uint64_t)Y, 0, &stray);
     }
-    for (Py_ssize_t x = 0; pb != NULL && got != NULL && x < X; x++)
-        if (got[x]) {
-            PyBuffer_Release(&pb[2 * x]);
-            PyBuffer_Release(&pb[2 * x + 1]);
-        }
-    PyMem_Free(pb);
-    PyMem_Free(got);
+    groups_release(&g);
     release_all(v, NB);
     if (failed) return NULL;
     if (stray) {

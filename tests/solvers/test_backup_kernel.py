@@ -143,15 +143,15 @@ def test_a_stale_evaluation_refreshes_only_what_can_win() -> None:
     Action 1's cached Q_up (5) beats action 0's (3): it is refreshed to 1 + 0.5 * 2 = 2,
     then action 0 (3 > 2) is refreshed to 0 + 0.5 * 4 = 2; both now fresh, the loop stops."""
     rows = np.array([[1.0, 0.0], [0.0, 1.0], [0.5, 0.5]])  # children of a=0, a=1, then b
-    corner = np.array([4.0, 2.0])
-    nz = np.array([0, 1])
+    corner = np.array([[4.0, 2.0]])  # one observed value
+    nz, rx = np.array([0, 1]), np.zeros(3, dtype=np.int64)
     empty_i, empty_f = np.empty(0, dtype=np.int64), np.empty(0)
-    saw = (corner, empty_i, empty_i, empty_f, empty_i, empty_i, empty_f, empty_f)
+    saw = (corner, [(empty_i, empty_f)], empty_i, empty_f, empty_i, empty_i, empty_f)
     low_r, best_r = np.array([1.0, 2.0, 1.5]), np.array([3, 4, 5])
     reward = np.array([0.0, 1.0])
     stale = (np.array([3.0, 5.0]), np.array([7.0, 9.0]))
     low, best, q_low, up, q_up, cu = backup_kernel.bound_children(
-        kernel, rows, nz, low_r, best_r, reward, 0.5, stale, saw, 2
+        kernel, rows, rx, nz, low_r, best_r, reward, 0.5, stale, saw, 2
     )
     assert up.tolist() == [4.0, 2.0] and q_up.tolist() == [2.0, 2.0] and cu == 3.0
     assert low.tolist() == [1.0, 2.0] and best.tolist() == [3, 4]
@@ -159,12 +159,12 @@ def test_a_stale_evaluation_refreshes_only_what_can_win() -> None:
     # action 0 cached below what action 1 refreshes to: it stays stale (1 < 2)
     stale = (np.array([1.0, 5.0]), np.array([7.0, 9.0]))
     _, _, _, up, q_up, _ = backup_kernel.bound_children(
-        kernel, rows, nz, low_r, best_r, reward, 0.5, stale, saw, 2
+        kernel, rows, rx, nz, low_r, best_r, reward, 0.5, stale, saw, 2
     )
     assert up.tolist() == [7.0, 2.0] and q_up.tolist() == [1.0, 2.0]
     # an impossible child (nz = [1]): 0 in low, best and up; its action sums nothing
     _, best, q_low, up, q_up, cu = backup_kernel.bound_children(
-        kernel, rows[1:], nz[1:], low_r[1:], best_r[1:], reward, 0.5, None, saw, 2
+        kernel, rows[1:], rx[1:], nz[1:], low_r[1:], best_r[1:], reward, 0.5, None, saw, 2
     )
     assert best.tolist() == [0, 4] and q_low.tolist() == [0.0, 2.0] and up.tolist() == [0.0, 2.0]
     assert q_up.tolist() == [0.0, 2.0] and cu == 3.0
@@ -189,21 +189,24 @@ def test_bad_arrays_get_clear_errors() -> None:
     with pytest.raises(ValueError, match=r"S=3 states, A=2 actions, O=2 observations"):
         backup_kernel.dense_children(kernel, b, T, z, RT, rows[:-1], prob, nz, reward)
     empty_i, empty_f = np.empty(0, dtype=np.int64), np.empty(0)
-    saw = (np.zeros(S), empty_i, empty_i, empty_f, empty_i, empty_i, empty_f, empty_f)
-    args = (rows, np.arange(A * O), np.zeros(A * O + 1), np.zeros(A * O + 1, dtype=np.int64),
-            np.zeros(A), 0.9, None, saw, A * O)  # fmt: skip
+    saw = (np.zeros((1, S)), [(empty_i, empty_f)], empty_i, empty_f, empty_i, empty_i, empty_f)
+    rx = np.zeros(A * O + 1, dtype=np.int64)
+    args = (rows, rx, np.arange(A * O), np.zeros(A * O + 1),
+            np.zeros(A * O + 1, dtype=np.int64), np.zeros(A), 0.9, None, saw, A * O)  # fmt: skip
     backup_kernel.bound_children(kernel, *args)
     with pytest.raises(IndexError, match="nz must increase strictly"):
-        backup_kernel.bound_children(kernel, rows, np.array([0, 2, 1, 3]), *args[2:])
+        backup_kernel.bound_children(kernel, rows, rx, np.array([0, 2, 1, 3]), *args[3:])
     with pytest.raises(ValueError, match="m \\+ 1 rows"):
         backup_kernel.bound_children(kernel, rows[:-1], *args[1:])
     with pytest.raises(ValueError, match="multiple of A actions"):
         backup_kernel.bound_children(kernel, *args[:-1], 5)
     with pytest.raises(ValueError, match="stale_q"):
-        backup_kernel.bound_children(kernel, *args[:6], (np.zeros(A), np.zeros(1)), *args[7:])
-    bad = (saw[0], np.array([7]), *saw[2:7], np.array([-1.0]))  # a point past the storage
+        backup_kernel.bound_children(kernel, *args[:7], (np.zeros(A), np.zeros(1)), *args[8:])
+    far = [(np.array([7]), np.array([-1.0]))]  # a point past the storage
     with pytest.raises(IndexError, match="a point is out of range"):
-        backup_kernel.bound_children(kernel, *args[:7], bad, A * O)
+        backup_kernel.bound_children(kernel, *args[:8], (saw[0], far, *saw[2:]), A * O)
+    with pytest.raises(IndexError, match="observed value 1, outside"):
+        backup_kernel.bound_children(kernel, rows, rx + 1, *args[2:])
 
 
 @needs_extension
@@ -218,10 +221,9 @@ def test_grouped_evaluation_equals_the_numpy_one(name: str) -> None:
         "rocksample_sparse": lambda: SparseMOMDP.from_dense(rock_sample_momdp(4, 4)),
     }[name]()
     solver = _solver(model, 12)
-    assert solver._group_kernel is not None and solver.ub._group_kernel is not None
-    assert solver._kernel is None and solver.ub.size > 0
-    got = _assert_both_paths_agree(solver, [(solver, "_group_kernel"),
-                                            (solver.ub, "_group_kernel")])  # fmt: skip
+    assert solver._kernel is not None and solver.ub._group_kernel is not None
+    assert solver.ub.size > 0
+    got = _assert_both_paths_agree(solver, [(solver, "_kernel"), (solver.ub, "_group_kernel")])
     # the children of some belief lie at several observed values
     assert any(np.unique(ev[8]).size > 1 for ev in got)
 
@@ -242,9 +244,9 @@ def test_group_scores_and_upper_by_hand() -> None:
     idx, inv = np.array([0, 1]), np.array([2.0, 2.0])
     off, wid, gain = np.array([0]), np.array([2]), np.array([-2.0])
     sorted_points = [(np.zeros(0, dtype=np.int64), np.zeros(0)), (np.array([0]), np.array([-2.0]))]
-    out = np.empty(3)
-    backup_kernel.group_upper(kernel, rows, np.array([0, 1, 1]), corner, sorted_points, idx, inv,
-                              off, wid, gain, out)  # fmt: skip
+    out, storage = np.empty(3), (idx, inv, off, wid, gain)
+    backup_kernel.group_upper(kernel, rows, np.array([0, 1, 1]), (corner, sorted_points, *storage),
+                              out)  # fmt: skip
     np.testing.assert_allclose(out, [1.0, 3.0 - 2.0, 1.6 - 0.8], rtol=0, atol=1e-15)
     # errors name the argument
     with pytest.raises(TypeError, match="gcol to be a list"):
@@ -259,12 +261,12 @@ def test_group_scores_and_upper_by_hand() -> None:
     with pytest.raises(ValueError, match="rows of B=2 rows"):
         backup_kernel.group_scores(kernel, rows, np.array([0, 1]), gcol, gid, gn)
     with pytest.raises(TypeError, match="sorted\\[0\\] to be an \\(order, key\\) pair"):
-        backup_kernel.group_upper(kernel, rows, np.array([0, 1, 1]), corner, [None, None], idx,
-                                  inv, off, wid, gain, out)  # fmt: skip
+        backup_kernel.group_upper(kernel, rows, np.array([0, 1, 1]),
+                                  (corner, [None, None], *storage), out)  # fmt: skip
     far = [sorted_points[0], (np.array([3]), np.array([-2.0]))]  # a point past the storage
     with pytest.raises(IndexError, match="a point is out of range"):
-        backup_kernel.group_upper(kernel, rows, np.array([0, 1, 1]), corner, far, idx, inv,
-                                  off, wid, gain, out)  # fmt: skip
+        backup_kernel.group_upper(kernel, rows, np.array([0, 1, 1]), (corner, far, *storage),
+                                  out)  # fmt: skip
 
 
 def test_the_environment_switch_selects_the_numpy_path(monkeypatch: pytest.MonkeyPatch) -> None:

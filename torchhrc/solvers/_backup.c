@@ -1,4 +1,4 @@
-/* Compiled steps of SARSOP's one-belief evaluation for models with one observed value: see
+/* Compiled steps of SARSOP's one-belief evaluation on the CPU: see
  * torchhrc/solvers/backup_kernel.py, which documents both functions and their numpy
  * references (DenseForm.children_np's numpy body and _SARSOP._upper_np), and checks the
  * arguments' dtypes before the call. The per-call work is small (tens of states and
@@ -8,12 +8,13 @@
  *   b (S,), T (A, S, S), z (A, O, S), RT (S, A) float64; written: rows (A O + 1, S),
  *   prob (A O,), nz (A O,) int64, reward (A,). Returns the number m of possible children.
  *
- * bound_children(rows, nz, low_r, best_r, reward, stale_q, stale_up, corner, order, idx,
- *                inv, off, wid, gain, key, low, best, q_low, up, q_up, gamma) -> cu
- *   rows (m + 1, S), nz (m,) int64, low_r (m + 1,), best_r (m + 1,) int64, reward (A,),
- *   stale_q (A,) and stale_up (C,) or both empty, corner (S,), then the sawtooth storage
- *   as in _sawtooth.c (order, idx, inv, off, wid, gain, key); written: low (C,),
- *   best (C,) int64, q_low (A,), up (C,), q_up (A,); gamma a float. Returns V_up(b).
+ * bound_children(rows, rows_x, nz, low_r, best_r, reward, stale_q, stale_up, corner,
+ *                sorted, idx, inv, off, wid, gain, low, best, q_low, up, q_up, gamma) -> cu
+ *   rows (m + 1, S), rows_x (m + 1,) int64 their observed values, nz (m,) int64,
+ *   low_r (m + 1,), best_r (m + 1,) int64, reward (A,), stale_q (A,) and stale_up (C,) or
+ *   both empty, then the upper bound as group_upper reads it (corner (X, S), sorted, idx,
+ *   inv, off, wid, gain); written: low (C,), best (C,) int64, q_low (A,), up (C,),
+ *   q_up (A,); gamma a float. Returns V_up(b).
  *
  * group_scores(rows, rows_x, gcol, gid, gn, val, best) -> None
  *   rows (B, Y) or (1, Y) float64 (one row: scored at each x of rows_x), rows_x (B,) int64
@@ -58,6 +59,43 @@ static int get_all(PyObject *const *args, Py_buffer *v, const spec_t *spec, int 
 
 static void release_all(Py_buffer *v, int n) {
     for (int i = 0; i < n; i++) PyBuffer_Release(&v[i]);
+}
+
+/* Two buffers per observed value x (a group's arrays), taken on the group's first row and
+ * released together. */
+typedef struct {
+    Py_buffer *buf; /* (2 X,): buf[2 x], buf[2 x + 1] */
+    char *got;      /* (X,) */
+    Py_ssize_t X;
+} groups_t;
+
+static int groups_init(groups_t *g, Py_ssize_t X) {
+    g->X = X;
+    g->buf = PyMem_Calloc((size_t)(X > 0 ? X : 1), 2 * sizeof(Py_buffer));
+    g->got = PyMem_Calloc((size_t)(X > 0 ? X : 1), 1);
+    if (g->buf == NULL || g->got == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    return 0;
+}
+
+static void groups_release(groups_t *g) {
+    for (Py_ssize_t x = 0; g->buf != NULL && g->got != NULL && x < g->X; x++)
+        if (g->got[x]) {
+            PyBuffer_Release(&g->buf[2 * x]);
+            PyBuffer_Release(&g->buf[2 * x + 1]);
+        }
+    PyMem_Free(g->buf);
+    PyMem_Free(g->got);
+}
+
+/* Whether row i's observed value x lies in [0, X); an IndexError names the function if not. */
+static int row_x_ok(const char *fn, Py_ssize_t i, int64_t x, Py_ssize_t X) {
+    if (x >= 0 && x < X) return 1;
+    PyErr_Format(PyExc_IndexError, "%s(): row %zd has observed value %lld, outside [0, %zd)", fn,
+                 i, (long long)x, X);
+    return 0;
 }
 
 static PyObject *dense_children(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
@@ -134,83 +172,134 @@ static PyObject *dense_children(PyObject *self, PyObject *const *args, Py_ssize_
     return PyLong_FromSsize_t(m);
 }
 
-/* V_up of row i: corner . row + the sawtooth correction. */
+/* The sawtooth upper bound of rows of several observed values, each at its own x (rows_x):
+ * corner[x] . b plus the correction of x's points (one observed value: X = 1). */
 typedef struct {
-    const double *rows, *corner, *key, *inv, *gain;
-    const int64_t *order, *idx, *off, *wid;
-    Py_ssize_t S, P;
+    const double *rows, *corner, *inv, *gain;
+    const int64_t *rows_x, *idx, *off, *wid;
+    Py_ssize_t Y;
+    groups_t g; /* per x: its points' order and keys */
     int stray;
-} upper_t;
+} saw_t;
 
-static double upper_value(upper_t *u, Py_ssize_t i) {
-    const double *b = u->rows + i * u->S;
-    double base = 0.0, mass = 0.0;
-    for (Py_ssize_t s = 0; s < u->S; s++) {
-        base += b[s] * u->corner[s];
-        mass += b[s];
+/* Take the (order, key) pair of every x among rows_x[0..B) from the list sorted, checked
+ * against the storage (cap points, E entries). -1 with an exception set on failure; the
+ * caller releases u->g either way. */
+static int saw_take(saw_t *u, PyObject *sorted, Py_ssize_t X, Py_ssize_t B, Py_ssize_t cap,
+                    Py_ssize_t E, const char *fn) {
+    if (groups_init(&u->g, X) < 0) return -1;
+    if (!PyList_Check(sorted) || PyList_GET_SIZE(sorted) < X) {
+        PyErr_Format(PyExc_TypeError,
+                     "%s(): expected sorted to be a list of X=%zd (order, key) pairs, got %s", fn,
+                     X, Py_TYPE(sorted)->tp_name);
+        return -1;
     }
-    if (u->P == 0) return base;
-    return base + sawtooth_row(b, u->S, mass, u->order, u->P, u->key, u->idx, u->inv, u->off,
-                               u->wid, u->gain, NULL, (uint64_t)u->S, 0, &u->stray);
+    for (Py_ssize_t i = 0; i < B; i++) {
+        const int64_t x = u->rows_x[i];
+        if (!row_x_ok(fn, i, x, X)) return -1;
+        if (u->g.got[x]) continue;
+        Py_buffer *order = &u->g.buf[2 * x], *key = &u->g.buf[2 * x + 1];
+        PyObject *pair = PyList_GET_ITEM(sorted, x);
+        if (!PyTuple_Check(pair) || PyTuple_GET_SIZE(pair) != 2) {
+            PyErr_Format(PyExc_TypeError,
+                         "%s(): expected sorted[%lld] to be an (order, key) pair, got %s", fn,
+                         (long long)x, Py_TYPE(pair)->tp_name);
+            return -1;
+        }
+        if (get_buffer(PyTuple_GET_ITEM(pair, 0), order, 1, 'q', "order", 0) < 0) return -1;
+        if (get_buffer(PyTuple_GET_ITEM(pair, 1), key, 1, 'd', "key", 0) < 0) {
+            PyBuffer_Release(order);
+            return -1;
+        }
+        u->g.got[x] = 1;
+        if (key->shape[0] != order->shape[0] ||
+            !points_in_range(order->buf, order->shape[0], u->off, u->wid, cap, E)) {
+            PyErr_Format(PyExc_IndexError,
+                         "%s(): observed value %lld: a point is out of range, or order and key "
+                         "differ in length",
+                         fn, (long long)x);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+/* V_up of row i at its own x. */
+static double saw_value(saw_t *u, Py_ssize_t i) {
+    const int64_t x = u->rows_x[i];
+    const double *b = u->rows + i * u->Y, *c = u->corner + x * u->Y;
+    double base = 0.0, mass = 0.0;
+    for (Py_ssize_t y = 0; y < u->Y; y++) {
+        base += b[y] * c[y];
+        mass += b[y];
+    }
+    const Py_buffer *order = &u->g.buf[2 * x], *key = &u->g.buf[2 * x + 1];
+    const Py_ssize_t P = order->shape[0];
+    if (P == 0) return base;
+    return base + sawtooth_row(b, u->Y, mass, order->buf, P, key->buf, u->idx, u->inv, u->off,
+                               u->wid, u->gain, NULL, (uint64_t)u->Y, 0, &u->stray);
 }
 
 /* Re-bound action a's possible children (rows lo..hi of nz) into up, return its Q_up. */
-static double refresh(upper_t *u, const int64_t *nz, Py_ssize_t lo, Py_ssize_t hi,
+static double refresh(saw_t *u, const int64_t *nz, Py_ssize_t lo, Py_ssize_t hi,
                       Py_ssize_t a, Py_ssize_t n, double *up, double reward, double gamma) {
     double *blk = up + a * n;
     memset(blk, 0, (size_t)n * sizeof(double));
-    for (Py_ssize_t i = lo; i < hi; i++) up[nz[i]] = upper_value(u, i);
+    for (Py_ssize_t i = lo; i < hi; i++) up[nz[i]] = saw_value(u, i);
     double s = 0.0;
     for (Py_ssize_t j = 0; j < n; j++) s += blk[j];
     return reward + gamma * s;
 }
 
 static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    enum { NB = 20 };
+    enum { NB = 19 };
     static const spec_t spec[NB] = {
-        {"rows", 2, 'd', 0},    {"nz", 1, 'q', 0},       {"low_r", 1, 'd', 0},
-        {"best_r", 1, 'q', 0},  {"reward", 1, 'd', 0},   {"stale_q", 1, 'd', 0},
-        {"stale_up", 1, 'd', 0}, {"corner", 1, 'd', 0},  {"order", 1, 'q', 0},
-        {"idx", 1, 'q', 0},     {"inv", 1, 'd', 0},      {"off", 1, 'q', 0},
-        {"wid", 1, 'q', 0},     {"gain", 1, 'd', 0},     {"key", 1, 'd', 0},
-        {"low", 1, 'd', 1},     {"best", 1, 'q', 1},     {"q_low", 1, 'd', 1},
-        {"up", 1, 'd', 1},      {"q_up", 1, 'd', 1},
+        {"rows", 2, 'd', 0},     {"rows_x", 1, 'q', 0},  {"nz", 1, 'q', 0},
+        {"low_r", 1, 'd', 0},    {"best_r", 1, 'q', 0},  {"reward", 1, 'd', 0},
+        {"stale_q", 1, 'd', 0},  {"stale_up", 1, 'd', 0}, {"corner", 2, 'd', 0},
+        {"idx", 1, 'q', 0},      {"inv", 1, 'd', 0},     {"off", 1, 'q', 0},
+        {"wid", 1, 'q', 0},      {"gain", 1, 'd', 0},    {"low", 1, 'd', 1},
+        {"best", 1, 'q', 1},     {"q_low", 1, 'd', 1},   {"up", 1, 'd', 1},
+        {"q_up", 1, 'd', 1},
     };
     Py_buffer v[NB];
     (void)self;
-    if (nargs != NB + 1) {
-        PyErr_Format(PyExc_TypeError, "bound_children() takes %d arguments (%zd given)", NB + 1,
+    if (nargs != NB + 2) {
+        PyErr_Format(PyExc_TypeError, "bound_children() takes %d arguments (%zd given)", NB + 2,
                      nargs);
         return NULL;
     }
-    const double gamma = PyFloat_AsDouble(args[NB]);
+    const double gamma = PyFloat_AsDouble(args[NB + 1]);
     if (gamma == -1.0 && PyErr_Occurred()) return NULL;
-    if (get_all(args, v, spec, NB) < 0) return NULL;
-    const Py_ssize_t m = v[1].shape[0], S = v[0].shape[1], A = v[4].shape[0];
-    const Py_ssize_t C = v[15].shape[0], P = v[8].shape[0], E = v[9].shape[0];
+    PyObject *arrays[NB];
+    for (int k = 0; k < NB; k++) arrays[k] = args[k < 9 ? k : k + 1]; /* args[9]: sorted */
+    PyObject *sorted = args[9];
+    if (get_all(arrays, v, spec, NB) < 0) return NULL;
+    const Py_ssize_t m = v[2].shape[0], S = v[0].shape[1], A = v[5].shape[0];
+    const Py_ssize_t C = v[14].shape[0], X = v[8].shape[0], E = v[9].shape[0];
     const Py_ssize_t cap = v[11].shape[0];
-    const int stale = v[5].shape[0] > 0;
+    const int stale = v[6].shape[0] > 0;
     const char *bad = NULL;
     if (A == 0 || C % A != 0 || m > C)
         bad = "C children (low's length), a multiple of A actions (reward's), at least m";
-    else if (v[0].shape[0] != m + 1 || v[2].shape[0] != m + 1 || v[3].shape[0] != m + 1)
-        bad = "m + 1 rows, low_r and best_r for m possible children (nz's length)";
-    else if (v[16].shape[0] != C || v[18].shape[0] != C || v[17].shape[0] != A ||
-             v[19].shape[0] != A)
+    else if (v[0].shape[0] != m + 1 || v[1].shape[0] != m + 1 || v[3].shape[0] != m + 1 ||
+             v[4].shape[0] != m + 1)
+        bad = "m + 1 rows, rows_x, low_r and best_r for m possible children (nz's length)";
+    else if (v[15].shape[0] != C || v[17].shape[0] != C || v[16].shape[0] != A ||
+             v[18].shape[0] != A)
         bad = "best and up of C entries, q_low and q_up of A";
-    else if (stale ? (v[5].shape[0] != A || v[6].shape[0] != C) : v[6].shape[0] != 0)
+    else if (stale ? (v[6].shape[0] != A || v[7].shape[0] != C) : v[7].shape[0] != 0)
         bad = "stale_q (A,) and stale_up (C,), or both empty";
-    else if (v[7].shape[0] != S)
-        bad = "corner of S entries (the rows' width)";
-    else if (v[14].shape[0] != P || v[10].shape[0] != E || v[12].shape[0] != cap ||
-             v[13].shape[0] != cap)
+    else if (v[8].shape[1] != S)
+        bad = "corner of (X, S) entries (S the rows' width)";
+    else if (v[10].shape[0] != E || v[12].shape[0] != cap || v[13].shape[0] != cap)
         bad = "the sawtooth storage of _sawtooth.corrections";
     if (bad != NULL) {
         PyErr_Format(PyExc_ValueError, "bound_children(): inconsistent shapes: expected %s", bad);
         release_all(v, NB);
         return NULL;
     }
-    const int64_t *nz = v[1].buf;
+    const int64_t *nz = v[2].buf;
     for (Py_ssize_t i = 0; i < m; i++)
         if (nz[i] < 0 || nz[i] >= C || (i > 0 && nz[i] <= nz[i - 1])) {
             PyErr_SetString(PyExc_IndexError,
@@ -218,10 +307,10 @@ static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_
             release_all(v, NB);
             return NULL;
         }
-    upper_t u = {v[0].buf, v[7].buf, v[14].buf, v[10].buf, v[13].buf,
-                 v[8].buf, v[9].buf, v[11].buf, v[12].buf, S, P, 0};
-    if (!points_in_range(u.order, P, u.off, u.wid, cap, E)) {
-        PyErr_SetString(PyExc_IndexError, "bound_children(): a point is out of range");
+    saw_t u = {v[0].buf, v[8].buf, v[10].buf, v[13].buf, v[1].buf,
+               v[9].buf, v[11].buf, v[12].buf, S, {NULL, NULL, 0}, 0};
+    if (saw_take(&u, sorted, X, m + 1, cap, E, "bound_children") < 0) {
+        groups_release(&u.g);
         release_all(v, NB);
         return NULL;
     }
@@ -230,13 +319,14 @@ static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_
     if (ends == NULL || fresh == NULL) {
         PyMem_Free(ends);
         PyMem_Free(fresh);
+        groups_release(&u.g);
         release_all(v, NB);
         return PyErr_NoMemory();
     }
-    const double *low_r = v[2].buf, *reward = v[4].buf;
-    const int64_t *best_r = v[3].buf;
-    double *low = v[15].buf, *q_low = v[17].buf, *up = v[18].buf, *q_up = v[19].buf;
-    int64_t *best = v[16].buf;
+    const double *low_r = v[3].buf, *reward = v[5].buf;
+    const int64_t *best_r = v[4].buf;
+    double *low = v[14].buf, *q_low = v[16].buf, *up = v[17].buf, *q_up = v[18].buf;
+    int64_t *best = v[15].buf;
     const Py_ssize_t n = C / A;
     /* the lower bounds of every child (0 where impossible) and Q_low */
     memset(low, 0, (size_t)C * sizeof(double));
@@ -260,16 +350,16 @@ static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_
     if (!stale) {
         for (Py_ssize_t a = 0; a < A; a++)
             q_up[a] = refresh(&u, nz, ends[a], ends[a + 1], a, n, up, reward[a], gamma);
-        cu = upper_value(&u, m);
+        cu = saw_value(&u, m);
     } else {
         /* the lazy loop of _SARSOP._upper_np: refresh the best stale action while it beats
          * every fresh one (ties within 1e-12 relative go to the lowest index) */
-        memcpy(q_up, v[5].buf, (size_t)A * sizeof(double));
-        memcpy(up, v[6].buf, (size_t)C * sizeof(double));
+        memcpy(q_up, v[6].buf, (size_t)A * sizeof(double));
+        memcpy(up, v[7].buf, (size_t)C * sizeof(double));
         for (Py_ssize_t a = 0; a < A; a++) fresh[a] = 0;
         int have_top = 0;
         double top = 0.0;
-        cu = upper_value(&u, m); /* V_up(b) itself, whatever the loop refreshes */
+        cu = saw_value(&u, m); /* V_up(b) itself, whatever the loop refreshes */
         for (;;) {
             double over = 0.0, hi = -INFINITY;
             int any = 0;
@@ -294,6 +384,7 @@ static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_
     }
     PyMem_Free(ends);
     PyMem_Free(fresh);
+    groups_release(&u.g);
     release_all(v, NB);
     if (u.stray) {
         PyErr_SetString(PyExc_IndexError, "bound_children(): a support index is out of range");
@@ -364,43 +455,6 @@ static PyObject *backup_vector(PyObject *self, PyObject *const *args, Py_ssize_t
     PyMem_Free(vals);
     release_all(v, 6);
     Py_RETURN_NONE;
-}
-
-/* Two buffers per observed value x (a group's arrays), taken on the group's first row and
- * released together. */
-typedef struct {
-    Py_buffer *buf; /* (2 X,): buf[2 x], buf[2 x + 1] */
-    char *got;      /* (X,) */
-    Py_ssize_t X;
-} groups_t;
-
-static int groups_init(groups_t *g, Py_ssize_t X) {
-    g->X = X;
-    g->buf = PyMem_Calloc((size_t)(X > 0 ? X : 1), 2 * sizeof(Py_buffer));
-    g->got = PyMem_Calloc((size_t)(X > 0 ? X : 1), 1);
-    if (g->buf == NULL || g->got == NULL) {
-        PyErr_NoMemory();
-        return -1;
-    }
-    return 0;
-}
-
-static void groups_release(groups_t *g) {
-    for (Py_ssize_t x = 0; g->buf != NULL && g->got != NULL && x < g->X; x++)
-        if (g->got[x]) {
-            PyBuffer_Release(&g->buf[2 * x]);
-            PyBuffer_Release(&g->buf[2 * x + 1]);
-        }
-    PyMem_Free(g->buf);
-    PyMem_Free(g->got);
-}
-
-/* Whether row i's observed value x lies in [0, X); an IndexError names the function if not. */
-static int row_x_ok(const char *fn, Py_ssize_t i, int64_t x, Py_ssize_t X) {
-    if (x >= 0 && x < X) return 1;
-    PyErr_Format(PyExc_IndexError, "%s(): row %zd has observed value %lld, outside [0, %zd)", fn,
-                 i, (long long)x, X);
-    return 0;
 }
 
 /* Borrowed item x of a list, checked to be one. */
@@ -543,7 +597,6 @@ static PyObject *group_upper(PyObject *self, PyObject *const *args, Py_ssize_t n
     }
     PyObject *const arrays[NB] = {args[0], args[1], args[2], args[4], args[5],
                                   args[6], args[7], args[8], args[9]};
-    PyObject *sorted = args[3];
     if (get_all(arrays, v, spec, NB) < 0) return NULL;
     const Py_ssize_t B = v[0].shape[0], Y = v[0].shape[1], X = v[2].shape[0];
     const Py_ssize_t E = v[3].shape[0], cap = v[5].shape[0];
@@ -557,71 +610,15 @@ static PyObject *group_upper(PyObject *self, PyObject *const *args, Py_ssize_t n
         release_all(v, NB);
         return NULL;
     }
-    if (!PyList_Check(sorted) || PyList_GET_SIZE(sorted) < X) {
-        PyErr_Format(PyExc_TypeError,
-                     "group_upper(): expected sorted to be a list of X=%zd (order, key) pairs, "
-                     "got %s",
-                     X, Py_TYPE(sorted)->tp_name);
-        release_all(v, NB);
-        return NULL;
-    }
-    groups_t g; /* each x's (order, key), taken on its first row */
-    int stray = 0, failed = groups_init(&g, X) < 0;
-    const double *rows = v[0].buf, *corner = v[2].buf, *inv = v[4].buf, *gain = v[7].buf;
-    const int64_t *rows_x = v[1].buf, *idx = v[3].buf, *off = v[5].buf, *wid = v[6].buf;
+    saw_t u = {v[0].buf, v[2].buf, v[4].buf, v[7].buf, v[1].buf,
+               v[3].buf, v[5].buf, v[6].buf, Y, {NULL, NULL, 0}, 0};
+    const int failed = saw_take(&u, args[3], X, B, cap, E, "group_upper") < 0;
     double *out = v[8].buf;
-    for (Py_ssize_t i = 0; i < B && !failed; i++) {
-        const int64_t x = rows_x[i];
-        if (!row_x_ok("group_upper", i, x, X)) {
-            failed = 1;
-            break;
-        }
-        Py_buffer *order = &g.buf[2 * x], *key = &g.buf[2 * x + 1];
-        if (!g.got[x]) {
-            PyObject *pair = PyList_GET_ITEM(sorted, x);
-            if (!PyTuple_Check(pair) || PyTuple_GET_SIZE(pair) != 2) {
-                PyErr_Format(PyExc_TypeError,
-                             "group_upper(): expected sorted[%lld] to be an (order, key) pair, "
-                             "got %s",
-                             (long long)x, Py_TYPE(pair)->tp_name);
-                failed = 1;
-                break;
-            }
-            if (get_buffer(PyTuple_GET_ITEM(pair, 0), order, 1, 'q', "order", 0) < 0) {
-                failed = 1;
-                break;
-            }
-            if (get_buffer(PyTuple_GET_ITEM(pair, 1), key, 1, 'd', "key", 0) < 0) {
-                PyBuffer_Release(order);
-                failed = 1;
-                break;
-            }
-            g.got[x] = 1;
-            if (key->shape[0] != order->shape[0] ||
-                !points_in_range(order->buf, order->shape[0], off, wid, cap, E)) {
-                PyErr_Format(PyExc_IndexError,
-                             "group_upper(): observed value %lld: a point is out of range, or "
-                             "order and key differ in length",
-                             (long long)x);
-                failed = 1;
-                break;
-            }
-        }
-        const double *b = rows + i * Y, *c = corner + x * Y;
-        double base = 0.0, mass = 0.0;
-        for (Py_ssize_t y = 0; y < Y; y++) {
-            base += b[y] * c[y];
-            mass += b[y];
-        }
-        const Py_ssize_t P = order->shape[0];
-        out[i] = P == 0 ? base
-                        : base + sawtooth_row(b, Y, mass, order->buf, P, key->buf, idx, inv, off,
-                                              wid, gain, NULL, (uint64_t)Y, 0, &stray);
-    }
-    groups_release(&g);
+    for (Py_ssize_t i = 0; i < B && !failed; i++) out[i] = saw_value(&u, i);
+    groups_release(&u.g);
     release_all(v, NB);
     if (failed) return NULL;
-    if (stray) {
+    if (u.stray) {
         PyErr_SetString(PyExc_IndexError, "group_upper(): a support index is out of range");
         return NULL;
     }

@@ -1,28 +1,26 @@
-"""Compiled steps of SARSOP's one-belief evaluation (CPU, float64, one observed value).
+"""Compiled steps of SARSOP's one-belief evaluation (CPU, float64).
 
 A backup of one belief on the CPU is about a hundred numpy calls of one to three
 microseconds each on the small models of the public suite (tiger, 4x3, aloha-10max,
-bridge-repair): the arithmetic is a fraction of it. Two steps are compiled (``_backup.c``,
+bridge-repair): the arithmetic is a fraction of it. These steps are compiled (``_backup.c``,
 built by ``pip install`` beside the sawtooth loop, the CPython API only):
 
 * :func:`dense_children`: the children of one belief of a dense flat model,
   ``J[a, o] = (b T[a]) * Z[a, :, o]``, their probabilities, the possible ones packed first,
   and the expected rewards ``R(b, a)`` (the numpy reference:
   :meth:`~torchhrc.solvers.forms.base.SolverModel.children_np`).
-* :func:`bound_children`: from the lower bounds of the possible children (one BLAS product
-  against the alpha vectors, left to numpy), every child's bounds and ``Q_low``, ``Q_up``,
-  with the sawtooth upper bound evaluated lazily: only the children of the action with the
-  highest cached ``Q_up`` are re-bounded until the best action is one just refreshed (the
-  numpy reference: ``_SARSOP._upper_np``, APPL's ``getNewUBValueUseCache``).
-
-* :func:`group_scores`: the best alpha vector at each of a belief's children when they have
-  several observed values (a MOMDP): each child against its own ``x``'s vectors only (the
-  numpy reference, ``_SARSOP._lower_np``, takes one product against the vectors of every
-  ``x`` among the children and masks the others out: twenty times the arithmetic on a
-  20-position random MOMDP).
-
-* :func:`group_upper`: the sawtooth upper bound of rows of several observed values, each at
-  its own ``x``'s points (the numpy reference: the per-``x`` loop of
+* :func:`group_scores`: the best alpha vector at each child, against the vectors of the
+  child's own observed value ``x`` only (a MOMDP's children lie at several; the numpy
+  reference, ``_SARSOP._lower_np``, scores them in one product against the vectors of every
+  ``x`` among them and masks the others out: twenty times the arithmetic on a 20-position
+  random MOMDP). With one observed value the lower bounds stay one BLAS product.
+* :func:`bound_children`: from the children's lower bounds, every child's bounds and
+  ``Q_low``, ``Q_up``, with the sawtooth upper bound evaluated lazily: only the children of
+  the action with the highest cached ``Q_up`` are re-bounded until the best action is one
+  just refreshed, each child at its own ``x``'s points (the numpy reference:
+  ``_SARSOP._upper_np``, APPL's ``getNewUBValueUseCache``).
+* :func:`group_upper`: the sawtooth upper bound of rows, each at its own ``x``'s points (the
+  numpy reference: the per-``x`` loop of
   :meth:`~torchhrc.solvers.upper_bound.SawtoothUpperBound.value_np`).
 
 The algorithm is the same; the floats are not always bit-identical to the numpy path, whose
@@ -47,6 +45,7 @@ from __future__ import annotations
 
 import os
 from types import ModuleType
+from typing import Any
 
 import numpy as np
 
@@ -102,13 +101,14 @@ def dense_children(
 def bound_children(
     kernel: ModuleType,
     rows: np.ndarray,
+    rows_x: np.ndarray,
     nz: np.ndarray,
     low_r: np.ndarray,
     best_r: np.ndarray,
     reward: np.ndarray,
     gamma: float,
     stale: tuple[np.ndarray, np.ndarray] | None,
-    sawtooth: tuple[np.ndarray, ...],
+    sawtooth: tuple[Any, ...],
     num_children: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
     """Every child's bounds and the belief's ``Q`` values (see the module docstring).
@@ -116,6 +116,7 @@ def bound_children(
     Args:
         kernel: the module of :func:`load`.
         rows: ``(m + 1, S)`` the possible children, then the belief ``b`` itself.
+        rows_x: ``(m + 1,)`` int64 their observed values (all 0 with one observed value).
         nz: ``(m,)`` int64 increasing indices of the possible children among the ``C``.
         low_r: ``(m + 1,)`` the rows' lower bounds; best_r: ``(m + 1,)`` int64 their best
             alpha vectors.
@@ -123,8 +124,9 @@ def bound_children(
         gamma: the discount.
         stale: ``(Q_up (A,), up (C,))`` of the belief's last evaluation (their values stay
             upper bounds), or ``None``: every possible child is bounded.
-        sawtooth: ``(corner (S,), order, idx, inv, off, wid, gain, key)`` of the upper bound
-            (:meth:`~torchhrc.solvers.upper_bound.SawtoothUpperBound.loop_arrays`).
+        sawtooth: ``(corner (X, S), sorted, idx, inv, off, wid, gain)`` of the upper bound,
+            ``sorted`` built for every ``x`` of ``rows_x``
+            (:meth:`~torchhrc.solvers.upper_bound.SawtoothUpperBound.loop_storage`).
         num_children: ``C``.
 
     Returns:
@@ -137,7 +139,7 @@ def bound_children(
     up = np.empty(num_children)
     q_low, q_up = np.empty(A), np.empty(A)
     sq, su = stale if stale is not None else (_EMPTY, _EMPTY)
-    cu = kernel.bound_children(rows, nz, low_r, best_r, reward, sq, su, *sawtooth,
+    cu = kernel.bound_children(rows, rows_x, nz, low_r, best_r, reward, sq, su, *sawtooth,
                                low, best, q_low, up, q_up, float(gamma))  # fmt: skip
     return low, best, q_low, up, q_up, float(cu)
 
@@ -182,13 +184,7 @@ def group_upper(
     kernel: ModuleType,
     rows: np.ndarray,
     rows_x: np.ndarray,
-    corner: np.ndarray,
-    sorted_points: list[tuple[np.ndarray, np.ndarray] | None],
-    idx: np.ndarray,
-    inv: np.ndarray,
-    off: np.ndarray,
-    wid: np.ndarray,
-    gain: np.ndarray,
+    sawtooth: tuple[Any, ...],
     out: np.ndarray,
 ) -> None:
     """The sawtooth upper bound ``corner[x] . b + correction`` of each row at its own ``x``,
@@ -197,20 +193,20 @@ def group_upper(
     Args:
         kernel: the module of :func:`load`.
         rows: ``(B, Y)`` C-contiguous float64 non-negative weights; rows_x: ``(B,)`` int64.
-        corner: ``(X, Y)`` float64 corner values.
-        sorted_points: per observed value, ``(order (P_x,) int64, key (P_x,) float64)``: its
-            points with a negative gain by increasing key (built for every ``x`` of
-            ``rows_x``; :meth:`~torchhrc.solvers.upper_bound.SawtoothUpperBound.value_np`).
-        idx, inv, off, wid, gain: the points' storage, as
-            :func:`~torchhrc.solvers.sawtooth_kernel.sawtooth_corrections`.
+        sawtooth: ``(corner (X, Y), sorted, idx, inv, off, wid, gain)``: the corner values,
+            per observed value ``(order (P_x,) int64, key (P_x,) float64)`` (its points with a
+            negative gain by increasing key, built for every ``x`` of ``rows_x``), and the
+            points' storage as :func:`~torchhrc.solvers.sawtooth_kernel.sawtooth_corrections`
+            (:meth:`~torchhrc.solvers.upper_bound.SawtoothUpperBound.loop_storage`).
         out: ``(B,)`` float64, written.
 
     Raises:
         TypeError: an array of another dtype or rank, not C-contiguous, or an entry of
-            ``sorted_points`` that is not a pair (named).
+            ``sorted`` that is not a pair (named).
         ValueError: shapes that do not agree. IndexError: an observed value or a point out
             of range.
     """
+    corner, sorted_points, idx, inv, off, wid, gain = sawtooth
     kernel.group_upper(rows, rows_x, corner, sorted_points, idx, inv, off, wid, gain, out)
 
 

@@ -705,12 +705,8 @@ class _SARSOP:
         # the sequential one-belief path runs in numpy on the CPU, whose per-op overhead at
         # these sizes is several times below torch's dispatch
         self._np = self.device.type == "cpu"
-        # the compiled bounds of a belief's children (backup_kernel): one observed value,
-        # float64 on the CPU
-        kernel = backup_kernel.load() if self._np and cfg.dtype == torch.float64 else None
-        self._kernel = kernel if self.X == 1 else None
-        # and, with several observed values, each child's best vector among its own x's
-        self._group_kernel = kernel if self.X > 1 else None
+        # the compiled steps of a belief's evaluation (backup_kernel): float64 on the CPU
+        self._kernel = backup_kernel.load() if self._np and cfg.dtype == torch.float64 else None
         lo, up = self._root_bounds()
         self.tree.lower[0], self.tree.upper[0] = lo, up
 
@@ -808,10 +804,10 @@ class _SARSOP:
             scores[rows_x[:, None] != self.alphas.np_observed[None, :n]] = -np.inf
             best = scores.argmax(-1)
             return scores[np.arange(scores.shape[0]), best], best
-        if self._group_kernel is not None:
+        if self._kernel is not None:  # each row against its own x's vectors, compiled
             a = self.alphas
             return backup_kernel.group_scores(
-                self._group_kernel, np.ascontiguousarray(rows), rows_x.astype(np.int64, copy=False),
+                self._kernel, np.ascontiguousarray(rows), rows_x.astype(np.int64, copy=False),
                 a._gcol, a._gid, a._gn,
             )  # fmt: skip
         B = rows.shape[0]
@@ -954,11 +950,13 @@ class _SARSOP:
         low_r, best_r = self._lower_np(ch.rows, ch.rows_x, ch.cols)
         m = ch.nz.size
         if self._kernel is not None and ch.cols is None and ch.rows.flags.c_contiguous:
-            # one observed value, float64 on the CPU: the rest in one compiled call
+            # float64 on the CPU, the children on all columns: the rest in one compiled call
+            xs = (0,) if self.X == 1 else set(ch.rows_x.tolist())
             low, best, q_low, up, q_up, cu = backup_kernel.bound_children(
-                self._kernel, ch.rows, ch.nz, low_r, best_r, ch.reward, self.gamma,
+                self._kernel, ch.rows, ch.rows_x.astype(np.int64, copy=False), ch.nz, low_r,
+                best_r, ch.reward, self.gamma,
                 None if stale is None else (stale[1], stale[4].reshape(-1)),
-                self.ub.loop_arrays(0), A * K * O,
+                self.ub.loop_storage(xs), A * K * O,
             )  # fmt: skip
             shape = (A, K, O)
             low, up, best = low.reshape(shape), up.reshape(shape), best.reshape(shape)
@@ -1007,9 +1005,9 @@ class _SARSOP:
         if own is not None and (cx == x).all():  # a flat model: always
             best[imp] = own
             return best
-        if self._group_kernel is not None:  # b itself under each child's x, one call
+        if self._kernel is not None:  # b itself under each child's x, one call
             best[imp] = backup_kernel.group_scores(
-                self._group_kernel, b.reshape(1, -1), cx.astype(np.int64, copy=False),
+                self._kernel, b.reshape(1, -1), cx.astype(np.int64, copy=False),
                 self.alphas._gcol, self.alphas._gid, self.alphas._gn,
             )[1]  # fmt: skip
             return best

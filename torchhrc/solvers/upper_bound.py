@@ -34,6 +34,7 @@ Example:
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -341,22 +342,24 @@ class SawtoothUpperBound:
         assert best is not None
         return base + best.clamp(max=0.0)
 
-    def loop_arrays(self, x: int) -> tuple[np.ndarray, ...]:
-        """``(corner (Y,), order, idx, inv, off, wid, gain, key)`` of observed value ``x``:
-        the arrays :meth:`value_np` hands the compiled loop, for a caller that runs the loop
-        itself (:func:`~torchhrc.solvers.backup_kernel.bound_children`); CPU storage only.
+    def loop_storage(self, xs: Iterable[int]) -> tuple[Any, ...]:
+        """``(corner (X, Y), sorted, idx, inv, off, wid, gain)``: what the compiled loops read
+        (:func:`~torchhrc.solvers.backup_kernel.group_upper`, ``bound_children``), with
+        ``sorted[x] = (order, key)`` (the points of ``x`` with a negative gain by increasing
+        key) built for every ``x`` of ``xs``; CPU storage only.
 
         Example:
             >>> import torch
             >>> ub = SawtoothUpperBound(torch.tensor([[1.0, 2.0]], dtype=torch.float64))
-            >>> corner, order = ub.loop_arrays(0)[:2]
-            >>> corner.tolist(), order.shape  # no point yet
-            ([1.0, 2.0], (0,))
+            >>> corner, points = ub.loop_storage([0])[:2]
+            >>> corner.tolist(), points[0][0].shape  # no point yet
+            ([[1.0, 2.0]], (0,))
         """
         assert self._np is not None
         corner, idx, inv, _, _, gain, wid, _, off = self._np
-        order, key = self._sorted_points(x)
-        return corner[x], order, idx, inv, off, wid, gain, key
+        for x in xs:
+            self._sorted_points(x)
+        return corner, self._sorted, idx, inv, off, wid, gain
 
     def value_np(
         self, beliefs: np.ndarray, x: np.ndarray, columns: np.ndarray | None = None
@@ -380,8 +383,14 @@ class SawtoothUpperBound:
             ``(B,)`` upper bounds.
         """
         assert self._np is not None
-        corner, idx, inv, _, _, gain, wid, _, off = self._np
         B = beliefs.shape[0]
+        if self._group_kernel is not None and columns is None and self.size and B:
+            out = np.empty(B)
+            backup_kernel.group_upper(self._group_kernel, np.ascontiguousarray(beliefs),
+                                      x.astype(np.int64, copy=False),
+                                      self.loop_storage(set(x.tolist())), out)  # fmt: skip
+            return out
+        corner, idx, inv, _, _, gain, wid, _, off = self._np
         local = None
         if columns is None:
             # (B,); one observed value: the same products without gathering B rows of corner
@@ -396,14 +405,6 @@ class SawtoothUpperBound:
             local[columns] = np.arange(columns.size)
         if self.size == 0 or B == 0:
             return base
-        if self._group_kernel is not None and local is None:
-            for u in set(x.tolist()):  # every row's x in key order
-                self._sorted_points(u)
-            out = np.empty(B)
-            backup_kernel.group_upper(self._group_kernel, np.ascontiguousarray(beliefs),
-                                      x.astype(np.int64, copy=False), corner, self._sorted,
-                                      idx, inv, off, wid, gain, out)  # fmt: skip
-            return out
         first = int(x[0])
         if self.num_observed == 1 or (x == first).all():  # one observed value: all rows at once
             rows = _ROWS[:B] if B <= _ROWS.size else np.arange(B)

@@ -15,7 +15,7 @@ import torch
 from torchhrc.pomdp import POMDP
 from torchhrc.solvers import SARSOPConfig, backup_kernel
 from torchhrc.solvers.forms import as_solver_model
-from torchhrc.solvers.forms.base import TensorModelForm
+from torchhrc.solvers.forms.base import SolverModel
 from torchhrc.sparse_momdp import SparseMOMDP
 from torchhrc.tasks.classic import rock_sample_momdp
 from torchhrc.testing import random_momdp, random_pomdp
@@ -46,15 +46,27 @@ def _beliefs(S: int, seed: int) -> list[np.ndarray]:
     return out
 
 
+_MODELS = {
+    "flat_dense": lambda: random_pomdp(6, 3, 3, seed=0),
+    "flat_impossible_1": lambda: _impossible(1),
+    "flat_impossible_2": lambda: _impossible(2),
+    "momdp_dynamic": lambda: random_momdp(4, 5, 3, 3, static=False, sparsity=0.4, seed=3),
+    "momdp_static": lambda: random_momdp(5, 4, 2, 3, sparsity=0.3, seed=4),
+    "rocksample_momdp": lambda: rock_sample_momdp(4, 4),
+}
+
+
 @needs_extension
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_dense_children_equal_the_numpy_children(seed: int) -> None:
-    model = _impossible(seed) if seed else random_pomdp(6, 3, 3, seed=seed)
+@pytest.mark.parametrize("name", sorted(_MODELS))
+def test_compiled_children_equal_the_numpy_children(name: str) -> None:
+    model = _MODELS[name]()
     form = as_solver_model(model)
     assert form._kernel is not None
-    for b in _beliefs(model.num_states, seed):
-        got = form.children_np(0, b)
-        ref = TensorModelForm.children_np(form, 0, b)  # the numpy body
+    xs = range(form.num_observed)
+    for i, b in enumerate(_beliefs(form.num_hidden, len(name))):
+        x = xs[i % len(xs)]
+        got = form.children_np(x, b)
+        ref = SolverModel.children_np(form, x, b)  # the numpy body
         np.testing.assert_array_equal(got.nz, ref.nz)
         np.testing.assert_array_equal(got.rows_x, ref.rows_x)
         np.testing.assert_array_equal(got.child_x, ref.child_x)
@@ -77,7 +89,7 @@ def test_backup_vector_equals_the_numpy_one(seed: int) -> None:
     for a in range(model.num_actions):
         use = rng.integers(0, 9, size=(1, model.num_observations))
         got = form.backup_vector_np(0, a, use, vectors, 0.9)
-        ref = TensorModelForm.backup_vector_np(form, 0, a, use, vectors, 0.9)
+        ref = SolverModel.backup_vector_np(form, 0, a, use, vectors, 0.9)
         np.testing.assert_allclose(got, ref, rtol=1e-13, atol=1e-13)
     # by hand: R[a] + gamma T[a] (sum_o Z[a, :, o] * vectors[use[o]])
     T, Z, R = model.T.numpy(), model.Z.numpy(), model.R.numpy()
@@ -173,21 +185,24 @@ def test_a_stale_evaluation_refreshes_only_what_can_win() -> None:
 @needs_extension
 def test_bad_arrays_get_clear_errors() -> None:
     S, A, O = 3, 2, 2
-    b, T = np.full(S, 1 / 3), np.full((A, S, S), 1 / 3)
-    z, RT = np.full((A, O, S), 0.5), np.zeros((S, A))
-    rows, prob = np.empty((A * O + 1, S)), np.empty(A * O)
-    nz, reward = np.empty(A * O, dtype=np.int64), np.empty(A)
-    assert backup_kernel.dense_children(kernel, b, T, z, RT, rows, prob, nz, reward) == A * O
+    b, T = np.full(S, 1 / 3), np.full((A, 1, S, S), 1 / 3)
+    z, RT = np.full((A, 1, O, S), 0.5), np.zeros((S, A))
+    no_tx, cx = np.empty((0, 0, 0)), np.zeros(A * O, dtype=np.int64)
+    rows, rows_x = np.empty((A * O + 1, S)), np.empty(A * O + 1, dtype=np.int64)
+    prob, nz, reward = np.empty(A * O), np.empty(A * O, dtype=np.int64), np.empty(A)
+    out = (rows, rows_x, prob, nz, reward)
+    assert backup_kernel.children(kernel, b, no_tx, T, z, RT, cx, *out, 0) == A * O
     np.testing.assert_allclose(prob, 0.5)
-    with pytest.raises(TypeError, match="expected T to be a C-contiguous 3-D float64"):
-        backup_kernel.dense_children(kernel, b, T.astype(np.float32), z, RT, rows, prob, nz,
-                                     reward)  # fmt: skip
+    with pytest.raises(TypeError, match="expected tyk to be a C-contiguous 4-D float64"):
+        backup_kernel.children(kernel, b, no_tx, T.astype(np.float32), z, RT, cx, *out, 0)
     with pytest.raises(TypeError, match="expected rows to be a C-contiguous writable"):
         ro = rows.copy()
         ro.flags.writeable = False
-        backup_kernel.dense_children(kernel, b, T, z, RT, ro, prob, nz, reward)
-    with pytest.raises(ValueError, match=r"S=3 states, A=2 actions, O=2 observations"):
-        backup_kernel.dense_children(kernel, b, T, z, RT, rows[:-1], prob, nz, reward)
+        backup_kernel.children(kernel, b, no_tx, T, z, RT, cx, ro, *out[1:], 0)
+    with pytest.raises(ValueError, match=r"A=2 actions, K=1 next observed values, O=2 obs"):
+        backup_kernel.children(kernel, b, no_tx, T, z, RT, cx, rows[:-1], *out[1:], 0)
+    with pytest.raises(ValueError, match=r"tx \(A, Y, K\) and/or tyk"):  # neither given
+        backup_kernel.children(kernel, b, no_tx, np.empty((0, 0, 0, 0)), z, RT, cx, *out, 0)
     empty_i, empty_f = np.empty(0, dtype=np.int64), np.empty(0)
     saw = (np.zeros((1, S)), [(empty_i, empty_f)], empty_i, empty_f, empty_i, empty_i, empty_f)
     rx = np.zeros(A * O + 1, dtype=np.int64)

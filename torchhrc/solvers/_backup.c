@@ -4,9 +4,11 @@
  * arguments' dtypes before the call. The per-call work is small (tens of states and
  * actions): what this saves is the forty-odd numpy calls of a few microseconds each.
  *
- * dense_children(b, T, z, RT, rows, prob, nz, reward) -> m
- *   b (S,), T (A, S, S), z (A, O, S), RT (S, A) float64; written: rows (A O + 1, S),
- *   prob (A O,), nz (A O,) int64, reward (A,). Returns the number m of possible children.
+ * children(b, tx, tyk, z, RT, cx, rows, rows_x, prob, nz, reward, x) -> m
+ *   b (Y,), tx (A, Y, K) and/or tyk (A, K, Y, Y) (the other empty), z (A, K, O, Y),
+ *   RT (Y, A) float64, cx (A K O,) int64 the children's observed values; written:
+ *   rows (A K O + 1, Y), rows_x (A K O + 1,), prob (A K O,), nz (A K O,) int64,
+ *   reward (A,). Returns the number m of possible children (rows m is b, at x).
  *
  * bound_children(rows, rows_x, nz, low_r, best_r, reward, stale_q, stale_up, corner,
  *                sorted, idx, inv, off, wid, gain, low, best, q_low, up, q_up, gamma) -> cu
@@ -98,77 +100,98 @@ static int row_x_ok(const char *fn, Py_ssize_t i, int64_t x, Py_ssize_t X) {
     return 0;
 }
 
-static PyObject *dense_children(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    static const spec_t spec[8] = {
-        {"b", 1, 'd', 0},    {"T", 3, 'd', 0},    {"z", 3, 'd', 0},  {"RT", 2, 'd', 0},
-        {"rows", 2, 'd', 1}, {"prob", 1, 'd', 1}, {"nz", 1, 'q', 1}, {"reward", 1, 'd', 1},
+static PyObject *children(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    enum { NB = 11 };
+    static const spec_t spec[NB] = {
+        {"b", 1, 'd', 0},      {"tx", 3, 'd', 0},     {"tyk", 4, 'd', 0},   {"z", 4, 'd', 0},
+        {"RT", 2, 'd', 0},     {"cx", 1, 'q', 0},     {"rows", 2, 'd', 1},  {"rows_x", 1, 'q', 1},
+        {"prob", 1, 'd', 1},   {"nz", 1, 'q', 1},     {"reward", 1, 'd', 1},
     };
-    Py_buffer v[8];
+    Py_buffer v[NB];
     (void)self;
-    if (nargs != 8) {
-        PyErr_Format(PyExc_TypeError, "dense_children() takes 8 arguments (%zd given)", nargs);
+    if (nargs != NB + 1) {
+        PyErr_Format(PyExc_TypeError, "children() takes %d arguments (%zd given)", NB + 1, nargs);
         return NULL;
     }
-    if (get_all(args, v, spec, 8) < 0) return NULL;
-    const Py_ssize_t S = v[0].shape[0], A = v[1].shape[0], O = v[2].shape[1];
-    if (v[1].shape[1] != S || v[1].shape[2] != S || v[2].shape[0] != A || v[2].shape[2] != S ||
-        v[3].shape[0] != S || v[3].shape[1] != A || v[4].shape[0] != A * O + 1 ||
-        v[4].shape[1] != S || v[5].shape[0] != A * O || v[6].shape[0] != A * O ||
-        v[7].shape[0] != A) {
+    const Py_ssize_t x = PyNumber_AsSsize_t(args[NB], PyExc_OverflowError);
+    if (x == -1 && PyErr_Occurred()) return NULL;
+    if (get_all(args, v, spec, NB) < 0) return NULL;
+    const Py_ssize_t A = v[3].shape[0], K = v[3].shape[1], O = v[3].shape[2], Y = v[3].shape[3];
+    const Py_ssize_t C = A * K * O;
+    const int has_tx = v[1].shape[0] > 0, has_ty = v[2].shape[0] > 0;
+    if (v[0].shape[0] != Y || (!has_tx && !has_ty) ||
+        (has_tx && (v[1].shape[0] != A || v[1].shape[1] != Y || v[1].shape[2] != K)) ||
+        (has_ty && (v[2].shape[0] != A || v[2].shape[1] != K || v[2].shape[2] != Y ||
+                    v[2].shape[3] != Y)) ||
+        v[4].shape[0] != Y || v[4].shape[1] != A || v[5].shape[0] != C ||
+        v[6].shape[0] != C + 1 || v[6].shape[1] != Y || v[7].shape[0] != C + 1 ||
+        v[8].shape[0] != C || v[9].shape[0] != C || v[10].shape[0] != A) {
         PyErr_Format(PyExc_ValueError,
-                     "dense_children(): inconsistent shapes for S=%zd states, A=%zd actions, "
-                     "O=%zd observations (b (S,), T (A, S, S), z (A, O, S), RT (S, A), "
-                     "rows (A O + 1, S), prob (A O,), nz (A O,), reward (A,))",
-                     S, A, O);
-        release_all(v, 8);
+                     "children(): inconsistent shapes for A=%zd actions, K=%zd next observed "
+                     "values, O=%zd observations, Y=%zd hidden values (b (Y,), tx (A, Y, K) and/or "
+                     "tyk (A, K, Y, Y), z (A, K, O, Y), RT (Y, A), cx (A K O,), rows (A K O + 1, "
+                     "Y), rows_x (A K O + 1,), prob and nz (A K O,), reward (A,))",
+                     A, K, O, Y);
+        release_all(v, NB);
         return NULL;
     }
-    double *pred = PyMem_Malloc((size_t)(S > 0 ? S : 1) * sizeof(double));
-    Py_ssize_t *supp = PyMem_Malloc((size_t)(S > 0 ? S : 1) * sizeof(Py_ssize_t));
+    double *pred = PyMem_Malloc((size_t)(Y > 0 ? Y : 1) * sizeof(double));
+    Py_ssize_t *supp = PyMem_Malloc((size_t)(Y > 0 ? Y : 1) * sizeof(Py_ssize_t));
     if (pred == NULL || supp == NULL) {
         PyMem_Free(pred);
         PyMem_Free(supp);
-        release_all(v, 8);
+        release_all(v, NB);
         return PyErr_NoMemory();
     }
-    const double *b = v[0].buf, *T = v[1].buf, *z = v[2].buf, *RT = v[3].buf;
-    double *rows = v[4].buf, *prob = v[5].buf, *reward = v[7].buf;
-    int64_t *nz = v[6].buf;
+    const double *b = v[0].buf, *tx = v[1].buf, *tyk = v[2].buf, *z = v[3].buf, *RT = v[4].buf;
+    const int64_t *cx = v[5].buf;
+    double *rows = v[6].buf, *prob = v[8].buf, *reward = v[10].buf;
+    int64_t *rows_x = v[7].buf, *nz = v[9].buf;
     Py_ssize_t m = 0;
     for (Py_ssize_t a = 0; a < A; a++) {
-        /* pred = b T[a], over the support of b (in order of the state) */
-        memset(pred, 0, (size_t)S * sizeof(double));
-        for (Py_ssize_t s1 = 0; s1 < S; s1++) {
-            const double w = b[s1];
-            if (w == 0.0) continue;
-            const double *row = T + (a * S + s1) * S;
-            for (Py_ssize_t s = 0; s < S; s++) pred[s] += w * row[s];
-        }
-        /* the support of pred: a child is pred * Z[a, :, o], 0 elsewhere (TagAvoid as a flat
-         * POMDP: 870 observations, a handful of predicted states; every row written in full
-         * was 30 MB of stores per belief) */
-        Py_ssize_t n = 0;
-        for (Py_ssize_t s = 0; s < S; s++)
-            if (pred[s] != 0.0) supp[n++] = s;
-        for (Py_ssize_t o = 0; o < O; o++) {
-            const double *zo = z + (a * O + o) * S;
-            double p = 0.0; /* the same sum, in the same order, as over every state */
-            for (Py_ssize_t k = 0; k < n; k++) p += pred[supp[k]] * zo[supp[k]];
-            prob[a * O + o] = p;
-            if (!(p > 0.0)) continue;
-            double *out = rows + m * S; /* the m-th possible child */
-            memset(out, 0, (size_t)S * sizeof(double));
-            for (Py_ssize_t k = 0; k < n; k++) out[supp[k]] = pred[supp[k]] * zo[supp[k]];
-            nz[m++] = a * O + o;
+        for (Py_ssize_t k = 0; k < K; k++) {
+            /* pred[y2] = sum_y b[y] tx[a, y, k] tyk[a, k, y, y2] (a flat model: tx = 1, tyk = T;
+             * a static hidden value: tyk = identity), over the support of b in state order */
+            if (has_ty) {
+                memset(pred, 0, (size_t)Y * sizeof(double));
+                for (Py_ssize_t y = 0; y < Y; y++) {
+                    const double w = has_tx ? b[y] * tx[(a * Y + y) * K + k] : b[y];
+                    if (w == 0.0) continue;
+                    const double *row = tyk + ((a * K + k) * Y + y) * Y;
+                    for (Py_ssize_t y2 = 0; y2 < Y; y2++) pred[y2] += w * row[y2];
+                }
+            } else {
+                for (Py_ssize_t y = 0; y < Y; y++) pred[y] = b[y] * tx[(a * Y + y) * K + k];
+            }
+            /* the children pred * Z[a, x2_k, :, o] over the support of pred (TagAvoid as a
+             * flat POMDP: 870 observations, a handful of predicted states; every row written
+             * in full was 30 MB of stores per belief) */
+            Py_ssize_t n = 0;
+            for (Py_ssize_t y = 0; y < Y; y++)
+                if (pred[y] != 0.0) supp[n++] = y;
+            for (Py_ssize_t o = 0; o < O; o++) {
+                const Py_ssize_t c = (a * K + k) * O + o;
+                const double *zo = z + c * Y;
+                double p = 0.0; /* the same sum, in the same order, as over every state */
+                for (Py_ssize_t q = 0; q < n; q++) p += pred[supp[q]] * zo[supp[q]];
+                prob[c] = p;
+                if (!(p > 0.0)) continue;
+                double *out = rows + m * Y; /* the m-th possible child */
+                memset(out, 0, (size_t)Y * sizeof(double));
+                for (Py_ssize_t q = 0; q < n; q++) out[supp[q]] = pred[supp[q]] * zo[supp[q]];
+                rows_x[m] = cx[c];
+                nz[m++] = c;
+            }
         }
         double r = 0.0;
-        for (Py_ssize_t s = 0; s < S; s++) r += b[s] * RT[s * A + a];
+        for (Py_ssize_t y = 0; y < Y; y++) r += b[y] * RT[y * A + a];
         reward[a] = r;
     }
-    memcpy(rows + m * S, b, (size_t)S * sizeof(double));
+    memcpy(rows + m * Y, b, (size_t)Y * sizeof(double));
+    rows_x[m] = x;
     PyMem_Free(pred);
     PyMem_Free(supp);
-    release_all(v, 8);
+    release_all(v, NB);
     return PyLong_FromSsize_t(m);
 }
 
@@ -626,8 +649,8 @@ static PyObject *group_upper(PyObject *self, PyObject *const *args, Py_ssize_t n
 }
 
 static PyMethodDef methods[] = {
-    {"dense_children", (PyCFunction)(void (*)(void))dense_children, METH_FASTCALL,
-     "Children of one belief of a dense flat model (see torchhrc.solvers.backup_kernel)."},
+    {"children", (PyCFunction)(void (*)(void))children, METH_FASTCALL,
+     "Children of one belief of a dense model (see torchhrc.solvers.backup_kernel)."},
     {"bound_children", (PyCFunction)(void (*)(void))bound_children, METH_FASTCALL,
      "Bounds of one belief's children, lazily (see torchhrc.solvers.backup_kernel)."},
     {"group_scores", (PyCFunction)(void (*)(void))group_scores, METH_FASTCALL,

@@ -5,9 +5,9 @@ microseconds each on the small models of the public suite (tiger, 4x3, aloha-10m
 bridge-repair): the arithmetic is a fraction of it. These steps are compiled (``_backup.c``,
 built by ``pip install`` beside the sawtooth loop, the CPython API only):
 
-* :func:`dense_children`: the children of one belief of a dense flat model,
-  ``J[a, o] = (b T[a]) * Z[a, :, o]``, their probabilities, the possible ones packed first,
-  and the expected rewards ``R(b, a)`` (the numpy reference:
+* :func:`children`: the children of one belief of a dense model (flat, ``J[a, o] =
+  (b T[a]) * Z[a, :, o]``, or a MOMDP's, at each reachable ``x2``), their probabilities, the
+  possible ones packed first, and the expected rewards ``R(b, a)`` (the numpy reference:
   :meth:`~torchhrc.solvers.forms.base.SolverModel.children_np`).
 * :func:`group_scores`: the best alpha vector at each child, against the vectors of the
   child's own observed value ``x`` only (a MOMDP's children lie at several; the numpy
@@ -34,10 +34,11 @@ Example:
     >>> kernel = load()
     >>> if kernel is not None:  # one state, one action, one observation: J = b, P = 1
     ...     rows, prob = np.empty((2, 1)), np.empty(1)
-    ...     nz, reward = np.empty(1, dtype=np.int64), np.empty(1)
-    ...     one = np.ones((1, 1, 1))
-    ...     m = dense_children(kernel, np.ones(1), one, one, np.full((1, 1), 2.0),
-    ...                        rows, prob, nz, reward)
+    ...     rows_x, nz = np.empty(2, dtype=np.int64), np.empty(1, dtype=np.int64)
+    ...     one, reward = np.ones((1, 1, 1, 1)), np.empty(1)
+    ...     m = children(kernel, np.ones(1), np.empty((0, 0, 0)), one, one,
+    ...                  np.full((1, 1), 2.0), np.zeros(1, dtype=np.int64), rows, rows_x, prob,
+    ...                  nz, reward, 0)
     ...     assert (m, float(prob[0]), float(reward[0])) == (1, 1.0, 2.0)
 """
 
@@ -49,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["bound_children", "dense_children", "group_scores", "group_upper", "load"]
+__all__ = ["bound_children", "children", "group_scores", "group_upper", "load"]
 
 
 def load() -> ModuleType | None:
@@ -65,28 +66,41 @@ def load() -> ModuleType | None:
     return _backup
 
 
-def dense_children(
+def children(
     kernel: ModuleType,
     b: np.ndarray,
-    T: np.ndarray,
+    tx: np.ndarray,
+    tyk: np.ndarray,
     z: np.ndarray,
     RT: np.ndarray,
+    cx: np.ndarray,
     rows: np.ndarray,
+    rows_x: np.ndarray,
     prob: np.ndarray,
     nz: np.ndarray,
     reward: np.ndarray,
+    x: int,
 ) -> int:
-    """The children of one belief ``b (S,)`` of a dense flat model, written in place.
+    """The children of one belief ``b (Y,)`` at ``x`` of a dense model, written in place::
+
+        J[a, k, o, y2] = (sum_y b[y] tx[a, y, k] tyk[a, k, y, y2]) Z[a, x2_k, y2, o]
+
+    (a flat model: ``K = 1``, no ``tx``, ``tyk = T``; a static hidden value: no ``tyk``).
 
     Args:
         kernel: the module of :func:`load`.
-        b: ``(S,)`` float64 belief. T: ``(A, S, S)`` ``T[a, s, s2]``. z: ``(A, O, S)``
-            ``Z[a, s2, o]`` transposed. RT: ``(S, A)`` rewards. All C-contiguous float64.
-        rows: ``(A O + 1, S)`` written: the ``m`` possible unnormalised children
-            (``P > 0``) in ``(a, o)`` order, then ``b`` (rows past ``m + 1`` are scratch).
-        prob: ``(A O,)`` written: ``P(o | b, a)`` of every child.
-        nz: ``(A O,)`` int64 written: the first ``m`` are the possible children's indices.
+        b: ``(Y,)`` float64 belief. tx: ``(A, Y, K)`` ``Tx[a, x, y, x2_k]`` or empty
+            ``(0, 0, 0)``. tyk: ``(A, K, Y, Y)`` ``Ty[a, x, y, x2_k, y2]`` or empty
+            ``(0, 0, 0, 0)`` (not both empty). z: ``(A, K, O, Y)`` ``Z[a, x2_k, y2, o]``
+            transposed. RT: ``(Y, A)`` rewards at ``x``. cx: ``(A K O,)`` int64 each child's
+            observed value. All C-contiguous.
+        rows: ``(A K O + 1, Y)`` written: the ``m`` possible unnormalised children
+            (``P > 0``) in ``(a, k, o)`` order, then ``b`` (rows past ``m + 1`` are scratch).
+        rows_x: ``(A K O + 1,)`` int64 written: their observed values (``x`` for ``b``).
+        prob: ``(A K O,)`` written: ``P(x2_k, o | b, a)`` of every child.
+        nz: ``(A K O,)`` int64 written: the first ``m`` are the possible children's indices.
         reward: ``(A,)`` written: ``R(b, a)``.
+        x: the belief's observed value.
 
     Returns:
         ``m``, the number of possible children.
@@ -95,7 +109,7 @@ def dense_children(
         TypeError: an array of another dtype, rank, or not C-contiguous (named).
         ValueError: shapes that do not agree.
     """
-    return int(kernel.dense_children(b, T, z, RT, rows, prob, nz, reward))
+    return int(kernel.children(b, tx, tyk, z, RT, cx, rows, rows_x, prob, nz, reward, x))
 
 
 def bound_children(

@@ -64,6 +64,7 @@ import numpy as np
 import torch
 
 from torchhrc.errors import ModelError
+from torchhrc.solvers import backup_kernel
 from torchhrc.solvers._factored import Expectation
 from torchhrc.solvers.backup import BackupResult
 from torchhrc.solvers.belief_tree import BeliefTree
@@ -467,10 +468,34 @@ class TensorModelForm(SolverModel):
     def __init__(self, model: Any, source: Any = None) -> None:
         self.model = model
         self.source = model if source is None else source
+        self._kernel = backup_kernel.load()  # None: the numpy children (SolverModel's)
 
     @property
     def init_argument(self) -> Any:
         return self.model
+
+    def children_np(self, x: int, b: np.ndarray) -> Children:
+        """:meth:`~.SolverModel.children_np` in one compiled call
+        (:func:`~torchhrc.solvers.backup_kernel.children`) where the extension is built and
+        the model is float64; the numpy body of :class:`SolverModel` otherwise."""
+        if self._kernel is None or b.dtype != np.float64 or not b.flags.c_contiguous:
+            return super().children_np(x, b)
+        tx, tyk, z, RT, cx = self._cached("kernel", x, lambda: self._kernel_tables(x))
+        A, K, O, Y = z.shape
+        C = A * K * O
+        rows, rows_x, prob = np.empty((C + 1, Y)), np.empty(C + 1, dtype=np.int64), np.empty(C)
+        nz, reward = np.empty(C, dtype=np.int64), np.empty(A)
+        m = backup_kernel.children(self._kernel, b, tx, tyk, z, RT, cx, rows, rows_x, prob, nz,
+                                   reward, x)  # fmt: skip
+        return Children(rows[: m + 1], rows_x[: m + 1], None, nz[:m], prob.reshape(A, K, O), cx,
+                        reward)  # fmt: skip
+
+    @abstractmethod
+    def _kernel_tables(self, x: int) -> tuple[np.ndarray, ...]:
+        """What :meth:`children_np` hands the compiled loop at ``x`` (float64, C-contiguous):
+        ``tx (A, Y, K)`` and ``tyk (A, K, Y, Y)`` (either one empty where it is 1 or the
+        identity), ``Z (A, K, O, Y)``, ``R[:, x, :]`` as ``(Y, A)`` and the children's
+        observed values ``(A K O,)`` int64."""
 
     def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
         if max_iterations is not None:

@@ -24,11 +24,10 @@ import numpy as np
 import torch
 
 from torchhrc.pomdp import POMDP
-from torchhrc.solvers import backup_kernel
 from torchhrc.solvers.backup import BackupResult, point_backup
 from torchhrc.solvers.clock import Deadline
 from torchhrc.solvers.fib import fib_backup
-from torchhrc.solvers.forms.base import Children, FIBOperator, FlatFields, TensorModelForm
+from torchhrc.solvers.forms.base import FIBOperator, FlatFields, TensorModelForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sampling import flat_step, sample_categorical
 
@@ -43,7 +42,6 @@ class DenseForm(FlatFields, TensorModelForm):
         super().__init__(model, source)
         self._flat(model.Z, model.R, model.b0, model.discount)
         self.T = model.T.contiguous()  # (A, S, S)
-        self._kernel = backup_kernel.load()  # None: the numpy children (base class)
 
     # -- torch ---------------------------------------------------------------------------------
     def predict(self, x: int, beliefs: torch.Tensor) -> torch.Tensor:
@@ -80,42 +78,27 @@ class DenseForm(FlatFields, TensorModelForm):
     def backproject_np(self, x: int, a: int, values: np.ndarray) -> np.ndarray:
         return self._T_np()[a] @ values[0]
 
-    def children_np(self, x: int, b: np.ndarray) -> Children:
-        """:meth:`~.base.SolverModel.children_np` in one compiled call
-        (:func:`~torchhrc.solvers.backup_kernel.dense_children`) where the extension is
-        built and the model is float64; the numpy body of the base class otherwise."""
-        if self._kernel is None or b.dtype != np.float64 or not b.flags.c_contiguous:
-            return super().children_np(x, b)
-        T, z, RT, cx, cx_all = self._cached("kernel", x, lambda: self._kernel_tables(x))
-        A, O, S = z.shape
-        C = A * O
-        rows, prob = np.empty((C + 1, S)), np.empty(C)
-        nz, reward = np.empty(C, dtype=np.int64), np.empty(A)
-        m = backup_kernel.dense_children(self._kernel, b, T, z, RT, rows, prob, nz, reward)
-        if m == C:
-            return Children(rows, cx_all, None, nz, prob.reshape(A, 1, O), cx, reward)
-        rows_x = np.full(m + 1, x, dtype=cx.dtype)
-        return Children(rows[: m + 1], rows_x, None, nz[:m], prob.reshape(A, 1, O), cx, reward)
-
     def backup_vector_np(self, x: int, a: int, use: np.ndarray, vectors: np.ndarray,
                          gamma: float) -> np.ndarray:  # fmt: skip
         """:meth:`~.base.SolverModel.backup_vector_np` in one compiled call where the extension
         is built and the model is float64 (the numpy body of the base class otherwise)."""
         if self._kernel is None or vectors.dtype != np.float64 or not vectors.flags.c_contiguous:
             return super().backup_vector_np(x, a, use, vectors, gamma)
-        T, z, _, _, _ = self._cached("kernel", x, lambda: self._kernel_tables(x))
-        out = np.empty(T.shape[1])
+        _, T, z, _, _ = self._cached("kernel", x, lambda: self._kernel_tables(x))
+        A, _, O, S = z.shape
+        out = np.empty(S)
         R = self.rewards_np()  # (A, 1, S)
-        self._kernel.backup_vector(T, z, R[a, x], vectors, use.ravel(), a, gamma, out)
+        self._kernel.backup_vector(T.reshape(A, S, S), z.reshape(A, O, S), R[a, x], vectors,
+                                   use.ravel(), a, gamma, out)  # fmt: skip
         return out
 
     def _kernel_tables(self, x: int) -> tuple[np.ndarray, ...]:
-        """``T``, ``Z`` as ``(A, O, S)``, ``R`` as ``(S, A)`` (float64, C-contiguous) and the
-        children's observed values (all ``x``: one observed value) for :meth:`children_np`."""
-        z, _, cx, cx_all, RT = self._cached("children", x, lambda: self._children_tables(x))
-        A, _, O, S = z.shape
-        return (np.ascontiguousarray(self._T_np()), np.ascontiguousarray(z.reshape(A, O, S)),
-                np.ascontiguousarray(RT), cx, cx_all)  # fmt: skip
+        # a flat model: no tx (K = 1), tyk = T
+        z, _, cx, _, RT = self._cached("children", x, lambda: self._children_tables(x))
+        A, S = z.shape[0], z.shape[-1]
+        T = np.ascontiguousarray(self._T_np()).reshape(A, 1, S, S)
+        return (_NONE3, T, np.ascontiguousarray(z), np.ascontiguousarray(RT),
+                cx.astype(np.int64, copy=False))  # fmt: skip
 
     # -- initial bounds ----------------------------------------------------------------------
     def fib_start(self, tol: float, deadline: Deadline, info: dict[str, Any],
@@ -177,3 +160,6 @@ qmdp_iteration_np` (from zero, with the contraction bound: an upper bound wherev
     def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
                      beliefs: torch.Tensor) -> BackupResult:  # fmt: skip
         return point_backup(self.model, policy, beliefs)
+
+
+_NONE3 = np.empty((0, 0, 0))  # an absent (A, Y, K) table of the compiled children

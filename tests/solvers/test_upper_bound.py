@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from torchhrc.solvers import upper_bound as upper_bound_module
 from torchhrc.solvers.upper_bound import SawtoothUpperBound
 
 
@@ -61,7 +62,10 @@ def test_a_point_costs_its_own_support_not_the_widest(batched):
     np.testing.assert_allclose(got, ub.value_np(q, x), rtol=1e-14, atol=0)
 
 
-def test_pruning_moves_the_kept_supports_to_the_front_unchanged():
+@pytest.mark.parametrize("block", [None, 5])  # 5: a few points a block (kmax <= 11)
+def test_pruning_moves_the_kept_supports_to_the_front_unchanged(block, monkeypatch):
+    if block is not None:
+        monkeypatch.setattr(upper_bound_module, "_COMPACT_ENTRIES", block)
     rng = np.random.default_rng(1)
     Y = 12
     corner = np.full(Y, 10.0)

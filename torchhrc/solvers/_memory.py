@@ -13,7 +13,6 @@ Elsewhere (another C library, or none found) :func:`release_free_memory` does no
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 from typing import Any
 
 __all__: list[str] = []
@@ -31,11 +30,9 @@ def release_free_memory() -> bool:
     global _TRIM
     if _TRIM is None:
         _TRIM = False
-        name = ctypes.util.find_library("c")
-        try:
-            lib = ctypes.CDLL(name) if name else None
-            trim = getattr(lib, "malloc_trim", None)
-        except OSError:
+        try:  # the symbols already loaded (libc among them): no ldconfig run to find it
+            trim = getattr(ctypes.CDLL(None), "malloc_trim", None)
+        except (OSError, TypeError):  # no such handle on this platform
             trim = None
         if trim is not None:
             trim.argtypes = [ctypes.c_size_t]

@@ -409,6 +409,15 @@ class _AlphaSet:
         m = self._gn[x]
         return self._gcol[x][:, :m], self._gid[x][:m]
 
+    def group_scores(self, kernel: Any, rows: np.ndarray, rows_x: np.ndarray,
+                     ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """``(B,)`` the best score of each row among its own observed value's vectors and
+        ``(B,)`` that vector's index, in one compiled call over the group columns
+        (:func:`~torchhrc.solvers.backup_kernel.group_scores`; ``rows`` ``(B, Y)``
+        C-contiguous, or ``(1, Y)``: one belief under each ``x`` of ``rows_x``)."""
+        return backup_kernel.group_scores(kernel, rows, rows_x.astype(np.int64, copy=False),
+                                          self._gcol, self._gid, self._gn)  # fmt: skip
+
     def _append_group(self, x: int, alpha: np.ndarray, index: int) -> None:
         m = self._gn[x]
         if m == self._gid[x].shape[0]:
@@ -805,11 +814,7 @@ class _SARSOP:
             best = scores.argmax(-1)
             return scores[np.arange(scores.shape[0]), best], best
         if self._kernel is not None:  # each row against its own x's vectors, compiled
-            a = self.alphas
-            return backup_kernel.group_scores(
-                self._kernel, np.ascontiguousarray(rows), rows_x.astype(np.int64, copy=False),
-                a._gcol, a._gid, a._gn,
-            )  # fmt: skip
+            return self.alphas.group_scores(self._kernel, np.ascontiguousarray(rows), rows_x)
         B = rows.shape[0]
         first = rows_x[0]
         if (rows_x == first).all():
@@ -1006,10 +1011,7 @@ class _SARSOP:
             best[imp] = own
             return best
         if self._kernel is not None:  # b itself under each child's x, one call
-            best[imp] = backup_kernel.group_scores(
-                self._kernel, b.reshape(1, -1), cx.astype(np.int64, copy=False),
-                self.alphas._gcol, self.alphas._gid, self.alphas._gn,
-            )[1]  # fmt: skip
+            best[imp] = self.alphas.group_scores(self._kernel, b.reshape(1, -1), cx)[1]
             return best
         ux, inv = np.unique(cx, return_inverse=True)
         _, ids = self._lower_np(np.broadcast_to(b, (ux.size, b.shape[0])), ux)

@@ -480,7 +480,7 @@ class TensorModelForm(SolverModel):
         the model is float64; the numpy body of :class:`SolverModel` otherwise."""
         if self._kernel is None or b.dtype != np.float64 or not b.flags.c_contiguous:
             return super().children_np(x, b)
-        tx, tyk, z, RT, cx = self._cached("kernel", x, lambda: self._kernel_tables(x))
+        tx, tyk, z, RT, cx = self._kernel_tables(x)
         A, K, O, Y = z.shape
         C = A * K * O
         rows, rows_x, prob = np.empty((C + 1, Y)), np.empty(C + 1, dtype=np.int64), np.empty(C)
@@ -490,12 +490,27 @@ class TensorModelForm(SolverModel):
         return Children(rows[: m + 1], rows_x[: m + 1], None, nz[:m], prob.reshape(A, K, O), cx,
                         reward)  # fmt: skip
 
-    @abstractmethod
     def _kernel_tables(self, x: int) -> tuple[np.ndarray, ...]:
-        """What :meth:`children_np` hands the compiled loop at ``x`` (float64, C-contiguous):
-        ``tx (A, Y, K)`` and ``tyk (A, K, Y, Y)`` (either one empty where it is 1 or the
-        identity), ``Z (A, K, O, Y)``, ``R[:, x, :]`` as ``(Y, A)`` and the children's
-        observed values ``(A K O,)`` int64."""
+        """What :meth:`children_np` hands the compiled loop at ``x`` (float64, C-contiguous,
+        built once): ``tx (A, Y, K)`` and ``tyk (A, K, Y, Y)`` (empty where
+        :meth:`_transition_tables` gives None), ``Z (A, K, O, Y)``, ``R[:, x, :]`` as
+        ``(Y, A)`` and the children's observed values ``(A K O,)`` int64."""
+
+        def build() -> tuple[np.ndarray, ...]:
+            z, _, cx, _, RT = self._cached("children", x, lambda: self._children_tables(x))
+            tx, tyk = self._transition_tables(x)
+            return (np.empty((0, 0, 0)) if tx is None else np.ascontiguousarray(tx),
+                    np.empty((0, 0, 0, 0)) if tyk is None else np.ascontiguousarray(tyk),
+                    np.ascontiguousarray(z), np.ascontiguousarray(RT),
+                    cx.astype(np.int64, copy=False))  # fmt: skip
+
+        return self._cached("kernel", x, build)
+
+    @abstractmethod
+    def _transition_tables(self, x: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """``tx (A, Y, K)`` ``Tx[a, x, y, x2_k]`` (None: 1, a flat model) and ``tyk (A, K, Y,
+        Y)`` ``Ty[a, x, y, x2_k, y2]`` (None: the identity, a static hidden value) at ``x``,
+        as numpy (CPU): the prediction of :meth:`children_np`'s compiled loop."""
 
     def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
         if max_iterations is not None:

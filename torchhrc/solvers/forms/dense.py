@@ -84,7 +84,7 @@ class DenseForm(FlatFields, TensorModelForm):
         is built and the model is float64 (the numpy body of the base class otherwise)."""
         if self._kernel is None or vectors.dtype != np.float64 or not vectors.flags.c_contiguous:
             return super().backup_vector_np(x, a, use, vectors, gamma)
-        _, T, z, _, _ = self._cached("kernel", x, lambda: self._kernel_tables(x))
+        _, T, z, _, _ = self._kernel_tables(x)
         A, _, O, S = z.shape
         out = np.empty(S)
         R = self.rewards_np()  # (A, 1, S)
@@ -92,13 +92,9 @@ class DenseForm(FlatFields, TensorModelForm):
                                    use.ravel(), a, gamma, out)  # fmt: skip
         return out
 
-    def _kernel_tables(self, x: int) -> tuple[np.ndarray, ...]:
-        # a flat model: no tx (K = 1), tyk = T
-        z, _, cx, _, RT = self._cached("children", x, lambda: self._children_tables(x))
-        A, S = z.shape[0], z.shape[-1]
-        T = np.ascontiguousarray(self._T_np()).reshape(A, 1, S, S)
-        return (_NONE3, T, np.ascontiguousarray(z), np.ascontiguousarray(RT),
-                cx.astype(np.int64, copy=False))  # fmt: skip
+    def _transition_tables(self, x: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        T = self._T_np()  # a flat model: no tx (K = 1), tyk = T
+        return None, T.reshape(T.shape[0], 1, *T.shape[1:])
 
     # -- initial bounds ----------------------------------------------------------------------
     def fib_start(self, tol: float, deadline: Deadline, info: dict[str, Any],
@@ -160,6 +156,3 @@ qmdp_iteration_np` (from zero, with the contraction bound: an upper bound wherev
     def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
                      beliefs: torch.Tensor) -> BackupResult:  # fmt: skip
         return point_backup(self.model, policy, beliefs)
-
-
-_NONE3 = np.empty((0, 0, 0))  # an absent (A, Y, K) table of the compiled children

@@ -122,13 +122,8 @@ class MOMDPForm(TensorModelForm):
         w = b * tx[a, :, k]
         return w if tyk is None else w @ tyk[a, k]
 
-    def _kernel_tables(self, x: int) -> tuple[np.ndarray, ...]:
-        # a static hidden value: no tyk (the identity)
-        z, _, cx, _, RT = self._cached("children", x, lambda: self._children_tables(x))
-        tx, tyk = self._np(x)
-        return (np.ascontiguousarray(tx), _NONE4 if tyk is None else np.ascontiguousarray(tyk),
-                np.ascontiguousarray(z), np.ascontiguousarray(RT),
-                cx.astype(np.int64, copy=False))  # fmt: skip
+    def _transition_tables(self, x: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        return self._np(x)  # a static hidden value: tyk None (the identity)
 
     def backproject_np(self, x: int, a: int, values: np.ndarray) -> np.ndarray:
         tx, tyk = self._np(x)
@@ -197,6 +192,3 @@ class MOMDPForm(TensorModelForm):
     def prune(self, policy: AlphaVectorPolicy, x: torch.Tensor,
               beliefs: torch.Tensor) -> AlphaVectorPolicy:  # fmt: skip
         return policy.prune(beliefs, x=x)
-
-
-_NONE4 = np.empty((0, 0, 0, 0))  # an absent (A, K, Y, Y) table of the compiled children

@@ -243,6 +243,23 @@ def test_grouped_evaluation_equals_the_numpy_one(name: str) -> None:
     assert any(np.unique(ev[8]).size > 1 for ev in got)
 
 
+def test_grouped_lower_bounds_on_given_columns_equal_the_full_rows() -> None:
+    """Rows of several observed values given on a subset of the hidden values (the columns of
+    :class:`~torchhrc.solvers.forms.base.Children`) score as the full rows, zero elsewhere."""
+    solver = _solver(random_momdp(5, 6, 3, 3, static=False, seed=8), 8)
+    rng = np.random.default_rng(0)
+    cols = np.array([0, 2, 3, 5])
+    rows = np.zeros((7, 6))
+    rows[:, cols] = rng.random((7, cols.size))
+    rows_x = rng.integers(0, 5, 7)
+    for same in (False, True):
+        rx = np.full(7, rows_x[0]) if same else rows_x
+        want = solver._lower_np(rows, rx)
+        got = solver._lower_np(np.ascontiguousarray(rows[:, cols]), rx, cols)
+        np.testing.assert_allclose(got[0], want[0], rtol=1e-13, atol=1e-13)
+        np.testing.assert_array_equal(got[1], want[1])
+
+
 @needs_extension
 def test_group_scores_and_upper_by_hand() -> None:
     # x = 0 has vectors 5: (1, 0) and 7: (0, 2); x = 1 has 2: (1, 1) and 9: (2, 0)

@@ -312,7 +312,6 @@ class _AlphaSet:
         self.observed = torch.zeros(cap, dtype=torch.long, device=alphas.device)
         self.vectors[:n], self.actions[:n], self.observed[:n] = alphas, actions, observed
         self.size = n
-        self.columns: np.ndarray | None = None  # (Y, capacity) transposed copy, see below
         self._views()
         self._regroup()
 
@@ -352,18 +351,6 @@ class _AlphaSet:
                 first, at = np.unique(ii, return_index=True)  # ii is sorted, jj rising
                 out[chunk[first]] = cand[jj[at]]
         return out
-
-    def keep_columns(self) -> None:
-        """Also keep a ``(Y, capacity)`` transposed numpy copy of every vector,
-        ``columns[:, :size]`` (CPU).
-
-        The sparse MOMDP path bounds children of several observed values given on a few
-        hundred of ``Y`` columns: ``columns[cols, :size]`` is then one gather of contiguous
-        rows for all of them. (With one observed value the group's own columns serve,
-        :meth:`group_columns`.)
-        """
-        assert self.np_vectors is not None
-        self.columns = np.ascontiguousarray(self.np_vectors.T)
 
     def _views(self) -> None:
         """Numpy views of the storage (CPU only; refreshed after every reallocation)."""
@@ -443,8 +430,6 @@ class _AlphaSet:
         self.np_vectors[n] = alpha
         self.np_actions[n] = action
         self.np_observed[n] = observed
-        if self.columns is not None:
-            self.columns[:, n] = alpha
         self.size = n + 1
         self.refs.append(np.asarray(() if refs is None else refs, dtype=np.int64))
         self._append_group(observed, self.np_vectors[n], n)
@@ -461,8 +446,6 @@ class _AlphaSet:
             new[: self.size] = old[: self.size]
             setattr(self, name, new)
         self._views()
-        if self.columns is not None:
-            self.keep_columns()
 
     def add(self, alphas: torch.Tensor, actions: torch.Tensor, observed: torch.Tensor,
             refs: list[np.ndarray] | None = None) -> None:  # fmt: skip
@@ -474,8 +457,6 @@ class _AlphaSet:
             self._reserve(self.size + m)
         s = slice(self.size, self.size + m)
         self.vectors[s], self.actions[s], self.observed[s] = alphas, actions, observed
-        if self.columns is not None:
-            self.columns[:, s] = alphas.numpy().T
         self.size += m
         if self.np_vectors is not None:
             assert self.np_observed is not None
@@ -514,8 +495,6 @@ class _AlphaSet:
         self.vectors[:n] = self.vectors[idx]
         self.actions[:n] = self.actions[idx]
         self.observed[:n] = self.observed[idx]
-        if self.columns is not None:
-            self.columns[:, :n] = self.columns[:, idx.numpy()]
         self.size = n
         self._regroup()
         return moved
@@ -796,35 +775,25 @@ class _SARSOP:
         ``N_x * Y`` per row instead of ``N * Y``); ties go to the lowest index, as a scan of
         the whole set would. Rows given on the columns ``cols`` only (children of a sparse
         belief, :class:`~torchhrc.solvers.forms.base.Children`) are scored against the
-        vectors restricted to them (the group's columns with one observed value; else
-        :meth:`_AlphaSet.keep_columns`, masked to each row's observed value).
+        groups' columns restricted to them.
         """
         if self.X == 1:
             Vt, ids = self.alphas.group_columns(0)
             return self._score_np(rows, Vt if cols is None else Vt[cols], ids)
-        if cols is not None:
-            if self.alphas.columns is None:
-                self.alphas.keep_columns()
-            assert self.alphas.columns is not None
-            n = self.alphas.size
-            scores = rows @ self.alphas.columns[cols, :n]  # (B, N)
-            # a sparse MOMDP form: each row against its own x's vectors
-            assert self.alphas.np_observed is not None
-            scores[rows_x[:, None] != self.alphas.np_observed[None, :n]] = -np.inf
-            best = scores.argmax(-1)
-            return scores[np.arange(scores.shape[0]), best], best
-        if self._kernel is not None:  # each row against its own x's vectors, compiled
+        if self._kernel is not None and cols is None:  # each row against its own x's, compiled
             return self.alphas.group_scores(self._kernel, np.ascontiguousarray(rows), rows_x)
         B = rows.shape[0]
         first = rows_x[0]
         if (rows_x == first).all():
             Vt, ids = self.alphas.group_columns(int(first))
-            return self._score_np(rows, Vt, ids)
+            return self._score_np(rows, Vt if cols is None else Vt[cols], ids)
         # one product against the vectors of all the rows' observed values, masked to each
         # row's own: fewer array ops than one product per observed value
         xs = np.unique(rows_x)
         blocks = [self.alphas.group_columns(int(u)) for u in xs]
         Vt = np.concatenate([v for v, _ in blocks], axis=1)  # (Y, sum N_x)
+        if cols is not None:
+            Vt = Vt[cols]
         ids = np.concatenate([i for _, i in blocks])
         label = np.repeat(xs, [i.size for _, i in blocks])  # (sum N_x,) observed value
         scores = rows @ Vt  # (B, sum N_x)

@@ -1,8 +1,9 @@
 /* Compiled steps of SARSOP's one-belief evaluation on the CPU: see
- * torchhrc/solvers/backup_kernel.py, which documents both functions and their numpy
- * references (DenseForm.children_np's numpy body and _SARSOP._upper_np), and checks the
- * arguments' dtypes before the call. The per-call work is small (tens of states and
- * actions): what this saves is the forty-odd numpy calls of a few microseconds each.
+ * torchhrc/solvers/backup_kernel.py, which documents every function and its numpy
+ * reference (SolverModel.children_np, _SARSOP._lower_np and _upper_np,
+ * SawtoothUpperBound.value_np); the functions check their arguments' dtypes and shapes.
+ * The per-call work is small (tens of states and actions): what this saves is the forty-odd
+ * numpy calls of a few microseconds each.
  *
  * children(b, tx, tyk, z, RT, cx, rows, rows_x, prob, nz, reward, x) -> m
  *   b (Y,), tx (A, Y, K) and/or tyk (A, K, Y, Y) (the other empty), z (A, K, O, Y),

@@ -313,6 +313,14 @@ def _appl_rows(text: str) -> list[tuple[float, float, float, float]]:
             for m in map(_ROW.match, text.splitlines()) if m]  # fmt: skip
 
 
+def _has_observed(path: Path) -> bool:
+    """Whether a ``.pomdpx`` file has an observed state variable (it is then solved as a
+    MOMDP, another model than its flat ``.pomdp`` twin: APPL's ``TagAvoid``)."""
+    from torchhrc.io import read_pomdpx_variables
+
+    return bool(read_pomdpx_variables(path).observed)
+
+
 def suite_table(
     folder: Path, limits: list[float], appl: str | None, precision: float, prefix: Path,
     only: list[str] | None = None,
@@ -327,8 +335,8 @@ def suite_table(
     for path in files:
         if only and path.stem not in only:
             continue
-        if path.suffix == ".pomdpx" and path.stem in stems:
-            continue  # the same problem is in the suite as .pomdp
+        if path.suffix == ".pomdpx" and path.stem in stems and not _has_observed(path):
+            continue  # the same flat problem is in the suite as .pomdp
         for limit in limits:
             for solver in ("torchhrc", "APPL"):
                 row: dict = {"problem": path.name, "limit_s": limit, "solver": solver}

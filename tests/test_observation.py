@@ -477,3 +477,16 @@ def test_fit_rejects_bad_settings():
         fit_observation_model(m, Tx, t, optimizer="sgd")
     with pytest.raises(ModelError, match="steps"):
         fit_observation_model(m, Tx, t, steps=0)
+
+
+def test_simulate_tracks_of_a_random_start_needs_x0():
+    _, Tx, m = _small_problem()
+    A, X, Y = Tx.shape[-4], Tx.shape[-3], Tx.shape[-2]
+    joint = torch.full((X, Y), 1.0 / (X * Y), dtype=D)
+    model = MOMDP(Tx=Tx, Ty=None, Z=torch.full((A, X, Y, 2), 0.5, dtype=D),
+                  R=torch.zeros(A, X, Y, dtype=D), x0=0,
+                  b0=torch.full((Y,), 1.0 / Y, dtype=D), discount=0.9, initial=joint)  # fmt: skip
+    with pytest.raises(ValueError, match="pass x0"):
+        simulate_tracks(m, model, num_tracks=2, length=3, seed=0)
+    t = simulate_tracks(m, model, num_tracks=2, length=3, seed=0, x0=1)
+    assert t.observed[:, 0].tolist() == [1, 1]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 
@@ -119,3 +121,55 @@ def test_flat_update_through_to_pomdp_matches_factored_filter_over_a_trajectory(
         torch.testing.assert_close(rf.belief.reshape(3, 3)[x2], r.belief)
         torch.testing.assert_close(rf.log_normalizer, r.log_normalizer)
         x, by, b = x2, r.belief, rf.belief
+
+
+# -- a random first observed value (MOMDP.initial) -------------------------------------------
+def _joint(X: int, Y: int, seed: int) -> torch.Tensor:
+    j = torch.rand(X, Y, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
+    return j / j.sum()
+
+
+def test_with_initial_sets_the_most_probable_x_and_its_conditional():
+    joint = torch.tensor([[0.1, 0.1], [0.0, 0.0], [0.2, 0.6]], dtype=torch.float64)
+    m = random_momdp(3, 2, 2, 2, seed=0).with_initial(joint)
+    assert m.random_start and m.x0 == 2
+    torch.testing.assert_close(m.b0, torch.tensor([0.25, 0.75], dtype=torch.float64))
+    assert torch.equal(m.initial_distribution(), joint)
+    # the flat form starts from the joint
+    torch.testing.assert_close(m.to_pomdp().b0, joint.reshape(-1), rtol=0, atol=0)
+    # a joint on one x is no random start
+    one = torch.zeros(3, 2, dtype=torch.float64)
+    one[1] = torch.tensor([0.4, 0.6], dtype=torch.float64)
+    m1 = m.with_initial(one)
+    assert not m1.random_start and m1.initial is None and m1.x0 == 1
+    torch.testing.assert_close(m1.initial_distribution(), one, rtol=0, atol=1e-15)
+    # to(): the joint moves with the other tensors
+    assert m.to(dtype=torch.float32).initial.dtype == torch.float32
+
+
+def test_initial_validation_names_what_is_wrong():
+    m = random_momdp(3, 2, 2, 2, seed=0)
+    joint = _joint(3, 2, 1)
+    with pytest.raises(ModelError, match=r"initial to have shape \(X=3, Y=2\)"):
+        dataclasses.replace(m, initial=joint.reshape(2, 3))
+    with pytest.raises(ModelError, match="initial"):
+        dataclasses.replace(m, initial=joint * 2)
+    with pytest.raises(ModelError, match="all its mass on one observed value"):
+        one = torch.zeros(3, 2, dtype=torch.float64)
+        one[0] = 0.5
+        dataclasses.replace(m, initial=one)
+    with pytest.raises(ModelError, match=r"b0 must be initial's P\(y \| x0 = 0\)"):
+        dataclasses.replace(m, initial=joint)  # m.b0 is not joint's conditional at x0
+    gapped = joint.clone()
+    gapped[0] = 0.0
+    gapped = gapped / gapped.sum()
+    with pytest.raises(ModelError, match="gives x0 = 0 no mass"):
+        dataclasses.replace(m, initial=gapped)
+    with pytest.raises(ModelError, match="initial to have shape"):
+        m.with_initial(joint[:2])
+
+
+def test_from_pomdp_of_a_random_start_says_how_to_build_it():
+    m = random_momdp(3, 2, 2, 2, seed=0).with_initial(_joint(3, 2, 2))
+    with pytest.raises(ModelError, match="with_initial"):
+        MOMDP.from_pomdp(m.to_pomdp(), num_hidden=2)

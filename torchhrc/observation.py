@@ -1008,6 +1008,11 @@ def simulate_tracks(
     """
     Tx, _, b0 = _unpack_transition(transition, b0, None)
     if x0 is None:
+        if isinstance(transition, MOMDP) and transition.random_start:
+            raise ValueError(
+                "the MOMDP has a random first x (initial): pass x0, the observed value the "
+                "tracks start at"
+            )
         x0 = transition.x0 if isinstance(transition, MOMDP) else 0
     A, X = Tx.shape[-4], Tx.shape[-3]
     if (model.num_observed, model.num_hidden) != (X, Tx.shape[-2]):

@@ -21,6 +21,9 @@ observability"; paper Eq. 3)::
     R:  (..., A, X, Y)           R[..., a, x, y]             = reward of a in (x, y)
     x0: int                      initial observed value
     b0: (..., Y)                 initial belief over the hidden value
+    initial: (X, Y) or None      a random start: the joint P(x, y) of the first state (then
+                                 x0 is its most probable x and b0 = P(y | x0)); see
+                                 MOMDP.with_initial
 
 The flat form of a MOMDP numbers states ``s = x * Y + y`` and observations
 ``o_flat = x2 * O + o`` (the observed part of the next state is seen exactly).
@@ -186,6 +189,13 @@ class MOMDP:
         b0: ``(..., Y)`` initial belief over the hidden value.
         discount: discount factor in (0, 1].
         observed_states, hidden_states, actions, observations: optional names.
+        initial: ``(X, Y)`` the joint distribution of the first state when the first
+            observed value is random (APPL's ``TagAvoid.pomdpx``: the robot starts in any
+            cell), spread over at least two ``x``; ``None`` (default) when every episode
+            starts at ``x0``. With it, ``x0`` must have mass and ``b0`` must be
+            ``P(y | x0)``; :meth:`with_initial` sets all three from the joint. The agent sees
+            the first ``x`` (it is observed), so the value of a policy is
+            ``sum_x P(x) V(x, P(. | x))``.
 
     Example:
         >>> import torch
@@ -208,6 +218,7 @@ class MOMDP:
     hidden_states: tuple[str, ...] | None = None
     actions: tuple[str, ...] | None = None
     observations: tuple[str, ...] | None = None
+    initial: torch.Tensor | None = None
     validate_probabilities: bool = field(default=True, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -264,6 +275,88 @@ class MOMDP:
         object.__setattr__(self, "actions", _check_names("actions", self.actions, A))
         object.__setattr__(
             self, "observations", _check_names("observations", self.observations, Z.shape[-1])
+        )
+        if self.initial is not None:
+            self._check_initial(X, Y)
+
+    def _check_initial(self, X: int, Y: int) -> None:
+        """``initial``: an ``(X, Y)`` distribution over at least two ``x``, ``x0`` with mass,
+        ``b0 = P(y | x0)``."""
+        initial = check_tensor("initial", self.initial)
+        if tuple(initial.shape) != (X, Y):
+            raise ModelError(
+                f"expected initial to have shape (X={X}, Y={Y}) (one joint distribution, no "
+                f"batch dims), actual shape = {tuple(initial.shape)}"
+            )
+        check_probabilities("initial", initial.reshape(-1))
+        mass = initial.sum(-1)
+        if int((mass > 0).sum()) < 2:
+            raise ModelError(
+                "initial puts all its mass on one observed value: give x0 and b0 alone "
+                "(initial=None), or build the model with MOMDP.with_initial"
+            )
+        if float(mass[self.x0]) <= 0:
+            raise ModelError(f"initial gives x0 = {self.x0} no mass: P(x) = {mass.tolist()}")
+        want = (initial[self.x0] / mass[self.x0]).to(self.b0.dtype)
+        if not torch.allclose(self.b0, want.expand_as(self.b0), atol=1e-9, rtol=0.0):
+            raise ModelError(
+                f"b0 must be initial's P(y | x0 = {self.x0}) = {want.tolist()}, got "
+                f"{self.b0.tolist()}; MOMDP.with_initial sets x0 and b0 from the joint"
+            )
+
+    @property
+    def random_start(self) -> bool:
+        """True when the first observed value is random (:attr:`initial` is given)."""
+        return self.initial is not None
+
+    def initial_distribution(self) -> torch.Tensor:
+        """``(..., X, Y)`` the joint distribution of the first state: :attr:`initial`, or
+        ``b0`` placed at ``x0``.
+
+        Example:
+            >>> from torchhrc.testing import random_momdp
+            >>> m = random_momdp(3, 2, 2, 2, seed=0)
+            >>> [round(p, 12) for p in m.initial_distribution().sum(-1).tolist()]  # at x0 = 0
+            [1.0, 0.0, 0.0]
+        """
+        if self.initial is not None:
+            return self.initial
+        X = self.num_observed
+        onehot = torch.zeros(X, dtype=self.b0.dtype, device=self.b0.device)
+        onehot[self.x0] = 1.0
+        return onehot.unsqueeze(-1) * self.b0.unsqueeze(-2)
+
+    def with_initial(self, initial: torch.Tensor) -> MOMDP:
+        """The same MOMDP started from the joint distribution ``initial (X, Y)`` of
+        ``(x, y)``: ``x0`` its most probable ``x`` (the first of ties), ``b0 = P(y | x0)``,
+        and ``initial`` kept when it spreads over several ``x`` (else ``None``).
+
+        Raises:
+            ModelError: ``initial`` is not an ``(X, Y)`` distribution.
+
+        Example:
+            >>> import torch
+            >>> from torchhrc.testing import random_momdp
+            >>> m = random_momdp(3, 2, 2, 2, seed=0)
+            >>> joint = torch.tensor([[0.125, 0.125], [0.0, 0.0], [0.25, 0.5]], dtype=torch.float64)
+            >>> s = m.with_initial(joint)
+            >>> s.x0, s.b0.tolist(), s.random_start
+            (2, [0.3333333333333333, 0.6666666666666666], True)
+        """
+        initial = check_tensor("initial", initial)
+        X, Y = self.num_observed, self.num_hidden
+        if tuple(initial.shape) != (X, Y):
+            raise ModelError(
+                f"expected initial to have shape (X={X}, Y={Y}), actual shape = "
+                f"{tuple(initial.shape)}"
+            )
+        check_probabilities("initial", initial.reshape(-1))
+        mass = initial.sum(-1)
+        x0 = int(mass.argmax())
+        b0 = (initial[x0] / mass[x0]).to(dtype=self.b0.dtype, device=self.b0.device)
+        spread = int((mass > 0).sum()) >= 2
+        return dataclasses.replace(
+            self, x0=x0, b0=b0, initial=initial.to(self.b0.dtype) if spread else None
         )
 
     @property
@@ -384,7 +477,9 @@ class MOMDP:
         x0 = flat_mass.argmax(-1)
         if bool((x0 != x0[0]).any()) or bool(((flat_mass[:, x0[0]] - 1).abs() > 1e-6).any()):
             raise ModelError(
-                f"b0 must put all its mass on one observed value x, got P(x) = {mass.tolist()}"
+                f"b0 must put all its mass on one observed value x, got P(x) = {mass.tolist()}: "
+                "the flat POMDP acts before it sees its first x, a MOMDP sees it first; for "
+                "that start, build the MOMDP from one x and call with_initial(joint)"
             )
         x_start = int(x0[0])
         observed_states = hidden_states = observations = None
@@ -421,6 +516,10 @@ class MOMDP:
     def to_pomdp(self) -> POMDP:
         """The equivalent flat POMDP over ``S = X * Y`` states and ``X * O`` observations.
 
+        With a random start (:attr:`initial`) the flat POMDP starts from the joint
+        :meth:`initial_distribution` and takes its first action before it sees ``x`` (a
+        POMDP has no initial observation), so its optimal value can be below the MOMDP's.
+
         States are numbered ``s = x * Y + y``; flat observations ``x2 * O + o``.
         ``T[a, (x, y), (x2, y2)] = Tx[a, x, y, x2] * Ty[a, x, y, x2, y2]`` and
         ``Z[a, (x2, y2), (x3, o)] = [x3 == x2] * Z[a, x2, y2, o]``.
@@ -435,9 +534,7 @@ class MOMDP:
         Zf = eye_x.view(X, 1, X, 1) * self.Z.unsqueeze(-2)
         Zf = Zf.expand(*batch, A, X, Y, X, O).reshape(*batch, A, X * Y, X * O)
         R = self.R.expand(*batch, A, X, Y).reshape(*batch, A, X * Y)
-        onehot = torch.zeros(X, dtype=self.b0.dtype, device=self.b0.device)
-        onehot[self.x0] = 1.0
-        b0 = (onehot.unsqueeze(-1) * self.b0.unsqueeze(-2)).expand(*batch, X, Y)
+        b0 = self.initial_distribution().expand(*batch, X, Y)
         states = None
         if self.observed_states is not None and self.hidden_states is not None:
             states = tuple(f"{x}|{y}" for x in self.observed_states for y in self.hidden_states)

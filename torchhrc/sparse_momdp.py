@@ -158,6 +158,11 @@ class SparseMOMDP:
         """
         if not isinstance(model, MOMDP):
             raise TypeError(f"expected a MOMDP, got {type(model).__name__}")
+        if model.random_start:
+            raise ModelError(
+                "SparseMOMDP starts at one observed value: a MOMDP with a random first x "
+                "(initial) has no sparse MOMDP form; use the dense MOMDP or model.to_pomdp()"
+            )
         if len(model.batch_shape):
             raise ModelError(
                 f"expected an unbatched MOMDP, got batch shape {tuple(model.batch_shape)}"

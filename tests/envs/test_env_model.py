@@ -96,6 +96,24 @@ def test_momdp_env_frequencies_match_model(chi_square, static):
     assert chi_square(row_xy, x2, wrong_Tx.reshape(-1, X)) < ALPHA
 
 
+def test_momdp_env_random_start_follows_the_joint(chi_square):
+    g = torch.Generator().manual_seed(0)
+    joint = torch.rand(3, 2, generator=g, dtype=torch.float64)
+    joint[1] = 0.0
+    model = random_momdp(3, 2, 2, 2, seed=2).with_initial(joint / joint.sum())
+    env = MOMDPEnv(model)
+    starts = []
+    for i in range(4000):
+        obs, info = env.reset(seed=i)
+        assert obs["x"] == info["x"]  # the first x is seen
+        starts.append(info["state"])
+    starts = np.array(starts)
+    p = model.initial.numpy().reshape(1, -1)
+    assert chi_square(np.zeros_like(starts), starts, p) > ALPHA
+    assert chi_square(np.zeros_like(starts), starts, np.roll(p, 1, -1)) < ALPHA
+    check_env(MOMDPEnv(model), skip_render_check=True)
+
+
 def test_check_env_passes_for_model_envs():
     envs = [
         POMDPEnv(tiger(), horizon=10),

@@ -306,9 +306,38 @@ def test_static_hidden_variables_give_ty_none():
     assert torch.equal(m.Tx, _corridor().Tx)
 
 
-def test_initial_belief_over_several_x_is_read_flat():
+def test_initial_belief_over_several_x_is_a_random_start():
     text = CORRIDOR_PX.replace("<ProbTable>1 0 0</ProbTable>", "<ProbTable>0.5 0.5 0</ProbTable>")
     m = read_pomdpx(text)
+    assert isinstance(m, MOMDP) and m.random_start
+    want = torch.tensor([[0.15, 0.35], [0.15, 0.35], [0, 0]], dtype=torch.float64)
+    torch.testing.assert_close(m.initial, want, rtol=0, atol=1e-15)
+    assert m.x0 == 0 and torch.allclose(m.b0, torch.tensor([0.3, 0.7], dtype=torch.float64))
+    corridor = _corridor()
+    for name in ("Tx", "Ty", "Z", "R"):
+        assert torch.equal(getattr(m, name), getattr(corridor, name)), name
+    # written and read again: the same start (x_0's P(x), y_0 given x_0)
+    back = read_pomdpx(format_pomdpx(m))
+    assert torch.equal(back.initial, m.initial) and back.x0 == m.x0
+
+
+@settings(max_examples=20, deadline=None, derandomize=True)
+@given(st.integers(2, 5), st.integers(1, 3), st.integers(0, 2**31 - 1))
+def test_random_starts_round_trip(X, Y, seed):
+    g = torch.Generator().manual_seed(seed)
+    joint = torch.rand(X, Y, generator=g, dtype=torch.float64)
+    if X > 2:
+        joint[0] = 0.0  # an x without mass
+    m = random_momdp(X, Y, 2, 2, seed=seed).with_initial(joint / joint.sum())
+    back = read_pomdpx(format_pomdpx(m))
+    assert back.random_start and back.x0 == m.x0
+    torch.testing.assert_close(back.initial, m.initial, rtol=0, atol=1e-15)
+    torch.testing.assert_close(back.b0, m.b0, rtol=0, atol=1e-15)
+
+
+def test_initial_belief_over_several_x_is_read_flat_when_asked():
+    text = CORRIDOR_PX.replace("<ProbTable>1 0 0</ProbTable>", "<ProbTable>0.5 0.5 0</ProbTable>")
+    m = read_pomdpx(text, momdp=False)
     assert isinstance(m, POMDP)
     # the robot's cell is now uncertain: the flat observations carry it ("x|o", x2 * O + o)
     assert m.num_observations == 6 and m.observations[3] == "c1|see-closed"

@@ -387,3 +387,10 @@ def test_sarsop_is_unchanged_by_the_blind_policy_without_repeated_vectors() -> N
     assert [h["lower"] for h in a.history] == [h["lower"] for h in b.history]
     assert torch.equal(a.policy.alphas, b.policy.alphas)
     assert torch.equal(a.policy.actions, b.policy.actions)
+
+
+def test_a_random_start_has_no_sparse_momdp_form():
+    joint = torch.rand(3, 2, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    model = random_momdp(3, 2, 2, 2, seed=0).with_initial(joint / joint.sum())
+    with pytest.raises(ModelError, match="random first x"):
+        SparseMOMDP.from_dense(model)

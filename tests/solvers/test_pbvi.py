@@ -10,7 +10,15 @@ import torch
 from _exact_pomdp import TIGER_OPTIMUM, optimal_value_bounds
 
 from torchhrc.errors import ModelError
-from torchhrc.solvers import PBVIConfig, QMDPConfig, evaluate_policy, pbvi, solve
+from torchhrc.solvers import (
+    PBVIConfig,
+    QMDPConfig,
+    SARSOPConfig,
+    evaluate_policy,
+    pbvi,
+    sarsop,
+    solve,
+)
 from torchhrc.tasks.classic import tiger
 from torchhrc.testing import random_momdp, random_pomdp
 
@@ -81,6 +89,37 @@ def test_momdp_factored_and_flat_agree(static):
     result = evaluate_policy(model, factored.policy, episodes=1000, seed=4)
     slack = 4 * result.std_error + result.truncation
     assert factored.lower - slack <= result.mean <= factored.upper + slack
+
+
+@pytest.mark.parametrize("factored", [True, False])
+def test_random_start_bounds_are_the_roots_weighted(factored):
+    joint = torch.rand(3, 2, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    model = random_momdp(3, 2, 2, 2, static=False, discount=0.8, seed=3)
+    model = model.with_initial(joint / joint.sum())
+    sol = pbvi(model, PBVIConfig(time_limit=30, expansions=6, seed=0, factored=factored))
+    exact = sarsop(model, SARSOPConfig(time_limit=60, precision=1e-4))
+    # the SARSOP bounds are those of the MOMDP (the first x seen); PBVI's flat form acts
+    # before it sees x: its lower bound is still below the MOMDP's optimum
+    assert sol.lower <= exact.upper + 1e-9
+    if factored:
+        assert sol.upper >= exact.lower - 1e-9
+        assert sol.info["belief_x"][:3].tolist() == [0, 1, 2]  # one root per first x
+        result = evaluate_policy(model, sol.policy, episodes=2000, seed=4)
+        slack = 4 * result.std_error + result.truncation
+        assert sol.lower - slack <= result.mean <= sol.upper + slack
+
+
+def test_random_start_qmdp_bounds_bracket_the_optimum():
+    joint = torch.rand(3, 2, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    model = random_momdp(3, 2, 2, 2, static=False, discount=0.8, seed=3)
+    model = model.with_initial(joint / joint.sum())
+    exact = sarsop(model, SARSOPConfig(time_limit=60, precision=1e-4))
+    bound = solve(model, QMDPConfig())
+    assert bound.lower <= exact.lower + 1e-9 and bound.upper >= exact.upper - 1e-9
+    # by hand: sum_x max over x's vectors of V . joint[x]
+    alphas, observed = bound.policy.alphas, bound.policy.observed
+    want = sum(float((alphas[observed == x] @ model.initial[x]).max()) for x in range(3))
+    assert bound.upper == pytest.approx(want, abs=1e-12)
 
 
 def test_anytime_time_limit_and_interrupt():

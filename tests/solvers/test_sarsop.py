@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import sys
 import time
@@ -146,6 +147,68 @@ def test_momdp_solve_matches_flat_solve():
     assert fact.lower == pytest.approx(flat.lower, abs=2e-3)
     # the factored policy evaluated on the flat belief gives its lower bound
     assert not flat.policy.is_momdp and fact.policy.is_momdp
+
+
+def _random_start(model: MOMDP, seed: int) -> MOMDP:
+    """``model`` started from a random joint ``(x, y)`` with mass on every ``x``."""
+    g = torch.Generator().manual_seed(seed)
+    joint = torch.rand(model.num_observed, model.num_hidden, generator=g, dtype=torch.float64)
+    return model.with_initial(joint / joint.sum())
+
+
+def _one_start(model: MOMDP, x: int) -> MOMDP:
+    """The same MOMDP started at ``x`` with ``P(y | x)`` of its random start."""
+    joint = model.initial
+    return dataclasses.replace(model, x0=x, b0=joint[x] / joint[x].sum(), initial=None)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_random_start_brackets_the_weighted_brute_force(seed):
+    # V* of a random first x is sum_x P(x) V*(x, P(. | x)): the agent sees the first x
+    model = _random_start(random_momdp(2, 2, 2, 2, static=seed % 2 == 0, discount=0.6,
+                                       concentration=0.3, seed=seed), seed)  # fmt: skip
+    mass = model.initial.sum(-1)
+    per_x = [_brute_force_bounds(_one_start(model, x), 7) for x in range(2)]
+    lo = sum(float(mass[x]) * per_x[x][0] for x in range(2))
+    hi = sum(float(mass[x]) * per_x[x][1] for x in range(2))
+    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-4, max_iterations=400))
+    _assert_history_brackets(sol.history, lo, hi)
+    assert sol.info["stop_reason"] == "precision"
+    # the policy's value at the start: each first x's best vector, weighted
+    xs = torch.arange(2)
+    beliefs = model.initial / mass[:, None]
+    value = float((sol.policy.value(xs, beliefs) * mass).sum())
+    assert value == pytest.approx(sol.lower, abs=1e-9)
+    # and a solve from one x alone is not the same problem
+    alone = sarsop(_one_start(model, 0), SARSOPConfig(time_limit=LONG, precision=1e-4))
+    assert abs(alone.lower - sol.lower) > 1e-3
+
+
+def test_random_start_policy_simulates_within_its_bounds():
+    model = _random_start(random_momdp(3, 2, 2, 2, static=False, discount=0.8,
+                                       concentration=0.3, seed=5), 1)  # fmt: skip
+    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=0.05))
+    result = evaluate_policy(model, sol.policy, episodes=3000, seed=0)
+    slack = 3.3 * result.std_error + result.truncation
+    assert sol.lower - slack <= result.mean <= sol.upper + slack
+
+
+def test_random_start_tree_has_one_root_per_first_x():
+    joint = torch.tensor([[0.2, 0.2], [0.0, 0.0], [0.5, 0.1]], dtype=torch.float64)
+    model = random_momdp(3, 2, 2, 2, seed=1).with_initial(joint)
+    s = _SARSOP(model, SARSOPConfig(max_iterations=0), time.perf_counter(), 0.0)
+    assert s.n_roots == 2 and s.tree.size == 2
+    assert s.tree.x[:2].tolist() == [0, 2] and s.tree.parent[:2].tolist() == [-1, -1]
+    assert s.root_w.tolist() == pytest.approx([0.4, 0.6])
+    assert torch.allclose(s.tree.beliefs, torch.tensor([[0.5, 0.5], [5 / 6, 1 / 6]],
+                                                       dtype=torch.float64))  # fmt: skip
+    entry = s.record(0)  # the start's bounds are the roots' weighted
+    w = np.array([0.4, 0.6])
+    assert entry["lower"] == pytest.approx(float(w @ s.tree.lower[:2]), abs=1e-12)
+    assert entry["upper"] == pytest.approx(float(w @ s.tree.upper[:2]), abs=1e-12)
+    gaps = w * (s.tree.upper[:2] - s.tree.lower[:2])
+    path = s.sample(0.5 * (entry["upper"] - entry["lower"]))
+    assert path[0] == int(np.argmax(gaps))  # the trial enters the root of largest weighted gap
 
 
 def test_same_seed_same_result():

@@ -75,3 +75,12 @@ def test_flat_pomdp_controller_uses_the_flat_filter():
     a = c.act(0)
     c.act(1)
     assert torch.allclose(c.belief, update(p, p.b0, a, 1).belief)
+
+
+def test_random_start_momdp_is_refused():
+    joint = torch.rand(3, 2, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    model = random_momdp(3, 2, 2, 2, seed=0).with_initial(joint / joint.sum())
+    actions = torch.zeros(3, dtype=torch.long)
+    policy = AlphaVectorPolicy(torch.zeros(3, 2, dtype=torch.float64), actions, torch.arange(3))
+    with pytest.raises(ModelError, match="random first x"):
+        Controller.from_momdp(model, policy)

@@ -82,6 +82,9 @@ class MOMDPEnv(gym.Env):
         self._Ty = None if model.Ty is None else CategoricalRows.from_dense(model.Ty)
         self._Z = CategoricalRows.from_dense(model.Z)  # rows (a, x2, y2)
         self._b0 = CategoricalRows.from_dense(model.b0.reshape(1, Y))
+        # a random first x (model.initial): (x, y) drawn from the joint
+        start = model.initial
+        self._start = None if start is None else CategoricalRows.from_dense(start.reshape(1, -1))
         self._R = model.R.detach().cpu().numpy().astype(np.float64).reshape(A, X, Y)
         terminal = np.zeros(X, dtype=bool)
         for x in terminal_observed:
@@ -109,11 +112,15 @@ class MOMDPEnv(gym.Env):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, int], dict[str, Any]]:
-        """Start an episode at ``x0`` with ``y ~ b0``; returns ``({"x": x0, "observation": O},
-        info)``."""
+        """Start an episode at ``x0`` with ``y ~ b0`` (or at ``(x, y)`` drawn from
+        ``model.initial``, a random start); returns ``({"x": x, "observation": O}, info)``."""
         super().reset(seed=seed)
-        self._x = self.model.x0
-        self._y = int(self._b0.sample(np.zeros(1), self.np_random.random(1))[0])
+        if self._start is None:
+            self._x = self.model.x0
+            self._y = int(self._b0.sample(np.zeros(1), self.np_random.random(1))[0])
+        else:
+            s = int(self._start.sample(np.zeros(1), self.np_random.random(1))[0])
+            self._x, self._y = divmod(s, self._Y)
         self._t = 0
         self._last = None
         return {"x": self._x, "observation": self._O}, self._info()

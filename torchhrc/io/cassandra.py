@@ -53,6 +53,7 @@ import torch
 
 from torchhrc.errors import ModelError, ParseError
 from torchhrc.io._atomic import atomic_write_bytes
+from torchhrc.io._gc import gc_paused
 from torchhrc.pomdp import POMDP
 from torchhrc.sparse import MAX_DENSE_ENTRIES, SparsePOMDP
 
@@ -307,7 +308,8 @@ def parse_pomdp(
         raise TypeError(f"expected text to be a str, got {type(text).__name__}")
     parser = _Parser(text, path)
     try:
-        return _parse(parser, sparse=sparse, dtype=dtype, device=device)
+        with gc_paused():
+            return _parse(parser, sparse=sparse, dtype=dtype, device=device)
     except ParseError:
         raise
     except Exception as e:  # a safety net: every failure is reported as a ParseError

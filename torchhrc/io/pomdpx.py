@@ -26,9 +26,12 @@ Several variables form one index, row-major in declaration order (the first vari
 observed state variables give ``x``, hidden ones ``y``, action variables ``a``, observation
 variables ``o``; a value's name is its variables' value names joined by ``","``.
 :func:`read_pomdpx_variables` returns the variables and decodes an index. A model with
-an observed variable, starting at one ``x``, is returned as a :class:`~torchhrc.pomdp.MOMDP`
+an observed variable is returned as a :class:`~torchhrc.pomdp.MOMDP`
 (``Tx (A, X, Y, X)``, ``Ty (A, X, Y, X, Y)`` or ``None`` when every hidden variable keeps its
-value, ``Z (A, X, Y, O)``, ``R (A, X, Y)``); otherwise as a flat
+value, ``Z (A, X, Y, O)``, ``R (A, X, Y)``; an initial belief spread over several ``x`` as its
+``initial (X, Y)``, APPL's ``TagAvoid.pomdpx``), or as a
+:class:`~torchhrc.sparse_momdp.SparseMOMDP` when its dense ``Tx``/``Ty`` would be too large
+and it starts at one ``x``; otherwise as a flat
 :class:`~torchhrc.pomdp.POMDP` over ``s = x * Y + y`` (names ``"x|y"``; observations
 ``x2 * O + o`` when some variable is observed, as :meth:`~torchhrc.pomdp.MOMDP.to_pomdp`,
 unless ``x`` is a function of the actions taken: one initial ``x`` and deterministic observed
@@ -42,7 +45,8 @@ input raises :class:`~torchhrc.errors.ParseError` with the file, line, element a
 
 Writing (:func:`write_pomdpx`): a :class:`MOMDP` as two state variables ``x`` (observed) and
 ``y`` (hidden), a :class:`POMDP` as one hidden state variable, one observation, action and
-reward variable, each function a full table::
+reward variable, each function a full table (a random start: ``x_0`` with ``P(x)`` and
+``y_0 | x_0``)::
 
     x_1 | action x_0 y_0            Tx  (A, X, Y, X)
     y_1 | action x_0 y_0 [x_1]      Ty  (A, X, Y[, X], Y); "identity" on y_0 when static
@@ -81,6 +85,7 @@ import torch
 
 from torchhrc.errors import ModelError, ParseError
 from torchhrc.io._atomic import atomic_write_bytes
+from torchhrc.io._gc import gc_paused
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.sparse import MAX_DENSE_ENTRIES, SparsePOMDP
 from torchhrc.sparse_momdp import SparseMOMDP
@@ -602,9 +607,11 @@ class _Reader:
         bases: dict[tuple[str, ...], list[int]] = {}  # per pattern: base cell of each entry
         starts: dict[tuple[str, ...], list[int]] = {}  # per pattern: its first number's index
         orders: dict[tuple[str, ...], list[int]] = {}  # per pattern: the entries' ordinals
-        # each entry's numbers converted on their own: a list of every number's string (5.1M
-        # on a RockSample(5, 7) MOMDP written with one hidden variable) took 600 MB at once
+        # the numbers converted 2^16 strings at a time: a list of every number's string (5.1M
+        # on a RockSample(5, 7) MOMDP written with one hidden variable) took 600 MB at once,
+        # and one conversion per entry cost 3 us each (TagAvoid: 4,133 entries)
         chunks: list[np.ndarray] = []
+        pending: list[str] = []
         total = 0
         for ordinal, entry in enumerate(param):
             if entry.tag != "Entry":
@@ -635,16 +642,18 @@ class _Reader:
             numbers = _text(value).split()
             if len(numbers) != patterns[pattern][2]:
                 return False  # also "identity" and "uniform"
-            try:
-                chunks.append(np.array(numbers, dtype=np.float64))
-            except ValueError:
-                return False
+            pending += numbers
+            if len(pending) >= _NUMBER_BLOCK:
+                if not _convert(pending, chunks):
+                    return False
             bases[pattern].append(base)
             starts[pattern].append(total)
             orders[pattern].append(ordinal)
             total += len(numbers)
         if not patterns:
             return True
+        if not _convert(pending, chunks):
+            return False
         numbers_all = np.concatenate(chunks)
         del chunks
         if not np.isfinite(numbers_all).all():
@@ -838,6 +847,22 @@ class _Reader:
         return self.variables.observed + self.variables.hidden
 
 
+#: number strings converted to floats at once by the batched table path (bounds the list of
+#: strings held at a time)
+_NUMBER_BLOCK = 1 << 16
+
+
+def _convert(pending: list[str], chunks: list[np.ndarray]) -> bool:
+    """Append ``pending``'s numbers to ``chunks`` as one float array and empty it; False if
+    one is not a number."""
+    try:
+        chunks.append(np.array(pending, dtype=np.float64))
+    except ValueError:
+        return False
+    pending.clear()
+    return True
+
+
 def _is_float(word: str) -> bool:
     try:
         float(word)
@@ -913,11 +938,19 @@ class _Builder:
         return values.reshape([self.size(n) if n in axes else 1 for n in layout])
 
     def product(self, tables: list[_Table], layout: list[str]) -> np.ndarray:
-        """The product of ``tables`` over the full ``layout`` (dense)."""
-        out = np.ones([self.size(n) for n in layout])
+        """The product of ``tables`` over the full ``layout`` (dense).
+
+        Multiplied at the tables' broadcast shape and expanded once at the end (TagAvoid's
+        ``Ty`` does not depend on ``x_1``: one 30 MB pass instead of a ``ones`` and a
+        product over it)."""
+        shape = [self.size(n) for n in layout]
+        out = None
         for t in tables:
-            out = out * self.place(t, layout)
-        return out
+            value = self.place(t, layout)
+            out = value if out is None else out * value
+        if out is None:
+            return np.ones(shape)
+        return np.array(np.broadcast_to(out, shape), dtype=np.float64)
 
     # ------------------------------------------------------------------ pieces
 
@@ -1090,6 +1123,8 @@ class _Builder:
         R = self.expected_reward().reshape(A, X, Y)
         t = _tensor_factory(dtype, device)
         Z, x0, hidden, names = self._momdp_parts(b0)
+        joint = b0.reshape(X, Y)
+        spread = int(np.count_nonzero(joint.sum(-1) > 0)) > 1  # a random first x
         return MOMDP(
             Tx=t(Tx),
             Ty=None if Ty is None else t(Ty),
@@ -1098,6 +1133,7 @@ class _Builder:
             x0=x0,
             b0=t(hidden),
             discount=self.r.discount,
+            initial=t(joint) if spread else None,
             **names,
         )
 
@@ -1293,8 +1329,11 @@ def read_pomdpx(
             (1e7), else sparse (a MOMDP's transitions as a
             :class:`~torchhrc.sparse_momdp.SparseMOMDP` when its ``Z`` fits).
         momdp: return a :class:`~torchhrc.pomdp.MOMDP` when the file has an observed
-            (``fullyObs="true"``) state variable, the initial belief is on one observed value
-            and the dense ``Tx``, ``Ty`` (unless static) and ``Z`` fit; ``False``: always flat.
+            (``fullyObs="true"``) state variable and the dense ``Tx``, ``Ty`` (unless
+            static) and ``Z`` fit (with :attr:`~torchhrc.pomdp.MOMDP.initial` when the
+            initial belief spreads over several observed values), a
+            :class:`~torchhrc.sparse_momdp.SparseMOMDP` when only ``Z`` fits and the initial
+            belief is on one observed value; ``False``: always flat.
         dtype, device: of the returned tensors (a sparse model stays on the CPU).
 
     Returns:
@@ -1337,13 +1376,14 @@ def parse_pomdpx(
         raise ValueError(f"expected sparse to be True, False or 'auto', got {sparse!r}")
     # ElementTree's C builder first (no line numbers); a file it cannot read or that turns out
     # malformed is read again through the expat tree, whose errors carry the line
-    root = _parse_xml_fast(text)
-    if root is not None:
-        try:
-            return _parse_tree(root, path, sparse, momdp, dtype, device)
-        except ParseError:
-            pass
-    return _parse_tree(_parse_xml(text, path), path, sparse, momdp, dtype, device)
+    with gc_paused():  # the elements are many, freed by reference counting (see _gc)
+        root = _parse_xml_fast(text)
+        if root is not None:
+            try:
+                return _parse_tree(root, path, sparse, momdp, dtype, device)
+            except ParseError:
+                pass
+        return _parse_tree(_parse_xml(text, path), path, sparse, momdp, dtype, device)
 
 
 def _parse_tree(
@@ -1364,7 +1404,7 @@ def _parse_tree(
         tx, ty, z, static = b.momdp_sizes()
         one_x = bool(np.abs(mass.max() - 1) <= 1e-9)
         dense_limit = min(AUTO_SPARSE_MOMDP_ENTRIES, limit) if sparse == "auto" else limit
-        if one_x and max(tx, ty) <= dense_limit and z <= limit:
+        if max(tx, ty) <= dense_limit and z <= limit:  # a random first x: MOMDP.initial
             return _wrap(lambda: b.momdp(b0, static, dtype, device), path)
         if one_x and z <= limit and sparse == "auto":  # Tx Ty kept as its nonzeros
             return _wrap(lambda: b.sparse_momdp(b0, dtype), path)
@@ -1485,8 +1525,14 @@ def format_pomdpx(model: MOMDP | POMDP, *, description: str = "written by torchh
     if isinstance(model, POMDP):
         return _format_pomdp(model, description)
     A, X, Y, O = model.num_actions, model.num_observed, model.num_hidden, model.num_observations
-    x0 = torch.zeros(X, dtype=torch.float64)
-    x0[model.x0] = 1.0
+    mass = torch.zeros(X, dtype=torch.float64)  # P(x)
+    mass[model.x0] = 1.0
+    hidden = _cond_prob("y_0", "null", "-", _values(model.b0))
+    if model.initial is not None:  # a random start: P(x), and P(y | x) (uniform at no mass)
+        joint = model.initial.double()
+        mass = joint.sum(-1)
+        given = torch.where(mass[:, None] > 0, joint / mass.clamp(min=1e-300)[:, None], 1.0 / Y)
+        hidden = _cond_prob("y_0", "x_0", "- -", _values(given))
     lines = [
         *_header(model.discount, description),
         "<Variable>",
@@ -1499,8 +1545,8 @@ def format_pomdpx(model: MOMDP | POMDP, *, description: str = "written by torchh
         '<RewardVar vname="reward"/>',
         "</Variable>",
         "<InitialStateBelief>",
-        _cond_prob("x_0", "null", "-", _values(x0)),
-        _cond_prob("y_0", "null", "-", _values(model.b0)),
+        _cond_prob("x_0", "null", "-", _values(mass)),
+        hidden,
         "</InitialStateBelief>",
         "<StateTransitionFunction>",
         _cond_prob("x_1", "action x_0 y_0", "- - - -", _values(model.Tx)),

@@ -28,7 +28,7 @@ import torch
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.sampling import flat_step, momdp_step, sample_categorical
+from torchhrc.solvers.sampling import flat_step, momdp_start, momdp_step, sample_categorical
 
 __all__ = ["EvaluationResult", "evaluate_policy"]
 
@@ -143,9 +143,7 @@ def evaluate_policy(
     returns = model.R.new_zeros(E)
     weight = 1.0
     if isinstance(model, MOMDP):
-        x = torch.full((E,), model.x0, dtype=torch.long, device=device)
-        belief = model.b0.expand(E, -1).clone()
-        y = sample_categorical(belief, generator)
+        x, y, belief = momdp_start(model, E, generator)
         for _ in range(H):
             action = act(x, belief)
             step = momdp_step(model, x, y, belief, action, generator)

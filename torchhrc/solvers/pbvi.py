@@ -235,15 +235,19 @@ def pbvi(model: POMDP | MOMDP | SparsePOMDP, config: PBVIConfig | None = None) -
     else:
         upper_vectors = form.upper_vectors("qmdp", 1e-8)
     A, X, Y = form.num_actions, form.num_observed, form.num_hidden
-    upper = float((upper_vectors.reshape(A, X, Y)[:, form.x0] @ form.b0).max())
-    x0 = torch.tensor([form.x0], device=device)
-    b0 = form.b0.unsqueeze(0)
+    # the start: one root (x0, b0), or one per first x of a random start, weighted by P(x)
+    root_x, roots, weights = form.roots
+    by_x = upper_vectors.reshape(A, X, Y)
+    upper = sum(float(w) * float((by_x[:, x] @ b).max())
+                for x, b, w in zip(root_x.tolist(), roots, weights))  # fmt: skip
+    x0 = torch.from_numpy(root_x).to(device)
+    w0 = torch.from_numpy(weights).to(device=device, dtype=form.R.dtype)
 
     def value_at_b0(p: AlphaVectorPolicy) -> float:
-        return float(form.value(p, x0, b0)[0])
+        return float((form.value(p, x0, roots) * w0).sum())
 
     policy = form.blind_policy(100_000)
-    belief_set = _BeliefSet(x0, b0)
+    belief_set = _BeliefSet(x0, roots)
     lower = value_at_b0(policy)
     history: list[dict[str, Any]] = []
     stop_reason = "expansions"

@@ -147,7 +147,12 @@ def bound_solution(
     momdp = isinstance(model, MOMDP)
     policy = AlphaVectorPolicy.from_action_vectors(vectors, momdp=momdp)
     low = blind_vectors(model)
-    if momdp:
+    if momdp and model.random_start:
+        # sum_x P(x) max_a V[a, x] . P(. | x): the first x is seen before the first action
+        joint = model.initial
+        upper = float((vectors * joint).sum(-1).amax(0).sum())
+        lower = float((low * joint).sum(-1).amax(0).sum())
+    elif momdp:
         upper = float((vectors[:, model.x0] @ model.b0).max())
         lower = float((low[:, model.x0] @ model.b0).max())
     else:

@@ -23,7 +23,14 @@ import torch
 from torchhrc.belief import momdp_update, update
 from torchhrc.pomdp import MOMDP, POMDP
 
-__all__ = ["FlatStep", "MOMDPStep", "flat_step", "momdp_step", "sample_categorical"]
+__all__ = [
+    "FlatStep",
+    "MOMDPStep",
+    "flat_step",
+    "momdp_start",
+    "momdp_step",
+    "sample_categorical",
+]
 
 
 def sample_categorical(probs: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
@@ -48,6 +55,36 @@ def sample_categorical(probs: torch.Tensor, generator: torch.Generator) -> torch
     if bool(zero.any()):
         draws[zero] = flat[zero.squeeze(1)].argmax(-1)
     return draws.reshape(shape)
+
+
+def momdp_start(
+    model: MOMDP, episodes: int, generator: torch.Generator
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The first states of ``episodes`` episodes of an unbatched MOMDP: ``x (E,)``,
+    ``y (E,)`` and the belief over ``y`` given the seen ``x``, ``(E, Y)``.
+
+    ``x = x0`` and ``y ~ b0``, or, for a random start (:attr:`~torchhrc.pomdp.MOMDP.initial`),
+    ``(x, y)`` drawn from the joint and the belief ``P(. | x)``.
+
+    Example:
+        >>> from torchhrc.testing import random_momdp
+        >>> m = random_momdp(3, 2, 2, 2, seed=0)
+        >>> x, y, b = momdp_start(m, 4, torch.Generator().manual_seed(0))
+        >>> x.tolist(), b.shape
+        ([0, 0, 0, 0], torch.Size([4, 2]))
+    """
+    E, device = int(episodes), model.b0.device
+    if model.initial is None:
+        x = torch.full((E,), model.x0, dtype=torch.long, device=device)
+        belief = model.b0.expand(E, -1).clone()
+        return x, sample_categorical(belief, generator), belief
+    Y = model.num_hidden
+    joint = model.initial
+    s = sample_categorical(joint.reshape(1, -1).expand(E, -1), generator)
+    x, y = s // Y, s % Y
+    mass = joint.sum(-1, keepdim=True)
+    given = joint / torch.where(mass > 0, mass, torch.ones_like(mass))  # (X, Y) P(y | x)
+    return x, y, given[x].clone()
 
 
 class FlatStep(NamedTuple):

@@ -21,15 +21,19 @@ largest weighted excess uncertainty
 the targets ``L_t``, ``U_t`` solved from
 ``L' = R(b, a*) + gamma (P(o*) L_t + sum_{o != o*} P(o) V_low(tau(b, a*, o)))`` with
 ``L' = max(L, max_a Q_low(b, a))`` and ``U' = max(U, max_a Q_low(b, a) + eps gamma^-t)`` (and
-the same with ``V_up`` for ``U_t``). The path is then backed up leaf to root; a belief the
-trial reaches a second time (a cycle of the model) is also backed up when reached, as APPL
-backs up every node a trial reaches. Tree nodes holding the same belief share its cached
-evaluation. Dominated alpha vectors and alpha vectors that win at no tree belief, unless
-they were the best at a child of an active tree belief at its last evaluation (as APPL keeps
-the vectors best at the unexpanded children in its belief cache) or a kept vector was built
-from them (so that the greedy policy of the written vectors keeps the lower bound's value),
-redundant upper-bound points and belief nodes reached by sub-optimal actions
-(``Q_up(b, a) < max_a' Q_low(b, a')``) are pruned.
+the same with ``V_up`` for ``U_t``). A MOMDP with a random first observed value
+(:attr:`~torchhrc.pomdp.MOMDP.initial`) has one root per first ``x`` (nodes ``0..R-1``, beliefs
+``P(. | x)``); the bounds at the start are theirs weighted by ``P(x)``, and a trial enters the
+root of largest weighted gap ``P(x) (V_up - V_low)`` with the targets of a step without reward
+or discount (as APPL's SARSOP does for such files, e.g. ``TagAvoid.pomdpx``). The path is then
+backed up leaf to root; a belief the trial reaches a second time (a cycle of the model) is also
+backed up when reached, as APPL backs up every node a trial reaches. Tree nodes holding the same
+belief share its cached evaluation. Dominated alpha vectors and alpha vectors that win at no
+tree belief, unless they were the best at a child of an active tree belief at its last
+evaluation (as APPL keeps the vectors best at the unexpanded children in its belief cache) or a
+kept vector was built from them (so that the greedy policy of the written vectors keeps the
+lower bound's value), redundant upper-bound points and belief nodes reached by sub-optimal
+actions (``Q_up(b, a) < max_a' Q_low(b, a')``) are pruned.
 
 One model interface: the solver asks the model only through
 :class:`~torchhrc.solvers.forms.base.SolverModel` (children of beliefs with their
@@ -666,13 +670,20 @@ class _SARSOP:
         # each child ``(A, K, O)`` of its last evaluation; pruning keeps them (see
         # :meth:`_child_winners`)
         self._child_best: dict[int, np.ndarray] = {}
-        self.entropy = np.zeros(1024)
-        self.entropy[0] = float(self._entropy(form.b0.unsqueeze(0))[0])
+        # the roots: nodes 0..R-1, one per first observed value (R = 1 unless the model
+        # starts at a random x), weighted by its probability (see :meth:`sample`)
+        root_x, root_b, self.root_w = form.roots
+        self.n_roots = R = int(root_x.shape[0])
+        self.root_low = np.full(R, -np.inf)  # per root, the lower bound last recorded
+        cap = max(1024, 2 * R)
+        self.entropy = np.zeros(cap)
+        self.entropy[:R] = self._entropy(root_b).cpu().double().numpy()
         # one id per distinct belief (APPL's belief cache): tree nodes holding the same belief
         # share its cached evaluation, and a trial that reaches a belief again is in a cycle
         self._belief_ids: dict[tuple[int, bytes], int] = {}
-        self.belief_id = np.zeros(1024, dtype=np.int64)
-        self.belief_id[0] = self._belief_key(form.x0, form.b0.cpu().numpy())
+        self.belief_id = np.zeros(cap, dtype=np.int64)
+        for r, row in enumerate(root_b.cpu().numpy()):
+            self.belief_id[r] = self._belief_key(int(root_x[r]), row)
         self.children: dict[int, list[int]] = {}
         span = float(form.R.max() - form.R.min()) / (1.0 - self.gamma)
         if cfg.max_depth is not None:
@@ -695,8 +706,8 @@ class _SARSOP:
         self._np = self.device.type == "cpu"
         # the compiled steps of a belief's evaluation (backup_kernel): float64 on the CPU
         self._kernel = backup_kernel.load() if self._np and cfg.dtype == torch.float64 else None
-        lo, up = self._root_bounds()
-        self.tree.lower[0], self.tree.upper[0] = lo, up
+        R = self.n_roots
+        self.tree.lower[:R], self.tree.upper[:R] = self._root_bounds()
 
     # -- bounds ----------------------------------------------------------------------------
     def lower_value(
@@ -1021,16 +1032,15 @@ class _SARSOP:
         if self.cfg.prediction == "binning":
             self.bins.update(int(self.belief_id[node]), x, b, float(self.entropy[node]), up, low)
 
-    def _root_bounds(self) -> tuple[float, float]:
+    def _root_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(R,)`` the lower and upper bound at each root."""
+        xs, b, _ = self.form.roots
         if self._np:
-            b = self.form.b0.numpy()[None]
-            x = np.array([self.form.x0])
-            return float(self._lower_np(b, x)[0][0]), float(self.ub.value_np(b, x)[0])
-        b = self.form.b0.unsqueeze(0)
-        x = torch.tensor([self.form.x0], device=b.device)
-        lo = float(self.lower_value(b, x)[0][0])
-        up = float(self.ub.value(b, x)[0])
-        return lo, up
+            rows = b.numpy()
+            return self._lower_np(rows, xs)[0], self.ub.value_np(rows, xs)
+        x = torch.from_numpy(xs).to(b.device)
+        lo = self.lower_value(b, x)[0].cpu().double().numpy()
+        return lo, self.ub.value(b, x).cpu().double().numpy()
 
     # -- backup ----------------------------------------------------------------------------
     def backup(self, x: int, nodes: np.ndarray) -> None:
@@ -1114,8 +1124,18 @@ class _SARSOP:
         node, t = 0, 0
         L = float(tree.lower[0])
         U = L + eps
-        path = [0]
-        seen = {int(self.belief_id[0])}
+        if self.n_roots > 1:
+            # a random first x: the roots are the outcomes of a step without reward or
+            # discount, taken with probability ``w``; the trial enters the root of largest
+            # weighted gap (the observation choice below) with the targets of that step
+            R, w = self.n_roots, self.root_w
+            lo, up = tree.lower[:R], tree.upper[:R]
+            total = float(w @ lo)
+            node = int(np.argmax(w * (up - lo)))
+            L = float(lo[node])  # (total - sum of the others' w lo) / w[node]
+            U = float(up[node]) + (total + eps - float(w @ up)) / float(w[node])
+        path = [node]
+        seen = {int(self.belief_id[node])}
         forward = self._forward = set()
         while t < self.max_depth and self.clock() < self.deadline:
             lo, up = float(tree.lower[node]), float(tree.upper[node])
@@ -1343,11 +1363,15 @@ class _SARSOP:
 
     # -- main loop -------------------------------------------------------------------------
     def record(self, iteration: int) -> dict[str, Any]:
-        lo, up = self._root_bounds()
-        tree = self.tree
-        lo = max(lo, self.history[-1]["lower"] if self.history else -math.inf)
-        up = min(up, float(tree.upper[0]))
-        tree.lower[0], tree.upper[0] = lo, up
+        """The bounds at the start (the roots' weighted by their probability), kept
+        monotone per root, as a history entry."""
+        lo_r, up_r = self._root_bounds()
+        tree, R = self.tree, self.n_roots
+        lo_r = np.maximum(lo_r, self.root_low)
+        up_r = np.minimum(up_r, tree.upper[:R])
+        tree.lower[:R], tree.upper[:R] = lo_r, up_r
+        self.root_low = lo_r
+        lo, up = float(self.root_w @ lo_r), float(self.root_w @ up_r)
         entry = {
             "time_s": time.perf_counter() - self.start,
             "lower": lo,
@@ -1433,7 +1457,8 @@ def sarsop(model: POMDP | MOMDP | SparsePOMDP, config: SARSOPConfig | None = Non
     Returns:
         :class:`~torchhrc.solvers.solution.Solution`: an
         :class:`~torchhrc.solvers.policy.AlphaVectorPolicy` (MOMDP: vectors over ``Y`` tagged
-        with ``observed``), ``lower <= V*(b0) <= upper``, and ``history``, one dict per
+        with ``observed``), ``lower <= V*(b0) <= upper`` (for a random start, ``V*`` of the
+        start: ``sum_x P(x) V*(x, P(. | x))``), and ``history``, one dict per
         iteration with ``time_s``, ``lower``, ``upper``, ``n_alphas``, ``n_beliefs``,
         ``n_points``, ``iteration``. ``info["stop_reason"]`` is ``"precision"``,
         ``"time_limit"``, ``"max_iterations"``, ``"callback"`` or ``"interrupted"``

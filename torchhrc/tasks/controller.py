@@ -88,6 +88,12 @@ class Controller:
         """A controller of a MOMDP and a policy with ``action(x, belief_y) -> a``."""
         from torchhrc.belief import momdp_update
 
+        if momdp.random_start:
+            raise ModelError(
+                "Controller.from_momdp starts at x0: the MOMDP has a random first x "
+                "(initial); build the model with the start the controller should assume"
+            )
+
         def filt(x: Any, b: torch.Tensor, a: torch.Tensor, x2: Any, o: torch.Tensor) -> Any:
             return momdp_update(momdp, x, b, a, x2, o).belief
 

@@ -176,7 +176,9 @@ class SolverModel(ABC):
         num_actions, num_observed, num_hidden, num_observations: ``A``, ``X``, ``Y``, ``O``.
         discount: the discount factor.
         R: ``(A, X, Y)`` rewards.
-        x0: the initial observed value; b0: ``(Y,)`` the initial hidden belief.
+        x0: the initial observed value; b0: ``(Y,)`` the initial hidden belief (the most
+            probable first ``x`` and the belief there when the model starts at a random
+            ``x``: see :attr:`roots`).
         factored: True when policies carry ``observed`` tags (MOMDP vectors over ``Y`` per
             ``x``); False for flat ``(N, S)`` policies.
         state_shape: the model's own shape of a value function (``(S,)`` or ``(X, Y)``);
@@ -413,9 +415,21 @@ class SolverModel(ABC):
         return AlphaVectorPolicy(alphas, actions)
 
     # -- the belief representation -------------------------------------------------------------
+    @property
+    def roots(self) -> tuple[np.ndarray, torch.Tensor, np.ndarray]:
+        """The first states of an episode: ``xs (R,)`` observed values, ``beliefs (R, Y)``
+        over the hidden value at each, ``weights (R,)`` their probabilities. One root
+        ``(x0, b0, 1)`` unless the model starts at a random ``x``
+        (:attr:`~torchhrc.pomdp.MOMDP.initial`)."""
+        return np.array([self.x0]), self.b0.unsqueeze(0), np.ones(1)
+
     def new_tree(self) -> BeliefTree:
-        """An empty SARSOP belief tree rooted at ``(x0, b0)`` (dense rows)."""
-        return BeliefTree(self.b0, self.x0)
+        """An empty SARSOP belief tree (dense rows) with :attr:`roots` as nodes ``0..R-1``."""
+        xs, beliefs, _ = self.roots
+        tree = BeliefTree(beliefs[0], int(xs[0]))
+        for x, belief in zip(xs[1:].tolist(), beliefs[1:]):
+            tree.add(belief, x, -1, -1, -1)
+        return tree
 
     # -- PBVI --------------------------------------------------------------------------------
     def flattened(self) -> SolverModel:

@@ -55,7 +55,7 @@ from torchhrc._checks import (
 )
 from torchhrc.errors import ModelError
 
-__all__ = ["MOMDP", "POMDP"]
+__all__ = ["MOMDP", "POMDP", "check_initial", "start_from"]
 
 
 def _check_names(name: str, names: tuple[str, ...] | None, size: int) -> tuple[str, ...] | None:
@@ -70,6 +70,61 @@ def _check_names(name: str, names: tuple[str, ...] | None, size: int) -> tuple[s
         dup = next(n for n in names if names.count(n) > 1)
         raise ModelError(f"{name} must be distinct, {dup!r} appears twice")
     return names
+
+
+def check_initial(initial: torch.Tensor, x0: int, b0: torch.Tensor, X: int, Y: int) -> None:
+    """Check a random start (:attr:`MOMDP.initial`): an ``(X, Y)`` distribution over at least
+    two ``x``, ``x0`` with mass, ``b0 = P(y | x0)``; raise :class:`ModelError` if not.
+
+    Example:
+        >>> j = torch.tensor([[0.25, 0.25], [0.5, 0.0]], dtype=torch.float64)
+        >>> check_initial(j, 1, torch.tensor([1.0, 0.0], dtype=torch.float64), 2, 2)
+    """
+    initial = check_tensor("initial", initial)
+    if tuple(initial.shape) != (X, Y):
+        raise ModelError(
+            f"expected initial to have shape (X={X}, Y={Y}) (one joint distribution, no "
+            f"batch dims), actual shape = {tuple(initial.shape)}"
+        )
+    check_probabilities("initial", initial.reshape(-1))
+    mass = initial.sum(-1)
+    if int((mass > 0).sum()) < 2:
+        raise ModelError(
+            "initial puts all its mass on one observed value: give x0 and b0 alone "
+            "(initial=None), or build the model with with_initial"
+        )
+    if float(mass[x0]) <= 0:
+        raise ModelError(f"initial gives x0 = {x0} no mass: P(x) = {mass.tolist()}")
+    want = (initial[x0] / mass[x0]).to(b0.dtype)
+    if not torch.allclose(b0, want.expand_as(b0), atol=1e-9, rtol=0.0):
+        raise ModelError(
+            f"b0 must be initial's P(y | x0 = {x0}) = {want.tolist()}, got {b0.tolist()}; "
+            "with_initial sets x0 and b0 from the joint"
+        )
+
+
+def start_from(initial: torch.Tensor, X: int, Y: int, b0: torch.Tensor) -> dict[str, object]:
+    """``x0``, ``b0`` and ``initial`` of a model started from the joint ``initial (X, Y)``:
+    its most probable ``x`` (the first of ties), ``P(y | x)`` there, and the joint when it
+    spreads over several ``x`` (else ``None``); ``b0``'s dtype and device are kept.
+
+    Example:
+        >>> j = torch.tensor([[0.25, 0.25], [0.5, 0.0]], dtype=torch.float64)
+        >>> s = start_from(j, 2, 2, torch.zeros(2, dtype=torch.float64))
+        >>> s["x0"], s["b0"].tolist(), s["initial"] is j
+        (0, [0.5, 0.5], True)
+    """
+    initial = check_tensor("initial", initial)
+    if tuple(initial.shape) != (X, Y):
+        raise ModelError(
+            f"expected initial to have shape (X={X}, Y={Y}), actual shape = {tuple(initial.shape)}"
+        )
+    check_probabilities("initial", initial.reshape(-1))
+    mass = initial.sum(-1)
+    x0 = int(mass.argmax())
+    start = (initial[x0] / mass[x0]).to(dtype=b0.dtype, device=b0.device)
+    spread = int((mass > 0).sum()) >= 2
+    return {"x0": x0, "b0": start, "initial": initial.to(b0.dtype) if spread else None}
 
 
 def _tensor_fields_to(obj: object, device: torch.device | str | None, dtype: torch.dtype | None):
@@ -277,32 +332,7 @@ class MOMDP:
             self, "observations", _check_names("observations", self.observations, Z.shape[-1])
         )
         if self.initial is not None:
-            self._check_initial(X, Y)
-
-    def _check_initial(self, X: int, Y: int) -> None:
-        """``initial``: an ``(X, Y)`` distribution over at least two ``x``, ``x0`` with mass,
-        ``b0 = P(y | x0)``."""
-        initial = check_tensor("initial", self.initial)
-        if tuple(initial.shape) != (X, Y):
-            raise ModelError(
-                f"expected initial to have shape (X={X}, Y={Y}) (one joint distribution, no "
-                f"batch dims), actual shape = {tuple(initial.shape)}"
-            )
-        check_probabilities("initial", initial.reshape(-1))
-        mass = initial.sum(-1)
-        if int((mass > 0).sum()) < 2:
-            raise ModelError(
-                "initial puts all its mass on one observed value: give x0 and b0 alone "
-                "(initial=None), or build the model with MOMDP.with_initial"
-            )
-        if float(mass[self.x0]) <= 0:
-            raise ModelError(f"initial gives x0 = {self.x0} no mass: P(x) = {mass.tolist()}")
-        want = (initial[self.x0] / mass[self.x0]).to(self.b0.dtype)
-        if not torch.allclose(self.b0, want.expand_as(self.b0), atol=1e-9, rtol=0.0):
-            raise ModelError(
-                f"b0 must be initial's P(y | x0 = {self.x0}) = {want.tolist()}, got "
-                f"{self.b0.tolist()}; MOMDP.with_initial sets x0 and b0 from the joint"
-            )
+            check_initial(self.initial, self.x0, self.b0, X, Y)
 
     @property
     def random_start(self) -> bool:
@@ -343,21 +373,8 @@ class MOMDP:
             >>> s.x0, s.b0.tolist(), s.random_start
             (2, [0.3333333333333333, 0.6666666666666666], True)
         """
-        initial = check_tensor("initial", initial)
-        X, Y = self.num_observed, self.num_hidden
-        if tuple(initial.shape) != (X, Y):
-            raise ModelError(
-                f"expected initial to have shape (X={X}, Y={Y}), actual shape = "
-                f"{tuple(initial.shape)}"
-            )
-        check_probabilities("initial", initial.reshape(-1))
-        mass = initial.sum(-1)
-        x0 = int(mass.argmax())
-        b0 = (initial[x0] / mass[x0]).to(dtype=self.b0.dtype, device=self.b0.device)
-        spread = int((mass > 0).sum()) >= 2
-        return dataclasses.replace(
-            self, x0=x0, b0=b0, initial=initial.to(self.b0.dtype) if spread else None
-        )
+        start = start_from(initial, self.num_observed, self.num_hidden, self.b0)
+        return dataclasses.replace(self, **start)  # type: ignore[arg-type]
 
     @property
     def num_observed(self) -> int:

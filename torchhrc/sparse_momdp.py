@@ -25,13 +25,14 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import torch
 
 from torchhrc._checks import check_discount, check_probabilities, check_shape, check_tensor
 from torchhrc.errors import ModelError
-from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.pomdp import MOMDP, POMDP, check_initial, start_from
 from torchhrc.sparse import SparsePOMDP, check_dense_size
 
 __all__ = ["SparseMOMDP"]
@@ -58,6 +59,8 @@ class SparseMOMDP:
         x0: the initial observed value; b0: ``(Y,)`` the initial hidden belief.
         discount: the discount factor.
         observed_states, hidden_states, actions, observations: optional names.
+        initial: ``(X, Y)`` the joint ``P(x, y)`` of a random first state, or ``None``; as
+            :attr:`torchhrc.pomdp.MOMDP.initial` (:meth:`with_initial` sets it).
     """
 
     transitions: tuple[torch.Tensor, torch.Tensor]
@@ -70,6 +73,7 @@ class SparseMOMDP:
     hidden_states: tuple[str, ...] | None = None
     actions: tuple[str, ...] | None = None
     observations: tuple[str, ...] | None = None
+    initial: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         Z = check_tensor("Z", self.Z)
@@ -126,6 +130,26 @@ class SparseMOMDP:
             object.__setattr__(
                 self, field_name, _names(field_name, getattr(self, field_name), size)
             )
+        if self.initial is not None:
+            check_initial(self.initial, self.x0, b0, X, Y)
+
+    @property
+    def random_start(self) -> bool:
+        """True when the first observed value is random (:attr:`initial` is given)."""
+        return self.initial is not None
+
+    def with_initial(self, initial: torch.Tensor) -> SparseMOMDP:
+        """The same model started from the joint ``initial (X, Y)``; as
+        :meth:`torchhrc.pomdp.MOMDP.with_initial`.
+
+        Example:
+            >>> from torchhrc.testing import random_momdp
+            >>> sm = SparseMOMDP.from_dense(random_momdp(2, 2, 2, 2, seed=0))
+            >>> sm.with_initial(torch.full((2, 2), 0.25, dtype=torch.float64)).random_start
+            True
+        """
+        start = start_from(initial, self.num_observed, self.num_hidden, self.b0)
+        return dataclasses.replace(self, **start)  # type: ignore[arg-type]
 
     @property
     def num_actions(self) -> int:
@@ -158,11 +182,6 @@ class SparseMOMDP:
         """
         if not isinstance(model, MOMDP):
             raise TypeError(f"expected a MOMDP, got {type(model).__name__}")
-        if model.random_start:
-            raise ModelError(
-                "SparseMOMDP starts at one observed value: a MOMDP with a random first x "
-                "(initial) has no sparse MOMDP form; use the dense MOMDP or model.to_pomdp()"
-            )
         if len(model.batch_shape):
             raise ModelError(
                 f"expected an unbatched MOMDP, got batch shape {tuple(model.batch_shape)}"
@@ -185,6 +204,7 @@ class SparseMOMDP:
             R=model.R.expand(A, X, Y),
             x0=model.x0,
             b0=model.b0,
+            initial=model.initial,
             discount=model.discount,
             observed_states=model.observed_states,
             hidden_states=model.hidden_states,
@@ -229,6 +249,7 @@ class SparseMOMDP:
             hidden_states=self.hidden_states,
             actions=self.actions,
             observations=self.observations,
+            initial=self.initial,
         )
 
     def to_sparse_pomdp(self) -> SparsePOMDP:
@@ -249,6 +270,8 @@ class SparseMOMDP:
         z_index = torch.stack([zi[:, 0], zi[:, 1] * Y + zi[:, 2], zi[:, 1] * O + zi[:, 3]], 1)
         b0 = torch.zeros(X, Y, dtype=self.b0.dtype)
         b0[self.x0] = self.b0
+        if self.initial is not None:  # acts before it sees x: see MOMDP.to_pomdp
+            b0 = self.initial.to(self.b0.dtype)
         xs = self.observed_states or tuple(str(i) for i in range(X))
         ys = self.hidden_states or tuple(str(i) for i in range(Y))
         os_ = self.observations or tuple(str(i) for i in range(O))

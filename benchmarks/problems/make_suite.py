@@ -31,14 +31,16 @@ probability 0.6 at discount 0.9, and RockSample(6,6) (rocks from seed 11) as a M
 (``--check-set NAME``): ``mixed`` (random POMDPs of other shapes, one at discount 0.99,
 RockSample(4,4) with another layout, Tag at 0.8, RockSample(7,5) as a MOMDP), ``momdp``
 (random MOMDPs, static and dynamic hidden values, Tag and RockSample(5,7), (8,4) as MOMDPs,
-all ``.pomdpx``) and ``shapes`` (random POMDPs with many actions, many observations, 600
+all ``.pomdpx``), ``starts`` (MOMDPs whose first observed value is random: Tag from any cell,
+RockSample(5,5) from its first column, random MOMDPs; ``.pomdpx``) and ``shapes`` (random
+POMDPs with many actions, many observations, 600
 sparse states, discount 0.99 and 0.999). ``docs/benchmarks.md`` reports both solvers on each
 beside the suite.
 
 Usage::
 
     python benchmarks/problems/make_suite.py --out SUITE_DIR [--from DIR ...] [--no-random]
-    python benchmarks/problems/make_suite.py --out CHECK_DIR --check-set [mixed|momdp|shapes]
+    python benchmarks/problems/make_suite.py --out CHECK_DIR --check-set [mixed|momdp|shapes|starts]
 """
 
 from __future__ import annotations
@@ -89,8 +91,35 @@ def check_problems() -> dict[str, object]:
     }
 
 
+def _start_over(model, xs: list[int]):  # type: ignore[no-untyped-def]
+    """``model`` started at one of ``xs`` (uniform) with its own ``b0`` there."""
+    joint = torch.zeros(model.num_observed, model.num_hidden, dtype=model.b0.dtype)
+    joint[xs] = model.b0 / len(xs)
+    return model.with_initial(joint)
+
+
+def _random_start(model, seed: int):  # type: ignore[no-untyped-def]
+    """``model`` started from a random joint ``P(x, y)`` (a Dirichlet(1) draw)."""
+    g = torch.Generator().manual_seed(seed)
+    joint = -torch.rand(
+        model.num_observed, model.num_hidden, generator=g, dtype=torch.float64
+    ).log()
+    return model.with_initial(joint / joint.sum())
+
+
+def _tag_any_cell(move_away_probability: float):  # type: ignore[no-untyped-def]
+    """Tag as a MOMDP whose robot starts in any cell and the opponent in any other (as
+    APPL's ``TagAvoid.pomdpx``)."""
+    model = tag_momdp(move_away_probability=move_away_probability)
+    cells = model.num_observed
+    joint = torch.zeros(cells, model.num_hidden, dtype=torch.float64)
+    joint[:, :cells] = 1.0
+    joint[torch.arange(cells), torch.arange(cells)] = 0.0
+    return model.with_initial(joint / joint.sum())
+
+
 def more_check_sets() -> dict[str, dict[str, object]]:
-    """The three later check sets, by name, then file name (rebuilt from seeds)."""
+    """The later check sets, by name, then file name (rebuilt from seeds)."""
     return {
         "mixed": {
             "h_S15_A3_O2_d99.pomdp": random_pomdp(15, 3, 2, seed=201, discount=0.99),
@@ -111,6 +140,16 @@ def more_check_sets() -> dict[str, dict[str, object]]:
                 20, 6, 3, 4, static=False, sparsity=0.7, seed=302
             ),
             "m_rnd_X6_Y20_d98.pomdpx": random_momdp(6, 20, 5, 6, seed=303, discount=0.98),
+        },
+        "starts": {  # MOMDPs whose first observed value is random (MOMDP.initial)
+            "s_tag_any_cell.pomdpx": _tag_any_cell(move_away_probability=0.7),
+            "s_rs55_first_column.pomdpx": _start_over(
+                rock_sample_momdp(5, 5, seed=55), [row * 5 for row in range(5)]
+            ),
+            "s_rnd_X10_Y6.pomdpx": _random_start(random_momdp(10, 6, 3, 4, seed=501), 502),
+            "s_rnd_X15_Y5_dyn.pomdpx": _start_over(
+                random_momdp(15, 5, 4, 3, static=False, sparsity=0.6, seed=503), [2, 7, 11]
+            ),
         },
         "shapes": {
             "r_S200_A10_O10_dense.pomdp": random_pomdp(200, 10, 10, seed=401),
@@ -157,7 +196,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--no-random", action="store_true", help="skip the generated problems")
     parser.add_argument(
-        "--check-set", nargs="?", const="check", choices=["check", "mixed", "momdp", "shapes"],
+        "--check-set", nargs="?", const="check",
+        choices=["check", "mixed", "momdp", "shapes", "starts"],
         help="write a check set (never tuned on) instead: the first (no name) or a later one",
     )  # fmt: skip
     args = parser.parse_args(argv)

@@ -24,6 +24,7 @@ from torchhrc.io.pomdpx import (
 )
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.sparse import SparsePOMDP
+from torchhrc.sparse_momdp import SparseMOMDP
 from torchhrc.tasks.classic import rock_sample_momdp, tiger
 from torchhrc.testing import random_momdp, random_pomdp
 
@@ -319,6 +320,18 @@ def test_initial_belief_over_several_x_is_a_random_start():
     # written and read again: the same start (x_0's P(x), y_0 given x_0)
     back = read_pomdpx(format_pomdpx(m))
     assert torch.equal(back.initial, m.initial) and back.x0 == m.x0
+
+
+def test_a_large_random_start_reads_as_a_sparse_momdp(monkeypatch):
+    import torchhrc.io.pomdpx as px
+
+    text = CORRIDOR_PX.replace("<ProbTable>1 0 0</ProbTable>", "<ProbTable>0.5 0.5 0</ProbTable>")
+    dense = read_pomdpx(text)
+    monkeypatch.setattr(px, "AUTO_SPARSE_MOMDP_ENTRIES", 1)  # no dense Tx fits
+    m = read_pomdpx(text)
+    assert isinstance(m, SparseMOMDP) and m.random_start
+    assert torch.equal(m.initial, dense.initial) and m.x0 == dense.x0
+    assert torch.equal(m.to_dense().Tx, dense.Tx)
 
 
 @settings(max_examples=20, deadline=None, derandomize=True)

@@ -7,6 +7,7 @@ and SARSOP and PBVI must reach the same bounds through either form.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -389,8 +390,21 @@ def test_sarsop_is_unchanged_by_the_blind_policy_without_repeated_vectors() -> N
     assert torch.equal(a.policy.actions, b.policy.actions)
 
 
-def test_a_random_start_has_no_sparse_momdp_form():
-    joint = torch.rand(3, 2, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
-    model = random_momdp(3, 2, 2, 2, seed=0).with_initial(joint / joint.sum())
-    with pytest.raises(ModelError, match="random first x"):
-        SparseMOMDP.from_dense(model)
+def test_a_random_start_solves_as_the_dense_one():
+    joint = torch.rand(4, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    joint[1] = 0.0
+    dense = random_momdp(4, 3, 2, 2, static=False, discount=0.8, seed=0)
+    dense = dense.with_initial(joint / joint.sum())
+    sparse = SparseMOMDP.from_dense(dense)
+    assert sparse.random_start and torch.equal(sparse.initial, dense.initial)
+    assert torch.equal(sparse.to_dense().initial, dense.initial)
+    assert as_solver_model(sparse).roots[0].tolist() == [0, 2, 3]
+    cfg = SARSOPConfig(time_limit=60, precision=0.02)
+    a, b = sarsop(dense, cfg), sarsop(sparse, cfg)
+    assert a.info["stop_reason"] == b.info["stop_reason"] == "precision"
+    assert a.lower <= b.upper + 1e-9 and b.lower <= a.upper + 1e-9  # the same optimum
+    # the flat sparse form starts from the joint (it acts before it sees x)
+    flat = sparse.to_sparse_pomdp()
+    torch.testing.assert_close(flat.b0, dense.to_pomdp().b0, rtol=0, atol=0)
+    with pytest.raises(ModelError, match="b0 must be initial"):
+        dataclasses.replace(sparse, b0=torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64))

@@ -30,8 +30,8 @@ an observed variable is returned as a :class:`~torchhrc.pomdp.MOMDP`
 (``Tx (A, X, Y, X)``, ``Ty (A, X, Y, X, Y)`` or ``None`` when every hidden variable keeps its
 value, ``Z (A, X, Y, O)``, ``R (A, X, Y)``; an initial belief spread over several ``x`` as its
 ``initial (X, Y)``, APPL's ``TagAvoid.pomdpx``), or as a
-:class:`~torchhrc.sparse_momdp.SparseMOMDP` when its dense ``Tx``/``Ty`` would be too large
-and it starts at one ``x``; otherwise as a flat
+:class:`~torchhrc.sparse_momdp.SparseMOMDP` when its dense ``Tx``/``Ty`` would be too large;
+otherwise as a flat
 :class:`~torchhrc.pomdp.POMDP` over ``s = x * Y + y`` (names ``"x|y"``; observations
 ``x2 * O + o`` when some variable is observed, as :meth:`~torchhrc.pomdp.MOMDP.to_pomdp`,
 unless ``x`` is a function of the actions taken: one initial ``x`` and deterministic observed
@@ -1123,8 +1123,6 @@ class _Builder:
         R = self.expected_reward().reshape(A, X, Y)
         t = _tensor_factory(dtype, device)
         Z, x0, hidden, names = self._momdp_parts(b0)
-        joint = b0.reshape(X, Y)
-        spread = int(np.count_nonzero(joint.sum(-1) > 0)) > 1  # a random first x
         return MOMDP(
             Tx=t(Tx),
             Ty=None if Ty is None else t(Ty),
@@ -1133,9 +1131,15 @@ class _Builder:
             x0=x0,
             b0=t(hidden),
             discount=self.r.discount,
-            initial=t(joint) if spread else None,
+            initial=self._initial(b0, t),
             **names,
         )
+
+    def _initial(self, b0: np.ndarray, t: Any) -> torch.Tensor | None:
+        """The joint ``(X, Y)`` initial belief as a tensor when it spreads over several
+        ``x`` (a random start, :attr:`~torchhrc.pomdp.MOMDP.initial`), else None."""
+        joint = b0.reshape(self.X, self.Y)
+        return t(joint) if int(np.count_nonzero(joint.sum(-1) > 0)) > 1 else None
 
     def _momdp_parts(
         self, b0: np.ndarray
@@ -1173,6 +1177,7 @@ class _Builder:
             x0=x0,
             b0=t(hidden),
             discount=self.r.discount,
+            initial=self._initial(b0, t),
             **names,
         )
 
@@ -1330,10 +1335,9 @@ def read_pomdpx(
             :class:`~torchhrc.sparse_momdp.SparseMOMDP` when its ``Z`` fits).
         momdp: return a :class:`~torchhrc.pomdp.MOMDP` when the file has an observed
             (``fullyObs="true"``) state variable and the dense ``Tx``, ``Ty`` (unless
-            static) and ``Z`` fit (with :attr:`~torchhrc.pomdp.MOMDP.initial` when the
-            initial belief spreads over several observed values), a
-            :class:`~torchhrc.sparse_momdp.SparseMOMDP` when only ``Z`` fits and the initial
-            belief is on one observed value; ``False``: always flat.
+            static) and ``Z`` fit, a :class:`~torchhrc.sparse_momdp.SparseMOMDP` when only
+            ``Z`` fits (either with :attr:`~torchhrc.pomdp.MOMDP.initial` when the initial
+            belief spreads over several observed values); ``False``: always flat.
         dtype, device: of the returned tensors (a sparse model stays on the CPU).
 
     Returns:
@@ -1400,13 +1404,11 @@ def _parse_tree(
     b0 = b.initial_belief()
     limit = AUTO_SPARSE_ENTRIES if sparse == "auto" else MAX_DENSE_ENTRIES
     if momdp and sparse is not True and b.xc:
-        mass = b0.reshape(b.X, b.Y).sum(-1)
         tx, ty, z, static = b.momdp_sizes()
-        one_x = bool(np.abs(mass.max() - 1) <= 1e-9)
         dense_limit = min(AUTO_SPARSE_MOMDP_ENTRIES, limit) if sparse == "auto" else limit
-        if max(tx, ty) <= dense_limit and z <= limit:  # a random first x: MOMDP.initial
+        if max(tx, ty) <= dense_limit and z <= limit:  # a random first x gives `initial`
             return _wrap(lambda: b.momdp(b0, static, dtype, device), path)
-        if one_x and z <= limit and sparse == "auto":  # Tx Ty kept as its nonzeros
+        if z <= limit and sparse == "auto":  # Tx Ty kept as its nonzeros
             return _wrap(lambda: b.sparse_momdp(b0, dtype), path)
     b.set_initial_x(b0)
     dense = max(b.A * b.S * b.S, b.A * b.S * b.flat_observations)

@@ -415,13 +415,29 @@ class SolverModel(ABC):
         return AlphaVectorPolicy(alphas, actions)
 
     # -- the belief representation -------------------------------------------------------------
+    _roots: tuple[np.ndarray, torch.Tensor, np.ndarray] | None = None
+
     @property
     def roots(self) -> tuple[np.ndarray, torch.Tensor, np.ndarray]:
         """The first states of an episode: ``xs (R,)`` observed values, ``beliefs (R, Y)``
         over the hidden value at each, ``weights (R,)`` their probabilities. One root
         ``(x0, b0, 1)`` unless the model starts at a random ``x``
-        (:attr:`~torchhrc.pomdp.MOMDP.initial`)."""
+        (:attr:`~torchhrc.pomdp.MOMDP.initial`, see :meth:`_start_from`)."""
+        if self._roots is not None:
+            return self._roots
         return np.array([self.x0]), self.b0.unsqueeze(0), np.ones(1)
+
+    def _start_from(self, initial: torch.Tensor | None) -> None:
+        """Set :attr:`roots` from a model's random start ``initial (X, Y)`` (one root per
+        ``x`` with mass, in the dtype and device of ``b0``; ``None``: the one root)."""
+        if initial is None:
+            self._roots = None
+            return
+        initial = initial.to(device=self.b0.device, dtype=self.b0.dtype)
+        mass = initial.sum(-1)
+        xs = torch.nonzero(mass > 0).squeeze(-1)
+        self._roots = (xs.cpu().numpy(), initial[xs] / mass[xs, None],
+                       mass[xs].cpu().double().numpy())  # fmt: skip
 
     def new_tree(self) -> BeliefTree:
         """An empty SARSOP belief tree (dense rows) with :attr:`roots` as nodes ``0..R-1``."""

@@ -58,12 +58,7 @@ class MOMDPForm(TensorModelForm):
         super().__init__(model, source)
         self.Tx, self.Ty, self.Z, self.R = model.Tx, model.Ty, model.Z, model.R
         self.x0, self.b0 = int(model.x0), model.b0
-        self._roots = None
-        if model.initial is not None:  # a random first x: one root per x with mass
-            mass = model.initial.sum(-1)
-            xs = torch.nonzero(mass > 0).squeeze(-1)
-            self._roots = (xs.cpu().numpy(), model.initial[xs] / mass[xs, None],
-                           mass[xs].cpu().double().numpy())  # fmt: skip
+        self._start_from(model.initial)
         A, X, Y, _ = self.Tx.shape
         self.num_actions, self.num_observed, self.num_hidden = A, X, Y
         self.num_observations = self.Z.shape[-1]
@@ -86,10 +81,6 @@ class MOMDPForm(TensorModelForm):
             tyk = self.Ty[:, x][:, :, k].permute(0, 2, 1, 3).contiguous()
         z = self.Z[:, k].permute(0, 1, 3, 2).contiguous()  # (A, K, O, Y)
         return k, tx, tyk, z
-
-    @property
-    def roots(self) -> tuple[np.ndarray, torch.Tensor, np.ndarray]:
-        return super().roots if self._roots is None else self._roots
 
     def flattened(self) -> DenseForm:
         """The flat form of ``model.to_pomdp()`` (states ``(x, y)``)."""

@@ -87,6 +87,7 @@ class SparseMOMDPForm(SolverModel):
         self.Z = model.Z.to("cpu", dt).contiguous()
         self.R = model.R.to("cpu", dt).contiguous()
         self.x0, self.b0 = int(model.x0), model.b0.to("cpu", dt).contiguous()
+        self._start_from(model.initial)
         self.factored = True
         self.state_shape, self.state_doc = (X, Y), "(X, Y)"
         index, prob = model.transitions

@@ -108,6 +108,7 @@ from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers import backup_kernel
 from torchhrc.solvers._memory import release_free_memory
 from torchhrc.solvers.clock import Clock, Deadline, check_clock, clock_function
+from torchhrc.solvers.eval_cache import EvaluationCache
 from torchhrc.solvers.forms import SolverModel, as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.pruning import prune_dominated
@@ -664,7 +665,7 @@ class _SARSOP:
         self._child_x: dict[tuple[int, int], torch.Tensor] = {}
         # per distinct belief (``belief_id``): the last evaluation, shared by the tree nodes
         # that hold the same belief (its stale bounds stay valid bounds there)
-        self._cache: dict[int, tuple[np.ndarray, ...]] = {}
+        self._cache = EvaluationCache()
         self._rows_cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray]]] = {}
         # per distinct belief evaluated since the last alpha pruning: the best alpha vector at
         # each child ``(A, K, O)`` of its last evaluation; pruning keeps them (see

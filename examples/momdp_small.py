@@ -5,8 +5,9 @@ the human's type ``y`` ("safe" or "efficient") is hidden and never changes. At e
 robot either waits or drills; a "safe" human prefers the robot to wait, an "efficient" one to
 drill. The human's hand motion, observed each step, hints at the type. PBVI solves the MOMDP
 with factored backups (alpha vectors over the type, one set per task step), then one
-simulated execution prints the robot's first actions and its belief about the type.
-Seeded; takes a few seconds.
+simulated execution prints the robot's first actions and its belief about the type. Last,
+the same task when the robot may join at step 0 or step 1 (``MOMDP.with_initial``: a random
+first observed value), solved by SARSOP. Seeded; takes a few seconds.
 
     python examples/momdp_small.py
 """
@@ -17,7 +18,7 @@ import torch
 
 from torchhrc.belief import momdp_update
 from torchhrc.pomdp import MOMDP
-from torchhrc.solvers import PBVIConfig, solve
+from torchhrc.solvers import PBVIConfig, SARSOPConfig, solve
 from torchhrc.solvers.sampling import sample_categorical
 
 STEPS = 4  # task steps 0..3, then "done" (absorbing)
@@ -86,6 +87,16 @@ def main() -> None:
         )
         belief = momdp_update(model, x, belief, action, x_next, obs).belief
         x = x_next
+
+    # a random start: the robot joins at step 0 or step 1 (it sees which), the type unknown
+    joint = torch.zeros(model.num_observed, model.num_hidden, dtype=torch.float64)
+    joint[0], joint[1] = 0.3 * model.b0, 0.7 * model.b0
+    joining = model.with_initial(joint)
+    late = solve(joining, SARSOPConfig(time_limit=30, precision=1e-3))
+    print(
+        f"joining at step 0 or 1 (P = 0.3 / 0.7), SARSOP: lower {late.lower:.4f}  upper "
+        f"{late.upper:.4f} (the two starts' values weighted)"
+    )
 
 
 if __name__ == "__main__":

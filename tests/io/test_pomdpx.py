@@ -85,6 +85,9 @@ def test_hidden_transition_independent_of_next_x_drops_that_parent(tmp_path):
     reachable = m.Tx > 0
     expanded = table[:, :, :, None, :].expand_as(m.Ty)
     assert torch.equal(expanded[reachable], m.Ty[reachable])
+    # read back, that Ty is a view over x_1 (no copy per next x), equal to the written rows
+    back = read_pomdpx(tmp_path / "rs.pomdpx")
+    assert back.Ty.stride()[3] == 0 and torch.equal(back.Ty, expanded)
 
 
 def test_names_become_value_enums_and_bad_inputs_raise():

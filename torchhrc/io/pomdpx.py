@@ -937,20 +937,35 @@ class _Builder:
         values = table.values.transpose(perm)
         return values.reshape([self.size(n) if n in axes else 1 for n in layout])
 
-    def product(self, tables: list[_Table], layout: list[str]) -> np.ndarray:
-        """The product of ``tables`` over the full ``layout`` (dense).
-
-        Multiplied at the tables' broadcast shape and expanded once at the end (TagAvoid's
-        ``Ty`` does not depend on ``x_1``: one 30 MB pass instead of a ``ones`` and a
-        product over it)."""
+    def product(self, tables: list[_Table], layout: list[str], expand: bool = True) -> np.ndarray:
+        """The product of ``tables`` over the full ``layout`` (dense), multiplied at the
+        tables' broadcast shape; ``expand=False`` returns it at that shape (size 1 on the
+        variables no table names, one dim per variable of ``layout``)."""
         shape = [self.size(n) for n in layout]
         out = None
         for t in tables:
             value = self.place(t, layout)
             out = value if out is None else out * value
         if out is None:
-            return np.ones(shape)
-        return np.array(np.broadcast_to(out, shape), dtype=np.float64)
+            return np.ones(shape if expand else [1] * len(layout))
+        return np.array(np.broadcast_to(out, shape), dtype=np.float64) if expand else out
+
+    def _grouped(self, table: np.ndarray, groups: list[list[str]]) -> np.ndarray | None:
+        """``table`` (one dim per variable of the concatenated ``groups``, at its broadcast
+        shape) with each group's variables merged into one dim, of size 1 where no variable
+        of the group is named; None when a group is named only in part (it cannot stay
+        broadcast once merged)."""
+        dims, i = [], 0
+        for group in groups:
+            part = table.shape[i : i + len(group)]
+            i += len(group)
+            if all(n == 1 for n in part):
+                dims.append(1)
+            elif list(part) == [self.size(n) for n in group]:
+                dims.append(int(np.prod(part)))
+            else:
+                return None
+        return table.reshape(dims)
 
     # ------------------------------------------------------------------ pieces
 
@@ -1115,17 +1130,24 @@ class _Builder:
         A, X, Y = self.A, self.X, self.Y
         layout = self.act + self.xp + self.yp + self.xc
         Tx = self.product([self.r.transition[n] for n in self.xc], layout).reshape(A, X, Y, X)
+        t = _tensor_factory(dtype, device)
         Ty = None
         if not static:
-            layout = self.act + self.xp + self.yp + self.xc + self.yc
-            Ty = self.product([self.r.transition[n] for n in self.yc], layout)
-            Ty = Ty.reshape(A, X, Y, X, Y)
+            # kept at its tables' shape and expanded as a view: APPL's TagAvoid gives the
+            # target's move without the robot's next cell, and a dense Ty would be 30 MB
+            groups = [self.act, self.xp, self.yp, self.xc, self.yc]
+            layout = [n for group in groups for n in group]
+            tables = [self.r.transition[n] for n in self.yc]
+            compact = self._grouped(self.product(tables, layout, expand=False), groups)
+            if compact is None:
+                Ty = t(self.product(tables, layout).reshape(A, X, Y, X, Y))
+            else:
+                Ty = t(compact).expand(A, X, Y, X, Y)
         R = self.expected_reward().reshape(A, X, Y)
-        t = _tensor_factory(dtype, device)
         Z, x0, hidden, names = self._momdp_parts(b0)
         return MOMDP(
             Tx=t(Tx),
-            Ty=None if Ty is None else t(Ty),
+            Ty=Ty,
             Z=t(Z),
             R=t(R),
             x0=x0,

@@ -35,9 +35,13 @@ FORMS = {
     "momdp_static": lambda: random_momdp(4, 3, 2, 3, static=True, sparsity=0.3, seed=1),
     "momdp_dynamic": lambda: random_momdp(4, 3, 2, 3, static=False, sparsity=0.3, seed=2),
     "sparse": lambda: SparsePOMDP.from_dense(rock_sample(4, 4)),
+    "momdp_random_start": lambda: random_momdp(
+        4, 3, 2, 3, static=False, sparsity=0.3, seed=2
+    ).with_initial(torch.full((4, 3), 1.0 / 12, dtype=torch.float64)),
 }
 KINDS = {"dense": DenseForm, "dense_support": DenseForm, "momdp_static": MOMDPForm,
-         "momdp_dynamic": MOMDPForm, "sparse": SparseForm}  # fmt: skip
+         "momdp_dynamic": MOMDPForm, "sparse": SparseForm,
+         "momdp_random_start": MOMDPForm}  # fmt: skip
 
 
 def _beliefs(form: SolverModel, n: int, seed: int) -> torch.Tensor:
@@ -121,7 +125,7 @@ def test_numpy_backprojection_equals_the_batched_one(name: str) -> None:
         np.testing.assert_array_equal(obs.numpy(), form.observation_np(x)[a])
 
 
-@pytest.mark.parametrize("name", ["dense", "momdp_dynamic", "sparse"])
+@pytest.mark.parametrize("name", ["dense", "momdp_dynamic", "sparse", "momdp_random_start"])
 def test_sarsop_torch_path_brackets_the_numpy_path(name: str) -> None:
     """The batched torch path (what a device runs; forced here on the CPU) and the numpy path
     bound the same optimal value: each one's lower bound is below the other's upper bound."""

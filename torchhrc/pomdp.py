@@ -72,6 +72,18 @@ def _check_names(name: str, names: tuple[str, ...] | None, size: int) -> tuple[s
     return names
 
 
+def _joint_mass(initial: torch.Tensor, X: int, Y: int) -> torch.Tensor:
+    """``(X,)`` ``P(x)`` of a joint ``initial (X, Y)``, checked to be a distribution."""
+    initial = check_tensor("initial", initial)
+    if tuple(initial.shape) != (X, Y):
+        raise ModelError(
+            f"expected initial to have shape (X={X}, Y={Y}) (one joint distribution, no "
+            f"batch dims), actual shape = {tuple(initial.shape)}"
+        )
+    check_probabilities("initial", initial.reshape(-1))
+    return initial.sum(-1)
+
+
 def check_initial(initial: torch.Tensor, x0: int, b0: torch.Tensor, X: int, Y: int) -> None:
     """Check a random start (:attr:`MOMDP.initial`): an ``(X, Y)`` distribution over at least
     two ``x``, ``x0`` with mass, ``b0 = P(y | x0)``; raise :class:`ModelError` if not.
@@ -80,14 +92,7 @@ def check_initial(initial: torch.Tensor, x0: int, b0: torch.Tensor, X: int, Y: i
         >>> j = torch.tensor([[0.25, 0.25], [0.5, 0.0]], dtype=torch.float64)
         >>> check_initial(j, 1, torch.tensor([1.0, 0.0], dtype=torch.float64), 2, 2)
     """
-    initial = check_tensor("initial", initial)
-    if tuple(initial.shape) != (X, Y):
-        raise ModelError(
-            f"expected initial to have shape (X={X}, Y={Y}) (one joint distribution, no "
-            f"batch dims), actual shape = {tuple(initial.shape)}"
-        )
-    check_probabilities("initial", initial.reshape(-1))
-    mass = initial.sum(-1)
+    mass = _joint_mass(initial, X, Y)
     if int((mass > 0).sum()) < 2:
         raise ModelError(
             "initial puts all its mass on one observed value: give x0 and b0 alone "
@@ -114,13 +119,7 @@ def start_from(initial: torch.Tensor, X: int, Y: int, b0: torch.Tensor) -> dict[
         >>> s["x0"], s["b0"].tolist(), s["initial"] is j
         (0, [0.5, 0.5], True)
     """
-    initial = check_tensor("initial", initial)
-    if tuple(initial.shape) != (X, Y):
-        raise ModelError(
-            f"expected initial to have shape (X={X}, Y={Y}), actual shape = {tuple(initial.shape)}"
-        )
-    check_probabilities("initial", initial.reshape(-1))
-    mass = initial.sum(-1)
+    mass = _joint_mass(initial, X, Y)
     x0 = int(mass.argmax())
     start = (initial[x0] / mass[x0]).to(dtype=b0.dtype, device=b0.device)
     spread = int((mass > 0).sum()) >= 2

@@ -77,10 +77,34 @@ def test_flat_pomdp_controller_uses_the_flat_filter():
     assert torch.allclose(c.belief, update(p, p.b0, a, 1).belief)
 
 
-def test_random_start_momdp_is_refused():
-    joint = torch.rand(3, 2, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
-    model = random_momdp(3, 2, 2, 2, seed=0).with_initial(joint / joint.sum())
-    actions = torch.zeros(3, dtype=torch.long)
-    policy = AlphaVectorPolicy(torch.zeros(3, 2, dtype=torch.float64), actions, torch.arange(3))
-    with pytest.raises(ModelError, match="random first x"):
-        Controller.from_momdp(model, policy)
+def test_random_start_begins_from_the_belief_given_the_first_state():
+    joint = torch.tensor([[0.1, 0.3], [0.0, 0.0], [0.45, 0.15]], dtype=torch.float64)
+    model = random_momdp(3, 2, 2, 2, seed=0).with_initial(joint)
+    seen = []
+    policy = AlphaVectorPolicy.from_action_vectors(model.R, momdp=True)
+    c = Controller.from_momdp(model, policy)
+    choose = c._choose
+    c._choose = lambda x, b: (seen.append(b.clone()), choose(x, b))[1]
+    c.reset()
+    c.act(0)
+    torch.testing.assert_close(seen[-1], torch.tensor([0.25, 0.75], dtype=torch.float64))
+    c.reset()
+    a = c.act(2)
+    first = seen[-1]
+    torch.testing.assert_close(first, torch.tensor([0.75, 0.25], dtype=torch.float64))
+    c.act((0, 1))  # later steps filter as usual
+    x, x2 = torch.tensor(2), torch.tensor(0)
+    want = momdp_update(model, x, first, torch.tensor(a), x2, torch.tensor(1)).belief
+    torch.testing.assert_close(seen[-1], want)
+    # a batch starting at different cells
+    c.reset(batch=2)
+    c.act(torch.tensor([0, 2]))
+    torch.testing.assert_close(seen[-1], torch.tensor([[0.25, 0.75], [0.75, 0.25]],
+                                                      dtype=torch.float64))  # fmt: skip
+    # an explicit prior wins; a first state without mass is an error
+    c.reset(prior=torch.tensor([0.5, 0.5], dtype=torch.float64))
+    c.act(0)
+    torch.testing.assert_close(seen[-1], torch.tensor([0.5, 0.5], dtype=torch.float64))
+    c.reset()
+    with pytest.raises(ModelError, match="no mass"):
+        c.act(1)

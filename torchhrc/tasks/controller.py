@@ -60,6 +60,9 @@ class Controller:
         prior: default initial belief ``(K,)``.
         x0: default start state (``None`` for a flat POMDP).
         names: optional action names (for :attr:`history`).
+        start: ``(X, K)`` the initial belief given the first state seen, for a model whose
+            first state is random (:attr:`~torchhrc.pomdp.MOMDP.initial`): after a
+            :meth:`reset` without a prior, the first :meth:`act` starts from ``start[x]``.
 
     Most users build one with :meth:`from_model`.
     """
@@ -71,11 +74,14 @@ class Controller:
         prior: torch.Tensor,
         x0: int | None,
         names: tuple[str, ...] | None = None,
+        start: torch.Tensor | None = None,
     ) -> None:
         self._filter = filter
         self._choose = choose
         self._prior = prior
         self._x0 = x0
+        self._start = start
+        self._from_start = start is not None  # the next first act reads start[x]
         self.names = names
         self.belief: torch.Tensor = prior.clone()
         self.state: torch.Tensor | None = None
@@ -88,11 +94,10 @@ class Controller:
         """A controller of a MOMDP and a policy with ``action(x, belief_y) -> a``."""
         from torchhrc.belief import momdp_update
 
-        if momdp.random_start:
-            raise ModelError(
-                "Controller.from_momdp starts at x0: the MOMDP has a random first x "
-                "(initial); build the model with the start the controller should assume"
-            )
+        start = None
+        if momdp.initial is not None:  # a random first x: the belief given the x seen
+            mass = momdp.initial.sum(-1, keepdim=True)
+            start = momdp.initial / torch.where(mass > 0, mass, torch.full_like(mass, torch.nan))
 
         def filt(x: Any, b: torch.Tensor, a: torch.Tensor, x2: Any, o: torch.Tensor) -> Any:
             return momdp_update(momdp, x, b, a, x2, o).belief
@@ -100,7 +105,8 @@ class Controller:
         def choose(x: Any, b: torch.Tensor) -> torch.Tensor:
             return policy.action(x, b)
 
-        return cls(filt, choose, momdp.b0, int(momdp.x0), tuple(momdp.actions or ()) or None)
+        names = tuple(momdp.actions or ()) or None
+        return cls(filt, choose, momdp.b0, int(momdp.x0), names, start)
 
     @classmethod
     def from_model(cls, model: LearnedModel) -> Controller:
@@ -134,7 +140,9 @@ class Controller:
         """Start an episode.
 
         Args:
-            prior: ``(K,)`` or ``(B, K)`` initial belief (default the model's ``b0``).
+            prior: ``(K,)`` or ``(B, K)`` initial belief (default the model's ``b0``, or,
+                for a model whose first state is random, the belief given the first state
+                the next :meth:`act` sees).
             batch: run ``B`` episodes at once (the prior is repeated).
 
         Raises:
@@ -152,6 +160,7 @@ class Controller:
         if batch is not None:
             p = p.expand(batch, K)
         self.belief = p.clone()
+        self._from_start = self._start is not None and prior is None
         self.state = None
         self.last_action = None
         self.history = []
@@ -170,7 +179,8 @@ class Controller:
 
         Raises:
             ModelError: the observation is impossible under the belief (the human did
-                something no type explains).
+                something no type explains), or, for a random start, the first state has
+                no mass.
         """
         if isinstance(observation, tuple):
             x, o = observation
@@ -183,6 +193,16 @@ class Controller:
         ot = torch.as_tensor(o, dtype=torch.long)
         if self.last_action is not None:
             self.belief = self._filter(self.state, self.belief, self.last_action, xt, ot)
+        elif self._from_start and self._start is not None and xt is not None:
+            belief = self._start[xt].to(self._prior.dtype)
+            if bool(torch.isnan(belief).any()):
+                raise ModelError(
+                    f"the first state x = {x} has no mass under the model's random start "
+                    "(initial): pass a prior to reset()"
+                )
+            if xt.dim() == 0 and self.belief.dim() == 2:  # one x for a batch of episodes
+                belief = belief.expand(self.belief.shape).clone()
+            self.belief = belief
         action = torch.as_tensor(self._choose(xt, self.belief), dtype=torch.long)
         self.state = xt
         self.last_action = action

@@ -55,7 +55,7 @@ from torchhrc._checks import (
 )
 from torchhrc.errors import ModelError
 
-__all__ = ["MOMDP", "POMDP", "check_initial", "start_from"]
+__all__ = ["MOMDP", "POMDP", "check_initial", "initial_joint", "split_initial", "start_from"]
 
 
 def _check_names(name: str, names: tuple[str, ...] | None, size: int) -> tuple[str, ...] | None:
@@ -70,6 +70,35 @@ def _check_names(name: str, names: tuple[str, ...] | None, size: int) -> tuple[s
         dup = next(n for n in names if names.count(n) > 1)
         raise ModelError(f"{name} must be distinct, {dup!r} appears twice")
     return names
+
+
+def split_initial(initial: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``P(x) (X,)`` and ``P(y | x) (X, Y)`` of a joint ``initial (X, Y)`` (a random start,
+    :attr:`MOMDP.initial`); the row of an ``x`` without mass is all zeros.
+
+    Example:
+        >>> j = torch.tensor([[0.25, 0.25], [0.0, 0.0], [0.5, 0.0]], dtype=torch.float64)
+        >>> mass, given = split_initial(j)
+        >>> mass.tolist(), given.tolist()
+        ([0.5, 0.0, 0.5], [[0.5, 0.5], [0.0, 0.0], [1.0, 0.0]])
+    """
+    mass = initial.sum(-1)
+    return mass, initial / torch.where(mass > 0, mass, torch.ones_like(mass)).unsqueeze(-1)
+
+
+def initial_joint(x0: int, b0: torch.Tensor, initial: torch.Tensor | None, X: int) -> torch.Tensor:
+    """``(..., X, Y)`` the joint distribution of a model's first state: ``initial``, or
+    ``b0 (..., Y)`` placed at ``x0``.
+
+    Example:
+        >>> initial_joint(1, torch.tensor([0.5, 0.5]), None, 2).tolist()
+        [[0.0, 0.0], [0.5, 0.5]]
+    """
+    if initial is not None:
+        return initial
+    onehot = torch.zeros(X, dtype=b0.dtype, device=b0.device)
+    onehot[x0] = 1.0
+    return onehot.unsqueeze(-1) * b0.unsqueeze(-2)
 
 
 def _joint_mass(initial: torch.Tensor, X: int, Y: int) -> torch.Tensor:
@@ -100,7 +129,7 @@ def check_initial(initial: torch.Tensor, x0: int, b0: torch.Tensor, X: int, Y: i
         )
     if float(mass[x0]) <= 0:
         raise ModelError(f"initial gives x0 = {x0} no mass: P(x) = {mass.tolist()}")
-    want = (initial[x0] / mass[x0]).to(b0.dtype)
+    want = split_initial(initial)[1][x0].to(b0.dtype)
     if not torch.allclose(b0, want.expand_as(b0), atol=1e-9, rtol=0.0):
         raise ModelError(
             f"b0 must be initial's P(y | x0 = {x0}) = {want.tolist()}, got {b0.tolist()}; "
@@ -121,7 +150,7 @@ def start_from(initial: torch.Tensor, X: int, Y: int, b0: torch.Tensor) -> dict[
     """
     mass = _joint_mass(initial, X, Y)
     x0 = int(mass.argmax())
-    start = (initial[x0] / mass[x0]).to(dtype=b0.dtype, device=b0.device)
+    start = split_initial(initial)[1][x0].to(dtype=b0.dtype, device=b0.device)
     spread = int((mass > 0).sum()) >= 2
     return {"x0": x0, "b0": start, "initial": initial.to(b0.dtype) if spread else None}
 
@@ -348,12 +377,7 @@ class MOMDP:
             >>> [round(p, 12) for p in m.initial_distribution().sum(-1).tolist()]  # at x0 = 0
             [1.0, 0.0, 0.0]
         """
-        if self.initial is not None:
-            return self.initial
-        X = self.num_observed
-        onehot = torch.zeros(X, dtype=self.b0.dtype, device=self.b0.device)
-        onehot[self.x0] = 1.0
-        return onehot.unsqueeze(-1) * self.b0.unsqueeze(-2)
+        return initial_joint(self.x0, self.b0, self.initial, self.num_observed)
 
     def with_initial(self, initial: torch.Tensor) -> MOMDP:
         """The same MOMDP started from the joint distribution ``initial (X, Y)`` of

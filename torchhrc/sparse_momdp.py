@@ -32,7 +32,7 @@ import torch
 
 from torchhrc._checks import check_discount, check_probabilities, check_shape, check_tensor
 from torchhrc.errors import ModelError
-from torchhrc.pomdp import MOMDP, POMDP, check_initial, start_from
+from torchhrc.pomdp import MOMDP, POMDP, check_initial, initial_joint, start_from
 from torchhrc.sparse import SparsePOMDP, check_dense_size
 
 __all__ = ["SparseMOMDP"]
@@ -268,10 +268,8 @@ class SparseMOMDP:
         t_index = torch.stack([a, x * Y + y, x2 * Y + y2], 1)
         zi = torch.nonzero(self.Z)  # (m, 4) [a, x2, y2, o]
         z_index = torch.stack([zi[:, 0], zi[:, 1] * Y + zi[:, 2], zi[:, 1] * O + zi[:, 3]], 1)
-        b0 = torch.zeros(X, Y, dtype=self.b0.dtype)
-        b0[self.x0] = self.b0
-        if self.initial is not None:  # acts before it sees x: see MOMDP.to_pomdp
-            b0 = self.initial.to(self.b0.dtype)
+        # with a random start it acts before it sees x: see MOMDP.to_pomdp
+        b0 = initial_joint(self.x0, self.b0, self.initial, X).to(self.b0.dtype)
         xs = self.observed_states or tuple(str(i) for i in range(X))
         ys = self.hidden_states or tuple(str(i) for i in range(Y))
         os_ = self.observations or tuple(str(i) for i in range(O))

@@ -86,7 +86,7 @@ import torch
 from torchhrc.errors import ModelError, ParseError
 from torchhrc.io._atomic import atomic_write_bytes
 from torchhrc.io._gc import gc_paused
-from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.pomdp import MOMDP, POMDP, split_initial
 from torchhrc.sparse import MAX_DENSE_ENTRIES, SparsePOMDP
 from torchhrc.sparse_momdp import SparseMOMDP
 
@@ -914,7 +914,7 @@ class _Builder:
         """
         if not self.xc:
             return
-        one_x = int(np.count_nonzero(b0.reshape(self.X, self.Y).sum(-1) > 0)) == 1
+        one_x = self._first_xs(b0) == 1
         observed_prev = set(self.xp)
         deterministic = all(
             all(a in self.act or a in observed_prev for a in t.axes[:-1])
@@ -1160,8 +1160,11 @@ class _Builder:
     def _initial(self, b0: np.ndarray, t: Any) -> torch.Tensor | None:
         """The joint ``(X, Y)`` initial belief as a tensor when it spreads over several
         ``x`` (a random start, :attr:`~torchhrc.pomdp.MOMDP.initial`), else None."""
-        joint = b0.reshape(self.X, self.Y)
-        return t(joint) if int(np.count_nonzero(joint.sum(-1) > 0)) > 1 else None
+        return t(b0.reshape(self.X, self.Y)) if self._first_xs(b0) > 1 else None
+
+    def _first_xs(self, b0: np.ndarray) -> int:
+        """How many observed values the joint initial belief ``b0 (S,)`` gives mass."""
+        return int(np.count_nonzero(b0.reshape(self.X, self.Y).sum(-1) > 0))
 
     def _momdp_parts(
         self, b0: np.ndarray
@@ -1553,9 +1556,8 @@ def format_pomdpx(model: MOMDP | POMDP, *, description: str = "written by torchh
     mass[model.x0] = 1.0
     hidden = _cond_prob("y_0", "null", "-", _values(model.b0))
     if model.initial is not None:  # a random start: P(x), and P(y | x) (uniform at no mass)
-        joint = model.initial.double()
-        mass = joint.sum(-1)
-        given = torch.where(mass[:, None] > 0, joint / mass.clamp(min=1e-300)[:, None], 1.0 / Y)
+        mass, given = split_initial(model.initial.double())
+        given = torch.where(mass[:, None] > 0, given, 1.0 / Y)
         hidden = _cond_prob("y_0", "x_0", "- -", _values(given))
     lines = [
         *_header(model.discount, description),

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import torch
 
 from torchhrc.belief import momdp_update, update
-from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.pomdp import MOMDP, POMDP, split_initial
 
 __all__ = [
     "FlatStep",
@@ -79,12 +79,9 @@ def momdp_start(
         belief = model.b0.expand(E, -1).clone()
         return x, sample_categorical(belief, generator), belief
     Y = model.num_hidden
-    joint = model.initial
-    s = sample_categorical(joint.reshape(1, -1).expand(E, -1), generator)
+    s = sample_categorical(model.initial.reshape(1, -1).expand(E, -1), generator)
     x, y = s // Y, s % Y
-    mass = joint.sum(-1, keepdim=True)
-    given = joint / torch.where(mass > 0, mass, torch.ones_like(mass))  # (X, Y) P(y | x)
-    return x, y, given[x].clone()
+    return x, y, split_initial(model.initial)[1][x]
 
 
 class FlatStep(NamedTuple):

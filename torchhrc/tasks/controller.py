@@ -93,11 +93,10 @@ class Controller:
     def from_momdp(cls, momdp: MOMDP, policy: Any) -> Controller:
         """A controller of a MOMDP and a policy with ``action(x, belief_y) -> a``."""
         from torchhrc.belief import momdp_update
+        from torchhrc.pomdp import split_initial
 
-        start = None
-        if momdp.initial is not None:  # a random first x: the belief given the x seen
-            mass = momdp.initial.sum(-1, keepdim=True)
-            start = momdp.initial / torch.where(mass > 0, mass, torch.full_like(mass, torch.nan))
+        # a random first x: the belief given the x seen (zeros where x has no mass)
+        start = None if momdp.initial is None else split_initial(momdp.initial)[1]
 
         def filt(x: Any, b: torch.Tensor, a: torch.Tensor, x2: Any, o: torch.Tensor) -> Any:
             return momdp_update(momdp, x, b, a, x2, o).belief
@@ -195,7 +194,7 @@ class Controller:
             self.belief = self._filter(self.state, self.belief, self.last_action, xt, ot)
         elif self._from_start and self._start is not None and xt is not None:
             belief = self._start[xt].to(self._prior.dtype)
-            if bool(torch.isnan(belief).any()):
+            if bool((belief.sum(-1) <= 0).any()):
                 raise ModelError(
                     f"the first state x = {x} has no mass under the model's random start "
                     "(initial): pass a prior to reset()"

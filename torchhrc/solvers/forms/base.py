@@ -64,6 +64,7 @@ import numpy as np
 import torch
 
 from torchhrc.errors import ModelError
+from torchhrc.pomdp import split_initial
 from torchhrc.solvers import backup_kernel
 from torchhrc.solvers._factored import Expectation
 from torchhrc.solvers.backup import BackupResult
@@ -433,11 +434,9 @@ class SolverModel(ABC):
         if initial is None:
             self._roots = None
             return
-        initial = initial.to(device=self.b0.device, dtype=self.b0.dtype)
-        mass = initial.sum(-1)
+        mass, given = split_initial(initial.to(device=self.b0.device, dtype=self.b0.dtype))
         xs = torch.nonzero(mass > 0).squeeze(-1)
-        self._roots = (xs.cpu().numpy(), initial[xs] / mass[xs, None],
-                       mass[xs].cpu().double().numpy())  # fmt: skip
+        self._roots = (xs.cpu().numpy(), given[xs], mass[xs].cpu().double().numpy())
 
     def new_tree(self) -> BeliefTree:
         """An empty SARSOP belief tree (dense rows) with :attr:`roots` as nodes ``0..R-1``."""

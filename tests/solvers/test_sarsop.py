@@ -545,6 +545,39 @@ def test_time_limit_of_a_given_clock_is_honoured_at_every_check(monkeypatch):
     assert sol.lower <= sol.upper
 
 
+def test_sweeps_stop_at_the_time_limit(monkeypatch):
+    """A sweep (``sweep_interval``: every active tree belief backed up, one batch per observed
+    value) reads the budget between its batches, as a trial does between its steps: on a clock
+    that counts the work done (one unit per new tree belief, per one-belief backup and per
+    batch), no batch begins after the limit and the solve stops within one unit of it (a sweep
+    of RockSample(4, 4) as a MOMDP is one batch per robot cell, and ran all of them late)."""
+    from torchhrc.tasks.classic import rock_sample_momdp
+
+    sarsop_module = sys.modules[_SARSOP.__module__]
+    work = [0]
+    late_batches = [0]
+    limit = 120.0
+    for name in ("_add_node", "_backup_one_np", "backup"):
+        method = getattr(sarsop_module._SARSOP, name)
+
+        def counted(self, *args, _method=method, _name=name):
+            if _name == "backup" and len(args[1]) == 1:
+                return _method(self, *args)  # one belief: counted in _backup_one_np
+            if _name == "backup":
+                late_batches[0] += work[0] >= limit
+            work[0] += 1
+            return _method(self, *args)
+
+        monkeypatch.setattr(sarsop_module._SARSOP, name, counted)
+    cfg = SARSOPConfig(time_limit=limit, precision=1e-9, sweep_interval=1,
+                       clock=lambda: float(work[0]))  # fmt: skip
+    sol = sarsop(rock_sample_momdp(4, 4), cfg)
+    assert sol.info["stop_reason"] == "time_limit"
+    assert late_batches[0] == 0  # no batch began after the limit
+    assert limit <= work[0] <= limit + 1
+    assert sol.lower <= sol.upper
+
+
 def test_process_clock_limits_cpu_time():
     from torchhrc.tasks.classic import rock_sample_momdp
 

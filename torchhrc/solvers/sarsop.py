@@ -1360,6 +1360,8 @@ class _SARSOP:
             nodes = act[xs == x]
             # deepest first within the batch order does not matter: one batched backup
             for start in range(0, nodes.size, 256):
+                if self.clock() >= self.deadline:
+                    return  # every backup leaves valid bounds: the rest waits (as a trial)
                 self.backup(int(x), nodes[start : start + 256])
 
     # -- main loop -------------------------------------------------------------------------
@@ -1413,10 +1415,10 @@ class _SARSOP:
                     self.backup(int(self.tree.x[node]), np.array([node]))
                     if self.clock() >= self.deadline:
                         break
-                late = self.clock() >= self.deadline
-                if cfg.sweep_interval and iteration % cfg.sweep_interval == 0 and not late:
-                    self.sweep()
-                if not late:
+                if cfg.sweep_interval and iteration % cfg.sweep_interval == 0:
+                    if self.clock() < self.deadline:
+                        self.sweep()
+                if self.clock() < self.deadline:
                     self.prune()
                 entry = self.record(iteration)
                 if cfg.callback is not None and cfg.callback(dict(entry)):

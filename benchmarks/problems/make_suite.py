@@ -34,18 +34,22 @@ RockSample(4,4) with another layout, Tag at 0.8, RockSample(7,5) as a MOMDP), ``
 all ``.pomdpx``), ``starts`` (MOMDPs whose first observed value is random: Tag from any cell,
 RockSample(5,5) from its first column, random MOMDPs; ``.pomdpx``) and ``shapes`` (random
 POMDPs with many actions, many observations, 600
-sparse states, discount 0.99 and 0.999). ``docs/benchmarks.md`` reports both solvers on each
-beside the suite.
+sparse states, discount 0.99 and 0.999). The ninth session added ``structured``
+(``structured.py``: two random mazes after Hallway, the tiger problem with 3 and 5 doors, a
+machine-maintenance problem at discount 0.99 after bridge-repair, and RockSample(6,4) with
+rocks from seed 77). ``docs/benchmarks.md`` reports both solvers on each beside the suite.
 
 Usage::
 
     python benchmarks/problems/make_suite.py --out SUITE_DIR [--from DIR ...] [--no-random]
-    python benchmarks/problems/make_suite.py --out CHECK_DIR --check-set [mixed|momdp|shapes|starts]
+    python benchmarks/problems/make_suite.py --out CHECK_DIR \\
+        --check-set [mixed|momdp|shapes|starts|structured]
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import shutil
 from pathlib import Path
 
@@ -56,6 +60,21 @@ from torchhrc.io.cassandra import read_pomdp, write_pomdp
 from torchhrc.io.pomdpx import write_pomdpx
 from torchhrc.tasks.classic import rock_sample, rock_sample_momdp, tag, tag_momdp
 from torchhrc.testing import random_momdp, random_pomdp
+
+
+def _load_structured():  # type: ignore[no-untyped-def]
+    """The sibling module ``structured.py`` (this script is also loaded by path, from the
+    tests, where its folder is not on ``sys.path``)."""
+    spec = importlib.util.spec_from_file_location(
+        "structured_problems", Path(__file__).with_name("structured.py")
+    )
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+_STRUCTURED = _load_structured()
 
 # (states, actions, observations, sparsity of T and Z, seed): small to medium, dense and sparse
 RANDOM = [
@@ -161,6 +180,14 @@ def more_check_sets() -> dict[str, dict[str, object]]:
             "r_S600_A6_O8_sp.pomdp": random_pomdp(600, 6, 8, sparsity=0.98, seed=405),
             "r_S8_A3_O3_d999.pomdp": random_pomdp(8, 3, 3, seed=406, discount=0.999),
         },
+        "structured": {  # benchmarks/problems/structured.py, added in the ninth session
+            "g_maze7_s1.pomdp": _STRUCTURED.maze(7, seed=1),
+            "g_maze10_s2.pomdp": _STRUCTURED.maze(10, seed=2, wall_fraction=0.3),
+            "g_doors3.pomdp": _STRUCTURED.doors(3),
+            "g_doors5_a07.pomdp": _STRUCTURED.doors(5, accuracy=0.7),
+            "g_maint6_d99.pomdp": _STRUCTURED.maintenance(6),
+            "g_rs64_s77.pomdp": rock_sample(6, 4, seed=77),
+        },
     }
 
 
@@ -197,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-random", action="store_true", help="skip the generated problems")
     parser.add_argument(
         "--check-set", nargs="?", const="check",
-        choices=["check", "mixed", "momdp", "shapes", "starts"],
+        choices=["check", "mixed", "momdp", "shapes", "starts", "structured"],
         help="write a check set (never tuned on) instead: the first (no name) or a later one",
     )  # fmt: skip
     args = parser.parse_args(argv)

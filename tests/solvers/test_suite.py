@@ -156,6 +156,59 @@ def test_fetched_suite_problem_solves(path: Path) -> None:
         assert sol.lower <= hi + 1e-9 and lo <= sol.upper + 1e-9
 
 
+# -- the structured check set (benchmarks/problems/structured.py) --------------------------------
+STRUCTURED = _make_suite().more_check_sets()["structured"]
+
+
+def _structured_module():  # type: ignore[no-untyped-def]
+    spec = importlib.util.spec_from_file_location(
+        "structured_problems", ROOT / "benchmarks" / "problems" / "structured.py"
+    )
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_two_doors_are_the_tiger_problem() -> None:
+    """``doors(2, accuracy=0.85)`` is Kaelbling, Littman & Cassandra's tiger, tensor for tensor
+    (and so its value, 19.37 at discount 0.95)."""
+    from torchhrc.tasks.classic import tiger
+
+    two, reference = _structured_module().doors(2, accuracy=0.85), tiger()
+    for field in ("T", "Z", "R", "b0"):
+        torch.testing.assert_close(getattr(two, field), getattr(reference, field), rtol=0,
+                                   atol=1e-15)  # fmt: skip
+    assert float(two.discount) == float(reference.discount)
+
+
+def test_maze_without_noise_reads_the_walls_and_moves_by_them() -> None:
+    """With ``flip = 0`` a cell's observation is its wall pattern, exactly; with ``slip = 0``
+    a move goes to the neighbouring free cell or stays at a wall; declare at the goal
+    restarts uniformly (the only row that is not one-hot) and earns 1."""
+    model = _structured_module().maze(6, seed=3, flip=0.0, slip=0.0)
+    S = model.num_states
+    Z, T, R = model.Z[0], model.T, model.R
+    assert torch.equal(Z.max(-1).values, torch.ones(S, dtype=Z.dtype))  # one-hot rows
+    walls = torch.stack([(T[a].argmax(-1) == torch.arange(S)) for a in range(4)], -1)  # (S, 4)
+    pattern = (walls.long() * (1 << torch.arange(4))).sum(-1)
+    assert torch.equal(Z.argmax(-1), pattern)
+    assert torch.equal(T[:4].max(-1).values, torch.ones(4, S, dtype=T.dtype))
+    restarts = (T[4].max(-1).values < 1).nonzero().squeeze(-1)
+    assert restarts.numel() == 1 and float(R[4, restarts[0]]) == 1.0
+    torch.testing.assert_close(T[4, restarts[0]], torch.full((S,), 1.0 / S, dtype=T.dtype))
+
+
+@pytest.mark.parametrize("name", sorted(STRUCTURED))
+def test_structured_check_problem_solves_and_round_trips(name: str, tmp_path: Path) -> None:
+    model = STRUCTURED[name]
+    back = read_pomdp(write_pomdp(model, tmp_path / name))
+    for field in ("T", "Z", "R", "b0"):
+        torch.testing.assert_close(getattr(back, field), getattr(model, field), rtol=0, atol=1e-12)
+    sol = sarsop(back, SARSOPConfig(time_limit=LONG, max_iterations=5))
+    _check_solution(back, sol)
+
+
 # -- bounds bracket the exact value ---------------------------------------------------------------
 def _exact(model) -> tuple[float, float]:  # type: ignore[no-untyped-def]
     gamma = float(model.discount)

@@ -21,6 +21,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 
 import numpy as np
@@ -83,14 +84,12 @@ class EvaluationCache:
     @staticmethod
     def _expand(entry: tuple) -> Entry:
         q_low, q_up, shape, nz, p, lo, hi = entry
-        n = p.dtype.type(0)
-        size = int(np.prod(shape))
-        arrays = []
-        for values in (p, lo, hi):
-            full = np.full(size, n, dtype=values.dtype)
-            full[nz] = values
-            arrays.append(full.reshape(shape))
-        return q_low, q_up, arrays[0], arrays[1], arrays[2]
+        # one zeroed block for the three arrays, each a row of it (one allocation instead of
+        # three: the search expands an entry at every step and backup through it)
+        full = np.zeros((3, math.prod(shape)), dtype=np.result_type(p, lo, hi))
+        full[0, nz], full[1, nz], full[2, nz] = p, lo, hi
+        return (q_low, q_up, full[0].reshape(shape), full[1].reshape(shape),
+                full[2].reshape(shape))  # fmt: skip
 
     def packed(self, key: int) -> bool:
         """Whether ``key``'s entry is stored at its possible children only."""

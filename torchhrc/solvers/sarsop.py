@@ -965,9 +965,10 @@ class _SARSOP:
         return (q_low, q_up, ch.prob, low.reshape(shape), up.reshape(shape), best.reshape(shape),
                 float(low_r[m]), cu, ch.child_x, int(best_r[m]))  # fmt: skip
 
-    def _impossible_best_np(self, x: int, b: np.ndarray, child_x: np.ndarray, nz: np.ndarray,
-                            own: int | None = None) -> np.ndarray:  # fmt: skip
-        """``(C,)`` the vector a backup of ``b`` uses at each impossible child (``P = 0``).
+    def _impossible_best_np(self, x: int, b: np.ndarray, child_x: np.ndarray,
+                            possible: np.ndarray, own: int | None = None) -> np.ndarray:  # fmt: skip
+        """``(C,)`` the vector a backup of ``b`` uses at each impossible child (``P = 0``;
+        ``possible (C,)`` bool marks the others).
 
         An impossible child weighs 0 in ``V_low(b)``, but its vector still shapes the new
         alpha vector away from ``b``'s support, i.e. its value at the other beliefs of the
@@ -983,9 +984,8 @@ class _SARSOP:
         if own is not None and self.X == 1:
             return np.full(child_x.shape[0], own, dtype=np.int64)
         best = np.zeros(child_x.shape[0], dtype=np.int64)
-        imp = np.ones(child_x.shape[0], dtype=bool)
-        imp[nz] = False
-        if not imp.any():
+        imp = ~possible
+        if possible.all():
             return best
         cx = child_x[imp]
         if own is not None and (cx == x).all():  # a flat model: always
@@ -1010,7 +1010,7 @@ class _SARSOP:
         if np.count_nonzero(prob[a]) < prob[a].size:  # some child of a is impossible (P >= 0)
             possible = prob[a] > 0
             ch_a = child_x.reshape(best.shape[0], -1)[a]
-            fill = self._impossible_best_np(x, b, ch_a, np.flatnonzero(possible), own)
+            fill = self._impossible_best_np(x, b, ch_a, possible.reshape(-1), own)
             use = np.where(possible, use, fill.reshape(use.shape))
         alpha = self.form.backup_vector_np(x, a, use, self.alphas.np_vectors, self.gamma)
         nl = float(alpha @ b)

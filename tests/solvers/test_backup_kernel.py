@@ -99,6 +99,45 @@ def test_backup_vector_equals_the_numpy_one(seed: int) -> None:
         form.backup_vector_np(0, 0, np.full((1, model.num_observations), 9), vectors, 0.9)
 
 
+@needs_extension
+@pytest.mark.parametrize("name", sorted(_MODELS))
+def test_backup_vector_of_every_dense_form_equals_the_numpy_one(name: str) -> None:
+    """The compiled ``backup_vector`` over ``children``'s tables (flat: ``tyk = T``; MOMDP:
+    ``Tx (A, Y, K)``, ``Ty`` or the identity of a static hidden value) against the numpy body,
+    at every ``x`` and action, and for a MOMDP by hand from ``Tx``, ``Ty``, ``Z``, ``R``."""
+    model = _MODELS[name]()
+    form = as_solver_model(model)
+    rng = np.random.default_rng(len(name))
+    vectors = rng.normal(size=(11, form.num_hidden))
+    for x in range(form.num_observed):
+        K = form.reach_np(x).size
+        for a in range(form.num_actions):
+            use = rng.integers(0, 11, size=(K, form.num_observations))
+            got = form.backup_vector_np(x, a, use, vectors, 0.95)
+            ref = SolverModel.backup_vector_np(form, x, a, use, vectors, 0.95)
+            np.testing.assert_allclose(got, ref, rtol=1e-13, atol=1e-13)
+    if not name.startswith("momdp"):
+        return
+    # alpha(y) = R(a, x, y) + gamma sum_{x2, y2, o} Tx Ty Z(a, x2, y2, o) vectors[use[x2, o], y2]
+    Tx, R, Z = model.Tx.numpy(), model.R.numpy(), model.Z.numpy()  # (A,X,Y,X2) (A,X,Y) (A,X2,Y2,O)
+    Ty = model.Ty.numpy() if model.Ty is not None else None  # (A, X, Y, X2, Y2)
+    x, a = 1, form.num_actions - 1
+    reach = form.reach_np(x)
+    use = rng.integers(0, 11, size=(reach.size, form.num_observations))
+    hand = R[a, x].copy()
+    for y in range(form.num_hidden):
+        for k, x2 in enumerate(reach.tolist()):
+            for y2 in range(form.num_hidden):
+                ty = Ty[a, x, y, x2, y2] if Ty is not None else float(y2 == y)
+                for o in range(form.num_observations):
+                    hand[y] += (
+                        0.95 * Tx[a, x, y, x2] * ty * Z[a, x2, y2, o] * vectors[use[k, o], y2]
+                    )
+    np.testing.assert_allclose(form.backup_vector_np(x, a, use, vectors, 0.95), hand, rtol=1e-12)
+    with pytest.raises(IndexError, match="a vector index in use is out of range"):
+        form.backup_vector_np(x, a, np.full_like(use, 11), vectors, 0.95)
+
+
 def _solver(model: POMDP, iterations: int) -> object:
     cfg = SARSOPConfig(time_limit=1e9, max_iterations=iterations, precision=1e-9)
     solver = SARSOP(model, cfg, time.perf_counter())

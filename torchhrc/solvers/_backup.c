@@ -33,10 +33,12 @@
  *   storage (idx, inv, off, wid, gain) as in _sawtooth.c. Written: out (B,) the sawtooth
  *   upper bound of each row at its own x, corner[x] . b + the correction of x's points.
  *
- * backup_vector(T, z, r, V, use, a, gamma, out) -> None
- *   T (A, S, S), z (A, O, S), r (S,) = R[a], V (N, S) alpha vectors, use (O,) int64 the
- *   vector of each observation; written: out (S,) the new alpha vector
- *   r + gamma sum_s2 T[a, s, s2] sum_o Z[a, s2, o] V[use[o], s2].
+ * backup_vector(tx, tyk, z, r, V, use, a, gamma, out) -> None
+ *   tx (A, Y, K) and/or tyk (A, K, Y, Y) as for children (tx empty: K = 1 and Tx = 1; tyk
+ *   empty: Ty the identity), z (A, K, O, Y), r (Y,) = R[a, x], V (N, Y) alpha vectors,
+ *   use (K O,) int64 the vector of each child (x2_k, o); written: out (Y,) the new vector
+ *   r + gamma sum_k Tx[a, y, k] sum_y2 Ty[a, k, y, y2] sum_o Z[a, k, o, y2] V[use[k, o], y2]
+ *   (a flat model: tx empty, tyk = T as (A, 1, S, S)).
  */
 #include "_kernel_util.h"
 
@@ -419,65 +421,91 @@ static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_
 
 
 static PyObject *backup_vector(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    static const spec_t spec[6] = {
-        {"T", 3, 'd', 0}, {"z", 3, 'd', 0},   {"r", 1, 'd', 0},
-        {"V", 2, 'd', 0}, {"use", 1, 'q', 0}, {"out", 1, 'd', 1},
+    enum { NB = 7 };
+    static const spec_t spec[NB] = {
+        {"tx", 3, 'd', 0}, {"tyk", 4, 'd', 0}, {"z", 4, 'd', 0},   {"r", 1, 'd', 0},
+        {"V", 2, 'd', 0},  {"use", 1, 'q', 0}, {"out", 1, 'd', 1},
     };
-    Py_buffer v[6];
+    Py_buffer v[NB];
     (void)self;
-    if (nargs != 8) {
-        PyErr_Format(PyExc_TypeError, "backup_vector() takes 8 arguments (%zd given)", nargs);
+    if (nargs != NB + 2) {
+        PyErr_Format(PyExc_TypeError, "backup_vector() takes %d arguments (%zd given)", NB + 2,
+                     nargs);
         return NULL;
     }
-    const Py_ssize_t a = PyNumber_AsSsize_t(args[5], PyExc_OverflowError);
+    const Py_ssize_t a = PyNumber_AsSsize_t(args[6], PyExc_OverflowError);
     if (a == -1 && PyErr_Occurred()) return NULL;
-    const double gamma = PyFloat_AsDouble(args[6]);
+    const double gamma = PyFloat_AsDouble(args[7]);
     if (gamma == -1.0 && PyErr_Occurred()) return NULL;
-    PyObject *const arrays[6] = {args[0], args[1], args[2], args[3], args[4], args[7]};
-    if (get_all(arrays, v, spec, 6) < 0) return NULL;
-    const Py_ssize_t A = v[0].shape[0], S = v[0].shape[1], O = v[1].shape[1];
-    const Py_ssize_t N = v[3].shape[0];
-    if (v[0].shape[2] != S || v[1].shape[0] != A || v[1].shape[2] != S || v[2].shape[0] != S ||
-        v[3].shape[1] != S || v[4].shape[0] != O || v[5].shape[0] != S) {
+    PyObject *const arrays[NB] = {args[0], args[1], args[2], args[3], args[4], args[5], args[8]};
+    if (get_all(arrays, v, spec, NB) < 0) return NULL;
+    const Py_ssize_t A = v[2].shape[0], K = v[2].shape[1], O = v[2].shape[2], Y = v[2].shape[3];
+    const Py_ssize_t N = v[4].shape[0];
+    const int has_tx = v[0].shape[0] > 0, has_ty = v[1].shape[0] > 0;
+    const char *bad = NULL;
+    if (has_tx && (v[0].shape[0] != A || v[0].shape[1] != Y || v[0].shape[2] != K))
+        bad = "tx (A, Y, K) or empty";
+    else if (!has_tx && K != 1)
+        bad = "tx (A, Y, K) when K > 1";
+    else if (has_ty && (v[1].shape[0] != A || v[1].shape[1] != K || v[1].shape[2] != Y ||
+                        v[1].shape[3] != Y))
+        bad = "tyk (A, K, Y, Y) or empty";
+    else if (v[3].shape[0] != Y || v[4].shape[1] != Y || v[5].shape[0] != K * O ||
+             v[6].shape[0] != Y)
+        bad = "r (Y,), V (N, Y), use (K O,) and out (Y,)";
+    if (bad != NULL) {
         PyErr_Format(PyExc_ValueError,
-                     "backup_vector(): inconsistent shapes for S=%zd states, A=%zd actions, "
-                     "O=%zd observations (T (A, S, S), z (A, O, S), r (S,), V (N, S), "
-                     "use (O,), out (S,))",
-                     S, A, O);
-        release_all(v, 6);
+                     "backup_vector(): inconsistent shapes for z (A=%zd, K=%zd, O=%zd, Y=%zd): "
+                     "expected %s",
+                     A, K, O, Y, bad);
+        release_all(v, NB);
         return NULL;
     }
-    const int64_t *use = v[4].buf;
-    const char *bad = NULL;
+    const int64_t *use = v[5].buf;
     if (a < 0 || a >= A) bad = "the action";
-    for (Py_ssize_t o = 0; o < O && bad == NULL; o++)
-        if (use[o] < 0 || use[o] >= N) bad = "a vector index in use";
+    for (Py_ssize_t i = 0; i < K * O && bad == NULL; i++)
+        if (use[i] < 0 || use[i] >= N) bad = "a vector index in use";
     if (bad != NULL) {
         PyErr_Format(PyExc_IndexError, "backup_vector(): %s is out of range", bad);
-        release_all(v, 6);
+        release_all(v, NB);
         return NULL;
     }
-    double *vals = PyMem_Malloc((size_t)(S > 0 ? S : 1) * sizeof(double));
+    double *vals = PyMem_Malloc((size_t)(K * Y > 0 ? K * Y : 1) * sizeof(double));
     if (vals == NULL) {
-        release_all(v, 6);
+        release_all(v, NB);
         return PyErr_NoMemory();
     }
-    const double *T = v[0].buf, *z = v[1].buf, *r = v[2].buf, *V = v[3].buf;
-    double *out = v[5].buf;
-    /* vals[s2] = sum_o Z[a, s2, o] alpha_o[s2]; out[s] = r[s] + gamma T[a, s] . vals */
-    memset(vals, 0, (size_t)S * sizeof(double));
-    for (Py_ssize_t o = 0; o < O; o++) {
-        const double *zo = z + (a * O + o) * S, *w = V + use[o] * S;
-        for (Py_ssize_t s = 0; s < S; s++) vals[s] += zo[s] * w[s];
+    const double *tx = v[0].buf, *ty = v[1].buf, *z = v[2].buf, *r = v[3].buf, *V = v[4].buf;
+    double *out = v[6].buf;
+    /* vals[k, y2] = sum_o Z[a, k, o, y2] alpha_{k, o}[y2] */
+    memset(vals, 0, (size_t)(K * Y) * sizeof(double));
+    for (Py_ssize_t k = 0; k < K; k++) {
+        double *vk = vals + k * Y;
+        for (Py_ssize_t o = 0; o < O; o++) {
+            const double *zo = z + ((a * K + k) * O + o) * Y, *w = V + use[k * O + o] * Y;
+            for (Py_ssize_t y = 0; y < Y; y++) vk[y] += zo[y] * w[y];
+        }
     }
-    for (Py_ssize_t s = 0; s < S; s++) {
-        const double *row = T + (a * S + s) * S;
+    /* out[y] = r[y] + gamma sum_k Tx[a, y, k] (Ty[a, k, y] . vals[k]) (Tx: 1 without tx, Ty:
+     * the identity without tyk) */
+    for (Py_ssize_t y = 0; y < Y; y++) {
         double acc = 0.0;
-        for (Py_ssize_t s2 = 0; s2 < S; s2++) acc += row[s2] * vals[s2];
-        out[s] = r[s] + gamma * acc;
+        for (Py_ssize_t k = 0; k < K; k++) {
+            const double *vk = vals + k * Y;
+            double inner;
+            if (has_ty) {
+                const double *row = ty + ((a * K + k) * Y + y) * Y;
+                inner = 0.0;
+                for (Py_ssize_t y2 = 0; y2 < Y; y2++) inner += row[y2] * vk[y2];
+            } else {
+                inner = vk[y];
+            }
+            acc += has_tx ? tx[(a * Y + y) * K + k] * inner : inner;
+        }
+        out[y] = r[y] + gamma * acc;
     }
     PyMem_Free(vals);
-    release_all(v, 6);
+    release_all(v, NB);
     Py_RETURN_NONE;
 }
 

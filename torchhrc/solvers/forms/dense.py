@@ -78,20 +78,6 @@ class DenseForm(FlatFields, TensorModelForm):
     def backproject_np(self, x: int, a: int, values: np.ndarray) -> np.ndarray:
         return self._T_np()[a] @ values[0]
 
-    def backup_vector_np(self, x: int, a: int, use: np.ndarray, vectors: np.ndarray,
-                         gamma: float) -> np.ndarray:  # fmt: skip
-        """:meth:`~.base.SolverModel.backup_vector_np` in one compiled call where the extension
-        is built and the model is float64 (the numpy body of the base class otherwise)."""
-        if self._kernel is None or vectors.dtype != np.float64 or not vectors.flags.c_contiguous:
-            return super().backup_vector_np(x, a, use, vectors, gamma)
-        _, T, z, _, _ = self._kernel_tables(x)
-        A, _, O, S = z.shape
-        out = np.empty(S)
-        R = self.rewards_np()  # (A, 1, S)
-        self._kernel.backup_vector(T.reshape(A, S, S), z.reshape(A, O, S), R[a, x], vectors,
-                                   use.ravel(), a, gamma, out)  # fmt: skip
-        return out
-
     def _transition_tables(self, x: int) -> tuple[np.ndarray | None, np.ndarray | None]:
         T = self._T_np()  # a flat model: no tx (K = 1), tyk = T
         return None, T.reshape(T.shape[0], 1, *T.shape[1:])

@@ -88,7 +88,9 @@ def test_impossible_children_take_the_best_vector_at_the_parent_belief(make):
         x = int(tree.x[node])
         b = tree.beliefs_np[node]
         ch = form.children_np(x, b)
-        best = solver._impossible_best_np(x, b, ch.child_x, ch.nz)
+        possible = np.zeros(ch.child_x.shape[0], dtype=bool)
+        possible[ch.nz] = True
+        best = solver._impossible_best_np(x, b, ch.child_x, possible)
         imp = np.setdiff1d(np.arange(ch.child_x.shape[0]), ch.nz)
         for c in imp.tolist():
             x2 = int(ch.child_x[c])

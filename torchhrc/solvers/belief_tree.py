@@ -89,8 +89,10 @@ class BeliefTree:
         self._beliefs = new
         self._np_beliefs = None
 
-    def _set_belief(self, n: int, belief: torch.Tensor) -> None:
-        if belief.device.type == "cpu" and self._beliefs.device.type == "cpu":
+    def _set_belief(self, n: int, belief: torch.Tensor | np.ndarray) -> None:
+        if isinstance(belief, np.ndarray):  # the CPU search's numpy rows (CPU storage)
+            self.beliefs_np[n] = belief
+        elif belief.device.type == "cpu" and self._beliefs.device.type == "cpu":
             self.beliefs_np[n] = belief.numpy()  # a row copy without tensor indexing (~15 us)
         else:
             self._beliefs[n] = belief
@@ -107,8 +109,10 @@ class BeliefTree:
             arr[: self.size] = old[: self.size]
             setattr(self, name, arr)
 
-    def add(self, belief: torch.Tensor, x: int, parent: int, action: int, observation: int) -> int:
-        """Add node ``(x, belief)``, the child of ``parent`` by ``(action, x, observation)``.
+    def add(self, belief: torch.Tensor | np.ndarray, x: int, parent: int, action: int,
+            observation: int) -> int:  # fmt: skip
+        """Add node ``(x, belief)``, the child of ``parent`` by ``(action, x, observation)``
+        (``belief`` ``(Y,)``: a tensor, or a numpy row when the storage is on the CPU).
 
         Returns the new node's id (the root, with ``parent = -1``, is node 0).
         """
@@ -202,8 +206,8 @@ class SparseBeliefTree(BeliefTree):
     def _grow_beliefs(self, cap: int) -> None:
         pass
 
-    def _set_belief(self, n: int, belief: torch.Tensor) -> None:
-        row = belief.detach().cpu().numpy()
+    def _set_belief(self, n: int, belief: torch.Tensor | np.ndarray) -> None:
+        row = belief if isinstance(belief, np.ndarray) else belief.detach().cpu().numpy()
         idx = np.flatnonzero(row)
         if n == len(self._support):
             self._support.append(idx)

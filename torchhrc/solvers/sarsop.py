@@ -965,8 +965,8 @@ class _SARSOP:
         return (q_low, q_up, ch.prob, low.reshape(shape), up.reshape(shape), best.reshape(shape),
                 float(low_r[m]), cu, ch.child_x, int(best_r[m]))  # fmt: skip
 
-    def _impossible_best_np(self, x: int, b: np.ndarray, child_x: np.ndarray,
-                            possible: np.ndarray, own: int | None = None) -> np.ndarray:  # fmt: skip
+    def _impossible_best_np(self, x: int, b: np.ndarray, child_x: np.ndarray, possible: np.ndarray,
+                            own: int | None = None) -> np.ndarray:  # fmt: skip
         """``(C,)`` the vector a backup of ``b`` uses at each impossible child (``P = 0``;
         ``possible (C,)`` bool marks the others).
 
@@ -1182,7 +1182,7 @@ class _SARSOP:
             if child < 0:
                 if self._np:
                     row = self.form.child_np(x, tree.beliefs_np[node], a, k, o) / p
-                    child = self._add_node(torch.from_numpy(row), x2, node, a, o)
+                    child = self._add_node(row, x2, node, a, o)
                 else:
                     _, J = self.form.expand(x, tree.beliefs[node].unsqueeze(0))
                     child = self._add_node(J[0, a, k, o] / p, x2, node, a, o)
@@ -1243,7 +1243,10 @@ class _SARSOP:
         ids = np.unique(np.concatenate(parts))
         return ids[ids >= 0]  # (an entry is -1 only if its vector was dropped: never counted)
 
-    def _add_node(self, belief: torch.Tensor, x: int, parent: int, action: int, obs: int) -> int:
+    def _add_node(self, belief: torch.Tensor | np.ndarray, x: int, parent: int, action: int,
+                  obs: int) -> int:  # fmt: skip
+        """Add a tree node (``belief`` a numpy row on the numpy path) with its entropy and the
+        id of its distinct belief."""
         node = self.tree.add(belief, x, parent, action, obs)
         if node >= self.entropy.shape[0]:
             grown = np.zeros(2 * self.entropy.shape[0])
@@ -1252,25 +1255,26 @@ class _SARSOP:
             ids = np.zeros(2 * self.belief_id.shape[0], dtype=np.int64)
             ids[: self.belief_id.shape[0]] = self.belief_id
             self.belief_id = ids
-        if self._np:
-            row = belief.numpy()
-            p = row[row > 0]
+        if isinstance(belief, np.ndarray):
+            nz = np.flatnonzero(belief)  # the support (a belief has no negative entry)
+            p = belief[nz]
             self.entropy[node] = float(-(p * np.log(p)).sum())
+            self.belief_id[node] = self._belief_key(x, belief, nz)
         else:
-            row = belief.cpu().numpy()
             self.entropy[node] = float(self._entropy(belief.unsqueeze(0))[0])
-        self.belief_id[node] = self._belief_key(x, row)
+            self.belief_id[node] = self._belief_key(x, belief.cpu().numpy())
         self.children.setdefault(parent, []).append(node)
         return node
 
-    def _belief_key(self, x: int, row: np.ndarray) -> int:
+    def _belief_key(self, x: int, row: np.ndarray, nz: np.ndarray | None = None) -> int:
         """The id of the distinct belief ``(x, row)`` (support and values to 12 digits).
 
         Keyed by a 128-bit digest of the support and the rounded values rather than their
         bytes (RockSample_7_8.pomdpx: 4 kB a belief, 16 MB after 10 s), with the same ids
         unless two of the beliefs collide (probability about ``n^2 / 2^129``).
         """
-        nz = np.flatnonzero(row)
+        if nz is None:
+            nz = np.flatnonzero(row)  # (the caller's, when it has the support)
         digest = hashlib.blake2b(nz.tobytes(), digest_size=16)
         digest.update(np.round(row[nz], 12).tobytes())  # same length: the split is unambiguous
         return self._belief_ids.setdefault((x, digest.digest()), len(self._belief_ids))

@@ -348,3 +348,37 @@ def test_the_environment_switch_selects_the_numpy_path(monkeypatch: pytest.Monke
     b = np.full(4, 0.25)
     ch = form.children_np(0, b)  # the numpy body
     np.testing.assert_allclose(ch.prob.sum((-1, -2)), 1.0)
+
+
+@needs_extension
+def test_refresh_active_compiled_equals_the_level_by_level_numpy(monkeypatch) -> None:
+    """BeliefTree.refresh_active: the compiled pass in index order and the numpy loop over
+    depth levels deactivate the same nodes (every descendant of an inactive node) on a
+    random tree; the kernel refuses a parent listed after its child and a non-bool mask."""
+    from torchhrc.solvers.belief_tree import BeliefTree
+
+    rng = np.random.default_rng(0)
+    parents = [int(rng.integers(n)) for n in range(1, 400)]
+    trees = []
+    for _ in range(2):
+        tree = BeliefTree(torch.tensor([0.5, 0.5], dtype=torch.float64), x=0, capacity=4)
+        for n, parent in enumerate(parents, start=1):
+            tree.add(torch.tensor([0.5, 0.5], dtype=torch.float64), 0, parent, 0, n)
+        trees.append(tree)
+    off = rng.choice(np.arange(1, 400), size=12, replace=False)
+    for tree in trees:
+        tree.active[off] = False
+    trees[0].refresh_active()
+    monkeypatch.setattr(backup_kernel, "load", lambda: None)
+    trees[1].refresh_active()
+    np.testing.assert_array_equal(trees[0].active[:400], trees[1].active[:400])
+    inactive = set(off.tolist())
+    for n in range(1, 400):  # by hand: inactive iff an ancestor (or itself) was switched off
+        m, hit = n, False
+        while m >= 0 and not hit:
+            hit, m = m in inactive, int(trees[0].parent[m])
+        assert trees[0].active[n] == (not hit)
+    with pytest.raises(ValueError, match="parent must come before"):
+        kernel.propagate_inactive(np.array([-1, 2, 0]), np.ones(3, dtype=bool))
+    with pytest.raises(ValueError, match="bool"):
+        kernel.propagate_inactive(np.array([-1, 0]), np.ones(2))

@@ -33,6 +33,11 @@
  *   storage (idx, inv, off, wid, gain) as in _sawtooth.c. Written: out (B,) the sawtooth
  *   upper bound of each row at its own x, corner[x] . b + the correction of x's points.
  *
+ * propagate_inactive(parent, active) -> None
+ *   parent (N,) int64 (-1 at a root; a parent's index below its child's), active (>= N,)
+ *   bool, written: active[i] &= active[parent[i]] in index order (a tree's pruning reaches
+ *   every descendant; BeliefTree.refresh_active).
+ *
  * backup_vector(tx, tyk, z, r, V, use, a, gamma, out) -> None
  *   tx (A, Y, K) and/or tyk (A, K, Y, Y) as for children (tx empty: K = 1 and Tx = 1; tyk
  *   empty: Ty the identity), z (A, K, O, Y), r (Y,) = R[a, x], V (N, Y) alpha vectors,
@@ -509,6 +514,54 @@ static PyObject *backup_vector(PyObject *self, PyObject *const *args, Py_ssize_t
     Py_RETURN_NONE;
 }
 
+static PyObject *propagate_inactive(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    Py_buffer par, act;
+    (void)self;
+    if (nargs != 2) {
+        PyErr_Format(PyExc_TypeError, "propagate_inactive() takes 2 arguments (%zd given)",
+                     nargs);
+        return NULL;
+    }
+    if (get_buffer(args[0], &par, 1, 'q', "parent", 0) < 0) return NULL;
+    if (PyObject_GetBuffer(args[1], &act, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | PyBUF_WRITABLE) <
+        0) {
+        PyErr_Clear();
+        PyErr_Format(PyExc_TypeError, "expected active to be a writable C-contiguous 1-D bool "
+                                      "array, got %s", Py_TYPE(args[1])->tp_name);
+        PyBuffer_Release(&par);
+        return NULL;
+    }
+    const Py_ssize_t n = par.shape[0];
+    const char *f = act.format ? act.format : "B";
+    if (act.ndim != 1 || act.itemsize != 1 || f[0] != '?' || f[1] != 0 || act.shape[0] < n) {
+        PyErr_Format(PyExc_ValueError,
+                     "propagate_inactive(): expected active a 1-D bool array of at least %zd "
+                     "entries (parent's), got format '%s', %d dims",
+                     n, f, act.ndim);
+        PyBuffer_Release(&par);
+        PyBuffer_Release(&act);
+        return NULL;
+    }
+    const int64_t *parent = par.buf;
+    char *active = act.buf;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const int64_t p = parent[i];
+        if (p >= i) {
+            PyErr_Format(PyExc_ValueError,
+                         "propagate_inactive(): node %zd has parent %lld: a parent must come "
+                         "before its children",
+                         i, (long long)p);
+            PyBuffer_Release(&par);
+            PyBuffer_Release(&act);
+            return NULL;
+        }
+        if (p >= 0 && !active[p]) active[i] = 0;
+    }
+    PyBuffer_Release(&par);
+    PyBuffer_Release(&act);
+    Py_RETURN_NONE;
+}
+
 /* Borrowed item x of a list, checked to be one. */
 static PyObject *list_item(PyObject *list, const char *name, Py_ssize_t x) {
     if (!PyList_Check(list)) {
@@ -688,6 +741,8 @@ static PyMethodDef methods[] = {
      "Sawtooth upper bound of each row at its own observed value (see backup_kernel)."},
     {"backup_vector", (PyCFunction)(void (*)(void))backup_vector, METH_FASTCALL,
      "The backed-up alpha vector of one action (see torchhrc.solvers.backup_kernel)."},
+    {"propagate_inactive", (PyCFunction)(void (*)(void))propagate_inactive, METH_FASTCALL,
+     "propagate_inactive(parent, active): a node is inactive when its parent is"},
     {NULL, NULL, 0, NULL},
 };
 

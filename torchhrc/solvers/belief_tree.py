@@ -22,6 +22,7 @@ import warnings
 import numpy as np
 import torch
 
+from torchhrc.solvers import backup_kernel
 from torchhrc.solvers.pruning import _GATHER_ELEMENTS, prune_by_beliefs, prune_dominated
 
 __all__ = ["BeliefTree", "SparseBeliefTree"]
@@ -135,9 +136,18 @@ class BeliefTree:
         return self._children.get((node, action, x_next, observation), -1)
 
     def refresh_active(self) -> None:
-        """Propagate pruning: a node is active only if its parent is (depth order)."""
+        """Propagate pruning: a node is active only if its parent is.
+
+        Nodes are added after their parents, so one pass in index order reaches every
+        descendant: compiled where the extension is built (``propagate_inactive`` of
+        ``_backup.c``; 0.2-0.6 ms a SARSOP iteration in numpy on RockSample(8,4) as a MOMDP
+        and bridge-repair), level by level in numpy otherwise (the same result)."""
         n = self.size
         if n <= 1:
+            return
+        kernel = backup_kernel.load()
+        if kernel is not None:
+            kernel.propagate_inactive(self.parent[:n], self.active)
             return
         depth = self.depth[:n]
         order = np.argsort(depth, kind="stable")

@@ -206,7 +206,8 @@ class SARSOPConfig:
             grown by this factor since the last pruning.
         prune_nodes: deactivate tree nodes reached by sub-optimal actions.
         sweep_interval: every this many iterations, back up all active tree beliefs at once
-            (grouped by observed value; 0 disables).
+            (grouped by observed value, in batches of 256; the time limit is read between
+            batches; 0 disables).
         lazy_upper: a one-belief backup re-bounds only the children of the action with the
             highest cached ``Q_up`` until that action is one just refreshed (APPL's
             ``getNewUBValueUseCache``); ``False`` re-bounds every child at every backup.

@@ -992,8 +992,9 @@ class _SARSOP:
         if own is not None and (cx == x).all():  # a flat model: always
             best[imp] = own
             return best
-        if self._kernel is not None:  # b itself under each child's x, one call
-            best[imp] = self.alphas.group_scores(self._kernel, b.reshape(1, -1), cx)[1]
+        if self._kernel is not None:  # b itself under each child's x, one call per distinct x
+            ux, inv = np.unique(cx, return_inverse=True)  # (a few x2 among many children)
+            best[imp] = self.alphas.group_scores(self._kernel, b.reshape(1, -1), ux)[1][inv]
             return best
         ux, inv = np.unique(cx, return_inverse=True)
         _, ids = self._lower_np(np.broadcast_to(b, (ux.size, b.shape[0])), ux)

@@ -41,14 +41,19 @@ LONG = 1e9  # no wall-clock limit: iteration caps and precision stop the solves
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _make_suite():  # type: ignore[no-untyped-def]
+def _problems_module(name: str):  # type: ignore[no-untyped-def]
+    """A script of ``benchmarks/problems`` (not a package), loaded by path."""
     spec = importlib.util.spec_from_file_location(
-        "make_suite", ROOT / "benchmarks" / "problems" / "make_suite.py"
+        name, ROOT / "benchmarks" / "problems" / f"{name}.py"
     )
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def _make_suite():  # type: ignore[no-untyped-def]
+    return _problems_module("make_suite")
 
 
 GENERATED = _make_suite().random_problems()
@@ -161,13 +166,7 @@ STRUCTURED = _make_suite().more_check_sets()["structured"]
 
 
 def _structured_module():  # type: ignore[no-untyped-def]
-    spec = importlib.util.spec_from_file_location(
-        "structured_problems", ROOT / "benchmarks" / "problems" / "structured.py"
-    )
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return _problems_module("structured")
 
 
 def test_two_doors_are_the_tiger_problem() -> None:

@@ -110,11 +110,11 @@ def doors(k: int, accuracy: float = 0.8, discount: float = 0.95) -> POMDP:
 def maintenance(levels: int = 6, discount: float = 0.99) -> POMDP:
     """A machine that wears through ``levels`` conditions, the last one failed (seen).
 
-    Actions: run (wear one level with probability 0.15 to 0.25, fail outright with 0.03; earn
-    100 down to 20 by condition, -500 when failed), inspect (as run, 15 more cost, and a
-    reading of the condition off by a level or more with decaying probability), repair (one
-    level better, then wear; 60 more cost), replace (as new, -300). Without an inspection
-    the readings tell only failed or not.
+    Actions: run (from level ``s``, wear one level with probability ``0.15 + 0.1 s / levels``
+    and fail outright with 0.03; earn 100 down to 20 by condition, -500 when failed),
+    inspect (as run, 15 more cost, and a reading of the condition off by a level or more with
+    decaying probability), repair (one level better, then wear; 60 more cost), replace (as
+    new, -300). Without an inspection the readings tell only failed or not.
 
     Example:
         >>> maintenance().num_states

@@ -359,18 +359,20 @@ def test_refresh_active_compiled_equals_the_level_by_level_numpy(monkeypatch) ->
 
     rng = np.random.default_rng(0)
     parents = [int(rng.integers(n)) for n in range(1, 400)]
-    trees = []
-    for _ in range(2):
+    off = rng.choice(np.arange(1, 400), size=12, replace=False)
+
+    def refreshed() -> BeliefTree:
         tree = BeliefTree(torch.tensor([0.5, 0.5], dtype=torch.float64), x=0, capacity=4)
         for n, parent in enumerate(parents, start=1):
             tree.add(torch.tensor([0.5, 0.5], dtype=torch.float64), 0, parent, 0, n)
-        trees.append(tree)
-    off = rng.choice(np.arange(1, 400), size=12, replace=False)
-    for tree in trees:
         tree.active[off] = False
-    trees[0].refresh_active()
-    monkeypatch.setattr(backup_kernel, "load", lambda: None)
-    trees[1].refresh_active()
+        tree.refresh_active()
+        return tree
+
+    trees = [refreshed()]
+    monkeypatch.setattr(backup_kernel, "load", lambda: None)  # read when a tree is built
+    trees.append(refreshed())
+    assert trees[0]._kernel is not None and trees[1]._kernel is None
     np.testing.assert_array_equal(trees[0].active[:400], trees[1].active[:400])
     inactive = set(off.tolist())
     for n in range(1, 400):  # by hand: inactive iff an ancestor (or itself) was switched off

@@ -64,6 +64,7 @@ class BeliefTree:
         self.active = np.ones(cap, dtype=bool)
         self._children: dict[tuple[int, int, int, int], int] = {}
         self._np_beliefs: np.ndarray | None = None
+        self._kernel = backup_kernel.load()  # refresh_active's compiled pass (None: numpy)
         self.size = 0
         self.add(belief, x, -1, -1, -1)
 
@@ -145,9 +146,8 @@ class BeliefTree:
         n = self.size
         if n <= 1:
             return
-        kernel = backup_kernel.load()
-        if kernel is not None:
-            kernel.propagate_inactive(self.parent[:n], self.active)
+        if self._kernel is not None:
+            self._kernel.propagate_inactive(self.parent[:n], self.active)
             return
         depth = self.depth[:n]
         order = np.argsort(depth, kind="stable")

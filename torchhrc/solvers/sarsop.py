@@ -985,19 +985,19 @@ class _SARSOP:
         if own is not None and self.X == 1:
             return np.full(child_x.shape[0], own, dtype=np.int64)
         best = np.zeros(child_x.shape[0], dtype=np.int64)
-        imp = ~possible
         if possible.all():
             return best
+        imp = ~possible
         cx = child_x[imp]
         if own is not None and (cx == x).all():  # a flat model: always
             best[imp] = own
             return best
-        if self._kernel is not None:  # b itself under each child's x, one call per distinct x
-            ux, inv = np.unique(cx, return_inverse=True)  # (a few x2 among many children)
-            best[imp] = self.alphas.group_scores(self._kernel, b.reshape(1, -1), ux)[1][inv]
-            return best
+        # b itself under each distinct x2 of the children (a few among many children)
         ux, inv = np.unique(cx, return_inverse=True)
-        _, ids = self._lower_np(np.broadcast_to(b, (ux.size, b.shape[0])), ux)
+        if self._kernel is not None:  # one compiled call
+            ids = self.alphas.group_scores(self._kernel, b.reshape(1, -1), ux)[1]
+        else:
+            ids = self._lower_np(np.broadcast_to(b, (ux.size, b.shape[0])), ux)[1]
         best[imp] = ids[inv]
         return best
 
@@ -1422,8 +1422,7 @@ class _SARSOP:
                     if self.clock() >= self.deadline:
                         break
                 if cfg.sweep_interval and iteration % cfg.sweep_interval == 0:
-                    if self.clock() < self.deadline:
-                        self.sweep()
+                    self.sweep()  # (it reads the budget before each of its batches)
                 if self.clock() < self.deadline:
                     self.prune()
                 entry = self.record(iteration)

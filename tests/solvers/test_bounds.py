@@ -10,10 +10,13 @@ import torch
 from _exact_pomdp import TIGER_OPTIMUM, exact_alpha_vectors, optimal_value_bounds
 
 from torchhrc.errors import ModelError
+from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers.blind import blind_policy, blind_vectors
-from torchhrc.solvers.fib import fib_backup, fib_policy, fib_vectors
-from torchhrc.solvers.qmdp import mdp_q_values, qmdp_policy, qmdp_vectors
+from torchhrc.solvers.fib import fib, fib_backup, fib_policy, fib_vectors
+from torchhrc.solvers.qmdp import mdp_q_values, qmdp, qmdp_policy, qmdp_vectors
 from torchhrc.solvers.value_iteration import value_iteration
+from torchhrc.sparse import SparsePOMDP
+from torchhrc.sparse_momdp import SparseMOMDP
 from torchhrc.tasks.classic import tiger
 from torchhrc.testing import random_belief, random_momdp, random_pomdp
 
@@ -203,3 +206,61 @@ def test_sparse_blind_iteration_matches_the_direct_solve(monkeypatch, index):
     assert (iterated <= direct + 1e-9).all()
     ref = model.R + model.discount * factored.expect(model, direct, per_action=True)
     torch.testing.assert_close(ref, direct, atol=1e-8, rtol=0)
+
+
+@pytest.mark.parametrize("fn", [qmdp_vectors, fib_vectors])
+def test_one_model_and_a_batch_of_it_agree(fn):
+    # an unbatched model goes through its solver form (numpy), a batch through the torch
+    # kernels: two implementations of one fixed point, stopped at the same tolerance
+    for model in (random_pomdp(5, 3, 3, seed=11), random_momdp(4, 3, 3, 3, static=False, seed=12)):
+        one = fn(model, tol=1e-11)
+        batch = fn(_batch_of_one(model), tol=1e-11)
+        torch.testing.assert_close(one, batch[0], atol=1e-8, rtol=0)
+
+
+def _batch_of_one(model):
+    if isinstance(model, MOMDP):
+        fields = {f: getattr(model, f).unsqueeze(0) for f in ("Tx", "Ty", "Z", "R", "b0")}
+        return MOMDP(**fields, x0=torch.tensor([model.x0]), discount=model.discount)
+    fields = {f: getattr(model, f).unsqueeze(0) for f in ("T", "Z", "R", "b0")}
+    return POMDP(**fields, discount=model.discount)
+
+
+@pytest.mark.parametrize("fn", [qmdp_vectors, fib_vectors])
+def test_sparse_models_give_the_dense_bounds(fn):
+    flat = random_pomdp(6, 3, 2, seed=13)
+    factored = random_momdp(4, 3, 3, 2, static=False, seed=14)
+    for dense, sparse in ((flat, SparsePOMDP.from_dense(flat)),
+                          (factored, SparseMOMDP.from_dense(factored))):  # fmt: skip
+        torch.testing.assert_close(fn(sparse, tol=1e-11), fn(dense, tol=1e-11), atol=1e-8, rtol=0)
+
+
+@pytest.mark.parametrize("solve", [qmdp, fib])
+def test_bound_solvers_take_sparse_models(solve):
+    dense = random_momdp(4, 3, 3, 2, static=False, seed=15)
+    a, b = solve(dense), solve(SparseMOMDP.from_dense(dense))
+    assert a.policy.is_momdp and b.policy.is_momdp
+    assert a.upper == pytest.approx(b.upper, abs=1e-7)
+    assert a.lower == pytest.approx(b.lower, abs=1e-7)
+    assert a.lower <= a.upper
+
+
+def test_bounds_at_a_random_start_are_the_expectation_over_the_first_x():
+    model = random_momdp(3, 2, 2, 3, static=False, seed=16)
+    joint = torch.tensor([[0.2, 0.2], [0.0, 0.0], [0.3, 0.3]], dtype=torch.float64)  # (X, Y)
+    started = model.with_initial(joint)
+    sol = fib(started)
+    V = fib_vectors(started)  # (A, X, Y)
+    # the first x is seen before acting: sum_x P(x) max_a V[a, x] . P(. | x), by hand
+    by_hand = sum(
+        float(joint[x].sum()) * float((V[:, x] @ (joint[x] / joint[x].sum())).max()) for x in (0, 2)
+    )
+    assert sol.upper == pytest.approx(by_hand, abs=1e-12)
+    assert sol.lower <= sol.upper
+
+
+def test_fib_rejects_undiscounted_and_unknown_models():
+    with pytest.raises(ModelError, match="discount < 1"):
+        fib_vectors(random_pomdp(2, 2, 2, discount=1.0, seed=9))
+    with pytest.raises(TypeError, match="expected a POMDP"):
+        fib_vectors(object())

@@ -13,7 +13,9 @@ exact observation; the vectors are ``(A, X, Y)``. When the hidden value is stati
 (``Ty = None``) the successor's hidden value is known given ``(y, x2, o)`` and FIB equals QMDP.
 
 Per iteration the flat cost is ``A * S * S * O * A`` (one batched matmul, no ``(A, O, S, S)``
-tensor).
+tensor). An unbatched model (dense, MOMDP or sparse) is iterated by its solver form
+(:meth:`~torchhrc.solvers.forms.base.SolverModel.fib_vectors`, SARSOP's initialisation: numpy
+on the CPU, ``Ty`` kept factored), a batch by the torch kernels below.
 
 Example:
     >>> import torch
@@ -27,13 +29,18 @@ Example:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 
 from torchhrc.pomdp import MOMDP, POMDP
-from torchhrc.solvers._factored import check_model
+from torchhrc.solvers._factored import check_model, check_unit_discount
+from torchhrc.solvers.clock import NEVER
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.qmdp import IterationConfig, qmdp_vectors, solve_bound
+from torchhrc.solvers.qmdp import IterationConfig, bound_form, qmdp_vectors, solve_bound
+
+if TYPE_CHECKING:
+    from torchhrc.solvers.qmdp import AnyModel
 from torchhrc.solvers.solution import Solution
 
 __all__ = ["FIBConfig", "fib", "fib_backup", "fib_policy", "fib_vectors"]
@@ -93,7 +100,7 @@ def fib_backup(model: POMDP | MOMDP, vectors: torch.Tensor) -> torch.Tensor:
 
 
 def fib_vectors(
-    model: POMDP | MOMDP,
+    model: AnyModel,
     *,
     tol: float = 1e-8,
     max_iterations: int = 100_000,
@@ -101,8 +108,15 @@ def fib_vectors(
 ) -> torch.Tensor:
     """FIB upper-bound vectors, one per action: ``(..., A, S)`` or ``(..., A, X, Y)``, batched.
 
+    An unbatched model without ``initial`` is iterated by its solver form (the code of
+    SARSOP's initialisation; a sparse model too): on TagAvoid as a MOMDP (870 x 29 states)
+    0.8 s against 9.8 s for the batched torch kernel, which the form's ``(A, X, Y, X2, Y2)``
+    einsum pays for every ``x``. Both stop once an iteration changes the vectors by less than
+    ``tol``, so they agree to about ``tol``.
+
     Args:
-        model: a POMDP or MOMDP (leading batch dims allowed).
+        model: a POMDP or MOMDP (leading batch dims allowed), or an unbatched
+            :class:`~torchhrc.sparse.SparsePOMDP` / :class:`~torchhrc.sparse_momdp.SparseMOMDP`.
         tol: stop when the largest change of an iteration is below ``tol``.
         max_iterations: cap on the iterations.
         initial: starting vectors, which must be an upper bound (default: QMDP).
@@ -110,12 +124,19 @@ def fib_vectors(
     Returns:
         Vectors with ``max_a vectors[a] . b >= V*(b)``, never above the QMDP vectors.
 
+    Raises:
+        TypeError: ``model`` of no known form.
+        ModelError: ``model.discount >= 1``.
+
     Example:
         >>> from torchhrc.testing import random_momdp
         >>> fib_vectors(random_momdp(3, 2, 2, 2, static=False, seed=0)).shape
         torch.Size([2, 3, 2])
     """
+    if initial is None and not len(getattr(model, "batch_shape", ())):
+        return bound_form(model).fib_vectors(tol, NEVER, max_iterations)[0]
     model = check_model(model)
+    check_unit_discount(model, "FIB")
     alpha = qmdp_vectors(model, tol=tol) if initial is None else initial
     for _ in range(max_iterations):
         new = torch.minimum(fib_backup(model, alpha), alpha)  # monotone: stays an upper bound
@@ -126,7 +147,7 @@ def fib_vectors(
     return alpha
 
 
-def fib_policy(model: POMDP | MOMDP, *, tol: float = 1e-8) -> AlphaVectorPolicy:
+def fib_policy(model: AnyModel, *, tol: float = 1e-8) -> AlphaVectorPolicy:
     """The FIB vectors of an unbatched model as a policy (its value is an upper bound).
 
     Example:
@@ -134,9 +155,8 @@ def fib_policy(model: POMDP | MOMDP, *, tol: float = 1e-8) -> AlphaVectorPolicy:
         >>> fib_policy(random_pomdp(3, 2, 2, seed=0)).num_vectors
         2
     """
-    return AlphaVectorPolicy.from_action_vectors(
-        fib_vectors(model, tol=tol), momdp=isinstance(model, MOMDP)
-    )
+    vectors = fib_vectors(model, tol=tol)
+    return AlphaVectorPolicy.from_action_vectors(vectors, momdp=bound_form(model).factored)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -149,7 +169,7 @@ class FIBConfig(IterationConfig):
     """
 
 
-def fib(model: POMDP | MOMDP, config: FIBConfig | None = None) -> Solution:
+def fib(model: AnyModel, config: FIBConfig | None = None) -> Solution:
     """Solve with the Fast Informed Bound: the policy is the FIB vectors, ``upper`` at ``b0``.
 
     Example:

@@ -241,14 +241,9 @@ def pbvi(model: POMDP | MOMDP | SparsePOMDP, config: PBVIConfig | None = None) -
     upper = sum(float(w) * float((by_x[:, x] @ b).max())
                 for x, b, w in zip(root_x.tolist(), roots, weights))  # fmt: skip
     x0 = torch.from_numpy(root_x).to(device)
-    w0 = torch.from_numpy(weights).to(device=device, dtype=form.R.dtype)
-
-    def value_at_b0(p: AlphaVectorPolicy) -> float:
-        return float((form.value(p, x0, roots) * w0).sum())
-
     policy = form.blind_policy(100_000)
     belief_set = _BeliefSet(x0, roots)
-    lower = value_at_b0(policy)
+    lower = form.value_at_roots(policy)
     history: list[dict[str, Any]] = []
     stop_reason = "expansions"
     iteration = 0
@@ -283,7 +278,7 @@ def pbvi(model: POMDP | MOMDP | SparsePOMDP, config: PBVIConfig | None = None) -
                 new_values = form.value(policy, belief_set.x, belief_set.beliefs)
                 improvement = float((new_values - values).max())
                 values = new_values
-                lower = value_at_b0(policy)
+                lower = form.value_at_roots(policy)
                 report()
                 if upper - lower < config.precision:
                     stop_reason = "precision"

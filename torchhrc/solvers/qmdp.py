@@ -23,6 +23,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 
@@ -31,6 +32,13 @@ from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers._factored import Expectation, check_model, check_unit_discount, state_dims
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.solution import Solution
+
+if TYPE_CHECKING:
+    from torchhrc.solvers.forms.base import SolverModel
+    from torchhrc.sparse import SparsePOMDP
+    from torchhrc.sparse_momdp import SparseMOMDP
+
+    AnyModel = POMDP | MOMDP | SparsePOMDP | SparseMOMDP
 
 __all__ = [
     "IterationConfig",
@@ -80,24 +88,43 @@ def mdp_q_values(
 
 
 def qmdp_vectors(
-    model: POMDP | MOMDP, *, tol: float = 1e-8, max_iterations: int = 100_000
+    model: AnyModel, *, tol: float = 1e-8, max_iterations: int = 100_000
 ) -> torch.Tensor:
     """QMDP upper-bound vectors, one per action: ``(..., A, S)`` or ``(..., A, X, Y)``.
 
     ``max_a vectors[a] . b >= V*(b)`` for every belief ``b`` (for a MOMDP at ``(x, b_y)``,
-    ``max_a vectors[a, x] . b_y >= V*(x, b_y)``).
+    ``max_a vectors[a, x] . b_y >= V*(x, b_y)``). A sparse model
+    (:class:`~torchhrc.sparse.SparsePOMDP`, :class:`~torchhrc.sparse_momdp.SparseMOMDP`) is
+    iterated by its solver form, on its stored successors only (to ``tol``, without the
+    ``max_iterations`` cap).
+
+    Raises:
+        TypeError: ``model`` of no known form.
+        ModelError: ``model.discount >= 1``.
 
     Example:
         >>> from torchhrc.testing import random_pomdp
         >>> qmdp_vectors(random_pomdp(4, 3, 2, batch_shape=(5,), seed=1)).shape
         torch.Size([5, 3, 4])
     """
+    if not isinstance(model, (POMDP, MOMDP)):
+        return bound_form(model).upper_vectors("qmdp", tol)
     Q, bound = mdp_q_values(model, tol=tol, max_iterations=max_iterations)
     return Q + bound
 
 
+def bound_form(model: AnyModel) -> SolverModel:
+    """The solver form of an unbatched model whose discount is below 1 (the bounds' check)."""
+    from torchhrc.solvers.forms import as_solver_model  # (the forms import this module)
+
+    form = as_solver_model(model)
+    if form.discount >= 1.0:
+        raise ModelError(f"the upper bounds need discount < 1, got {form.discount}")
+    return form
+
+
 def qmdp_policy(
-    model: POMDP | MOMDP, *, tol: float = 1e-8, max_iterations: int = 100_000
+    model: AnyModel, *, tol: float = 1e-8, max_iterations: int = 100_000
 ) -> AlphaVectorPolicy:
     """The QMDP policy of an unbatched model (its value is an upper bound on ``V*``).
 
@@ -107,7 +134,7 @@ def qmdp_policy(
         2
     """
     vectors = qmdp_vectors(model, tol=tol, max_iterations=max_iterations)
-    return AlphaVectorPolicy.from_action_vectors(vectors, momdp=isinstance(model, MOMDP))
+    return AlphaVectorPolicy.from_action_vectors(vectors, momdp=bound_form(model).factored)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -134,30 +161,18 @@ class QMDPConfig(IterationConfig):
     """
 
 
-def bound_solution(
-    model: POMDP | MOMDP, vectors: torch.Tensor, start: float, name: str
-) -> Solution:
+def bound_solution(model: AnyModel, vectors: torch.Tensor, start: float, name: str) -> Solution:
     """A :class:`Solution` whose policy is the given upper-bound vectors (one per action).
 
-    ``upper`` is their value at ``b0``; ``lower`` is the blind-policy lower bound at ``b0``
-    (the upper-bound policy's own value is not known without simulation).
+    ``upper`` is their value at the start; ``lower`` is the blind-policy lower bound there
+    (the upper-bound policy's own value is not known without simulation). Both through the
+    model's solver form (:meth:`~torchhrc.solvers.forms.base.SolverModel.value_at_roots`: at
+    ``b0``, or the expectation over a random first ``x``, which is seen before acting).
     """
-    from torchhrc.solvers.blind import blind_vectors
-
-    momdp = isinstance(model, MOMDP)
-    policy = AlphaVectorPolicy.from_action_vectors(vectors, momdp=momdp)
-    low = blind_vectors(model)
-    if momdp and model.random_start:
-        # sum_x P(x) max_a V[a, x] . P(. | x): the first x is seen before the first action
-        joint = model.initial
-        upper = float((vectors * joint).sum(-1).amax(0).sum())
-        lower = float((low * joint).sum(-1).amax(0).sum())
-    elif momdp:
-        upper = float((vectors[:, model.x0] @ model.b0).max())
-        lower = float((low[:, model.x0] @ model.b0).max())
-    else:
-        upper = float((vectors @ model.b0).max())
-        lower = float((low @ model.b0).max())
+    form = bound_form(model)
+    policy = AlphaVectorPolicy.from_action_vectors(vectors, momdp=form.factored)
+    upper = form.value_at_roots(policy)
+    lower = form.value_at_roots(form.blind_policy())
     elapsed = time.perf_counter() - start
     entry = {
         "time_s": elapsed,
@@ -177,7 +192,7 @@ def bound_solution(
 
 
 def solve_bound(
-    model: POMDP | MOMDP,
+    model: AnyModel,
     config: IterationConfig | None,
     config_type: type[IterationConfig],
     vectors: Callable[..., torch.Tensor],
@@ -192,13 +207,13 @@ def solve_bound(
         raise TypeError(
             f"expected config to be a {config_type.__name__}, got {type(config).__name__}"
         )
-    if len(model.batch_shape):
+    if len(getattr(model, "batch_shape", ())):
         raise ModelError(f"{name} solves one model, got batch_shape {tuple(model.batch_shape)}")
     found = vectors(model, tol=config.tol, max_iterations=config.max_iterations)
     return bound_solution(model, found, start, name)
 
 
-def qmdp(model: POMDP | MOMDP, config: QMDPConfig | None = None) -> Solution:
+def qmdp(model: AnyModel, config: QMDPConfig | None = None) -> Solution:
     """Solve with QMDP: the policy is the QMDP vectors, ``upper`` their value at ``b0``.
 
     Example:

@@ -71,7 +71,6 @@ from torchhrc.solvers.backup import BackupResult
 from torchhrc.solvers.belief_tree import BeliefTree
 from torchhrc.solvers.blind import blind_policy
 from torchhrc.solvers.clock import NEVER, Deadline
-from torchhrc.solvers.fib import fib_vectors
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.qmdp import qmdp_vectors
 from torchhrc.solvers.sparse_model import qmdp_iteration_np
@@ -476,6 +475,23 @@ class SolverModel(ABC):
         all zero and unused; a factored form overrides)."""
         return policy.value(beliefs)
 
+    def value_at_roots(self, policy: AlphaVectorPolicy) -> float:
+        """``policy``'s value at the start: ``sum_r w_r V(x_r, b_r)`` over :attr:`roots` (the
+        value at ``(x0, b0)``, or its expectation over a random first ``x``, which the agent
+        sees before it acts).
+
+        Example:
+            >>> from torchhrc.solvers.forms import as_solver_model
+            >>> from torchhrc.tasks.classic import tiger
+            >>> form = as_solver_model(tiger())
+            >>> round(form.value_at_roots(form.blind_policy()), 6)  # always listen: -1 / 0.05
+            -20.0
+        """
+        xs, beliefs, weights = self.roots
+        x = torch.from_numpy(xs).to(beliefs.device)
+        w = torch.from_numpy(weights).to(device=beliefs.device, dtype=self.R.dtype)
+        return float((self.value(policy, x, beliefs) * w).sum())
+
     def prune(self, policy: AlphaVectorPolicy, x: torch.Tensor,
               beliefs: torch.Tensor) -> AlphaVectorPolicy:  # fmt: skip
         """``policy`` restricted to the vectors that win at some ``(x, belief)`` (flat here;
@@ -487,7 +503,7 @@ class TensorModelForm(SolverModel):
     """What the dense flat and the MOMDP forms share: a :class:`~torchhrc.pomdp.POMDP` or
     :class:`~torchhrc.pomdp.MOMDP` ``model`` held in the solve's dtype, whose bound kernels
     (:func:`~torchhrc.solvers.blind.blind_policy`, :func:`~torchhrc.solvers.qmdp.qmdp_vectors`,
-    :func:`~torchhrc.solvers.fib.fib_vectors`) take it directly.
+    :func:`~torchhrc.solvers.fib.fib_backup`) take it directly.
 
     Args:
         model: the unbatched model, already in the solve's dtype.
@@ -568,7 +584,7 @@ class TensorModelForm(SolverModel):
 
     def upper_vectors(self, kind: str, tol: float) -> torch.Tensor:
         if kind == "fib":
-            return fib_vectors(self.model, tol=tol)
+            return self.fib_vectors(tol)[0]
         return qmdp_vectors(self.model, tol=tol)
 
     def qmdp_start(

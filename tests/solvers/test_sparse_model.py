@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from torchhrc.errors import ModelError
 from torchhrc.pomdp import POMDP
-from torchhrc.solvers import PBVIConfig, QMDPConfig, solve
+from torchhrc.solvers import FIBConfig, PBVIConfig, QMDPConfig, solve
 from torchhrc.solvers import sparse_model as sparse_module
 from torchhrc.solvers.belief_tree import SparseBeliefTree
 from torchhrc.solvers.blind import blind_policy, blind_vectors
@@ -301,14 +300,17 @@ def test_sparse_sarsop_with_sweeps_and_custom_initialisers(rs44: POMDP) -> None:
     assert sol.lower <= ref.upper + 1e-9 and ref.lower <= sol.upper + 1e-9
 
 
-def test_solve_dispatches_sparse_models_to_sarsop_and_pbvi_only() -> None:
+def test_solve_takes_sparse_models_with_every_solver() -> None:
     sp = SparsePOMDP.from_dense(tiger())
     sol = solve(sp, SARSOPConfig(time_limit=1e9, precision=0.5))
     assert sol.upper - sol.lower <= 0.5
     sol = solve(sp, PBVIConfig(time_limit=1e9, expansions=4))
     assert sol.lower <= 19.3714 <= sol.upper
-    with pytest.raises(ModelError, match="SARSOP or PBVI only"):
-        solve(sp, QMDPConfig())
+    # QMDP at b0 worked by hand (see tests/solvers/test_bounds.py): -1 + 0.95 * 200 = 189
+    assert solve(sp, QMDPConfig()).upper == pytest.approx(189.0, abs=1e-6)
+    assert 19.3714 <= solve(sp, FIBConfig()).upper < 189.0
+    with pytest.raises(TypeError, match="expected model to be a POMDP"):
+        solve(object(), QMDPConfig())
 
 
 def _negative_random() -> POMDP:

@@ -11,12 +11,12 @@ stderr unless ``--quiet``. With ``--json`` one JSON object is printed with the k
 ``iterations``, ``policy`` (the written path or null), ``sparse`` and ``model`` (``"POMDP"``,
 ``"MOMDP"``, ``"SparseMOMDP"`` or ``"SparsePOMDP"``).
 
-With ``--solver sarsop`` (the default) or ``pbvi``, a model whose dense ``T (A, S, S)`` or
-``Z (A, S, O)`` would exceed :data:`torchhrc.sparse.MAX_DENSE_ENTRIES` (2e8 entries, 1.6 GB
-in float64; RockSample(7, 8): 2e9) is read as a :class:`~torchhrc.sparse.SparsePOMDP` and
-solved through the solvers' sparse form (``"sparse": true``); QMDP and FIB need the dense
-model. A ``.pomdpx`` MOMDP whose dense ``Ty`` would not fit (APPL's RockSample_7_8) is read
-as a :class:`~torchhrc.sparse_momdp.SparseMOMDP` and solved as a MOMDP.
+A model whose dense ``T (A, S, S)`` or ``Z (A, S, O)`` would exceed
+:data:`torchhrc.sparse.MAX_DENSE_ENTRIES` (2e8 entries, 1.6 GB in float64; RockSample(7, 8):
+2e9) is read as a :class:`~torchhrc.sparse.SparsePOMDP` and solved through the solvers'
+sparse form (``"sparse": true``), by every solver. A ``.pomdpx`` MOMDP whose dense ``Ty``
+would not fit (APPL's RockSample_7_8) is read as a
+:class:`~torchhrc.sparse_momdp.SparseMOMDP` and solved as a MOMDP.
 
 Example:
     >>> import argparse
@@ -171,10 +171,9 @@ def run(args: argparse.Namespace) -> int:
     from torchhrc.solvers import solve
     from torchhrc.sparse import SparsePOMDP
 
-    # SARSOP and PBVI have a sparse form: a model whose dense T (A, S, S) or Z would exceed
+    # every solver has a sparse form: a model whose dense T (A, S, S) or Z would exceed
     # MAX_DENSE_ENTRIES (2e8 entries, 1.6 GB) is read and solved sparsely
-    point_based = args.solver in ("sarsop", "pbvi")
-    mode = "auto" if point_based else False
+    mode = "auto"
     if Path(args.model).suffix.lower() == ".pomdpx":
         from torchhrc.io.pomdpx import read_pomdpx
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers.backup import BackupResult, momdp_point_backup, point_backup
 from torchhrc.solvers.blind import blind_policy, blind_vectors
@@ -100,13 +99,14 @@ def register_solver(config_type: type, function: SolverFunction) -> None:
     _SOLVERS[config_type] = function
 
 
-def solve(model: POMDP | MOMDP | SparsePOMDP, config: Any) -> Solution:
+def solve(model: POMDP | MOMDP | SparsePOMDP | SparseMOMDP, config: Any) -> Solution:
     """Solve ``model`` with the solver that ``config``'s type names.
 
     Args:
         model: an unbatched :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`,
-            or (SARSOP and PBVI only) a :class:`~torchhrc.sparse.SparsePOMDP` or
-            :class:`~torchhrc.sparse_momdp.SparseMOMDP`.
+            or a :class:`~torchhrc.sparse.SparsePOMDP` or
+            :class:`~torchhrc.sparse_momdp.SparseMOMDP` (every built-in solver takes them
+            through its solver form; a registered solver is handed the model as it is).
         config: a solver configuration (``QMDPConfig``, ``FIBConfig``, ``PBVIConfig``,
             ``SARSOPConfig`` or a registered type).
 
@@ -115,26 +115,18 @@ def solve(model: POMDP | MOMDP | SparsePOMDP, config: Any) -> Solution:
         at the initial belief) and ``history``.
 
     Raises:
-        TypeError: ``config``'s type has no registered solver.
-        ModelError: a ``SparsePOMDP`` with a solver other than SARSOP or PBVI.
+        TypeError: ``config``'s type has no registered solver, or ``model`` of no known type.
 
     Example:
         >>> from torchhrc.tasks.classic import tiger
         >>> round(solve(tiger(), QMDPConfig()).upper, 6)
         189.0
     """
-    if isinstance(model, (SparsePOMDP, SparseMOMDP)):  # the point-based solvers' sparse forms
-        if isinstance(config, PBVIConfig):
-            return pbvi(model, config)
-        if not isinstance(config, SARSOPConfig):
-            raise ModelError(
-                f"a {type(model).__name__} (sparse transitions) is solved by SARSOP or PBVI "
-                f"only, got a "
-                f"{type(config).__name__}; pass a SARSOPConfig, a PBVIConfig or a dense POMDP"
-            )
-        return sarsop(model, config)
-    if not isinstance(model, (POMDP, MOMDP)):
-        raise TypeError(f"expected model to be a POMDP or MOMDP, got {type(model).__name__}")
+    if not isinstance(model, (POMDP, MOMDP, SparsePOMDP, SparseMOMDP)):
+        raise TypeError(
+            "expected model to be a POMDP, MOMDP, SparsePOMDP or SparseMOMDP, got "
+            f"{type(model).__name__}"
+        )
     for config_type in type(config).__mro__:
         if config_type in _SOLVERS:
             return _SOLVERS[config_type](model, config)

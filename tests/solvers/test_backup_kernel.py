@@ -197,7 +197,7 @@ def test_a_stale_evaluation_refreshes_only_what_can_win() -> None:
     corner = np.array([[4.0, 2.0]])  # one observed value
     nz, rx = np.array([0, 1]), np.zeros(3, dtype=np.int64)
     empty_i, empty_f = np.empty(0, dtype=np.int64), np.empty(0)
-    saw = (corner, [(empty_i, empty_f)], empty_i, empty_f, empty_i, empty_i, empty_f)
+    saw = (corner, [(empty_i, empty_f)], empty_i, empty_f, empty_i, empty_i, empty_f, empty_i)
     low_r, best_r = np.array([1.0, 2.0, 1.5]), np.array([3, 4, 5])
     reward = np.array([0.0, 1.0])
     stale = (np.array([3.0, 5.0]), np.array([7.0, 9.0]))
@@ -243,7 +243,8 @@ def test_bad_arrays_get_clear_errors() -> None:
     with pytest.raises(ValueError, match=r"tx \(A, Y, K\) and/or tyk"):  # neither given
         backup_kernel.children(kernel, b, no_tx, np.empty((0, 0, 0, 0)), z, RT, cx, *out, 0)
     empty_i, empty_f = np.empty(0, dtype=np.int64), np.empty(0)
-    saw = (np.zeros((1, S)), [(empty_i, empty_f)], empty_i, empty_f, empty_i, empty_i, empty_f)
+    saw = (np.zeros((1, S)), [(empty_i, empty_f)], empty_i, empty_f, empty_i, empty_i, empty_f,
+           empty_i)  # fmt: skip
     rx = np.zeros(A * O + 1, dtype=np.int64)
     args = (rows, rx, np.arange(A * O), np.zeros(A * O + 1),
             np.zeros(A * O + 1, dtype=np.int64), np.zeros(A), 0.9, None, saw, A * O)  # fmt: skip
@@ -315,10 +316,27 @@ def test_group_scores_and_upper_by_hand() -> None:
     idx, inv = np.array([0, 1]), np.array([2.0, 2.0])
     off, wid, gain = np.array([0]), np.array([2]), np.array([-2.0])
     sorted_points = [(np.zeros(0, dtype=np.int64), np.zeros(0)), (np.array([0]), np.array([-2.0]))]
-    out, storage = np.empty(3), (idx, inv, off, wid, gain)
+    sig = np.array([0b11])  # the point covers hidden values 0 and 1
+    out, storage = np.empty(3), (idx, inv, off, wid, gain, sig)
     backup_kernel.group_upper(kernel, rows, np.array([0, 1, 1]), (corner, sorted_points, *storage),
                               out)  # fmt: skip
     np.testing.assert_allclose(out, [1.0, 3.0 - 2.0, 1.6 - 0.8], rtol=0, atol=1e-15)
+    # row (1, 0) at x = 1 misses hidden value 1 of the point: skipped by its signature, the
+    # corner value 4 (the formula's term is 0 there too); and without signatures the same
+    for s in (sig, np.empty(0, dtype=np.int64)):
+        one = np.empty(1)
+        backup_kernel.group_upper(
+            kernel,
+            rows[:1],
+            np.array([1]),
+            (corner, sorted_points, idx, inv, off, wid, gain, s),
+            one,
+        )
+        assert one.tolist() == [4.0]
+    with pytest.raises(ValueError, match="sawtooth storage"):  # signatures of another length
+        backup_kernel.group_upper(kernel, rows, np.array([0, 1, 1]),
+                                  (corner, sorted_points, *storage[:5], np.zeros(2, np.int64)),
+                                  out)  # fmt: skip
     # errors name the argument
     with pytest.raises(TypeError, match="gcol to be a list"):
         backup_kernel.group_scores(kernel, rows, np.array([0, 1, 0]), tuple(gcol), gid, gn)

@@ -9,7 +9,11 @@ import numpy as np
 import pytest
 
 from torchhrc.solvers import sawtooth_kernel
-from torchhrc.solvers.sawtooth_kernel import _corrections, sawtooth_corrections
+from torchhrc.solvers.sawtooth_kernel import (
+    _corrections,
+    sawtooth_corrections,
+    support_signatures,
+)
 
 try:
     from torchhrc.solvers._sawtooth import corrections as compiled
@@ -19,13 +23,13 @@ except ImportError:  # pragma: no cover - the extension is built by pip install
 needs_extension = pytest.mark.skipif(compiled is None, reason="the C extension is not built")
 
 
-def _problem(seed: int, *, mapped: bool):
+def _problem(seed: int, *, mapped: bool, Y: int = 30, density: float = 0.8):
     """Random points (supports of 1..8 of Y values, negative and positive gains), queries.
 
     The supports lie end to end in one flat array, as in the bound's storage, but in shuffled
     order and with unused entries between them (the offsets, not the order, locate them)."""
     rng = np.random.default_rng(seed)
-    Y, P, K, B = 30, 40, 8, 12
+    P, K, B = 40, 8, 12
     wid = np.zeros(P + 5, dtype=np.int64)  # 5 free slots, as in the bound's storage
     off = np.zeros(P + 5, dtype=np.int64)
     mass = np.ones(P + 5)
@@ -42,7 +46,7 @@ def _problem(seed: int, *, mapped: bool):
         mass[i] = p.sum()
         start += w + int(rng.integers(0, 3))
     gain = rng.normal(-1.0, 1.0, P + 5)
-    beliefs = rng.random((B, Y)) * (rng.random((B, Y)) < 0.8) * rng.uniform(0.2, 1.0, (B, 1))
+    beliefs = rng.random((B, Y)) * (rng.random((B, Y)) < density) * rng.uniform(0.2, 1.0, (B, 1))
     ids = np.flatnonzero(gain[:P] < 0)
     key = gain[ids] / mass[ids]
     order = ids[np.argsort(key, kind="stable")]
@@ -103,19 +107,19 @@ def test_extension_rejects_bad_arrays():
     rows = np.arange(2, dtype=np.int64)
     out = np.empty(2)
     none = np.empty(0, dtype=np.int64)
-    args = [beliefs, rows, order, idx, inv, off, wid, gain, key, none, out]
+    args = [beliefs, rows, order, idx, inv, off, wid, gain, key, none, none, out]
     with pytest.raises(TypeError, match="inv"):
         compiled(*args[:4], inv.astype(np.float32), *args[5:])
     with pytest.raises(TypeError, match="idx"):
         compiled(*args[:3], idx.reshape(-1, 2), *args[4:])  # 2-D: the old padded layout
     with pytest.raises(TypeError, match="beliefs"):
         compiled(np.asfortranarray(beliefs), *args[1:])
-    with pytest.raises(TypeError, match="11 arguments"):
-        compiled(*args[:10])
+    with pytest.raises(TypeError, match="12 arguments"):
+        compiled(*args[:11])
     with pytest.raises(IndexError, match="row"):
         compiled(beliefs, np.array([0, beliefs.shape[0]]), *args[2:])
     with pytest.raises(IndexError, match="point"):
-        compiled(*args[:2], np.array([off.shape[0]]), *args[3:8], key[:1], none, out)
+        compiled(*args[:2], np.array([off.shape[0]]), *args[3:8], key[:1], none, none, out)
     far = off.copy()
     far[order[0]] = idx.shape[0] - wid[order[0]] + 1  # a support running past the array
     with pytest.raises(IndexError, match="point"):
@@ -125,7 +129,9 @@ def test_extension_rejects_bad_arrays():
     with pytest.raises(IndexError, match="support index"):
         compiled(*args[:3], bad, *args[4:])
     with pytest.raises(ValueError, match="shapes"):
-        compiled(*args[:10], np.empty(5))
+        compiled(*args[:11], np.empty(5))
+    with pytest.raises(ValueError, match="shapes"):  # signatures of another length
+        compiled(*args[:10], np.zeros(3, dtype=np.int64), out)
 
 
 def test_without_the_extension_the_python_loop_runs_with_a_warning(monkeypatch):
@@ -164,4 +170,37 @@ def test_extension_writes_only_a_writable_out():
     out.flags.writeable = False
     rows = np.arange(2, dtype=np.int64)
     with pytest.raises(TypeError, match="out"):
-        compiled(beliefs, rows, order, *pts, key, np.empty(0, dtype=np.int64), out)
+        none = np.empty(0, dtype=np.int64)
+        compiled(beliefs, rows, order, *pts, key, none, none, out)
+
+
+def test_support_signatures_worked_by_hand():
+    # supports {0, 2} and {1, 65}: bits 0 and 2 -> 5; bits 1 and 65 % 64 = 1 -> 2
+    got = support_signatures(np.array([0, 2, 1, 65]), np.array([0, 2]))
+    assert got.tolist() == [5, 2]
+    top = support_signatures(np.array([63]), np.array([0]))  # bit 63: the sign bit of int64
+    assert top.tolist() == [-(2**63)]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_signatures_skip_points_and_keep_the_minimum(seed):
+    # 150 hidden values (several share a bit of the 64) and sparse queries: many points
+    # cover a value where the query is 0, and the compiled loop skips them by signature
+    beliefs, order, pts, key, _ = _problem(seed, mapped=False, Y=150, density=0.3)
+    idx, inv, off, wid, gain = pts
+    sig = np.zeros(off.shape[0], dtype=np.int64)
+    for j in order:
+        sig[j] = support_signatures(idx[off[j] : off[j] + wid[j]], np.array([0]))[0]
+    rows = np.arange(beliefs.shape[0], dtype=np.int64)
+    row_sig = [support_signatures(np.flatnonzero(b), np.array([0]))[0] for b in beliefs]
+    skipped = sum(int((sig[j] & ~r) != 0) for r in row_sig for j in order)
+    assert skipped > len(order) * len(rows) // 2  # the filter is exercised
+    want = _exhaustive(beliefs, order, pts, None)
+    assert (want < 0).sum() >= 3
+    for kernel in (_corrections, compiled):
+        if kernel is None:
+            continue
+        out = np.empty(rows.shape[0])
+        kernel(beliefs, rows, order, idx, inv, off, wid, gain, key, np.empty(0, np.int64), sig,
+               out)  # fmt: skip
+        np.testing.assert_array_equal(out, want)

@@ -22,6 +22,15 @@ def _reference(corner: np.ndarray, pts: list[tuple[np.ndarray, float]], b: np.nd
     return base + corr
 
 
+def _check_signatures(ub: SawtoothUpperBound) -> None:
+    """Each stored point's support signature (what the compiled loops skip points by) is the
+    one of its support: bit ``y % 64`` per hidden value ``y``."""
+    stored = ub.points[0].numpy()
+    want = [int(np.bitwise_or.reduce(np.left_shift(np.int64(1), np.flatnonzero(b) & 63)))
+            for b in stored]  # fmt: skip
+    assert ub._sig[: ub.size].tolist() == want
+
+
 def _random_points(rng: np.random.Generator, Y: int, widths: list[int]):
     pts = []
     for w in widths:
@@ -52,6 +61,7 @@ def test_a_point_costs_its_own_support_not_the_widest(batched):
     stored, _, v = ub.points
     torch.testing.assert_close(stored, beliefs, rtol=1e-15, atol=0)  # b = 1 / (1 / b)
     assert v.tolist() == values.tolist()
+    _check_signatures(ub)
     q = rng.random((25, Y)) * (rng.random((25, Y)) < 0.9)
     q /= q.sum(-1, keepdims=True)
     want = np.array([_reference(np.full(Y, 10.0), pts, row) for row in q])
@@ -71,8 +81,10 @@ def test_pruning_moves_the_kept_supports_to_the_front_unchanged(block, monkeypat
     corner = np.full(Y, 10.0)
     ub = SawtoothUpperBound(torch.from_numpy(corner[None].copy()), capacity=2)
     pts = _random_points(rng, Y, [int(w) for w in rng.integers(2, Y, 40)])
-    # points no lower than the corners bound nothing (gain >= 0): pruning removes them
-    pts += [(b, float(b @ corner) + 1.0) for b, _ in _random_points(rng, Y, [3, 5, 4])]
+    # points no lower than the corners bound nothing (gain >= 0): pruning removes them (put
+    # among the others, so that the kept ones move)
+    useless = [(b, float(b @ corner) + 1.0) for b, _ in _random_points(rng, Y, [3, 5, 4])]
+    pts = pts[:10] + useless + pts[10:]
     for b, v in pts:
         ub.add_np(b, 0, v)
     before, _, vals = ub.points
@@ -84,8 +96,10 @@ def test_pruning_moves_the_kept_supports_to_the_front_unchanged(block, monkeypat
     assert rows == sorted(rows)
     torch.testing.assert_close(after, before[rows], rtol=0, atol=0)
     assert ub._used == int((after > 0).sum())
+    _check_signatures(ub)  # moved with their points
     kept = [pts[i] for i in rows]
-    q = rng.random((10, Y))
+    q = rng.random((10, Y)) * (rng.random((10, Y)) < 0.6)  # sparse: points get skipped
+    q[:, 0] += 0.1
     q /= q.sum(-1, keepdims=True)
     want = np.array([_reference(corner, kept, row) for row in q])
     np.testing.assert_allclose(ub.value_np(q, np.zeros(10, dtype=np.int64)), want, rtol=1e-12,

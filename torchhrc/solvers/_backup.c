@@ -12,11 +12,12 @@
  *   reward (A,). Returns the number m of possible children (rows m is b, at x).
  *
  * bound_children(rows, rows_x, nz, low_r, best_r, reward, stale_q, stale_up, corner,
- *                sorted, idx, inv, off, wid, gain, low, best, q_low, up, q_up, gamma) -> cu
+ *                sorted, idx, inv, off, wid, gain, sig, low, best, q_low, up, q_up, gamma)
+ *                -> cu
  *   rows (m + 1, S), rows_x (m + 1,) int64 their observed values, nz (m,) int64,
  *   low_r (m + 1,), best_r (m + 1,) int64, reward (A,), stale_q (A,) and stale_up (C,) or
  *   both empty, then the upper bound as group_upper reads it (corner (X, S), sorted, idx,
- *   inv, off, wid, gain); written: low (C,), best (C,) int64, q_low (A,), up (C,),
+ *   inv, off, wid, gain, sig); written: low (C,), best (C,) int64, q_low (A,), up (C,),
  *   q_up (A,); gamma a float. Returns V_up(b).
  *
  * group_scores(rows, rows_x, gcol, gid, gn, val, best) -> None
@@ -27,10 +28,10 @@
  *   val (B,) the best score of each row among its own x's vectors, best (B,) int64 that
  *   vector's index (the first maximum in group order, as numpy's argmax).
  *
- * group_upper(rows, rows_x, corner, sorted, idx, inv, off, wid, gain, out) -> None
+ * group_upper(rows, rows_x, corner, sorted, idx, inv, off, wid, gain, sig, out) -> None
  *   rows (B, Y) float64, rows_x (B,) int64, corner (X, Y) float64, sorted a list of X
  *   (order (P_x,) int64, key (P_x,) float64) pairs (each row's x built), then the sawtooth
- *   storage (idx, inv, off, wid, gain) as in _sawtooth.c. Written: out (B,) the sawtooth
+ *   storage (idx, inv, off, wid, gain, sig) as in _sawtooth.c. Written: out (B,) the sawtooth
  *   upper bound of each row at its own x, corner[x] . b + the correction of x's points.
  *
  * propagate_inactive(parent, active) -> None
@@ -207,7 +208,7 @@ static PyObject *children(PyObject *self, PyObject *const *args, Py_ssize_t narg
  * corner[x] . b plus the correction of x's points (one observed value: X = 1). */
 typedef struct {
     const double *rows, *corner, *inv, *gain;
-    const int64_t *rows_x, *idx, *off, *wid;
+    const int64_t *rows_x, *idx, *off, *wid, *sig; /* sig: NULL, or the points' signatures */
     Py_ssize_t Y;
     groups_t g; /* per x: its points' order and keys */
     int stray;
@@ -260,15 +261,18 @@ static double saw_value(saw_t *u, Py_ssize_t i) {
     const int64_t x = u->rows_x[i];
     const double *b = u->rows + i * u->Y, *c = u->corner + x * u->Y;
     double base = 0.0, mass = 0.0;
+    uint64_t row_sig = 0;
     for (Py_ssize_t y = 0; y < u->Y; y++) {
         base += b[y] * c[y];
         mass += b[y];
+        if (b[y] != 0.0) row_sig |= SIG_BIT(y);
     }
     const Py_buffer *order = &u->g.buf[2 * x], *key = &u->g.buf[2 * x + 1];
     const Py_ssize_t P = order->shape[0];
     if (P == 0) return base;
     return base + sawtooth_row(b, u->Y, mass, order->buf, P, key->buf, u->idx, u->inv, u->off,
-                               u->wid, u->gain, NULL, (uint64_t)u->Y, 0, &u->stray);
+                               u->wid, u->gain, NULL, u->sig, row_sig, (uint64_t)u->Y, 0,
+                               &u->stray);
 }
 
 /* Re-bound action a's possible children (rows lo..hi of nz) into up, return its Q_up. */
@@ -283,15 +287,15 @@ static double refresh(saw_t *u, const int64_t *nz, Py_ssize_t lo, Py_ssize_t hi,
 }
 
 static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    enum { NB = 19 };
+    enum { NB = 20 };
     static const spec_t spec[NB] = {
         {"rows", 2, 'd', 0},     {"rows_x", 1, 'q', 0},  {"nz", 1, 'q', 0},
         {"low_r", 1, 'd', 0},    {"best_r", 1, 'q', 0},  {"reward", 1, 'd', 0},
         {"stale_q", 1, 'd', 0},  {"stale_up", 1, 'd', 0}, {"corner", 2, 'd', 0},
         {"idx", 1, 'q', 0},      {"inv", 1, 'd', 0},     {"off", 1, 'q', 0},
-        {"wid", 1, 'q', 0},      {"gain", 1, 'd', 0},    {"low", 1, 'd', 1},
-        {"best", 1, 'q', 1},     {"q_low", 1, 'd', 1},   {"up", 1, 'd', 1},
-        {"q_up", 1, 'd', 1},
+        {"wid", 1, 'q', 0},      {"gain", 1, 'd', 0},    {"sig", 1, 'q', 0},
+        {"low", 1, 'd', 1},      {"best", 1, 'q', 1},    {"q_low", 1, 'd', 1},
+        {"up", 1, 'd', 1},       {"q_up", 1, 'd', 1},
     };
     Py_buffer v[NB];
     (void)self;
@@ -307,7 +311,7 @@ static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_
     PyObject *sorted = args[9];
     if (get_all(arrays, v, spec, NB) < 0) return NULL;
     const Py_ssize_t m = v[2].shape[0], S = v[0].shape[1], A = v[5].shape[0];
-    const Py_ssize_t C = v[14].shape[0], X = v[8].shape[0], E = v[9].shape[0];
+    const Py_ssize_t C = v[15].shape[0], X = v[8].shape[0], E = v[9].shape[0];
     const Py_ssize_t cap = v[11].shape[0];
     const int stale = v[6].shape[0] > 0;
     const char *bad = NULL;
@@ -316,14 +320,15 @@ static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_
     else if (v[0].shape[0] != m + 1 || v[1].shape[0] != m + 1 || v[3].shape[0] != m + 1 ||
              v[4].shape[0] != m + 1)
         bad = "m + 1 rows, rows_x, low_r and best_r for m possible children (nz's length)";
-    else if (v[15].shape[0] != C || v[17].shape[0] != C || v[16].shape[0] != A ||
-             v[18].shape[0] != A)
+    else if (v[16].shape[0] != C || v[18].shape[0] != C || v[17].shape[0] != A ||
+             v[19].shape[0] != A)
         bad = "best and up of C entries, q_low and q_up of A";
     else if (stale ? (v[6].shape[0] != A || v[7].shape[0] != C) : v[7].shape[0] != 0)
         bad = "stale_q (A,) and stale_up (C,), or both empty";
     else if (v[8].shape[1] != S)
         bad = "corner of (X, S) entries (S the rows' width)";
-    else if (v[10].shape[0] != E || v[12].shape[0] != cap || v[13].shape[0] != cap)
+    else if (v[10].shape[0] != E || v[12].shape[0] != cap || v[13].shape[0] != cap ||
+             (v[14].shape[0] != 0 && v[14].shape[0] != cap))
         bad = "the sawtooth storage of _sawtooth.corrections";
     if (bad != NULL) {
         PyErr_Format(PyExc_ValueError, "bound_children(): inconsistent shapes: expected %s", bad);
@@ -338,8 +343,8 @@ static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_
             release_all(v, NB);
             return NULL;
         }
-    saw_t u = {v[0].buf, v[8].buf, v[10].buf, v[13].buf, v[1].buf,
-               v[9].buf, v[11].buf, v[12].buf, S, {NULL, NULL, 0}, 0};
+    saw_t u = {v[0].buf, v[8].buf, v[10].buf, v[13].buf, v[1].buf, v[9].buf, v[11].buf,
+               v[12].buf, v[14].shape[0] > 0 ? v[14].buf : NULL, S, {NULL, NULL, 0}, 0};
     if (saw_take(&u, sorted, X, m + 1, cap, E, "bound_children") < 0) {
         groups_release(&u.g);
         release_all(v, NB);
@@ -356,8 +361,8 @@ static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_
     }
     const double *low_r = v[3].buf, *reward = v[5].buf;
     const int64_t *best_r = v[4].buf;
-    double *low = v[14].buf, *q_low = v[16].buf, *up = v[17].buf, *q_up = v[18].buf;
-    int64_t *best = v[15].buf;
+    double *low = v[15].buf, *q_low = v[17].buf, *up = v[18].buf, *q_up = v[19].buf;
+    int64_t *best = v[16].buf;
     const Py_ssize_t n = C / A;
     /* the lower bounds of every child (0 where impossible) and Q_low */
     memset(low, 0, (size_t)C * sizeof(double));
@@ -687,11 +692,11 @@ static PyObject *group_scores(PyObject *self, PyObject *const *args, Py_ssize_t 
 }
 
 static PyObject *group_upper(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    enum { NB = 9 };
+    enum { NB = 10 };
     static const spec_t spec[NB] = {
-        {"rows", 2, 'd', 0}, {"rows_x", 1, 'q', 0}, {"corner", 2, 'd', 0},
-        {"idx", 1, 'q', 0},  {"inv", 1, 'd', 0},    {"off", 1, 'q', 0},
-        {"wid", 1, 'q', 0},  {"gain", 1, 'd', 0},   {"out", 1, 'd', 1},
+        {"rows", 2, 'd', 0}, {"rows_x", 1, 'q', 0}, {"corner", 2, 'd', 0}, {"idx", 1, 'q', 0},
+        {"inv", 1, 'd', 0},  {"off", 1, 'q', 0},    {"wid", 1, 'q', 0},    {"gain", 1, 'd', 0},
+        {"sig", 1, 'q', 0},  {"out", 1, 'd', 1},
     };
     Py_buffer v[NB];
     (void)self;
@@ -701,12 +706,13 @@ static PyObject *group_upper(PyObject *self, PyObject *const *args, Py_ssize_t n
         return NULL;
     }
     PyObject *const arrays[NB] = {args[0], args[1], args[2], args[4], args[5],
-                                  args[6], args[7], args[8], args[9]};
+                                  args[6], args[7], args[8], args[9], args[10]};
     if (get_all(arrays, v, spec, NB) < 0) return NULL;
     const Py_ssize_t B = v[0].shape[0], Y = v[0].shape[1], X = v[2].shape[0];
     const Py_ssize_t E = v[3].shape[0], cap = v[5].shape[0];
-    if (v[1].shape[0] != B || v[8].shape[0] != B || v[2].shape[1] != Y || v[4].shape[0] != E ||
-        v[6].shape[0] != cap || v[7].shape[0] != cap) {
+    if (v[1].shape[0] != B || v[9].shape[0] != B || v[2].shape[1] != Y || v[4].shape[0] != E ||
+        v[6].shape[0] != cap || v[7].shape[0] != cap ||
+        (v[8].shape[0] != 0 && v[8].shape[0] != cap)) {
         PyErr_Format(PyExc_ValueError,
                      "group_upper(): inconsistent shapes: expected rows (B, Y), rows_x and out "
                      "(B,), corner (X, Y), the sawtooth storage of _sawtooth.corrections "
@@ -715,10 +721,10 @@ static PyObject *group_upper(PyObject *self, PyObject *const *args, Py_ssize_t n
         release_all(v, NB);
         return NULL;
     }
-    saw_t u = {v[0].buf, v[2].buf, v[4].buf, v[7].buf, v[1].buf,
-               v[3].buf, v[5].buf, v[6].buf, Y, {NULL, NULL, 0}, 0};
+    saw_t u = {v[0].buf, v[2].buf, v[4].buf, v[7].buf, v[1].buf, v[3].buf, v[5].buf,
+               v[6].buf, v[8].shape[0] > 0 ? v[8].buf : NULL, Y, {NULL, NULL, 0}, 0};
     const int failed = saw_take(&u, args[3], X, B, cap, E, "group_upper") < 0;
-    double *out = v[8].buf;
+    double *out = v[9].buf;
     for (Py_ssize_t i = 0; i < B && !failed; i++) out[i] = saw_value(&u, i);
     groups_release(&u.g);
     release_all(v, NB);

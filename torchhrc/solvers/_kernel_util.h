@@ -41,19 +41,36 @@ static int get_buffer(PyObject *obj, Py_buffer *view, int ndim, char kind, const
     return 0;
 }
 
+/* The support signature of a belief: bit y % 64 set for every hidden value y it covers. A
+ * point whose signature has a bit outside a row's covers a hidden value the row does not
+ * (b(y) = 0 there), so its term g_i * min_y b(y) / b_i(y) is 0 and cannot lower the bound. */
+#define SIG_BIT(y) ((uint64_t)1 << ((uint64_t)(y) & 63u))
+
+/* The signature of a dense row b (C,): hidden value y at column y. */
+static inline uint64_t row_signature(const double *b, Py_ssize_t C) {
+    uint64_t s = 0;
+    for (Py_ssize_t y = 0; y < C; y++)
+        if (b[y] != 0.0) s |= SIG_BIT(y);
+    return s;
+}
+
 /* The sawtooth correction min(0, min_i g_i min_y b(y) / b_i(y)) of one row b (C,) of mass
  * ``mass``, over the points ``order`` (P,) by increasing ``key``. Support indices at or above
  * ``limit`` set *stray (the caller raises); with ``mapped``, a hidden value y is read at
- * column local[y] (C or more: b = 0 there). The caller has checked order, off and wid. */
+ * column local[y] (C or more: b = 0 there). With ``sig`` (the points' signatures, or NULL),
+ * a point that covers a hidden value outside ``row_sig`` is skipped: its term is 0, so the
+ * result is the same float. The caller has checked order, off and wid. */
 static inline double sawtooth_row(const double *b, Py_ssize_t C, double mass,
                                   const int64_t *order, Py_ssize_t P, const double *key,
                                   const int64_t *idx, const double *inv, const int64_t *off,
                                   const int64_t *wid, const double *gain, const int64_t *local,
-                                  uint64_t limit, int mapped, int *stray) {
+                                  const int64_t *sig, uint64_t row_sig, uint64_t limit,
+                                  int mapped, int *stray) {
     double best = 0.0;
     for (Py_ssize_t t = 0; t < P; t++) {
         const int64_t j = order[t];
         if (key[t] * mass * SLACK >= best) break; /* no later point can win */
+        if (sig != NULL && ((uint64_t)sig[j] & ~row_sig) != 0) continue; /* its term is 0 */
         const double g = gain[j];
         const int64_t *yj = idx + off[j];
         const double *wj = inv + off[j];

@@ -138,8 +138,8 @@ def bound_children(
         gamma: the discount.
         stale: ``(Q_up (A,), up (C,))`` of the belief's last evaluation (their values stay
             upper bounds), or ``None``: every possible child is bounded.
-        sawtooth: ``(corner (X, S), sorted, idx, inv, off, wid, gain)`` of the upper bound,
-            ``sorted`` built for every ``x`` of ``rows_x``
+        sawtooth: ``(corner (X, S), sorted, idx, inv, off, wid, gain, sig)`` of the upper
+            bound, ``sorted`` built for every ``x`` of ``rows_x``
             (:meth:`~torchhrc.solvers.upper_bound.SawtoothUpperBound.loop_storage`).
         num_children: ``C``.
 
@@ -207,10 +207,12 @@ def group_upper(
     Args:
         kernel: the module of :func:`load`.
         rows: ``(B, Y)`` C-contiguous float64 non-negative weights; rows_x: ``(B,)`` int64.
-        sawtooth: ``(corner (X, Y), sorted, idx, inv, off, wid, gain)``: the corner values,
-            per observed value ``(order (P_x,) int64, key (P_x,) float64)`` (its points with a
-            negative gain by increasing key, built for every ``x`` of ``rows_x``), and the
-            points' storage as :func:`~torchhrc.solvers.sawtooth_kernel.sawtooth_corrections`
+        sawtooth: ``(corner (X, Y), sorted, idx, inv, off, wid, gain, sig)``: the corner
+            values, per observed value ``(order (P_x,) int64, key (P_x,) float64)`` (its points
+            with a negative gain by increasing key, built for every ``x`` of ``rows_x``), and
+            the points' storage as
+            :func:`~torchhrc.solvers.sawtooth_kernel.sawtooth_corrections` (``sig`` the
+            support signatures, or empty: no point skipped)
             (:meth:`~torchhrc.solvers.upper_bound.SawtoothUpperBound.loop_storage`).
         out: ``(B,)`` float64, written.
 
@@ -220,8 +222,8 @@ def group_upper(
         ValueError: shapes that do not agree. IndexError: an observed value or a point out
             of range.
     """
-    corner, sorted_points, idx, inv, off, wid, gain = sawtooth
-    kernel.group_upper(rows, rows_x, corner, sorted_points, idx, inv, off, wid, gain, out)
+    corner, sorted_points, idx, inv, off, wid, gain, sig = sawtooth
+    kernel.group_upper(rows, rows_x, corner, sorted_points, idx, inv, off, wid, gain, sig, out)
 
 
 _EMPTY = np.empty(0)

@@ -985,20 +985,24 @@ class _SARSOP:
         if own is not None and self.X == 1:
             return np.full(child_x.shape[0], own, dtype=np.int64)
         best = np.zeros(child_x.shape[0], dtype=np.int64)
-        if possible.all():
-            return best
         imp = ~possible
         cx = child_x[imp]
-        if own is not None and (cx == x).all():  # a flat model: always
+        # the distinct x2 of the impossible children, a few among many, as a plain sorted
+        # list: np.unique(return_inverse=True) cost 26 us a backup on RockSample(8,4) as a
+        # MOMDP, a quarter of the backup, for one or two values
+        distinct = sorted(set(cx.tolist()))
+        if not distinct:
+            return best
+        if own is not None and distinct == [x]:  # a flat model: always
             best[imp] = own
             return best
-        # b itself under each distinct x2 of the children (a few among many children)
-        ux, inv = np.unique(cx, return_inverse=True)
+        # b itself under each distinct x2
+        ux = np.array(distinct, dtype=np.int64)
         if self._kernel is not None:  # one compiled call
             ids = self.alphas.group_scores(self._kernel, b.reshape(1, -1), ux)[1]
         else:
             ids = self._lower_np(np.broadcast_to(b, (ux.size, b.shape[0])), ux)[1]
-        best[imp] = ids[inv]
+        best[imp] = ids[0] if ux.size == 1 else ids[np.searchsorted(ux, cx)]
         return best
 
     def _backup_one_np(self, x: int, node: int) -> None:

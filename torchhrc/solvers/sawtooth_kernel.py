@@ -37,7 +37,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-__all__ = ["sawtooth_corrections"]
+__all__ = ["sawtooth_corrections", "support_signatures"]
 
 _SLACK = 1.0 + 1e-12  # the key bound with room for the round-off of the products
 
@@ -47,7 +47,8 @@ def _corrections(*args: np.ndarray) -> None:
     in their order (``local`` an empty array when not given), then ``out (R,)``.
 
     Runs in float64 whatever the storage's dtype, as the C loop does."""
-    beliefs, rows, order, idx, inv, off, wid, gain, key, local, out = args
+    beliefs, rows, order, idx, inv, off, wid, gain, key, local, _sig, out = args
+    # (the signatures only let the compiled loop skip points whose term is 0)
     beliefs, inv, gain, key = (np.asarray(a, dtype=np.float64) for a in (beliefs, inv, gain, key))
     C = beliefs.shape[1]
     mapped = local.shape[0] > 0
@@ -85,7 +86,7 @@ _KERNEL: Callable[..., None] | None = None
 _NO_MAP = np.empty(0, dtype=np.int64)
 # the dtypes the extension takes, argument by argument (``out`` aside)
 _DTYPES = (np.float64, np.int64, np.int64, np.int64, np.float64, np.int64, np.int64,
-           np.float64, np.float64, np.int64)  # fmt: skip
+           np.float64, np.float64, np.int64, np.int64)  # fmt: skip
 
 
 def _kernel() -> Callable[..., None]:
@@ -112,6 +113,22 @@ def _kernel() -> Callable[..., None]:
     return _KERNEL
 
 
+def support_signatures(idx: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """``(n,)`` int64 support signatures: bit ``y % 64`` set for every hidden value ``y`` of a
+    support, the supports given end to end in ``idx (E,)`` from ``starts (n,)`` (each
+    nonempty).
+
+    A point whose signature has a bit that a row's lacks covers a hidden value where the row
+    is 0, so its sawtooth term is 0: the compiled loops skip it.
+
+    Example:
+        >>> support_signatures(np.array([0, 2, 65]), np.array([0, 2])).tolist()
+        [5, 2]
+    """
+    bits = np.left_shift(np.int64(1), idx.astype(np.int64) & 63)
+    return np.bitwise_or.reduceat(bits, starts)
+
+
 def sawtooth_corrections(
     beliefs: np.ndarray,
     rows: np.ndarray,
@@ -123,6 +140,7 @@ def sawtooth_corrections(
     gain: np.ndarray,
     key: np.ndarray,
     local: np.ndarray | None = None,
+    sig: np.ndarray | None = None,
 ) -> np.ndarray:
     """``(R,)`` sawtooth corrections ``min(0, min_i g_i min_y b(y) / b_i(y))`` of some rows.
 
@@ -140,6 +158,10 @@ def sawtooth_corrections(
         local: optional ``(Y,)`` int64 map from hidden value to column of ``beliefs``, ``C``
             (or more) where the column is not given (``b = 0`` there); without it the columns
             are the hidden values themselves.
+        sig: optional ``(cap,)`` int64 the points' support signatures (bit ``y % 64`` set for
+            each hidden value ``y`` of the support, :func:`support_signatures`): the compiled
+            loop skips a point that covers a hidden value the row does not (its term is 0),
+            with the same result.
 
     Returns:
         ``(R,)`` float64 corrections (``<= 0``).
@@ -159,7 +181,7 @@ def sawtooth_corrections(
         out.fill(0.0)
         return out
     args = (beliefs, rows, order, idx, inv, off, wid, gain, key,
-            _NO_MAP if local is None else local)  # fmt: skip
+            _NO_MAP if local is None else local, _NO_MAP if sig is None else sig)  # fmt: skip
     kernel = _kernel()
     try:  # the arrays of a float64 bound go as they are (the extension checks them)
         kernel(*args, out)

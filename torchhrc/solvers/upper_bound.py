@@ -42,7 +42,7 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.solvers import backup_kernel
-from torchhrc.solvers.sawtooth_kernel import sawtooth_corrections
+from torchhrc.solvers.sawtooth_kernel import sawtooth_corrections, support_signatures
 
 __all__ = ["SawtoothUpperBound"]
 
@@ -52,6 +52,7 @@ _CHUNK = 1 << 19
 _COMPACT_ENTRIES = 1 << 18  # support entries moved at once when a pruning compacts them
 _ROWS = np.arange(1024)  # row indices 0..B-1 of a query, sliced (read only)
 _ROWS.flags.writeable = False
+_ONE = np.int64(1)
 
 
 class SawtoothUpperBound:
@@ -93,6 +94,9 @@ class SawtoothUpperBound:
         self._gain = torch.zeros(cap, dtype=dt, device=dev)  # (P,) v_i - b_i . c (<= 0 useful)
         self._w = torch.ones(cap, dtype=torch.long, device=dev)  # (P,) support width of point
         self._mass = torch.ones(cap, dtype=dt, device=dev)  # (P,) sum_y b_i(y) (1 up to round-off)
+        # (P,) support signature, bit y % 64 per hidden value y of the support (CPU storage;
+        # the compiled loops skip a point that covers a value where the row is 0)
+        self._sig = torch.zeros(cap, dtype=torch.long, device=dev)
         self.size = 0
         self._alive_after_prune = 0
         self._views()
@@ -116,7 +120,7 @@ class SawtoothUpperBound:
             return
         self._np = (self.corner.numpy(), self._fidx.numpy(), self._finv.numpy(), self._x.numpy(),
                     self._v.numpy(), self._gain.numpy(), self._w.numpy(), self._mass.numpy(),
-                    self._off.numpy())  # fmt: skip
+                    self._off.numpy(), self._sig.numpy())  # fmt: skip
 
     def _add_member(self, x: int, i: int) -> None:
         if self._np is None:
@@ -187,7 +191,7 @@ class SawtoothUpperBound:
             new_cap = max(cap, 1)
             while new_cap < need:
                 new_cap *= 2
-            for name in ("_x", "_v", "_gain", "_w", "_mass", "_off"):
+            for name in ("_x", "_v", "_gain", "_w", "_mass", "_off", "_sig"):
                 old = getattr(self, name)
                 new = old.new_zeros(new_cap)
                 new[: self.size] = old[: self.size]
@@ -344,10 +348,11 @@ class SawtoothUpperBound:
         return base + best.clamp(max=0.0)
 
     def loop_storage(self, xs: Iterable[int]) -> tuple[Any, ...]:
-        """``(corner (X, Y), sorted, idx, inv, off, wid, gain)``: what the compiled loops read
-        (:func:`~torchhrc.solvers.backup_kernel.group_upper`, ``bound_children``), with
+        """``(corner (X, Y), sorted, idx, inv, off, wid, gain, sig)``: what the compiled loops
+        read (:func:`~torchhrc.solvers.backup_kernel.group_upper`, ``bound_children``), with
         ``sorted[x] = (order, key)`` (the points of ``x`` with a negative gain by increasing
-        key) built for every ``x`` of ``xs``; CPU storage only.
+        key) built for every ``x`` of ``xs`` and ``sig`` the points' support signatures
+        (:func:`~torchhrc.solvers.sawtooth_kernel.support_signatures`); CPU storage only.
 
         Example:
             >>> import torch
@@ -357,10 +362,10 @@ class SawtoothUpperBound:
             ([[1.0, 2.0]], (0,))
         """
         assert self._np is not None
-        corner, idx, inv, _, _, gain, wid, _, off = self._np
+        corner, idx, inv, _, _, gain, wid, _, off, sig = self._np
         for x in xs:
             self._sorted_points(x)
-        return corner, self._sorted, idx, inv, off, wid, gain
+        return corner, self._sorted, idx, inv, off, wid, gain, sig
 
     def value_np(
         self, beliefs: np.ndarray, x: np.ndarray, columns: np.ndarray | None = None
@@ -391,7 +396,7 @@ class SawtoothUpperBound:
                                       x.astype(np.int64, copy=False),
                                       self.loop_storage(set(x.tolist())), out)  # fmt: skip
             return out
-        corner, idx, inv, _, _, gain, wid, _, off = self._np
+        corner, idx, inv, _, _, gain, wid, _, off, sig = self._np
         local = None
         if columns is None:
             # (B,); one observed value: the same products without gathering B rows of corner
@@ -411,14 +416,14 @@ class SawtoothUpperBound:
             rows = _ROWS[:B] if B <= _ROWS.size else np.arange(B)
             pts, key = self._sorted_points(first)
             return base + sawtooth_corrections(beliefs, rows, pts, idx, inv, off, wid, gain, key,
-                                               local)  # fmt: skip
+                                               local, sig)  # fmt: skip
         order = np.argsort(x, kind="stable")
         sx = x[order]
         out = np.empty(B, dtype=base.dtype)
         for rows in np.split(order, np.flatnonzero(sx[1:] != sx[:-1]) + 1):
             pts, key = self._sorted_points(int(x[rows[0]]))
             out[rows] = sawtooth_corrections(beliefs, rows, pts, idx, inv, off, wid, gain, key,
-                                             local)  # fmt: skip
+                                             local, sig)  # fmt: skip
         return base + out
 
     # -- updates -----------------------------------------------------------------------------
@@ -466,6 +471,9 @@ class SawtoothUpperBound:
         self._gain[s] = bv - (c[bx].gather(1, idx) * val).sum(-1)
         self._w[s] = w
         self._mass[s] = b.sum(-1)
+        if self._np is not None:
+            starts = (torch.cumsum(w, 0) - w).numpy()
+            self._sig[s] = torch.from_numpy(support_signatures(idx[keep].numpy(), starts))
         self.size += m
         self._used += total
         self._stamp += 1
@@ -518,13 +526,14 @@ class SawtoothUpperBound:
         n = self.size
         val = belief[idx]
         start = self._append(idx, 1.0 / val)
-        _, _, _, px, v, gain, wid, mass, off = self._np
+        _, _, _, px, v, gain, wid, mass, off, sig = self._np
         off[n] = start
         px[n] = x
         v[n] = value
         gain[n] = value - float(corner[x, idx] @ val)
         wid[n] = w
         mass[n] = val.sum()
+        sig[n] = np.bitwise_or.reduce(np.left_shift(_ONE, idx & 63))
         self.size = n + 1
         self._add_member(x, n)
 
@@ -582,6 +591,7 @@ class SawtoothUpperBound:
             self._gain[: sel.numel()] = self._gain[sel]
             self._w[: sel.numel()] = self._w[sel]
             self._mass[: sel.numel()] = self._mass[sel]
+            self._sig[: sel.numel()] = self._sig[sel]
             self.size = sel.numel()
             self._rebuild_members()
         self._alive_after_prune = self.size

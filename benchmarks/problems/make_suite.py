@@ -37,13 +37,16 @@ POMDPs with many actions, many observations, 600
 sparse states, discount 0.99 and 0.999). The ninth session added ``structured``
 (``structured.py``: two random mazes after Hallway, the tiger problem with 3 and 5 doors, a
 machine-maintenance problem at discount 0.99 after bridge-repair, and RockSample(6,4) with
-rocks from seed 77). ``docs/benchmarks.md`` reports both solvers on each beside the suite.
+rocks from seed 77), the tenth ``edges`` (one observation, near-deterministic moves, a
+40-cell corridor with three landmarks, RockSample(10,1) as a MOMDP, discount 0.9999,
+rewards all negative, a MOMDP with two hidden values). ``docs/benchmarks.md`` reports both
+solvers on each beside the suite.
 
 Usage::
 
     python benchmarks/problems/make_suite.py --out SUITE_DIR [--from DIR ...] [--no-random]
     python benchmarks/problems/make_suite.py --out CHECK_DIR \\
-        --check-set [mixed|momdp|shapes|starts|structured]
+        --check-set [edges|mixed|momdp|shapes|starts|structured]
 """
 
 from __future__ import annotations
@@ -188,7 +191,22 @@ def more_check_sets() -> dict[str, dict[str, object]]:
             "g_maint6_d99.pomdp": _STRUCTURED.maintenance(6),
             "g_rs64_s77.pomdp": rock_sample(6, 4, seed=77),
         },
+        "edges": {  # the tenth session: shapes at the edges of what the solver meets
+            "e_blind_S20_A4_O1.pomdp": random_pomdp(20, 4, 1, seed=601),
+            "e_neardet_S60_A4_O6.pomdp": random_pomdp(60, 4, 6, concentration=0.02, seed=602),
+            "e_corridor40.pomdp": _STRUCTURED.corridor(40, landmarks=(0, 13, 27)),
+            "e_rs10_1.pomdpx": rock_sample_momdp(10, 1, seed=604),
+            "e_S6_A3_O3_d9999.pomdp": random_pomdp(6, 3, 3, seed=605, discount=0.9999),
+            "e_S30_A5_O5_neg.pomdp": _shifted(random_pomdp(30, 5, 5, seed=606), -20.0),
+            "e_mom_X40_Y2.pomdpx": random_momdp(40, 2, 4, 3, seed=607),
+        },
     }
+
+
+def _shifted(model, by: float):  # type: ignore[no-untyped-def]
+    """``model`` with every reward moved by ``by`` (all negative: values in the hundreds)."""
+    return type(model)(T=model.T, Z=model.Z, R=model.R + by, b0=model.b0,
+                       discount=model.discount)  # fmt: skip
 
 
 def _stem(path: Path) -> str:
@@ -224,7 +242,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-random", action="store_true", help="skip the generated problems")
     parser.add_argument(
         "--check-set", nargs="?", const="check",
-        choices=["check", "mixed", "momdp", "shapes", "starts", "structured"],
+        choices=["check", "edges", "mixed", "momdp", "shapes", "starts", "structured"],
         help="write a check set (never tuned on) instead: the first (no name) or a later one",
     )  # fmt: skip
     args = parser.parse_args(argv)

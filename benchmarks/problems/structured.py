@@ -1,13 +1,15 @@
 """Structured POMDPs for the ``structured`` check set of ``make_suite.py`` (never tuned on).
 
-Three families with the shapes of classic problems, built from a seed or from parameters:
+Four families with the shapes of classic problems, built from a seed or from parameters:
 
 * :func:`maze`: navigation in a random maze from an unknown start, after Hallway (Littman,
   Cassandra & Kaelbling 1995): noisy wall sensing, slippery moves, a goal to declare;
 * :func:`doors`: the tiger problem (Kaelbling, Littman & Cassandra 1998) with ``k`` doors;
 * :func:`maintenance`: a machine that wears out, inspected and repaired at a cost, after the
   bridge inspection problem of Ellis, Jiang & Corotis (1995) (pomdp-solve's
-  ``bridge-repair``): discount 0.99 and rewards in the hundreds.
+  ``bridge-repair``): discount 0.99 and rewards in the hundreds;
+* :func:`corridor`: localisation along a long corridor with a few landmarks, after the 1-D
+  problems of pomdp-solve's examples (``1d``): a long horizon before the goal is reached.
 
 Example:
     >>> model = doors(3)
@@ -22,7 +24,7 @@ import torch
 
 from torchhrc.pomdp import POMDP
 
-__all__ = ["doors", "maintenance", "maze"]
+__all__ = ["corridor", "doors", "maintenance", "maze"]
 
 _MOVES = ((-1, 0), (0, 1), (1, 0), (0, -1))  # north, east, south, west
 
@@ -139,3 +141,38 @@ def maintenance(levels: int = 6, discount: float = 0.99) -> POMDP:
     Z[1] = reading / reading.sum(1, keepdims=True)
     Z[:, S - 1] = np.eye(O)[O - 1]  # a failure is seen
     return _pomdp(T, Z, R, np.eye(S)[0], discount)
+
+
+def corridor(n: int, landmarks: tuple[int, ...] = (0,), *, slip: float = 0.1,
+             sense: float = 0.9, discount: float = 0.95) -> POMDP:  # fmt: skip
+    """Localisation in a corridor of ``n`` cells from a uniform start.
+
+    Actions: left, right (the move fails with probability ``slip``; -0.1), and ``declare``
+    (+10 at the last cell, then a uniform restart; -10 elsewhere, where it stays).
+    Observations: ``landmark`` or ``nothing``; a landmark cell (``landmarks``, and the last
+    cell) reads ``landmark`` with probability ``sense``, any other cell with ``1 - sense``.
+
+    Example:
+        >>> model = corridor(8, landmarks=(0, 3))
+        >>> model.num_states, model.num_actions, model.num_observations
+        (8, 3, 2)
+    """
+    S, A, O = n, 3, 2
+    T = np.zeros((A, S, S))
+    for s in range(S):
+        for a, step in ((0, -1), (1, 1)):
+            t = min(max(s + step, 0), S - 1)
+            T[a, s, t] += 1.0 - slip
+            T[a, s, s] += slip
+    T[2] = np.eye(S)
+    T[2, S - 1] = 1.0 / S  # a declared goal: a uniform restart
+    marked = np.zeros(S, dtype=bool)
+    marked[list(landmarks)] = True
+    marked[S - 1] = True
+    Z = np.empty((A, S, O))
+    Z[:, :, 0] = np.where(marked, sense, 1.0 - sense)
+    Z[:, :, 1] = 1.0 - Z[:, :, 0]
+    R = np.full((A, S), -0.1)
+    R[2] = -10.0
+    R[2, S - 1] = 10.0
+    return _pomdp(T, Z, R, np.full(S, 1.0 / S), discount)

@@ -35,7 +35,8 @@ def test_qmdp_ge_fib_ge_optimal_ge_blind_on_random_pomdps(seed):
     tail = 0.5**12 / 0.5 * model.R.abs().max()
     v_exact = _value(exact, beliefs)
     q, f, b = qmdp_vectors(model), fib_vectors(model), blind_vectors(model)
-    assert (_value(q, beliefs) >= _value(f, beliefs) - 1e-10).all()
+    # (both to their tolerance 1e-8: where FIB = QMDP, either may be the higher by that)
+    assert (_value(q, beliefs) >= _value(f, beliefs) - 1e-8).all()
     assert (_value(f, beliefs) >= v_exact - tail - 1e-9).all()
     assert (_value(b, beliefs) <= v_exact + tail + 1e-9).all()
 

@@ -122,6 +122,11 @@ __all__ = ["SARSOPConfig", "fib_corner_values", "sarsop"]
 LowerInit = Callable[[POMDP | MOMDP], AlphaVectorPolicy]
 UpperInit = Callable[[POMDP | MOMDP], torch.Tensor]
 
+#: the most steps of a trial: a trial walks around a cycle of beliefs on the nodes it has
+#: (``_SARSOP.sample``), so depth costs time, not memory (discount 0.9999: about 14,000 steps
+#: before the trial's gap criterion ends it; 1,000 cut such trials short)
+_MAX_DEPTH = 100_000
+
 
 def fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, *,
                       tol: float = 1e-8, time_limit: float = math.inf,
@@ -173,7 +178,7 @@ class SARSOPConfig:
             default).
         kappa: a trial's ``eps`` is ``kappa * gap(b0)`` (default 0.5).
         max_depth: cap on the depth of a trial (default: where ``gamma^t`` times the reward
-            span over ``1 - gamma`` falls below the precision).
+            span over ``1 - gamma`` falls below the precision, at most 100,000).
         prediction: ``"binning"`` (SARSOP's learned ``V_hat``) or ``"upper"`` (``V_hat = V_up``,
             i.e. a pure gap-driven search, as HSVI).
         bins: number of bins per axis (initial upper bound, entropy) of the finer of the two
@@ -693,7 +698,7 @@ class _SARSOP:
         else:
             target = max(cfg.precision, 1e-6 * max(span, 1.0))
             depth = math.log(target / max(span, 1e-12)) / math.log(self.gamma) if span > 0 else 1
-            self.max_depth = int(min(max(math.ceil(depth), 1), 1000))
+            self.max_depth = int(min(max(math.ceil(depth), 1), _MAX_DEPTH))
         corners = corner.reshape(self.X, -1).cpu().double().numpy()
         self.bins = _Bins(corners, math.log(self.Y), cfg.bins)
 
@@ -1142,7 +1147,11 @@ class _SARSOP:
             L = float(lo[node])  # (total - sum of the others' w lo) / w[node]
             U = float(up[node]) + (total + eps - float(w @ up)) / float(w[node])
         path = [node]
-        seen = {int(self.belief_id[node])}
+        # the distinct beliefs of this trial and the node of each: a trial that reaches a
+        # belief it already passed (a cycle of the model) goes on from that node, as APPL's
+        # belief graph does, instead of a new node per lap (a cycle walked until the trial's
+        # depth ends costs no memory: discount 0.9999 runs it for about 14,000 steps)
+        on_path = {int(self.belief_id[node]): node}
         forward = self._forward = set()
         while t < self.max_depth and self.clock() < self.deadline:
             lo, up = float(tree.lower[node]), float(tree.upper[node])
@@ -1187,24 +1196,32 @@ class _SARSOP:
             child = tree.child(node, a, x2, o)
             if child < 0:
                 if self._np:
-                    row = self.form.child_np(x, tree.beliefs_np[node], a, k, o) / p
-                    child = self._add_node(row, x2, node, a, o)
+                    belief: torch.Tensor | np.ndarray = (
+                        self.form.child_np(x, tree.beliefs_np[node], a, k, o) / p
+                    )
                 else:
                     _, J = self.form.expand(x, tree.beliefs[node].unsqueeze(0))
-                    child = self._add_node(J[0, a, k, o] / p, x2, node, a, o)
-                tree.lower[child] = low_c / p
-                tree.upper[child] = up_c / p
+                    belief = J[0, a, k, o] / p
+                key = self._key_of(x2, belief)
+                again = on_path.get(key)
+                if again is not None:  # a belief of this trial: back to its node
+                    tree.link(node, a, x2, o, again)
+                    child = again
+                else:
+                    child = self._add_node(belief, x2, node, a, o, key)
+                    tree.lower[child] = low_c / p
+                    tree.upper[child] = up_c / p
             node = child
             t += 1
             path.append(node)
             bid = int(self.belief_id[node])
-            if self.cfg.forward_backups and bid in seen:
+            if self.cfg.forward_backups and bid in on_path:
                 # the trial reached a belief it already passed (a cycle of the model): back
                 # it up now, as APPL backs up every node a trial reaches, so that the descent
                 # itself propagates values around the cycle
                 self.backup(x2, np.array([node]))
                 forward.add(node)
-            seen.add(bid)
+            on_path.setdefault(bid, node)
         return path
 
     def _store(self, node: int, ev: _Evaluation, i: int) -> tuple[np.ndarray, ...]:
@@ -1250,9 +1267,9 @@ class _SARSOP:
         return ids[ids >= 0]  # (an entry is -1 only if its vector was dropped: never counted)
 
     def _add_node(self, belief: torch.Tensor | np.ndarray, x: int, parent: int, action: int,
-                  obs: int) -> int:  # fmt: skip
+                  obs: int, key: int | None = None) -> int:  # fmt: skip
         """Add a tree node (``belief`` a numpy row on the numpy path) with its entropy and the
-        id of its distinct belief."""
+        id of its distinct belief (``key``, when the caller has it from :meth:`_key_of`)."""
         node = self.tree.add(belief, x, parent, action, obs)
         if node >= self.entropy.shape[0]:
             grown = np.zeros(2 * self.entropy.shape[0])
@@ -1265,12 +1282,17 @@ class _SARSOP:
             nz = np.flatnonzero(belief)  # the support (a belief has no negative entry)
             p = belief[nz]
             self.entropy[node] = float(-(p * np.log(p)).sum())
-            self.belief_id[node] = self._belief_key(x, belief, nz)
+            self.belief_id[node] = self._belief_key(x, belief, nz) if key is None else key
         else:
             self.entropy[node] = float(self._entropy(belief.unsqueeze(0))[0])
-            self.belief_id[node] = self._belief_key(x, belief.cpu().numpy())
+            self.belief_id[node] = self._key_of(x, belief) if key is None else key
         self.children.setdefault(parent, []).append(node)
         return node
+
+    def _key_of(self, x: int, belief: torch.Tensor | np.ndarray) -> int:
+        """:meth:`_belief_key` of a numpy row or a tensor."""
+        return self._belief_key(x, belief if isinstance(belief, np.ndarray) else
+                                belief.cpu().numpy())  # fmt: skip
 
     def _belief_key(self, x: int, row: np.ndarray, nz: np.ndarray | None = None) -> int:
         """The id of the distinct belief ``(x, row)`` (support and values to 12 digits).

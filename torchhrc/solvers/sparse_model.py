@@ -377,12 +377,15 @@ def qmdp_iteration_np(
     The iteration ``V_{k+1} = max_a (R_a + gamma P_a V_k)`` starts from ``V_0 = 0`` (as APPL's
     ``FullObsUBInitializer`` and :func:`~torchhrc.solvers.qmdp.mdp_q_values`) and stops when
     the largest change ``r_k = |V_{k+1} - V_k|`` is below ``tol``, after ``max_iterations``
-    or at ``deadline``. Whatever the start, the operator is a ``gamma``-contraction, so
-    ``|V_{k+1} - V*| <= gamma r_k / (1 - gamma)`` (Puterman 1994, Thm. 6.3.1): the running
-    minimum ``U = min_k (V_{k+1} + gamma r_k / (1 - gamma))``, and ``max R / (1 - gamma)``
-    before the first step, bounds ``V*`` from above at every ``k``, and stopping anywhere is
-    safe. The returned vectors are ``Q_a = min(R_a + gamma P_a U, U) >= Q*_a`` (as
-    ``Q*_a <= V* <= U``).
+    or at ``deadline``. Whatever the start, the operator is a monotone ``gamma``-contraction
+    that moves with a constant, so with ``d_k = V_{k+1} - V_k``,
+    ``V_{k+1} + gamma min(d_k) / (1 - gamma) <= V* <= V_{k+1} + gamma max(d_k) / (1 - gamma)``
+    (MacQueen 1966; Puterman 1994, Thm. 6.6.6): the running minimum ``U`` of the right-hand
+    side, and ``max R / (1 - gamma)`` before the first step, bounds ``V*`` from above at
+    every ``k``, stopping anywhere is safe, and the iteration also stops once the two sides
+    are within ``tol`` (near discount 1 long before the change is: discount 0.9999, 6
+    states, 0.8 CPU-s before). The returned vectors are ``Q_a = min(R_a + gamma P_a U, U) >=
+    Q*_a`` (as ``Q*_a <= V* <= U``).
 
     Why from zero and not from the upper bound ``max R / (1 - gamma)`` (every iterate of which
     is an upper bound too): from above, the excess over ``V*`` shrinks by ``gamma`` per
@@ -410,10 +413,13 @@ def qmdp_iteration_np(
         E *= g
         E += R
         new = E.max(0)
-        change = float(np.abs(new - V).max()) if new.size else 0.0
+        d = new - V
+        hi, lo = (float(d.max()), float(d.min())) if d.size else (0.0, 0.0)
+        change = max(hi, -lo)
         V = new
-        np.minimum(U, V + slack * change, out=U)  # |V - V*| <= g change / (1 - g)
-        if change < tol:
+        # V* <= V + g max(d) / (1 - g) (MacQueen 1966; with max |d|: the contraction bound)
+        np.minimum(U, V + slack * hi, out=U)
+        if change < tol or slack * (hi - lo) < tol:  # the second: U within tol of V*
             break
     Q = _fresh(expect_np(U), U)
     Q *= g

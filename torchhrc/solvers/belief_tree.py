@@ -132,25 +132,6 @@ class BeliefTree:
             self._children[(parent, action, int(x), observation)] = n
         return n
 
-    def link(self, node: int, action: int, x_next: int, observation: int, target: int) -> None:
-        """Make the existing node ``target`` the child of ``node`` by ``(action, x_next,
-        observation)`` (the belief reached there is ``target``'s: a cycle of the model). The
-        edge is a lookup only: ``target`` keeps its parent and depth.
-
-        Example:
-            >>> import torch
-            >>> tree = BeliefTree(torch.tensor([0.5, 0.5], dtype=torch.float64), 0)
-            >>> tree.link(0, 1, 0, 0, 0)  # listening can lead back to the same belief
-            >>> tree.child(0, 1, 0, 0), tree.size
-            (0, 1)
-        """
-        if not (0 <= node < self.size and 0 <= target < self.size):
-            raise IndexError(
-                f"expected node and target below the tree's size {self.size}, got {node} and "
-                f"{target}"
-            )
-        self._children[(node, action, int(x_next), observation)] = target
-
     def child(self, node: int, action: int, x_next: int, observation: int) -> int:
         """The child id for ``(action, x_next, observation)``, or -1 if not sampled yet."""
         return self._children.get((node, action, x_next, observation), -1)

@@ -122,9 +122,10 @@ __all__ = ["SARSOPConfig", "fib_corner_values", "sarsop"]
 LowerInit = Callable[[POMDP | MOMDP], AlphaVectorPolicy]
 UpperInit = Callable[[POMDP | MOMDP], torch.Tensor]
 
-#: the most steps of a trial: a trial walks around a cycle of beliefs on the nodes it has
-#: (``_SARSOP.sample``), so depth costs time, not memory (discount 0.9999: about 14,000 steps
-#: before the trial's gap criterion ends it; 1,000 cut such trials short)
+#: the most steps of a trial. Its targets end a trial after some ``ln(2) / (1 - gamma)`` to
+#: ``ln(4) / (1 - gamma)`` steps (``eps = gap / 2``): 7,000-14,000 at discount 0.9999, where
+#: the former cap of 1,000 cut every trial on the same few beliefs. A step adds a node (Y
+#: floats), so this bounds what one trial adds to the tree.
 _MAX_DEPTH = 100_000
 
 
@@ -1147,11 +1148,7 @@ class _SARSOP:
             L = float(lo[node])  # (total - sum of the others' w lo) / w[node]
             U = float(up[node]) + (total + eps - float(w @ up)) / float(w[node])
         path = [node]
-        # the distinct beliefs of this trial and the node of each: a trial that reaches a
-        # belief it already passed (a cycle of the model) goes on from that node, as APPL's
-        # belief graph does, instead of a new node per lap (a cycle walked until the trial's
-        # depth ends costs no memory: discount 0.9999 runs it for about 14,000 steps)
-        on_path = {int(self.belief_id[node]): node}
+        seen = {int(self.belief_id[node])}
         forward = self._forward = set()
         while t < self.max_depth and self.clock() < self.deadline:
             lo, up = float(tree.lower[node]), float(tree.upper[node])
@@ -1196,32 +1193,24 @@ class _SARSOP:
             child = tree.child(node, a, x2, o)
             if child < 0:
                 if self._np:
-                    belief: torch.Tensor | np.ndarray = (
-                        self.form.child_np(x, tree.beliefs_np[node], a, k, o) / p
-                    )
+                    row = self.form.child_np(x, tree.beliefs_np[node], a, k, o) / p
+                    child = self._add_node(row, x2, node, a, o)
                 else:
                     _, J = self.form.expand(x, tree.beliefs[node].unsqueeze(0))
-                    belief = J[0, a, k, o] / p
-                key = self._key_of(x2, belief)
-                again = on_path.get(key)
-                if again is not None:  # a belief of this trial: back to its node
-                    tree.link(node, a, x2, o, again)
-                    child = again
-                else:
-                    child = self._add_node(belief, x2, node, a, o, key)
-                    tree.lower[child] = low_c / p
-                    tree.upper[child] = up_c / p
+                    child = self._add_node(J[0, a, k, o] / p, x2, node, a, o)
+                tree.lower[child] = low_c / p
+                tree.upper[child] = up_c / p
             node = child
             t += 1
             path.append(node)
             bid = int(self.belief_id[node])
-            if self.cfg.forward_backups and bid in on_path:
+            if self.cfg.forward_backups and bid in seen:
                 # the trial reached a belief it already passed (a cycle of the model): back
                 # it up now, as APPL backs up every node a trial reaches, so that the descent
                 # itself propagates values around the cycle
                 self.backup(x2, np.array([node]))
                 forward.add(node)
-            on_path.setdefault(bid, node)
+            seen.add(bid)
         return path
 
     def _store(self, node: int, ev: _Evaluation, i: int) -> tuple[np.ndarray, ...]:
@@ -1267,9 +1256,9 @@ class _SARSOP:
         return ids[ids >= 0]  # (an entry is -1 only if its vector was dropped: never counted)
 
     def _add_node(self, belief: torch.Tensor | np.ndarray, x: int, parent: int, action: int,
-                  obs: int, key: int | None = None) -> int:  # fmt: skip
+                  obs: int) -> int:  # fmt: skip
         """Add a tree node (``belief`` a numpy row on the numpy path) with its entropy and the
-        id of its distinct belief (``key``, when the caller has it from :meth:`_key_of`)."""
+        id of its distinct belief."""
         node = self.tree.add(belief, x, parent, action, obs)
         if node >= self.entropy.shape[0]:
             grown = np.zeros(2 * self.entropy.shape[0])
@@ -1282,17 +1271,12 @@ class _SARSOP:
             nz = np.flatnonzero(belief)  # the support (a belief has no negative entry)
             p = belief[nz]
             self.entropy[node] = float(-(p * np.log(p)).sum())
-            self.belief_id[node] = self._belief_key(x, belief, nz) if key is None else key
+            self.belief_id[node] = self._belief_key(x, belief, nz)
         else:
             self.entropy[node] = float(self._entropy(belief.unsqueeze(0))[0])
-            self.belief_id[node] = self._key_of(x, belief) if key is None else key
+            self.belief_id[node] = self._belief_key(x, belief.cpu().numpy())
         self.children.setdefault(parent, []).append(node)
         return node
-
-    def _key_of(self, x: int, belief: torch.Tensor | np.ndarray) -> int:
-        """:meth:`_belief_key` of a numpy row or a tensor."""
-        return self._belief_key(x, belief if isinstance(belief, np.ndarray) else
-                                belief.cpu().numpy())  # fmt: skip
 
     def _belief_key(self, x: int, row: np.ndarray, nz: np.ndarray | None = None) -> int:
         """The id of the distinct belief ``(x, row)`` (support and values to 12 digits).

@@ -405,7 +405,11 @@ def qmdp_iteration_np(
     shape = R.shape[1:]
     V = np.zeros(shape, dtype=R.dtype)
     U = np.full(shape, float(R.max()) / (1.0 - g), dtype=R.dtype)  # V* <= max R / (1 - g)
-    slack = g / (1.0 - g)
+    # the weight of a constant, g times each row's sum (1 within the model's tolerance, so
+    # measured): a rise c >= 0 costs at most g s_max c a step, a fall c < 0 at least g s_min c
+    sums = expect_np(np.ones(shape, dtype=R.dtype))
+    w_hi, w_lo = g * float(sums.max()), g * float(sums.min())
+    slack_hi, slack_lo = (w / (1.0 - w) if w < 1.0 else math.inf for w in (w_hi, w_lo))
     for _ in range(max_iterations):
         if deadline.passed():
             break
@@ -418,8 +422,10 @@ def qmdp_iteration_np(
         change = max(hi, -lo)
         V = new
         # V* <= V + g max(d) / (1 - g) (MacQueen 1966; with max |d|: the contraction bound)
-        np.minimum(U, V + slack * hi, out=U)
-        if change < tol or slack * (hi - lo) < tol:  # the second: U within tol of V*
+        slack = slack_hi if hi >= 0.0 else slack_lo
+        if math.isfinite(slack):
+            np.minimum(U, V + slack * hi, out=U)
+        if change < tol or slack_hi * (hi - lo) < tol:  # the second: U within tol of V*
             break
     Q = _fresh(expect_np(U), U)
     Q *= g

@@ -163,9 +163,15 @@ def _iterate_fib(start: torch.Tensor, step: Callable[[torch.Tensor], torch.Tenso
     ``k (max d - min d) < tol`` (``info["stop"] = "converged"`` both), after
     ``max_iterations`` or at ``deadline``; in these last three cases the result is the
     smaller of the iterate and the bound of the last step.
+
+    A model's rows may sum to 1 only within its validation's tolerance, so the weight of a
+    constant, ``F(1) - F(0)`` (``discount`` times each row's sum), is measured: ``k`` is
+    ``w / (1 - w)`` for its smallest entry ``w``, which keeps the bound valid when
+    ``max(d) <= 0`` (always, from an upper start); no shift is applied otherwise.
     """
     alpha = start
-    k = discount / (1.0 - discount)
+    weight = float((step(torch.ones_like(start)) - step(torch.zeros_like(start))).min())
+    k = weight / (1.0 - weight) if 0.0 <= weight < 1.0 else 0.0
     info["stop"] = "max_iterations"
     shifted = None  # the bound F(alpha) + k max(d) of the last step
     for i in range(max_iterations):
@@ -183,8 +189,8 @@ def _iterate_fib(start: torch.Tensor, step: Callable[[torch.Tensor], torch.Tenso
             info["stop"] = "converged"
             shifted = None
             break
-        shifted = stepped + k * hi
-        if k * (hi - lo) < tol:
+        shifted = stepped + k * hi if hi <= 0.0 else None
+        if shifted is not None and k * (hi - lo) < tol:
             info["stop"] = "converged"
             break
     if shifted is not None:

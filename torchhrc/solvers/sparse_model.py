@@ -380,7 +380,7 @@ def qmdp_iteration_np(
     or at ``deadline``. Whatever the start, the operator is a monotone ``gamma``-contraction
     that moves with a constant, so with ``d_k = V_{k+1} - V_k``,
     ``V_{k+1} + gamma min(d_k) / (1 - gamma) <= V* <= V_{k+1} + gamma max(d_k) / (1 - gamma)``
-    (MacQueen 1966; Puterman 1994, Thm. 6.6.6): the running minimum ``U`` of the right-hand
+    (MacQueen 1966; Porteus 1971): the running minimum ``U`` of the right-hand
     side, and ``max R / (1 - gamma)`` before the first step, bounds ``V*`` from above at
     every ``k``, stopping anywhere is safe, and the iteration also stops once the two sides
     are within ``tol`` (near discount 1 long before the change is: discount 0.9999, 6

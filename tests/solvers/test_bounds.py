@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 
+import numpy as np
 import pytest
 import torch
 from _exact_pomdp import TIGER_OPTIMUM, exact_alpha_vectors, optimal_value_bounds
@@ -265,3 +266,33 @@ def test_fib_rejects_undiscounted_and_unknown_models():
         fib_vectors(random_pomdp(2, 2, 2, discount=1.0, seed=9))
     with pytest.raises(TypeError, match="expected a POMDP"):
         fib_vectors(object())
+
+
+def test_mdp_values_near_discount_one_stop_by_the_bracket():
+    # discount 0.9999: plain value iteration closes 1e-4 of the error a step (some 200,000
+    # steps to 1e-8); MacQueen's bracket closes within a few hundred. The reference: policy
+    # iteration with exact solves.
+    model = random_pomdp(6, 3, 3, seed=605, discount=0.9999)
+    T, R, g = model.T.numpy(), model.R.numpy(), model.discount
+    S = R.shape[1]
+    pi = np.zeros(S, dtype=int)
+    for _ in range(100):
+        V = np.linalg.solve(np.eye(S) - g * T[pi, np.arange(S)], R[pi, np.arange(S)])
+        Q_exact = R + g * T @ V
+        new = Q_exact.argmax(0)
+        if (new == pi).all():
+            break
+        pi = new
+    Q, err = mdp_q_values(model, tol=1e-6, max_iterations=1_000)
+    assert err <= 1e-6
+    assert np.abs(Q.numpy() - Q_exact).max() <= err + 1e-7  # (the solves' round-off)
+    assert (qmdp_vectors(model, tol=1e-6, max_iterations=1_000).numpy() >= Q_exact - 1e-7).all()
+    # a batch of two: each problem's own bracket
+    batch = random_pomdp(6, 3, 3, seed=606, discount=0.9999, batch_shape=(2,))
+    Qb, errb = mdp_q_values(batch, tol=1e-6, max_iterations=1_000)
+    assert errb <= 1e-6
+    for i in range(2):
+        one = POMDP(T=batch.T[i], Z=batch.Z[i], R=batch.R[i], b0=batch.b0[i], discount=g)
+        Qi, erri = mdp_q_values(one, tol=1e-6, max_iterations=1_000)
+        assert erri <= 1e-6
+        torch.testing.assert_close(Qb[i], Qi, atol=3e-6, rtol=0)

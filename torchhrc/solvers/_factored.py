@@ -29,6 +29,14 @@ from torchhrc.pomdp import MOMDP, POMDP
 __all__: list[str] = []
 
 
+#: the relative round-off below which the bracket of MacQueen (1966) around a value
+#: iteration's fixed point stops shrinking: the iterates' differences carry about this much
+#: error relative to the values, and the bracket multiplies them by ``discount / (1 -
+#: discount)`` (:func:`~torchhrc.solvers.qmdp.mdp_q_values` stops there when its tolerance
+#: lies below it)
+BRACKET_ROUND_OFF = 16.0 * float(torch.finfo(torch.float64).eps)
+
+
 def flat_expect(T: torch.Tensor, V: torch.Tensor, *, per_action: bool = False) -> torch.Tensor:
     """``(..., A, S)`` expected next values under ``T (..., A, S, S)``."""
     if per_action:

@@ -29,7 +29,13 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
-from torchhrc.solvers._factored import Expectation, check_model, check_unit_discount, state_dims
+from torchhrc.solvers._factored import (
+    BRACKET_ROUND_OFF,
+    Expectation,
+    check_model,
+    check_unit_discount,
+    state_dims,
+)
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.solution import Solution
 
@@ -57,6 +63,15 @@ def mdp_q_values(
 ) -> tuple[torch.Tensor, float]:
     """Value iteration on the fully observable MDP underlying ``model``, batched.
 
+    From ``V = 0``, ``V <- max_a (R_a + discount E_a V)``. With ``d = V_new - V``, the bounds
+    of MacQueen (1966) and Porteus (1971), ``V_new + k min(d) <= V* <= V_new + k max(d)``
+    (``k = w / (1 - w)``, ``w`` the discount times the rows' sums, measured: 1 within a model's
+    tolerance), bracket ``V*`` at every step; the iteration stops once each problem's bracket
+    is narrower than ``tol`` (or than the round-off of ``d`` times ``k``, where that is wider:
+    ``error_bound`` says so) or the change is below ``tol (1 - discount) / (2 discount)``, and
+    ``V`` is the bracket's middle. Near discount 1 the bracket closes long before the change
+    does (discount 0.9999, 6 states: a few dozen steps instead of some 200,000).
+
     Returns:
         ``(Q, error_bound)``: ``Q`` is ``(..., A, S)`` for a POMDP or ``(..., A, X, Y)`` for a
         MOMDP, and ``|Q - Q*| <= error_bound`` everywhere.
@@ -74,17 +89,47 @@ def mdp_q_values(
     action_dim = -1 - sd
     V = model.R.amax(action_dim) * 0.0
     threshold = tol * (1.0 - g) / (2.0 * g)
-    residual = float("inf")
     E = Expectation(model)
+    state = tuple(range(-sd, 0))
+    batch = V.dim() - sd
+    # each problem's smallest and largest weight of a constant: g times its rows' sums
+    w = g * E(torch.ones_like(V))
+    w_lo = w.amin(dim=(action_dim, *state)) if w.numel() else w.new_zeros(V.shape[:batch])
+    w_hi = w.amax(dim=(action_dim, *state)) if w.numel() else w.new_zeros(V.shape[:batch])
+    k_lo, k_hi = w_lo / (1.0 - w_lo), w_hi / (1.0 - w_hi)
+    if not bool(((w_hi < 1.0) & (w_lo >= 0.0)).all()):  # rows far from stochastic
+        k_lo = k_hi = torch.full_like(w_lo, float("inf"))
+    error = residual = float("inf")
     for _ in range(max_iterations):
         V_new = (model.R + g * E(V)).amax(action_dim)
-        residual = (V_new - V).abs().max().item() if V_new.numel() else 0.0
+        d = V_new - V
         V = V_new
-        if residual < threshold:
+        if not d.numel():
+            error = 0.0
             break
-    delta = g * residual / (1.0 - g)  # |V - V*| <= delta
+        hi, lo = d.amax(dim=state), d.amin(dim=state)  # (*batch,)
+        upper = torch.where(hi >= 0, k_hi, k_lo) * hi  # V* - V <= upper
+        lower = torch.where(lo >= 0, k_lo, k_hi) * lo  # V* - V >= lower
+        residual = float(d.abs().max())
+        if residual < threshold:
+            error = g * residual / (1.0 - g)  # the contraction bound on |V - V*|
+            break
+        half = (upper - lower) / 2.0
+        # the bracket cannot close below the round-off of d, amplified by k: near discount 1
+        # and with large values, tol may lie below it (the bound is then that wide, and said)
+        floor = BRACKET_ROUND_OFF * float(k_hi.max()) * float(V.abs().max())
+        if bool(torch.isfinite(half).all()) and float(half.max()) < max(tol, floor) / 2.0:
+            V = V + ((upper + lower) / 2.0).reshape(*V.shape[:batch], *(1,) * sd)
+            error = float(half.max())
+            break
+    else:  # the cap: the narrower of the contraction bound and the bracket
+        error = g * residual / (1.0 - g)
+        if max_iterations > 0 and d.numel() and bool(torch.isfinite(half).all()):
+            if float(half.max()) < error:
+                V = V + ((upper + lower) / 2.0).reshape(*V.shape[:batch], *(1,) * sd)
+                error = float(half.max())
     Q = model.R + g * E(V)
-    return Q, g * delta
+    return Q, g * error
 
 
 def qmdp_vectors(

@@ -21,6 +21,8 @@ dense LU (:data:`SPARSE_DIRECT_SOLVE_SIZE`).
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from torchhrc._checks import broadcast_shapes
@@ -35,6 +37,19 @@ __all__: list[str] = []
 #: discount)`` (:func:`~torchhrc.solvers.qmdp.mdp_q_values` stops there when its tolerance
 #: lies below it)
 BRACKET_ROUND_OFF = 16.0 * float(torch.finfo(torch.float64).eps)
+
+
+def bracket_slack(weight: float) -> float:
+    """``k = w / (1 - w)``, the factor of the bracket of MacQueen (1966) around the fixed point
+    of a monotone operator whose weight on a constant is ``w`` (``F(v + c) - F(v) = w c``:
+    the discount times a row's sum of probabilities); ``inf`` (no bracket) unless
+    ``0 <= w < 1``.
+
+    Example:
+        >>> bracket_slack(0.95), bracket_slack(1.0)
+        (18.999999999999982, inf)
+    """
+    return weight / (1.0 - weight) if 0.0 <= weight < 1.0 else math.inf
 
 
 def flat_expect(T: torch.Tensor, V: torch.Tensor, *, per_action: bool = False) -> torch.Tensor:

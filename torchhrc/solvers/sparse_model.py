@@ -42,7 +42,11 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import POMDP
-from torchhrc.solvers._factored import DIRECT_SOLVE_SIZE, SPARSE_DIRECT_SOLVE_SIZE
+from torchhrc.solvers._factored import (
+    DIRECT_SOLVE_SIZE,
+    SPARSE_DIRECT_SOLVE_SIZE,
+    bracket_slack,
+)
 from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.sparse import SparsePOMDP, check_dense_size
@@ -409,7 +413,7 @@ def qmdp_iteration_np(
     # measured): a rise c >= 0 costs at most g s_max c a step, a fall c < 0 at least g s_min c
     sums = expect_np(np.ones(shape, dtype=R.dtype))
     w_hi, w_lo = g * float(sums.max()), g * float(sums.min())
-    slack_hi, slack_lo = (w / (1.0 - w) if w < 1.0 else math.inf for w in (w_hi, w_lo))
+    slack_hi, slack_lo = bracket_slack(w_hi), bracket_slack(w_lo)
     for _ in range(max_iterations):
         if deadline.passed():
             break

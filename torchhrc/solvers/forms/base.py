@@ -66,7 +66,7 @@ import torch
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import split_initial
 from torchhrc.solvers import backup_kernel
-from torchhrc.solvers._factored import Expectation
+from torchhrc.solvers._factored import Expectation, bracket_slack
 from torchhrc.solvers.backup import BackupResult
 from torchhrc.solvers.belief_tree import BeliefTree
 from torchhrc.solvers.blind import blind_policy
@@ -166,12 +166,12 @@ def _iterate_fib(start: torch.Tensor, step: Callable[[torch.Tensor], torch.Tenso
 
     A model's rows may sum to 1 only within its validation's tolerance, so the weight of a
     constant, ``F(1) - F(0)`` (``discount`` times each row's sum), is measured: ``k`` is
-    ``w / (1 - w)`` for its smallest entry ``w``, which keeps the bound valid when
-    ``max(d) <= 0`` (always, from an upper start); no shift is applied otherwise.
+    ``w / (1 - w)`` for its smallest entry ``w`` (:func:`~torchhrc.solvers._factored.\
+bracket_slack`), which keeps the bound valid when ``max(d) <= 0`` (always, from an upper
+    start); no shift is applied otherwise, nor where ``w`` is not below 1.
     """
     alpha = start
-    weight = float((step(torch.ones_like(start)) - step(torch.zeros_like(start))).min())
-    k = weight / (1.0 - weight) if 0.0 <= weight < 1.0 else 0.0
+    k = bracket_slack(float((step(torch.ones_like(start)) - step(torch.zeros_like(start))).min()))
     info["stop"] = "max_iterations"
     shifted = None  # the bound F(alpha) + k max(d) of the last step
     for i in range(max_iterations):
@@ -189,7 +189,7 @@ def _iterate_fib(start: torch.Tensor, step: Callable[[torch.Tensor], torch.Tenso
             info["stop"] = "converged"
             shifted = None
             break
-        shifted = stepped + k * hi if hi <= 0.0 else None
+        shifted = stepped + k * hi if hi <= 0.0 and math.isfinite(k) else None
         if shifted is not None and k * (hi - lo) < tol:
             info["stop"] = "converged"
             break

@@ -52,6 +52,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.util
 import shutil
 from pathlib import Path
@@ -205,8 +206,7 @@ def more_check_sets() -> dict[str, dict[str, object]]:
 
 def _shifted(model, by: float):  # type: ignore[no-untyped-def]
     """``model`` with every reward moved by ``by`` (all negative: values in the hundreds)."""
-    return type(model)(T=model.T, Z=model.Z, R=model.R + by, b0=model.b0,
-                       discount=model.discount)  # fmt: skip
+    return dataclasses.replace(model, R=model.R + by)
 
 
 def _stem(path: Path) -> str:

@@ -234,12 +234,11 @@ def pbvi(model: POMDP | MOMDP | SparsePOMDP, config: PBVIConfig | None = None) -
         upper_vectors = form.upper_vectors("fib", max(1e-9, config.precision * 1e-3))
     else:
         upper_vectors = form.upper_vectors("qmdp", 1e-8)
-    A, X, Y = form.num_actions, form.num_observed, form.num_hidden
     # the start: one root (x0, b0), or one per first x of a random start, weighted by P(x)
-    root_x, roots, weights = form.roots
-    by_x = upper_vectors.reshape(A, X, Y)
-    upper = sum(float(w) * float((by_x[:, x] @ b).max())
-                for x, b, w in zip(root_x.tolist(), roots, weights))  # fmt: skip
+    upper = form.value_at_roots(
+        AlphaVectorPolicy.from_action_vectors(upper_vectors, momdp=form.factored)
+    )
+    root_x, roots, _ = form.roots
     x0 = torch.from_numpy(root_x).to(device)
     policy = form.blind_policy(100_000)
     belief_set = _BeliefSet(x0, roots)

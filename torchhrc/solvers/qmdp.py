@@ -99,35 +99,36 @@ def mdp_q_values(
     k_lo, k_hi = w_lo / (1.0 - w_lo), w_hi / (1.0 - w_hi)
     if not bool(((w_hi < 1.0) & (w_lo >= 0.0)).all()):  # rows far from stochastic
         k_lo = k_hi = torch.full_like(w_lo, float("inf"))
-    error = residual = float("inf")
+    residual = float("inf")
+    bracket = None  # the last step's (middle, half-width) of V* - V, per problem
+    closed = False  # stopped by the bracket
     for _ in range(max_iterations):
         V_new = (model.R + g * E(V)).amax(action_dim)
         d = V_new - V
         V = V_new
         if not d.numel():
-            error = 0.0
+            residual = 0.0
             break
         hi, lo = d.amax(dim=state), d.amin(dim=state)  # (*batch,)
         upper = torch.where(hi >= 0, k_hi, k_lo) * hi  # V* - V <= upper
         lower = torch.where(lo >= 0, k_lo, k_hi) * lo  # V* - V >= lower
         residual = float(d.abs().max())
         if residual < threshold:
-            error = g * residual / (1.0 - g)  # the contraction bound on |V - V*|
+            bracket = None  # the contraction bound below
             break
         half = (upper - lower) / 2.0
+        bracket = ((upper + lower) / 2.0, half) if bool(torch.isfinite(half).all()) else None
         # the bracket cannot close below the round-off of d, amplified by k: near discount 1
         # and with large values, tol may lie below it (the bound is then that wide, and said)
         floor = BRACKET_ROUND_OFF * float(k_hi.max()) * float(V.abs().max())
-        if bool(torch.isfinite(half).all()) and float(half.max()) < max(tol, floor) / 2.0:
-            V = V + ((upper + lower) / 2.0).reshape(*V.shape[:batch], *(1,) * sd)
-            error = float(half.max())
+        if bracket is not None and float(half.max()) < max(tol, floor) / 2.0:
+            closed = True
             break
-    else:  # the cap: the narrower of the contraction bound and the bracket
-        error = g * residual / (1.0 - g)
-        if max_iterations > 0 and d.numel() and bool(torch.isfinite(half).all()):
-            if float(half.max()) < error:
-                V = V + ((upper + lower) / 2.0).reshape(*V.shape[:batch], *(1,) * sd)
-                error = float(half.max())
+    error = g * residual / (1.0 - g)  # the contraction bound on |V - V*|
+    # stopped by the bracket, or at the cap where the bracket is the narrower: its middle
+    if bracket is not None and (closed or float(bracket[1].max()) < error):
+        V = V + bracket[0].reshape(*V.shape[:batch], *(1,) * sd)
+        error = float(bracket[1].max())
     Q = model.R + g * E(V)
     return Q, g * error
 

@@ -125,7 +125,7 @@ def support_signatures(idx: np.ndarray, starts: np.ndarray) -> np.ndarray:
         >>> support_signatures(np.array([0, 2, 65]), np.array([0, 2])).tolist()
         [5, 2]
     """
-    bits = np.left_shift(np.int64(1), idx.astype(np.int64) & 63)
+    bits = np.left_shift(np.int64(1), idx.astype(np.int64, copy=False) & 63)
     return np.bitwise_or.reduceat(bits, starts)
 
 

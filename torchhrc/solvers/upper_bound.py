@@ -52,7 +52,8 @@ _CHUNK = 1 << 19
 _COMPACT_ENTRIES = 1 << 18  # support entries moved at once when a pruning compacts them
 _ROWS = np.arange(1024)  # row indices 0..B-1 of a query, sliced (read only)
 _ROWS.flags.writeable = False
-_ONE = np.int64(1)
+_FIRST = np.zeros(1, dtype=np.int64)  # one support, from entry 0 (support_signatures)
+_FIRST.flags.writeable = False
 
 
 class SawtoothUpperBound:
@@ -533,7 +534,7 @@ class SawtoothUpperBound:
         gain[n] = value - float(corner[x, idx] @ val)
         wid[n] = w
         mass[n] = val.sum()
-        sig[n] = np.bitwise_or.reduce(np.left_shift(_ONE, idx & 63))
+        sig[n] = support_signatures(idx, _FIRST)[0]
         self.size = n + 1
         self._add_member(x, n)
 

@@ -254,8 +254,9 @@ def _run_measured(cmd: list[str], timeout: float) -> tuple[int, str, float, floa
 
 
 def _read_suite_model(path: Path):  # type: ignore[no-untyped-def]
-    """A suite file as a model: ``.pomdp`` by :func:`read_pomdp` (sparse above 2000 states),
-    ``.pomdpx`` by ``torchhrc.io.read_pomdpx`` when that reader exists."""
+    """A suite file as a model: ``.pomdp`` by :func:`read_pomdp` (sparse for a file over 20 MB
+    or where dense tables would not fit, ``sparse="auto"``), ``.pomdpx`` by
+    ``torchhrc.io.read_pomdpx`` when that reader exists."""
     if path.suffix == ".pomdpx":
         import torchhrc.io as tio
 
@@ -263,7 +264,7 @@ def _read_suite_model(path: Path):  # type: ignore[no-untyped-def]
         if reader is None:
             raise NotImplementedError("torchhrc.io.read_pomdpx does not exist (no .pomdpx reader)")
         return reader(path)
-    sparse = path.stat().st_size > 20_000_000
+    sparse = True if path.stat().st_size > 20_000_000 else "auto"
     return read_pomdp(path, sparse=sparse)
 
 

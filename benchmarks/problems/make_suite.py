@@ -62,6 +62,7 @@ import torch
 from torchhrc.errors import ParseError
 from torchhrc.io.cassandra import read_pomdp, write_pomdp
 from torchhrc.io.pomdpx import write_pomdpx
+from torchhrc.pomdp import POMDP
 from torchhrc.tasks.classic import rock_sample, rock_sample_momdp, tag, tag_momdp
 from torchhrc.testing import random_momdp, random_pomdp
 
@@ -218,6 +219,8 @@ def _stem(path: Path) -> str:
 
 
 def _same(a, b) -> bool:  # type: ignore[no-untyped-def]
+    if not (isinstance(a, POMDP) and isinstance(b, POMDP)):
+        return False  # a sparse model (too large to hold densely) is not compared
     if (a.num_states, a.num_actions, a.num_observations) != (
         b.num_states,
         b.num_actions,
@@ -268,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{path.name}: copied as {stem}.pomdpx")
                 continue
             try:
-                model = read_pomdp(path)
+                model = read_pomdp(path, sparse="auto")  # sparse where dense would not fit
             except ParseError as err:
                 print(f"{path.name}: skipped (does not parse: {err})")
                 continue

@@ -748,14 +748,9 @@ def test_bins_predict_new_node_at_upper_and_clamps():
     assert bins.predict(1, 5.0, 0.0) == pytest.approx(2.0)
 
 
-def test_fib_near_discount_one_stops_by_the_span_bound():
-    """At discount 0.9999 plain iteration closes 1e-4 of the excess a step; the bound of
-    MacQueen (1966) stops it within ``tol`` of the fixed point after a few steps. The
-    reference is the fixed point by policy iteration over FIB's choices (exact linear
+def _fib_fixed_point(model) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """``(A, S)`` the FIB fixed point by policy iteration over FIB's choices (exact linear
     solves)."""
-    from torchhrc.solvers.forms import as_solver_model
-
-    model = random_pomdp(6, 3, 3, seed=605, discount=0.9999)
     T, Z, R, g = model.T.numpy(), model.Z.numpy(), model.R.numpy(), model.discount
     A, S, O = Z.shape
     alpha = np.zeros((A, S))
@@ -772,8 +767,55 @@ def test_fib_near_discount_one_stops_by_the_span_bound():
         alpha = new
         if done:
             break
+    return alpha
+
+
+def test_fib_near_discount_one_stops_by_the_span_bound():
+    """At discount 0.9999 plain iteration closes 1e-4 of the excess a step; the bound of
+    MacQueen (1966) stops it within ``tol`` of the fixed point after a few steps. The
+    reference is the fixed point by policy iteration over FIB's choices."""
+    from torchhrc.solvers.forms import as_solver_model
+
+    model = random_pomdp(6, 3, 3, seed=605, discount=0.9999)
+    alpha = _fib_fixed_point(model)
     got, info = as_solver_model(model).fib_vectors(1e-6)
     assert info["stop"] == "converged" and info["iterations"] < 1_000
     diff = got.numpy() - alpha
     assert diff.min() >= -1e-6  # an upper bound of the fixed point (up to the solves)
     assert diff.max() <= 2e-6  # and within tol of it
+
+
+def test_qmdp_and_fib_stop_within_tol_when_values_creep():
+    """A change below ``tol`` is not convergence near discount 1: where most of the value
+    leaks slowly into an absorbing state of reward 0 (pomdp.org's ``baseball``), QMDP from
+    zero rises by less than ``tol`` a step while ``gamma / (1 - gamma)`` times that still
+    separates it from the fixed point (0.006 at ``baseball``'s ``b0``). Both iterations must
+    stop within ``tol`` of their fixed points: QMDP's by an exact linear solve of the
+    optimal policy's values, FIB's by policy iteration."""
+    from torchhrc.pomdp import POMDP
+    from torchhrc.solvers.forms import as_solver_model
+    from torchhrc.solvers.sparse_model import qmdp_iteration_np
+
+    g, leak = 0.999, 0.002
+    T = torch.zeros(2, 3, 3, dtype=torch.float64)
+    for a in range(2):  # states 0 and 1 leak into 2 (absorbing); action a keeps state a
+        T[a, a, a], T[a, a, 2] = 1.0 - leak, leak
+        T[a, 1 - a, 1 - a], T[a, 1 - a, 2] = 1.0 - 4 * leak, 4 * leak
+    T[:, 2, 2] = 1.0
+    Z = torch.tensor([[0.8, 0.2], [0.3, 0.7], [0.5, 0.5]], dtype=torch.float64).expand(2, 3, 2)
+    R = torch.tensor([[1.0, 0.2, 0.0], [0.3, 0.9, 0.0]], dtype=torch.float64)
+    model = POMDP(T=T, Z=Z.clone(), R=R, b0=torch.tensor([0.5, 0.5, 0.0], dtype=torch.float64),
+                  discount=g)  # fmt: skip
+    tol = 1e-6
+    # QMDP: the optimal MDP policy (action a in state a) and its exact values
+    policy = torch.tensor([0, 1, 0])
+    P = T[policy, torch.arange(3)].numpy()
+    V = np.linalg.solve(np.eye(3) - g * P, R[policy, torch.arange(3)].numpy())
+    Q = R.numpy() + g * T.numpy() @ V
+    expect = lambda v: T.numpy() @ v  # noqa: E731
+    got = qmdp_iteration_np(R.numpy(), g, expect, tol)
+    assert (got - Q).min() >= -1e-9 and (got - Q).max() <= tol  # the old stop: 1e-3
+    fib, info = as_solver_model(model).fib_vectors(tol)
+    diff = fib.numpy() - _fib_fixed_point(model)
+    assert info["stop"] == "converged"
+    assert diff.min() >= -1e-9 and diff.max() <= tol

@@ -151,6 +151,43 @@ O: * uniform
     assert m.R.abs().sum() == 0
 
 
+@pytest.mark.parametrize("sparse", [False, True])
+def test_wildcard_action_entries_in_runs_override_in_file_order(sparse):
+    """Runs of ``O: * : s2 : o p`` (Hallway's form, read by the vectorised path) set every
+    action; a later specific entry overrides its action only, an even later wildcard all
+    again, exactly as the entries one by one (worked by hand)."""
+    text = """discount: 0.9
+values: reward
+states: 2
+actions: 3
+observations: 2
+T: * : 0 : 0 1.0
+T: * : 1 : 1 1.0
+T: 2 : 1 : 0 0.5
+T: 2 : 1 : 1 0.5
+O: * : 0 : 0 0.25
+O: * : 0 : 1 0.75
+O: * : 1 : 0 1.0
+O: 1 : 0 : 0 0.5
+O: 1 : 0 : 1 0.5
+O: * : 1 : 0 0.0
+O: * : 1 : 1 1.0
+R: * : 0 : * : * 1.0
+R: 1 : 0 : * : * 2.0
+"""
+    m = parse_pomdp(text, sparse=sparse)
+    if sparse:
+        m = m.to_dense()
+    T, Z = m.T, m.Z
+    eye = torch.eye(2, dtype=torch.float64)
+    assert torch.equal(T[0], eye) and torch.equal(T[1], eye)
+    assert torch.equal(T[2], torch.tensor([[1.0, 0.0], [0.5, 0.5]], dtype=torch.float64))
+    z = torch.tensor([[0.25, 0.75], [0.0, 1.0]], dtype=torch.float64)
+    assert torch.equal(Z[0], z) and torch.equal(Z[2], z)
+    assert torch.equal(Z[1], torch.tensor([[0.5, 0.5], [0.0, 1.0]], dtype=torch.float64))
+    assert m.R[:, 0].tolist() == [1.0, 2.0, 1.0] and m.R[:, 1].tolist() == [0.0, 0.0, 0.0]
+
+
 def test_classic_tiger_file_equals_tasks_classic_tiger():
     _assert_same(read_pomdp(TIGER_TEXT), tiger())
     assert read_pomdp(TIGER_TEXT).actions == tiger().actions

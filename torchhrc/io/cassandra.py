@@ -624,8 +624,10 @@ class _FastEntries:
 
     Matches, token by token, runs of ``T: a : s : s2 p`` / ``O: a : s2 : o p`` (8 tokens) and
     ``R: a : s : * : * v`` (10 tokens) with numpy on the token array; any irregularity ends the
-    run and the entry is left to the general parser (which reports errors precisely).
-    Within a run a later entry overrides an earlier one, as in file order.
+    run and the entry is left to the general parser (which reports errors precisely). The
+    action may be ``*`` (every action: Hallway's ``O: * : s2 : o p``, 840 of its 2,880
+    entries), the other indices may not. Within a run a later entry overrides an earlier one,
+    as in file order.
     """
 
     def __init__(self, p: _Parser, stores: dict, lookup: dict, sizes: tuple) -> None:
@@ -633,8 +635,9 @@ class _FastEntries:
         self.tokens = np.array(p.tokens, dtype=object)
         self.stores = stores
         A, S, O = sizes
+        self.num_actions = A
         self.maps = {
-            "action": _index_map(lookup["actions"], A),
+            "action": {**_index_map(lookup["actions"], A), "*": -1},  # -1: every action
             "state": _index_map(lookup["states"], S),
             "observation": _index_map(lookup["observations"], O),
         }
@@ -654,7 +657,7 @@ class _FastEntries:
         # numpy block below at every entry, 70 % of its reading time
         for e in (p.i, p.i + width):
             fits = (tk[e] == kind and tk[e + 1] == ":" and tk[e + 3] == ":" and tk[e + 5] == ":"
-                    and tk[e + 2] != "*" and tk[e + 4] != "*")  # fmt: skip
+                    and tk[e + 4] != "*")  # fmt: skip
             if kind == "R":
                 fits = fits and tk[e + 6] == "*" and tk[e + 7] == ":" and tk[e + 8] == "*"
             else:
@@ -664,7 +667,7 @@ class _FastEntries:
                 return None
         block = tk[p.i : p.i + n * width].reshape(n, width)
         ok = (block[:, 0] == kind) & (block[:, 1] == ":") & (block[:, 3] == ":")
-        ok &= (block[:, 5] == ":") & (block[:, 2] != "*") & (block[:, 4] != "*")
+        ok &= (block[:, 5] == ":") & (block[:, 4] != "*")
         if kind == "R":
             ok &= (block[:, 6] == "*") & (block[:, 7] == ":") & (block[:, 8] == "*")
         else:
@@ -685,6 +688,14 @@ class _FastEntries:
         if not np.isfinite(values).all():
             return None
         entry = p.i + width * np.arange(count)
+        if (a < 0).any():  # '*': one entry per action, in place (file order kept)
+            star = a < 0
+            reps = np.where(star, self.num_actions, 1)
+            src = np.repeat(np.arange(count), reps)
+            within = np.arange(len(src)) - (np.cumsum(reps) - reps)[src]
+            a = np.where(star[src], within, a[src])
+            i, values, entry = i[src], values[src], entry[src]
+            j = None if j is None else j[src]
         if kind == "R":
             rewards.append((a, i, slice(None), slice(None), values))
             p.i += count * width

@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import math
 import os
@@ -392,3 +393,29 @@ def test_suite_goals_compare_bounds_at_equal_cpu() -> None:
     assert bench._goal_lines([fast, slow], 1e-3)[2].endswith(
         "lower ok; time SLOWER; memory ok; load ok |"
     )
+
+
+def test_make_suite_rewrites_a_model_too_large_to_hold_densely(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``make_suite --from`` reads each file with ``sparse="auto"``: a file whose dense tables
+    would not fit (pomdp.org's baseball, 7,681 states; here Tiger with the threshold lowered)
+    is re-written in sparse form, to the same model; duplicates and undiscounted files are
+    skipped."""
+    import torchhrc.io.cassandra as cassandra
+    from torchhrc.tasks.classic import tiger
+
+    src = tmp_path / "src"
+    src.mkdir()
+    write_pomdp(tiger(), src / "tiger.pomdp")
+    write_pomdp(tiger(), src / "tiger_twice.pomdp")  # the same problem: skipped
+    undiscounted = dataclasses.replace(tiger(), discount=1.0)
+    write_pomdp(undiscounted, src / "undiscounted.pomdp")
+    monkeypatch.setattr(cassandra, "AUTO_SPARSE_ENTRIES", 5)
+    out = tmp_path / "out"
+    assert _make_suite().main(["--out", str(out), "--from", str(src), "--no-random"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["tiger.pomdp"]
+    back = read_pomdp(out / "tiger.pomdp", sparse=True).to_dense()
+    ref = tiger()
+    for name in ("T", "Z", "R", "b0"):
+        assert torch.allclose(getattr(back, name), getattr(ref, name), atol=1e-6), name

@@ -296,3 +296,20 @@ def test_mdp_values_near_discount_one_stop_by_the_bracket():
         Qi, erri = mdp_q_values(one, tol=1e-6, max_iterations=1_000)
         assert erri <= 1e-6
         torch.testing.assert_close(Qb[i], Qi, atol=3e-6, rtol=0)
+
+
+def test_batched_fib_stops_within_tol_of_its_fixed_point_near_discount_one():
+    # a change below tol alone leaves the iterate up to tol * discount / (1 - discount) above
+    # the fixed point (here 999 tol); the batched path stops by MacQueen's bracket, as the
+    # form's iteration does. The fixed point: the same iteration run to 1e-13.
+    model = random_pomdp(6, 3, 3, seed=31, discount=0.999)
+    batch = _batch_of_one(model)
+    fixed = fib_vectors(batch, tol=1e-13)[0]
+    loose = torch.full_like(batch.R, float(model.R.max()) / (1.0 - model.discount))
+    for tol in (1e-3, 1e-5):
+        one = fib_vectors(model, tol=tol)  # the form's path
+        for start in (None, loose):  # from QMDP, and from a loose constant upper bound
+            got = fib_vectors(batch, tol=tol, initial=start)[0]
+            assert bool((got >= fixed - 1e-9).all())  # still an upper bound on the fixed point
+            assert float((got - fixed).max()) <= tol  # before: 0.998 at tol 1e-3
+            assert float((got - one).abs().max()) <= tol

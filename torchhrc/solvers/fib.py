@@ -118,7 +118,8 @@ def fib_vectors(
     Args:
         model: a POMDP or MOMDP (leading batch dims allowed), or an unbatched
             :class:`~torchhrc.sparse.SparsePOMDP` / :class:`~torchhrc.sparse_momdp.SparseMOMDP`.
-        tol: stop when the largest change of an iteration is below ``tol``.
+        tol: stop within ``tol`` of FIB's fixed point (MacQueen's bracket or the
+            contraction bound, as ``forms.base._iterate_fib``).
         max_iterations: cap on the iterations.
         initial: starting vectors, which must be an upper bound (default: QMDP).
 
@@ -139,14 +140,16 @@ def fib_vectors(
         return bound_form(model).fib_vectors(tol, NEVER, max_iterations)[0]
     model = check_model(model)
     check_unit_discount(model, "FIB")
+    from torchhrc.solvers.forms.base import _iterate_fib  # (the forms import this module)
+
     alpha = qmdp_vectors(model, tol=tol) if initial is None else initial
-    for _ in range(max_iterations):
-        new = torch.minimum(fib_backup(model, alpha), alpha)  # monotone: stays an upper bound
-        change = (alpha - new).abs().max().item() if new.numel() else 0.0
-        alpha = new
-        if change < tol:
-            break
-    return alpha
+    # the same iteration and stopping rule as the form's: a change below tol alone stops
+    # discount / (1 - discount) times too early (over a batch, the bracket is taken over all
+    # its members, which is valid for each and stops no earlier than each would)
+    def step(vectors: torch.Tensor) -> torch.Tensor:
+        return fib_backup(model, vectors)
+
+    return _iterate_fib(alpha, step, tol, NEVER, max_iterations, {}, model.discount)
 
 
 def fib_policy(model: AnyModel, *, tol: float = 1e-8) -> AlphaVectorPolicy:

@@ -143,6 +143,7 @@ def fib_vectors(
     from torchhrc.solvers.forms.base import _iterate_fib  # (the forms import this module)
 
     alpha = qmdp_vectors(model, tol=tol) if initial is None else initial
+
     # the same iteration and stopping rule as the form's: a change below tol alone stops
     # discount / (1 - discount) times too early (over a batch, the bracket is taken over all
     # its members, which is valid for each and stops no earlier than each would)

@@ -419,3 +419,24 @@ def test_make_suite_rewrites_a_model_too_large_to_hold_densely(
     ref = tiger()
     for name in ("T", "Z", "R", "b0"):
         assert torch.allclose(getattr(back, name), getattr(ref, name), atol=1e-6), name
+
+
+def test_task_check_set_is_the_studies_momdps_with_flatter_hand_rows_at_more_noise() -> None:
+    """``make_suite --check-set tasks``: the hand-finishing MOMDP at the study's size (975
+    observed values, 2 types, 7 actions, 48 hand observations) at three noise levels, and the
+    place-and-drill MOMDP; more hand noise spreads each observation row (higher entropy), and
+    the task's dynamics and rewards do not depend on the noise."""
+    problems = _make_suite().task_check_set()
+    assert sorted(problems) == [
+        "t_handfinish_n10.pomdpx", "t_handfinish_n20.pomdpx", "t_handfinish_n40.pomdpx",
+        "t_place_drill.pomdpx",
+    ]  # fmt: skip
+    hands = [problems[f"t_handfinish_n{n}.pomdpx"] for n in ("10", "20", "40")]
+    for m in hands:
+        assert (m.num_actions, m.num_observed, m.num_hidden, m.num_observations) == (7, 975, 2, 48)
+        assert torch.equal(m.Tx, hands[0].Tx) and torch.equal(m.R, hands[0].R)
+    entropy = [float(-(m.Z * m.Z.clamp(min=1e-300).log()).sum(-1).mean()) for m in hands]
+    assert entropy[0] < entropy[1] < entropy[2]
+    drill = problems["t_place_drill.pomdpx"]
+    assert drill.num_observed == 27 and drill.num_hidden == 2
+    torch.testing.assert_close(drill.b0, torch.full((2,), 0.5, dtype=torch.float64))

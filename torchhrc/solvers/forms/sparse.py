@@ -112,9 +112,9 @@ class SparseForm(FlatFields, SolverModel):
     def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
                  generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
         """One sampled step: ``s ~ b``, ``s2 ~ T[a, s, .]`` among the stored successors,
-        ``o ~ Z[a, s2, .]``, then the Bayes update ``b2 ~ (b T_a) Z[a, ., o]`` (a uniform
-        placeholder where ``P(o) = 0``, as :func:`torchhrc.belief.update` with
-        ``on_zero="ninf"``)."""
+        ``o ~ Z[a, s2, .]``, then the Bayes update ``b2 ~ (b T_a) Z[a, ., o]`` (the uniform
+        belief where ``P(o) = 0``, which a sampled ``o`` never has, as
+        :func:`torchhrc.belief.update` with ``on_zero="ninf"``)."""
         sp = self.sparse
         s = sample_categorical(beliefs, generator)
         nxt, prob = sp.successors(actions, s)  # (M, W)

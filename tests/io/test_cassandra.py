@@ -188,6 +188,48 @@ R: 1 : 0 : * : * 2.0
     assert m.R[:, 0].tolist() == [1.0, 2.0, 1.0] and m.R[:, 1].tolist() == [0.0, 0.0, 0.0]
 
 
+@pytest.mark.parametrize("sparse", [False, True])
+def test_identity_overrides_earlier_entries_of_its_action_and_later_ones_override_it(sparse):
+    """``T: a identity`` sets the action's whole matrix: entries of that action before it are
+    gone (the sparse reader drops them at the end instead of writing S x S zeros), other
+    actions keep theirs, and entries after it override it (worked by hand)."""
+    text = """discount: 0.9
+values: reward
+states: 3
+actions: 2
+observations: 1
+T: * : 0 : 2 1.0
+T: * : 1 : 2 1.0
+T: * : 2 : 0 1.0
+T: 0 identity
+T: 0 : 2 : 2 0.0
+T: 0 : 2 : 1 1.0
+O: * uniform
+"""
+    m = parse_pomdp(text, sparse=sparse)
+    if sparse:
+        m = m.to_dense()
+    f = torch.float64
+    assert torch.equal(m.T[0], torch.tensor([[1, 0, 0], [0, 1, 0], [0, 1, 0]], dtype=f))
+    assert torch.equal(m.T[1], torch.tensor([[0, 0, 1], [0, 0, 1], [1, 0, 0]], dtype=f))
+
+
+def test_sparse_reader_takes_an_identity_at_rocksample_7_8_size_and_a_long_name_list():
+    # before: the identity wrote 13 x 12545^2 zeros (refused: too many cells), and the
+    # duplicate check of 12,545 state names was quadratic
+    names = " ".join(f"s{i}" for i in range(12545))
+    text = (f"discount: 0.95\nstates: {names}\nactions: 13\nobservations: 3\n"
+            "T: * identity\nO: * : * : 0 1.0\n")  # fmt: skip
+    m = parse_pomdp(text, sparse=True)
+    index, values = m.transitions
+    assert index.shape == (13 * 12545, 3) and bool((values == 1.0).all())
+    assert torch.equal(index[:, 1], index[:, 2])  # the diagonal
+    assert m.states[-1] == "s12544"
+    with pytest.raises(ParseError, match="duplicate name 's7'") as info:
+        parse_pomdp(text.replace("s12544", "s7"), sparse=True)
+    assert info.value.line == 2
+
+
 def test_classic_tiger_file_equals_tasks_classic_tiger():
     _assert_same(read_pomdp(TIGER_TEXT), tiger())
     assert read_pomdp(TIGER_TEXT).actions == tiger().actions

@@ -186,13 +186,15 @@ class _Parser:
                 raise self.error(f"expected a positive number of {what}, found {tok}", self.i - 1)
             return n, None
         names: list[str] = []
+        seen: set[str] = set()  # (a list's `in` made the check quadratic: 12,545 states)
         while self.peek() is not None and not self._at_keyword():
             start = self.i
             name = self.next(what)
             if not _NAME.match(name):
                 raise self.error(f"invalid name {name!r} in the list of {what}", start)
-            if name in names:
+            if name in seen:
                 raise self.error(f"duplicate name {name!r} in the list of {what}", start)
+            seen.add(name)
             names.append(name)
         if not names:
             raise self.error(f"expected a count or a list of names for {what}")
@@ -543,7 +545,13 @@ class _SparseTable:
         self.keys: list[np.ndarray] = []
         self.values: list[np.ndarray] = []
         self.tokens: list[np.ndarray] = []
-        self.cells = 0
+        self.cells = 0  # cells of the wildcard and matrix assignments (the size limit)
+        self.length = 0  # cells appended so far, all kinds
+        # action -> number of cells appended before its last ``identity``: that assignment
+        # sets the action's whole matrix, so every earlier cell of it is dropped at the end
+        # (writing S x N zeros instead made ``T: * identity`` at RockSample(7,8)'s size 2e9
+        # cells, refused as too many)
+        self.cleared: dict[int, int] = {}
 
     def _axis(self, index: Any, size: int) -> np.ndarray:
         return np.arange(size) if isinstance(index, slice) else np.array([index])
@@ -563,11 +571,14 @@ class _SparseTable:
         self.keys.append(keys)
         self.values.append(np.array(values))
         self.tokens.append(np.full(count, token, dtype=np.int64))
+        self.length += count
 
     def identity(self, p: _Parser, a: Any, token: int) -> None:
         A, S, N = self.shape
-        for act in self._axis(a, A):  # the identity touches every cell: zeros override too
-            self.fill(p, int(act), slice(None), slice(None), 0.0, token)
+        for act in self._axis(a, A):
+            self.cleared[int(act)] = self.length
+            self.length += S
+            self.cells += S
             diagonal = (int(act) * S + np.arange(S)) * N + np.arange(S)
             self.keys.append(diagonal)
             self.values.append(np.ones(S))
@@ -578,6 +589,7 @@ class _SparseTable:
         self.keys.append((a * S + i) * N + j)
         self.values.append(values)
         self.tokens.append(np.asarray(tokens, dtype=np.int64))
+        self.length += len(self.keys[-1])
 
     def finish(self, p: _Parser) -> tuple[np.ndarray, np.ndarray]:
         A, S, N = self.shape
@@ -587,6 +599,11 @@ class _SparseTable:
             tokens = np.concatenate(self.tokens)
         else:
             keys = values = tokens = np.zeros(0, dtype=np.int64)
+        if self.cleared:  # cells set before their action's last identity: overwritten
+            cut = np.zeros(A, dtype=np.int64)
+            cut[list(self.cleared)] = list(self.cleared.values())
+            keep = np.arange(len(keys)) >= cut[keys // (S * N)]
+            keys, values, tokens = keys[keep], values[keep], tokens[keep]
         uniq, last = np.unique(keys[::-1], return_index=True)
         pick = len(keys) - 1 - last
         keys, values, tokens = uniq, values[pick].astype(np.float64), tokens[pick]

@@ -772,9 +772,10 @@ def _parse_start(
 
 def _check_rows(p: _Parser, name: str, table: np.ndarray, where: np.ndarray) -> None:
     """Every row in [0, 1] and summing to 1 within tolerance; renormalise tiny drifts."""
-    bad_value = (table < 0) | (table > 1)
-    if bad_value.any():
-        a, s, k = (int(v) for v in np.argwhere(bad_value)[0])
+    # one pass for the common case (the masks only to locate an offending entry: on a large
+    # dense table, three boolean temporaries of its size cost page faults on every read)
+    if table.size and (table.min() < 0 or table.max() > 1):
+        a, s, k = (int(v) for v in np.argwhere((table < 0) | (table > 1))[0])
         raise _row_error(
             p,
             name,

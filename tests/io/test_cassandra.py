@@ -371,6 +371,15 @@ def test_missing_file_and_path_in_message(tmp_path):
     assert info.value.path == str(bad) and info.value.line == 5
 
 
+@pytest.mark.parametrize("sparse", [False, True])
+def test_probability_out_of_range_names_its_cell_and_the_entry_line(sparse):
+    text = "discount: 0.9\nstates: 2\nactions: 1\nobservations: 1\nT: 0 identity\nO: 0 uniform\n"
+    text += "T: 0 : 1 : 0 1.5\nT: 0 : 1 : 1 -0.5\n"  # the row sums to 1: only the range fails
+    with pytest.raises(ParseError, match=r"T\[0, 1, 0\] = 1\.5 is not a probability") as info:
+        parse_pomdp(text, sparse=sparse)
+    assert info.value.line == 8  # the row's last entry (the reader keeps one line per row)
+
+
 def test_unnormalised_row_names_the_entry_line():
     text = "discount: 0.9\nstates: 2\nactions: 1\nobservations: 1\nT: 0 identity\nO: 0 uniform\n"
     text += "T: 0 : 1 : 0 0.5\n"

@@ -308,6 +308,25 @@ def test_sparse_model_writes_the_same_file_as_its_dense_form():
     assert format_pomdp(SparsePOMDP.from_dense(m)) == format_pomdp(m)
 
 
+def test_repeated_coordinates_of_a_sparse_model_are_written_summed():
+    # a coordinate list may repeat a cell (the solvers sum it); the file holds one line per
+    # cell with the sum, where two lines would have read back as the later one alone
+    sp = SparsePOMDP.from_dense(tiger())
+    (ti, tp), (zi, zp) = sp.transitions, sp.observations_
+    split = SparsePOMDP(
+        transitions=(torch.cat([ti, ti]), torch.cat([tp * 0.25, tp * 0.75])),
+        observations_=(torch.cat([zi, zi, zi]), torch.cat([zp, zp, zp]) / 3),
+        R=sp.R, b0=sp.b0, discount=sp.discount,
+        states=sp.states, actions=sp.actions, observations=sp.observations,
+    )  # fmt: skip
+    text = format_pomdp(split)
+    assert text.count("\nT: ") == format_pomdp(sp).count("\nT: ")
+    back = parse_pomdp(text)
+    ref = tiger()
+    for name in ("T", "Z"):
+        torch.testing.assert_close(getattr(back, name), getattr(ref, name), rtol=0, atol=1e-15)
+
+
 def test_write_is_atomic_and_leaves_no_temp_files(tmp_path):
     target = tmp_path / "t.pomdp"
     write_pomdp(tiger(), target)

@@ -165,6 +165,27 @@ def test_fib_corner_values_sparse_equal_dense(build) -> None:
     torch.testing.assert_close(sparse, dense, atol=1e-6, rtol=0)
 
 
+def test_fib_step_over_pairs_equals_the_product_over_every_observation() -> None:
+    """One FIB step of the sparse path (over the pairs of a nonzero of T and a nonzero of Z)
+    against the formula on dense tensors, on a model where most observations are impossible
+    after most states (Z keeps one or two outcomes a row), and on RockSample."""
+    g = torch.Generator().manual_seed(7)
+    m = _sparse_random(S=15, A=3, O=6, seed=7)
+    mask = torch.rand(m.Z.shape, generator=g, dtype=torch.float64) < 0.25
+    mask[..., 0] = True
+    Z = torch.where(mask, m.Z, 0.0)
+    sparse_z = POMDP(T=m.T, Z=Z / Z.sum(-1, keepdim=True), R=m.R, b0=m.b0, discount=m.discount)
+    rng = np.random.default_rng(0)
+    for model in (sparse_z, rock_sample(4, 4)):
+        form = SparseFlatModel.from_model(model)
+        alpha = rng.normal(size=(model.num_actions, model.num_states))
+        A, S, O = model.num_actions, model.num_states, model.num_observations
+        T, Zd = model.T.numpy(), model.Z.expand(A, S, O).numpy()
+        by_hand = np.einsum("ast,ato,bt->asob", T, Zd, alpha).max(-1).sum(-1)
+        want = model.R.numpy() + model.discount * by_hand
+        np.testing.assert_allclose(form.fib_np(alpha), want, rtol=0, atol=1e-12)
+
+
 def test_sawtooth_on_columns_equals_full_rows() -> None:
     g = torch.Generator().manual_seed(3)
     Y = 40

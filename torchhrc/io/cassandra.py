@@ -927,12 +927,17 @@ def _entries(
     """Single-entry lines for the nonzeros; ``*`` for the state when every row of an action
     is the same, and for the action when every action has the same entries."""
     index, prob = coo
-    index = index.cpu().numpy()
-    prob = prob.double().cpu().numpy()
+    index = index.cpu().numpy().astype(np.int64, copy=False)
+    N = len(second)
+    # one line per cell, sorted by (a, s, j): repeated coordinates are summed, as the solvers
+    # read a coordinate list (a file's later line would override an earlier one instead)
+    cells, inverse = np.unique((index[:, 0] * S + index[:, 1]) * N + index[:, 2],
+                               return_inverse=True)  # fmt: skip
+    prob = np.bincount(inverse.reshape(-1), weights=prob.double().cpu().numpy(),
+                       minlength=cells.size)  # fmt: skip
+    index = np.stack([cells // (S * N), (cells // N) % S, cells % N], 1)
     keep = prob != 0
     index, prob = index[keep], prob[keep]
-    order = np.lexsort((index[:, 2], index[:, 1], index[:, 0]))
-    index, prob = index[order], prob[order]
     bounds = np.searchsorted(index[:, 0], np.arange(A + 1))
     payloads = []
     for a in range(A):

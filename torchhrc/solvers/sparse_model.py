@@ -126,6 +126,7 @@ class SparseFlatModel:
         # so row sums are plain gathers
         self._one_per_row = vals.size == A * S and bool((np.diff(self._ptr) == 1).all())
         self.nnz = int(vals.size)
+        self._pairs: tuple[np.ndarray, ...] | None = None  # FIB's (T, Z) pairs, on first use
         # torch CSR: T[a] (S, S) per action and the stacked transposes (A S, S)
         self.T_csr = [
             _csr(
@@ -258,22 +259,44 @@ class SparseFlatModel:
 
             R[a, s] + gamma sum_o max_a2 sum_s2 T[a, s, s2] Z[a, s2, o] alpha[a2, s2]
 
-        one gather of the ``(O, A2)`` products per nonzero of ``T`` and a sum per row.
+        over the pairs of a nonzero of ``T`` and a nonzero of ``Z`` in the row it leads to
+        (:meth:`_fib_pairs`): one ``(A2,)`` product per pair, summed per ``(a, s, o)``. The
+        work is ``A2`` times the pairs, where a product over every observation was ``O A2``
+        per nonzero of ``T`` (a random sparse model of 5,000 states, 16 observations, 3
+        possible a state: 330 ms a step, so SARSOP's initial bound stopped on its budget).
         """
         A, S, O = self.num_actions, self.num_states, self.num_observations
-        Z = self.Z.numpy()
-        Yv = Z[:, :, :, None] * alpha.T[None, :, None, :]  # (A, S2, O, A2)
-        Yv = Yv.reshape(A * S, O * A)
-        G = Yv[self._acol] * self._val[:, None]  # (nnz, O A2)
-        if self._one_per_row:
-            rows = G
-        else:
-            rows = np.zeros((A * S, O * A), dtype=alpha.dtype)
-            starts = self._ptr[:-1]
-            nonempty = self._ptr[1:] > starts
-            rows[nonempty] = np.add.reduceat(G, starts[nonempty], axis=0)
-        best = rows.reshape(A, S, O, A).max(-1).sum(-1)
-        return self.R.numpy() + self.discount * best
+        zval, tval, col, starts, cells = self._fib_pairs()
+        # the products as (Z alpha) T, summed in T's order, and the sum over o of a dense
+        # (A, S, O): the same floats as the product over every observation
+        contrib = (zval[:, None] * alpha.T[col]) * tval[:, None]  # (P, A2)
+        sums = np.add.reduceat(contrib, starts, axis=0)  # (U, A2): per (a, s, o)
+        best = np.zeros(A * S * O, dtype=contrib.dtype)
+        best[cells] = sums.max(1)
+        return self.R.numpy() + self.discount * best.reshape(A, S, O).sum(-1)
+
+    def _fib_pairs(self) -> tuple[np.ndarray, ...]:
+        """The pairs ``(t, z)`` of a nonzero ``t`` of ``T`` (row ``(a, s)``, column ``s2``) and
+        a nonzero ``z`` of ``Z[a, s2]`` (observation ``o``), sorted by ``(a, s, o)`` (stable:
+        within a group in ``T``'s order), built once: ``Z`` values, ``T`` values, ``s2``
+        ``(P,)`` each, the start of each ``(a, s, o)`` group ``(U,)`` and its cell
+        ``(a S + s) O + o`` ``(U,)``."""
+        if self._pairs is None:
+            A, S, O = self.num_actions, self.num_states, self.num_observations
+            Z = self.Z.numpy().reshape(A * S, O)
+            zr, zo = np.nonzero(Z)  # row-major: sorted by the row a S + s2
+            zptr = np.searchsorted(zr, np.arange(A * S + 1))
+            first = zptr[self._acol]
+            counts = zptr[self._acol + 1] - first  # (nnz,) observations after each nonzero
+            t = np.repeat(np.arange(self.nnz), counts)
+            ends = np.cumsum(counts)
+            z = np.repeat(first - (ends - counts), counts) + np.arange(int(ends[-1]))
+            key = self._row[t] * O + zo[z]  # (a S + s) O + o
+            order = np.argsort(key, kind="stable")
+            key, t, z = key[order], t[order], z[order]
+            starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+            self._pairs = (Z[zr[z], zo[z]], self._val[t], self._col[t], starts, key[starts])
+        return self._pairs
 
     # -- torch, batched --------------------------------------------------------------------------
     def predict(self, beliefs: torch.Tensor) -> torch.Tensor:

@@ -90,7 +90,9 @@ def test_sarsop_reads_and_solves_sparsely_above_the_dense_threshold(
     code, out, _ = _run(capsys, "solve", tiger_file, "--precision", "0.5", "--json", "--quiet")
     assert code == 0 and json.loads(out)["sparse"] is False
     # Tiger's dense T has 12 entries: above a threshold of 4 it is read and solved sparsely
+    # (its T is dense: the fraction that would keep it dense is lifted out of reach)
     monkeypatch.setattr(cassandra, "AUTO_SPARSE_ENTRIES", 4)
+    monkeypatch.setattr(cassandra, "AUTO_DENSE_FRACTION", 2.0)
     code, out, _ = _run(capsys, "solve", tiger_file, "--precision", "0.5", "--json", "--quiet")
     report = json.loads(out)
     assert code == 0 and report["sparse"] is True and report["solver"] == "sarsop"

@@ -512,3 +512,28 @@ def test_tokens_are_the_grammar_tokens(text: str) -> None:
 
     want = [t for t in _TOKEN.findall(text) if t]
     assert _Parser(text, "<text>").tokens == want
+
+
+def test_auto_reads_large_sparse_models_sparsely_and_dense_ones_densely(monkeypatch):
+    """``sparse="auto"`` above ``AUTO_SPARSE_ENTRIES``: a model whose T has few nonzeros
+    stays sparse; one whose T is dense, or whose rewards depend on the next state, comes back
+    dense with the same tensors as a dense read."""
+    import torchhrc.io.cassandra as cassandra
+
+    monkeypatch.setattr(cassandra, "AUTO_SPARSE_ENTRIES", 20)  # below every model here
+    ring = rock_sample(4, 4)  # deterministic moves: 1 in 257 entries of T nonzero
+    assert isinstance(parse_pomdp(format_pomdp(ring), sparse="auto"), SparsePOMDP)
+    dense_t = random_pomdp(6, 2, 3, seed=4)  # every entry of T nonzero
+    back = parse_pomdp(format_pomdp(dense_t), sparse="auto")
+    assert isinstance(back, POMDP)
+    _assert_same(back, parse_pomdp(format_pomdp(dense_t)))
+    monkeypatch.setattr(cassandra, "AUTO_DENSE_FRACTION", 2.0)  # never dense by density
+    # a reward on the next state (the sparse reader refuses it) keeps Tiger dense
+    s2_rewards = TIGER_TEXT + "R: listen : tiger-left : tiger-right : * -3\n"
+    back = parse_pomdp(s2_rewards, sparse="auto")
+    assert isinstance(back, POMDP)
+    _assert_same(back, parse_pomdp(s2_rewards))
+    assert isinstance(parse_pomdp(format_pomdp(dense_t), sparse="auto"), SparsePOMDP)
+    # at the default threshold a 5,000-state model with a few successors a state is sparse
+    monkeypatch.undo()
+    assert cassandra.AUTO_SPARSE_ENTRIES < 5 * 5000 * 5000

@@ -412,6 +412,7 @@ def test_make_suite_rewrites_a_model_too_large_to_hold_densely(
     undiscounted = dataclasses.replace(tiger(), discount=1.0)
     write_pomdp(undiscounted, src / "undiscounted.pomdp")
     monkeypatch.setattr(cassandra, "AUTO_SPARSE_ENTRIES", 5)
+    monkeypatch.setattr(cassandra, "AUTO_DENSE_FRACTION", 2.0)  # (Tiger's T is dense)
     out = tmp_path / "out"
     assert _make_suite().main(["--out", str(out), "--from", str(src), "--no-random"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["tiger.pomdp"]

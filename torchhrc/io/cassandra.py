@@ -57,11 +57,27 @@ from torchhrc.io._gc import gc_paused
 from torchhrc.pomdp import POMDP
 from torchhrc.sparse import MAX_DENSE_ENTRIES, SparsePOMDP
 
-__all__ = ["AUTO_SPARSE_ENTRIES", "format_pomdp", "parse_pomdp", "read_pomdp", "write_pomdp"]
+__all__ = [
+    "AUTO_DENSE_FRACTION",
+    "AUTO_SPARSE_ENTRIES",
+    "format_pomdp",
+    "parse_pomdp",
+    "read_pomdp",
+    "write_pomdp",
+]
 
 #: ``read_pomdp(..., sparse="auto")`` reads a model sparsely when its dense ``T (A, S, S)`` or
-#: ``Z (A, S, O)`` would have more entries than this (``torchhrc solve`` with SARSOP uses it).
-AUTO_SPARSE_ENTRIES = MAX_DENSE_ENTRIES
+#: ``Z (A, S, O)`` would have more entries than this (80 MB in float64; ``torchhrc solve``
+#: with SARSOP uses it). Every problem of the SARSOP suite and its held-out sets below
+#: baseball has at most 6.4 million; a 5,000-state model with 4 successors a state has 150
+#: million, which were 1.2 GB and 3.6 s to read densely (0.4 s sparse).
+AUTO_SPARSE_ENTRIES = 10_000_000
+#: ...unless at least this fraction of ``T``'s entries are nonzero (a dense model, held as
+#: coordinate lists of 4 numbers an entry, would take more memory and a slower solver path)
+#: and it fits under :data:`~torchhrc.sparse.MAX_DENSE_ENTRIES`: it is then returned dense,
+#: as is a model whose rewards depend on the next state or observation (which the sparse
+#: form cannot hold).
+AUTO_DENSE_FRACTION = 0.1
 
 _TOKEN = re.compile(r"#[^\n]*|([^\s:#]+|:)")
 _COMMENT = re.compile(r"#[^\n]*")
@@ -267,9 +283,12 @@ def read_pomdp(
         source: a path (``str`` without newlines or ``:``, or ``os.PathLike``) or the text.
         sparse: return a :class:`~torchhrc.sparse.SparsePOMDP` (coordinate lists; for models
             too large to hold densely, e.g. RockSample(7, 8); rewards must then be given as
-            ``R: a : s : * : * v``); ``"auto"``: sparse only when the dense ``T (A, S, S)`` or
-            ``Z (A, S, O)`` would exceed :data:`AUTO_SPARSE_ENTRIES` entries (by default
-            :data:`~torchhrc.sparse.MAX_DENSE_ENTRIES`, 2e8: 1.6 GB in float64), else dense.
+            ``R: a : s : * : * v``); ``"auto"``: sparse when the dense ``T (A, S, S)`` or
+            ``Z (A, S, O)`` would exceed :data:`AUTO_SPARSE_ENTRIES` entries (1e7: 80 MB in
+            float64), else dense; also dense above it when the model fits under
+            :data:`~torchhrc.sparse.MAX_DENSE_ENTRIES` (2e8) and at least
+            :data:`AUTO_DENSE_FRACTION` of ``T``'s entries are nonzero or its rewards depend
+            on the next state or observation.
         dtype, device: of the returned tensors (a sparse model stays on the CPU).
 
     Returns:
@@ -366,7 +385,8 @@ def _parse(
     if discount is None:
         raise p.error("missing 'discount:' in the preamble")
     S, A, O = sizes["states"], sizes["actions"], sizes["observations"]
-    if sparse == "auto":
+    auto = sparse == "auto"
+    if auto:
         sparse = max(A * S * S, A * S * O) > AUTO_SPARSE_ENTRIES
     if not sparse and (A * S * S > MAX_DENSE_ENTRIES or A * S * O > MAX_DENSE_ENTRIES):
         raise p.error(
@@ -466,6 +486,10 @@ def _parse(
 
     T_final = T.finish(p)
     Z_final = Z.finish(p)
+    if (sparse and auto and max(A * S * S, A * S * O) <= MAX_DENSE_ENTRIES
+            and (r_level > 0 or T_final[1].size >= AUTO_DENSE_FRACTION * A * S * S)):  # fmt: skip
+        T_final, Z_final = _densify(*T_final, (A, S, S)), _densify(*Z_final, (A, S, O))
+        sparse = False
     if sparse:
         if r_level > 0:
             raise ParseError(
@@ -505,6 +529,14 @@ def _parse(
         )
     except (ModelError, TypeError) as e:
         raise ParseError(str(e), path=p.path) from None
+
+
+def _densify(index: np.ndarray, values: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
+    """The dense table of a sparse table's coordinates ``index (M, 3)`` and ``values (M,)``
+    (one entry a cell, rows already checked and normalised)."""
+    table = np.zeros(shape)
+    table[index[:, 0], index[:, 1], index[:, 2]] = values
+    return table
 
 
 class _DenseTable:

@@ -441,3 +441,24 @@ def test_task_check_set_is_the_studies_momdps_with_flatter_hand_rows_at_more_noi
     drill = problems["t_place_drill.pomdpx"]
     assert drill.num_observed == 27 and drill.num_hidden == 2
     torch.testing.assert_close(drill.b0, torch.full((2,), 0.5, dtype=torch.float64))
+
+
+def test_scale_check_set_generator_is_sparse_seeded_and_round_trips(tmp_path: Path) -> None:
+    """The ``scale`` set's random sparse POMDP (here 300 states): at most ``successors``
+    successors a state, the state itself among them, ``outcomes`` consecutive observations;
+    the same model from the same seed; written and read back with the same tensors."""
+    suite = _make_suite()
+    m = suite._sparse_random(300, 3, 7, 4, 2, seed=5)
+    again = suite._sparse_random(300, 3, 7, 4, 2, seed=5)
+    assert all(torch.equal(x, y) for x, y in zip(m.transitions, again.transitions))
+    dense = m.to_dense()
+    support = dense.T > 0  # (A, S, S)
+    assert int(support.sum(-1).max()) <= 4
+    assert bool(support[:, torch.arange(300), torch.arange(300)].all())
+    seen = dense.Z > 0  # (A, S, O): two consecutive observations, cyclically
+    assert bool((seen.sum(-1) == 2).all())
+    assert bool((seen & seen.roll(-1, dims=-1)).any(-1).all())
+    path = write_pomdp(m, tmp_path / "x.pomdp")
+    back = read_pomdp(path, sparse=True).to_dense()
+    for name in ("T", "Z", "R", "b0"):
+        torch.testing.assert_close(getattr(back, name), getattr(dense, name), rtol=0, atol=1e-15)

@@ -268,7 +268,9 @@ class SparseFlatModel:
         A, S, O = self.num_actions, self.num_states, self.num_observations
         zval, tval, col, starts, cells = self._fib_pairs()
         # the products as (Z alpha) T, summed in T's order, and the sum over o of a dense
-        # (A, S, O): the same floats as the product over every observation
+        # (A, S, O), as the product over every observation did: the same floats but where
+        # numpy's reduceat adds a group's terms in another order (three of them against four
+        # with a zero: the last bit, on Tag)
         contrib = (zval[:, None] * alpha.T[col]) * tval[:, None]  # (P, A2)
         sums = np.add.reduceat(contrib, starts, axis=0)  # (U, A2): per (a, s, o)
         best = np.zeros(A * S * O, dtype=contrib.dtype)

@@ -23,12 +23,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import POMDP
 
-__all__ = ["MAX_DENSE_ENTRIES", "SparsePOMDP", "check_dense_size"]
+__all__ = ["MAX_DENSE_ENTRIES", "SparsePOMDP", "check_dense_size", "coalesce"]
 
 #: Largest number of entries of a dense tensor that builders and readers allocate
 #: (200 million: 1.6 GB in float64).
@@ -46,6 +47,24 @@ def check_dense_size(name: str, entries: int, *, hint: str = "") -> None:
             f"the dense {name} would have {entries:.3g} entries (more than "
             f"{MAX_DENSE_ENTRIES:.3g})" + (f"; {hint}" if hint else "")
         )
+
+
+def coalesce(keys: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One entry per cell of a coordinate list: the cells of linear ``keys (M,)`` sorted,
+    the ``values (M,)`` of a repeated cell summed (as a coordinate list means; in float64,
+    then back in the dtype of ``values``), zeros dropped. Returns ``cells (K,)`` and their
+    ``values (K,)``.
+
+    Example:
+        >>> cells, values = coalesce(np.array([5, 2, 5, 7]), np.array([0.25, 0.5, 0.25, 0.0]))
+        >>> cells.tolist(), values.tolist()
+        ([2, 5], [0.5, 0.5])
+    """
+    cells, inverse = np.unique(keys, return_inverse=True)
+    summed = np.bincount(inverse.reshape(-1), weights=values, minlength=cells.size)
+    summed = summed.astype(values.dtype, copy=False)
+    keep = summed != 0
+    return cells[keep], summed[keep]
 
 
 def _check_coo(name: str, coo: object, sizes: tuple[int, int, int]) -> None:

@@ -55,7 +55,7 @@ from torchhrc.errors import ModelError, ParseError
 from torchhrc.io._atomic import atomic_write_bytes
 from torchhrc.io._gc import gc_paused
 from torchhrc.pomdp import POMDP
-from torchhrc.sparse import MAX_DENSE_ENTRIES, SparsePOMDP
+from torchhrc.sparse import MAX_DENSE_ENTRIES, SparsePOMDP, coalesce
 
 __all__ = [
     "AUTO_DENSE_FRACTION",
@@ -963,13 +963,9 @@ def _entries(
     N = len(second)
     # one line per cell, sorted by (a, s, j): repeated coordinates are summed, as the solvers
     # read a coordinate list (a file's later line would override an earlier one instead)
-    cells, inverse = np.unique((index[:, 0] * S + index[:, 1]) * N + index[:, 2],
-                               return_inverse=True)  # fmt: skip
-    prob = np.bincount(inverse.reshape(-1), weights=prob.double().cpu().numpy(),
-                       minlength=cells.size)  # fmt: skip
+    cells, prob = coalesce((index[:, 0] * S + index[:, 1]) * N + index[:, 2],
+                           prob.double().cpu().numpy())  # fmt: skip
     index = np.stack([cells // (S * N), (cells // N) % S, cells % N], 1)
-    keep = prob != 0
-    index, prob = index[keep], prob[keep]
     bounds = np.searchsorted(index[:, 0], np.arange(A + 1))
     payloads = []
     for a in range(A):

@@ -50,7 +50,7 @@ from torchhrc.solvers._factored import (
 )
 from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.sparse import SparsePOMDP, check_dense_size
+from torchhrc.sparse import SparsePOMDP, check_dense_size, coalesce
 
 __all__ = ["SparseFlatModel", "sparse_blind_policy", "sparse_blind_vectors"]
 
@@ -109,11 +109,7 @@ class SparseFlatModel:
         p = prob.cpu().to(dtype).numpy()
         a, s, s2 = idx[:, 0], idx[:, 1], idx[:, 2]
         # sum duplicates: one entry per (a, s, s2), sorted by (a, s, s2)
-        key = (a * S + s) * S + s2
-        uniq, inv = np.unique(key, return_inverse=True)
-        vals = np.bincount(inv, weights=p, minlength=uniq.size).astype(p.dtype)
-        keep = vals != 0
-        uniq, vals = uniq[keep], vals[keep]
+        uniq, vals = coalesce((a * S + s) * S + s2, p)
         row = uniq // S  # a S + s
         self._col = (uniq % S).astype(np.int64)  # s2
         self._val = vals

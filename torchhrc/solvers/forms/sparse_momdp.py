@@ -57,6 +57,7 @@ from torchhrc.solvers.sparse_model import (
     qmdp_iteration_np,
     self_loop_probs,
 )
+from torchhrc.sparse import coalesce
 from torchhrc.sparse_momdp import SparseMOMDP
 
 __all__ = ["ActionRows", "SparseMOMDPForm"]
@@ -101,8 +102,7 @@ class SparseMOMDPForm(SolverModel):
             vals = vals + 0.0  # as the sum below: -0.0 becomes 0.0
             act = idx[:, 0].copy()
         else:
-            uniq, inv = np.unique(key, return_inverse=True)
-            vals = np.bincount(inv, weights=vals, minlength=uniq.size)
+            uniq, vals = coalesce(key, vals)
             row, col = uniq // (X * Y), uniq % (X * Y)
             act = row // (X * Y)
         keep = vals != 0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import pytest
 import torch
 
@@ -15,7 +17,7 @@ from torchhrc.experiments.online import (
     pooled_cross_training,
     turn_taking_transition,
 )
-from torchhrc.experiments.robustness import MOMDPPolicy, simulate_subject
+from torchhrc.experiments.robustness import POLICY_NAMES, MOMDPPolicy, simulate_subject
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.place_and_drill.demos import simulate_study
@@ -285,3 +287,226 @@ def test_online_belief_moves_toward_the_true_type(online_setup):
     controller.observe(x, torch.zeros(2, dtype=torch.long), torch.tensor([pee, ppe]))
     efficient, safe = controller.belief[0], controller.belief[1]
     assert efficient[1] > 0.85 and safe[0] > 0.6
+
+
+# --------------------------------------------------------------------------------------------
+# The online Fig. 3 against a second, plain-Python computation (issue 30, goal 5)
+
+#: The rewards the task states (``models/place_and_drill_expert.json``, docs/place_and_drill.md:
+#: a safe person: drill_early -10, wait_early 0; an efficient one: drill_early +10,
+#: wait_early -5), written out here rather than read from the library's reward table.
+STATED_REWARD = {
+    "safe": {"drill_ready": 10, "drill_early": -10, "wait_early": 0, "wait_late": -5,
+             "wait_idle": 0, "drill_invalid": -5},
+    "efficient": {"drill_ready": 10, "drill_early": 10, "wait_early": -5, "wait_late": -5,
+                  "wait_idle": 0, "drill_invalid": -5},
+}  # fmt: skip
+
+
+def _stated_reward(bench: str, action: int, label: str) -> float:
+    """The true type's reward of robot ``action`` (0 wait, 1 + p drill p) on ``bench``
+    (e.g. ``"PED"``), from the situation definitions of the task; 0 once all is drilled."""
+    if set(bench) == {"D"}:
+        return 0.0
+    empty, pending = "E" in bench, "P" in bench
+    if action == 0:
+        situation = "wait_idle" if not pending else ("wait_early" if empty else "wait_late")
+    elif bench[action - 1] != "P":
+        situation = "drill_invalid"
+    else:
+        situation = "drill_early" if empty else "drill_ready"
+    return float(STATED_REWARD[label][situation])
+
+
+def _human_moves(bench: str, order: tuple[int, ...], epsilon: float, label: str):
+    """``[(probability, bench after)]``: the stated online human after the robot's move.
+
+    With probability epsilon a uniformly random empty position; otherwise its turn taking:
+    an efficient person waits while a placed screw is not drilled yet, a safe person places
+    every screw first, in its demonstrated order.
+    """
+    empty = [p for p, c in enumerate(bench) if c == "E"]
+    if not empty:
+        return [(1.0, bench)]
+    place = lambda p: bench[:p] + "P" + bench[p + 1 :]  # noqa: E731
+    out: dict[str, float] = {}
+    if label == "efficient" and "P" in bench:
+        own = bench
+    else:
+        own = place(next(p for p in order if bench[p] == "E"))
+    out[own] = out.get(own, 0.0) + 1.0 - epsilon
+    for p in empty:
+        out[place(p)] = out.get(place(p), 0.0) + epsilon / len(empty)
+    return [(w, b) for b, w in out.items() if w > 0]
+
+
+class _PlainMOMDPRobot:
+    """The solved MOMDP policy and its type filter, in plain Python lists."""
+
+    def __init__(self, policy: MOMDPPolicy) -> None:
+        alpha = policy.policy
+        self.vectors = [
+            (int(x), int(a), [float(v) for v in row])
+            for x, a, row in zip(alpha.observed.tolist(), alpha.actions.tolist(), alpha.alphas)
+        ]
+        self.Tx = policy.model.Tx.tolist()  # [a][x][y][x2]
+        self.b0 = tuple(float(v) for v in policy.b0)
+
+    def start(self):
+        return self.b0
+
+    def choices(self, x: int, belief):
+        best = max(
+            (sum(p * v for p, v in zip(belief, row)), a) for x_, a, row in self.vectors if x_ == x
+        )
+        return [(1.0, best[1])]
+
+    def update(self, belief, x: int, a: int, x2: int):
+        post = [b * self.Tx[a][x][y][x2] for y, b in enumerate(belief)]
+        total = sum(post)
+        assert total > 0, "an impossible move under the robot's model"
+        return tuple(p / total for p in post)
+
+
+class _PlainCrossTraining:
+    """Cross-training: uniform among the tied best actions of its MDP; no belief."""
+
+    def __init__(self, policy) -> None:
+        self.best = policy.best[0].tolist()  # [x][a] the pooled subject's tied best actions
+
+    def start(self):
+        return ()
+
+    def choices(self, x: int, belief):
+        tied = [a for a, ok in enumerate(self.best[x]) if ok]
+        return [(1.0 / len(tied), a) for a in tied]
+
+    def update(self, belief, x, a, x2):
+        return ()
+
+
+def _exact_moments(robot, names, order, epsilon, label, horizon):
+    """``(E[G], E[G^2])`` of the run's score G, by enumerating every run (no sampling)."""
+    index = {name: i for i, name in enumerate(names)}
+    memo: dict = {}
+
+    def visit(t: int, bench: str, belief) -> tuple[float, float]:
+        if t == horizon:
+            return 0.0, 0.0
+        key = (t, bench, belief)
+        if key in memo:
+            return memo[key]
+        m1 = m2 = 0.0
+        x = index[bench]
+        for pa, a in robot.choices(x, belief):
+            r = _stated_reward(bench, a, label)
+            after = bench if a == 0 or bench[a - 1] != "P" else (
+                bench[: a - 1] + "D" + bench[a:])  # fmt: skip
+            for ph, bench2 in _human_moves(after, order, epsilon, label):
+                f1, f2 = visit(t + 1, bench2, robot.update(belief, x, a, index[bench2]))
+                w = pa * ph
+                m1 += w * (r + f1)
+                m2 += w * (r * r + 2 * r * f1 + f2)
+        memo[key] = (m1, m2)
+        return m1, m2
+
+    return visit(0, "E" * len(order), robot.start())
+
+
+@pytest.fixture(scope="module")
+def online_study():
+    """A small study (4 subjects, 50 runs) and the policies its online folds ran."""
+    import torchhrc.experiments.place_and_drill as pd
+
+    calls = []
+    real = pd.simulate_subject
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs)
+        return real(*args, **kwargs)
+
+    settings = pd.StudySettings(subjects=4, runs=50, epsilons=(0.0, 0.5, 1.0), k_max=3,
+                                restarts=2, irl_iterations=3, separation=False)  # fmt: skip
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with pytest.MonkeyPatch.context() as mp, warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # IRL stops at 3 iterations: it says so
+            mp.setattr(pd, "simulate_subject", spy)
+            study = pd.run_study(settings)
+    finally:
+        torch.set_num_threads(threads)
+    assert len(calls) == 2 * settings.subjects  # per fold: the offline run, then the online
+    return study, calls[1::2], pd.metrics_from_study(study)
+
+
+def test_online_curves_match_an_independent_simulation(online_study):
+    """Every online curve (learned, hand-coded, cross-training) of ``run_study`` against the
+    exact expected score of each subject, enumerated in plain Python from the stated human
+    (turn taking, epsilon deviations), the stated rewards and the policies the folds solved.
+
+    Bug this catches (issue 30): the online human's turn taking removed from the
+    place-and-drill online fold (``human_chunk`` not passed in ``_online_fold``): the learned
+    and hand-coded curves went flat at 25.0 and cross-training at epsilon 0 moved from -20.4
+    to +17.1, and every reward test passed.
+    """
+    study, calls, metrics = online_study
+    online = study["online"]
+    labels = dict(zip(study["demonstrations"].subjects, study["demonstrations"].types))
+    names = study["task"].state_names
+    R = online.runs_per_subject
+    E, S = len(online.epsilon), len(online.subjects)
+    exact = {}  # name -> (E, S, 2)
+    for s, (subject, call) in enumerate(zip(online.subjects, calls)):
+        label = labels[subject]
+        robots = {n: _PlainMOMDPRobot(p) for n, p in call["momdp_policies"].items()}
+        robots["cross_training"] = _PlainCrossTraining(call["cross_training"])
+        orders = [tuple(o) for o in call["orders"].tolist()]
+        for name, robot in robots.items():
+            for e, eps in enumerate(online.epsilon):
+                moments = [_exact_moments(robot, names, o, eps, label, 12) for o in orders]
+                m1 = sum(m[0] for m in moments) / len(orders)  # the run's order: uniform
+                m2 = sum(m[1] for m in moments) / len(orders)
+                table = exact.setdefault(name, torch.zeros(E, S, 2, dtype=torch.float64))
+                table[e, s] = torch.tensor([m1, m2], dtype=torch.float64)
+    for name in POLICY_NAMES:
+        mu, m2 = exact[name][..., 0].double(), exact[name][..., 1].double()
+        var = (m2 - mu**2).clamp_min(0.0)
+        # each subject's mean of R runs: within 4.5 standard errors of its exact expectation
+        got = online.subject_means(name)
+        bound = 4.5 * (var / R).sqrt() + 1e-6
+        assert ((got - mu).abs() <= bound).all(), (name, got, mu, bound)
+        # the reported curve is the mean over subjects and runs
+        pooled_mu = mu.mean(-1)
+        pooled_var = m2.mean(-1) - pooled_mu**2
+        N = R * len(online.subjects)
+        assert metrics["reward_online"][name] == pytest.approx(
+            online.rewards[name].flatten(1).mean(-1).tolist(), abs=1e-5)  # fmt: skip
+        ci_exact = 1.959964 * pooled_var.clamp_min(0).sqrt() / N**0.5
+        got_ci = torch.tensor(metrics["reward_online_ci95"][name], dtype=torch.float64)
+        assert ((got_ci - ci_exact).abs() <= 0.35 * ci_exact + 0.02).all(), (name, got_ci)
+
+
+def test_online_confidence_intervals_by_formula(online_study):
+    """``reward_online_ci95`` is 1.96 sd / sqrt(S R) over every run of an epsilon and
+    ``reward_online_ci95_subjects`` the Student-t half-width over the S subject means,
+    recomputed here from the raw runs with the standard library and scipy."""
+    import statistics
+
+    from scipy import stats
+
+    study, _, metrics = online_study
+    online = study["online"]
+    S = len(online.subjects)
+    for name in POLICY_NAMES:
+        runs = online.rewards[name]  # (E, S, R)
+        for e in range(runs.shape[0]):
+            flat = runs[e].flatten().tolist()
+            half = 1.959963984540054 * statistics.stdev(flat) / len(flat) ** 0.5
+            assert metrics["reward_online"][name][e] == pytest.approx(
+                statistics.fmean(flat), abs=1e-5)  # fmt: skip
+            assert metrics["reward_online_ci95"][name][e] == pytest.approx(half, abs=1e-5)
+            means = runs[e].mean(-1).tolist()
+            t = stats.t.ppf(0.975, S - 1) * statistics.stdev(means) / S**0.5
+            assert metrics["reward_online_ci95_subjects"][name][e] == pytest.approx(
+                t, abs=1e-4)  # fmt: skip

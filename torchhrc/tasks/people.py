@@ -1,0 +1,433 @@
+"""Simulated people of known types: the ground truth a task suite and an evaluation need.
+
+A :class:`SimulatedPeople` is the human side of a :class:`~torchhrc.tasks.CollaborativeTask`
+with known (true) types, batched over ``B`` episodes: after the robot's move it picks the
+human's response from the type, the state and a per-episode memory (so behaviour may depend
+on history: a person who lags every other turn, who mirrors the robot's previous move, ...).
+A :class:`TaskWithPeople` bundles a task, its people, the true reward of the robot's actions
+per type and the episode horizon; it generates demonstrations (joint human/robot sequences
+with the true type of each) and is what an evaluation scores robots against.
+
+:class:`TabularPeople` is the general table-driven implementation: per type ``y`` and
+memory state ``m`` a policy ``P(a_h | m, x_mid, a_r, y)`` and a memory update
+``m' = update[y, m, x_mid, a_r, a_h]`` (``M`` memory states, one memory column).
+
+Example:
+    >>> import torch
+    >>> legal = torch.tensor([[True, True], [True, False]])       # (X=2, H=2)
+    >>> policy = torch.zeros(1, 1, 2, 1, 3)                        # (Y, M, X, A, H + 1)
+    >>> policy[..., 1] = 1.0                                       # always h = 1 ...
+    >>> policy[0, 0, 1, 0] = torch.tensor([1.0, 0.0, 0.0])         # ... but h = 0 in x = 1
+    >>> people = TabularPeople(("solo",), policy, legal)
+    >>> g = torch.Generator().manual_seed(0)
+    >>> types = torch.zeros(2, dtype=torch.long)
+    >>> h, m = people.act(types, torch.tensor([0, 1]), torch.tensor([0, 0]),
+    ...                   people.initial_memory(types, g), g)
+    >>> h.tolist()
+    [1, 0]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
+
+import torch
+
+from torchhrc.errors import ModelError
+
+if TYPE_CHECKING:
+    from torchhrc.data import Demonstrations
+    from torchhrc.tasks.interface import CollaborativeTask
+
+__all__ = ["SimulatedPeople", "TabularPeople", "TaskWithPeople", "sample_legal"]
+
+
+@runtime_checkable
+class SimulatedPeople(Protocol):
+    """Simulated people of known (true) types for one CollaborativeTask, batched over ``B``
+    episodes.
+
+    Behaviour may depend on the state and on history: per-episode memory is an int64 tensor.
+
+    Attributes:
+        num_types: ``Y_true``.
+        type_names: ``(Y_true,)`` human-readable names of the types.
+    """
+
+    num_types: int
+    type_names: tuple[str, ...]
+
+    def initial_memory(self, types: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """``types (B,)`` int64 in ``[0, Y_true)`` -> memory ``(B, M)`` int64 (``M >= 0``
+        columns, may be 0)."""
+        ...
+
+    def act(
+        self,
+        types: torch.Tensor,
+        x_mid: torch.Tensor,
+        robot_action: torch.Tensor,
+        memory: torch.Tensor,
+        generator: torch.Generator,
+        *,
+        noise: float = 0.0,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One human turn after the robot's move, batched.
+
+        Args:
+            types: ``(B,)`` true types.
+            x_mid: ``(B,)`` the state after the robot's action (``task.robot_effect[a_r, x]``).
+            robot_action: ``(B,)`` the robot's action.
+            memory: ``(B, M)``.
+            generator: the random stream.
+            noise: with this probability the person takes a uniformly random legal action
+                instead (the paper's epsilon).
+
+        Returns:
+            ``(human_action (B,)`` int64 in ``[0, H)`` or ``-1`` for no action, ``new memory
+            (B, M))``; only actions legal in ``x_mid``.
+        """
+        ...
+
+
+def sample_legal(legal: torch.Tensor, x: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+    """A uniformly random legal human action per episode, ``-1`` where none is legal.
+
+    Args:
+        legal: ``(X, H)`` bool ``human_legal``.
+        x: ``(B,)`` states.
+        generator: the random stream (one draw per episode, whatever the states).
+
+    Returns:
+        ``(B,)`` int64.
+
+    Example:
+        >>> legal = torch.tensor([[False, True], [False, False]])
+        >>> sample_legal(legal, torch.tensor([0, 1]), torch.Generator()).tolist()
+        [1, -1]
+    """
+    rows = legal[x].to(torch.float64)  # (B, H)
+    none = rows.sum(-1, keepdim=True) == 0
+    weights = torch.cat([rows, none.to(rows.dtype)], -1)  # (B, H + 1), last: nothing legal
+    pick = torch.multinomial(weights, 1, generator=generator).squeeze(-1)
+    return torch.where(pick == legal.shape[-1], -1, pick)
+
+
+class TabularPeople:
+    """People given by tables: a policy and a memory update per type and memory state.
+
+    ``P(a_h | m, x_mid, a_r, y) = policy[y, m, x_mid, a_r, a_h]`` (last column of ``a_h``:
+    no action), then ``m' = update[y, m, x_mid, a_r, a_h]`` (``a_h = -1`` reads the last
+    column). The memory is one int64 column in ``[0, M)`` drawn at the start of an episode
+    from ``initial[y]``. With ``M = 1`` the behaviour depends on the state only.
+
+    Args:
+        type_names: ``(Y,)`` names.
+        policy: ``(Y, M, X, A, H + 1)`` probabilities, rows summing to 1, no mass on human
+            actions illegal in ``x_mid`` (``legal``).
+        legal: ``(X, H)`` bool, the task's ``human_legal``.
+        update: ``(Y, M, X, A, H + 1)`` int64 next memory state (default: all 0).
+        initial: ``(Y, M)`` probabilities of the first memory state (default: state 0).
+
+    Raises:
+        ModelError: shapes disagree, rows do not sum to 1, mass on an illegal action, or a
+            memory state out of range.
+
+    Example:
+        >>> legal = torch.tensor([[True]])
+        >>> p = TabularPeople(("a", "b"), torch.tensor([1.0, 0.0]).expand(2, 1, 1, 1, 2), legal)
+        >>> p.num_types, p.num_memory
+        (2, 1)
+    """
+
+    def __init__(
+        self,
+        type_names: Sequence[str],
+        policy: torch.Tensor,
+        legal: torch.Tensor,
+        *,
+        update: torch.Tensor | None = None,
+        initial: torch.Tensor | None = None,
+    ) -> None:
+        policy = torch.as_tensor(policy, dtype=torch.float64)
+        legal = torch.as_tensor(legal)
+        if policy.dim() != 5:
+            raise ModelError(
+                f"expected policy of shape (Y, M, X, A, H + 1), got {tuple(policy.shape)}"
+            )
+        Y, M, X, A, H1 = policy.shape
+        names = tuple(str(n) for n in type_names)
+        if len(names) != Y:
+            raise ModelError(f"expected {Y} type_names (Y of policy), got {len(names)}")
+        if legal.dtype != torch.bool or tuple(legal.shape) != (X, H1 - 1):
+            raise ModelError(
+                f"expected legal of shape (X={X}, H={H1 - 1}) bool, got "
+                f"{tuple(legal.shape)} {legal.dtype}"
+            )
+        if (policy < 0).any() or not torch.allclose(
+            policy.sum(-1), torch.ones((), dtype=policy.dtype), atol=1e-9
+        ):
+            raise ModelError("expected policy rows (last dim) of non-negative values summing to 1")
+        illegal = (policy[..., :-1] > 0) & ~legal.view(1, 1, X, 1, H1 - 1)
+        if illegal.any():
+            y, m, x, a, h = torch.nonzero(illegal)[0].tolist()
+            raise ModelError(
+                f"policy[{y}, {m}, {x}, {a}, {h}] > 0 but human action {h} is illegal in state {x}"
+            )
+        if update is None:
+            update = torch.zeros(Y, M, X, A, H1, dtype=torch.long)
+        update = torch.as_tensor(update)
+        if tuple(update.shape) != (Y, M, X, A, H1) or update.is_floating_point():
+            raise ModelError(
+                f"expected update of shape {(Y, M, X, A, H1)} int64, got {tuple(update.shape)}"
+            )
+        if ((update < 0) | (update >= M)).any():
+            raise ModelError(f"expected update entries in [0, M={M})")
+        if initial is None:
+            initial = torch.zeros(Y, M, dtype=torch.float64)
+            initial[:, 0] = 1.0
+        initial = torch.as_tensor(initial, dtype=torch.float64)
+        if tuple(initial.shape) != (Y, M) or (initial < 0).any():
+            raise ModelError(f"expected initial of shape (Y={Y}, M={M}), non-negative")
+        if not torch.allclose(initial.sum(-1), torch.ones((), dtype=initial.dtype), atol=1e-9):
+            raise ModelError("expected initial rows summing to 1")
+        self.type_names: tuple[str, ...] = names
+        self.num_types: int = Y
+        self.policy = policy
+        self.legal = legal
+        self.update = update.to(torch.long)
+        self.initial = initial
+
+    @property
+    def num_memory(self) -> int:
+        """``M``, memory states."""
+        return int(self.policy.shape[1])
+
+    def initial_memory(self, types: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """``(B, 1)`` int64 memory drawn from ``initial[types]`` (one draw per episode)."""
+        rows = self.initial[types.to(torch.long)]  # (B, M)
+        return torch.multinomial(rows, 1, generator=generator)
+
+    def act(
+        self,
+        types: torch.Tensor,
+        x_mid: torch.Tensor,
+        robot_action: torch.Tensor,
+        memory: torch.Tensor,
+        generator: torch.Generator,
+        *,
+        noise: float = 0.0,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One human turn (see :class:`SimulatedPeople`); the same number of random draws
+        whatever ``noise``, so runs at different noise share their streams."""
+        if not 0.0 <= noise <= 1.0:
+            raise ValueError(f"expected noise in [0, 1], got {noise}")
+        m = memory[:, 0]
+        rows = self.policy[types, m, x_mid, robot_action]  # (B, H + 1)
+        H = rows.shape[-1] - 1
+        chosen = torch.multinomial(rows, 1, generator=generator).squeeze(-1)
+        chosen = torch.where(chosen == H, -1, chosen)
+        random = sample_legal(self.legal, x_mid, generator)
+        slip = torch.rand(x_mid.shape, generator=generator, dtype=torch.float64) < noise
+        human = torch.where(slip, random, chosen)
+        column = torch.where(human < 0, H, human)
+        new_m = self.update[types, m, x_mid, robot_action, column]
+        return human, new_m.unsqueeze(-1)
+
+
+@dataclass(frozen=True)
+class TaskWithPeople:
+    """A task with simulated people of known types: what a suite entry returns (a user can
+    build one for their own task).
+
+    Attributes:
+        task: the :class:`~torchhrc.tasks.CollaborativeTask`.
+        people: its :class:`SimulatedPeople` (``Y_true`` types).
+        true_reward: ``(A, X, Y_true)`` float64, the reward of robot action ``a`` in state
+            ``x`` for a person of true type ``y``.
+        horizon: episode length cap (steps) for evaluation and demonstrations.
+        observed: True when the task has noisy observations of the human
+            (``task.observation`` is not None).
+        demo_robot: ``(Y_true, X, A)`` probabilities of the robot's action in the
+            demonstrations per true type (the partner demonstrates the type's preferred
+            complementary action); default: uniform over the actions of highest
+            ``true_reward``.
+        true_observation: ``(A, X, Y_true, O)`` ``P(o | x', y, a_r)`` of the true people when
+            ``observed`` (the signal the robot receives after the step), else None.
+        description: one line on what distinguishes the types.
+
+    Example:
+        >>> from torchhrc.tasks.suite import make_task
+        >>> twp = make_task("two_parts_order")
+        >>> demos, y = twp.demonstrations(subjects=4, per_subject=2, seed=0)
+        >>> len(demos), y.shape
+        (8, torch.Size([8]))
+    """
+
+    task: CollaborativeTask
+    people: SimulatedPeople
+    true_reward: torch.Tensor
+    horizon: int
+    observed: bool
+    demo_robot: torch.Tensor | None = None
+    true_observation: torch.Tensor | None = None
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        A, X, Y = self.task.num_actions, self.task.num_states, self.people.num_types
+        r = torch.as_tensor(self.true_reward, dtype=torch.float64)
+        if tuple(r.shape) != (A, X, Y):
+            raise ModelError(f"expected true_reward of shape (A={A}, X={X}, Y={Y}), got "
+                             f"{tuple(r.shape)}")  # fmt: skip
+        object.__setattr__(self, "true_reward", r)
+        if len(self.people.type_names) != Y:
+            raise ModelError(f"expected {Y} people.type_names, got {len(self.people.type_names)}")
+        if int(self.horizon) < 2:
+            raise ModelError(f"expected horizon >= 2, got {self.horizon}")
+        if self.demo_robot is not None:
+            d = torch.as_tensor(self.demo_robot, dtype=torch.float64)
+            if tuple(d.shape) != (Y, X, A) or (d < 0).any():
+                raise ModelError(f"expected demo_robot of shape (Y={Y}, X={X}, A={A}), >= 0")
+            if not torch.allclose(d.sum(-1), torch.ones((), dtype=d.dtype), atol=1e-9):
+                raise ModelError("expected demo_robot rows summing to 1")
+            object.__setattr__(self, "demo_robot", d)
+        if self.true_observation is not None:
+            z = torch.as_tensor(self.true_observation, dtype=torch.float64)
+            if z.dim() != 4 or tuple(z.shape[:3]) != (A, X, Y):
+                raise ModelError(f"expected true_observation of shape (A={A}, X={X}, Y={Y}, O), "
+                                 f"got {tuple(z.shape)}")  # fmt: skip
+            object.__setattr__(self, "true_observation", z)
+        if self.observed and self.true_observation is None:
+            raise ModelError("an observed task needs true_observation (A, X, Y_true, O)")
+
+    @property
+    def num_types(self) -> int:
+        """``Y_true``."""
+        return int(self.people.num_types)
+
+    @property
+    def type_names(self) -> tuple[str, ...]:
+        """``(Y_true,)``."""
+        return tuple(self.people.type_names)
+
+    def robot_demo_policy(self) -> torch.Tensor:
+        """``(Y_true, X, A)`` the robot's action probabilities in demonstrations."""
+        if self.demo_robot is not None:
+            return self.demo_robot
+        r = self.true_reward.permute(2, 1, 0)  # (Y, X, A)
+        best = r >= r.max(-1, keepdim=True).values - 1e-12
+        best = best.to(torch.float64)
+        return best / best.sum(-1, keepdim=True)
+
+    def rollout(
+        self,
+        types: torch.Tensor,
+        *,
+        noise: float = 0.05,
+        generator: torch.Generator,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Batched demonstration episodes (robot by :meth:`robot_demo_policy`, slipping to a
+        uniformly random action with probability ``noise``; people with ``noise``).
+
+        Args:
+            types: ``(B,)`` true types.
+
+        Returns:
+            ``states (B, T + 1)``, ``robot (B, T)``, ``human (B, T)`` int64 (``T = horizon``;
+            after a terminal state ``robot = -2`` and ``human = -2`` mark unused steps).
+        """
+        task = self.task
+        robot_effect = torch.as_tensor(task.robot_effect).to(torch.long)
+        human_effect = torch.as_tensor(task.human_effect).to(torch.long)
+        terminal = torch.as_tensor(task.terminal).to(torch.bool)
+        demo = self.robot_demo_policy()
+        B, T, A = types.shape[0], int(self.horizon), task.num_actions
+        x = torch.full((B,), task.initial_state, dtype=torch.long)
+        memory = self.people.initial_memory(types, generator)
+        states = torch.full((B, T + 1), -2, dtype=torch.long)
+        robot = torch.full((B, T), -2, dtype=torch.long)
+        human = torch.full((B, T), -2, dtype=torch.long)
+        states[:, 0] = x
+        done = terminal[x]
+        for t in range(T):  # steps are sequential; the batch is one tensor program
+            wanted = torch.multinomial(demo[types, x], 1, generator=generator).squeeze(-1)
+            other = torch.randint(A, (B,), generator=generator)
+            slip = torch.rand(B, generator=generator, dtype=torch.float64) < noise
+            a = torch.where(slip, other, wanted)
+            mid = robot_effect[a, x]
+            h, new_memory = self.people.act(types, mid, a, memory, generator, noise=noise)
+            nxt = torch.where(h >= 0, human_effect[mid, h.clamp_min(0)], mid)
+            live = ~done
+            robot[:, t] = torch.where(live, a, -2)
+            human[:, t] = torch.where(live, h, -2)
+            x = torch.where(live, nxt, x)
+            memory = torch.where(live.unsqueeze(-1), new_memory, memory)
+            states[:, t + 1] = torch.where(live, x, -2)
+            done = done | terminal[x]
+        return states, robot, human
+
+    def demonstrations(
+        self,
+        *,
+        subjects: int = 30,
+        per_subject: int = 4,
+        noise: float = 0.05,
+        seed: int = 0,
+    ) -> tuple[Demonstrations, torch.Tensor]:
+        """Demonstrations of ``subjects x per_subject`` sequences and their true types.
+
+        Subject ``s`` (named ``"s000"``, ...) has true type ``s mod Y_true`` (types balanced);
+        its sequences are named ``"0"``, ``"1"``, .... Each sequence alternates the robot's
+        action and the human's response (none when the person lets the turn pass) until a
+        terminal state or ``horizon`` steps. Deterministic under ``seed``.
+
+        Args:
+            subjects: number of subjects (>= 1).
+            per_subject: sequences per subject (>= 1).
+            noise: the people's epsilon and the demonstrating robot's slip rate.
+            seed: seed of the :class:`torch.Generator`.
+
+        Returns:
+            ``(demonstrations, types (N,) int64)``; ``demonstrations.types`` holds the true
+            type names.
+        """
+        from torchhrc.data import Demonstrations
+
+        if subjects < 1 or per_subject < 1:
+            raise ValueError(f"expected subjects, per_subject >= 1, got {subjects}, {per_subject}")
+        if not 0.0 <= noise <= 1.0:
+            raise ValueError(f"expected noise in [0, 1], got {noise}")
+        generator = torch.Generator().manual_seed(int(seed))
+        Y = self.num_types
+        subject_types = torch.arange(subjects) % Y
+        types = subject_types.repeat_interleave(per_subject)  # (N,)
+        _, robot, human = self.rollout(types, noise=noise, generator=generator)
+        robot_names, human_names = list(self.task.robot_actions), list(self.task.human_actions)
+        seqs: list[list[tuple[str, str]]] = []
+        for r_row, h_row in zip(robot.tolist(), human.tolist()):
+            seq: list[tuple[str, str]] = []
+            for a, h in zip(r_row, h_row):
+                if a == -2:
+                    break
+                seq.append(("robot", robot_names[a]))
+                if h >= 0:
+                    seq.append(("human", human_names[h]))
+            if len(seq) < 2:
+                raise ModelError(
+                    f"a demonstration of {len(seq)} symbol(s) (the task ended after one robot "
+                    "action with no human turn); a demonstration needs at least 2"
+                )
+            seqs.append(seq)
+        width = len(str(subjects - 1))
+        names = [f"s{s:0{max(width, 3)}d}" for s in range(subjects)]
+        subject_ids = [names[s] for s in range(subjects) for _ in range(per_subject)]
+        sequence_ids = [str(i) for _ in range(subjects) for i in range(per_subject)]
+        labels = [self.type_names[int(y)] for y in types]
+        vocab = [("human", h) for h in human_names] + [("robot", a) for a in robot_names]
+        demos = Demonstrations.from_lists(
+            seqs, subjects=subject_ids, sequence_ids=sequence_ids, types=labels,
+            vocabulary=sorted(vocab),
+        )  # fmt: skip
+        return demos, types

@@ -58,7 +58,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -73,9 +73,17 @@ from torchhrc.solvers.blind import blind_policy
 from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.qmdp import qmdp_vectors
+from torchhrc.solvers.sampling import sample_categorical
 from torchhrc.solvers.sparse_model import qmdp_iteration_np
 
-__all__ = ["Children", "FIBOperator", "PerObserved", "SolverModel", "TensorModelForm"]
+__all__ = [
+    "Children",
+    "FIBOperator",
+    "PerObserved",
+    "SimStep",
+    "SolverModel",
+    "TensorModelForm",
+]
 
 #: One Fast Informed Bound step ``(A, *state_shape) -> (A, *state_shape)`` (Hauskrecht 2000).
 FIBOperator = Callable[[torch.Tensor], torch.Tensor]
@@ -118,6 +126,22 @@ class PerObserved(Sequence[Any]):
 def field(cache: PerObserved, i: int) -> PerObserved:
     """The per-``x`` view of field ``i`` of the tuples of ``cache`` (shares its cache)."""
     return PerObserved(len(cache), lambda x: cache[x][i])
+
+
+class SimStep(NamedTuple):
+    """One simulated step of ``M`` simulations at once (:meth:`SolverModel.step`).
+
+    Attributes:
+        x: ``(M,)`` next observed value (flat forms: 0).
+        y: ``(M,)`` next hidden value (flat forms: the state).
+        observation: ``(M,)`` the observation received.
+        belief: ``(M, Y)`` the updated belief over the hidden value.
+    """
+
+    x: torch.Tensor
+    y: torch.Tensor
+    observation: torch.Tensor
+    belief: torch.Tensor
 
 
 @dataclass
@@ -493,11 +517,21 @@ class SolverModel(ABC):
         iterated until the change is below ``tol``."""
 
     @abstractmethod
+    def step(self, x: torch.Tensor, y: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
+             generator: torch.Generator) -> SimStep:  # fmt: skip
+        """One sampled step of ``M`` simulations at true states ``(x (M,), y (M,))`` with
+        beliefs ``(M, Y)`` under ``actions (M,)``: the successor ``(x2, y2)`` and the
+        observation ``o`` drawn from the model, then the Bayes update (the uniform belief
+        where ``P(o) = 0``, which a sampled ``o`` never has). Returns :class:`SimStep`."""
+
     def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
                  generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
         """One sampled step of beliefs ``(x (M,), beliefs (M, Y))`` under ``actions (M,)``:
-        a hidden value drawn from the belief, its successor and observation drawn from the
-        model, the Bayes update. Returns ``x2 (M,)`` and ``beliefs2 (M, Y)``."""
+        a hidden value drawn from the belief, then :meth:`step`. Returns ``x2 (M,)`` and
+        ``beliefs2 (M, Y)``."""
+        y = sample_categorical(beliefs, generator)
+        out = self.step(x, y, beliefs, actions, generator)
+        return out.x, out.belief
 
     @abstractmethod
     def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,

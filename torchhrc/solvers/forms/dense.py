@@ -27,9 +27,9 @@ from torchhrc.pomdp import POMDP
 from torchhrc.solvers.backup import BackupResult, point_backup
 from torchhrc.solvers.clock import Deadline
 from torchhrc.solvers.fib import fib_backup
-from torchhrc.solvers.forms.base import FIBOperator, FlatFields, TensorModelForm
+from torchhrc.solvers.forms.base import FIBOperator, FlatFields, SimStep, TensorModelForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.sampling import flat_step, sample_categorical
+from torchhrc.solvers.sampling import flat_step
 
 __all__ = ["DenseForm"]
 
@@ -133,11 +133,10 @@ qmdp_iteration_np` (from zero, with the contraction bound: an upper bound wherev
         return self.qmdp_start(tol, deadline, expect), fib
 
     # -- PBVI ----------------------------------------------------------------------------------
-    def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
-                 generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
-        s = sample_categorical(beliefs, generator)
-        step = flat_step(self.model, s, beliefs, actions, generator)
-        return torch.zeros_like(step.state), step.belief
+    def step(self, x: torch.Tensor, y: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
+             generator: torch.Generator) -> SimStep:  # fmt: skip
+        out = flat_step(self.model, y, beliefs, actions, generator)
+        return SimStep(torch.zeros_like(out.state), out.state, out.observation, out.belief)
 
     def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
                      beliefs: torch.Tensor) -> BackupResult:  # fmt: skip

@@ -32,10 +32,16 @@ from torchhrc.pomdp import MOMDP
 from torchhrc.solvers.backup import BackupResult, momdp_point_backup
 from torchhrc.solvers.clock import Deadline
 from torchhrc.solvers.fib import fib_backup
-from torchhrc.solvers.forms.base import FIBOperator, PerObserved, TensorModelForm, field
+from torchhrc.solvers.forms.base import (
+    FIBOperator,
+    PerObserved,
+    SimStep,
+    TensorModelForm,
+    field,
+)
 from torchhrc.solvers.forms.dense import DenseForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.sampling import momdp_step, sample_categorical
+from torchhrc.solvers.sampling import momdp_step
 
 __all__ = ["MOMDPForm"]
 
@@ -171,11 +177,10 @@ class MOMDPForm(TensorModelForm):
         return self.R + self.discount * torch.stack(out, 1)
 
     # -- PBVI ----------------------------------------------------------------------------------
-    def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
-                 generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
-        y = sample_categorical(beliefs, generator)
-        step = momdp_step(self.model, x, y, beliefs, actions, generator)
-        return step.x, step.belief
+    def step(self, x: torch.Tensor, y: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
+             generator: torch.Generator) -> SimStep:  # fmt: skip
+        out = momdp_step(self.model, x, y, beliefs, actions, generator)
+        return SimStep(out.x, out.y, out.observation, out.belief)
 
     def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
                      beliefs: torch.Tensor) -> BackupResult:  # fmt: skip

@@ -27,7 +27,7 @@ import torch
 from torchhrc.solvers.backup import CHUNK_ELEMENTS, BackupResult
 from torchhrc.solvers.belief_tree import BeliefTree, SparseBeliefTree
 from torchhrc.solvers.clock import Deadline
-from torchhrc.solvers.forms.base import Children, FIBOperator, FlatFields, SolverModel
+from torchhrc.solvers.forms.base import Children, FIBOperator, FlatFields, SimStep, SolverModel
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sampling import sample_categorical
 from torchhrc.solvers.sparse_model import SparseFlatModel, sparse_blind_policy
@@ -109,21 +109,21 @@ class SparseForm(FlatFields, SolverModel):
             return self.fib_vectors(tol)[0]
         return torch.from_numpy(self.sparse.qmdp_np(tol))
 
-    def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
-                 generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
-        """One sampled step: ``s ~ b``, ``s2 ~ T[a, s, .]`` among the stored successors,
-        ``o ~ Z[a, s2, .]``, then the Bayes update ``b2 ~ (b T_a) Z[a, ., o]`` (the uniform
-        belief where ``P(o) = 0``, which a sampled ``o`` never has, as
+    def step(self, x: torch.Tensor, y: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
+             generator: torch.Generator) -> SimStep:  # fmt: skip
+        """One sampled step from states ``y = s``: ``s2 ~ T[a, s, .]`` among the stored
+        successors, ``o ~ Z[a, s2, .]``, then the Bayes update ``b2 ~ (b T_a) Z[a, ., o]``
+        (the uniform belief where ``P(o) = 0``, which a sampled ``o`` never has, as
         :func:`torchhrc.belief.update` with ``on_zero="ninf"``)."""
         sp = self.sparse
-        s = sample_categorical(beliefs, generator)
-        nxt, prob = sp.successors(actions, s)  # (M, W)
+        nxt, prob = sp.successors(actions, y)  # (M, W)
         s2 = nxt.gather(1, sample_categorical(prob, generator).unsqueeze(1)).squeeze(1)
         o = sample_categorical(sp.Z[actions, s2], generator)
         new = sp.predict_actions(beliefs, actions) * sp.Z[actions, :, o]  # (M, S)
         total = new.sum(-1, keepdim=True)
         uniform = torch.full_like(new, 1.0 / new.shape[-1])
-        return torch.zeros_like(s), torch.where(total > 0, new / total.clamp(min=1e-300), uniform)
+        new = torch.where(total > 0, new / total.clamp(min=1e-300), uniform)
+        return SimStep(torch.zeros_like(s2), s2, o, new)
 
     def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
                      beliefs: torch.Tensor) -> BackupResult:  # fmt: skip

@@ -45,7 +45,7 @@ from torchhrc.errors import ModelError
 from torchhrc.solvers._factored import SPARSE_DIRECT_SOLVE_SIZE
 from torchhrc.solvers.backup import BackupResult, _padded_vectors, _select_action
 from torchhrc.solvers.clock import NEVER, Deadline
-from torchhrc.solvers.forms.base import FIBOperator, PerObserved, SolverModel, field
+from torchhrc.solvers.forms.base import FIBOperator, PerObserved, SimStep, SolverModel, field
 from torchhrc.solvers.forms.momdp import MOMDPForm
 from torchhrc.solvers.forms.sparse import SparseForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
@@ -350,14 +350,13 @@ class SparseMOMDPForm(SolverModel):
             return self.fib_vectors(tol)[0]
         return torch.from_numpy(self.qmdp_np(tol))
 
-    def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
-                 generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
-        """One sampled step: ``y ~ b``, ``(x2, y2)`` among the stored successors of
+    def step(self, x: torch.Tensor, y: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
+             generator: torch.Generator) -> SimStep:  # fmt: skip
+        """One sampled step from ``(x, y)``: ``(x2, y2)`` among the stored successors of
         ``(a, x, y)``, ``o ~ Z[a, x2, y2]``, then the MOMDP belief update (paper Eq. 3),
         grouped by ``x``."""
         X, Y = self.num_observed, self.num_hidden
         beliefs = beliefs.to(self.dtype)
-        y = sample_categorical(beliefs, generator)
         rows = ((actions * X + x) * Y + y).cpu().numpy()
         ptr = self._cached(
             "row_ptr", 0, lambda: np.searchsorted(self.row, np.arange(self.row.max() + 2))
@@ -379,7 +378,7 @@ class SparseMOMDPForm(SolverModel):
             k = torch.searchsorted(xs, x2[m])
             child = J[torch.arange(m.numel()), actions[m], k, o[m]]
             new[m] = child / child.sum(-1, keepdim=True)
-        return x2, new
+        return SimStep(x2, y2, o, new)
 
     def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
                      beliefs: torch.Tensor) -> BackupResult:  # fmt: skip

@@ -260,7 +260,7 @@ class TaskWithPeople:
 
     Example:
         >>> from torchhrc.tasks.suite import make_task
-        >>> twp = make_task("two_parts_order")
+        >>> twp = make_task("fetch_order")
         >>> demos, y = twp.demonstrations(subjects=4, per_subject=2, seed=0)
         >>> len(demos), y.shape
         (8, torch.Size([8]))

@@ -1,0 +1,118 @@
+"""Division of labour: who does which part (with and without a reach signal).
+
+Each part is to do, done by the person or done by the robot (``3^P`` states). A person
+does their own parts, in the order of their type, and leaves the rest to the robot (they
+wait once their own parts are done); the robot should do the other parts and keep off the
+person's.
+
+* :func:`division_of_labour` (4 parts, 81 states, 3 types): ``left_half`` (the person does
+  ``A, B``), ``right_half`` (``C, D``), ``outer`` (``A, D``). No observation of the human.
+* :func:`kitting_observed` (4 parts, 81 states, 4 types): a mixture of division and order:
+  ``left_forward`` (``A`` then ``B``), ``left_backward`` (``B`` then ``A``),
+  ``right_forward`` (``C, D``), ``right_backward`` (``D, C``); each type also wants the
+  robot's parts done in its direction (ascending or descending). The robot sees where the
+  person reaches next (right with probability 0.8).
+
+Behaviour depends on the state only.
+
+Example:
+    >>> division_of_labour().task.num_states, kitting_observed().observed
+    (81, True)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from torchhrc.tasks.people import TaskWithPeople
+from torchhrc.tasks.suite._base import TaskSpec, build
+
+__all__ = ["division_of_labour", "kitting_observed"]
+
+TODO, HUMAN, ROBOT = 0, 1, 2
+PARTS = ("A", "B", "C", "D")
+
+
+def _spec(
+    name: str,
+    description: str,
+    own: dict[str, Sequence[int]],
+    robot_order: dict[str, Sequence[int]],
+    *,
+    intent_accuracy: float | None = None,
+) -> TaskSpec:
+    """``own[type]``: the person's parts in their order; ``robot_order[type]``: the order in
+    which the type wants the robot's parts done."""
+    types = tuple(own)
+    P = len(PARTS)
+
+    def robot_step(s: tuple[int, ...], a: int) -> tuple[int, ...]:
+        p = a - 1
+        return s if p < 0 or s[p] != TODO else (*s[:p], ROBOT, *s[p + 1 :])
+
+    def human_step(s: tuple[int, ...], h: int) -> tuple[int, ...] | None:
+        return (*s[:h], HUMAN, *s[h + 1 :]) if s[h] == TODO else None
+
+    def behaviour(y: int, m: int, s: tuple[int, ...], a: int) -> dict[int, float]:
+        nxt = next((p for p in own[types[y]] if s[p] == TODO), -1)
+        return {nxt: 1.0}
+
+    def reward(y: int, s: tuple[int, ...], a: int) -> float:
+        mine = [p for p in robot_order[types[y]] if s[p] == TODO]
+        if a == 0:
+            return -0.3 if mine else 0.0
+        p = a - 1
+        if s[p] != TODO:
+            return -0.2  # nothing to do there
+        if p not in robot_order[types[y]]:
+            return -1.0  # the person's part
+        return 1.0 if p == mine[0] else 0.3
+
+    return TaskSpec(
+        name=name,
+        description=description,
+        initial=(TODO,) * P,
+        robot_actions=("wait", *(f"do_{p}" for p in PARTS)),
+        human_actions=tuple(f"do_{p}" for p in PARTS),
+        robot_step=robot_step,
+        human_step=human_step,
+        terminal=lambda s: TODO not in s,
+        state_name=lambda s: "".join("-hr"[v] for v in s),
+        type_names=types,
+        behaviour=behaviour,
+        reward=reward,
+        horizon=8,
+        intent_accuracy=intent_accuracy,
+    )
+
+
+def division_of_labour() -> TaskWithPeople:
+    """Which parts the person does (81 states, 3 types, state-dependent, unobserved)."""
+    own = {"left_half": (0, 1), "right_half": (2, 3), "outer": (0, 3)}
+    rest = {"left_half": (2, 3), "right_half": (0, 1), "outer": (1, 2)}
+    return build(_spec("division_of_labour", "which parts the person does", own, rest))
+
+
+def kitting_observed() -> TaskWithPeople:
+    """Division x order with a reach signal (81 states, 4 types, state-dependent, observed)."""
+    own = {
+        "left_forward": (0, 1),
+        "left_backward": (1, 0),
+        "right_forward": (2, 3),
+        "right_backward": (3, 2),
+    }
+    rest = {
+        "left_forward": (2, 3),
+        "left_backward": (3, 2),
+        "right_forward": (0, 1),
+        "right_backward": (1, 0),
+    }
+    return build(
+        _spec(
+            "kitting_observed",
+            "which parts the person does and in which direction",
+            own,
+            rest,
+            intent_accuracy=0.8,
+        )
+    )

@@ -16,18 +16,26 @@ from torchhrc.tasks.interface import (
     check_task,
     tabular_features,
 )
+from torchhrc.tasks.people import SimulatedPeople, TabularPeople, TaskWithPeople
 from torchhrc.tasks.pipeline import LearnedModel, build_model, learn, solve_model
+from torchhrc.tasks.suite import SUITE, make_task, suite_tasks
 
 __all__ = [
+    "SUITE",
     "CollaborativeTask",
     "Controller",
     "LearnedModel",
+    "SimulatedPeople",
+    "TabularPeople",
     "TaskSteps",
+    "TaskWithPeople",
     "TypeEvidence",
     "build_model",
     "chain_preferences",
     "check_task",
     "learn",
+    "make_task",
     "solve_model",
+    "suite_tasks",
     "tabular_features",
 ]

@@ -1,0 +1,190 @@
+"""Scripted figures of the documentation: each marked block of README.md and docs/*.md is
+the output of one function here.
+
+The rule (docs/index.md, "Where the numbers come from"): every number in README.md and
+docs/*.md either comes from a script or is labelled a one-off with its date and commit.
+Scripted figures live between markers::
+
+    <!-- figures: NAME -->
+    ...the text NAME() prints...
+    <!-- /figures: NAME -->
+
+or, for one line, an inline marker at the end of the line (``<!-- figure: NAME -->``): the
+line's numbers are NAME()'s, in order. ``tests/test_docs_figures.py`` regenerates every cheap
+block (seconds each) and fails when a number in the docs drifts from the script's; the
+expensive ones (``CHEAP[name] = False``) are checked only with ``TORCHHRC_DOC_FIGURES=all``.
+
+Run: ``python docs/_ext/figures.py [--write] [NAME ...]`` prints the blocks (all, or those
+named), or with ``--write`` rewrites them in place in the docs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+BLOCK = re.compile(
+    r"<!-- figures: (?P<name>[\w-]+) -->\n(?P<body>.*?)<!-- /figures: (?P=name) -->", re.S
+)
+INLINE = re.compile(r"^(?P<line>.*)<!-- figure: (?P<name>[\w-]+) -->\s*$", re.M)
+NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?")
+
+
+def online_cross_training_by_type(seed: int = 0) -> str:
+    """Online cross-training of the default place-and-drill study split by the true type.
+
+    The same runs as ``reward_online["cross_training"]`` of ``torchhrc reproduce
+    place-and-drill`` (default settings): per fold the pooled cross-training MDP of the
+    training subjects, the held-out subject's turn taking, the online case's generator
+    (seeded ``seed``, shared by the folds in order; the MOMDP controllers draw nothing, so
+    leaving them out leaves every draw as in the study).
+    """
+    import torch
+
+    from torchhrc.baselines.hand_coded import load_expert_model
+    from torchhrc.experiments.online import human_chunk_size, pooled_cross_training
+    from torchhrc.experiments.place_and_drill import StudySettings
+    from torchhrc.experiments.robustness import simulate_subject
+    from torchhrc.tasks.place_and_drill.demos import simulate_study
+    from torchhrc.tasks.place_and_drill.model import EMPTY, PLACED
+    from torchhrc.tasks.place_and_drill.simulate import demonstrated_orders
+
+    s = StudySettings(seed=seed)
+    demos = simulate_study(
+        n_subjects=s.subjects, n_demos=s.demos, n_positions=s.positions, noise=s.noise, seed=seed
+    )
+    expert = load_expert_model()
+    task = expert.task
+    labels: dict[str, str] = {}
+    for subject, label in zip(demos.subjects, demos.types or ()):
+        labels.setdefault(subject, label)
+    orders = demonstrated_orders(task, demos)
+    score = expert.reward()
+    generator = torch.Generator().manual_seed(seed)
+    status = task.status
+    E = len(s.epsilons)
+    rows: dict[str, list[torch.Tensor]] = {"safe": [], "efficient": []}
+    traces = []
+    for subject in demos.unique_subjects:
+        label = labels[subject]
+        train = demos.subset(torch.tensor([x != subject for x in demos.subjects]))
+        policy = pooled_cross_training(task, train, discount=expert.discount)
+        result = simulate_subject(
+            task,
+            momdp_policies={},
+            cross_training=policy,
+            subject_index=0,
+            orders=orders[subject],
+            score=score[..., expert.type_names.index(label)],
+            epsilons=s.epsilons,
+            runs=s.runs,
+            generator=generator,
+            human_chunk=human_chunk_size(task, label),
+            on_trace=lambda trace, eps, label=label: traces.append((label, trace)),
+        )
+        rows[label].append(result["cross_training"])  # (E, R)
+    stuck: dict[str, list[torch.Tensor]] = {"safe": [], "efficient": []}
+    idle_actions = [0, 0]  # efficient, epsilon 0, both idle: robot waits / drills no screw
+    done: dict[str, list[torch.Tensor]] = {"safe": [], "efficient": []}
+    for label, trace in traces:
+        x = trace.states["cross_training"]  # (H + 1, B)
+        a = trace.actions["cross_training"]  # (H, B)
+        before, after = x[:-1], x[1:]
+        pending = (status[before] == PLACED).any(-1) & (status[before] == EMPTY).any(-1)
+        idle = task.robot_effect[a, before] == before  # a wait or a drill of no placed screw
+        both_wait = idle & pending & (after == before)  # neither the robot nor the person acts
+        stuck[label].append(both_wait.sum(0).double().view(E, -1))
+        if label == "efficient":
+            first = both_wait.view(-1, E, both_wait.shape[-1] // E)[:, 0]  # epsilon 0
+            acts = a.view(-1, E, a.shape[-1] // E)[:, 0][first]
+            idle_actions[0] += int((acts == 0).sum())
+            idle_actions[1] += int((acts != 0).sum())
+        done[label].append((x[-1] == task.terminal_state).double().view(E, -1))
+    lines = [
+        "| epsilon | safe: reward | safe: finished | efficient: reward | efficient: finished "
+        "| efficient: steps neither acts | all: reward |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    safe, efficient = torch.stack(rows["safe"], 1), torch.stack(rows["efficient"], 1)
+    both = torch.cat([safe, efficient], 1)  # (E, S, R)
+    fin = {k: torch.stack(v, 1) for k, v in done.items()}
+    st = torch.stack(stuck["efficient"], 1)
+    for e, eps in enumerate(s.epsilons):
+        lines.append(
+            f"| {eps:.1f} | {float(safe[e].mean()):.2f} | {float(fin['safe'][e].mean()):.2f} "
+            f"| {float(efficient[e].mean()):.2f} | {float(fin['efficient'][e].mean()):.2f} "
+            f"| {float(st[e].mean()):.2f} | {float(both[e].mean()):.2f} |"
+        )
+    lines.append("")
+    lines.append(
+        f"Epsilon 0, efficient subjects, steps where neither acts: the robot waits in "
+        f"{idle_actions[0]}, drills a position with no placed screw in {idle_actions[1]}."
+    )
+    return "\n".join(lines) + "\n"
+
+
+#: name -> the function that prints the block.
+FIGURES: dict[str, Callable[[], str]] = {
+    "online-cross-training-by-type": online_cross_training_by_type,
+}
+#: name -> cheap enough for the default test run (seconds).
+CHEAP: dict[str, bool] = {
+    "online-cross-training-by-type": True,
+}
+
+
+def blocks(text: str) -> list[tuple[str, str]]:
+    """``[(name, body)]`` of the marked blocks and inline figures of a document."""
+    out = [(m["name"], m["body"]) for m in BLOCK.finditer(text)]
+    out += [(m["name"], m["line"]) for m in INLINE.finditer(text)]
+    return out
+
+
+def numbers(text: str) -> list[float]:
+    """The numbers of ``text``, in order (markdown and HTML comments ignored)."""
+    text = re.sub(r"<!--.*?-->", "", text, flags=re.S)
+    return [float(v) for v in NUMBER.findall(text)]
+
+
+def write(names: list[str]) -> None:
+    """Rewrite the named blocks in every document."""
+    cache: dict[str, str] = {}
+    for path in DOCS:
+        text = path.read_text()
+
+        def fill(m: re.Match[str]) -> str:
+            name = m["name"]
+            if names and name not in names:
+                return m.group(0)
+            cache.setdefault(name, FIGURES[name]())
+            return f"<!-- figures: {name} -->\n{cache[name]}<!-- /figures: {name} -->"
+
+        new = BLOCK.sub(fill, text)
+        if new != text:
+            path.write_text(new)
+            print(f"updated {path.relative_to(ROOT)}", file=sys.stderr)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("names", nargs="*", help=f"blocks (default all: {', '.join(FIGURES)})")
+    parser.add_argument("--write", action="store_true", help="rewrite the blocks in the docs")
+    args = parser.parse_args()
+    unknown = [n for n in args.names if n not in FIGURES]
+    if unknown:
+        parser.error(f"unknown figures {unknown}; known: {', '.join(FIGURES)}")
+    if args.write:
+        write(args.names)
+        return
+    for name in args.names or FIGURES:
+        print(f"<!-- figures: {name} -->\n{FIGURES[name]()}<!-- /figures: {name} -->")
+
+
+if __name__ == "__main__":
+    main()

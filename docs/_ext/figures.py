@@ -21,6 +21,7 @@ named), or with ``--write`` rewrites them in place in the docs.
 from __future__ import annotations
 
 import argparse
+import functools
 import re
 import sys
 from collections.abc import Callable
@@ -129,13 +130,87 @@ def online_cross_training_by_type(seed: int = 0) -> str:
     return "\n".join(lines) + "\n"
 
 
+@functools.cache
+def _report(command: str) -> str:
+    """``report.md`` of ``torchhrc reproduce COMMAND`` (default settings, seed 0), run in a
+    temporary directory on one thread, as the command line runs it."""
+    import tempfile
+
+    import torch
+
+    from torchhrc.commands.reproduce import PIPELINES  # type: ignore[attr-defined]
+
+    module, _, function = PIPELINES[command].partition(":")
+    run = getattr(__import__(module, fromlist=[function]), function)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with tempfile.TemporaryDirectory() as out:
+            run(out, seed=0)
+            return (Path(out) / "report.md").read_text()
+    finally:
+        torch.set_num_threads(threads)
+
+
+_TIMING = re.compile(r" \d+(?:\.\d+)? s,")
+
+
+def _rows(lines: list[str], start: int) -> list[str]:
+    """The table that begins at or after line ``start``."""
+    first = next(i for i in range(start, len(lines)) if lines[i].startswith("|"))
+    end = next((i for i in range(first, len(lines)) if not lines[i].startswith("|")), len(lines))
+    return lines[first:end]
+
+
+def hand_finishing_summary() -> str:
+    """The default hand-finishing run's summary list, without its timings (the SARSOP solve
+    time; the factored-vs-flat line, whose flat solve stops on a time limit)."""
+    lines = _report("hand-finishing").splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("- MOMDP:"))
+    end = next(i for i in range(start, len(lines)) if not lines[i].startswith("- "))
+    keep = [_TIMING.sub("", line) for line in lines[start:end]
+            if not line.startswith("- Factored vs flat")]  # fmt: skip
+    return "\n".join(keep) + "\n"
+
+
+def hand_finishing_noise_table() -> str:
+    """The table of waiting and accuracy against observation noise (default run)."""
+    lines = _report("hand-finishing").splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("| noise (m) |"))
+    return "\n".join(_rows(lines, start)) + "\n"
+
+
+def _place_and_drill_table(head: str) -> str:
+    lines = _report("place-and-drill").splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(head))
+    return "\n".join(_rows(lines, start)) + "\n"
+
+
+def place_and_drill_offline_table() -> str:
+    """The offline reward table (Fig. 3) of ``torchhrc reproduce place-and-drill``."""
+    return _place_and_drill_table("Mean accumulated reward ± 95% CI half-width (over all runs")
+
+
+def place_and_drill_online_table() -> str:
+    """The online reward table of ``torchhrc reproduce place-and-drill``."""
+    return _place_and_drill_table("Mean accumulated reward ± 95% CI half-width, online")
+
+
 #: name -> the function that prints the block.
 FIGURES: dict[str, Callable[[], str]] = {
     "online-cross-training-by-type": online_cross_training_by_type,
+    "hand-finishing-summary": hand_finishing_summary,
+    "hand-finishing-noise-table": hand_finishing_noise_table,
+    "place-and-drill-offline-table": place_and_drill_offline_table,
+    "place-and-drill-online-table": place_and_drill_online_table,
 }
 #: name -> cheap enough for the default test run (seconds).
 CHEAP: dict[str, bool] = {
     "online-cross-training-by-type": True,
+    "hand-finishing-summary": False,  # the default run: 60-200 s
+    "hand-finishing-noise-table": False,
+    "place-and-drill-offline-table": False,  # the default run: 45-70 s
+    "place-and-drill-online-table": False,
 }
 
 
@@ -150,6 +225,90 @@ def numbers(text: str) -> list[float]:
     """The numbers of ``text``, in order (markdown and HTML comments ignored)."""
     text = re.sub(r"<!--.*?-->", "", text, flags=re.S)
     return [float(v) for v in NUMBER.findall(text)]
+
+
+#: A one-off label: "one-off", a date and a commit, in any order, on one line.
+ONE_OFF = (
+    re.compile(r"one-off", re.I),
+    re.compile(r"\b\d{4}-\d{2}-\d{2}\b"),
+    re.compile(r"\bcommit [0-9a-f]{7,40}\b"),
+)
+
+
+def is_label(line: str) -> bool:
+    """Whether ``line`` holds a one-off label (:data:`ONE_OFF`)."""
+    return all(p.search(line) for p in ONE_OFF)
+
+
+#: A measured-looking number: decimals (counts and settings are integers or in code spans).
+DECIMAL = re.compile(r"(?<![\w.])\d+\.\d+(?![\w.])")
+HEADING = re.compile(r"^(#{1,6}) ")
+#: Decimals that are names, not figures: versions, issue and section numbers.
+NOT_A_FIGURE = re.compile(
+    r"\b(?:Python|Ray|SAPIEN|torch|gymnasium|numpy|version|issue|issues|section|goal|goals)"
+    r"\s*(?:>=|==|<=)?\s*\d+(?:\.\d+)+|>=\s*3\.\d+|\b3\.1[0-9]\b",
+    re.I,
+)
+
+
+def unlabelled(text: str) -> list[tuple[int, str]]:
+    """``[(line number, line)]`` of the lines with a decimal number that is neither scripted
+    (inside a figures block or on a line with an inline marker) nor covered by a one-off
+    label (:data:`ONE_OFF`), in code fences and code spans excepted.
+
+    A label covers the section it is written in (from its heading to the next heading of the
+    same or a higher level) with all its subsections; a label above the first ``##`` heading
+    covers the introduction, or the whole page when its line says "page".
+    """
+    lines = text.splitlines()
+    scripted = [False] * len(lines)
+    offsets = [0]
+    for line in lines:
+        offsets.append(offsets[-1] + len(line) + 1)
+    for m in BLOCK.finditer(text):
+        for i, start in enumerate(offsets[:-1]):
+            if m.start() <= start < m.end():
+                scripted[i] = True
+    headings = []  # (line, level)
+    fence = False
+    for i, line in enumerate(lines):
+        if line.startswith("```"):
+            fence = not fence
+        elif not fence and HEADING.match(line):
+            headings.append((i, len(HEADING.match(line)[1])))
+
+    def scope(i: int) -> tuple[int, int]:
+        """The section (start, end) of line ``i`` at its innermost heading."""
+        before = [(h, lv) for h, lv in headings if h <= i]
+        if not before:
+            return 0, len(lines)
+        h, lv = before[-1]
+        end = next((g for g, lg in headings if g > h and lg <= lv), len(lines))
+        return h, end
+
+    labels = [i for i, line in enumerate(lines) if is_label(line)]
+    covered = [False] * len(lines)
+    for i in labels:
+        h, end = scope(i)
+        if not [g for g, lv in headings if g <= i and lv >= 2]:
+            first = next((g for g, lv in headings if lv >= 2), len(lines))
+            # above the first ## heading: the introduction, or the page when it says so
+            h, end = 0, len(lines) if "page" in lines[i].lower() else first
+        for j in range(h, end):
+            covered[j] = True
+    out = []
+    fence = False
+    for i, line in enumerate(lines):
+        if line.startswith("```"):
+            fence = not fence
+            continue
+        if fence or scripted[i] or covered[i] or INLINE.match(line):
+            continue
+        bare = re.sub(r"`[^`]*`|<!--.*?-->|\]\([^)]*\)", "", line)
+        bare = NOT_A_FIGURE.sub("", bare)
+        if DECIMAL.search(bare):
+            out.append((i + 1, line))
+    return out
 
 
 def write(names: list[str]) -> None:
@@ -175,7 +334,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("names", nargs="*", help=f"blocks (default all: {', '.join(FIGURES)})")
     parser.add_argument("--write", action="store_true", help="rewrite the blocks in the docs")
+    parser.add_argument(
+        "--unlabelled", action="store_true", help="list the numbers neither scripted nor labelled"
+    )
     args = parser.parse_args()
+    if args.unlabelled:
+        for path in DOCS:
+            for i, line in unlabelled(path.read_text()):
+                print(f"{path.relative_to(ROOT)}:{i}: {line[:100]}")
+        return
     unknown = [n for n in args.names if n not in FIGURES]
     if unknown:
         parser.error(f"unknown figures {unknown}; known: {', '.join(FIGURES)}")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -113,19 +114,81 @@ def test_merged_statistics_equal_the_in_memory_ones(
     assert merged.vocabulary == ordered.vocabulary
 
 
+def _same_fit(a, b) -> None:
+    """Same k, form, log-likelihood and BIC (to 1e-6) and identical assignments."""
+    assert (a.k, a.objects) == (b.k, b.objects)
+    assert a.log_likelihood == pytest.approx(b.log_likelihood, abs=1e-6)
+    assert a.bic == pytest.approx(b.bic, abs=1e-6)
+    assert torch.equal(a.assignments, b.assignments)
+    if b.object_comparison is None:
+        assert a.object_comparison is None
+        return
+    assert a.object_comparison.keys() == b.object_comparison.keys()
+    for form, scores in b.object_comparison.items():
+        assert a.object_comparison[form] == pytest.approx(scores, abs=1e-6), form
+
+
 @pytest.mark.parametrize("method", ["soft", "paper"])
-@pytest.mark.parametrize(("shards", "suffix"), [(1, ".csv"), (2, ".parquet"), (4, ".csv")])
-def test_sharded_fit_equals_the_in_memory_fit(
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+@pytest.mark.parametrize("shards", [1, 2, 4])
+def test_sharded_fit_equals_the_in_memory_fit_with_the_same_defaults(
     study: Demonstrations, tmp_path: Path, shards: int, suffix: str, method: str
 ) -> None:
+    """Issue 30: the sharded path fitted raw objects only (BIC -543.30 against -537.53 in
+    memory): with the defaults (objects='auto' for soft) both give the same model."""
     ordered = _write_shards(study, tmp_path, shards, suffix)
     options = dict(k_min=1, k_max=4, restarts=4, method=method, seed=3)
     sharded = fit_mixture(ShardedCorpus.open(tmp_path), **options)
-    memory = fit_mixture(ordered, objects="raw", **options)  # a sharded corpus is fitted raw
-    assert sharded.k == memory.k
-    assert sharded.log_likelihood == pytest.approx(memory.log_likelihood, abs=1e-6)
-    assert sharded.bic == pytest.approx(memory.bic, abs=1e-6)
-    assert torch.equal(sharded.assignments, memory.assignments)
+    memory = fit_mixture(ordered, **options)
+    _same_fit(sharded, memory)
+    if method == "soft":  # objects="auto" compared both forms, as in memory
+        assert sharded.objects == "exchangeable" and sharded.object_comparison is not None
+
+
+def test_sharded_auto_on_a_sample_and_forced_forms_equal_the_in_memory_ones(
+    study: Demonstrations, tmp_path: Path
+) -> None:
+    """objects='auto' on a random sample of units (a large corpus), and each form forced."""
+    ordered = _write_shards(study, tmp_path, 3, ".csv")
+    corpus = ShardedCorpus.open(tmp_path)
+    base = dict(k_min=1, k_max=3, restarts=3, seed=4)
+    for extra in (dict(objects_sample=9), dict(objects="exchangeable"), dict(objects="raw")):
+        _same_fit(fit_mixture(corpus, **base, **extra), fit_mixture(ordered, **base, **extra))
+    assert fit_mixture(corpus, objects_sample=9, **base).object_comparison["raw"]["units"] == 9
+
+
+def test_merged_statistics_cannot_decide_objects_auto_in_silence(
+    study: Demonstrations, tmp_path: Path
+) -> None:
+    """Statistics of the recorded symbols cannot be relabelled: an error, not a raw fit."""
+    _write_shards(study, tmp_path, 2, ".csv")
+    merged = ShardedCorpus.open(tmp_path).statistics()
+    with pytest.raises(ModelError, match="objects='raw'"):
+        fit_mixture(merged, k_max=3, restarts=2)
+    assert fit_mixture(merged, k_max=3, restarts=2, objects="raw").objects == "raw"
+    with pytest.raises(ModelError, match="keep_unused=True"):
+        ShardedCorpus.open(tmp_path).relabel_objects(keep_unused=False)
+
+
+def test_corpus_views_read_the_same_rows_as_in_memory(
+    study: Demonstrations, tmp_path: Path
+) -> None:
+    ordered = _write_shards(study, tmp_path, 4, ".parquet")
+    corpus = ShardedCorpus.open(tmp_path)
+    assert corpus.keys == ordered.keys and corpus.types == ordered.types
+    assert corpus.num_objects() == ordered.num_objects() == 3
+    mask = torch.arange(ordered.num_sequences) % 3 == 1
+    sub = corpus.subset(mask)
+    assert sub.keys == ordered.subset(mask).keys
+    expected = ordered.subset(mask).relabel_log_multiplicity(given_first=False)
+    assert torch.equal(sub.relabel_log_multiplicity(given_first=False), expected)
+    relabelled = sub.relabel_objects().statistics(unit="sequence").stats
+    ref = ordered.subset(mask).relabel_objects(keep_unused=True)
+    ref_stats = sufficient_statistics(ref.sequences, ref.lengths, ref.num_symbols)
+    assert torch.equal(relabelled.counts, ref_stats.counts)
+    assert torch.equal(relabelled.inverse, ref_stats.inverse)
+    inner = sub.subset(torch.arange(sub.num_sequences) % 2 == 0)  # a subset of a subset
+    assert inner.keys == ordered.subset(mask).subset(torch.arange(sub.num_sequences) % 2 == 0).keys
 
 
 @pytest.fixture(scope="module")
@@ -136,39 +199,95 @@ def local_ray():
     ray.shutdown()
 
 
-@pytest.mark.parametrize("shards", [1, 2, 4])
+@pytest.fixture
+def where_it_ran(local_ray, monkeypatch: pytest.MonkeyPatch) -> dict[str, list]:
+    """Records the process of every shard reduction and of every E-step actor of a fit."""
+    import torchhrc.corpus as corpus_module
+
+    record: dict[str, list] = {"shards": [], "e_steps": []}
+    statistics = corpus_module.ShardedCorpus.statistics
+
+    def recorded_statistics(self, **options):
+        merged = statistics(self, **options)
+        record["shards"].extend(merged.process_ids)
+        return merged
+
+    class RecordedEStep(corpus_module.RayEStep):
+        calls = 0
+
+        def __call__(self, *args):
+            self.calls += 1
+            return super().__call__(*args)
+
+        def close(self) -> None:
+            record["e_steps"].append((self.calls, self.worker_passes()))
+            super().close()
+
+    monkeypatch.setattr(corpus_module.ShardedCorpus, "statistics", recorded_statistics)
+    monkeypatch.setattr(corpus_module, "RayEStep", RecordedEStep)
+    return record
+
+
+def _ran_on_ray_workers(record: dict[str, list], *, shards: bool) -> None:
+    driver = os.getpid()
+    assert record["e_steps"], "no E-step ran on Ray"
+    for calls, workers in record["e_steps"]:
+        assert calls > 0 and workers
+        # every actor ran every pass, in a process other than this one
+        assert all(pid != driver and passes == calls for pid, passes in workers), workers
+    if shards:
+        assert record["shards"] and all(pid != driver for pid in record["shards"])
+
+
+# 2 shards with Ray: test_ray_shard_statistics_run_in_ray_workers (each fit here starts actors)
+@pytest.mark.parametrize(("shards", "suffix"), [(1, ".csv"), (4, ".parquet")])
 def test_ray_shard_tasks_and_e_steps_give_the_in_memory_fit(
-    study: Demonstrations, tmp_path: Path, local_ray, shards: int
+    study: Demonstrations, tmp_path: Path, where_it_ran, shards: int, suffix: str
 ) -> None:
-    """Shards reduced as Ray tasks, every E-step on Ray actors (a local cluster, 2 CPUs)."""
-    ordered = _write_shards(study, tmp_path, shards, ".parquet")
-    options = dict(k_min=1, k_max=4, restarts=4, seed=5)
-    memory = fit_mixture(ordered, objects="raw", **options)  # a sharded corpus is fitted raw
+    """Shards reduced as Ray tasks, every E-step on Ray actors (a local cluster, 2 CPUs), in
+    other processes than the driver (issue 30: a local run in their place passed)."""
+    ordered = _write_shards(study, tmp_path, shards, suffix)
+    options = dict(k_min=1, k_max=3, restarts=3, seed=5)
+    memory = fit_mixture(ordered, **options)
+    assert not where_it_ran["e_steps"]
     on_ray = fit_mixture(ShardedCorpus.open(tmp_path), ray=True, **options)
-    assert local_ray.is_initialized()  # the fit leaves a cluster it did not start
-    assert on_ray.k == memory.k
-    assert on_ray.log_likelihood == pytest.approx(memory.log_likelihood, abs=1e-6)
-    assert on_ray.bic == pytest.approx(memory.bic, abs=1e-6)
-    assert torch.equal(on_ray.assignments, memory.assignments)
+    _ran_on_ray_workers(where_it_ran, shards=True)
+    _same_fit(on_ray, memory)
 
 
-def test_ray_e_steps_for_data_in_memory(study: Demonstrations, local_ray) -> None:
-    """``ray=`` with demonstrations in memory runs the E-steps on Ray (not ignored)."""
+def test_ray_shard_statistics_run_in_ray_workers(
+    study: Demonstrations, tmp_path: Path, local_ray
+) -> None:
+    ordered = _write_shards(study, tmp_path, 2, ".parquet")
+    corpus = ShardedCorpus.open(tmp_path)
+    here, there = corpus.statistics(), corpus.statistics(ray=True)
+    assert set(here.process_ids) == {os.getpid()}
+    assert len(there.process_ids) == 2 and os.getpid() not in there.process_ids
+    assert torch.equal(here.stats.counts, there.stats.counts)
+    assert torch.equal(here.stats.inverse, there.stats.inverse)
+    assert ordered.num_sequences == there.stats.num_sequences
+
+
+def test_ray_e_steps_for_data_in_memory(study: Demonstrations, where_it_ran) -> None:
+    """``ray=`` with demonstrations in memory runs the E-steps on Ray actors (not ignored)."""
     # raw: the two types are of equal size, and exchangeable chains tie in cluster order up to
     # float rounding, which Ray's chunked sums may flip
     options = dict(k_min=1, k_max=3, restarts=3, seed=2, objects="raw")
     memory = fit_mixture(study, **options)
     on_ray = fit_mixture(study, ray=True, **options)
-    assert on_ray.k == memory.k
-    assert on_ray.log_likelihood == pytest.approx(memory.log_likelihood, abs=1e-6)
-    assert torch.equal(on_ray.assignments, memory.assignments)
+    _ran_on_ray_workers(where_it_ran, shards=False)
+    _same_fit(on_ray, memory)
 
 
-def test_ray_with_the_paper_method_in_memory_is_an_error(study: Demonstrations) -> None:
+def test_ray_where_it_cannot_apply_is_an_error(study: Demonstrations, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="method='paper'"):
         fit_mixture(study, method="paper", ray=True)
     with pytest.raises(TypeError, match="ray"):
         fit_mixture(study, ray=3)
+    _write_shards(study, tmp_path, 2, ".csv")
+    merged = ShardedCorpus.open(tmp_path).statistics(unit="sequence")
+    with pytest.raises(ValueError, match="method='paper'"):  # merged: no shard to reduce
+        fit_mixture(merged, method="paper", objects="raw", ray=True)
 
 
 def test_shards_must_agree(study: Demonstrations, tmp_path: Path) -> None:
@@ -215,13 +334,13 @@ def test_cli_clusters_a_directory_of_shards(
     argv = ["--k-max", "4", "--restarts", "4", "--json"]
     assert main(["cluster", str(tmp_path / "shards"), *argv]) == 0
     sharded = json.loads(capsys.readouterr().out)
-    assert main(["cluster", str(tmp_path / "all.csv"), *argv, "--objects", "raw"]) == 0
+    assert main(["cluster", str(tmp_path / "all.csv"), *argv]) == 0
     memory = json.loads(capsys.readouterr().out)
-    assert sharded["objects"] == memory["objects"] == "raw"
-    for key in ("k", "bic", "log_likelihood", "assignments", "adjusted_rand_index"):
+    assert sharded["objects"] == memory["objects"] == "exchangeable"  # the same defaults
+    for key in ("k", "num_subjects", "symbols", "assignments", "adjusted_rand_index"):
         assert sharded[key] == memory[key], key
+    for key in ("bic", "log_likelihood"):
+        assert sharded[key] == pytest.approx(memory[key], abs=1e-6), key
     assert sharded["num_shards"] == 2
     assert main(["cluster", str(tmp_path / "shards"), "--loo"]) == 2
-    assert "sharded corpus" in capsys.readouterr().err
-    assert main(["cluster", str(tmp_path / "shards"), "--objects", "exchangeable"]) == 2
     assert "sharded corpus" in capsys.readouterr().err

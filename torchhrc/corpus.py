@@ -272,6 +272,8 @@ class ShardStatistics:
         subjects: the shard's distinct subject ids (to check that shards do not share one).
         sequence_keys: ``"subject/sequence"`` of each sequence, or None when not asked.
         types: ground-truth label of each sequence, or None.
+        process_id: the id of the process that reduced the shard (a Ray worker's with
+            ``ray=``, this process's otherwise): where the work ran.
     """
 
     path: str
@@ -284,6 +286,7 @@ class ShardStatistics:
     subjects: tuple[str, ...]
     sequence_keys: tuple[str, ...] | None
     types: tuple[str, ...] | None
+    process_id: int = 0
 
 
 def _compact_dtype(largest: int) -> torch.dtype:
@@ -294,8 +297,30 @@ def _compact_dtype(largest: int) -> torch.dtype:
     return torch.int64
 
 
+def _read_view(path: str, keep: torch.Tensor | None, relabel: str | None) -> Demonstrations:
+    """One shard as a view of the corpus sees it: its sequences ``keep`` (a ``(N_s,)`` bool
+    mask, None: all), with their objects relabelled (``relabel``: the separator) or not."""
+    demos = read_shard(path)
+    if keep is not None:
+        if keep.shape != (demos.num_sequences,):
+            raise ModelError(
+                f"shard {path} has {demos.num_sequences} sequences, but the corpus's subset "
+                f"mask gives it {keep.shape[0]}: the shard changed since the corpus was read"
+            )
+        demos = demos.subset(keep)
+    if relabel is not None:
+        demos = demos.relabel_objects(separator=relabel, keep_unused=True)
+    return demos
+
+
 def shard_statistics(
-    path: str, *, by_subject: bool, initial: bool, keep_keys: bool = False
+    path: str,
+    *,
+    by_subject: bool,
+    initial: bool,
+    keep_keys: bool = False,
+    keep: torch.Tensor | None = None,
+    relabel: str | None = None,
 ) -> ShardStatistics:
     """Read one shard and reduce it to its distinct unit rows (runs in a worker).
 
@@ -304,12 +329,25 @@ def shard_statistics(
         by_subject: one unit per subject (a subject's counts added) or per sequence.
         initial: keep first-symbol counts.
         keep_keys: also return each sequence's ``"subject/sequence"`` key and type.
+        keep: ``(N_s,)`` bool, the shard's sequences to keep (None: all).
+        relabel: relabel every sequence's objects with this separator
+            (:meth:`~torchhrc.data.Demonstrations.relabel_objects`, ``keep_unused=True``).
     """
     from torchhrc.mixture.counts import _unique_rows, transition_counts
 
-    demos = read_shard(path)
+    demos = _read_view(path, keep, relabel)
     A = demos.num_symbols
     N = demos.num_sequences
+    if N == 0:  # a subset that keeps none of this shard's sequences
+        width = A * A + (A if initial else 0)
+        return ShardStatistics(
+            path=str(path), vocabulary=demos.vocabulary, has_types=demos.types is not None,
+            keys=torch.zeros(0, width, dtype=torch.uint8),
+            multiplicity=torch.zeros(0, dtype=torch.long),
+            inverse=torch.zeros(0, dtype=torch.long), num_units=0, subjects=(),
+            sequence_keys=() if keep_keys else None, types=() if keep_keys else None,
+            process_id=os.getpid(),
+        )  # fmt: skip
     counts = transition_counts(demos.sequences, demos.lengths, A).view(N, A * A)
     key = counts
     if initial:
@@ -331,6 +369,7 @@ def shard_statistics(
         subjects=tuple(sorted(set(demos.subjects))),
         sequence_keys=demos.keys if keep_keys else None,
         types=demos.types if keep_keys else None,
+        process_id=os.getpid(),
     )
 
 
@@ -345,6 +384,8 @@ class CorpusStatistics:
         sequence_keys: ``"subject/sequence"`` of every sequence, or None.
         types: ground-truth labels of every sequence (None unless every shard has them).
         unit, initial: the options they were computed with.
+        process_ids: the process that reduced each shard (see
+            :attr:`ShardStatistics.process_id`).
     """
 
     stats: Any
@@ -353,6 +394,32 @@ class CorpusStatistics:
     types: tuple[str, ...] | None
     unit: str = "subject"
     initial: bool = False
+    process_ids: tuple[int, ...] = ()
+
+    def num_objects(self, *, separator: str = "_") -> int:
+        """``M``, the objects the vocabulary names (as
+        :meth:`~torchhrc.data.Demonstrations.num_objects`).
+
+        Raises:
+            ModelError: ``M >= 2``: statistics of the recorded symbols cannot be relabelled,
+                so ``fit_mixture(objects="auto")`` cannot compare the two forms on them (it
+                would fit the raw form in silence); fit the :class:`ShardedCorpus` itself, or
+                pass ``objects="raw"``.
+        """
+        count = _num_objects(self.vocabulary, separator)
+        if count >= 2:
+            self.relabel_objects(separator=separator)
+        return count
+
+    def relabel_objects(self, *, separator: str = "_", keep_unused: bool = True) -> Any:
+        """Raise :class:`ModelError`: merged statistics cannot be relabelled (see
+        :meth:`num_objects`); fit the :class:`ShardedCorpus` itself."""
+        count = _num_objects(self.vocabulary, separator)
+        raise ModelError(
+            f"these merged statistics are of the recorded symbols, and the vocabulary names "
+            f"{count} objects: objects='auto' (or 'exchangeable') needs the corpus itself to "
+            "relabel them; fit the ShardedCorpus, or pass objects='raw'"
+        )
 
     def statistics(
         self,
@@ -379,6 +446,47 @@ class CorpusStatistics:
         ))  # fmt: skip
 
 
+@dataclass(frozen=True)
+class _ShardIndex:
+    """A shard's vocabulary and the ids of its sequences (no transitions)."""
+
+    path: str
+    vocabulary: tuple[Step, ...]
+    subjects: tuple[str, ...]
+    sequence_ids: tuple[str, ...]
+    types: tuple[str, ...] | None
+
+
+def _shard_index(path: str) -> _ShardIndex:
+    demos = read_shard(path)
+    return _ShardIndex(str(path), demos.vocabulary, demos.subjects, demos.sequence_ids,
+                       demos.types)  # fmt: skip
+
+
+def _pick(values: tuple[str, ...], mask: torch.Tensor | None) -> tuple[str, ...]:
+    if mask is None:
+        return values
+    return tuple(values[i] for i in mask.nonzero().flatten().tolist())
+
+
+def _num_objects(vocabulary: Sequence[Step], separator: str) -> int:
+    """``M`` of :meth:`~torchhrc.data.Demonstrations.num_objects` for a vocabulary."""
+    if not isinstance(separator, str) or not separator:
+        raise TypeError(f"expected separator to be a non-empty str, got {separator!r}")
+    split = [a.rpartition(separator) for _, a in vocabulary]
+    return len({obj for verb, sep, obj in split if sep and verb and obj})
+
+
+def _relabelled_vocabulary(vocabulary: tuple[Step, ...], separator: str | None
+                           ) -> tuple[Step, ...]:  # fmt: skip
+    """The vocabulary ``relabel_objects(keep_unused=True)`` gives (it follows from the
+    recorded one)."""
+    if separator is None:
+        return vocabulary
+    probe = Demonstrations.from_lists([[vocabulary[0], vocabulary[0]]], vocabulary=vocabulary)
+    return probe.relabel_objects(separator=separator, keep_unused=True).vocabulary
+
+
 class ShardedCorpus:
     """Demonstration shards on disk (see the module docstring).
 
@@ -399,9 +507,172 @@ class ShardedCorpus:
                     f"shard {p} has an unknown suffix (expected one of {SHARD_SUFFIXES})"
                 )
         self.paths = files
+        self._keep: torch.Tensor | None = None  # (N,) bool: a subset view of the corpus
+        self._relabel: str | None = None  # a view with relabelled objects (the separator)
+        self._index_cache: list[_ShardIndex] | None = None
+        self._base_corpus: ShardedCorpus | None = None
 
     def __repr__(self) -> str:
         return f"ShardedCorpus({len(self.paths)} shards, first {self.paths[0]!r})"
+
+    # --- the Demonstrations interface fit_mixture uses (objects="auto" included) ----------
+    #
+    # fit_mixture reads a corpus in memory through num_objects, subjects, num_sequences,
+    # subset (a sample of units), relabel_objects and relabel_log_multiplicity; a sharded
+    # corpus implements the same operations as views of its shards (a mask of sequences, a
+    # relabelling), computed shard by shard, so every default, objects="auto" included, is
+    # decided exactly as for the same rows in memory.
+
+    def _index(self) -> list[_ShardIndex]:
+        """What the in-memory checks need from every shard (one pass over the shards here,
+        one shard at a time: its vocabulary and sequence ids, no transitions kept)."""
+        if self._index_cache is None:
+            if self._keep is not None or self._relabel is not None:
+                base = self._base()._index()
+                masks = self._masks()
+                self._index_cache = [
+                    dataclasses.replace(
+                        b,
+                        vocabulary=_relabelled_vocabulary(b.vocabulary, self._relabel),
+                        subjects=_pick(b.subjects, m),
+                        sequence_ids=_pick(b.sequence_ids, m),
+                        types=None if b.types is None else _pick(b.types, m),
+                    )
+                    for b, m in zip(base, masks, strict=True)
+                ]
+            else:
+                self._index_cache = [_shard_index(p) for p in self.paths]
+        return self._index_cache
+
+    def _base(self) -> ShardedCorpus:
+        """The whole corpus this view is of (itself when it is no view)."""
+        return self if self._base_corpus is None else self._base_corpus
+
+    def _masks(self) -> list[torch.Tensor | None]:
+        """Each shard's ``(N_s,)`` bool mask of this view (None: every sequence)."""
+        if self._keep is None:
+            return [None] * len(self.paths)
+        sizes = [len(b.subjects) for b in self._base()._index()]
+        return list(torch.split(self._keep, sizes))
+
+    def _view(self, *, keep: torch.Tensor | None = None, relabel: str | None = None
+              ) -> ShardedCorpus:  # fmt: skip
+        view = ShardedCorpus(self.paths)
+        view._base_corpus = self._base()
+        view._keep = self._keep if keep is None else keep
+        view._relabel = self._relabel if relabel is None else relabel
+        return view
+
+    @property
+    def vocabulary(self) -> tuple[Step, ...]:
+        """The shards' common vocabulary.
+
+        Raises:
+            ModelError: shards with different vocabularies.
+        """
+        index = self._index()
+        for b in index[1:]:
+            if b.vocabulary != index[0].vocabulary:
+                extra = sorted(set(b.vocabulary) ^ set(index[0].vocabulary))
+                raise ModelError(
+                    f"shard {b.path} has another vocabulary than {index[0].path} "
+                    f"(symbols in one only: {', '.join(f'{a}:{c}' for a, c in extra[:5])})"
+                )
+        return index[0].vocabulary
+
+    @property
+    def num_symbols(self) -> int:
+        return len(self.vocabulary)
+
+    @property
+    def num_sequences(self) -> int:
+        """``N``, the sequences of the corpus (all shards)."""
+        return sum(len(b.subjects) for b in self._index())
+
+    @property
+    def subjects(self) -> tuple[str, ...]:
+        """The subject of every sequence, in shard order."""
+        return tuple(x for b in self._index() for x in b.subjects)
+
+    @property
+    def sequence_ids(self) -> tuple[str, ...]:
+        return tuple(x for b in self._index() for x in b.sequence_ids)
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """``"subject/sequence"`` of every sequence, in shard order."""
+        return tuple(f"{a}/{b}" for a, b in zip(self.subjects, self.sequence_ids, strict=True))
+
+    @property
+    def types(self) -> tuple[str, ...] | None:
+        """Ground-truth labels of every sequence (None unless every shard has them)."""
+        index = self._index()
+        if any(b.types is None for b in index):
+            return None
+        return tuple(x for b in index for x in (b.types or ()))
+
+    @property
+    def unique_subjects(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(self.subjects))
+
+    def num_objects(self, *, separator: str = "_") -> int:
+        """``M``, as :meth:`~torchhrc.data.Demonstrations.num_objects` of the corpus."""
+        return _num_objects(self.vocabulary, separator)
+
+    def subset(self, indices: torch.Tensor | Sequence[bool]) -> ShardedCorpus:
+        """The sequences of a ``(N,)`` bool mask, as a corpus (a view of the same shards).
+
+        Raises:
+            ModelError: not a bool mask of shape ``(N,)`` (a view keeps the shards' order).
+        """
+        mask = torch.as_tensor(indices)
+        N = self.num_sequences
+        if mask.dtype != torch.bool or mask.shape != (N,):
+            raise ModelError(
+                f"a sharded corpus takes a subset as a bool mask of shape (N,) = ({N},) (the "
+                f"shards' order is kept), got dtype {mask.dtype}, shape {tuple(mask.shape)}"
+            )
+        if self._keep is not None:
+            full = self._keep.clone()
+            full[self._keep.nonzero().flatten()] = mask
+            mask = full
+        return self._view(keep=mask)
+
+    def relabel_objects(self, *, separator: str = "_", keep_unused: bool = True) -> ShardedCorpus:
+        """Every sequence's objects renamed in order of first use, shard by shard (a view).
+
+        :meth:`~torchhrc.data.Demonstrations.relabel_objects` with ``keep_unused=True``: the
+        relabelled vocabulary follows from the recorded one, so every shard gets the same.
+
+        Raises:
+            ModelError: ``keep_unused=False`` (the symbols the relabelled sequences use are
+                known only after every shard is read), or an already relabelled view.
+        """
+        if not keep_unused:
+            raise ModelError(
+                "a sharded corpus relabels its objects with keep_unused=True only (the "
+                "relabelled vocabulary must follow from the recorded one, the same in every "
+                "shard)"
+            )
+        if self._relabel is not None:
+            raise ModelError("this sharded corpus is already relabelled")
+        _num_objects(self.vocabulary, separator)  # checks the separator
+        return self._view(relabel=separator)
+
+    def relabel_log_multiplicity(
+        self, *, separator: str = "_", given_first: bool = True
+    ) -> torch.Tensor:
+        """``(N,)`` float64 :meth:`~torchhrc.data.Demonstrations.relabel_log_multiplicity` of
+        every sequence, shard by shard (in this process, one shard at a time)."""
+        if self._relabel is not None:
+            raise ModelError("relabel_log_multiplicity of an already relabelled corpus")
+        parts = [
+            _read_view(p, m, None).relabel_log_multiplicity(
+                separator=separator, given_first=given_first
+            )
+            for p, m in zip(self.paths, self._masks(), strict=True)
+        ]
+        return torch.cat(parts) if parts else torch.zeros(0, dtype=torch.float64)
 
     @classmethod
     def open(
@@ -492,7 +763,7 @@ class ShardedCorpus:
         # merge on bit-packed rows (a few int64 words per row), never an int64 copy of all keys
         largest = max((int(s.keys.max()) for s in shards if s.keys.numel()), default=0)
         bits = max(1, largest.bit_length())
-        words = torch.cat([_pack_rows(s.keys, bits) for s in shards])
+        words = torch.cat([_pack_rows(s.keys, bits) for s in shards if s.keys.shape[0]])
         first_row, merged_row, _ = _unique_words(words)
         del words
         mult = torch.cat([s.multiplicity for s in shards])
@@ -521,18 +792,22 @@ class ShardedCorpus:
             sequence_keys = tuple(k for s in shards for k in (s.sequence_keys or ()))
             if first.has_types:
                 types = tuple(t for s in shards for t in (s.types or ()))
-        return CorpusStatistics(stats, first.vocabulary, sequence_keys, types, unit, initial)
+        return CorpusStatistics(stats, first.vocabulary, sequence_keys, types, unit, initial,
+                                tuple(s.process_id for s in shards))  # fmt: skip
 
     def _run(self, options: dict[str, Any], ray: bool | str | None) -> list[ShardStatistics]:
+        views = [dict(keep=k, relabel=self._relabel) for k in self._masks()]
         if ray is None or ray is False:
-            return [shard_statistics(p, **options) for p in self.paths]
+            return [shard_statistics(p, **options, **v)
+                    for p, v in zip(self.paths, views, strict=True)]  # fmt: skip
         from torchhrc._ray import import_ray, init_ray, task_error
 
         ray_module = import_ray()
         started = init_ray("local" if ray is True else str(ray))
         try:
             task = ray_module.remote(num_cpus=1, max_retries=2)(shard_statistics)
-            return ray_module.get([task.remote(p, **options) for p in self.paths])
+            return ray_module.get([task.remote(p, **options, **v)
+                                   for p, v in zip(self.paths, views, strict=True)])  # fmt: skip
         except Exception as error:  # a shard task failed after its retries
             raise task_error(error) from None
         finally:
@@ -547,12 +822,18 @@ class _ChunkPass:
         from torchhrc.mixture.soft_em import _Data
 
         self.data = _Data(stats, dtype)
+        self.passes = 0
 
     def run(self, lt: torch.Tensor, lw: torch.Tensor, li: torch.Tensor | None,
             mask: torch.Tensor, details: bool) -> Any:  # fmt: skip
         from torchhrc.mixture.soft_em import _pass
 
+        self.passes += 1
         return _pass(self.data, lt, lw, li, mask, details)
+
+    def worker(self) -> tuple[int, int]:
+        """``(process id, passes run)`` of this actor."""
+        return os.getpid(), self.passes
 
 
 class RayEStep:
@@ -610,6 +891,10 @@ class RayEStep:
 
         refs = [a.run.remote(lt, lw, li, mask, details) for a in self._actors]
         return sum_statistics(self._ray.get(refs))
+
+    def worker_passes(self) -> list[tuple[int, int]]:
+        """``(process id, passes run)`` of every actor: where the E-steps ran."""
+        return list(self._ray.get([a.worker.remote() for a in self._actors]))
 
     def close(self) -> None:
         """Release the actors (and the Ray connection when this object started it)."""

@@ -122,14 +122,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=("auto", "raw", "exchangeable"),
         default=None,
         help="how objects of verb_object actions are read: auto (soft default) fits the raw "
-        "symbols and exchangeable objects (renamed by first use) and keeps the better by BIC; "
-        "raw (paper default) or exchangeable force one (see docs/clustering.md)",
+        "symbols and exchangeable objects (renamed by first use) and keeps the better by the "
+        "exact ICL, for a sharded corpus as in memory; raw (paper default) or exchangeable "
+        "force one (see docs/clustering.md)",
     )
     parser.add_argument(
         "--ray",
         metavar="local|HOST:PORT",
         default=None,
-        help="sharded corpus: reduce each shard in a Ray task (a local cluster or a running one)",
+        help="reduce each shard in a Ray task and run the E-steps on Ray actors (a local "
+        "cluster or a running one)",
     )
     parser.add_argument("--save-model", metavar="PATH", help="save the fitted mixture (.json)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -298,30 +300,38 @@ def sharded_cluster_report(
     seed: int = 0,
     save_model: str | None = None,
     ray: str | None = None,
+    min_gain: float | None = None,
+    objects: str | None = None,
 ) -> dict[str, Any]:
     """:func:`cluster_report` for a :class:`~torchhrc.corpus.ShardedCorpus` (same keys).
 
-    The shards are reduced to their distinct units (as Ray tasks with ``ray``) and merged;
-    the fit equals the in-memory one. ``--loo`` and ``--relabel-objects`` need the corpus in
-    memory and are not offered here.
+    ``fit_mixture`` reads the corpus shard by shard (each shard a Ray task with ``ray``, and
+    the soft method's E-steps on Ray actors), with the same defaults as the same rows in
+    memory, ``objects="auto"`` included: the report equals :func:`cluster_report`'s on the
+    rows in shard order. ``--loo`` and ``--relabel-objects`` need the corpus in memory and
+    are not offered here.
     """
     from torchhrc.mixture import fit_mixture
 
     _check_search(k_min, k_max, restarts)
-    unit = "subject" if method == "soft" else "sequence"
-    merged = corpus.statistics(unit=unit, ray=ray, keep_keys=True)
     fit = fit_mixture(
-        merged,
+        corpus,
         k_min=k_min,
         k_max=k_max,
         restarts=restarts,
-        method=method,
-        criterion=criterion,
+        method=method,  # type: ignore[arg-type]
+        criterion=criterion,  # type: ignore[arg-type]
         seed=seed,
-    )  # type: ignore[arg-type]
+        min_gain=min_gain,
+        objects=objects,  # type: ignore[arg-type]
+        ray=ray,
+    )
     if save_model is not None:
         fit.model.save(save_model)
-    stats = merged.stats
+    # the recorded symbols' counts per cluster, for the readable report (one more pass)
+    unit = "subject" if method == "soft" else "sequence"
+    raw = corpus.statistics(unit=unit, ray=ray)
+    stats = raw.stats
     assignments = fit.assignments.cpu()
     A = stats.num_symbols
     row_cluster = torch.zeros(stats.num_distinct, dtype=torch.long)
@@ -329,22 +339,24 @@ def sharded_cluster_report(
     weighted = stats.counts * stats.multiplicity[:, None]
     by_cluster = torch.zeros(fit.k, A * A, dtype=weighted.dtype)
     by_cluster.index_add_(0, row_cluster, weighted)
-    keys = merged.sequence_keys or ()
+    keys = corpus.keys
     report: dict[str, Any] = {
         **_fit_scores(fit),
         "num_sequences": stats.num_sequences,
-        "num_subjects": len({k.rsplit("/", 1)[0] for k in keys}),
+        "num_subjects": len(corpus.unique_subjects),
         "num_symbols": A,
-        "symbols": [f"{a}:{b}" for a, b in merged.vocabulary],
+        "symbols": [f"{a}:{b}" for a, b in raw.vocabulary],
         "num_shards": len(corpus.paths),
         "per_k": _per_k(fit),
-        "objects": fit.objects,  # a sharded corpus is fitted raw
+        "objects": fit.objects,
+        **({"object_comparison": fit.object_comparison} if fit.object_comparison else {}),
         "cluster_sizes": torch.bincount(assignments, minlength=fit.k).tolist(),
         "assignments": dict(zip(keys, assignments.tolist())),
         "_cluster_counts": by_cluster.view(fit.k, A, A),
     }
-    if merged.types is not None:
-        report.update(_against_types(merged.types, assignments, fit.k))
+    types = corpus.types
+    if types is not None:
+        report.update(_against_types(types, assignments, fit.k))
     return report
 
 
@@ -443,7 +455,6 @@ def run(args: argparse.Namespace) -> int:
         for flag, value in (
             ("--loo", args.loo),
             ("--relabel-objects", args.relabel_objects),
-            ("--objects exchangeable", args.objects == "exchangeable"),
         ):
             if value:
                 raise ModelError(f"{flag} needs one demonstrations file, not a sharded corpus")
@@ -457,7 +468,8 @@ def run(args: argparse.Namespace) -> int:
         report = sharded_cluster_report(
             corpus, k_min=args.k_min, k_max=args.k_max, restarts=args.restarts,
             method=args.method, criterion=args.criterion, seed=args.seed,
-            save_model=args.save_model, ray=args.ray,
+            save_model=args.save_model, ray=args.ray, min_gain=args.min_gain,
+            objects=args.objects,
         )  # fmt: skip
         _emit(report, " ".join(paths), args.json)
         return 0

@@ -511,8 +511,8 @@ def fit_mixture(
             lengths (N,) int64, num_symbols)``, or a corpus in shards
             (:class:`torchhrc.corpus.ShardedCorpus`: CSV or Parquet files), whose shards are
             reduced to their distinct units one by one (or as Ray tasks, ``ray=``) and merged
-            exactly: the same fit as the corpus in memory with ``objects="raw"`` (a sharded
-            corpus is fitted over its recorded symbols).
+            exactly: the same fit as the corpus in memory, with the same defaults
+            (``objects="auto"`` included: the corpus relabels its shards as views).
         k_min, k_max: the range of k (``1 <= k_min <= k_max``).
         restarts: EM runs per k (the paper's numOfIterations, 20).
         method: ``"soft"`` (k-means++ + smoothed soft EM, the default) or ``"paper"``
@@ -574,8 +574,9 @@ def fit_mixture(
             mirror images (one strategy on different objects, e.g. "left first" and "right
             first") are one type in the exchangeable form: pass ``"raw"`` when such
             object preferences are the types sought. ``None``: ``"auto"`` for ``"soft"``,
-            ``"raw"`` for ``"paper"``. Data without object names (a tuple of tensors, a
-            sharded corpus, fewer than 2 objects) are fitted raw by ``"auto"``. The fit
+            ``"raw"`` for ``"paper"``. Data without object names (a tuple of tensors, fewer
+            than 2 objects) are fitted raw by ``"auto"``; merged statistics of shards raise a
+            ModelError when their vocabulary names objects (they cannot be relabelled). The fit
             records the choice (``objects``, ``object_comparison``, ``model.objects``); score
             new demonstrations through ``fit.model.prepare``.
         object_separator: the separator between verb and object (``place_A``: ``"_"``).
@@ -776,7 +777,9 @@ def _select(
         sequences, lengths, A, vocabulary = _unpack(data)
     if ray is not None and not isinstance(ray, (bool, str)):
         raise TypeError(f"expected ray to be a bool or an address string, got {ray!r}")
-    if ray and method == "paper" and not sharded:
+    # hard EM has no E-step to distribute: ray= applies only to a corpus whose shards it
+    # reduces (a ShardedCorpus, not data in memory or merged statistics), never in silence
+    if ray and method == "paper" and not (sharded and hasattr(data, "paths")):
         raise ValueError(
             f"ray={ray!r} runs the soft method's E-steps on Ray; method='paper' (hard EM) has "
             "none to distribute and runs in this process: pass ray=None, or method='soft'"

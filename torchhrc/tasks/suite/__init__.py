@@ -15,7 +15,7 @@ name                     X     types  depends on   observed  types differ in
 ``screws_hands_off``     27    3      history      no        hands-off / eager / pairs
 ``fetch_order``          48    3      state        no        order preference
 ``division_of_labour``   81    3      state        no        who does which part
-``kitting_observed``     81    4      state        yes       division x order
+``kitting_observed``     64    4      state        yes       division x order
 ``lead_or_follow``       81    2      history      no        leading or following
 ``lead_and_pace``        27    4      history      no        leading/following x pace
 ``pace``                 24    3      history      no        pace (lagging)

@@ -1,23 +1,24 @@
 """Division of labour: who does which part (with and without a reach signal).
 
-Each part is to do, done by the person or done by the robot (``3^P`` states). A person
+Each part is to do, done by the person or done by the robot (``3^P`` states, or ``2^P`` when
+the state only tells whether a part is done). A person
 does their own parts, in the order of their type, and leaves the rest to the robot (they
 wait once their own parts are done); the robot should do the other parts and keep off the
 person's.
 
 * :func:`division_of_labour` (4 parts, 81 states, 3 types): ``left_half`` (the person does
   ``A, B``), ``right_half`` (``C, D``), ``outer`` (``A, D``). No observation of the human.
-* :func:`kitting_observed` (4 parts, 81 states, 4 types): a mixture of division and order:
-  ``left_forward`` (``A`` then ``B``), ``left_backward`` (``B`` then ``A``),
-  ``right_forward`` (``C, D``), ``right_backward`` (``D, C``); each type also wants the
-  robot's parts done in its direction (ascending or descending). The robot sees where the
-  person reaches next (right with probability 0.8).
+* :func:`kitting_observed` (6 parts, the state tells only which are done: 64 states, 4
+  types): a mixture of division and order: ``left_in_order`` (the person does ``A, B, C``,
+  the robot should do ``D, E, F``), ``left_mixed`` (the person ``C, A, B``, the robot
+  ``F, E, D``), ``right_in_order`` (``D, E, F``; ``A, B, C``), ``right_mixed`` (``F, D, E``;
+  ``C, B, A``). The robot sees where the person reaches next (right with probability 0.8).
 
 Behaviour depends on the state only.
 
 Example:
-    >>> division_of_labour().task.num_states, kitting_observed().observed
-    (81, True)
+    >>> division_of_labour().task.num_states, kitting_observed().task.num_states
+    (81, 64)
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from torchhrc.tasks.suite._base import TaskSpec, build
 __all__ = ["division_of_labour", "kitting_observed"]
 
 TODO, HUMAN, ROBOT = 0, 1, 2
-PARTS = ("A", "B", "C", "D")
+PARTS = ("A", "B", "C", "D", "E", "F")
 
 
 def _spec(
@@ -39,16 +40,20 @@ def _spec(
     own: dict[str, Sequence[int]],
     robot_order: dict[str, Sequence[int]],
     *,
+    parts: int,
+    record_who: bool = True,
     intent_accuracy: float | None = None,
 ) -> TaskSpec:
     """``own[type]``: the person's parts in their order; ``robot_order[type]``: the order in
-    which the type wants the robot's parts done."""
+    which the type wants the robot's parts done; ``record_who``: the state tells who did a
+    part (``3^parts`` states) or only that it is done (``2^parts``)."""
     types = tuple(own)
-    P = len(PARTS)
+    P = parts
+    by_robot = ROBOT if record_who else HUMAN
 
     def robot_step(s: tuple[int, ...], a: int) -> tuple[int, ...]:
         p = a - 1
-        return s if p < 0 or s[p] != TODO else (*s[:p], ROBOT, *s[p + 1 :])
+        return s if p < 0 or s[p] != TODO else (*s[:p], by_robot, *s[p + 1 :])
 
     def human_step(s: tuple[int, ...], h: int) -> tuple[int, ...] | None:
         return (*s[:h], HUMAN, *s[h + 1 :]) if s[h] == TODO else None
@@ -72,12 +77,12 @@ def _spec(
         name=name,
         description=description,
         initial=(TODO,) * P,
-        robot_actions=("wait", *(f"do_{p}" for p in PARTS)),
-        human_actions=tuple(f"do_{p}" for p in PARTS),
+        robot_actions=("wait", *(f"do_{p}" for p in PARTS[:P])),
+        human_actions=tuple(f"do_{p}" for p in PARTS[:P]),
         robot_step=robot_step,
         human_step=human_step,
         terminal=lambda s: TODO not in s,
-        state_name=lambda s: "".join("-hr"[v] for v in s),
+        state_name=lambda s: "".join(("-hr" if record_who else "-x")[v] for v in s),
         type_names=types,
         behaviour=behaviour,
         reward=reward,
@@ -90,29 +95,23 @@ def division_of_labour() -> TaskWithPeople:
     """Which parts the person does (81 states, 3 types, state-dependent, unobserved)."""
     own = {"left_half": (0, 1), "right_half": (2, 3), "outer": (0, 3)}
     rest = {"left_half": (2, 3), "right_half": (0, 1), "outer": (1, 2)}
-    return build(_spec("division_of_labour", "which parts the person does", own, rest))
+    return build(_spec("division_of_labour", "which parts the person does", own, rest, parts=4))
 
 
 def kitting_observed() -> TaskWithPeople:
-    """Division x order with a reach signal (81 states, 4 types, state-dependent, observed)."""
+    """Division x order with a reach signal (64 states, 4 types, state-dependent, observed)."""
     own = {
-        "left_forward": (0, 1),
-        "left_backward": (1, 0),
-        "right_forward": (2, 3),
-        "right_backward": (3, 2),
+        "left_in_order": (0, 1, 2),
+        "left_mixed": (2, 0, 1),
+        "right_in_order": (3, 4, 5),
+        "right_mixed": (5, 3, 4),
     }
     rest = {
-        "left_forward": (2, 3),
-        "left_backward": (3, 2),
-        "right_forward": (0, 1),
-        "right_backward": (1, 0),
+        "left_in_order": (3, 4, 5),
+        "left_mixed": (5, 4, 3),
+        "right_in_order": (0, 1, 2),
+        "right_mixed": (2, 1, 0),
     }
-    return build(
-        _spec(
-            "kitting_observed",
-            "which parts the person does and in which direction",
-            own,
-            rest,
-            intent_accuracy=0.8,
-        )
-    )
+    spec = _spec("kitting_observed", "which half the person does and in which order", own,
+                 rest, parts=6, record_who=False, intent_accuracy=0.8)  # fmt: skip
+    return build(spec)

@@ -73,3 +73,47 @@ def test_bad_input():
         evaluate_policy(tiger(), momdp_policy)
     with pytest.raises(ValueError, match="episodes"):
         evaluate_policy(tiger(), qmdp_policy(tiger()), episodes=1)
+
+
+# -- every model form simulates the same process -----------------------------------------------
+def test_sparse_form_draws_what_the_dense_form_draws():
+    """Tiger's rows have their successors in the same order in both forms: the same seed
+    gives the same returns (the sparse form steps the true state as the dense one does)."""
+    from torchhrc.sparse import SparsePOMDP
+
+    model, policy = tiger(), qmdp_policy(tiger())
+    dense = evaluate_policy(model, policy, episodes=200, horizon=40, seed=5)
+    sparse = evaluate_policy(
+        SparsePOMDP.from_dense(model), policy, episodes=200, horizon=40, seed=5
+    )
+    torch.testing.assert_close(sparse.returns, dense.returns, rtol=0, atol=1e-9)
+
+
+def test_sparse_momdp_agrees_with_the_dense_momdp():
+    from torchhrc.sparse_momdp import SparseMOMDP
+    from torchhrc.tasks.classic import rock_sample_momdp
+
+    model = rock_sample_momdp(4, 2)
+    policy = qmdp_policy(model)
+    dense = evaluate_policy(model, policy, episodes=1500, seed=1)
+    sparse = evaluate_policy(SparseMOMDP.from_dense(model), policy, episodes=1500, seed=2)
+    spread = (dense.std_error**2 + sparse.std_error**2) ** 0.5
+    assert abs(dense.mean - sparse.mean) <= 4 * spread + dense.truncation
+
+
+def test_absorbing_states_end_an_episode():
+    """From s0 every action earns 1 and moves to s1, which every action keeps with reward 0:
+    the return is exactly 1 and the simulation stops after one step."""
+    T = torch.tensor([[[0.0, 1.0], [0.0, 1.0]]], dtype=torch.float64).expand(2, 2, 2)
+    model = POMDP(
+        T=T,
+        Z=torch.full((2, 2, 2), 0.5, dtype=torch.float64),
+        R=torch.tensor([[1.0, 0.0], [1.0, 0.0]], dtype=torch.float64),
+        b0=torch.tensor([1.0, 0.0], dtype=torch.float64),
+        discount=0.9,
+    )
+    steps = []
+    result = evaluate_policy(model, qmdp_policy(model), episodes=8, seed=0, on_step=steps.append)
+    assert result.returns.tolist() == [1.0] * 8
+    assert len(steps) == 1 and bool(steps[0].active.all())
+    assert steps[0].y.tolist() == [0] * 8 and steps[0].next_x.tolist() == [0] * 8

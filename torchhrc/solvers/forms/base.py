@@ -524,6 +524,27 @@ class SolverModel(ABC):
         observation ``o`` drawn from the model, then the Bayes update (the uniform belief
         where ``P(o) = 0``, which a sampled ``o`` never has). Returns :class:`SimStep`."""
 
+    def self_loop_probs(self) -> torch.Tensor | None:
+        """``(A, X, Y)`` ``P(x, y | x, y, a)``, the probability that ``a`` leaves the state
+        in place (None where a form does not say)."""
+        return None
+
+    def absorbing(self) -> torch.Tensor | None:
+        """``(X, Y)`` bool: the states every action leaves in place with reward 0 (APPL's
+        terminal states: a simulation there earns nothing more), or None where unknown.
+
+        Example:
+            >>> from torchhrc.solvers.forms import as_solver_model
+            >>> from torchhrc.tasks.classic import tiger
+            >>> as_solver_model(tiger()).absorbing().any().item()
+            False
+        """
+        loops = self.self_loop_probs()
+        if loops is None:
+            return None
+        stay = (loops.to(self.R.dtype) >= 1.0 - 1e-12).all(0)
+        return stay & (self.R == 0).all(0)
+
     def simulate(self, x: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
                  generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
         """One sampled step of beliefs ``(x (M,), beliefs (M, Y))`` under ``actions (M,)``:

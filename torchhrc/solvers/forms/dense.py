@@ -133,6 +133,9 @@ qmdp_iteration_np` (from zero, with the contraction bound: an upper bound wherev
         return self.qmdp_start(tol, deadline, expect), fib
 
     # -- PBVI ----------------------------------------------------------------------------------
+    def self_loop_probs(self) -> torch.Tensor:
+        return self.model.T.diagonal(dim1=-2, dim2=-1).unsqueeze(1)  # (A, 1, S)
+
     def step(self, x: torch.Tensor, y: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
              generator: torch.Generator) -> SimStep:  # fmt: skip
         out = flat_step(self.model, y, beliefs, actions, generator)

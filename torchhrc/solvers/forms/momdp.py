@@ -177,6 +177,13 @@ class MOMDPForm(TensorModelForm):
         return self.R + self.discount * torch.stack(out, 1)
 
     # -- PBVI ----------------------------------------------------------------------------------
+    def self_loop_probs(self) -> torch.Tensor:
+        m = self.model
+        xs = torch.arange(self.num_observed, device=m.R.device)[:, None]
+        ys = torch.arange(self.num_hidden, device=m.R.device)[None, :]
+        loops = m.Tx[:, xs, ys, xs]  # (A, X, Y)
+        return loops if m.Ty is None else loops * m.Ty[:, xs, ys, xs, ys]
+
     def step(self, x: torch.Tensor, y: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
              generator: torch.Generator) -> SimStep:  # fmt: skip
         out = momdp_step(self.model, x, y, beliefs, actions, generator)

@@ -109,6 +109,9 @@ class SparseForm(FlatFields, SolverModel):
             return self.fib_vectors(tol)[0]
         return torch.from_numpy(self.sparse.qmdp_np(tol))
 
+    def self_loop_probs(self) -> torch.Tensor:
+        return torch.from_numpy(self.sparse.self_loop_probs()).unsqueeze(1)  # (A, 1, S)
+
     def step(self, x: torch.Tensor, y: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
              generator: torch.Generator) -> SimStep:  # fmt: skip
         """One sampled step from states ``y = s``: ``s2 ~ T[a, s, .]`` among the stored

@@ -350,6 +350,11 @@ class SparseMOMDPForm(SolverModel):
             return self.fib_vectors(tol)[0]
         return torch.from_numpy(self.qmdp_np(tol))
 
+    def self_loop_probs(self) -> torch.Tensor:
+        A, X, Y = self.num_actions, self.num_observed, self.num_hidden
+        loops = self_loop_probs(self.row, self.col, self.prob, A, X * Y)
+        return torch.from_numpy(loops).reshape(A, X, Y)
+
     def step(self, x: torch.Tensor, y: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
              generator: torch.Generator) -> SimStep:  # fmt: skip
         """One sampled step from ``(x, y)``: ``(x2, y2)`` among the stored successors of

@@ -1,0 +1,111 @@
+"""What the policy commands (``simulate``, ``evaluate``, ``graph``) share: reading a model
+by its suffix, reading a policy, and the argument checks.
+
+Example:
+    >>> positive_int("3")
+    3
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import os
+from pathlib import Path
+from typing import Any
+
+from torchhrc.errors import ModelError
+
+__all__ = [
+    "MODEL_SUFFIXES",
+    "POLICY_SUFFIXES",
+    "add_model_and_policy",
+    "check_new_file",
+    "model_path",
+    "policy_path",
+    "positive_int",
+    "read_model",
+    "read_policy",
+]
+
+MODEL_SUFFIXES = (".pomdp", ".pomdpx")
+POLICY_SUFFIXES = (".policyx", ".policy", ".xml", ".safetensors")
+
+
+def positive_int(text: str) -> int:
+    """An integer >= 1 (argparse type)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def model_path(text: str) -> str:
+    """A ``.pomdp`` or ``.pomdpx`` path (argparse type)."""
+    if Path(text).suffix.lower() not in MODEL_SUFFIXES:
+        raise argparse.ArgumentTypeError(f"expected a .pomdp or .pomdpx file, got {text!r}")
+    return text
+
+
+def policy_path(text: str) -> str:
+    """A ``.policyx`` (APPL) or ``.safetensors`` (torchhrc) path (argparse type)."""
+    if Path(text).suffix.lower() not in POLICY_SUFFIXES:
+        raise argparse.ArgumentTypeError(f"expected a .policyx or .safetensors file, got {text!r}")
+    return text
+
+
+def add_model_and_policy(parser: argparse.ArgumentParser) -> None:
+    """The positional model and the ``--policy`` option of the policy commands."""
+    parser.add_argument(
+        "model",
+        type=model_path,
+        metavar="FILE.pomdp|FILE.pomdpx",
+        help="the model (Cassandra .pomdp; APPL .pomdpx by its suffix)",
+    )
+    parser.add_argument(
+        "--policy",
+        "--policy-file",
+        dest="policy",
+        type=policy_path,
+        required=True,
+        metavar="POLICY",
+        help="the policy: torchhrc's .safetensors or APPL's .policyx (as pomdpsol writes it)",
+    )
+
+
+def read_model(path: str) -> Any:
+    """The model of a ``.pomdp`` or ``.pomdpx`` file, sparse where a dense one would not fit
+    (as ``torchhrc solve`` reads it)."""
+    if Path(path).suffix.lower() == ".pomdpx":
+        from torchhrc.io.pomdpx import read_pomdpx
+
+        return read_pomdpx(path, sparse="auto")
+    from torchhrc.io.cassandra import read_pomdp
+
+    return read_pomdp(path, sparse="auto")
+
+
+def read_policy(path: str) -> Any:
+    """The :class:`~torchhrc.solvers.policy.AlphaVectorPolicy` of a policy file."""
+    from torchhrc.io.policyx import load_policy
+
+    if not os.path.exists(path):
+        raise FileNotFoundError(errno.ENOENT, "No such file or directory", path)
+    try:
+        return load_policy(path)
+    except ModelError:
+        raise
+    except ValueError as error:  # a malformed safetensors header, a bad tensor
+        raise ModelError(f"cannot read policy {path}: {error}") from None
+
+
+def check_new_file(path: str, *, force: bool) -> None:
+    """Refuse to overwrite ``path`` without ``force``; its folder must exist."""
+    if os.path.exists(path) and not force:
+        raise FileExistsError(errno.EEXIST, "file exists (use --force to overwrite)", path)
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise FileNotFoundError(errno.ENOENT, "No such file or directory", folder)

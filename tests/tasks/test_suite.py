@@ -8,8 +8,9 @@ import pytest
 import torch
 
 from torchhrc.metrics import adjusted_rand_index
-from torchhrc.tasks import SUITE, check_task, learn, make_task, suite_tasks
+from torchhrc.tasks import check_task, learn, make_task, suite_tasks
 from torchhrc.tasks.people import TabularPeople
+from torchhrc.tasks.suite import SUITE
 
 
 @pytest.fixture(scope="module")

@@ -18,10 +18,9 @@ from torchhrc.tasks.interface import (
 )
 from torchhrc.tasks.people import SimulatedPeople, TabularPeople, TaskWithPeople
 from torchhrc.tasks.pipeline import LearnedModel, build_model, learn, solve_model
-from torchhrc.tasks.suite import SUITE, make_task, suite_tasks
+from torchhrc.tasks.suite import make_task, suite_tasks
 
 __all__ = [
-    "SUITE",
     "CollaborativeTask",
     "Controller",
     "LearnedModel",

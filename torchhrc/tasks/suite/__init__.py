@@ -38,7 +38,7 @@ from collections.abc import Callable
 from typing import Any
 
 from torchhrc.tasks.people import TaskWithPeople
-from torchhrc.tasks.suite._base import SuiteTask, TaskSpec, build
+from torchhrc.tasks.suite.builder import SuiteTask, TaskSpec, build
 from torchhrc.tasks.suite.division import division_of_labour, kitting_observed
 from torchhrc.tasks.suite.hands_off import screws_hands_off
 from torchhrc.tasks.suite.lead import lead_and_pace, lead_or_follow

@@ -26,7 +26,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from torchhrc.tasks.people import TaskWithPeople
-from torchhrc.tasks.suite._base import TaskSpec, build
+from torchhrc.tasks.suite.builder import TaskSpec, build
 
 __all__ = ["division_of_labour", "kitting_observed"]
 

@@ -25,7 +25,7 @@ Example:
 from __future__ import annotations
 
 from torchhrc.tasks.people import TaskWithPeople
-from torchhrc.tasks.suite._base import TaskSpec, build
+from torchhrc.tasks.suite.builder import TaskSpec, build
 
 __all__ = ["lead_and_pace", "lead_or_follow"]
 

@@ -20,7 +20,7 @@ Example:
 from __future__ import annotations
 
 from torchhrc.tasks.people import TaskWithPeople
-from torchhrc.tasks.suite._base import TaskSpec, build
+from torchhrc.tasks.suite.builder import TaskSpec, build
 
 __all__ = ["tool_handover"]
 

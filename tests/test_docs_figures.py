@@ -97,3 +97,46 @@ def test_scripted_figures_match_their_scripts(name):
     printed = figures.FIGURES[name]()
     problems = [m for document, body in places for m in _compare(document, name, body, printed)]
     assert not problems, "\n".join(problems[:20])
+
+
+def test_every_decimal_in_the_docs_is_scripted_or_labelled():
+    """Every decimal number in README.md and docs/*.md is inside a scripted block or in a
+    section labelled one-off with its date and commit (``python docs/_ext/figures.py
+    --unlabelled`` lists the others)."""
+    missing = [
+        f"{path.relative_to(ROOT)}:{i}: {line[:90]}"
+        for path in figures.DOCS
+        for i, line in figures.unlabelled(path.read_text())
+    ]
+    assert not missing, "numbers neither scripted nor labelled one-off:\n" + "\n".join(missing[:30])
+
+
+def test_the_label_rule_by_hand():
+    """A label covers its section and subsections; the introduction's covers the page only
+    when it says so; a figures block needs none; code is not checked."""
+    text = "\n".join(
+        [
+            "# T",
+            "intro 1.5",
+            "## A",
+            "one-off, 2026-12-01, commit abcdef1",
+            "a 2.5",
+            "### A.1",
+            "sub 3.5",
+            "## B",
+            "b 4.5",
+            "<!-- figures: x -->",
+            "c 5.5",
+            "<!-- /figures: x -->",
+            "```",
+            "code 6.5",
+            "```",
+            "`span 7.5` and Python 3.11",
+        ]
+    )
+    assert [line for _, line in figures.unlabelled(text)] == ["intro 1.5", "b 4.5"]
+    page = text.replace("# T\n", "# T\none-off figures of this page: 2026-12-01, commit abcdef1\n")
+    assert figures.unlabelled(page) == []
+    intro = text.replace("# T\n", "# T\none-off figures: 2026-12-01, commit abcdef1\n")
+    assert [line for _, line in figures.unlabelled(intro)] == ["b 4.5"]
+    assert len(figures.unlabelled(text.replace("commit abcdef1", "commit"))) == 4

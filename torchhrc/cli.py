@@ -28,6 +28,10 @@ COMMANDS: tuple[str, ...] = (
     "simulate_demos",
     "cluster",
     "solve",
+    "simulate",
+    "evaluate",
+    "graph",
+    "convert",
     "reproduce",
     "sweep",
 )

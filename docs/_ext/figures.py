@@ -131,6 +131,37 @@ def online_cross_training_by_type(seed: int = 0) -> str:
 
 
 @functools.cache
+def _example(name: str) -> str:
+    """What ``examples/NAME.py`` prints (run in this process, warnings silenced)."""
+    import contextlib
+    import io
+    import runpy
+    import warnings
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        runpy.run_path(str(ROOT / "examples" / f"{name}.py"), run_name="__main__")
+    return out.getvalue()
+
+
+def _your_own_task(robot: str) -> str:
+    line = next(x for x in _example("your_own_task").splitlines() if x.startswith(robot))
+    mean, half = (float(v) for v in re.findall(r"[-+]?\d+\.\d+", line)[:2])
+    return f"({mean:.2f} ± {half:.2f})"
+
+
+def your_own_task_aware() -> str:
+    """Mean reward ± 95% CI of the type-aware robot (``examples/your_own_task.py``)."""
+    return _your_own_task("type-aware")
+
+
+def your_own_task_agnostic() -> str:
+    """Mean reward ± 95% CI of the type-agnostic robot (``examples/your_own_task.py``)."""
+    return _your_own_task("type-agnostic")
+
+
+@functools.cache
 def _report(command: str) -> str:
     """``report.md`` of ``torchhrc reproduce COMMAND`` (default settings, seed 0), run in a
     temporary directory on one thread, as the command line runs it."""
@@ -199,6 +230,8 @@ def place_and_drill_online_table() -> str:
 #: name -> the function that prints the block.
 FIGURES: dict[str, Callable[[], str]] = {
     "online-cross-training-by-type": online_cross_training_by_type,
+    "your-own-task-aware": your_own_task_aware,
+    "your-own-task-agnostic": your_own_task_agnostic,
     "hand-finishing-summary": hand_finishing_summary,
     "hand-finishing-noise-table": hand_finishing_noise_table,
     "place-and-drill-offline-table": place_and_drill_offline_table,
@@ -207,6 +240,8 @@ FIGURES: dict[str, Callable[[], str]] = {
 #: name -> cheap enough for the default test run (seconds).
 CHEAP: dict[str, bool] = {
     "online-cross-training-by-type": True,
+    "your-own-task-aware": True,  # the example: a few seconds
+    "your-own-task-agnostic": True,
     "hand-finishing-summary": False,  # the default run: 60-200 s
     "hand-finishing-noise-table": False,
     "place-and-drill-offline-table": False,  # the default run: 45-70 s
@@ -324,7 +359,18 @@ def write(names: list[str]) -> None:
             cache.setdefault(name, FIGURES[name]())
             return f"<!-- figures: {name} -->\n{cache[name]}<!-- /figures: {name} -->"
 
-        new = BLOCK.sub(fill, text)
+        def fill_line(m: re.Match[str]) -> str:
+            name = m["name"]
+            if names and name not in names:
+                return m.group(0)
+            cache.setdefault(name, FIGURES[name]())
+            tokens = iter(NUMBER.findall(cache[name]))
+            line = NUMBER.sub(lambda _: next(tokens), m["line"])
+            if next(tokens, None) is not None:
+                raise SystemExit(f"the line of {name} has fewer numbers than it prints")
+            return f"{line}<!-- figure: {name} -->"
+
+        new = INLINE.sub(fill_line, BLOCK.sub(fill, text))
         if new != text:
             path.write_text(new)
             print(f"updated {path.relative_to(ROOT)}", file=sys.stderr)

@@ -27,6 +27,7 @@ from torchhrc.belief import (
 )
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError, ParseError, TorchHRCError
+from torchhrc.experiments.sweep import sweep
 from torchhrc.io import load_policy, read_pomdp, read_pomdpx, save_policy, write_pomdp
 from torchhrc.irl import apprenticeship_learning, learn_type_rewards, maxent_irl
 from torchhrc.metrics import adjusted_rand_index, match_clusters
@@ -101,6 +102,7 @@ __all__ = [
     "shipped_path",
     "simulate_study",
     "solve",
+    "sweep",
     "update",
     "update_all",
     "value_iteration",

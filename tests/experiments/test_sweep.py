@@ -150,22 +150,6 @@ def test_a_failing_job_is_retried_then_reported(
     assert "Failed jobs" in (tmp_path / "summary.md").read_text()
 
 
-def test_ray_local_cluster_gives_the_serial_results(tmp_path: Path) -> None:
-    ray = pytest.importorskip("ray", reason="the [ray] extra is not installed")
-    from torchhrc.experiments.sweep_ray import RayExecutor
-
-    spec = SweepSpec.create("place-and-drill", GRID, seeds="0", quick=True)
-    serial = run_sweep(spec, tmp_path / "serial", executor=SerialExecutor(), summary=False)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        on_ray = run_sweep(spec, tmp_path / "ray", executor=RayExecutor(), summary=False)
-        assert ray.is_initialized()  # the executor leaves a cluster it did not start
-    finally:
-        ray.shutdown()
-    assert not on_ray.failed
-    assert _untimed(on_ray.rows) == _untimed(serial.rows)
-
-
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
@@ -174,6 +158,8 @@ def test_ray_local_cluster_gives_the_serial_results(tmp_path: Path) -> None:
         (["--seeds", "x"], "seeds"),
         (["--ray", "127.0.0.1:1"], "cannot reach the Ray cluster"),
         (["--ray", "nonsense"], "HOST:PORT"),
+        (["--ray", "127.0.0.1:1", "--workers", "2"], "sets the CPUs of a local Ray cluster"),
+        (["--retries", "-1"], "--retries >= 0"),
     ],
 )
 def test_cli_bad_input_is_one_line_exit_2_and_writes_nothing(
@@ -201,43 +187,48 @@ def test_cli_runs_a_small_sweep(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["skipped"] == 1
 
 
-_CRASHING_JOB = """
+_DIES_ONCE = """
 import os
+import time
 from pathlib import Path
 
-LOG = Path(__file__).with_name("calls")
+HERE = Path(__file__).parent
 
 
 def job(task, params, seed, quick):
-    with open(LOG, "a") as handle:
-        handle.write(f"{seed}\\n")
-    if seed == 0 and LOG.read_text().split().count("0") == 1:
-        os._exit(3)  # the worker process dies on the first try of seed 0
-    return {"seed": seed, "value": float(seed)}
+    tries = len(list(HERE.glob(f"start-{seed}-*")))
+    (HERE / f"start-{seed}-{tries}").touch()
+    if seed == 0 and tries == 0:
+        # die once the driver holds every other job's result (at most 5 minutes)
+        for _ in range(6000):
+            if all((HERE / f"received-{s}").exists() for s in range(1, 6)):
+                break
+            time.sleep(0.05)
+        os._exit(3)  # the worker process dies
+    return {"value": float(seed)}
 """
 
 
 def test_local_executor_survives_a_dead_worker_and_reruns_nothing_that_finished(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    """Seed 0 kills its worker after the other 5 jobs finished: it alone runs again."""
     import importlib
     import sys
 
-    (tmp_path / "crashing_job.py").write_text(_CRASHING_JOB)
+    (tmp_path / "dies_once.py").write_text(_DIES_ONCE)
     monkeypatch.syspath_prepend(str(tmp_path))  # spawn workers inherit sys.path
-    module = importlib.import_module("crashing_job")
+    module = importlib.import_module("dies_once")
     spec = SweepSpec.create("place-and-drill", [], seeds="0-5")
     executor = LocalExecutor(workers=2, retries=1, function=module.job)
-    results = dict(executor.run(spec, spec.jobs()))
-    sys.modules.pop("crashing_job")
-    assert {job.seed: row["value"] for job, row in results.items()} == {
-        s: float(s) for s in range(6)
-    }
-    calls = (tmp_path / "calls").read_text().split()
-    assert calls.count("0") == 2  # the crash, then the retry
-    # a job runs twice only if the crash broke it before it finished
-    assert all(calls.count(str(s)) <= 2 for s in range(1, 6))
-    assert len(calls) <= 6 + 1 + 1  # at most the one other job in flight was lost
+    results = {}
+    for job, row in executor.run(spec, spec.jobs()):
+        results[job.seed] = row
+        (tmp_path / f"received-{job.seed}").touch()
+    sys.modules.pop("dies_once")
+    assert results == {s: {"value": float(s)} for s in range(6)}
+    starts = {s: len(list(tmp_path.glob(f"start-{s}-*"))) for s in range(6)}
+    assert starts == {0: 2, 1: 1, 2: 1, 3: 1, 4: 1, 5: 1}  # the crash and its retry only
 
 
 def test_local_executor_reports_a_job_whose_worker_always_dies(
@@ -258,3 +249,152 @@ def test_local_executor_reports_a_job_whose_worker_always_dies(
     by_seed = {job.seed: row for job, row in results.items()}
     assert by_seed[0] == {"value": 0.0} and by_seed[2] == {"value": 2.0}
     assert "BrokenProcessPool" in type(by_seed[1]).__name__
+
+
+# --- a user's own task: torchhrc.sweep and `torchhrc sweep module:function` ------------------
+
+USER_TASK = str(Path(__file__).with_name("sweep_task.py")) + ":simulate"
+USER_GRID = {"subjects": [4, 8], "noise": [0.1, 0.5]}
+
+
+def _comparable(rows: list[dict]) -> list[dict]:
+    """Rows without the timing and the worker's process id."""
+    return [{k: v for k, v in r.items() if k != "pid" and not is_timing_column(k)} for r in rows]
+
+
+def test_a_users_function_sweeps_like_a_study(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """torchhrc.sweep over a function: the studies' files, resume; the CLI gives the same."""
+    import torchhrc
+    from torchhrc.experiments.sweep import load_callable
+
+    function = load_callable(USER_TASK)
+    api = torchhrc.sweep(function, USER_GRID, seeds="0-2", out=tmp_path / "api",
+                         executor=SerialExecutor())  # fmt: skip
+    assert not api.failed and len(api.rows) == 2 * 2 * 3
+    # each row is the function's own value for its cell and seed
+    for row in api.rows:
+        expected = function(seed=row["seed"], subjects=row["subjects"], noise=row["noise"])
+        assert row["error_rate"] == expected["error_rate"]
+        assert row["score.mean"] == expected["score"]["mean"]
+    assert json.loads((tmp_path / "api" / "sweep.json").read_text())["task"] == USER_TASK
+    summary = (tmp_path / "api" / "summary.md").read_text()
+    assert "## error_rate" in summary and "| 8 | 0.5 |" in summary
+    assert (tmp_path / "api" / "error_rate.png").stat().st_size > 1000
+    # the CLI, in a worker process, by the file's path
+    argv = ["sweep", USER_TASK, "--param", "subjects=4,8", "--param", "noise=0.1,0.5",
+            "--seeds", "0-2", "--workers", "1", "--out", str(tmp_path / "cli"),
+            "--no-progress"]  # fmt: skip
+    assert main(argv) == 0
+    assert json.loads(capsys.readouterr().out)["finished"] == 12
+    assert _comparable(_csv_rows(tmp_path / "cli" / "results.csv")) == _comparable(
+        _csv_rows(tmp_path / "api" / "results.csv")
+    )
+    assert main([*argv, "--resume"]) == 0
+    assert json.loads(capsys.readouterr().out)["skipped"] == 12
+
+
+def test_a_users_function_parameters_are_checked_against_its_signature(tmp_path: Path) -> None:
+    from torchhrc.experiments.sweep import sweep
+
+    task_file = str(Path(__file__).with_name("sweep_task.py"))
+    for params, match in (
+        ({"bogus": [1]}, "no sweep parameter 'bogus'"),
+        ({"subjects": [2.5]}, "of type int"),
+        ({"noise": ["x"]}, "of type float"),
+        ({"subjects": [4, 4]}, "repeats a value"),
+    ):
+        with pytest.raises(ModelError, match=match):
+            sweep(USER_TASK, params, out=tmp_path / "x")
+    with pytest.raises(ModelError, match="'seed' keyword"):
+        sweep(f"{task_file}:no_seed", {}, out=tmp_path / "x")
+    with pytest.raises(ModelError, match="has no function 'missing'"):
+        sweep(f"{task_file}:missing", {}, out=tmp_path / "x")
+    with pytest.raises(ModelError, match="cannot import"):
+        sweep("no_such_module_here:run", {}, out=tmp_path / "x")
+    with pytest.raises(ModelError, match="module-level function"):
+        sweep(lambda seed: {}, {}, out=tmp_path / "x")
+    assert not (tmp_path / "x").exists()
+    # **kwargs: any name, values read as int, float or text
+    spec = SweepSpec.create(f"{task_file}:anything", ["n=1,2.5,abc"])
+    assert [dict(j.params)["n"] for j in spec.jobs()] == [1, 2.5, "abc"]
+    rows = run_sweep(spec, tmp_path / "any", executor=SerialExecutor(), summary=False).rows
+    assert [r["count"] for r in rows] == [1.0] * 3
+
+
+def test_killing_the_driver_then_resume_gives_the_uninterrupted_results(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """SIGKILL the sweep CLI (its process group) after 2 of 6 jobs; --resume finishes."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from torchhrc.experiments.sweep import sweep
+
+    sweep(
+        USER_TASK,
+        {"subjects": [4, 8]},
+        seeds="0-2",
+        out=tmp_path / "ref",
+        executor=SerialExecutor(),
+    )  # the reference, uninterrupted
+    out, gate = tmp_path / "killed", tmp_path / "gate"
+    gate.mkdir()
+    argv = ["sweep", USER_TASK, "--param", "subjects=4,8", "--seeds", "0-2", "--workers", "1",
+            "--out", str(out), "--no-progress"]  # fmt: skip
+    env = {**os.environ, "SWEEP_TEST_GATE": str(gate)}  # seeds >= 2 wait for gate/go
+    driver = subprocess.Popen([sys.executable, "-m", "torchhrc.cli", *argv], env=env,
+                              start_new_session=True, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)  # fmt: skip
+    try:
+        for _ in range(6000):  # until 2 jobs finished (at most 5 minutes)
+            if len(read_results(out)) >= 2 or driver.poll() is not None:
+                break
+            time.sleep(0.05)
+    finally:
+        os.killpg(driver.pid, signal.SIGKILL)  # the driver and its worker
+        driver.wait()
+    assert driver.returncode == -signal.SIGKILL
+    assert len(read_results(out)) == 2  # (4, seed 0), (4, seed 1); (4, seed 2) was waiting
+    (gate / "go").touch()
+    assert main([*argv, "--resume"]) == 0
+    assert json.loads(capsys.readouterr().out)["skipped"] == 2
+    assert _comparable(_csv_rows(out / "results.csv")) == _comparable(
+        _csv_rows(tmp_path / "ref" / "results.csv")
+    )
+
+
+def test_ray_runs_jobs_on_workers_and_retries_a_killed_worker(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Jobs run in Ray worker processes (not the driver); seed 0's worker is SIGKILLed on
+    its first try, Ray retries it, and the rows equal the serial ones."""
+    import os
+
+    ray = pytest.importorskip("ray", reason="the [ray] extra is not installed")
+    from torchhrc.experiments.sweep import sweep
+
+    grid = {"subjects": [4]}
+    serial = sweep(USER_TASK, grid, seeds="0-3", out=tmp_path / "serial",
+                   executor=SerialExecutor())  # fmt: skip
+    markers = tmp_path / "markers"
+    markers.mkdir()
+    monkeypatch.setenv("SWEEP_TEST_MARKERS", str(markers))  # Ray's workers inherit it
+    monkeypatch.setenv("SWEEP_TEST_KILL", "1")
+    monkeypatch.setenv("SWEEP_TEST_DRIVER", str(os.getpid()))  # never kill the test itself
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        on_ray = sweep(USER_TASK, grid, seeds="0-3", out=tmp_path / "ray", ray="local",
+                       retries=2)  # fmt: skip
+        assert ray.is_initialized()  # the executor leaves a cluster it did not start
+    finally:
+        ray.shutdown()
+    assert not on_ray.failed
+    assert {row["pid"] for row in on_ray.rows}.isdisjoint({os.getpid()})
+    assert len(list(markers.glob("start-0-*"))) == 2  # killed, then retried by Ray
+    assert (markers / "end-0").exists()
+    assert _comparable(on_ray.rows) == _comparable(serial.rows)

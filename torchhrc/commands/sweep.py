@@ -1,4 +1,5 @@
-"""``torchhrc sweep TASK``: a reproduction over a parameter grid and seeds, locally or on Ray.
+"""``torchhrc sweep TASK``: a reproduction, or a user's function (``module:function`` or
+``file.py:function``), over a parameter grid and seeds, locally or on Ray.
 
 Thin layer over :mod:`torchhrc.experiments.sweep`: parses ``--param NAME=V1,V2,...``
 (repeatable), ``--seeds 0-4``, picks the executor (local processes, one per core, by
@@ -27,26 +28,30 @@ import sys
 from typing import Any
 
 from torchhrc.commands.reproduce import _positive
+from torchhrc.errors import ModelError
 
 __all__ = ["register", "run"]
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the sweep of ``args``; print a JSON summary line; return 0, or 1 if jobs failed."""
-    from torchhrc.experiments.sweep import LocalExecutor, SweepSpec, run_sweep
+    from torchhrc.experiments.sweep import LocalExecutor, SweepSpec, canonical_task, run_sweep
 
-    spec = SweepSpec.create(args.task, args.param or [], seeds=args.seeds, quick=args.quick)
+    if args.retries < 0:
+        raise ModelError(f"expected --retries >= 0, got {args.retries}")
+    task = canonical_task(args.task)
+    spec = SweepSpec.create(task, args.param or [], seeds=args.seeds, quick=args.quick)
     executor: Any
     if args.ray is not None:
         from torchhrc._ray import check_reachable, import_ray
         from torchhrc.experiments.sweep_ray import RayExecutor
 
         import_ray()
+        executor = RayExecutor(address=args.ray, num_cpus=args.workers, max_retries=args.retries)
         if args.ray != "local":  # fail before anything is written
             check_reachable(args.ray)
-        executor = RayExecutor(address=args.ray, num_cpus=args.workers)
     else:
-        executor = LocalExecutor(workers=args.workers)
+        executor = LocalExecutor(workers=args.workers, retries=args.retries)
     bar = None
     if not args.no_progress:
         try:
@@ -83,16 +88,24 @@ def register(subparsers: Any) -> None:
     from torchhrc.experiments.sweep import PARAMETERS
 
     names = "; ".join(f"{task}: {', '.join(sorted(p))}" for task, p in PARAMETERS.items())
+    studies = ", ".join(sorted(PARAMETERS))
     parser = subparsers.add_parser(
         "sweep",
-        help="run a reproduction over a parameter grid and seeds (local processes or Ray)",
+        help="run a reproduction or your own function over a parameter grid and seeds "
+        "(local processes or Ray)",
         description=(
-            "Run a reproduction for every cell of a parameter grid and every seed; rows "
-            "stream into OUT/results.csv, then OUT/summary.md and a PNG per metric. "
-            f"Parameters: {names}."
+            "Run a reproduction, or your own function (MODULE:FUNCTION or FILE.py:FUNCTION, "
+            "called as function(seed=..., **params) and returning a mapping of metrics), for "
+            "every cell of a parameter grid and every seed; rows stream into OUT/results.csv, "
+            "then OUT/summary.md and a PNG per metric. "
+            f"Study parameters: {names}; a function's are its keyword arguments."
         ),
     )
-    parser.add_argument("task", choices=sorted(PARAMETERS), help="the study to sweep")
+    parser.add_argument(
+        "task",
+        metavar="TASK",
+        help=f"the study ({studies}) or MODULE:FUNCTION or FILE.py:FUNCTION",
+    )
     parser.add_argument(
         "--param",
         action="append",
@@ -112,6 +125,12 @@ def register(subparsers: Any) -> None:
         type=_positive,
         default=None,
         help="worker processes / Ray CPUs (default: cores)",
+    )
+    parser.add_argument(
+        "--retries",
+        type=int,
+        default=2,
+        help="extra tries of a job that raised or whose worker died (default 2)",
     )
     parser.add_argument(
         "--resume", action="store_true", help="skip the jobs OUT already holds, run the rest"

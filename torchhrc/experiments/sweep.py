@@ -1,10 +1,15 @@
-"""Parameter sweeps of the reproductions: every grid cell x every seed, locally or on Ray.
+"""Parameter sweeps of the reproductions or of a user's own function: every grid cell x every
+seed, locally or on Ray.
 
-A sweep runs one reproduction (``place-and-drill`` or ``hand-finishing``) for every cell of
-a grid (the product of the swept parameters' values) and every seed. Each (cell, seed) is one
-independent job: it builds the study's settings, runs the study in memory, and returns one
-row (the parameters, the seed, every scalar of the study's ``metrics.json`` flattened to
-``a.b.0`` keys, and the job's wall time). Jobs run on an :class:`Executor`: in this process
+A sweep runs one task for every cell of a grid (the product of the swept parameters' values)
+and every seed. The task is a reproduction (``place-and-drill`` or ``hand-finishing``) or a
+user's function, named ``"module:function"`` or ``"path/to/file.py:function"`` (or passed
+itself to :func:`sweep`): ``function(seed=..., **params)`` returns a mapping of metrics (for
+example, it builds the user's task, learns from simulated demonstrations and evaluates). Both
+kinds run through the same jobs, executors, files, resume and retries. Each (cell, seed) is
+one independent job: it runs the study (or the function) in memory and returns one row (the
+parameters, the seed, every scalar of the metrics flattened to ``a.b.0`` keys, and the job's
+wall time). Jobs run on an :class:`Executor`: in this process
 (``workers=1``), in local worker processes (one per core), or as Ray tasks
 (:mod:`torchhrc.experiments.sweep_ray`).
 
@@ -53,10 +58,14 @@ __all__ = [
     "SweepParameter",
     "SweepResult",
     "SweepSpec",
+    "canonical_task",
     "flatten_scalars",
+    "load_callable",
     "parse_seeds",
     "run_job",
     "run_sweep",
+    "sweep",
+    "task_parameters",
     "write_summary",
 ]
 
@@ -76,11 +85,26 @@ class SweepParameter:
     high: float | None
     help: str
 
-    def parse(self, name: str, text: str) -> int | float:
-        """Parse one value; raise :class:`ModelError` naming ``name`` when it is invalid."""
+    def parse(self, name: str, text: Any) -> Value:
+        """Parse one value (a string, or a Python value given to :func:`sweep`); raise
+        :class:`ModelError` naming ``name`` when it is invalid."""
+        value: Value
         try:
-            value: int | float = self.kind(text)
-        except ValueError:
+            if self.kind is bool:
+                value = _parse_bool(text)
+            elif self.kind is int and not isinstance(text, str):
+                if isinstance(text, bool) or float(text) != int(text):
+                    raise ValueError
+                value = int(text)
+            elif self.kind is str:
+                if not isinstance(text, str):
+                    raise ValueError
+                value = text
+            else:
+                if isinstance(text, bool):
+                    raise ValueError
+                value = self.kind(text)
+        except (TypeError, ValueError):
             raise ModelError(
                 f"expected --param {name} values of type {self.kind.__name__}, got {text!r}"
             ) from None
@@ -93,6 +117,33 @@ class SweepParameter:
                 f"expected --param {name} values in [{self.low}, {self.high}], got {value}"
             )
         return value
+
+
+#: A swept value: parsed by the parameter's kind.
+Value = int | float | str | bool
+
+
+def _parse_bool(text: Any) -> bool:
+    if isinstance(text, bool):
+        return text
+    word = str(text).strip().lower()
+    if word in ("true", "1", "yes"):
+        return True
+    if word in ("false", "0", "no"):
+        return False
+    raise ValueError(text)
+
+
+def _infer(text: Any) -> Value:
+    """A value of a parameter without a declared type: int, then float, else the string."""
+    if not isinstance(text, str):
+        return text
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
 
 
 #: Task -> parameter name -> :class:`SweepParameter`: the names ``--param`` accepts.
@@ -159,7 +210,7 @@ class Job:
         seed: the seed of the job's study.
     """
 
-    params: tuple[tuple[str, int | float], ...]
+    params: tuple[tuple[str, Value], ...]
     seed: int
 
     @property
@@ -174,14 +225,16 @@ class SweepSpec:
     """What a sweep runs: task, grid and seeds (see :meth:`create`).
 
     Attributes:
-        task: ``"place-and-drill"`` or ``"hand-finishing"``.
+        task: ``"place-and-drill"``, ``"hand-finishing"``, or a user's function as
+            ``"module:function"`` or ``"/absolute/path/file.py:function"``.
         grid: ``((name, (v1, v2, ...)), ...)``, each name once.
         seeds: the seeds of every cell.
-        quick: run each job's ``--quick`` version of the study.
+        quick: run each job's ``--quick`` version of the study (a function gets
+            ``quick=True`` when it takes a ``quick`` argument).
     """
 
     task: str
-    grid: tuple[tuple[str, tuple[int | float, ...]], ...]
+    grid: tuple[tuple[str, tuple[Value, ...]], ...]
     seeds: tuple[int, ...]
     quick: bool = False
 
@@ -189,7 +242,7 @@ class SweepSpec:
     def create(
         cls,
         task: str,
-        params: Sequence[str],
+        params: Sequence[str] | Mapping[str, Sequence[Any]],
         *,
         seeds: str | Sequence[int] = "0",
         quick: bool = False,
@@ -197,30 +250,45 @@ class SweepSpec:
         """Parse ``--param NAME=V1,V2`` strings; raise :class:`ModelError` on bad input.
 
         Args:
-            task: a key of :data:`PARAMETERS`.
-            params: ``"NAME=V1,V2,..."`` strings (no parameter: one cell, the defaults).
+            task: a key of :data:`PARAMETERS`, or ``"module:function"`` /
+                ``"path/file.py:function"`` (a relative path is made absolute).
+            params: ``"NAME=V1,V2,..."`` strings, or a mapping ``name -> values`` (no
+                parameter: one cell, the defaults). A function's parameters are its keyword
+                arguments (typed by annotation or default; any name if it takes
+                ``**kwargs``).
             seeds: ``"0-4"``-style text or a sequence of seeds.
             quick: run the quick version of each study.
         """
-        if task not in PARAMETERS:
-            raise ModelError(f"expected a task in {sorted(PARAMETERS)}, got {task!r}")
-        known = PARAMETERS[task]
-        grid: list[tuple[str, tuple[int | float, ...]]] = []
-        for text in params:
-            name, sep, values = str(text).partition("=")
-            name = name.strip()
-            if not sep or not values.strip():
-                raise ModelError(f"expected --param NAME=V1,V2,..., got {text!r}")
-            if name not in known:
+        task = canonical_task(task)
+        known = task_parameters(task)
+        items: list[tuple[str, list[Any], str]] = []
+        if isinstance(params, Mapping):
+            for name, values in params.items():
+                values = [values] if isinstance(values, (str, int, float)) else list(values)
+                items.append((str(name), values, repr(values)))
+        else:
+            for text in params:
+                name, sep, values = str(text).partition("=")
+                if not sep or not values.strip():
+                    raise ModelError(f"expected --param NAME=V1,V2,..., got {text!r}")
+                items.append((name.strip(), [v.strip() for v in values.split(",")], values))
+        grid: list[tuple[str, tuple[Value, ...]]] = []
+        for name, values, text in items:
+            if name not in known and _ANY not in known:
                 raise ModelError(
                     f"task {task} has no sweep parameter {name!r} "
-                    f"(parameters: {', '.join(sorted(known))})"
+                    f"(parameters: {', '.join(sorted(known)) or 'none'})"
                 )
             if any(name == g for g, _ in grid):
                 raise ModelError(f"--param {name} given twice")
-            parsed = tuple(known[name].parse(name, v.strip()) for v in values.split(","))
+            if not values:
+                raise ModelError(f"expected --param {name} to have at least one value")
+            parameter = known.get(name)
+            parsed = tuple(
+                _infer(v) if parameter is None else parameter.parse(name, v) for v in values
+            )
             if len(set(parsed)) != len(parsed):
-                raise ModelError(f"--param {name} repeats a value: {values!r}")
+                raise ModelError(f"--param {name} repeats a value: {text!r}")
             grid.append((name, parsed))
         seed_tuple = (
             parse_seeds(seeds) if isinstance(seeds, str) else tuple(sorted({int(s) for s in seeds}))
@@ -310,6 +378,166 @@ _RUNNERS: dict[str, Callable[[Mapping[str, Any], int, bool], dict[str, Any]]] = 
     "hand-finishing": _hand_finishing_metrics,
 }
 
+#: In :func:`task_parameters`: the function takes ``**kwargs`` (any parameter name).
+_ANY = "**"
+_LOADED: dict[str, Callable[..., Any]] = {}
+_BY_PATH = "_torchhrc_sweep_"  # the name prefix of a module imported from its file
+
+
+def canonical_task(task: Any) -> str:
+    """The task's name as a sweep records it: a study name, ``"module:function"``, or
+    ``"/absolute/path.py:function"``; a module-level function given itself becomes its
+    ``"module:function"`` (the file's path when it lives in the ``__main__`` script).
+
+    Raises:
+        ModelError: not a study, not a ``MODULE:FUNCTION`` string, or a function that workers
+            cannot import by name (a lambda, a nested function).
+    """
+    if callable(task) and not isinstance(task, str):
+        module = getattr(task, "__module__", None)
+        name = getattr(task, "__qualname__", "")
+        if not module or "<" in name or "." in name:
+            raise ModelError(
+                f"expected a module-level function (workers import it by name), got {task!r}"
+            )
+        if module == "__main__" or module.startswith(_BY_PATH):  # a script, a file by path
+            import sys
+
+            main_file = getattr(sys.modules.get(module), "__file__", None)
+            if not main_file:
+                raise ModelError(
+                    f"{name} is defined in an interactive session: put it in a file and pass "
+                    "'file.py:function'"
+                )
+            return f"{Path(main_file).resolve()}:{name}"
+        return f"{module}:{name}"
+    if not isinstance(task, str):
+        raise ModelError(f"expected a task name or a function, got {task!r}")
+    if task in _RUNNERS:
+        return task
+    where, sep, name = task.rpartition(":")
+    if not sep or not where or not name.isidentifier():
+        raise ModelError(
+            f"expected a task in {sorted(PARAMETERS)} or MODULE:FUNCTION or FILE.py:FUNCTION, "
+            f"got {task!r}"
+        )
+    if where.endswith(".py"):
+        return f"{Path(where).resolve()}:{name}"
+    return task
+
+
+def load_callable(task: str) -> Callable[..., Any]:
+    """The function ``"module:function"`` or ``"path/file.py:function"`` names (imported
+    once per process; a file is imported under a private module name, so its
+    ``if __name__ == "__main__":`` block does not run).
+
+    Raises:
+        ModelError: the module, file or function is not found, or is not callable.
+    """
+    if task in _LOADED:
+        return _LOADED[task]
+    import hashlib
+    import importlib
+    import importlib.util
+    import sys
+
+    where, _, name = task.rpartition(":")
+    try:
+        if where.endswith(".py"):
+            path = Path(where)
+            if not path.is_file():
+                raise ModelError(f"sweep task file {where} does not exist")
+            digest = hashlib.sha1(str(path).encode()).hexdigest()[:12]  # same in every process
+            module_name = f"{_BY_PATH}{path.stem}_{digest}"
+            module = sys.modules.get(module_name)
+            if module is None:
+                spec = importlib.util.spec_from_file_location(module_name, path)
+                assert spec is not None and spec.loader is not None
+                module = importlib.util.module_from_spec(spec)
+                sys.modules[module_name] = module
+                try:
+                    spec.loader.exec_module(module)
+                except BaseException:
+                    sys.modules.pop(module_name, None)
+                    raise
+        else:
+            module = importlib.import_module(where)
+    except ImportError as error:
+        raise ModelError(f"cannot import the sweep task {task!r}: {error}") from None
+    function = getattr(module, name, None)
+    if not callable(function):
+        raise ModelError(f"the sweep task {task!r}: {where} has no function {name!r}")
+    _LOADED[task] = function
+    return function
+
+
+def _accepts(function: Callable[..., Any], name: str) -> bool:
+    import inspect
+
+    parameters = inspect.signature(function).parameters
+    return name in parameters or any(p.kind is p.VAR_KEYWORD for p in parameters.values())
+
+
+def task_parameters(task: str) -> Mapping[str, SweepParameter | None]:
+    """The parameters a task may sweep: :data:`PARAMETERS` of a study; a function's keyword
+    arguments but ``seed`` and ``quick``, typed by annotation (``int``, ``float``, ``str``,
+    ``bool``) or by the default's type. ``None``: untyped, values read as int, float or text
+    (key ``"**"`` when the function takes ``**kwargs``: any other name too).
+
+    Raises:
+        ModelError: the task is unknown, or a function that takes no ``seed``.
+    """
+    if task in PARAMETERS:
+        return PARAMETERS[task]
+    import inspect
+    import typing
+
+    function = load_callable(task)
+    if not _accepts(function, "seed"):
+        raise ModelError(
+            f"the sweep task {task!r} must take a 'seed' keyword argument (each job passes its "
+            "seed)"
+        )
+    try:
+        hints = typing.get_type_hints(function)
+    except Exception:  # unresolvable annotations: fall back to the defaults' types
+        hints = {}
+    known: dict[str, SweepParameter | None] = {}
+    for name, parameter in inspect.signature(function).parameters.items():
+        if parameter.kind is parameter.VAR_KEYWORD:
+            known[_ANY] = None
+            continue
+        if name in ("seed", "quick") or parameter.kind in (
+            parameter.POSITIONAL_ONLY, parameter.VAR_POSITIONAL
+        ):  # fmt: skip
+            continue
+        kind = hints.get(name)
+        if kind not in (int, float, str, bool):
+            default = parameter.default
+            kind = type(default) if type(default) in (int, float, str, bool) else None
+        known[name] = None if kind is None else SweepParameter(kind, None, None, name)
+    return known
+
+
+def _function_metrics(task: str) -> Callable[[Mapping[str, Any], int, bool], Mapping[str, Any]]:
+    function = load_callable(task)
+
+    def run(params: Mapping[str, Any], seed: int, quick: bool) -> Mapping[str, Any]:
+        options = dict(params)
+        if quick:
+            if not _accepts(function, "quick"):
+                raise ModelError(f"--quick: the sweep task {task!r} takes no 'quick' argument")
+            options["quick"] = True
+        metrics = function(seed=seed, **options)
+        if not isinstance(metrics, Mapping):
+            raise ModelError(
+                f"the sweep task {task!r} returned {type(metrics).__name__}; expected a mapping "
+                "of metric names to numbers"
+            )
+        return metrics
+
+    return run
+
 
 def run_job(task: str, params: tuple[tuple[str, Any], ...], seed: int, quick: bool) -> dict:
     """Run one (cell, seed) of a sweep in this process; return its result row.
@@ -329,7 +557,8 @@ def run_job(task: str, params: tuple[tuple[str, Any], ...], seed: int, quick: bo
     torch.set_num_threads(1)
     start = time.perf_counter()
     try:
-        metrics = _RUNNERS[task](dict(params), seed, quick)
+        runner = _RUNNERS[task] if task in _RUNNERS else _function_metrics(task)
+        metrics = runner(dict(params), seed, quick)
     finally:
         torch.set_num_threads(threads)
     scalars = flatten_scalars(metrics)
@@ -618,6 +847,73 @@ def run_sweep(
     if summary and rows:
         write_summary(path, spec, rows, failed=failed)
     return SweepResult(out_dir=path, rows=rows, skipped=len(earlier), failed=failed)
+
+
+def sweep(
+    task: str | Callable[..., Mapping[str, Any]],
+    params: Mapping[str, Sequence[Any]] | Sequence[str] | None = None,
+    *,
+    out: str | os.PathLike[str],
+    seeds: str | Sequence[int] = "0",
+    quick: bool = False,
+    workers: int | None = None,
+    ray: str | None = None,
+    retries: int = 2,
+    resume: bool = False,
+    summary: bool = True,
+    executor: Executor | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> SweepResult:
+    """Sweep a task over a grid of parameters and seeds: a paper study or a user's function.
+
+    The function is called as ``task(seed=seed, **cell)`` for every cell of the grid and
+    every seed, in a worker process (or a Ray task), and returns a mapping of metrics
+    (numbers, nested mappings or lists of numbers: :func:`flatten_scalars`). It must be a
+    module-level function, given itself or as ``"module:function"`` /
+    ``"path/file.py:function"``, since workers import it by name. The output directory gets
+    the paper studies' files: ``results.csv`` streamed as jobs finish, ``summary.md`` with
+    means and 95% CIs over seeds, a plot per metric, and ``results.jsonl`` for ``resume``.
+
+    Args:
+        task: ``"place-and-drill"``, ``"hand-finishing"``, a function, or its name.
+        params: ``name -> values`` (or ``"name=v1,v2"`` strings); the grid is the product.
+            A function's values are checked against its keyword arguments' types.
+        out: the sweep directory (empty or absent unless ``resume``).
+        seeds: ``"0-4"``-style text or a sequence of seeds.
+        quick: the studies' quick versions (a function gets ``quick=True``).
+        workers: worker processes, or Ray CPUs of a local cluster (default: the cores).
+        ray: ``"local"`` or ``"HOST:PORT"``: run every job as a Ray task.
+        retries: extra tries of a job that raised or whose worker died.
+        resume: run only the jobs ``out`` does not hold yet.
+        summary: write ``summary.md`` and the plots at the end.
+        executor: where jobs run (overrides ``workers``, ``ray`` and ``retries``).
+        progress: ``progress(done, total)`` after each finished job.
+
+    Returns:
+        :class:`SweepResult` (its ``failed`` names the jobs that failed after their retries).
+
+    Raises:
+        ModelError: an unknown task or parameter, a bad value, a non-empty ``out`` without
+            ``resume``.
+
+    Example:
+        >>> result = sweep("mypackage.study:run", {"noise": [0.0, 0.1]}, seeds="0-4",
+        ...                out="runs/noise")  # doctest: +SKIP
+        >>> result.rows[0]["noise"], result.failed  # doctest: +SKIP
+        (0.0, {})
+    """
+    spec = SweepSpec.create(canonical_task(task), params or [], seeds=seeds, quick=quick)
+    if executor is not None and (ray is not None or workers is not None):
+        raise ModelError("pass either executor or ray/workers, not both (the executor decides)")
+    if executor is None:
+        if ray is not None:
+            from torchhrc.experiments.sweep_ray import RayExecutor
+
+            executor = RayExecutor(address=ray, num_cpus=workers, max_retries=retries)
+        else:
+            executor = LocalExecutor(workers=workers, retries=retries)
+    return run_sweep(spec, out, executor=executor, resume=resume, progress=progress,
+                     summary=summary)  # fmt: skip
 
 
 # --- summary --------------------------------------------------------------------------------

@@ -15,11 +15,12 @@ Example:
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from torchhrc._ray import import_ray, init_ray, task_error
+from torchhrc.errors import ModelError
 from torchhrc.experiments.sweep import Job, SweepSpec, run_job
 
 __all__ = ["RayExecutor"]
@@ -34,18 +35,29 @@ class RayExecutor:
             cluster (``ray start --head`` prints it).
         num_cpus: CPUs of a local cluster (default: all cores).
         max_retries: Ray's retries of a task that raised or whose worker died.
+        function: what a Ray task runs per job, ``function(task, params, seed, quick)``
+            (:func:`~torchhrc.experiments.sweep.run_job` by default; module-level, so that
+            Ray workers import it by name).
     """
 
     address: str = "local"
     num_cpus: int | None = None
     max_retries: int = 2
+    function: Callable[[str, tuple[tuple[str, Any], ...], int, bool], dict] = run_job
+
+    def __post_init__(self) -> None:
+        if self.num_cpus is not None and self.address != "local":
+            raise ModelError(
+                f"num_cpus (--workers) sets the CPUs of a local Ray cluster; the cluster at "
+                f"{self.address} has its own: leave it out"
+            )
 
     def run(self, spec: SweepSpec, jobs: Sequence[Job]) -> Iterator[tuple[Job, Any]]:
         ray = import_ray()
         started = init_ray(self.address, num_cpus=self.num_cpus)
         try:
             remote = ray.remote(num_cpus=1, max_retries=self.max_retries,
-                                retry_exceptions=True)(run_job)  # fmt: skip
+                                retry_exceptions=True)(self.function)  # fmt: skip
             pending = {
                 remote.remote(spec.task, job.params, job.seed, spec.quick): job for job in jobs
             }

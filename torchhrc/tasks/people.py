@@ -252,8 +252,8 @@ class TaskWithPeople:
             (``task.observation`` is not None).
         demo_robot: ``(Y_true, X, A)`` probabilities of the robot's action in the
             demonstrations per true type (the partner demonstrates the type's preferred
-            complementary action); default: uniform over the actions of highest
-            ``true_reward``.
+            complementary action); default: the type's best action by ``true_reward``
+            (the first one on ties).
         true_observation: ``(A, X, Y_true, O)`` ``P(o | x', y, a_r)`` of the true people when
             ``observed`` (the signal the robot receives after the step), else None.
         description: one line on what distinguishes the types.
@@ -317,9 +317,10 @@ class TaskWithPeople:
         if self.demo_robot is not None:
             return self.demo_robot
         r = self.true_reward.permute(2, 1, 0)  # (Y, X, A)
-        best = r >= r.max(-1, keepdim=True).values - 1e-12
-        best = best.to(torch.float64)
-        return best / best.sum(-1, keepdim=True)
+        # the first best action: ties broken by index, so every partner of a type acts
+        # alike (random tie-breaking adds orders a first-order chain reads as extra types)
+        best = r.argmax(-1)  # (Y, X)
+        return torch.nn.functional.one_hot(best, r.shape[-1]).to(torch.float64)
 
     def rollout(
         self,

@@ -1,10 +1,11 @@
 """Division of labour: who does which part (with and without a reach signal).
 
 Each part is to do, done by the person or done by the robot (``3^P`` states, or ``2^P`` when
-the state only tells whether a part is done). A person
-does their own parts, in the order of their type, and leaves the rest to the robot (they
-wait once their own parts are done); the robot should do the other parts and keep off the
-person's.
+the state only tells whether a part is done). A person does their own parts, in the order of
+their type, and leaves the rest to the robot (they wait once their own parts are done); the
+robot should let the person start, then do the other parts and keep off the person's. (The
+common first move matters: a mixture of Markov chains merges at no cost types whose
+sequences share no symbol.)
 
 * :func:`division_of_labour` (4 parts, 81 states, 3 types): ``left_half`` (the person does
   ``A, B``), ``right_half`` (``C, D``), ``outer`` (``A, D``). No observation of the human.
@@ -63,6 +64,8 @@ def _spec(
         return {nxt: 1.0}
 
     def reward(y: int, s: tuple[int, ...], a: int) -> float:
+        if all(v == TODO for v in s):  # the person starts; the robot joins after
+            return 0.5 if a == 0 else -0.5
         mine = [p for p in robot_order[types[y]] if s[p] == TODO]
         if a == 0:
             return -0.3 if mine else 0.0

@@ -4,6 +4,8 @@ what the people's tables say."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import pytest
 import torch
 
@@ -11,6 +13,7 @@ from torchhrc.metrics import adjusted_rand_index
 from torchhrc.tasks import check_task, learn, make_task, suite_tasks
 from torchhrc.tasks.people import TabularPeople
 from torchhrc.tasks.suite import SUITE
+from torchhrc.tasks.suite.builder import intent_signal
 
 
 @pytest.fixture(scope="module")
@@ -163,3 +166,34 @@ def test_learn_runs_on_a_suite_task_at_the_true_k(suite):
     fetch = twp.task.human_actions.index("fetch_tool")
     assert int(twp.true_observation[0, x0, y].argmax()) == fetch
     assert int(Z[0, x0, k].argmax()) == fetch
+
+
+@pytest.mark.parametrize("name", suite_tasks())
+def test_the_learned_signal_of_the_true_behaviour_is_the_true_signal(suite, name):
+    """``observation(model)`` reads the reach signal off a model's ``Tx``: given the true
+    people's ``Tx`` it gives back ``true_observation``, and given a noisy behaviour's ``Tx``
+    the signal of that behaviour (``intent_signal`` of its rows under the idle robot)."""
+    twp = suite[name]
+    task, people = twp.task, twp.people
+    if not twp.observed:
+        assert task.observation(SimpleNamespace(Tx=None)) is None
+        return
+    A, X, Y, H = task.num_actions, task.num_states, twp.num_types, task.num_human_actions
+    legal = torch.cat([task.human_legal, torch.ones(X, 1, dtype=torch.bool)], -1).double()
+    uniform = (legal / legal.sum(-1, keepdim=True)).view(1, X, 1, H + 1)
+    live = ~task.terminal
+    for weight in (1.0, 0.6):
+        behaviour = weight * people.policy[:, 0] + (1 - weight) * uniform  # (Y, X_mid, A, H+1)
+        Tx = torch.zeros(A, X, Y, X, dtype=torch.float64)
+        for a in range(A):
+            for x in range(X):
+                m = int(task.robot_effect[a, x])
+                for h in range(H + 1):
+                    nxt = m if h == H else int(task.human_effect[m, h])
+                    Tx[a, x, :, nxt] += behaviour[:, m, a, h]
+        Z = task.observation(SimpleNamespace(Tx=Tx))
+        intent = behaviour[:, :, 0].permute(1, 0, 2)  # (X, Y, H + 1), the robot idle
+        want = intent_signal(intent, task.intent_accuracy, A)
+        assert torch.allclose(Z[:, live], want[:, live], atol=1e-12)
+        if weight == 1.0:
+            assert torch.allclose(Z[:, live], twp.true_observation[:, live], atol=1e-12)

@@ -237,7 +237,7 @@ class TabularPeople:
         return human, new_m.unsqueeze(-1)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class TaskWithPeople:
     """A task with simulated people of known types: what a suite entry returns (a user can
     build one for their own task).

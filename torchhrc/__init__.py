@@ -54,6 +54,7 @@ from torchhrc.solvers import (
 )
 from torchhrc.sparse import SparsePOMDP
 from torchhrc.tasks import CollaborativeTask, Controller, LearnedModel, learn
+from torchhrc.tasks.evaluation import TaskEvaluation, evaluate_task
 from torchhrc.tasks.place_and_drill import simulate_study
 
 __version__ = "0.1.0"
@@ -78,11 +79,13 @@ __all__ = [
     "SARSOPConfig",
     "Solution",
     "SparsePOMDP",
+    "TaskEvaluation",
     "TorchHRCError",
     "__version__",
     "adjusted_rand_index",
     "apprenticeship_learning",
     "evaluate_policy",
+    "evaluate_task",
     "fit_mixture",
     "fit_observation_model",
     "infer_type",

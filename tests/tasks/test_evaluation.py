@@ -1,0 +1,161 @@
+"""evaluate_task: robots against simulated people under their true rewards.
+
+The hand-built task: the person first walks to side "a" (type "left") or "b" (type "right"),
+then to the middle; there the robot hands over left or right (+1 for the type that wants it,
+-1 for the other) and the task ends. In the middle the state no longer shows the type: only
+a robot that kept a belief hands over the right side. Values worked by hand (discount g,
+people's noise eps, a random legal action at the start with probability eps, the wrong one
+half of the time): the type-aware robot gets ``g^2 (1 - eps)`` from either type; a robot that
+always hands left gets ``+g^2`` from "left" and ``-g^2`` from "right".
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import warnings
+
+import pytest
+import torch
+
+import torchhrc
+from torchhrc.tasks import CollaborativeTask
+from torchhrc.tasks.evaluation import evaluate_task
+from torchhrc.tasks.people import TabularPeople, TaskWithPeople
+
+G = 0.9  # discount
+
+
+class Sides(CollaborativeTask):
+    state_names = ("start", "a", "b", "middle", "end")
+    robot_actions = ("wait", "hand_left", "hand_right")
+    human_actions = ("go_a", "go_b", "to_middle")
+    robot_effect = torch.tensor([[0, 1, 2, 3, 4], [0, 1, 2, 4, 4], [0, 1, 2, 4, 4]])
+    human_effect = torch.tensor([[1, 2, 0], [1, 1, 3], [2, 2, 3], [3, 3, 3], [4, 4, 4]])
+    discount = G
+
+    @property
+    def terminal(self) -> torch.Tensor:
+        return torch.tensor([False, False, False, False, True])
+
+
+def _world() -> TaskWithPeople:
+    task = Sides()
+    Y, X, A, H = 2, 5, 3, 3
+    policy = torch.zeros(Y, 1, X, A, H + 1, dtype=torch.float64)
+    policy[..., H] = 1.0  # no action where nothing is legal (middle, end)
+    for y, first in ((0, 0), (1, 1)):
+        policy[y, 0, 0, :, :] = torch.nn.functional.one_hot(torch.tensor(first), H + 1)
+        policy[y, 0, 1:3, :, :] = torch.nn.functional.one_hot(torch.tensor(2), H + 1)
+    people = TabularPeople(("left", "right"), policy, task.human_legal)
+    reward = torch.zeros(A, X, Y, dtype=torch.float64)
+    reward[1, 3] = torch.tensor([1.0, -1.0])
+    reward[2, 3] = torch.tensor([-1.0, 1.0])
+    return TaskWithPeople(task, people, reward, horizon=6, observed=False)
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    world = _world()
+    demos, _ = world.demonstrations(subjects=12, per_subject=3, noise=0.05, seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        aware = torchhrc.learn(world.task, demos, k=2, solver_time=1.0, seed=0)
+        agnostic = torchhrc.learn(world.task, demos, k=1, solver_time=1.0, seed=0)
+    return world, demos, aware, agnostic
+
+
+class AlwaysLeft:
+    """A robot that hands over left whatever happens (waits elsewhere)."""
+
+    def reset(self, prior=None, *, batch=None):
+        self.batch = batch
+
+    def act(self, x):
+        return torch.where(x == 3, 1, 0)
+
+
+def _reference(world, robot_hand, types, eps, episodes, seed):
+    """Plain-Python episodes, one at a time: ``robot_hand(y_belief) -> hand`` at the middle,
+    where ``y_belief`` is the side the person walked to (what a perfect filter knows)."""
+    rng = random.Random(seed)
+    out = []
+    for y in types:
+        for _ in range(episodes):
+            side = y if rng.random() >= eps else rng.randrange(2)  # slip: a random legal move
+            hand = robot_hand(side)  # 0: left, 1: right
+            out.append(G**2 * (1.0 if hand == y else -1.0))
+    return out
+
+
+def test_type_aware_beats_agnostic_and_matches_hand_values(fitted):
+    world, demos, aware, agnostic = fitted
+    eps, E = 0.2, 400
+    result = evaluate_task(world, aware, demonstrations=demos, agnostic=agnostic,
+                           robots={"left": AlwaysLeft()}, episodes=E, noise=eps,
+                           belief_steps=(0, 1, 3), seed=1)  # fmt: skip
+    assert result.robots == ("type-aware", "type-agnostic", "left")
+    assert result.returns.shape == (3, 2, E)
+    i = result.index("type-aware")
+    want = G**2 * (1 - eps)
+    se = result.ci / 1.96
+    assert torch.all((result.mean[i] - want).abs() < 4 * se[i] + 1e-9), result.table()
+    # the fixed robot: +g^2 from "left", -g^2 from "right", exactly (no randomness matters)
+    torch.testing.assert_close(result.mean[2], torch.tensor([G**2, -(G**2)], dtype=torch.float64))
+    torch.testing.assert_close(result.ci[2], torch.zeros(2, dtype=torch.float64))
+    # the agnostic robot cannot tell the types apart in the middle: it hands one side to
+    # everyone (+g^2 for one type, -g^2 for the other) or waits for ever (0)
+    j = result.index("type-agnostic")
+    hand = [(G**2, -(G**2)), (-(G**2), G**2), (0.0, 0.0)]
+    assert any(torch.allclose(result.mean[j], torch.tensor(h, dtype=torch.float64)) for h in hand)
+    assert int(result.compare("type-aware", "type-agnostic", overall=True)) == 1, result.table()
+    assert (result.compare("type-aware", "type-agnostic") > 0).any()
+    # the population: (g^2 (1 - eps)) for the aware robot against 0 for always-left
+    torch.testing.assert_close(result.overall_mean[2], torch.zeros((), dtype=torch.float64))
+    assert abs(float(result.overall_mean[i]) - want) < 4 * float(result.overall_ci[i]) / 1.96
+    # an independent plain-Python simulation of a perfect filter agrees within the CIs
+    ref = torch.tensor(_reference(world, lambda side: side, (0, 1), eps, E, seed=3))
+    ref = ref.view(2, E).mean(-1)
+    assert torch.all((result.mean[i] - ref).abs() < 4 * math.sqrt(2) * se[i] + 1e-9)
+    # CI half-width = 1.96 s / sqrt(E), recomputed from the returns
+    s = result.returns[i].std(-1)
+    torch.testing.assert_close(result.ci[i], 1.959963984540054 * s / math.sqrt(E))
+
+
+def test_belief_accuracy_and_split(fitted):
+    world, demos, aware, _ = fitted
+    eps = 0.2
+    result = evaluate_task(world, aware, demonstrations=demos, agnostic=False, episodes=400,
+                           noise=eps, belief_steps=(0, 1), seed=2)  # fmt: skip
+    assert result.map_source == "assignments"
+    assert sorted(result.type_map.tolist()) == [0, 1]  # the two true types on two learned ones
+    # before any step the belief is the uniform prior: split, half credit for the tie
+    torch.testing.assert_close(result.belief_accuracy[:, 0], torch.full((2,), 0.5,
+                               dtype=torch.float64))  # fmt: skip
+    torch.testing.assert_close(result.belief_max[:, 0], torch.full((2,), 0.5, dtype=torch.float64))
+    # after one step the first move tells the type, except on a slip to the other side
+    # (probability eps / 2): accuracy 0.9 within sampling error
+    acc = result.belief_accuracy[:, 1]
+    assert torch.all((acc - (1 - eps / 2)).abs() < 4 * math.sqrt(0.9 * 0.1 / 400)), acc
+    assert result.belief_status == ("identified", "identified")
+    at0 = evaluate_task(world, aware, demonstrations=demos, agnostic=False, episodes=10,
+                        belief_steps=0, seed=2)  # fmt: skip
+    assert at0.belief_status == ("split", "split")
+    # without true labels the map comes from the belief's posterior mass: the same map
+    unlabelled = evaluate_task(world, aware, agnostic=False, episodes=50, belief_steps=3, seed=2)
+    assert unlabelled.map_source == "posterior"
+    assert torch.equal(unlabelled.type_map, result.type_map)
+    assert "identified" in result.table()
+
+
+def test_seeded_and_validated(fitted):
+    world, _, aware, agnostic = fitted
+    a = evaluate_task(world, aware, agnostic=agnostic, episodes=20, seed=5)
+    b = evaluate_task(world, aware, agnostic=agnostic, episodes=20, seed=5)
+    assert torch.equal(a.returns, b.returns)
+    with pytest.raises(ValueError, match="episodes"):
+        evaluate_task(world, aware, agnostic=False, episodes=1)
+    with pytest.raises(ValueError, match="noise"):
+        evaluate_task(world, aware, agnostic=False, noise=2.0)
+    with pytest.raises(ValueError, match="nothing to evaluate"):
+        evaluate_task(world, None)

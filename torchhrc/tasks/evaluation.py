@@ -1,0 +1,434 @@
+"""Robots against a task's simulated people, scored by the people's true rewards.
+
+:func:`evaluate_task` runs robots (online controllers) against the simulated people of a
+:class:`~torchhrc.tasks.people.TaskWithPeople` of known (true) types, and scores every
+episode by the TRUE reward of the person's type, ``true_reward[a_r, x, y_true]``, not by the
+reward the robot learned:
+
+* the type-aware robot: the learned model's :class:`~torchhrc.tasks.controller.Controller`
+  (a belief over the learned types, updated online, paper Eq. 3);
+* the type-agnostic robot: the model learned with ``k = 1`` (``learn(task, demos, k=1)``,
+  all demonstrations pooled into one type, as the paper's comparison);
+* any robots given (anything with ``reset(*, batch=B)`` and ``act(observation)``, as a
+  :class:`~torchhrc.tasks.controller.Controller`).
+
+Per robot and true type it reports the mean discounted return ``sum_t gamma^t r_t`` over the
+episodes and its 95% confidence half-width ``1.96 s / sqrt(E)``. For the type-aware robot it
+also reports how well the online belief identifies the person: the learned type each true
+type maps to (by the majority of the training demonstrations' assignments, or else by the
+belief's posterior mass), and after ``n`` steps the accuracy (``argmax b == mapped type``)
+and the mean largest posterior. A type that the belief cannot tell apart from another in
+``n`` steps (its largest posterior stays below ``split_threshold``) is reported ``"split"``,
+and one the learning merged with another (two true types on one learned type) ``"merged"``,
+instead of a low accuracy counted as a failure.
+
+Episodes are stepped together as tensors: ``E`` episodes per true type, ``B = E * Y_true``
+at once; the people draw from one seeded generator per robot (the same seed for every
+robot).
+
+Example:
+    >>> import torchhrc
+    >>> from torchhrc.tasks.suite import make_task
+    >>> world = make_task("pace")
+    >>> demos, _ = world.demonstrations(subjects=6, per_subject=2, seed=0)
+    >>> model = torchhrc.learn(world.task, demos, k=3, solver_time=0.5, seed=0)
+    >>> result = evaluate_task(world, model, demonstrations=demos, episodes=20,
+    ...                        agnostic=False)
+    >>> result.mean.shape, result.robots
+    (torch.Size([1, 3]), ('type-aware',))
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Literal, Protocol
+
+import torch
+
+from torchhrc.errors import ModelError
+
+if TYPE_CHECKING:
+    from torchhrc.data import Demonstrations
+    from torchhrc.tasks.people import TaskWithPeople
+    from torchhrc.tasks.pipeline import LearnedModel
+
+__all__ = ["Robot", "TaskEvaluation", "evaluate_task"]
+
+#: 97.5% quantile of the standard normal: the 95% confidence half-width is ``Z95 s / sqrt(E)``.
+Z95 = 1.959963984540054
+
+
+class Robot(Protocol):
+    """What :func:`evaluate_task` needs of a robot (a
+    :class:`~torchhrc.tasks.controller.Controller` is one)."""
+
+    def reset(self, prior: Any = None, *, batch: int | None = None) -> None:
+        """Start ``batch`` episodes."""
+        ...
+
+    def act(self, observation: Any) -> Any:
+        """``x (B,)`` or ``(x, o)`` -> robot actions ``(B,)`` int64."""
+        ...
+
+
+@dataclass(frozen=True)
+class TaskEvaluation:
+    """The result of :func:`evaluate_task` (``R`` robots, ``Y`` true types, ``E`` episodes
+    per type, ``S`` belief checkpoints, ``K`` learned types).
+
+    Attributes:
+        robots: ``(R,)`` robot names (``"type-aware"``, ``"type-agnostic"``, then the given).
+        type_names: ``(Y,)`` true type names.
+        returns: ``(R, Y, E)`` float64 discounted return of every episode under the true
+            reward of its person's type.
+        mean: ``(R, Y)`` mean return.
+        ci: ``(R, Y)`` 95% confidence half-width of the mean (``1.96 s / sqrt(E)``).
+        overall_mean: ``(R,)`` mean return over all ``Y * E`` episodes (the types in equal
+            shares: a population of people).
+        overall_ci: ``(R,)`` its 95% confidence half-width.
+        steps: ``(R, Y)`` mean episode length (steps until a terminal state or the horizon).
+        belief_steps: ``(S,)`` the ``n`` at which the type-aware belief is checked.
+        type_map: ``(Y,)`` the learned type each true type maps to.
+        map_source: ``"assignments"`` (majority of the training demonstrations) or
+            ``"posterior"`` (the belief's mean posterior at the last checkpoint).
+        belief_accuracy: ``(Y, S)`` fraction of episodes whose ``argmax`` belief after
+            ``n`` steps is the mapped learned type (a tie of ``m`` types counts ``1 / m``).
+        belief_max: ``(Y, S)`` mean largest posterior after ``n`` steps.
+        belief_status: ``(Y,)`` per true type at the last checkpoint: ``"identified"``
+            (accuracy >= 0.5), ``"split"`` (mean largest posterior below
+            ``split_threshold``: the actions seen do not tell this type apart; not a
+            failure of the filter), ``"merged"`` (another true type maps to the same learned
+            type: the learning did not separate them), or ``"wrong"``.
+        split_threshold: the threshold of ``"split"``.
+        episodes, noise, seed, discount, horizon: the settings.
+    """
+
+    robots: tuple[str, ...]
+    type_names: tuple[str, ...]
+    returns: torch.Tensor
+    mean: torch.Tensor
+    ci: torch.Tensor
+    overall_mean: torch.Tensor
+    overall_ci: torch.Tensor
+    steps: torch.Tensor
+    belief_steps: tuple[int, ...]
+    type_map: torch.Tensor
+    map_source: str
+    belief_accuracy: torch.Tensor
+    belief_max: torch.Tensor
+    belief_status: tuple[str, ...]
+    split_threshold: float
+    episodes: int
+    noise: float
+    seed: int
+    discount: float
+    horizon: int
+
+    def index(self, robot: str) -> int:
+        """The row of ``robot`` (raises ``ValueError`` naming the robots)."""
+        if robot not in self.robots:
+            raise ValueError(f"expected robot in {self.robots}, got {robot!r}")
+        return self.robots.index(robot)
+
+    def compare(self, robot: str, other: str, *, overall: bool = False) -> torch.Tensor:
+        """``(Y,)`` int (``()`` with ``overall``): ``+1`` where ``robot`` beats ``other``
+        beyond the 95% intervals (``mean_r - ci_r > mean_o + ci_o``), ``-1`` where it is
+        worse beyond them, else 0.
+
+        Per type, a robot that always serves one type can beat the type-aware robot on that
+        type (it never pays for a misread person); ``overall`` compares the population."""
+        i, j = self.index(robot), self.index(other)
+        mean = self.overall_mean if overall else self.mean
+        ci = self.overall_ci if overall else self.ci
+        lo_i, hi_i = mean[i] - ci[i], mean[i] + ci[i]
+        lo_j, hi_j = mean[j] - ci[j], mean[j] + ci[j]
+        return (lo_i > hi_j).long() - (hi_i < lo_j).long()
+
+    def table(self, *, digits: int = 2) -> str:
+        """A Markdown table: one row per true type, ``mean ± ci`` per robot, then the
+        belief's accuracy and largest posterior at the last checkpoint and its status."""
+        n = self.belief_steps[-1] if self.belief_steps else 0
+        head = ["true type", *self.robots, f"belief acc. @{n}", f"max post. @{n}", "belief"]
+        rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for y, name in enumerate(self.type_names):
+            cells = [name] + [
+                f"{float(m):.{digits}f} ± {float(c):.{digits}f}"
+                for m, c in zip(self.mean[:, y], self.ci[:, y])
+            ]
+            if self.belief_steps:
+                accuracy, top = float(self.belief_accuracy[y, -1]), float(self.belief_max[y, -1])
+                cells += [f"{accuracy:.2f}", f"{top:.2f}", self.belief_status[y]]
+            else:
+                cells += ["", "", ""]
+            rows.append("| " + " | ".join(cells) + " |")
+        cells = ["all types"] + [
+            f"{float(m):.{digits}f} ± {float(c):.{digits}f}"
+            for m, c in zip(self.overall_mean, self.overall_ci)
+        ]
+        rows.append("| " + " | ".join([*cells, "", "", ""]) + " |")
+        return "\n".join(rows)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able summary (no per-episode returns)."""
+        return {
+            "robots": list(self.robots),
+            "type_names": list(self.type_names),
+            "mean": self.mean.tolist(),
+            "ci": self.ci.tolist(),
+            "overall_mean": self.overall_mean.tolist(),
+            "overall_ci": self.overall_ci.tolist(),
+            "steps": self.steps.tolist(),
+            "belief_steps": list(self.belief_steps),
+            "type_map": self.type_map.tolist(),
+            "map_source": self.map_source,
+            "belief_accuracy": self.belief_accuracy.tolist(),
+            "belief_max": self.belief_max.tolist(),
+            "belief_status": list(self.belief_status),
+            "split_threshold": self.split_threshold,
+            "episodes": self.episodes,
+            "noise": self.noise,
+            "seed": self.seed,
+        }
+
+
+def _simulate(
+    world: TaskWithPeople,
+    robot: Any,
+    types: torch.Tensor,
+    *,
+    noise: float,
+    seed: int,
+    horizon: int,
+    record_belief: bool,
+) -> tuple[torch.Tensor, torch.Tensor, list[torch.Tensor]]:
+    """``B`` episodes of ``robot`` against the people of ``types (B,)``: returns
+    ``(return (B,), length (B,), beliefs)``, ``beliefs[t]`` the robot's belief ``(B, K)``
+    after ``t`` updates (``t = 0..horizon``) when ``record_belief``."""
+    task = world.task
+    robot_effect = torch.as_tensor(task.robot_effect).to(torch.long)
+    human_effect = torch.as_tensor(task.human_effect).to(torch.long)
+    terminal = torch.as_tensor(task.terminal).to(torch.bool)
+    reward = world.true_reward  # (A, X, Y)
+    z = world.true_observation if world.observed else None
+    gamma = float(task.discount)
+    g = torch.Generator().manual_seed(int(seed))
+    B = int(types.shape[0])
+    x = torch.full((B,), int(task.initial_state), dtype=torch.long)
+    memory = world.people.initial_memory(types, g)
+    done = terminal[x].clone()
+    total = torch.zeros(B, dtype=torch.float64)
+    length = torch.zeros(B, dtype=torch.long)
+    o = torch.zeros(B, dtype=torch.long)
+    robot.reset(batch=B)
+    beliefs: list[torch.Tensor] = []
+    for t in range(horizon + 1):
+        a = robot.act((x, o) if z is not None else x)
+        a = torch.as_tensor(a, dtype=torch.long).expand(B)
+        if record_belief:
+            beliefs.append(torch.as_tensor(robot.belief).detach().double().expand(B, -1).clone())
+        if t == horizon or bool(done.all()):
+            break
+        live = ~done
+        if bool(((a < 0) | (a >= task.num_actions)).any()):
+            raise ModelError(f"robot {robot!r} returned an action outside [0, {task.num_actions})")
+        total = total + torch.where(live, reward[a, x, types] * gamma**t, 0.0)
+        length = length + live.long()
+        mid = robot_effect[a, x]
+        h, new_memory = world.people.act(types, mid, a, memory, g, noise=noise)
+        nxt = torch.where(h >= 0, human_effect[mid, h.clamp_min(0)], mid)
+        if z is not None:
+            o = torch.multinomial(z[a, nxt, types], 1, generator=g).squeeze(-1)
+        x = torch.where(live, nxt, x)
+        memory = torch.where(live.unsqueeze(-1), new_memory, memory)
+        done = done | terminal[x]
+    while record_belief and len(beliefs) < horizon + 1:  # all ended: the belief stays
+        beliefs.append(beliefs[-1])
+    return total, length, beliefs
+
+
+def _true_type_ids(world: TaskWithPeople, demonstrations: Demonstrations) -> torch.Tensor | None:
+    labels = getattr(demonstrations, "types", None)
+    if labels is None:
+        return None
+    names = {n: i for i, n in enumerate(world.type_names)}
+    if any(label not in names for label in labels):
+        return None
+    return torch.tensor([names[label] for label in labels], dtype=torch.long)
+
+
+def evaluate_task(
+    world: TaskWithPeople,
+    model: LearnedModel | None,
+    *,
+    demonstrations: Demonstrations | None = None,
+    agnostic: LearnedModel | Literal[False] | None = None,
+    robots: Mapping[str, Robot] | None = None,
+    episodes: int = 200,
+    noise: float = 0.05,
+    belief_steps: int | Sequence[int] = (1, 3, 5),
+    split_threshold: float = 0.8,
+    horizon: int | None = None,
+    seed: int = 0,
+) -> TaskEvaluation:
+    """Compare robots against a task's simulated people under the people's true rewards.
+
+    Args:
+        world: the task with its simulated people and true reward per true type
+            (:class:`~torchhrc.tasks.people.TaskWithPeople`; a suite task or your own).
+        model: the solved type-aware :class:`~torchhrc.tasks.pipeline.LearnedModel`
+            (``torchhrc.learn(task, demos)``), or ``None`` to score the given robots only.
+        demonstrations: the training demonstrations of ``model``. With ``types`` naming the
+            true types they map the learned types to the true ones (the majority of each
+            true type's assignments); and the type-agnostic robot is learned from them.
+        agnostic: the type-agnostic model (``k = 1``); ``None``: learned by
+            ``torchhrc.learn(world.task, demonstrations, k=1, seed=seed)`` when
+            demonstrations are given; ``False``: no type-agnostic robot.
+        robots: more robots by name (``reset(*, batch=B)``, ``act(x)`` or ``act((x, o))``
+            for an observed task, returning ``(B,)`` actions).
+        episodes: ``E`` episodes per true type (``>= 2``).
+        noise: the people's epsilon (a uniformly random legal action with this probability;
+            default 0.05, the demonstrations' default).
+        belief_steps: the ``n`` (belief updates) at which the type-aware belief is checked.
+        split_threshold: a type whose mean largest posterior stays below this is ``"split"``.
+        horizon: steps per episode (default ``world.horizon``).
+        seed: the seed of the people's generator (the same for every robot).
+
+    Returns:
+        :class:`TaskEvaluation`.
+
+    Raises:
+        ModelError: the model is not solved, does not fit the task, or a robot returns an
+            action out of range.
+        ValueError: a bad setting (named).
+
+    Example:
+        >>> from torchhrc.tasks.suite import make_task
+        >>> world = make_task("pace")
+        >>> class Wait:
+        ...     def reset(self, prior=None, *, batch=None): self.batch = batch
+        ...     def act(self, x): return torch.zeros(self.batch, dtype=torch.long)
+        >>> r = evaluate_task(world, None, robots={"wait": Wait()}, episodes=5)
+        >>> r.robots, tuple(r.mean.shape)
+        (('wait',), (1, 3))
+    """
+    from torchhrc.tasks.controller import Controller
+
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 2:
+        raise ValueError(f"expected episodes to be an int >= 2, got {episodes!r}")
+    if not 0.0 <= float(noise) <= 1.0:
+        raise ValueError(f"expected noise in [0, 1], got {noise!r}")
+    if not 0.0 < float(split_threshold) <= 1.0:
+        raise ValueError(f"expected split_threshold in (0, 1], got {split_threshold!r}")
+    T = int(world.horizon if horizon is None else horizon)
+    if T < 1:
+        raise ValueError(f"expected horizon >= 1, got {horizon!r}")
+    checks = (belief_steps,) if isinstance(belief_steps, int) else tuple(belief_steps)
+    checks = tuple(sorted({int(n) for n in checks}))
+    if any(n < 0 or n > T for n in checks):
+        raise ValueError(f"expected belief_steps in [0, horizon={T}], got {belief_steps!r}")
+    Y = world.num_types
+    A, X = world.task.num_actions, world.task.num_states
+    entries: list[tuple[str, Any]] = []
+    if model is not None:
+        if model.momdp.num_actions != A or model.momdp.num_observed != X:
+            raise ModelError(
+                f"the model has A={model.momdp.num_actions}, X={model.momdp.num_observed}; "
+                f"the task has A={A}, X={X}"
+            )
+        entries.append(("type-aware", Controller.from_model(model)))
+    if agnostic is None and demonstrations is not None and model is not None:
+        from torchhrc.tasks.pipeline import learn
+
+        solver = dict(model.info.get("solver", {}))
+        time_limit = float(solver.get("time_limit", 5.0) or 5.0)
+        agnostic = learn(world.task, demonstrations, k=1, seed=seed, solver_time=time_limit)
+    if agnostic is not None and agnostic is not False:
+        entries.append(("type-agnostic", Controller.from_model(agnostic)))
+    for name, robot in (robots or {}).items():
+        if name in dict(entries):
+            raise ValueError(f"robot name {name!r} is taken; use another")
+        entries.append((str(name), robot))
+    if not entries:
+        raise ValueError("nothing to evaluate: give a model or robots")
+
+    types = torch.arange(Y).repeat_interleave(episodes)  # (B,) episodes grouped by type
+    returns = torch.zeros(len(entries), Y, episodes, dtype=torch.float64)
+    steps = torch.zeros(len(entries), Y, dtype=torch.float64)
+    beliefs: list[torch.Tensor] = []
+    for r, (_name, robot) in enumerate(entries):
+        aware = model is not None and r == 0
+        total, length, seen = _simulate(world, robot, types, noise=float(noise), seed=seed,
+                                        horizon=T, record_belief=aware)  # fmt: skip
+        returns[r] = total.view(Y, episodes)
+        steps[r] = length.double().view(Y, episodes).mean(-1)
+        if aware:
+            beliefs = seen
+    mean = returns.mean(-1)
+    ci = Z95 * returns.std(-1, correction=1) / math.sqrt(episodes)
+    pooled = returns.view(len(entries), -1)
+    overall_mean = pooled.mean(-1)
+    overall_ci = Z95 * pooled.std(-1, correction=1) / math.sqrt(pooled.shape[-1])
+
+    S = len(checks) if beliefs else 0
+    type_map = torch.full((Y,), -1, dtype=torch.long)
+    source = "none"
+    accuracy = torch.zeros(Y, S, dtype=torch.float64)
+    top = torch.zeros(Y, S, dtype=torch.float64)
+    status: tuple[str, ...] = ()
+    if beliefs:
+        assert model is not None
+        K = model.num_types
+        truth = None if demonstrations is None else _true_type_ids(world, demonstrations)
+        if truth is not None and truth.shape[0] == model.assignments.shape[0]:
+            counts = torch.zeros(Y, K, dtype=torch.long)
+            counts.index_put_((truth, model.assignments.long().cpu()),
+                              torch.ones_like(truth), accumulate=True)  # fmt: skip
+            type_map = counts.argmax(-1)
+            source = "assignments"
+        else:
+            last = beliefs[checks[-1]].view(Y, episodes, K).mean(1)  # (Y, K)
+            type_map = last.argmax(-1)
+            source = "posterior"
+        for s, n in enumerate(checks):
+            b = beliefs[n].view(Y, episodes, K)
+            # ties share the credit: a uniform belief is not "right" by index order
+            best = b >= b.max(-1, keepdim=True).values - 1e-12  # (Y, E, K)
+            mine = best.gather(-1, type_map.view(Y, 1, 1).expand(Y, episodes, 1)).squeeze(-1)
+            accuracy[:, s] = (mine.double() / best.sum(-1).double()).mean(-1)
+            top[:, s] = b.max(-1).values.mean(-1)
+        shared = torch.bincount(type_map, minlength=K)[type_map] > 1
+        labels = []
+        for y in range(Y):
+            if S and bool(shared[y]):
+                labels.append("merged")
+            elif S and float(top[y, -1]) < split_threshold:
+                labels.append("split")
+            elif S and float(accuracy[y, -1]) >= 0.5:
+                labels.append("identified")
+            else:
+                labels.append("wrong" if S else "")
+        status = tuple(labels)
+    return TaskEvaluation(
+        robots=tuple(name for name, _ in entries),
+        type_names=world.type_names,
+        returns=returns,
+        mean=mean,
+        ci=ci,
+        overall_mean=overall_mean,
+        overall_ci=overall_ci,
+        steps=steps,
+        belief_steps=checks if beliefs else (),
+        type_map=type_map,
+        map_source=source,
+        belief_accuracy=accuracy,
+        belief_max=top,
+        belief_status=status,
+        split_threshold=float(split_threshold),
+        episodes=episodes,
+        noise=float(noise),
+        seed=int(seed),
+        discount=float(world.task.discount),
+        horizon=T,
+    )

@@ -117,3 +117,33 @@ def test_absorbing_states_end_an_episode():
     assert result.returns.tolist() == [1.0] * 8
     assert len(steps) == 1 and bool(steps[0].active.all())
     assert steps[0].y.tolist() == [0] * 8 and steps[0].next_x.tolist() == [0] * 8
+
+
+def test_sparse_belief_paths_match_the_dense_bayes_filter():
+    """Beliefs of 300 states with 3 nonzeros take the support-only products (CSR): the
+    same updates as torchhrc.belief.update, the same actions as the dense scores."""
+    from torchhrc.belief import update
+    from torchhrc.solvers.evaluate import _form_and_chooser
+    from torchhrc.solvers.forms import as_solver_model
+    from torchhrc.solvers.sampling import flat_step, mostly_zero
+    from torchhrc.sparse import SparsePOMDP
+
+    model = random_pomdp(300, 3, 4, seed=11)
+    g = torch.Generator().manual_seed(0)
+    belief = torch.zeros(40, 300, dtype=torch.float64)
+    belief.scatter_(1, torch.randint(0, 300, (40, 3), generator=g), 1.0)
+    belief /= belief.sum(-1, keepdim=True)
+    assert mostly_zero(belief)
+    state = torch.multinomial(belief, 1, generator=g).squeeze(1)
+    action = torch.randint(0, 3, (40,), generator=g)
+    step = flat_step(model, state, belief, action, torch.Generator().manual_seed(1))
+    expected = update(model, belief, action, step.observation, on_zero="ninf").belief
+    torch.testing.assert_close(step.belief, expected, rtol=1e-12, atol=1e-15)
+    sparse = as_solver_model(SparsePOMDP.from_dense(model))
+    out = sparse.step(
+        torch.zeros_like(state), state, belief, action, torch.Generator().manual_seed(1)
+    )
+    torch.testing.assert_close(out.belief, expected, rtol=1e-12, atol=1e-15)
+    policy = qmdp_policy(model)
+    _, choose = _form_and_chooser(model, policy)
+    assert torch.equal(choose(None, belief), policy.action(belief))

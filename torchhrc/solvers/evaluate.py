@@ -33,7 +33,12 @@ from torchhrc.errors import ModelError
 from torchhrc.solvers.forms import as_solver_model
 from torchhrc.solvers.forms.base import SolverModel
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.sampling import sample_categorical
+from torchhrc.solvers.sampling import (
+    SPARSE_BELIEF_STATES,
+    mostly_zero,
+    sample_categorical,
+    to_csr,
+)
 
 __all__ = ["EvaluationResult", "SimulationStep", "evaluate_policy"]
 
@@ -133,8 +138,9 @@ def _form_and_chooser(model: Any, policy: PolicyLike) -> tuple[SolverModel, Call
                     f"got {int(policy.observed.max())}"
                 )
             return form, policy.action
-        if size >= _SPARSE_BELIEF_STATES:
-            return form, lambda x, b: _sparse_action(policy, b)
+        if size >= SPARSE_BELIEF_STATES:
+            table = policy.alphas.T.contiguous()  # (S, N), once
+            return form, lambda x, b: _sparse_action(policy, table, b)
         return form, lambda x, b: policy.action(b)
     if callable(policy):
         if form.factored:
@@ -143,17 +149,14 @@ def _form_and_chooser(model: Any, policy: PolicyLike) -> tuple[SolverModel, Call
     raise TypeError(f"expected an AlphaVectorPolicy or a callable, got {type(policy).__name__}")
 
 
-#: flat models with this many states choose actions on the belief's support (a simulated
-#: belief of RockSample(7, 8) has at most 256 of 12,545 states nonzero)
-_SPARSE_BELIEF_STATES = 2048
-
-
-def _sparse_action(policy: AlphaVectorPolicy, beliefs: torch.Tensor) -> torch.Tensor:
-    """``policy.action(beliefs)`` as a sparse product over the beliefs' support."""
-    if beliefs.device.type != "cpu" or beliefs.shape[0] == 0:
+def _sparse_action(
+    policy: AlphaVectorPolicy, table: torch.Tensor, beliefs: torch.Tensor
+) -> torch.Tensor:
+    """``policy.action(beliefs)``, as a product over the beliefs' support when they are
+    sparse (:func:`~torchhrc.solvers.sampling.mostly_zero`); ``table`` is ``alphas.T``."""
+    if not mostly_zero(beliefs):
         return policy.action(beliefs)
-    alphas = policy.alphas
-    scores = beliefs.to(alphas.dtype).to_sparse_csr() @ alphas.T  # (E, N)
+    scores = to_csr(beliefs.to(table.dtype)) @ table  # (E, N)
     return policy.actions[scores.argmax(-1)]
 
 
@@ -253,12 +256,17 @@ def evaluate_policy(
             step = form.step(x[live], y[live], belief[live], action[live], generator)
             reward = torch.where(active, R[action, x, y], R.new_zeros(()))
             nx, ny, obs = x.clone(), y.clone(), torch.zeros_like(x)
-            nb = belief.clone()
-            nx[live], ny[live], obs[live], nb[live] = step.x, step.y, step.observation, step.belief
+            nx[live], ny[live], obs[live] = step.x, step.y, step.observation
+            nb = belief  # updated in place below, after on_step has seen it
+
         returns += weight * reward
         if on_step is not None:
             on_step(SimulationStep(t, active, x, y, belief, action, reward, obs, nx))
-        x, y, belief = nx, ny, nb.to(belief.dtype)
+        if nb is belief:
+            belief = belief.index_copy_(0, live, step.belief.to(belief.dtype))
+        else:
+            belief = nb.to(belief.dtype)
+        x, y = nx, ny
         weight *= g
     mean = float(returns.mean())
     std_error = float(returns.std(unbiased=True)) / math.sqrt(E)

@@ -29,7 +29,7 @@ from torchhrc.solvers.belief_tree import BeliefTree, SparseBeliefTree
 from torchhrc.solvers.clock import Deadline
 from torchhrc.solvers.forms.base import Children, FIBOperator, FlatFields, SimStep, SolverModel
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.sampling import sample_categorical
+from torchhrc.solvers.sampling import mostly_zero, normalize_rows, sample_categorical, to_csr
 from torchhrc.solvers.sparse_model import SparseFlatModel, sparse_blind_policy
 
 __all__ = ["SparseForm"]
@@ -122,11 +122,16 @@ class SparseForm(FlatFields, SolverModel):
         nxt, prob = sp.successors(actions, y)  # (M, W)
         s2 = nxt.gather(1, sample_categorical(prob, generator).unsqueeze(1)).squeeze(1)
         o = sample_categorical(sp.Z[actions, s2], generator)
-        new = sp.predict_actions(beliefs, actions) * sp.Z[actions, :, o]  # (M, S)
-        total = new.sum(-1, keepdim=True)
-        uniform = torch.full_like(new, 1.0 / new.shape[-1])
-        new = torch.where(total > 0, new / total.clamp(min=1e-300), uniform)
-        return SimStep(torch.zeros_like(s2), s2, o, new)
+        if mostly_zero(beliefs):  # (m, S) CSR @ T[a] CSR per action used
+            new = torch.empty(beliefs.shape, dtype=sp.dtype)
+            for a in torch.unique(actions).tolist():
+                rows = (actions == a).nonzero().squeeze(-1)
+                pred = to_csr(beliefs[rows].to(sp.dtype)) @ sp.T_csr[a]
+                new[rows] = pred.to_dense()
+        else:
+            new = sp.predict_actions(beliefs, actions)
+        new *= sp.Z[actions, :, o]  # (M, S)
+        return SimStep(torch.zeros_like(s2), s2, o, normalize_rows(new))
 
     def point_backup(self, policy: AlphaVectorPolicy, x: torch.Tensor,
                      beliefs: torch.Tensor) -> BackupResult:  # fmt: skip

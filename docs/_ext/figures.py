@@ -227,6 +227,16 @@ def place_and_drill_online_table() -> str:
     return _place_and_drill_table("Mean accumulated reward ± 95% CI half-width, online")
 
 
+def place_and_drill_separation_table() -> str:
+    """The SAPIEN separation table of ``torchhrc reproduce place-and-drill``."""
+    return _place_and_drill_table("| case | policy | true type |")
+
+
+def place_and_drill_irl_table() -> str:
+    """The IRL weights of the first two folds (``torchhrc reproduce place-and-drill``)."""
+    return _place_and_drill_table("| fold subject | cluster |")
+
+
 #: name -> the function that prints the block.
 FIGURES: dict[str, Callable[[], str]] = {
     "online-cross-training-by-type": online_cross_training_by_type,
@@ -236,6 +246,8 @@ FIGURES: dict[str, Callable[[], str]] = {
     "hand-finishing-noise-table": hand_finishing_noise_table,
     "place-and-drill-offline-table": place_and_drill_offline_table,
     "place-and-drill-online-table": place_and_drill_online_table,
+    "place-and-drill-separation-table": place_and_drill_separation_table,
+    "place-and-drill-irl-table": place_and_drill_irl_table,
 }
 #: name -> cheap enough for the default test run (seconds).
 CHEAP: dict[str, bool] = {
@@ -246,6 +258,8 @@ CHEAP: dict[str, bool] = {
     "hand-finishing-noise-table": False,
     "place-and-drill-offline-table": False,  # the default run: 45-70 s
     "place-and-drill-online-table": False,
+    "place-and-drill-separation-table": False,
+    "place-and-drill-irl-table": False,
 }
 
 

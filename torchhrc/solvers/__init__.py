@@ -30,6 +30,7 @@ from torchhrc.solvers.evaluate import EvaluationResult, evaluate_policy
 from torchhrc.solvers.fib import FIBConfig, fib, fib_policy, fib_vectors
 from torchhrc.solvers.pbvi import PBVIConfig, pbvi
 from torchhrc.solvers.policy import AlphaVectorPolicy
+from torchhrc.solvers.policy_graph import PolicyGraph, controller_value, policy_graph
 from torchhrc.solvers.pruning import prune_by_beliefs, prune_dominated
 from torchhrc.solvers.qmdp import QMDPConfig, qmdp, qmdp_policy, qmdp_vectors
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
@@ -47,12 +48,14 @@ __all__ = [
     "FIBConfig",
     "MDPSolution",
     "PBVIConfig",
+    "PolicyGraph",
     "QMDPConfig",
     "SARSOPConfig",
     "Solution",
     "SparseFlatModel",
     "blind_policy",
     "blind_vectors",
+    "controller_value",
     "evaluate_policy",
     "fib",
     "fib_policy",
@@ -61,6 +64,7 @@ __all__ = [
     "pbvi",
     "point_backup",
     "policy_evaluation",
+    "policy_graph",
     "prune_by_beliefs",
     "prune_dominated",
     "qmdp",

@@ -17,7 +17,9 @@ Usage::
 
 Prints one line per (task, seed) and a summary per task: ``hits`` (seeds with the true k),
 ``ari`` (mean ARI over the hits), ``ari_all`` (mean over all seeds), the k found per seed,
-and the wall time. ``--csv`` writes the per-run rows (atomically).
+the smallest per-transition gain at the true k and the largest at the true k + 1 over the
+seeds (when learn() records its scores: a threshold between the two separates them), and the
+wall time. ``--csv`` writes the per-run rows (atomically).
 """
 
 from __future__ import annotations
@@ -58,6 +60,15 @@ def _learn_kwargs(items: Sequence[str]) -> dict[str, Any]:
     return kw
 
 
+def _gain(info: dict[str, Any], k: int) -> float:
+    """The per-transition gain of going to ``k`` types that learn() recorded, if it did
+    (``info["scores"][str(k)]["gain"]``), else NaN."""
+    try:
+        return float(info["scores"][str(k)]["gain"])
+    except (KeyError, TypeError, ValueError):
+        return float("nan")
+
+
 def run(
     tasks: Sequence[str],
     seeds: Sequence[int],
@@ -82,18 +93,22 @@ def run(
             k = int(model.num_types)
             ari = adjusted_rand_index(types.tolist(), model.assignments.tolist())
             row = dict(task=name, states=twp.task.num_states, seed=seed, true_k=twp.num_types,
-                       k=k, hit=k == twp.num_types, ari=ari, seconds=seconds)  # fmt: skip
+                       k=k, hit=k == twp.num_types, ari=ari, seconds=seconds,
+                       gain_true=_gain(model.info, twp.num_types),
+                       gain_next=_gain(model.info, twp.num_types + 1))  # fmt: skip
             rows.append(row)
             if verbose:
                 print(f"{name:20s} seed {seed:3d}  k {k} (true {twp.num_types})  "
-                      f"ARI {ari:6.3f}  {seconds:6.1f} s", flush=True)  # fmt: skip
+                      f"ARI {ari:6.3f}  gain at true k {row['gain_true']:.4f}, at true k + 1 "
+                      f"{row['gain_next']:.4f}  {seconds:6.1f} s", flush=True)  # fmt: skip
     return rows
 
 
 def summary(rows: Sequence[dict[str, Any]]) -> str:
     """A Markdown table per task: hits, mean ARI over the hits and over all seeds, k found."""
-    lines = ["| task | X | true k | hits | ARI (hits) | ARI (all) | k per seed | s/run |",
-             "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    lines = ["| task | X | true k | hits | ARI (hits) | ARI (all) | k per seed "
+             "| min gain at true k | max gain at true k + 1 | s/run |",
+             "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for name in dict.fromkeys(r["task"] for r in rows):
         rs = [r for r in rows if r["task"] == name]
         hits = [r for r in rs if r["hit"]]
@@ -101,8 +116,11 @@ def summary(rows: Sequence[dict[str, Any]]) -> str:
         ari_all = sum(r["ari"] for r in rs) / len(rs)
         ks = " ".join(str(r["k"]) for r in rs)
         sec = sum(r["seconds"] for r in rs) / len(rs)
+        g_true = min(r["gain_true"] for r in rs)
+        g_next = max(r["gain_next"] for r in rs)
         lines.append(f"| {name} | {rs[0]['states']} | {rs[0]['true_k']} | {len(hits)}/{len(rs)} "
-                     f"| {ari_hits:.3f} | {ari_all:.3f} | {ks} | {sec:.1f} |")  # fmt: skip
+                     f"| {ari_hits:.3f} | {ari_all:.3f} | {ks} | {g_true:.4f} | {g_next:.4f} "
+                     f"| {sec:.1f} |")  # fmt: skip
     return "\n".join(lines)
 
 

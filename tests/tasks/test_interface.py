@@ -155,3 +155,86 @@ def test_check_task_names_the_bad_table():
         check_task(BadNames())
     check_task(Toggle())
     check_task(PlaceAndDrillTask(3))
+
+
+def test_step_takes_ints_and_returns_an_int():
+    task = Toggle()
+    assert task.step(0, 0, 1) == 0 and isinstance(task.step(0, 0, 1), int)  # press, flip
+    assert task.step(0, -1, 1) == 1  # press, no human action
+    assert task.step(torch.tensor([0, 1]), 0, 0).tolist() == [1, 0]  # tensors broadcast
+
+
+class Chores(CollaborativeTask):
+    """x = bit mask of two chores done (3: both, terminal); the human does one per step."""
+
+    state_names = ("none", "a", "b", "both")
+    robot_actions = ("wait",)
+    human_actions = ("do_a", "do_b")
+    robot_effect = torch.tensor([[0, 1, 2, 3]])
+    human_effect = torch.tensor([[1, 2], [1, 3], [3, 2], [3, 3]])
+
+    @property
+    def terminal(self) -> torch.Tensor:
+        return torch.tensor([False, False, False, True])
+
+
+class ChoresWithWait(Chores):
+    human_actions = ("do_a", "do_b", "wait")
+    human_effect = torch.tensor([[1, 2, 0], [1, 3, 1], [3, 2, 2], [3, 3, 3]])
+
+
+def test_a_listed_human_wait_gets_an_error_that_says_to_leave_it_out():
+    demos = Demonstrations.from_lists(
+        [[("human", "do_a"), ("human", "wait"), ("human", "do_b")]] * 2,
+        subjects=["ann", "bob"], sequence_ids=["first", "second"],
+    )  # fmt: skip
+    with pytest.raises(ModelError, match="leave it out of human_actions"):
+        check_task(ChoresWithWait())
+    with pytest.raises(ModelError, match=r"subject 'ann' demonstration 'first' \(row 0\) step 1"
+                       r".*leave it out of human_actions"):  # fmt: skip
+        ChoresWithWait().read_steps(demos)
+    # left out, a human "wait" reads as no action
+    steps = Chores().read_steps(demos)
+    assert steps.human[0, :3].tolist() == [0, -1, 1]
+    assert steps.next_states[0, :3].tolist() == [1, 1, 3]
+
+
+def test_errors_about_demonstrations_name_the_subject_and_demonstration():
+    demos = Demonstrations.from_lists(
+        [[("human", "do_a"), ("human", "do_b")], [("human", "do_a"), ("human", "do_a")]],
+        subjects=["ann", "bob"], sequence_ids=["0", "7"],
+    )  # fmt: skip
+    with pytest.raises(ModelError, match=r"subject 'bob' demonstration '7' \(row 1\) step 1: "
+                       "human action 'do_a' cannot happen in state 'a'"):  # fmt: skip
+        Chores().read_steps(demos)
+
+
+def test_check_task_reports_unreachable_states_and_tasks_without_an_end():
+    check_task(Chores())  # every state reachable, an end reachable: silent
+
+    class Extra(Chores):  # a fifth state no action leads to
+        state_names = ("none", "a", "b", "both", "island")
+        robot_effect = torch.tensor([[0, 1, 2, 3, 4]])
+        human_effect = torch.tensor([[1, 2], [1, 3], [3, 2], [3, 3], [3, 3]])
+
+        @property
+        def terminal(self) -> torch.Tensor:
+            return torch.tensor([False, False, False, True, False])
+
+    from torchhrc.tasks.interface import TaskWarning, reachable_states
+
+    assert reachable_states(Extra()).tolist() == [True, True, True, True, False]
+    with pytest.warns(TaskWarning, match="1 of 5 states cannot be reached.*'island'"):
+        check_task(Extra())
+
+    class NoEnd(Chores):  # the end is declared but the human can only do "a"
+        human_effect = torch.tensor([[1, 0], [1, 2], [2, 2], [3, 3]])
+
+    with pytest.raises(ModelError, match="no terminal state is reachable"):
+        check_task(NoEnd())
+
+    class Frozen(Chores):  # legal actions, but none reachable from x0 changes anything
+        human_effect = torch.tensor([[0, 0], [1, 3], [3, 2], [3, 3]])
+
+    with pytest.raises(ModelError, match="cannot progress"):
+        check_task(Frozen())

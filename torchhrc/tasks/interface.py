@@ -65,14 +65,20 @@ if TYPE_CHECKING:
 __all__ = [
     "CollaborativeTask",
     "TaskSteps",
+    "TaskWarning",
     "TypeEvidence",
     "chain_preferences",
     "check_task",
+    "reachable_states",
     "tabular_features",
 ]
 
 #: Human symbols read as "the human lets this turn pass" when not a task action.
 IDLE_HUMAN_NAMES: tuple[str, ...] = ("wait", "idle", "none")
+
+
+class TaskWarning(UserWarning):
+    """A task that works but is probably not what its author meant (:func:`check_task`)."""
 
 
 @dataclass(frozen=True)
@@ -281,21 +287,34 @@ class CollaborativeTask:
 
     # ------------------------------------------------------------------ dynamics
     def step(
-        self, x: torch.Tensor, human_action: torch.Tensor, robot_action: torch.Tensor
-    ) -> torch.Tensor:
+        self, x: torch.Tensor | int, human_action: torch.Tensor | int,
+        robot_action: torch.Tensor | int,
+    ) -> torch.Tensor | int:  # fmt: skip
         """``x'`` after robot action ``a_r`` then human action ``a_h`` (``-1``: none), batched.
 
         Args:
-            x, human_action, robot_action: int64 tensors of one shape ``(...)``.
+            x, human_action, robot_action: int64 tensors that broadcast together, or ints.
 
         Returns:
-            ``(...)`` int64 next states.
+            ``(...)`` int64 next states; an int when all three are ints.
+
+        Example:
+            >>> from torchhrc.tasks.suite import make_task
+            >>> task = make_task("fetch_order").task
+            >>> x0 = task.initial_state
+            >>> task.step(x0, -1, 0) == int(task.robot_effect[0, x0])  # ints in, int out
+            True
         """
+        scalar = not any(isinstance(v, torch.Tensor) for v in (x, human_action, robot_action))
         effect = torch.as_tensor(self.robot_effect)
-        mid = effect[robot_action, x]
         human = torch.as_tensor(self.human_effect)
-        after = human[mid, human_action.clamp_min(0)]
-        return torch.where(human_action >= 0, after, mid)
+        xt = torch.as_tensor(x, dtype=torch.long, device=effect.device)
+        ht = torch.as_tensor(human_action, dtype=torch.long, device=effect.device)
+        at = torch.as_tensor(robot_action, dtype=torch.long, device=effect.device)
+        mid = effect[at, xt]
+        after = human[mid, ht.clamp_min(0)]
+        out = torch.where(ht >= 0, after, mid)
+        return int(out) if scalar else out
 
     # ------------------------------------------------------------------ demonstrations
     def read_steps(self, demonstrations: Demonstrations) -> TaskSteps | None:
@@ -331,6 +350,14 @@ class CollaborativeTask:
         legal = torch.as_tensor(self.human_legal).tolist()
         idle = self.idle_robot_action
         names = list(self.state_names)
+        subjects = getattr(demonstrations, "subjects", None)
+        sequence_ids = getattr(demonstrations, "sequence_ids", None)
+
+        def which(n: int) -> str:  # the subject and demonstration, as the user named them
+            if subjects is None or sequence_ids is None:
+                return f"demonstration {n}"
+            return f"subject {subjects[n]!r} demonstration {sequence_ids[n]!r} (row {n})"
+
         seqs = demonstrations.sequences.cpu().tolist()
         lengths = demonstrations.lengths.cpu().tolist()
         rows: list[list[list[int]]] = []
@@ -343,7 +370,7 @@ class CollaborativeTask:
                 if kind == 2:
                     actor, action = demonstrations.vocabulary[seq[t]]
                     raise ModelError(
-                        f"demonstration {n} step {t}: symbol {actor}:{action} is not an action "
+                        f"{which(n)} step {t}: symbol {actor}:{action} is not an action "
                         f"of the task (robot: {', '.join(self.robot_actions)}; human: "
                         f"{', '.join(self.human_actions)})"
                     )
@@ -358,8 +385,17 @@ class CollaborativeTask:
                     x = effect[idle][x]
                 if idx >= 0:
                     if not legal[x][idx]:
+                        if self.human_actions[idx] in IDLE_HUMAN_NAMES:
+                            raise ModelError(
+                                f"{which(n)} step {t}: human action "
+                                f"{self.human_actions[idx]!r} is listed in the task's "
+                                "human_actions but does not change the state: leave it out of "
+                                f"human_actions; a human {self.human_actions[idx]!r} in the "
+                                "demonstrations then reads as no action (the human lets the "
+                                "turn pass)"
+                            )
                         raise ModelError(
-                            f"demonstration {n} step {t}: human action "
+                            f"{which(n)} step {t}: human action "
                             f"{self.human_actions[idx]!r} cannot happen in state {names[x]!r} "
                             f"(after robot action {self.robot_actions[steps[-1][1]]!r}); the "
                             "task's dynamics cannot produce this step"
@@ -462,17 +498,54 @@ def _table(name: str, value: Any, shape: tuple[int, ...], kind: str) -> torch.Te
     return t
 
 
+def reachable_states(task: CollaborativeTask) -> torch.Tensor:
+    """``(X,)`` bool: the states reachable from ``x0`` under every robot action and every
+    human response legal after it (or none).
+
+    Example:
+        >>> class Line(CollaborativeTask):
+        ...     state_names, robot_actions, human_actions = ("a", "b", "c"), ("go",), ("back",)
+        ...     robot_effect = torch.tensor([[1, 1, 2]])        # go: a -> b
+        ...     human_effect = torch.tensor([[0], [0], [2]])    # back: b -> a
+        >>> reachable_states(Line()).tolist()
+        [True, True, False]
+    """
+    robot = torch.as_tensor(task.robot_effect).to(torch.long).cpu()  # (A, X)
+    human = torch.as_tensor(task.human_effect).to(torch.long).cpu()  # (X, H)
+    legal = torch.as_tensor(task.human_legal).to(torch.bool).cpu()  # (X, H)
+    X = task.num_states
+    seen = torch.zeros(X, dtype=torch.bool)
+    seen[task.initial_state] = True
+    while True:  # at most X rounds of one tensor step each
+        mid = torch.zeros(X, dtype=torch.bool)
+        mid[robot[:, seen].flatten()] = True
+        rows = mid.nonzero().flatten()
+        grown = seen | mid
+        grown[human[rows][legal[rows]]] = True
+        if torch.equal(grown, seen):
+            return seen
+        seen = grown
+
+
 def check_task(task: CollaborativeTask) -> None:
     """Validate a task's tables; raise a clear error naming the bad piece.
 
     Checks: names are non-empty; ``robot_effect (A, X)`` and ``human_effect (X, H)`` are
     integer tables of states in ``[0, X)``; ``human_legal (X, H)`` and ``terminal (X,)``
     bool; ``x0`` in range; ``features()`` of shape ``(A, X, F)``, finite, with
-    ``len(feature_names) == F``.
+    ``len(feature_names) == F``. Then the task's reach from ``x0``
+    (:func:`reachable_states`): a human action that can happen nowhere (a human ``"wait"``
+    listed among the actions), a task where no action changes any reachable state, and
+    terminal states none of which is reachable are errors; unreachable states are a
+    :class:`TaskWarning` naming them (they are solved for nothing).
 
     Raises:
-        ModelError: a table has the wrong shape or an out-of-range entry.
+        ModelError: a table has the wrong shape or an out-of-range entry, a human action is
+            never legal, nothing changes the state, or no terminal state is reachable.
         TypeError: a table has the wrong kind.
+
+    Warns:
+        TaskWarning: states that cannot be reached from ``x0``.
 
     Example:
         >>> class Bad(CollaborativeTask):
@@ -515,3 +588,57 @@ def check_task(task: CollaborativeTask) -> None:
         )
     if not 0.0 < float(task.discount) < 1.0:
         raise ModelError(f"expected discount in (0, 1), got {task.discount}")
+    _check_reach(task)
+
+
+def _check_reach(task: CollaborativeTask) -> None:
+    import warnings
+
+    legal = torch.as_tensor(task.human_legal).cpu()
+    never = (~legal.any(0)).nonzero().flatten().tolist()
+    if never:
+        name = task.human_actions[never[0]]
+        hint = (
+            f"leave it out of human_actions: a human {name!r} in the demonstrations reads as "
+            "no action (the human lets the turn pass)"
+            if name in IDLE_HUMAN_NAMES
+            else "fix human_effect (or human_legal), or leave the action out"
+        )
+        raise ModelError(
+            f"human action {name!r} can happen in no state (human_legal is False everywhere: "
+            f"it changes no state); {hint}"
+        )
+    reach = reachable_states(task)
+    X = task.num_states
+    robot = torch.as_tensor(task.robot_effect).cpu()
+    human = torch.as_tensor(task.human_effect).cpu()
+    moves = (robot[:, reach] != torch.arange(X)[reach]).any() or (
+        (human[reach] != torch.arange(X)[reach].view(-1, 1)) & legal[reach]
+    ).any()
+    if not moves:
+        raise ModelError(
+            "no robot or human action changes any state reachable from initial_state "
+            f"{task.state_names[task.initial_state]!r}: the task cannot progress; check "
+            "robot_effect and human_effect (x' = human_effect[robot_effect[a, x], h])"
+        )
+    terminal = torch.as_tensor(task.terminal).cpu()
+    if terminal.any() and not (terminal & reach).any():
+        raise ModelError(
+            "no terminal state is reachable from initial_state "
+            f"{task.state_names[task.initial_state]!r} (terminal: "
+            f"{', '.join(task.state_names[i] for i in terminal.nonzero().flatten()[:5].tolist())}"
+            "): episodes never end; check robot_effect, human_effect and terminal"
+        )
+    if not reach.all():
+        lost = (~reach).nonzero().flatten().tolist()
+        shown = ", ".join(repr(task.state_names[i]) for i in lost[:5])
+        more = f" and {len(lost) - 5} more" if len(lost) > 5 else ""
+        warnings.warn(
+            f"{len(lost)} of {X} states cannot be reached from initial_state "
+            f"{task.state_names[task.initial_state]!r} under any robot action and legal "
+            f"human action: {shown}{more}. They cost solver time for nothing: leave them out "
+            "of state_names (or check robot_effect and human_effect if they should be "
+            "reachable); torchhrc.tasks.interface.reachable_states(task) lists them",
+            TaskWarning,
+            stacklevel=3,
+        )

@@ -108,3 +108,45 @@ def test_random_start_begins_from_the_belief_given_the_first_state():
     c.reset()
     with pytest.raises(ModelError, match="no mass"):
         c.act(1)
+
+
+def test_impossible_observation_error_names_only_what_exists():
+    m = random_momdp(3, 2, 2, 1, seed=0)
+    Tx = torch.zeros_like(m.Tx)
+    Tx[..., 0] = 1.0  # every step goes to x = 0
+    m = type(m)(Tx=Tx, Ty=None, Z=m.Z, R=m.R, x0=0, b0=m.b0, discount=m.discount)
+    c = Controller.from_momdp(m, _blind(m))
+    c.reset(batch=3)
+    a = c.act(torch.tensor([0, 0, 0]))
+    with pytest.raises(ModelError, match=r"episode 1: after action .* state x' = 2") as err:
+        c.act(torch.tensor([0, 2, 0]))
+    assert "on_zero" not in str(err.value) and "reset(" in str(err.value)
+    assert a.shape == (3,)
+
+
+def test_done_marks_terminal_states():
+    # state 2 is absorbing with zero reward: the episode's end
+    m = random_momdp(3, 2, 2, 1, seed=3)
+    Tx, R = m.Tx.clone(), m.R.clone()
+    Tx[:, 2] = 0.0
+    Tx[:, 2, :, 2] = 1.0
+    R[:, 2] = 0.0
+    # state 1: zero reward and action 0 stays, but action 1 leaves: not an end
+    Tx[0, 1] = 0.0
+    Tx[0, 1, :, 1] = 1.0
+    R[:, 1] = 0.0
+    m = type(m)(Tx=Tx, Ty=None, Z=m.Z, R=R, x0=0, b0=m.b0, discount=m.discount)
+    c = Controller.from_momdp(m, _blind(m))
+    assert c.terminal.tolist() == [False, False, True]
+    c.reset()
+    assert c.done is False
+    c.act(0)
+    assert c.done is False
+    c.act(2)
+    assert c.done is True
+    c.reset(batch=2)
+    c.act(torch.tensor([0, 2]))
+    assert c.done.tolist() == [False, True]
+    # ints in, ints out; the same action as the tensor form
+    c.reset()
+    assert isinstance(c.act(1), int)

@@ -11,11 +11,13 @@ and takes the action of its policy at ``(x', b')``. :class:`Controller` does exa
     controller.reset(prior)                   # belief over the types, start state
     a = controller.act(x0)                    # first action
     a = controller.act((x1, o1))              # later: the new state (and signal)
+    controller.done                           # True once a terminal state is seen
 
 The filter is given as a function, so one controller serves every model form: the factored
 MOMDP (:meth:`Controller.from_model`, :meth:`Controller.from_momdp`; belief over ``Y``) and
 the flat POMDP (:meth:`Controller.from_pomdp`; belief over ``S``, observation only).
-Batched: ``x`` of shape ``(B,)`` runs ``B`` episodes at once.
+Batched: ``x`` of shape ``(B,)`` runs ``B`` episodes at once (``reset(batch=B)``); plain
+ints work for one episode.
 
 Example:
     >>> import torch
@@ -26,8 +28,8 @@ Example:
     >>> c = Controller.from_momdp(m, blind)
     >>> c.reset()
     >>> a = c.act(0); a2 = c.act(1)
-    >>> c.belief.shape, len(c.history)
-    (torch.Size([2]), 2)
+    >>> c.belief.shape, len(c.history), c.done
+    (torch.Size([2]), 2, False)
 """
 
 from __future__ import annotations
@@ -45,8 +47,10 @@ if TYPE_CHECKING:
 
 __all__ = ["Controller"]
 
-#: ``filter(x, belief, action, x_next, observation) -> belief'`` (batched).
-Filter = Callable[[Any, torch.Tensor, torch.Tensor, Any, torch.Tensor], torch.Tensor]
+#: ``filter(x, belief, action, x_next, observation) -> belief'`` (batched), or a
+#: :class:`~torchhrc.belief.BeliefUpdate` whose ``log_normalizer`` is ``-inf`` where the
+#: observation is impossible.
+Filter = Callable[[Any, torch.Tensor, torch.Tensor, Any, torch.Tensor], Any]
 #: ``choose(x, belief) -> action`` (batched).
 Chooser = Callable[[Any, torch.Tensor], torch.Tensor]
 
@@ -63,6 +67,7 @@ class Controller:
         start: ``(X, K)`` the initial belief given the first state seen, for a model whose
             first state is random (:attr:`~torchhrc.pomdp.MOMDP.initial`): after a
             :meth:`reset` without a prior, the first :meth:`act` starts from ``start[x]``.
+        terminal: ``(X,)`` bool, the states that end an episode (:attr:`done`); default none.
 
     Most users build one with :meth:`from_model`.
     """
@@ -75,6 +80,7 @@ class Controller:
         x0: int | None,
         names: tuple[str, ...] | None = None,
         start: torch.Tensor | None = None,
+        terminal: torch.Tensor | None = None,
     ) -> None:
         self._filter = filter
         self._choose = choose
@@ -82,6 +88,7 @@ class Controller:
         self._x0 = x0
         self._start = start
         self._from_start = start is not None  # the next first act reads start[x]
+        self.terminal = None if terminal is None else torch.as_tensor(terminal, dtype=torch.bool)
         self.names = names
         self.belief: torch.Tensor = prior.clone()
         self.state: torch.Tensor | None = None
@@ -99,13 +106,13 @@ class Controller:
         start = None if momdp.initial is None else split_initial(momdp.initial)[1]
 
         def filt(x: Any, b: torch.Tensor, a: torch.Tensor, x2: Any, o: torch.Tensor) -> Any:
-            return momdp_update(momdp, x, b, a, x2, o).belief
+            return momdp_update(momdp, x, b, a, x2, o, on_zero="ninf")
 
         def choose(x: Any, b: torch.Tensor) -> torch.Tensor:
             return policy.action(x, b)
 
         names = tuple(momdp.actions or ()) or None
-        return cls(filt, choose, momdp.b0, int(momdp.x0), names, start)
+        return cls(filt, choose, momdp.b0, int(momdp.x0), names, start, _absorbing(momdp))
 
     @classmethod
     def from_model(cls, model: LearnedModel) -> Controller:
@@ -127,7 +134,7 @@ class Controller:
         from torchhrc.belief import update
 
         def filt(x: Any, b: torch.Tensor, a: torch.Tensor, x2: Any, o: torch.Tensor) -> Any:
-            return update(pomdp, b, a, o).belief
+            return update(pomdp, b, a, o, on_zero="ninf")
 
         def choose(x: Any, b: torch.Tensor) -> torch.Tensor:
             return policy.action(b)
@@ -164,6 +171,21 @@ class Controller:
         self.last_action = None
         self.history = []
 
+    @property
+    def done(self) -> Any:
+        """Whether the episode has ended: the last state seen by :meth:`act` is terminal
+        (an absorbing, zero-reward state of the model; ``terminal`` of the constructor).
+
+        ``False`` before the first :meth:`act` and for a flat POMDP; a bool for one
+        episode, a ``(B,)`` bool tensor for a batch.
+        """
+        if self.state is None or self.terminal is None:
+            if isinstance(self.state, torch.Tensor) and self.state.dim() > 0:
+                return torch.zeros(self.state.shape, dtype=torch.bool)
+            return False
+        ended = self.terminal.to(self.state.device)[self.state]
+        return bool(ended) if ended.dim() == 0 else ended
+
     def act(self, observation: Any) -> Any:
         """Update the belief with what the robot sees now and return its next action.
 
@@ -180,6 +202,15 @@ class Controller:
             ModelError: the observation is impossible under the belief (the human did
                 something no type explains), or, for a random start, the first state has
                 no mass.
+
+        Example:
+            >>> from torchhrc.testing import random_momdp
+            >>> from torchhrc.solvers import AlphaVectorPolicy
+            >>> m = random_momdp(3, 2, 2, 1, seed=0)
+            >>> c = Controller.from_momdp(m, AlphaVectorPolicy.from_action_vectors(m.R, momdp=True))
+            >>> c.reset(batch=2)
+            >>> c.act(torch.tensor([0, 2])).shape
+            torch.Size([2])
         """
         if isinstance(observation, tuple):
             x, o = observation
@@ -191,7 +222,11 @@ class Controller:
         xt = None if x is None else torch.as_tensor(x, dtype=torch.long)
         ot = torch.as_tensor(o, dtype=torch.long)
         if self.last_action is not None:
-            self.belief = self._filter(self.state, self.belief, self.last_action, xt, ot)
+            updated = self._filter(self.state, self.belief, self.last_action, xt, ot)
+            if hasattr(updated, "log_normalizer"):
+                self._check_possible(updated.log_normalizer, xt, ot)
+                updated = updated.belief
+            self.belief = updated
         elif self._from_start and self._start is not None and xt is not None:
             belief = self._start[xt].to(self._prior.dtype)
             if bool((belief.sum(-1) <= 0).any()):
@@ -208,6 +243,44 @@ class Controller:
         self.history.append((x, o, self.belief))
         return int(action) if scalar else action
 
+    def _check_possible(
+        self, log_normalizer: torch.Tensor, x: torch.Tensor | None, o: torch.Tensor
+    ) -> None:
+        impossible = torch.isneginf(log_normalizer)
+        if not bool(impossible.any()):
+            return
+        i = tuple(torch.nonzero(impossible)[0].tolist()) if impossible.dim() else ()
+        at = f"episode {i[0]}: " if i else ""
+
+        def pick(t: torch.Tensor | None) -> Any:
+            if t is None:
+                return None
+            return int(t.expand(impossible.shape)[i]) if t.dim() else int(t)
+
+        a, x0, x1, o1 = (pick(self.last_action), pick(self.state), pick(x), pick(o))
+        seen = f"observation o = {o1}" if x1 is None else f"state x' = {x1} (signal o = {o1})"
+        raise ModelError(
+            f"{at}after action {self.action_name(a)!r} in state x = {x0}, the {seen} has "
+            "probability zero under every type the belief allows: the human did something "
+            "the model does not explain. Check the state passed to act(), start a new episode "
+            "with reset() (or reset(prior=...) to allow every type), or learn the model with "
+            "a larger noise= so every legal human action keeps some probability"
+        )
+
     def action_name(self, action: int) -> str:
         """The name of ``action`` (its index when the model has no names)."""
         return self.names[action] if self.names else str(action)
+
+
+def _absorbing(momdp: MOMDP) -> torch.Tensor | None:
+    """``(X,)`` bool: states every action and type keeps, with zero reward (an episode's
+    end, as APPL's terminal states); ``None`` for a batched model."""
+    Tx, R = momdp.Tx, momdp.R
+    if Tx.dim() != 4:
+        return None
+    X = Tx.shape[-1]
+    stay = Tx.diagonal(dim1=1, dim2=3)  # (A, Y, X): P(x -> x)
+    keeps = (stay > 1.0 - 1e-9).all(0).all(0)
+    if R.dim() == 3:
+        keeps = keeps & (R.abs() <= 1e-12).all(0).all(-1)
+    return keeps.to(torch.bool).view(X)

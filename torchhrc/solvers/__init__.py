@@ -23,11 +23,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers.backup import BackupResult, momdp_point_backup, point_backup
 from torchhrc.solvers.blind import blind_policy, blind_vectors
 from torchhrc.solvers.evaluate import EvaluationResult, evaluate_policy
 from torchhrc.solvers.fib import FIBConfig, fib, fib_policy, fib_vectors
+from torchhrc.solvers.forms import has_form
 from torchhrc.solvers.pbvi import PBVIConfig, pbvi
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.policy_graph import PolicyGraph, controller_value, policy_graph
@@ -38,8 +38,6 @@ from torchhrc.solvers.solution import Solution
 from torchhrc.solvers.sparse_model import SparseFlatModel, sparse_blind_policy, sparse_blind_vectors
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.solvers.value_iteration import MDPSolution, policy_evaluation, value_iteration
-from torchhrc.sparse import SparsePOMDP
-from torchhrc.sparse_momdp import SparseMOMDP
 
 __all__ = [
     "AlphaVectorPolicy",
@@ -103,13 +101,16 @@ def register_solver(config_type: type, function: SolverFunction) -> None:
     _SOLVERS[config_type] = function
 
 
-def solve(model: POMDP | MOMDP | SparsePOMDP | SparseMOMDP, config: Any) -> Solution:
+def solve(model: Any, config: Any) -> Solution:
     """Solve ``model`` with the solver that ``config``'s type names.
 
     Args:
-        model: an unbatched :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`,
-            or a :class:`~torchhrc.sparse.SparsePOMDP` or
-            :class:`~torchhrc.sparse_momdp.SparseMOMDP` (every built-in solver takes them
+        model: whatever :func:`~torchhrc.solvers.forms.as_solver_model` accepts: an unbatched
+            :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`, a
+            :class:`~torchhrc.sparse.SparsePOMDP`, :class:`~torchhrc.sparse_momdp.SparseMOMDP`
+            or :class:`~torchhrc.solvers.sparse_model.SparseFlatModel`, a
+            :class:`~torchhrc.solvers.forms.SolverModel`, or an instance of a type added with
+            :func:`~torchhrc.solvers.forms.register_form` (every built-in solver takes it
             through its solver form; a registered solver is handed the model as it is).
         config: a solver configuration (``QMDPConfig``, ``FIBConfig``, ``PBVIConfig``,
             ``SARSOPConfig`` or a registered type).
@@ -126,10 +127,10 @@ def solve(model: POMDP | MOMDP | SparsePOMDP | SparseMOMDP, config: Any) -> Solu
         >>> round(solve(tiger(), QMDPConfig()).upper, 6)
         189.0
     """
-    if not isinstance(model, (POMDP, MOMDP, SparsePOMDP, SparseMOMDP)):
+    if not has_form(model):
         raise TypeError(
-            "expected model to be a POMDP, MOMDP, SparsePOMDP or SparseMOMDP, got "
-            f"{type(model).__name__}"
+            "expected model to be a POMDP, MOMDP, SparsePOMDP, SparseMOMDP, SparseFlatModel, "
+            f"a SolverModel or a type added with register_form, got {type(model).__name__}"
         )
     for config_type in type(config).__mro__:
         if config_type in _SOLVERS:

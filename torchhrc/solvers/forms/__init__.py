@@ -46,6 +46,7 @@ __all__ = [
     "SparseForm",
     "SparseMOMDPForm",
     "as_solver_model",
+    "has_form",
     "register_form",
 ]
 
@@ -98,6 +99,18 @@ def register_form(model_type: type, build: FormBuilder) -> None:
     if not isinstance(model_type, type):
         raise TypeError(f"expected model_type to be a type, got {type(model_type).__name__}")
     _FORMS[model_type] = build
+
+
+def has_form(model: Any) -> bool:
+    """Whether :func:`as_solver_model` accepts ``model``: a :class:`SolverModel`, or an
+    instance of a type with a form (built in or added by :func:`register_form`).
+
+    Example:
+        >>> from torchhrc.tasks.classic import tiger
+        >>> has_form(tiger()), has_form("tiger")
+        (True, False)
+    """
+    return isinstance(model, SolverModel) or any(cls in _FORMS for cls in type(model).__mro__)
 
 
 def as_solver_model(model: Any, *, dtype: torch.dtype | None = None) -> SolverModel:

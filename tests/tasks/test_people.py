@@ -166,3 +166,15 @@ def test_task_with_people_validation():
         TaskWithPeople(twp.task, twp.people, twp.true_reward, 4, True)
     with pytest.raises(ModelError, match="where it cannot happen"):
         build(_toggle_spec(behaviour=lambda y, m, s, a: {0: 1.0}))  # flips when already on
+
+
+def test_initial_memory_is_drawn_per_type():
+    policy = torch.zeros(2, 2, 3, 2, 3, dtype=torch.float64)
+    policy[..., 2] = 1.0
+    initial = torch.tensor([[1.0, 0.0], [0.25, 0.75]], dtype=torch.float64)
+    people = TabularPeople(("a", "b"), policy, LEGAL, initial=initial)
+    g = torch.Generator().manual_seed(4)
+    types = torch.tensor([0] * 8000 + [1] * 8000)
+    memory = people.initial_memory(types, g)
+    assert memory.shape == (16000, 1) and (memory[:8000] == 0).all()
+    assert abs(float(memory[8000:].double().mean()) - 0.75) < 0.02  # 4 sigma

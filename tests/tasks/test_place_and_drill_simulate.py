@@ -150,3 +150,20 @@ def test_run_executions_validates():
             task, {}, orders=torch.zeros(2, 2, dtype=torch.long),
             epsilon=torch.zeros(2, dtype=torch.float64), score=torch.zeros(4, 27),
         )  # fmt: skip
+
+
+def test_the_execution_protocol_is_not_named_controller_and_the_old_name_warns() -> None:
+    import torchhrc.tasks.place_and_drill.simulate as simulate
+    from torchhrc.tasks import Controller as OnlineController
+
+    # one public class named Controller: the simulation's protocol has its own name
+    assert simulate.ExecutionController is not OnlineController
+    assert "Controller" not in simulate.__all__
+    with pytest.warns(DeprecationWarning, match="ExecutionController"):
+        old = simulate.Controller  # type: ignore[attr-defined]
+    assert old is simulate.ExecutionController
+    # both simulation controllers implement the protocol's two methods
+    for cls in (simulate.MOMDPController, simulate.CrossTrainingController):
+        assert callable(cls.act) and callable(cls.observe)
+    with pytest.raises(AttributeError):
+        simulate.NoSuchName  # type: ignore[attr-defined]  # noqa: B018

@@ -37,8 +37,8 @@ from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP
 from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask
 from torchhrc.tasks.place_and_drill.simulate import (
-    Controller,
     CrossTrainingController,
+    ExecutionController,
     ExecutionTrace,
     MOMDPController,
     run_executions,
@@ -210,7 +210,7 @@ def simulate_subject(
     eps = torch.tensor(list(epsilons), dtype=torch.float64).repeat_interleave(runs)  # (B,)
     pick = torch.randint(orders.shape[0], (B,), generator=generator)
     run_orders = orders[pick]  # (B, n)
-    controllers: dict[str, Controller] = {}
+    controllers: dict[str, ExecutionController] = {}
     for name, p in momdp_policies.items():
         belief = p.b0.to(p.model.Tx.dtype).expand(B, -1).clone()
         controllers[name] = MOMDPController(p.model, p.policy, belief)  # type: ignore[arg-type]

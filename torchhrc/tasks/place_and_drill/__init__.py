@@ -48,6 +48,7 @@ from torchhrc.tasks.place_and_drill.model import (
 )
 from torchhrc.tasks.place_and_drill.simulate import (
     CrossTrainingController,
+    ExecutionController,
     ExecutionTrace,
     MOMDPController,
     demonstrated_orders,
@@ -59,6 +60,7 @@ __all__ += [
     "FEATURE_NAMES",
     "CrossTrainingController",
     "DemonstrationSteps",
+    "ExecutionController",
     "ExecutionTrace",
     "LearnedTaskModel",
     "MOMDPController",

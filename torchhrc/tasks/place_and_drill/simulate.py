@@ -49,8 +49,8 @@ from torchhrc.tasks.place_and_drill.demos import placement_orders
 from torchhrc.tasks.place_and_drill.model import EMPTY, PLACED, PlaceAndDrillTask
 
 __all__ = [
-    "Controller",
     "CrossTrainingController",
+    "ExecutionController",
     "ExecutionTrace",
     "MOMDPController",
     "demonstrated_orders",
@@ -123,8 +123,17 @@ def step_human(
     return torch.where(empty.any(-1), placed, x_mid)
 
 
-class Controller(Protocol):
-    """A robot controller of ``B`` runs: acts on the bench state, observes the next one."""
+class ExecutionController(Protocol):
+    """What :func:`run_executions` drives: the robot of ``B`` simulated runs, which acts on
+    the bench state (ties broken by a given uniform draw, so every controller shares the
+    runs' random numbers) and observes the next one.
+
+    Implemented by :class:`MOMDPController` and :class:`CrossTrainingController`. Not to be
+    confused with the public :class:`torchhrc.tasks.Controller`, a learned model's online
+    controller (``reset``/``act``), which is one concrete controller; this is the protocol
+    of the place-and-drill simulation loop (formerly named ``Controller`` here; that name
+    still works, with a :class:`DeprecationWarning`, for one release).
+    """
 
     def act(self, x: torch.Tensor, uniform: torch.Tensor) -> torch.Tensor:
         """``(B,)`` actions at bench states ``x (B,)``; ``uniform (B,)`` for tie-breaking."""
@@ -210,7 +219,7 @@ class ExecutionTrace:
 
 def run_executions(
     task: PlaceAndDrillTask,
-    controllers: Mapping[str, Controller],
+    controllers: Mapping[str, ExecutionController],
     *,
     orders: torch.Tensor,
     epsilon: torch.Tensor,
@@ -291,3 +300,18 @@ def run_executions(
         states[name] = torch.stack(xs)
         actions[name] = torch.stack(acts)
     return ExecutionTrace(rewards=rewards, states=states, actions=actions)
+
+
+def __getattr__(name: str) -> object:
+    # Deprecated alias (one release): ``Controller`` clashed with torchhrc.tasks.Controller.
+    if name == "Controller":
+        import warnings
+
+        warnings.warn(
+            "torchhrc.tasks.place_and_drill.simulate.Controller is deprecated; use "
+            "ExecutionController (torchhrc.tasks.Controller is the online controller)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return ExecutionController
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -134,3 +134,35 @@ def test_existing_output_is_kept(capsys, files, tmp_path):
     code, _, err = _run(capsys, "graph", files["model"], "--policy", files["policy"], "--out",
                         tmp_path / "g.txt")  # fmt: skip
     assert code == 2 and "expected a .dot path" in err
+
+
+def test_same_graph_as_appl_polgraph(files, tmp_path):
+    """APPL's polgraph on the same files draws the same nodes (action, most likely state and
+    its probability) and the same node-to-node edges (polgraph keeps one edge per pair)."""
+    import os
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    from torchhrc.io.policyx import load_policy
+    from torchhrc.solvers.policy_graph import policy_graph
+
+    folder = os.environ.get("TORCHHRC_APPL_BIN")
+    path = Path(folder) / "polgraph" if folder else None
+    binary = str(path) if path is not None and path.is_file() else shutil.which("polgraph")
+    if binary is None:
+        pytest.skip("APPL's polgraph is not installed (set TORCHHRC_APPL_BIN to its folder)")
+    subprocess.run(
+        [binary, str(files["model"]), "--policy-file", str(files["policy"]), "--policy-graph",
+         str(tmp_path / "appl.dot")],
+        capture_output=True, timeout=600, check=True, cwd=tmp_path,
+    )  # fmt: skip
+    text = (tmp_path / "appl.dot").read_text()
+    node = re.compile(r'^(\w+) \[label="Y \((\d+)\) ([0-9.]+)\\lA \((\d+)\)\\l"', re.M)
+    appl_nodes = {m[0]: (int(m[3]), int(m[1]), round(float(m[2]), 2)) for m in node.findall(text)}
+    edge = re.compile(r'^(\w+) -> (\w+) \[label="o \((\d+)\) ([0-9.]+)', re.M)
+    appl_edges = {(appl_nodes[a], appl_nodes[b]) for a, b, _, _ in edge.findall(text)}
+    g = policy_graph(tiger(), load_policy(files["policy"]))
+    ours = [(n.action, int(n.belief.argmax()), round(float(n.belief.max()), 2)) for n in g.nodes]
+    assert sorted(ours) == sorted(appl_nodes.values())
+    assert {(ours[e.source], ours[e.target]) for e in g.edges} == appl_edges

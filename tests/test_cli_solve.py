@@ -156,3 +156,68 @@ def test_cpu_time_limits_the_solve_by_process_time(capsys, tiger_file, solver):
     ns = argparse.Namespace(solver=solver, time_limit=3.0, precision=0.1, seed=0, cpu_time=True)
     assert make_config(ns).clock == "process"
     assert make_config(argparse.Namespace(**{**vars(ns), "cpu_time": False})).clock == "wall"
+
+
+def _rising_memory(monkeypatch):
+    """The process's resident memory as the solvers and the command read it: 1 GiB, and 4 MiB
+    more at each read."""
+    from torchhrc.solvers import _memory
+
+    reads = []
+
+    def fake():
+        reads.append((1 << 30) + (4 << 20) * len(reads))
+        return reads[-1]
+
+    monkeypatch.setattr(_memory, "resident_bytes", fake)
+    monkeypatch.setattr(_memory, "peak_resident_bytes", lambda: reads[-1] if reads else 1 << 30)
+    return reads
+
+
+@pytest.mark.parametrize("solver", ["sarsop", "pbvi"])
+def test_memory_limit_stops_the_solve_and_writes_the_policy(capsys, tiger_file, tmp_path,
+                                                           monkeypatch, solver):  # fmt: skip
+    reads = _rising_memory(monkeypatch)
+    out_path = tmp_path / "tiger.policyx"
+    code, out, err = _run(capsys, "solve", tiger_file, "--solver", solver, "--memory", "1100",
+                          "--time-limit", "600", "--precision", "1e-12", "--json", "--quiet",
+                          "--out", out_path)  # fmt: skip
+    assert code == 0 and err == ""
+    report = json.loads(out)
+    assert report["stop_reason"] == "memory" and max(reads) < 1100 * 2**20
+    assert report["lower"] <= 19.3711 <= report["upper"]
+    policy = load_policy(out_path)  # the policy so far: its value at b0 is the lower bound
+    assert float(policy.value(tiger().b0.unsqueeze(0))[0]) == pytest.approx(report["lower"])
+    assert make_config(argparse.Namespace(solver=solver, time_limit=1.0, precision=0.1, seed=0,
+                                          memory=2.5)).memory_limit == 2.5 * 2**20  # fmt: skip
+
+
+def test_a_memory_limit_below_the_process_exits_2(capsys, tiger_file, tmp_path, monkeypatch):
+    _rising_memory(monkeypatch)  # 1 GiB held
+    out_path = tmp_path / "p.policyx"
+    code, out, err = _run(capsys, "solve", tiger_file, "--memory", "1000", "--out", out_path)
+    assert code == 2 and out == "" and not out_path.exists()
+    assert err == (
+        "torchhrc solve: error: --memory 1000 is below what the process holds before reading "
+        "the model (1 GiB)\n"
+    )
+
+
+def test_a_model_over_the_memory_limit_is_refused_before_reading(capsys, tmp_path, monkeypatch):
+    _rising_memory(monkeypatch)  # 1 GiB held: --memory 1500 leaves 476 MiB to the read
+    model = tmp_path / "big.pomdp"
+    model.write_text("discount: 0.95\nvalues: reward\nstates: 200000000\nactions: 2\n"
+                     "observations: 2\nstart: uniform\nT: * : * : * 0.0\n")  # fmt: skip
+    out_path = tmp_path / "p.policyx"
+    code, out, err = _run(capsys, "solve", model, "--memory", "1500", "--out", out_path)
+    assert code == 2 and out == "" and not out_path.exists()
+    assert err.count("\n") == 1 and "more than the memory budget of 476 MiB" in err
+
+
+@pytest.mark.parametrize("value", ["0", "-3", "lots", "inf"])
+def test_bad_memory_limit_exits_2(capsys, tiger_file, tmp_path, value):
+    out_path = tmp_path / "p.policyx"
+    with pytest.raises(SystemExit) as info:
+        main(["solve", str(tiger_file), f"--memory={value}", "--out", str(out_path)])
+    _, err = capsys.readouterr()
+    assert info.value.code == 2 and "--memory" in err and not out_path.exists()

@@ -11,6 +11,7 @@ import pytest
 from torchhrc.solvers import _memory
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
 from torchhrc.tasks.classic import tiger
+from torchhrc.testing import random_pomdp
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc_trim")
@@ -31,3 +32,160 @@ def test_a_solve_returns_memory_after_each_pruning(monkeypatch: pytest.MonkeyPat
     # pruning handed memory back; iterations without one did not
     drops = sum(b["n_alphas"] < a["n_alphas"] for a, b in itertools.pairwise(history))
     assert drops >= 1 and 1 <= len(calls) < len(history)
+
+
+# -- the memory limit (issue 34) ------------------------------------------------------------
+
+
+def test_guard_stops_before_pending_bytes_would_cross_the_limit() -> None:
+    rss = _memory.resident_bytes()
+    if rss is None:
+        pytest.skip("no /proc/self/statm")
+    guard = _memory.MemoryGuard(rss + 2**30)
+    assert not guard.exceeded()  # 1 GiB of room
+    assert guard.exceeded(pending=2**31)  # an allocation of 2 GiB would cross it
+    assert guard.exceeded()  # and it stays stopped
+    assert _memory.MemoryGuard(rss / 2).exceeded()  # a limit below the process
+
+
+def _rising_memory(monkeypatch: pytest.MonkeyPatch, step: int) -> list[int]:
+    """Make the guard read a resident memory that rises by ``step`` bytes at each read."""
+    reads: list[int] = []
+    start = 1 << 30
+
+    def fake() -> int:
+        reads.append(start + step * len(reads))
+        return reads[-1]
+
+    monkeypatch.setattr(_memory, "resident_bytes", fake)
+    monkeypatch.setattr(_memory, "peak_resident_bytes", lambda: reads[-1] if reads else start)
+    return reads
+
+
+@pytest.mark.parametrize("solver", ["sarsop", "pbvi"])
+def test_a_solve_stops_before_the_limit_with_its_bounds(monkeypatch: pytest.MonkeyPatch,
+                                                       solver: str) -> None:  # fmt: skip
+    from torchhrc.solvers.pbvi import PBVIConfig, pbvi
+
+    model = random_pomdp(8, 3, 3, seed=4)
+    reads = _rising_memory(monkeypatch, 4 << 20)  # 4 MiB more at every check
+    limit = (1 << 30) + (60 << 20)
+    if solver == "sarsop":
+        sol = sarsop(model, SARSOPConfig(time_limit=1e9, precision=1e-12, memory_limit=limit))
+    else:  # (at least two checks an expansion: 18 before the expansions run out)
+        sol = pbvi(model, PBVIConfig(time_limit=1e9, precision=1e-12, expansions=8,
+                                     max_beliefs=256, memory_limit=limit))  # fmt: skip
+    assert sol.stop_reason == "memory" == sol.history[-1]["stop_reason"]
+    # it stopped before the (fake) resident memory reached the limit, not long before: when
+    # it plus the margin (8 MiB: twice the largest growth between two checks), and what the
+    # solver expects next (SARSOP: copies of the vectors; PBVI, before an expansion: the
+    # margin again) would have reached it
+    assert max(reads) < limit
+    assert reads[-1] + 2 * (8 << 20) + _pending_allowance(sol) >= limit
+    assert sol.info["iterations"] >= 1
+    # the bounds of the search so far: a valid lower bound the written policy achieves
+    assert sol.lower <= sol.upper
+    b0 = model.b0.unsqueeze(0)
+    assert float(sol.policy.value(b0)[0]) == pytest.approx(sol.lower, abs=1e-9)
+
+
+def _pending_allowance(sol) -> int:  # type: ignore[no-untyped-def]
+    """What SARSOP reserves for the final copy of the vectors (PBVI: nothing)."""
+    return 4 * sol.policy.alphas.numel() * sol.policy.alphas.element_size()
+
+
+@pytest.mark.parametrize("solver", ["sarsop", "pbvi"])
+def test_a_limit_below_the_process_stops_at_the_initial_bounds(solver: str) -> None:
+    from torchhrc.solvers.pbvi import PBVIConfig, pbvi
+
+    model = tiger()
+    if solver == "sarsop":
+        ref = sarsop(model, SARSOPConfig(max_iterations=0))
+        sol = sarsop(model, SARSOPConfig(time_limit=60.0, memory_limit=1))
+    else:
+        ref = pbvi(model, PBVIConfig(max_iterations=1, expansions=0))
+        ref = ref.history[0]  # the blind policy's value before any sweep
+        sol = pbvi(model, PBVIConfig(time_limit=60.0, memory_limit=1))
+    lower = ref["lower"] if isinstance(ref, dict) else ref.lower
+    upper = ref["upper"] if isinstance(ref, dict) else ref.upper
+    assert sol.stop_reason == "memory" and sol.info["iterations"] == 0
+    assert sol.lower == pytest.approx(lower, abs=1e-9) and sol.upper == pytest.approx(upper)
+
+
+@pytest.mark.parametrize("bad", [0, -1.0, float("inf"), float("nan"), "1e9", True])
+def test_memory_limit_must_be_a_positive_number_of_bytes(bad: object) -> None:
+    from torchhrc.solvers.pbvi import PBVIConfig
+
+    with pytest.raises(ValueError, match="memory_limit"):
+        SARSOPConfig(memory_limit=bad)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="memory_limit"):
+        PBVIConfig(memory_limit=bad)  # type: ignore[arg-type]
+
+
+_PEAK_SCRIPT = r"""
+import json, resource, sys
+import torch
+from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
+from torchhrc.sparse import SparsePOMDP
+
+# a random sparse POMDP of 10,000 states (3 successors a state, 2 observations of 8 after
+# each): its dense alpha vectors (80 kB each) make a search grow by tens of MB a second
+S, A, O = 10_000, 4, 8
+g = torch.Generator().manual_seed(701)
+rows = A * S
+act, src = torch.arange(A).repeat_interleave(S), torch.arange(S).repeat(A)
+def dirichlet(n):
+    w = -torch.rand(rows, n, generator=g, dtype=torch.float64).log()
+    return (w / w.sum(1, keepdim=True)).reshape(-1)
+def coo(k, cols):
+    return torch.stack((act.repeat_interleave(k), src.repeat_interleave(k), cols.reshape(-1)), 1)
+step = torch.randint(1, S, (rows, 3), generator=g)
+step[:, 0] = 0
+nxt = (src[:, None] + step).remainder(S)
+obs = (torch.randint(0, O, (rows, 1), generator=g) + torch.arange(2)).remainder(O)
+b0 = torch.zeros(S, dtype=torch.float64)
+b0[torch.randperm(S, generator=g)[:10]] = 0.1
+model = SparsePOMDP(transitions=(coo(3, nxt), dirichlet(3)),
+                    observations_=(coo(2, obs), dirichlet(2)),
+                    R=torch.randn(A, S, generator=g, dtype=torch.float64), b0=b0, discount=0.95,
+                    states=tuple(map(str, range(S))), actions=tuple(map(str, range(A))),
+                    observations=tuple(map(str, range(O))))
+
+def peak():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # (Linux: kB)
+
+settings = dict(time_limit=600.0, precision=1e-9, init_max_iterations=2)
+first = sarsop(model, SARSOPConfig(max_iterations=0, **settings))
+base = peak()  # the process with the model and its initial bounds: the least a solve holds
+below = sarsop(model, SARSOPConfig(memory_limit=base / 2, **settings))
+below_peak = peak()
+limit = base + float(sys.argv[1])
+sol = sarsop(model, SARSOPConfig(memory_limit=limit, **settings))
+print(json.dumps({"base": base, "below": [below.stop_reason, below.info["iterations"], below_peak],
+                  "limit": limit, "first_alphas": first.policy.num_vectors,
+                  "limited": [sol.stop_reason, sol.info["iterations"], sol.policy.num_vectors,
+                              peak(), sol.lower, sol.upper]}))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc/self/statm")
+def test_peak_resident_memory_stays_within_the_limit() -> None:
+    """In a fresh process: a limit below the process stops the search at once (the peak
+    stays within 10 % of the process with its model and initial bounds), and a limit 120 MB
+    above it stops a search that would grow without end (600 s, precision 1e-9) before the
+    peak passes the limit by more than 10 %."""
+    import json
+    import os
+    import subprocess
+
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    out = subprocess.run([sys.executable, "-c", _PEAK_SCRIPT, str(120 * 2**20)], env=env,
+                         capture_output=True, text=True, check=True)  # fmt: skip
+    r = json.loads(out.stdout.splitlines()[-1])
+    reason, iterations, peak = r["below"]
+    assert reason == "memory" and iterations == 0
+    assert peak <= 1.1 * r["base"]
+    reason, iterations, n_alphas, peak, lower, upper = r["limited"]
+    assert reason == "memory" and iterations >= 1 and n_alphas > r["first_alphas"]
+    assert peak <= 1.1 * r["limit"]
+    assert lower <= upper

@@ -11,6 +11,11 @@ stderr unless ``--quiet``. With ``--json`` one JSON object is printed with the k
 ``iterations``, ``policy`` (the written path or null), ``sparse`` and ``model`` (``"POMDP"``,
 ``"MOMDP"``, ``"SparseMOMDP"`` or ``"SparsePOMDP"``).
 
+``--memory MB`` (as APPL's ``pomdpsol --memory``) bounds the process's resident memory: a
+model whose reading would take more than the limit leaves (or more than the machine's
+available memory, the default budget) is refused before it is read, and PBVI and SARSOP stop
+before the limit, write the policy so far and report ``"stop_reason": "memory"``.
+
 A model whose dense ``T (A, S, S)`` or ``Z (A, S, O)`` would exceed
 :data:`torchhrc.sparse.MAX_DENSE_ENTRIES` (2e8 entries, 1.6 GB in float64; RockSample(7, 8):
 2e9) is read as a :class:`~torchhrc.sparse.SparsePOMDP` and solved through the solvers'
@@ -101,6 +106,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--out", type=_out_path, default=None, help="write the policy (.policyx / .safetensors)"
     )
+    parser.add_argument(
+        "--memory",
+        type=_positive,
+        default=None,
+        metavar="MB",
+        help="memory limit in MB (2^20 bytes) of the whole process, as pomdpsol --memory: a "
+        "model that would not fit is refused before it is read, and PBVI and SARSOP stop "
+        "before the limit with the policy so far (default: no limit; a model is refused "
+        "above the machine's available memory)",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     parser.add_argument("--seed", type=int, default=0, help="random seed (0)")
@@ -118,6 +133,8 @@ def make_config(args: argparse.Namespace, callback: Any = None) -> Any:
     from torchhrc import solvers
 
     clock = "process" if getattr(args, "cpu_time", False) else "wall"
+    memory = getattr(args, "memory", None)
+    memory_limit = None if memory is None else memory * 2**20
     if args.solver == "qmdp":
         return solvers.QMDPConfig()
     if args.solver == "fib":
@@ -129,6 +146,7 @@ def make_config(args: argparse.Namespace, callback: Any = None) -> Any:
             seed=args.seed,
             callback=callback,
             clock=clock,
+            memory_limit=memory_limit,
         )
     return solvers.SARSOPConfig(
         time_limit=args.time_limit,
@@ -136,6 +154,7 @@ def make_config(args: argparse.Namespace, callback: Any = None) -> Any:
         seed=args.seed,
         callback=callback,
         clock=clock,
+        memory_limit=memory_limit,
     )
 
 
@@ -174,14 +193,31 @@ def run(args: argparse.Namespace) -> int:
     # every solver has a sparse form: a model whose dense T (A, S, S) or Z would exceed
     # MAX_DENSE_ENTRIES (2e8 entries, 1.6 GB) is read and solved sparsely
     mode = "auto"
+    # the read's budget: what the memory limit leaves to the process as it is now, or (by
+    # default, and at most) the machine's available memory
+    budget = None
+    if getattr(args, "memory", None) is not None:
+        from torchhrc.errors import TorchHRCError
+        from torchhrc.io._budget import available_memory, format_bytes
+        from torchhrc.solvers._memory import resident_bytes
+
+        held = resident_bytes() or 0
+        if held >= args.memory * 2**20:
+            raise TorchHRCError(
+                f"--memory {args.memory:g} is below what the process holds before reading the "
+                f"model ({format_bytes(held)})"
+            )
+        budget = min(args.memory * 2**20 - held, available_memory() or math.inf)
     if Path(args.model).suffix.lower() == ".pomdpx":
         from torchhrc.io.pomdpx import read_pomdpx
 
-        model = read_pomdpx(args.model, sparse=mode)
+        model = read_pomdpx(args.model, sparse=mode, memory_budget=budget)
     else:
-        model = read_pomdp(args.model, sparse=mode)
+        model = read_pomdp(args.model, sparse=mode, memory_budget=budget)
+    from torchhrc.solvers._memory import release_free_memory
     from torchhrc.sparse_momdp import SparseMOMDP
 
+    release_free_memory()  # the reader's temporaries (the tokens), back to the OS
     sparse = isinstance(model, (SparsePOMDP, SparseMOMDP))
     callback = None if args.quiet else _Progress()
     config = make_config(args, callback)

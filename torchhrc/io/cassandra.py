@@ -42,6 +42,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from collections.abc import Sequence
@@ -53,6 +54,7 @@ import torch
 
 from torchhrc.errors import ModelError, ParseError
 from torchhrc.io._atomic import atomic_write_bytes
+from torchhrc.io._budget import check_budget, resolve_budget
 from torchhrc.io._gc import gc_paused
 from torchhrc.pomdp import POMDP
 from torchhrc.sparse import MAX_DENSE_ENTRIES, SparsePOMDP, coalesce
@@ -78,6 +80,17 @@ AUTO_SPARSE_ENTRIES = 10_000_000
 #: as is a model whose rewards depend on the next state or observation (which the sparse
 #: form cannot hold).
 AUTO_DENSE_FRACTION = 0.1
+
+#: Peak bytes a cell of a table costs the sparse reader: its coordinate list (key, value and
+#: entry, 24 bytes) and the sorting and checks of :meth:`_SparseTable.finish`. Measured: 36
+#: million cells (``T: * uniform`` at 3,000 states, 4 actions) peaked 4.5 GB above the
+#: process before the read, 125 bytes a cell; the model kept 32.
+_SPARSE_CELL_BYTES = 128
+#: Bytes of memory a character of the file takes as tokens (a str and its pointer per token;
+#: RockSample(5, 5), 0.74 MB, peaked 16 MB above the process read sparsely).
+_TEXT_BYTES = 16
+#: Bytes of a state name the sparse reader makes up (``"12345"``: a str and its pointer).
+_NAME_BYTES = 64
 
 _TOKEN = re.compile(r"#[^\n]*|([^\s:#]+|:)")
 _COMMENT = re.compile(r"#[^\n]*")
@@ -276,6 +289,7 @@ def read_pomdp(
     sparse: bool | Literal["auto"] = False,
     dtype: torch.dtype = torch.float64,
     device: torch.device | str | None = None,
+    memory_budget: float | None = None,
 ) -> Any:
     """Read a ``.pomdp`` file (a path, or the file's text itself).
 
@@ -290,6 +304,14 @@ def read_pomdp(
             :data:`AUTO_DENSE_FRACTION` of ``T``'s entries are nonzero or its rewards depend
             on the next state or observation.
         dtype, device: of the returned tensors (a sparse model stays on the CPU).
+        memory_budget: bytes the model may take while it is read (default ``None``: the
+            machine's available memory, ``MemAvailable``; ``math.inf``: no limit). The
+            sizes the file declares are checked against it before the tables are
+            allocated: the dense ``T`` and ``O`` (8 bytes a cell) as soon as the preamble is
+            read, a sparse table's cells (about 128 bytes a cell at the reader's peak) at
+            each assignment that sets them, the start distribution and the rewards (``S``
+            and ``A S`` floats) with them. ``sparse="auto"`` reads sparsely a model whose
+            dense tables would not fit.
 
     Returns:
         :class:`~torchhrc.pomdp.POMDP` with the file's names (``None`` where counts were
@@ -297,7 +319,9 @@ def read_pomdp(
 
     Raises:
         ParseError: the file is malformed (file, line, column and reason in the message), the
-            probabilities do not normalise, or the model is too large to hold densely.
+            probabilities do not normalise, the model is too large to hold densely, or it
+            would take more than ``memory_budget`` (the message gives the cells, the bytes and
+            the budget).
 
     Example:
         >>> from torchhrc.io.cassandra import format_pomdp
@@ -305,8 +329,11 @@ def read_pomdp(
         >>> read_pomdp(format_pomdp(tiger())).actions
         ('listen', 'open-left', 'open-right')
     """
+    budget = resolve_budget(memory_budget)
     text, path = _read_text(source)
-    return parse_pomdp(text, path=path, sparse=sparse, dtype=dtype, device=device)
+    return parse_pomdp(
+        text, path=path, sparse=sparse, dtype=dtype, device=device, memory_budget=budget
+    )
 
 
 def parse_pomdp(
@@ -316,6 +343,7 @@ def parse_pomdp(
     sparse: bool | Literal["auto"] = False,
     dtype: torch.dtype = torch.float64,
     device: torch.device | str | None = None,
+    memory_budget: float | None = None,
 ) -> Any:
     """Parse the text of a ``.pomdp`` file (``path`` is only used in error messages); see
     :func:`read_pomdp`.
@@ -327,10 +355,13 @@ def parse_pomdp(
     """
     if not isinstance(text, str):
         raise TypeError(f"expected text to be a str, got {type(text).__name__}")
+    budget = resolve_budget(memory_budget)
+    check_budget(_TEXT_BYTES * len(text), budget, f"the tokens of {len(text)} characters of "
+                 "text", path=path)  # fmt: skip
     parser = _Parser(text, path)
     try:
         with gc_paused():
-            return _parse(parser, sparse=sparse, dtype=dtype, device=device)
+            return _parse(parser, sparse=sparse, dtype=dtype, device=device, budget=budget)
     except ParseError:
         raise
     except Exception as e:  # a safety net: every failure is reported as a ParseError
@@ -343,6 +374,7 @@ def _parse(
     sparse: bool | Literal["auto"],
     dtype: torch.dtype,
     device: torch.device | str | None,
+    budget: float,
 ) -> Any:
     discount: float | None = None
     sign = 1.0
@@ -385,21 +417,36 @@ def _parse(
     if discount is None:
         raise p.error("missing 'discount:' in the preamble")
     S, A, O = sizes["states"], sizes["actions"], sizes["observations"]
+    # the memory budget, before anything of the model's size is allocated: the dense tables
+    # (T, O, and the row bookkeeping, rewards and start), or the sparse reader's fixed part
+    # (start, rewards, made-up state names); a sparse table's cells are charged as they are
+    # set (_SparseTable)
+    dense_cells = A * S * S + A * S * O
+    tokens = _TEXT_BYTES * len(p.text)  # (held until the end of the parse)
+    dense_bytes = 8 * dense_cells + 40 * A * S + 8 * S + tokens
+    if dtype != torch.float64:  # the tensors are a converted copy
+        dense_bytes += dense_cells * torch.empty(0, dtype=dtype).element_size()
     auto = sparse == "auto"
     if auto:
-        sparse = max(A * S * S, A * S * O) > AUTO_SPARSE_ENTRIES
+        sparse = max(A * S * S, A * S * O) > AUTO_SPARSE_ENTRIES or dense_bytes > budget
     if not sparse and (A * S * S > MAX_DENSE_ENTRIES or A * S * O > MAX_DENSE_ENTRIES):
         raise p.error(
             f"model too large to hold densely (A={A}, S={S}, O={O}: {A * S * S:.3g} entries "
             "of T); read it with sparse=True"
         )
+    if not sparse:
+        check_budget(dense_bytes, budget, f"the dense T (A={A}, S={S}, S) and O (A, S, O={O}), "
+                     f"{dense_cells:.3g} cells, with the file's tokens,", path=p.path)  # fmt: skip
+    fixed = 8 * (S + A * S) + (_NAME_BYTES * S if names["states"] is None else 0) + tokens
+    if sparse:
+        check_budget(fixed, budget, f"the start distribution and rewards of the sparse form "
+                     f"(S={S}, A={A}: {S + A * S:.3g} floats, and the states' names), with "
+                     "the file's tokens,", path=p.path)  # fmt: skip
     lookup = {k: ({n: i for i, n in enumerate(v)} if v else None) for k, v in names.items()}
-    body_start = p.i
-    b0 = _parse_start(p, start_spec, S, lookup["states"])
-    p.i = body_start
 
     store = _SparseTable if sparse else _DenseTable
-    T, Z = store("T", A, S, S), store("O", A, S, O)
+    charge = _Charge(p, budget, fixed)
+    T, Z = store("T", A, S, S, charge), store("O", A, S, O, charge)
     rewards: list[tuple[object, object, object, object, object]] = []
     r_level = 0  # 0: R(a, s); 1: R(a, s, s2); 2: R(a, s, s2, o)
     la, ls, lo = lookup["actions"], lookup["states"], lookup["observations"]
@@ -484,10 +531,19 @@ def _parse(
             elif not isinstance(s2, slice):
                 r_level = max(r_level, 1)
 
+    # the start after the body: a body that sets more cells than the budget holds is refused
+    # before the start's S floats are allocated
+    end = p.i
+    b0 = _parse_start(p, start_spec, S, lookup["states"])
+    p.i = end
     T_final = T.finish(p)
     Z_final = Z.finish(p)
     if (sparse and auto and max(A * S * S, A * S * O) <= MAX_DENSE_ENTRIES
-            and (r_level > 0 or T_final[1].size >= AUTO_DENSE_FRACTION * A * S * S)):  # fmt: skip
+            and (r_level > 0 or T_final[1].size >= AUTO_DENSE_FRACTION * A * S * S)
+            and (dense_bytes <= budget or r_level > 0)):  # fmt: skip
+        check_budget(dense_bytes, budget, f"the dense T (A={A}, S={S}, S) and O (A, S, O={O}), "
+                     f"{dense_cells:.3g} cells (rewards that depend on the next state or "
+                     "observation need them),", path=p.path)  # fmt: skip
         T_final, Z_final = _densify(*T_final, (A, S, S)), _densify(*Z_final, (A, S, O))
         sparse = False
     if sparse:
@@ -497,7 +553,7 @@ def _parse(
                 "depend on the next state or observation); use read_pomdp(..., sparse=False)",
                 path=p.path,
             )
-        R = _expected_reward(p, rewards, 0, None, None, (A, S, O)) * sign
+        R = _expected_reward(p, rewards, 0, None, None, (A, S, O), budget) * sign
         names_or_index = {k: names[k] or tuple(str(i) for i in range(sizes[k])) for k in names}
         try:
             return SparsePOMDP(
@@ -515,7 +571,7 @@ def _parse(
             )
         except (ModelError, TypeError) as e:
             raise ParseError(str(e), path=p.path) from None
-    R = _expected_reward(p, rewards, r_level, T_final, Z_final, (A, S, O)) * sign
+    R = _expected_reward(p, rewards, r_level, T_final, Z_final, (A, S, O), budget) * sign
     try:
         return POMDP(
             T=torch.as_tensor(T_final, dtype=dtype, device=device),
@@ -531,6 +587,32 @@ def _parse(
         raise ParseError(str(e), path=p.path) from None
 
 
+class _Charge:
+    """The cells the sparse tables of one read have set, charged against the budget: each
+    assignment is checked, before its cells are allocated, for the cells of every table so
+    far at :data:`_SPARSE_CELL_BYTES` each plus the reader's ``fixed`` bytes."""
+
+    def __init__(self, p: _Parser | None, budget: float, fixed: float) -> None:
+        self.p = p
+        self.budget = budget
+        self.fixed = fixed
+        self.cells = 0
+
+    def __call__(self, count: int, what: str, token: int) -> None:
+        p = self.p
+        need = self.fixed + _SPARSE_CELL_BYTES * (self.cells + count)
+        if need > self.budget and p is not None:
+            line, column = p.position(token)
+            so_far = f" (with the {self.cells:.3g} cells before it)" if self.cells else ""
+            check_budget(need, self.budget, f"{what}{so_far}; as the sparse reader's coordinate "
+                         "lists they", path=p.path, line=line, column=column)  # fmt: skip
+        self.cells += count
+
+
+def _star(index: Any) -> str:
+    return "*" if isinstance(index, slice) else str(index)
+
+
 def _densify(index: np.ndarray, values: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
     """The dense table of a sparse table's coordinates ``index (M, 3)`` and ``values (M,)``
     (one entry a cell, rows already checked and normalised)."""
@@ -543,7 +625,7 @@ class _DenseTable:
     """``(A, S, N)`` probabilities filled in file order, with the entry of each row's last
     assignment (for error messages)."""
 
-    def __init__(self, name: str, A: int, S: int, N: int) -> None:
+    def __init__(self, name: str, A: int, S: int, N: int, charge: _Charge | None = None) -> None:
         self.name = name
         self.table = np.zeros((A, S, N))
         self.where = np.full((A, S), -1, dtype=np.int64)
@@ -571,8 +653,9 @@ class _SparseTable:
     """The same as :class:`_DenseTable` in coordinate form: every assignment appends its
     cells; at the end the last write of each cell wins and zeros are dropped."""
 
-    def __init__(self, name: str, A: int, S: int, N: int) -> None:
+    def __init__(self, name: str, A: int, S: int, N: int, charge: _Charge | None = None) -> None:
         self.name = name
+        self.charge = _Charge(None, math.inf, 0) if charge is None else charge
         self.shape = (A, S, N)
         self.keys: list[np.ndarray] = []
         self.values: list[np.ndarray] = []
@@ -590,8 +673,12 @@ class _SparseTable:
 
     def fill(self, p: _Parser, a: Any, s: Any, j: Any, value: Any, token: int) -> None:
         A, S, N = self.shape
+        dims = [A if isinstance(a, slice) else 1, S if isinstance(s, slice) else 1,
+                N if isinstance(j, slice) else 1]  # fmt: skip
+        count = math.prod(dims)
+        self.charge(count, f"{self.name}: {' : '.join(_star(v) for v in (a, s, j))} sets "
+                    f"{count:.3g} cells ({' x '.join(map(str, dims))})", token)  # fmt: skip
         ia, is_, ij = self._axis(a, A), self._axis(s, S), self._axis(j, N)
-        count = len(ia) * len(is_) * len(ij)
         self.cells += count
         if self.cells > MAX_DENSE_ENTRIES:
             raise p.error(f"too many {self.name} cells for the sparse reader", token)
@@ -607,6 +694,8 @@ class _SparseTable:
 
     def identity(self, p: _Parser, a: Any, token: int) -> None:
         A, S, N = self.shape
+        count = S * (A if isinstance(a, slice) else 1)
+        self.charge(count, f"{self.name}: {_star(a)} identity sets {count:.3g} cells", token)
         for act in self._axis(a, A):
             self.cleared[int(act)] = self.length
             self.length += S
@@ -618,6 +707,7 @@ class _SparseTable:
 
     def bulk(self, a, i, j, values, tokens) -> None:  # type: ignore[no-untyped-def]
         _, S, N = self.shape
+        self.charge(len(a), f"{len(a)} more {self.name} entries", int(tokens[0]))
         self.keys.append((a * S + i) * N + j)
         self.values.append(values)
         self.tokens.append(np.asarray(tokens, dtype=np.int64))
@@ -686,10 +776,11 @@ class _FastEntries:
         A, S, O = sizes
         self.num_actions = A
         self.maps = {
-            "action": {**_index_map(lookup["actions"], A), "*": -1},  # -1: every action
-            "state": _index_map(lookup["states"], S),
-            "observation": _index_map(lookup["observations"], O),
+            "action": _index_map(lookup["actions"], A, len(p.tokens)),
+            "state": _index_map(lookup["states"], S, len(p.tokens)),
+            "observation": _index_map(lookup["observations"], O, len(p.tokens)),
         }
+        self.maps["action"]["*"] = -1  # -1: every action
         self.window = 16
 
     def run(self, rewards: list) -> int | None:
@@ -758,11 +849,27 @@ class _FastEntries:
         return np.fromiter(map(mapping.__getitem__, column), dtype=np.int64, count=len(column))
 
 
-def _index_map(names: dict[str, int] | None, size: int) -> dict[str, int]:
-    mapping = {str(k): k for k in range(size)}
+def _index_map(names: dict[str, int] | None, size: int, tokens: int) -> dict[str, int]:
+    """Each name and 0-based number of ``size`` items, mapped to its index; the numbers made
+    only where there are fewer than the file's ``tokens`` (a larger map could not be used
+    up; ``states: 200000000`` made 2e8 strings, 40 s and 6 GB), else parsed on demand."""
+    mapping: dict[str, int] = {str(k): k for k in range(size)} if size <= tokens else _Numbers(size)
     if names:
         mapping.update(names)
     return mapping
+
+
+class _Numbers(dict):  # type: ignore[type-arg]
+    """A name map that also reads the 0-based numbers below ``size`` (on a miss)."""
+
+    def __init__(self, size: int) -> None:
+        super().__init__()
+        self.size = size
+
+    def __missing__(self, key: str) -> int:
+        if _is_int(key) and int(key) < self.size:
+            return int(key)
+        raise KeyError(key)
 
 
 def _parse_start(
@@ -831,9 +938,9 @@ def _row_error(p: _Parser, name: str, token: int, reason: str) -> ParseError:
     return p.error(reason, int(token))
 
 
-def _expected_reward(
-    p: _Parser, rewards: list, level: int, T: Any, Z: Any, sizes: tuple[int, int, int]
-) -> np.ndarray:
+def _expected_reward(p: _Parser, rewards: list, level: int, T: Any, Z: Any,
+                     sizes: tuple[int, int, int], budget: float = math.inf,
+                     ) -> np.ndarray:  # fmt: skip
     """Apply the R entries in file order at the needed granularity; reduce to ``(A, S)``."""
     A, S, O = sizes
     if level == 2 and A * S * S * O > MAX_DENSE_ENTRIES:
@@ -842,6 +949,11 @@ def _expected_reward(
             "entries: too large",
             path=p.path,
         )
+    if level:  # (the tables T and O are held already)
+        cells = A * S * S * (O if level == 2 else 1)
+        held = T.nbytes + Z.nbytes
+        check_budget(held + 8 * cells, budget, f"the rewards R(a, s, s2{', o' * (level == 2)}) "
+                     f"({cells:.3g} cells) with T and O", path=p.path)  # fmt: skip
     table = np.zeros((A, S) + (S,) * (level >= 1) + (O,) * (level >= 2))
     for a, s, s2, o, v in rewards:
         if isinstance(a, np.ndarray):  # a run from the fast path: R(a_i, s_i, *, *) = v_i

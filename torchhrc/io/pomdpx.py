@@ -85,6 +85,7 @@ import torch
 
 from torchhrc.errors import ModelError, ParseError
 from torchhrc.io._atomic import atomic_write_bytes
+from torchhrc.io._budget import check_budget, resolve_budget
 from torchhrc.io._gc import gc_paused
 from torchhrc.pomdp import MOMDP, POMDP, split_initial
 from torchhrc.sparse import MAX_DENSE_ENTRIES, SparsePOMDP
@@ -115,6 +116,16 @@ AUTO_SPARSE_ENTRIES = MAX_DENSE_ENTRIES
 AUTO_SPARSE_MOMDP_ENTRIES = 10_000_000
 
 _ROW_TOL = 1e-4  # rows of a CondProb must sum to 1 within this (then renormalised exactly)
+
+#: Bytes of memory a byte of the file takes as XML elements (measured: a 6 MB RockSample(6,
+#: 6) file peaked 127 MB above the process, tables included).
+_XML_BYTES = 20
+#: Bytes of a value named by ``<NumValues>``: its made-up name and the reader's lookup entry
+#: (measured: 146 bytes a value for 3 million).
+_NAME_BYTES = 160
+#: Peak bytes a nonzero of the sparse forms costs while it is expanded (its row, value and
+#: probability, one index per variable, the re-indexing), per variable of the expansion.
+_ENTRY_BYTES = 48
 
 
 # ================================================================================ variables
@@ -321,9 +332,11 @@ def _is_index(token: str) -> bool:
 class _Reader:
     """Interprets the element tree; every error is a :class:`ParseError`."""
 
-    def __init__(self, root: _Node, path: str) -> None:
+    def __init__(self, root: _Node, path: str, budget: float = math.inf) -> None:
         self.path = path
         self.root = root
+        self.budget = budget
+        self.held = 0.0  # bytes of the value names and tables allocated so far
         # name -> (kind, variable); kinds: action, prev, curr, obs, reward
         self.kind: dict[str, str] = {}
         self.var: dict[str, PomdpxVariable] = {}
@@ -404,8 +417,19 @@ class _Reader:
             count = int(text)
             if count > MAX_DENSE_ENTRIES:
                 raise self.error(f"<NumValues>: {count} values are too many", num)
+            self._charge(_NAME_BYTES * count, f"<NumValues>{count}</NumValues>: the names of "
+                         f"{count:.3g} values", num)  # fmt: skip
             return tuple(f"{prefix}{i}" for i in range(count)), False
         raise self.error(f"<{node.tag}> has neither <ValueEnum> nor <NumValues>", node)
+
+    def _charge(self, need: float, what: str, node: _Node | None) -> None:
+        """Count ``need`` bytes against the budget, with what the reader holds already."""
+        total = self.held + need
+        if total > self.budget:
+            so_far = f" (with the {self.held:.3g} bytes read before it)" if self.held else ""
+            check_budget(total, self.budget, what + so_far, path=self.path,
+                         line=None if node is None else _line(node))  # fmt: skip
+        self.held = total
 
     def _declare(self, name: str | None, kind: str, var: PomdpxVariable, node: _Node) -> None:
         if not name or len(name.split()) != 1:
@@ -561,6 +585,8 @@ class _Reader:
                 f"{MAX_DENSE_ENTRIES:.3g})",
                 node,
             )
+        self._charge(8 * entries, f"the table of {var!r} ({' x '.join(map(str, dims))}: "
+                     f"{entries:.3g} cells)", node)  # fmt: skip
         param = node.find("Parameter")
         if param is None:
             raise self.error(f"<{node.tag}> has no <Parameter>", node)
@@ -1105,6 +1131,49 @@ class _Builder:
             o = (rows % self.S) // self.Y * self.O + o
         return rows, o, p
 
+    # ------------------------------------------------------------------ memory
+
+    def _entries(self, tables: list[_Table]) -> float:
+        """The nonzeros an expansion over ``tables`` from every ``(a, s)`` row makes, estimated
+        as ``A S`` times each table's mean nonzeros per row (exact for tables whose rows have
+        the same count, as a model's usually have)."""
+        n = float(self.A * self.S)
+        for t in tables:
+            k = t.values.shape[-1]
+            n *= np.count_nonzero(t.values) / max(t.values.size // max(k, 1), 1)
+        return n
+
+    def form_bytes(self, form: str, static: bool = True) -> tuple[float, str]:
+        """Estimated peak bytes of building ``form`` (``"momdp"``, ``"sparse_momdp"``,
+        ``"dense"`` or ``"sparse"``) from the tables, and what they hold (for a message).
+
+        Dense tensors at 10 bytes a cell (measured: a dense ``Ty`` of 6.2e7 cells peaked at
+        1.1 times its 8 bytes a cell), expansions at :data:`_ENTRY_BYTES` a nonzero, the
+        rewards and the initial belief, and the made-up state names of the sparse form."""
+        A, S = self.A, self.S
+        t_tables = [self.r.transition[n] for n in self.xc + self.yc]
+        z_tables = [self.r.observation[n] for n in self.ob]
+        n_t = self._entries(t_tables) * len(t_tables)
+        n_z = self._entries(z_tables) * len(z_tables)
+        small = 8.0 * (A * S + S)
+        if form == "momdp":
+            tx, ty, z, _ = self.momdp_sizes()
+            cells = tx + ty + z
+            return 10.0 * cells + small, f"the dense Tx, Ty and Z ({cells:.3g} cells)"
+        if form == "sparse_momdp":
+            z = A * S * self.O
+            return (_ENTRY_BYTES * n_t + 10.0 * z + small,
+                    f"the transitions' nonzeros (about {n_t:.3g}) and the dense Z ({z:.3g} "
+                    "cells)")  # fmt: skip
+        if form == "dense":
+            cells = A * S * S + A * S * self.flat_observations
+            return (10.0 * cells + _ENTRY_BYTES * (n_t + n_z) + small,
+                    f"the dense T (A={A}, S={S}, S) and Z ({cells:.3g} cells)")  # fmt: skip
+        names = 64 * S  # (a str and its pointer)
+        return (_ENTRY_BYTES * (n_t + n_z) + small + names,
+                f"the nonzeros of T and Z (about {n_t + n_z:.3g}) and the names of "
+                f"{S} states")  # fmt: skip
+
     # ------------------------------------------------------------------ forms
 
     def momdp_sizes(self) -> tuple[int, int, int, bool]:
@@ -1346,6 +1415,7 @@ def read_pomdpx(
     momdp: bool = True,
     dtype: torch.dtype = torch.float64,
     device: torch.device | str | None = None,
+    memory_budget: float | None = None,
 ) -> POMDP | MOMDP | SparseMOMDP | SparsePOMDP:
     """Read a ``.pomdpx`` file (a path, or the XML text itself); see the module docstring.
 
@@ -1364,6 +1434,13 @@ def read_pomdpx(
             ``Z`` fits (either with :attr:`~torchhrc.pomdp.MOMDP.initial` when the initial
             belief spreads over several observed values); ``False``: always flat.
         dtype, device: of the returned tensors (a sparse model stays on the CPU).
+        memory_budget: bytes the read may take (default ``None``: the machine's available
+            memory, ``MemAvailable``; ``math.inf``: no limit). Checked before each
+            allocation of the model's size: the XML elements (about 20 bytes a byte of the
+            file) before parsing, each ``<NumValues>``'s names and each table as it is
+            declared, the chosen form's tensors (dense at 10 bytes a cell, nonzeros of the
+            sparse forms as estimated from the tables) before it is built; ``"auto"``
+            picks a sparse form when the dense one would not fit.
 
     Returns:
         :class:`~torchhrc.pomdp.MOMDP`, :class:`~torchhrc.sparse_momdp.SparseMOMDP`,
@@ -1371,8 +1448,10 @@ def read_pomdpx(
 
     Raises:
         ParseError: the file is malformed, a table is inconsistent (wrong number of values, a
-            row not summing to 1, an unknown value), the DBN is not one APPL solves, or the
-            model is too large for ``sparse=False`` (file, line, element and reason).
+            row not summing to 1, an unknown value), the DBN is not one APPL solves, the
+            model is too large for ``sparse=False`` (file, line, element and reason), or it
+            would take more than ``memory_budget`` (the message gives the cells, the bytes
+            and the budget).
 
     Example:
         >>> from torchhrc.testing import random_momdp
@@ -1380,8 +1459,10 @@ def read_pomdpx(
         >>> type(m).__name__, m.num_observed, m.num_hidden
         ('MOMDP', 2, 3)
     """
+    budget = resolve_budget(memory_budget)
     data, path = _read_source(source)
-    return parse_pomdpx(data, path=path, sparse=sparse, momdp=momdp, dtype=dtype, device=device)
+    return parse_pomdpx(data, path=path, sparse=sparse, momdp=momdp, dtype=dtype, device=device,
+                        memory_budget=budget)  # fmt: skip
 
 
 def parse_pomdpx(
@@ -1392,6 +1473,7 @@ def parse_pomdpx(
     momdp: bool = True,
     dtype: torch.dtype = torch.float64,
     device: torch.device | str | None = None,
+    memory_budget: float | None = None,
 ) -> POMDP | MOMDP | SparseMOMDP | SparsePOMDP:
     """Parse the text of a ``.pomdpx`` file (``path`` is used in error messages only); see
     :func:`read_pomdpx`.
@@ -1403,16 +1485,19 @@ def parse_pomdpx(
     """
     if sparse not in (True, False, "auto"):
         raise ValueError(f"expected sparse to be True, False or 'auto', got {sparse!r}")
+    budget = resolve_budget(memory_budget)
+    check_budget(_XML_BYTES * len(text), budget, f"the XML elements of {len(text)} bytes of "
+                 "text", path=path)  # fmt: skip
     # ElementTree's C builder first (no line numbers); a file it cannot read or that turns out
     # malformed is read again through the expat tree, whose errors carry the line
     with gc_paused():  # the elements are many, freed by reference counting (see _gc)
         root = _parse_xml_fast(text)
         if root is not None:
             try:
-                return _parse_tree(root, path, sparse, momdp, dtype, device)
+                return _parse_tree(root, path, sparse, momdp, dtype, device, budget)
             except ParseError:
                 pass
-        return _parse_tree(_parse_xml(text, path), path, sparse, momdp, dtype, device)
+        return _parse_tree(_parse_xml(text, path), path, sparse, momdp, dtype, device, budget)
 
 
 def _parse_tree(
@@ -1422,18 +1507,31 @@ def _parse_tree(
     momdp: bool,
     dtype: torch.dtype,
     device: torch.device | str | None,
+    budget: float = math.inf,
 ) -> POMDP | MOMDP | SparseMOMDP | SparsePOMDP:
-    reader = _Reader(root, path)
+    reader = _Reader(root, path, budget)
     reader.read()
     b = _Builder(reader)
     b0 = b.initial_belief()
     limit = AUTO_SPARSE_ENTRIES if sparse == "auto" else MAX_DENSE_ENTRIES
+
+    def fits(form: str) -> bool:
+        return reader.held + b.form_bytes(form)[0] <= budget
+
+    def check(form: str) -> None:  # the form's estimate with the tables held, or refused
+        need, what = b.form_bytes(form)
+        if reader.held + need > budget:
+            check_budget(reader.held + need, budget, f"{what}, with the tables read "
+                         f"({reader.held:.3g} bytes),", path=path)  # fmt: skip
+
     if momdp and sparse is not True and b.xc:
         tx, ty, z, static = b.momdp_sizes()
         dense_limit = min(AUTO_SPARSE_MOMDP_ENTRIES, limit) if sparse == "auto" else limit
-        if max(tx, ty) <= dense_limit and z <= limit:  # a random first x gives `initial`
+        if max(tx, ty) <= dense_limit and z <= limit and (sparse is False or fits("momdp")):
+            check("momdp")  # a random first x gives `initial`
             return _wrap(lambda: b.momdp(b0, static, dtype, device), path)
         if z <= limit and sparse == "auto":  # Tx Ty kept as its nonzeros
+            check("sparse_momdp")
             return _wrap(lambda: b.sparse_momdp(b0, dtype), path)
     b.set_initial_x(b0)
     dense = max(b.A * b.S * b.S, b.A * b.S * b.flat_observations)
@@ -1443,7 +1541,8 @@ def _parse_tree(
             f"(more than {MAX_DENSE_ENTRIES:.3g}); read it with sparse=True or 'auto'",
             path=path,
         )
-    use_sparse = sparse is True or (sparse == "auto" and dense > limit)
+    use_sparse = sparse is True or (sparse == "auto" and (dense > limit or not fits("dense")))
+    check("sparse" if use_sparse else "dense")
     return _wrap(lambda: b.flat(b0, use_sparse, dtype, device), path)
 
 

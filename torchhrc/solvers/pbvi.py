@@ -47,6 +47,7 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.solvers._memory import MemoryGuard, check_checkpoint, check_memory_limit
 from torchhrc.solvers.clock import Clock, check_clock, clock_function
 from torchhrc.solvers.forms import SolverModel, as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
@@ -82,6 +83,15 @@ class PBVIConfig:
         clock: what ``time_limit`` counts: ``"wall"`` (default), ``"process"`` (the process's
             CPU seconds) or a callable (:mod:`torchhrc.solvers.clock`); checked after every
             backup sweep.
+        memory_limit: bytes of resident memory the process may hold (None: no limit; the
+            whole process counts, see :class:`~torchhrc.solvers._memory.MemoryGuard`).
+            Checked after every backup sweep and before every expansion (which may double
+            the next sweep's temporaries): the solve stops before the limit with the policy
+            so far and ``stop_reason == "memory"``.
+        policy_interval: every this many seconds of ``clock`` (checked after every backup
+            sweep), call ``checkpoint`` with the solution so far (None: never; both or
+            neither must be given).
+        checkpoint: ``Solution -> None`` (see :class:`~torchhrc.solvers.sarsop.SARSOPConfig`).
     """
 
     time_limit: float = 60.0
@@ -96,8 +106,13 @@ class PBVIConfig:
     seed: int = 0
     callback: Callable[[dict[str, Any]], None] | None = None
     clock: Clock = "wall"
+    memory_limit: float | None = None
+    policy_interval: float | None = None
+    checkpoint: Callable[[Solution], None] | None = None
 
     def __post_init__(self) -> None:
+        check_memory_limit(self.memory_limit)
+        check_checkpoint(self.policy_interval, self.checkpoint)
         if not self.time_limit > 0:
             raise ValueError(f"expected time_limit > 0, got {self.time_limit}")
         check_clock(self.clock)
@@ -203,7 +218,9 @@ def pbvi(model: POMDP | MOMDP | SparsePOMDP, config: PBVIConfig | None = None) -
         :class:`Solution` with the policy, ``lower = V(b0)`` (a lower bound on the optimum),
         ``upper`` (FIB or QMDP at ``b0``), and ``history`` entries with ``time_s``, ``lower``,
         ``upper``, ``gap``, ``n_alphas``, ``n_beliefs``, ``iteration``. ``info`` holds
-        ``stop_reason``, ``iterations`` and the final belief set (``belief_x (M,)``,
+        ``stop_reason`` (``"precision"``, ``"time_limit"``, ``"memory"``, ``"max_iterations"``,
+        ``"expansions"``, ``"belief set converged"`` or ``"interrupted"``; also in the last
+        history entry), ``iterations`` and the final belief set (``belief_x (M,)``,
         ``beliefs (M, S)`` or ``(M, Y)``).
 
     Raises:
@@ -263,8 +280,18 @@ def pbvi(model: POMDP | MOMDP | SparsePOMDP, config: PBVIConfig | None = None) -
             config.callback(entry)
 
     report()
+    # the memory limit, watched from here (the model and the initial bounds are its base)
+    memory = None if config.memory_limit is None else MemoryGuard(config.memory_limit)
+    next_checkpoint = clock_start + (config.policy_interval or 0.0)
+
+    def bounds() -> tuple[float, float]:  # (upper within round-off of lower: lower)
+        return lower, max(upper, lower) if math.isclose(upper, lower, abs_tol=1e-9) else upper
+
     try:
         for expansion in range(config.expansions + 1):
+            if memory is not None and memory.exceeded(memory.margin if expansion else 0):
+                stop_reason = "memory"  # (an expansion may double the next sweep's temporaries)
+                break
             if expansion > 0:
                 if _expand(form, belief_set, config, generator) == 0:
                     stop_reason = "belief set converged"
@@ -279,11 +306,26 @@ def pbvi(model: POMDP | MOMDP | SparsePOMDP, config: PBVIConfig | None = None) -
                 values = new_values
                 lower = form.value_at_roots(policy)
                 report()
+                if config.checkpoint is not None and read_clock() >= next_checkpoint:
+                    low, up = bounds()
+                    config.checkpoint(
+                        Solution(
+                            policy,
+                            low,
+                            up,
+                            list(history),
+                            {"checkpoint": True, "iterations": iteration},
+                        )
+                    )
+                    next_checkpoint = read_clock() + float(config.policy_interval or 0.0)
                 if upper - lower < config.precision:
                     stop_reason = "precision"
                     raise StopIteration
                 if read_clock() - clock_start > config.time_limit:
                     stop_reason = "time_limit"
+                    raise StopIteration
+                if memory is not None and memory.exceeded():
+                    stop_reason = "memory"
                     raise StopIteration
                 if iteration >= config.max_iterations:
                     stop_reason = "max_iterations"
@@ -297,10 +339,12 @@ def pbvi(model: POMDP | MOMDP | SparsePOMDP, config: PBVIConfig | None = None) -
         logger.info("pbvi interrupted; returning the best policy so far")
     if not history or history[-1]["iteration"] != iteration:
         report()
+    history[-1]["stop_reason"] = stop_reason
+    low, up = bounds()
     return Solution(
         policy=policy,
-        lower=lower,
-        upper=max(upper, lower) if math.isclose(upper, lower, abs_tol=1e-9) else upper,
+        lower=low,
+        upper=up,
         history=history,
         info={
             "stop_reason": stop_reason,

@@ -106,7 +106,12 @@ from threadpoolctl import threadpool_limits
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers import backup_kernel
-from torchhrc.solvers._memory import release_free_memory
+from torchhrc.solvers._memory import (
+    MemoryGuard,
+    check_checkpoint,
+    check_memory_limit,
+    release_free_memory,
+)
 from torchhrc.solvers.clock import Clock, Deadline, check_clock, clock_function
 from torchhrc.solvers.eval_cache import EvaluationCache
 from torchhrc.solvers.forms import SolverModel, as_solver_model
@@ -234,6 +239,23 @@ class SARSOPConfig:
             step of a trial, between the backups of its path, and before a pruning that the
             last one's duration says would end past the limit; the initial bounds' safety net
             (``init_time_fraction``) counts on the same clock.
+        memory_limit: bytes of resident memory the process may hold (as APPL's ``pomdpsol
+            --memory``, which counts MB; None: no limit). Checked where the time limit is
+            (:class:`~torchhrc.solvers._memory.MemoryGuard`): the solve stops before the
+            resident memory plus what the next steps are expected to add (a doubling of the
+            belief tree or the alpha set, the final policy's copy of the vectors) would reach
+            it, and returns the bounds and policy so far with ``stop_reason == "memory"``. It
+            counts the whole process (interpreter, libraries and the model included): a limit
+            below what the process holds when the search starts stops it at once, with the
+            initial bounds.
+        policy_interval: every this many seconds of ``clock`` (between iterations), call
+            ``checkpoint`` with the solution so far (as APPL's ``pomdpsol
+            --policy-interval``; None: never). Both or neither must be given.
+        checkpoint: ``Solution -> None``, called every ``policy_interval`` seconds with the
+            policy and bounds so far (``info["checkpoint"] is True``, ``info["iterations"]``),
+            e.g. ``lambda s: save_policy(s.policy, "p.policyx")`` (an atomic write: a solve
+            killed at any moment leaves the last complete policy). Its time counts in
+            ``time_limit``.
     """
 
     time_limit: float = 10.0
@@ -259,8 +281,13 @@ class SARSOPConfig:
     callback: Callable[[dict[str, Any]], bool | None] | None = None
     dtype: torch.dtype = torch.float64
     clock: Clock = "wall"
+    memory_limit: float | None = None
+    policy_interval: float | None = None
+    checkpoint: Callable[[Solution], None] | None = None
 
     def __post_init__(self) -> None:
+        check_memory_limit(self.memory_limit)
+        check_checkpoint(self.policy_interval, self.checkpoint)
         for name in ("time_limit", "precision", "kappa", "prune_growth", "init_time_fraction"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
@@ -716,6 +743,35 @@ class _SARSOP:
         self._kernel = backup_kernel.load() if self._np and cfg.dtype == torch.float64 else None
         R = self.n_roots
         self.tree.lower[:R], self.tree.upper[:R] = self._root_bounds()
+        # the memory limit, watched from here (what the initialisation holds is its base)
+        self._longest = 64  # the most nodes a trial added so far (at least 64)
+        self.memory = None if cfg.memory_limit is None else MemoryGuard(cfg.memory_limit)
+        # the first policy checkpoint, ``policy_interval`` seconds into the solve
+        self._next_checkpoint = (clock_start or 0.0) + (cfg.policy_interval or 0.0)
+
+    # -- budget ----------------------------------------------------------------------------
+    def _pending_bytes(self) -> int:
+        """What the search may allocate at once next, beyond its steady growth: a copy of
+        the alpha vectors and a half more (the final policy's copy and its check, or a
+        pruning's gather of the kept vectors), and the copy a doubling of the alpha storage
+        or of the belief tree makes when it is within a trial's reach of its capacity."""
+        alphas, tree = self.alphas, self.tree
+        row = alphas.vectors.shape[1] * alphas.vectors.element_size()
+        pending = alphas.size * row * 3 // 2
+        if alphas.vectors.shape[0] - alphas.size <= self._longest:
+            pending += alphas.size * row
+        if tree.x.shape[0] - tree.size <= self._longest:
+            beliefs = getattr(tree, "_beliefs", None)
+            per_node = 64 + (beliefs.shape[1] * beliefs.element_size()
+                             if isinstance(beliefs, torch.Tensor) else 0)  # fmt: skip
+            pending += tree.size * per_node
+        return pending
+
+    def _out_of_budget(self) -> bool:
+        """Whether the time limit has passed or the memory limit is near."""
+        if self.clock() >= self.deadline:
+            return True
+        return self.memory is not None and self.memory.exceeded(self._pending_bytes())
 
     # -- bounds ----------------------------------------------------------------------------
     def lower_value(
@@ -1150,7 +1206,7 @@ class _SARSOP:
         path = [node]
         seen = {int(self.belief_id[node])}
         forward = self._forward = set()
-        while t < self.max_depth and self.clock() < self.deadline:
+        while t < self.max_depth and not self._out_of_budget():
             lo, up = float(tree.lower[node]), float(tree.upper[node])
             if self.cfg.prediction == "binning":
                 v_hat = self.bins.predict(int(self.belief_id[node]), up, lo)
@@ -1376,7 +1432,7 @@ class _SARSOP:
             nodes = act[xs == x]
             # deepest first within the batch order does not matter: one batched backup
             for start in range(0, nodes.size, 256):
-                if self.clock() >= self.deadline:
+                if self._out_of_budget():
                     return  # every backup leaves valid bounds: the rest waits (as a trial)
                 self.backup(int(x), nodes[start : start + 256])
 
@@ -1416,8 +1472,9 @@ class _SARSOP:
                 if cfg.max_iterations is not None and iteration >= cfg.max_iterations:
                     reason = "max_iterations"
                     break
-                if self.clock() >= self.deadline:
-                    reason = "time_limit"
+                if self._out_of_budget():
+                    memory = self.memory is not None and self.memory.tripped
+                    reason = "memory" if memory else "time_limit"
                     break
                 iteration += 1
                 eps = cfg.kappa * (entry["upper"] - entry["lower"])
@@ -1425,31 +1482,48 @@ class _SARSOP:
                 # trial and between backups): a long trial is cut short, and what was backed
                 # up so far is kept (every backup leaves valid bounds)
                 path = self.sample(eps)
+                self._longest = max(self._longest, len(path))
                 if len(path) > 1 and path[-1] in self._forward:
                     path = path[:-1]  # the leaf was backed up when the trial reached it
                 for node in reversed(path):
                     self.backup(int(self.tree.x[node]), np.array([node]))
-                    if self.clock() >= self.deadline:
+                    if self._out_of_budget():
                         break
                 if cfg.sweep_interval and iteration % cfg.sweep_interval == 0:
                     self.sweep()  # (it reads the budget before each of its batches)
-                if self.clock() < self.deadline:
+                if not self._out_of_budget():
                     self.prune()
                 entry = self.record(iteration)
                 if cfg.callback is not None and cfg.callback(dict(entry)):
                     reason = "callback"
                     break
+                if cfg.checkpoint is not None and self.clock() >= self._next_checkpoint:
+                    self._checkpoint(iteration)
         except KeyboardInterrupt:
             reason = "interrupted"
             entry = self.record(iteration)
         return self.solution(reason, iteration)
 
-    def solution(self, reason: str, iterations: int) -> Solution:
+    def _policy(self) -> AlphaVectorPolicy:
+        """The alpha vectors so far as the form's policy (a copy)."""
         n = self.alphas.size
-        policy = self.form.policy(self.alphas.vectors[:n].clone(),
-                                  self.alphas.actions[:n].clone(),
-                                  self.alphas.observed[:n].clone())  # fmt: skip
+        return self.form.policy(self.alphas.vectors[:n].clone(),
+                                self.alphas.actions[:n].clone(),
+                                self.alphas.observed[:n].clone())  # fmt: skip
+
+    def _checkpoint(self, iteration: int) -> None:
+        """Hand the policy and bounds so far to ``checkpoint``; schedule the next."""
+        cfg = self.cfg
+        assert cfg.checkpoint is not None and cfg.policy_interval is not None
         last = self.history[-1]
+        cfg.checkpoint(Solution(self._policy(), lower=last["lower"], upper=last["upper"],
+                                history=list(self.history),
+                                info={"checkpoint": True, "iterations": iteration}))  # fmt: skip
+        self._next_checkpoint = self.clock() + cfg.policy_interval
+
+    def solution(self, reason: str, iterations: int) -> Solution:
+        last = self.history[-1]
+        last["stop_reason"] = reason
         info = {
             "stop_reason": reason,
             "iterations": iterations,
@@ -1458,6 +1532,16 @@ class _SARSOP:
             "n_points": self.ub.size,
             "init": dict(self.init_info),
         }
+        if reason == "memory":
+            # the search's belief tree, upper-bound points and caches are done with: freed
+            # before the policy copies the vectors (and checks them: about twice their size
+            # at its peak)
+            self._cache, self._child_best, self.children = EvaluationCache(), {}, {}
+            self.tree = self.form.new_tree()
+            del self.ub, self.bins  # (the solver is not used after this)
+            self.alphas._gcol, self.alphas._gid = [], []  # the vectors' per-x copy
+            release_free_memory()
+        policy = self._policy()
         return Solution(policy, lower=last["lower"], upper=last["upper"],
                         history=self.history, info=info)  # fmt: skip
 
@@ -1479,7 +1563,8 @@ def sarsop(model: POMDP | MOMDP | SparsePOMDP, config: SARSOPConfig | None = Non
         start: ``sum_x P(x) V*(x, P(. | x))``), and ``history``, one dict per
         iteration with ``time_s``, ``lower``, ``upper``, ``n_alphas``, ``n_beliefs``,
         ``n_points``, ``iteration``. ``info["stop_reason"]`` is ``"precision"``,
-        ``"time_limit"``, ``"max_iterations"``, ``"callback"`` or ``"interrupted"``
+        ``"time_limit"``, ``"memory"`` (``memory_limit``), ``"max_iterations"``,
+        ``"callback"`` or ``"interrupted"``
         (KeyboardInterrupt: the best policy so far is returned); ``info["init"]`` has the
         initialisation's times (``lower_s``, ``upper_s``) and, for the default FIB, its
         ``upper_iterations`` and ``upper_stop`` (``"converged"``, ``"max_iterations"`` or

@@ -31,8 +31,9 @@ class Solution:
         upper: an upper bound on the optimal value at the initial belief (``inf`` if the
             solver has none).
         history: diagnostics over time, one dict per progress report with at least
-            ``time_s``, ``lower``, ``upper``, ``n_alphas`` (solvers add e.g. ``n_beliefs``).
-        info: free-form final diagnostics (iterations, stop reason, ...).
+            ``time_s``, ``lower``, ``upper``, ``n_alphas`` (solvers add e.g. ``n_beliefs``;
+            SARSOP and PBVI add ``stop_reason`` to the last one).
+        info: free-form final diagnostics (iterations, ``stop_reason``, ...).
 
     Raises:
         ModelError: a bound is NaN, or ``lower > upper`` beyond round-off.
@@ -56,6 +57,14 @@ class Solution:
             raise ModelError(f"lower bound {lower} exceeds upper bound {upper}")
         object.__setattr__(self, "lower", lower)
         object.__setattr__(self, "upper", upper)
+
+    @property
+    def stop_reason(self) -> str | None:
+        """Why the solver stopped (``info["stop_reason"]``; None if it does not say):
+        ``"precision"``, ``"time_limit"``, ``"memory"`` (the solver's ``memory_limit``),
+        ``"max_iterations"``, ``"callback"``, ``"interrupted"``, or a solver's own reason."""
+        reason = self.info.get("stop_reason")
+        return None if reason is None else str(reason)
 
     @property
     def gap(self) -> float:

@@ -74,6 +74,7 @@ class SimulationStep(NamedTuple):
     """One step of the ``E`` episodes of :func:`evaluate_policy`, given to ``on_step``.
 
     A flat model has one observed value (``x`` all 0) and its hidden value is the state.
+    The tensors are valid during the call only (the beliefs are then updated in place).
 
     Attributes:
         step: the time step ``t`` (0 first).

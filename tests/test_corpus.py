@@ -171,8 +171,10 @@ def test_merged_statistics_cannot_decide_objects_auto_in_silence(
 
 
 def test_corpus_views_read_the_same_rows_as_in_memory(
-    study: Demonstrations, tmp_path: Path
+    study: Demonstrations, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    import torchhrc.corpus as corpus_module
+
     ordered = _write_shards(study, tmp_path, 4, ".parquet")
     corpus = ShardedCorpus.open(tmp_path)
     assert corpus.keys == ordered.keys and corpus.types == ordered.types
@@ -180,13 +182,20 @@ def test_corpus_views_read_the_same_rows_as_in_memory(
     mask = torch.arange(ordered.num_sequences) % 3 == 1
     sub = corpus.subset(mask)
     assert sub.keys == ordered.subset(mask).keys
-    expected = ordered.subset(mask).relabel_log_multiplicity(given_first=False)
-    assert torch.equal(sub.relabel_log_multiplicity(given_first=False), expected)
     relabelled = sub.relabel_objects().statistics(unit="sequence").stats
     ref = ordered.subset(mask).relabel_objects(keep_unused=True)
     ref_stats = sufficient_statistics(ref.sequences, ref.lengths, ref.num_symbols)
     assert torch.equal(relabelled.counts, ref_stats.counts)
     assert torch.equal(relabelled.inverse, ref_stats.inverse)
+    # the relabelled read kept the multiplicities: no shard is read again for them
+    monkeypatch.setattr(corpus_module, "read_shard", None)
+    for first in (True, False):
+        expected = ordered.subset(mask).relabel_log_multiplicity(given_first=first)
+        assert torch.equal(sub.relabel_log_multiplicity(given_first=first), expected)
+    monkeypatch.undo()
+    other = corpus.subset(mask.clone())  # another view: read from its shards
+    expected = ordered.subset(mask).relabel_log_multiplicity(given_first=False)
+    assert torch.equal(other.relabel_log_multiplicity(given_first=False), expected)
     inner = sub.subset(torch.arange(sub.num_sequences) % 2 == 0)  # a subset of a subset
     assert inner.keys == ordered.subset(mask).subset(torch.arange(sub.num_sequences) % 2 == 0).keys
 

@@ -274,6 +274,9 @@ class ShardStatistics:
         types: ground-truth label of each sequence, or None.
         process_id: the id of the process that reduced the shard (a Ray worker's with
             ``ray=``, this process's otherwise): where the work ran.
+        log_multiplicity: with ``relabel``, ``(2, N_s)`` float64
+            :meth:`~torchhrc.data.Demonstrations.relabel_log_multiplicity` of every sequence
+            with ``given_first`` True (row 0) and False (row 1), computed in the same read.
     """
 
     path: str
@@ -287,6 +290,7 @@ class ShardStatistics:
     sequence_keys: tuple[str, ...] | None
     types: tuple[str, ...] | None
     process_id: int = 0
+    log_multiplicity: torch.Tensor | None = None
 
 
 def _compact_dtype(largest: int) -> torch.dtype:
@@ -300,6 +304,13 @@ def _compact_dtype(largest: int) -> torch.dtype:
 def _read_view(path: str, keep: torch.Tensor | None, relabel: str | None) -> Demonstrations:
     """One shard as a view of the corpus sees it: its sequences ``keep`` (a ``(N_s,)`` bool
     mask, None: all), with their objects relabelled (``relabel``: the separator) or not."""
+    demos = _read_subset(path, keep)
+    if relabel is not None:
+        demos = demos.relabel_objects(separator=relabel, keep_unused=True)
+    return demos
+
+
+def _read_subset(path: str, keep: torch.Tensor | None) -> Demonstrations:
     demos = read_shard(path)
     if keep is not None:
         if keep.shape != (demos.num_sequences,):
@@ -308,8 +319,6 @@ def _read_view(path: str, keep: torch.Tensor | None, relabel: str | None) -> Dem
                 f"mask gives it {keep.shape[0]}: the shard changed since the corpus was read"
             )
         demos = demos.subset(keep)
-    if relabel is not None:
-        demos = demos.relabel_objects(separator=relabel, keep_unused=True)
     return demos
 
 
@@ -335,7 +344,14 @@ def shard_statistics(
     """
     from torchhrc.mixture.counts import _unique_rows, transition_counts
 
-    demos = _read_view(path, keep, relabel)
+    demos = _read_subset(path, keep)
+    log_multiplicity = None
+    if relabel is not None:  # the recorded sequences' share of the relabelled likelihood
+        log_multiplicity = torch.stack([
+            demos.relabel_log_multiplicity(separator=relabel, given_first=first)
+            for first in (True, False)
+        ]) if demos.num_sequences else torch.zeros(2, 0, dtype=torch.float64)  # fmt: skip
+        demos = demos.relabel_objects(separator=relabel, keep_unused=True)
     A = demos.num_symbols
     N = demos.num_sequences
     if N == 0:  # a subset that keeps none of this shard's sequences
@@ -346,7 +362,7 @@ def shard_statistics(
             multiplicity=torch.zeros(0, dtype=torch.long),
             inverse=torch.zeros(0, dtype=torch.long), num_units=0, subjects=(),
             sequence_keys=() if keep_keys else None, types=() if keep_keys else None,
-            process_id=os.getpid(),
+            process_id=os.getpid(), log_multiplicity=log_multiplicity,
         )  # fmt: skip
     counts = transition_counts(demos.sequences, demos.lengths, A).view(N, A * A)
     key = counts
@@ -370,6 +386,7 @@ def shard_statistics(
         sequence_keys=demos.keys if keep_keys else None,
         types=demos.types if keep_keys else None,
         process_id=os.getpid(),
+        log_multiplicity=log_multiplicity,
     )
 
 
@@ -511,6 +528,9 @@ class ShardedCorpus:
         self._relabel: str | None = None  # a view with relabelled objects (the separator)
         self._index_cache: list[_ShardIndex] | None = None
         self._base_corpus: ShardedCorpus | None = None
+        # (id of a view's mask, separator) -> (the mask, (2, N) log multiplicities): filled by
+        # a relabelled view's statistics, read by relabel_log_multiplicity (one read fewer)
+        self._multiplicities: dict[tuple[int | None, str], tuple[Any, torch.Tensor]] = {}
 
     def __repr__(self) -> str:
         return f"ShardedCorpus({len(self.paths)} shards, first {self.paths[0]!r})"
@@ -547,6 +567,9 @@ class ShardedCorpus:
     def _base(self) -> ShardedCorpus:
         """The whole corpus this view is of (itself when it is no view)."""
         return self if self._base_corpus is None else self._base_corpus
+
+    def _mask_key(self, separator: str) -> tuple[int | None, str]:
+        return (None if self._keep is None else id(self._keep), separator)
 
     def _masks(self) -> list[torch.Tensor | None]:
         """Each shard's ``(N_s,)`` bool mask of this view (None: every sequence)."""
@@ -666,6 +689,9 @@ class ShardedCorpus:
         every sequence, shard by shard (in this process, one shard at a time)."""
         if self._relabel is not None:
             raise ModelError("relabel_log_multiplicity of an already relabelled corpus")
+        found = self._base()._multiplicities.get(self._mask_key(separator))
+        if found is not None and found[0] is self._keep:
+            return found[1][0 if given_first else 1]
         parts = [
             _read_view(p, m, None).relabel_log_multiplicity(
                 separator=separator, given_first=given_first
@@ -792,6 +818,13 @@ class ShardedCorpus:
             sequence_keys = tuple(k for s in shards for k in (s.sequence_keys or ()))
             if first.has_types:
                 types = tuple(t for s in shards for t in (s.types or ()))
+        if self._relabel is not None:  # keep what relabel_log_multiplicity will ask
+            parts = [s.log_multiplicity for s in shards if s.log_multiplicity is not None]
+            if len(parts) == len(shards):
+                self._base()._multiplicities[self._mask_key(self._relabel)] = (
+                    self._keep,
+                    torch.cat(parts, -1),
+                )
         return CorpusStatistics(stats, first.vocabulary, sequence_keys, types, unit, initial,
                                 tuple(s.process_id for s in shards))  # fmt: skip
 

@@ -1,27 +1,57 @@
-"""Bit-identity of deterministic SARSOP and PBVI solves across refactors of the model forms.
+"""Deterministic SARSOP and PBVI solves on every model form, checked on every machine.
 
-The expected numbers in ``data/forms_regression.json`` were recorded on the code before the
-solvers were rewritten against one model interface (:mod:`torchhrc.solvers.forms`): with a
-fixed ``max_iterations`` and a time limit never reached, a solve is deterministic, so the
-same algorithm must give the very same floats (exact equality, not a tolerance) whatever
-form (dense flat, MOMDP-factored, sparse flat) the model is held in.
+Each case solves one problem (Tiger, a random POMDP, RockSample(4,4), Tag, random MOMDPs)
+held in one form (dense flat, MOMDP-factored, sparse flat) for a fixed ``max_iterations``
+with a time limit never reached, on the numpy path (``backup_kernel.load`` returning
+``None``) and, for SARSOP, with the compiled steps of :mod:`torchhrc.solvers.backup_kernel`
+(key ``"<case>#compiled"``). ``data/forms_regression.json`` holds the numbers of each case as
+recorded on one machine.
 
-Each SARSOP case is recorded twice: on the numpy path (``backup_kernel.load`` returning
-``None``: the rows recorded before the compiled steps existed, unchanged) and with the compiled
-steps of :mod:`torchhrc.solvers.backup_kernel` (key ``"<case>#compiled"``), whose sequential
-sums may differ from BLAS's in the last bit (with several observed values, a MOMDP, the
-compiled steps are the children's scores and sawtooth values of ``group_scores`` and
-``group_upper``).
+**Portable checks (the default).** A BLAS kernel (OpenBLAS' core type, MKL's instruction set,
+AVX-512 or not, 1 or 2 threads) changes the last bits of a sum. On a deterministic path that
+moves the bounds by about 1e-14; where the last bit breaks a tie or decides a pruning, the
+solver takes another path and the bounds after a fixed number of iterations move by up to a
+few percent of the initial gap (Tag after 8 iterations: lower -9.90 instead of -8.45 under
+MKL's AVX2 kernel; the random MOMDP with sweeps: +0.008 under ``OPENBLAS_CORETYPE=Prescott``).
+So each case checks what holds on every path:
 
-Regenerate (only when a change of the algorithm is intended, and say so in the commit)::
+1. the initial bounds (blind lower bound, FIB/QMDP upper bound: computed before any search,
+   so on no path) equal the recorded ones within ``INIT_RTOL`` (relative);
+2. every bound of the history brackets the optimal value ``V*(b0)``, known independently
+   (Tiger: exact value iteration of ``_exact_pomdp``) or from a long solve (``REFERENCE``):
+   ``lower_t <= V*_hi + tol`` and ``upper_t >= V*_lo - tol``;
+3. the lower bound never decreases and the upper bound never increases (within ``tol``);
+4. the final bounds are at least as tight as recorded, within ``PATH_SLACK`` of the initial
+   gap (the largest path change measured: 6.8% of it, Tag's lower bound);
+5. the policy returned realises the reported lower bound at ``b0`` (``max alpha . b0``, within
+   ``tol``), and its value by simulation (:func:`~torchhrc.solvers.evaluate_policy`, seeded)
+   is at least that lower bound, within four standard errors and the truncated tail.
 
-    PYTHONPATH=. python tests/solvers/test_forms_regression.py --write
+**Bit-identical check (opt in, for refactoring).** With ``TORCHHRC_BIT_IDENTICAL=1``,
+:func:`test_bit_identical_to_recorded` compares every float of every case exactly with the
+record (bounds, histories, and digests of the alpha vectors, actions and observed values);
+it is skipped by default. A record only holds on the machine and BLAS settings that wrote
+it: before a refactoring that must not change a single float, record on your machine, then
+refactor and compare::
+
+    PYTHONPATH=. python tests/solvers/test_forms_regression.py --write   # before
+    TORCHHRC_BIT_IDENTICAL=1 pytest tests/solvers/test_forms_regression.py  # after
+
+The portable checks read the record's initial and final bounds too: re-record only for an
+intended change of the algorithm, and say so in the commit. See ``docs/testing.md``.
+
+Planted bugs these checks catch: the lower bound's backup discounted by 0.98 (10 of the 15
+SARSOP cases below their record by more than the slack) or by 1.02 (above ``V*`` or above
+the upper bound: all 15); every new alpha vector tagged with another action (the simulated
+value far below the lower bound: 14 of 15).
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -39,14 +69,16 @@ DATA = Path(__file__).parent / "data" / "forms_regression.json"
 LONG = 1e9  # a time limit never reached: solves stop on max_iterations
 
 
-def _sarsop(build: Callable[[], Any], iterations: int, **kw: Any) -> Callable[[], Any]:
-    return lambda: sarsop(
-        build(), SARSOPConfig(time_limit=LONG, precision=1e-9, max_iterations=iterations, **kw)
-    )
+Case = tuple[Callable[[], Any], Callable[[Any], Any]]  # (build the model, solve it)
 
 
-def _pbvi(build: Callable[[], Any], **kw: Any) -> Callable[[], Any]:
-    return lambda: pbvi(build(), PBVIConfig(time_limit=LONG, precision=1e-9, **kw))
+def _sarsop(build: Callable[[], Any], iterations: int, **kw: Any) -> Case:
+    config = SARSOPConfig(time_limit=LONG, precision=1e-9, max_iterations=iterations, **kw)
+    return build, lambda model: sarsop(model, config)
+
+
+def _pbvi(build: Callable[[], Any], **kw: Any) -> Case:
+    return build, lambda model: pbvi(model, PBVIConfig(time_limit=LONG, precision=1e-9, **kw))
 
 
 def _rmomdp() -> Any:
@@ -57,7 +89,7 @@ def _rmomdp_static() -> Any:
     return random_momdp(5, 3, 2, 3, static=True, discount=0.9, seed=7)
 
 
-CASES: dict[str, Callable[[], Any]] = {
+CASES: dict[str, Case] = {
     "sarsop/tiger": _sarsop(tiger, 60),
     "sarsop/random_pomdp": _sarsop(lambda: random_pomdp(6, 3, 3, discount=0.9, seed=11), 40),
     "sarsop/rocksample44_dense": _sarsop(lambda: rock_sample(4, 4), 25),
@@ -94,6 +126,33 @@ CASES: dict[str, Callable[[], Any]] = {
 }
 
 
+#: the problem each case solves (a key of ``REFERENCE``): its name up to the form
+_PROBLEMS = ("tiger", "random_pomdp", "rocksample44", "tag", "random_momdp_static", "random_momdp")
+PROBLEM = {n: next(p for p in _PROBLEMS if n.split("/")[1].startswith(p)) for n in CASES}
+
+#: ``(lo, hi)`` with ``lo <= V*(b0) <= hi`` for each problem. Tiger: the exact finite-horizon
+#: solver of ``_exact_pomdp`` at horizon 300 (independent of torchhrc.solvers). The others:
+#: the bounds of one long SARSOP solve of this code (``precision=1e-4``, 200 s; Tag 300 s),
+#: valid bounds whatever the path: RockSample(4,4) gap 7e-5 (its three forms are one problem),
+#: the random POMDP 0.030, the random MOMDPs 0.021 and 0.0062, Tag 3.65.
+REFERENCE: dict[str, tuple[float, float]] = {
+    "tiger": (19.37095, 19.37141),
+    "random_pomdp": (1.650941411036583, 1.681132957463244),
+    "rocksample44": (19.00997520869555, 19.010043919544284),
+    "random_momdp": (17.164195853037526, 17.184757485141542),
+    "random_momdp_static": (10.891530438056247, 10.8977492361622),
+    "tag": (-6.097562891674828, -2.446750577545105),
+}
+
+#: relative tolerance of the initial bounds (FIB and QMDP iterate to ``0.01 * precision``;
+#: the blind bound is a fixed point too): last bits move them by about 1e-15 relative
+INIT_RTOL = 1e-7
+
+#: the final bounds may be looser than recorded by this fraction of the initial gap (a path
+#: change measured at most 6.8%: Tag's lower bound after 8 iterations)
+PATH_SLACK = 0.15
+
+
 def _digest(t: torch.Tensor | None) -> str | None:
     if t is None:
         return None
@@ -104,17 +163,24 @@ COMPILED = "#compiled"
 KEYS = sorted(CASES) + [n + COMPILED for n in sorted(CASES) if n.startswith("sarsop/")]
 
 
-def _record(key: str) -> dict[str, Any]:
-    """The numbers of case ``key`` (``name`` on the numpy path, ``name#compiled`` with the
-    compiled steps where the extension is built)."""
-    name = key.removesuffix(COMPILED)
+@functools.cache
+def _solve(key: str) -> tuple[Any, Any]:
+    """The model and solution of case ``key`` (``name`` on the numpy path, ``name#compiled``
+    with the compiled steps where the extension is built); kept for the next test."""
+    build, solve = CASES[key.removesuffix(COMPILED)]
+    model = build()
     load = backup_kernel.load
     if not key.endswith(COMPILED):
         backup_kernel.load = lambda: None  # type: ignore[assignment]
     try:
-        sol = CASES[name]()
+        return model, solve(model)
     finally:
         backup_kernel.load = load  # type: ignore[assignment]
+
+
+def _record(key: str, sol: Any | None = None) -> dict[str, Any]:
+    """The numbers of case ``key`` (solved now unless ``sol`` is given)."""
+    sol = _solve(key)[1] if sol is None else sol
     p = sol.policy
     return {
         "lower": sol.lower,
@@ -138,13 +204,73 @@ def _expected() -> dict[str, Any]:
     return json.loads(DATA.read_text())
 
 
-@pytest.mark.parametrize("name", KEYS)
-def test_bounds_bit_identical_to_recorded(name: str) -> None:
+def _skip_without_extension(name: str) -> None:
     if name.endswith(COMPILED) and backup_kernel.load() is None:
         pytest.skip("the compiled extension is not built (or TORCHHRC_NO_EXTENSION is set)")
+
+
+@pytest.mark.numeric
+@pytest.mark.parametrize("name", KEYS)
+def test_bounds_bracket_the_optimum_and_match_the_record_within_tolerance(name: str) -> None:
+    _skip_without_extension(name)
     expected = _expected()[name]
     got = _record(name)
-    # bounds first (the promise), then the policy itself
+    lo, hi = REFERENCE[PROBLEM[name.removesuffix(COMPILED)]]
+    scale = 1.0 + max(abs(expected["history_lower"][0]), abs(expected["history_upper"][0]))
+    tol = 1e-9 * scale
+    # 1. the initial bounds are on no path: the record's within round-off
+    for key in ("history_lower", "history_upper"):
+        assert got[key][0] == pytest.approx(expected[key][0], rel=INIT_RTOL, abs=tol), key
+    # 2. every bound on the way is a bound of the optimum
+    assert max(got["history_lower"]) <= hi + 1e-6 * scale, (got["history_lower"], hi)
+    assert min(got["history_upper"]) >= lo - 1e-6 * scale, (got["history_upper"], lo)
+    assert got["lower"] <= got["upper"] + tol
+    # 3. the bounds only tighten
+    for a, b in zip(got["history_lower"], got["history_lower"][1:], strict=False):
+        assert b >= a - tol, got["history_lower"]
+    for a, b in zip(got["history_upper"], got["history_upper"][1:], strict=False):
+        assert b <= a + tol, got["history_upper"]
+    assert got["history_lower"][-1] == pytest.approx(got["lower"], abs=tol)
+    assert got["history_upper"][-1] == pytest.approx(got["upper"], abs=tol)
+    # 4. as tight as recorded, up to a change of path
+    slack = PATH_SLACK * (expected["history_upper"][0] - expected["history_lower"][0]) + tol
+    assert got["lower"] >= expected["lower"] - slack, (got["lower"], expected["lower"], slack)
+    assert got["upper"] <= expected["upper"] + slack, (got["upper"], expected["upper"], slack)
+
+
+@pytest.mark.numeric
+@pytest.mark.parametrize("name", [k for k in KEYS if not k.endswith(COMPILED)])
+def test_the_policy_achieves_its_lower_bound(name: str) -> None:
+    """The alpha vectors give the reported lower bound at ``b0``, and acting on them earns
+    it: the simulated value (600 seeded episodes) is at least the lower bound, within four
+    standard errors and the truncated tail."""
+    from torchhrc.pomdp import MOMDP
+    from torchhrc.solvers import evaluate_policy
+
+    model, sol = _solve(name)
+    dense = model.to_dense() if hasattr(model, "to_dense") else model
+    policy = sol.policy
+    if policy.is_momdp:
+        at_b0 = float(policy.value(torch.tensor(dense.x0), dense.b0))
+    else:
+        if isinstance(dense, MOMDP):
+            dense = dense.to_pomdp()
+        at_b0 = float(policy.value(dense.b0))
+    assert at_b0 == pytest.approx(sol.lower, rel=1e-9, abs=1e-9)
+    r = evaluate_policy(dense, policy, episodes=600, tail_tolerance=0.05, seed=0)
+    assert sol.lower <= r.mean + 4 * r.std_error + r.truncation, (sol.lower, r)
+
+
+@pytest.mark.skipif(
+    os.environ.get("TORCHHRC_BIT_IDENTICAL") != "1",
+    reason="opt-in bit-identical record for refactoring: set TORCHHRC_BIT_IDENTICAL=1",
+)
+@pytest.mark.parametrize("name", KEYS)
+def test_bit_identical_to_recorded(name: str) -> None:
+    """Every float of the record, exactly (only on the machine and settings that wrote it)."""
+    _skip_without_extension(name)
+    expected = _expected()[name]
+    got = _record(name, _solve.__wrapped__(name)[1])
     for key in ("lower", "upper", "n_alphas", "history_lower", "history_upper"):
         assert got[key] == expected[key], key
     for key in ("alphas", "actions", "observed"):
@@ -159,7 +285,7 @@ if __name__ == "__main__":
         raise SystemExit("build the extension first: python setup.py build_ext --inplace")
     out = {}
     for name in KEYS:
-        out[name] = _record(name)
+        out[name] = _record(name, _solve.__wrapped__(name)[1])
         print(name, out[name]["lower"], out[name]["upper"], out[name]["n_alphas"], flush=True)
     tmp = DATA.with_suffix(".tmp")
     tmp.write_text(_dumps(out))

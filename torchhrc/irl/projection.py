@@ -243,10 +243,12 @@ def _run_batched(
     qp_options: dict[str, Any] | None,
     standard_error: torch.Tensor | None = None,
     rule: str = "closest",
+    warn: bool = True,
 ) -> list[ApprenticeshipResult]:
     """The algorithm on B problems at once: ``T (B, A, S, S)``, ``mu_hat (B, F)``, ``d0 (B, S)``.
 
-    ``standard_error (B,)``: the sampling error of each ``mu_hat`` (reported only)."""
+    ``standard_error (B,)``: the sampling error of each ``mu_hat`` (reported only).
+    ``warn``: one :class:`IRLConvergenceWarning` for all the problems that did not converge."""
     if standard_error is None:
         standard_error = mu_hat.new_zeros(mu_hat.shape[0])
     B, A, S = T.shape[0], T.shape[-3], T.shape[-1]
@@ -345,6 +347,7 @@ def _run_batched(
         count[idx] = i + 1
 
     results = []
+    unconverged: list[str] = []
     for b in range(B):
         n = int(count[b])
         M = n - 1
@@ -382,16 +385,20 @@ def _run_batched(
                 if reason == "stalled"
                 else f"max_iterations = {max_iterations} reached"
             )
-            warnings.warn(
-                f"apprenticeship learning{'' if B == 1 else f' (problem {b})'} stopped after "
-                f"{M} iterations without reaching epsilon = {epsilon:.3g}: {why}; final margin "
-                f"{float(final_margin):.4g}, sampling error of the expert's feature "
-                f"expectations {float(standard_error[b]):.4g} (a margin of that order is the "
-                "demonstrations' noise floor; the horizon= of finite demonstrations also "
-                f"matters). The reward is picked by rule={rule!r}.",
-                IRLConvergenceWarning,
-                stacklevel=3,
+            unconverged.append(
+                f"{'' if B == 1 else f'problem {b}: '}after {M} iterations ({why}), "
+                f"final margin {float(final_margin):.4g}, sampling error of the expert's "
+                f"feature expectations {float(standard_error[b]):.4g}"
             )
+    if warn and unconverged:
+        warnings.warn(
+            f"apprenticeship learning ended without reaching epsilon = {epsilon:.3g}: "
+            f"{'; '.join(unconverged)} (a margin of the order of the sampling error is the "
+            "demonstrations' noise floor; the horizon= of finite demonstrations also "
+            f"matters). The reward is picked by rule={rule!r}.",
+            IRLConvergenceWarning,
+            stacklevel=3,
+        )
     return results
 
 
@@ -508,6 +515,7 @@ def apprenticeship_learning(
     vi_tol: float = 1e-8,
     qp_solver: str = "CLARABEL",
     qp_options: dict[str, Any] | None = None,
+    warn: bool = True,
 ) -> ApprenticeshipResult:
     """Learn reward weights from demonstrations by Abbeel & Ng's algorithm (the paper's IRL).
 
@@ -537,6 +545,8 @@ def apprenticeship_learning(
         vi_tol: accuracy of the value iteration in step 4.
         qp_solver: cvxpy solver of the QP (``method="qp"``).
         qp_options: extra keyword arguments of ``cvxpy.Problem.solve``.
+        warn: emit the :class:`IRLConvergenceWarning` below (``False``: the caller reads
+            ``converged``, ``stop_reason``, ``margins`` and ``expert_standard_error``).
 
     Returns:
         :class:`ApprenticeshipResult` (reward weights, policies, lambda, mu, margins,
@@ -601,4 +611,5 @@ def apprenticeship_learning(
         qp_options=qp_options,
         standard_error=_standard_errors(phi, [demonstrations], discount),
         rule=rule,
+        warn=warn,
     )[0]

@@ -275,6 +275,11 @@ def transition_from_behaviour(task: CollaborativeTask, behaviour: torch.Tensor) 
     return Tx.scatter_add(-1, index, probs.contiguous())
 
 
+#: A final IRL margin within this many sampling errors of the expert's feature expectations
+#: is the demonstrations' noise floor (:func:`learn_type_weights` warns only above it).
+IRL_NOISE_FLOOR = 2.0
+
+
 def learn_type_weights(
     task: CollaborativeTask,
     Tx: torch.Tensor,
@@ -297,8 +302,17 @@ def learn_type_weights(
 
     Returns:
         ``(K, F)`` weights (zeros for a type without demonstrations).
+
+    Warns:
+        IRLConvergenceWarning: at most one per call, naming the types whose final margin
+            stayed above both ``epsilon`` and the demonstrations' noise floor
+            (:data:`IRL_NOISE_FLOOR` times the sampling error of their feature
+            expectations), and what to do about it. A margin at the noise floor is what
+            noisy demonstrations give; it is not reported.
     """
-    from torchhrc.irl.projection import apprenticeship_learning
+    import warnings
+
+    from torchhrc.irl.projection import IRLConvergenceWarning, apprenticeship_learning
     from torchhrc.irl.trajectories import Trajectories
 
     if rule not in ("dominant", "paper", "last"):
@@ -306,6 +320,7 @@ def learn_type_weights(
     K = Tx.shape[-2]
     phi = task.features(dtype=Tx.dtype, device=Tx.device).permute(1, 0, 2)  # (X, A, F)
     weights = Tx.new_zeros(K, phi.shape[-1])
+    stuck: list[tuple[int, float, float, bool]] = []  # (type, margin, sampling error, falling)
     lengths = steps.lengths
     assignments = assignments.to(steps.states.device)
     for k in range(K):  # one IRL problem per type (a handful)
@@ -315,15 +330,39 @@ def learn_type_weights(
         demos = Trajectories(steps.states[idx], steps.actions[idx], lengths[idx])
         result = apprenticeship_learning(
             Tx[:, :, k, :], phi, demos, discount=task.discount, epsilon=epsilon,
-            max_iterations=max_iterations, seed=seed,
+            max_iterations=max_iterations, seed=seed, rule=rule, warn=False,
         )  # fmt: skip
-        if rule == "paper" or result.num_iterations == 0:
-            weights[k] = result.weights
-        elif rule == "last":
-            weights[k] = result.last_weights
+        weights[k] = result.weights  # the pick of `rule`
+        floor = max(epsilon, IRL_NOISE_FLOOR * result.expert_standard_error)
+        if not result.converged and result.margin > floor:
+            margins = result.margins
+            falling = len(margins) > 2 and float(margins[-1]) < 0.95 * float(margins[-3])
+            stuck.append((k, result.margin, result.expert_standard_error, falling))
+    if stuck:
+        rows = ", ".join(
+            f"type {k}: margin {m:.3g} (noise floor {IRL_NOISE_FLOOR:g} x {se:.3g})"
+            for k, m, se, _ in stuck
+        )
+        if any(falling for *_, falling in stuck):
+            hint = (
+                f"the margin was still falling: allow more iterations (learn(..., "
+                f"irl=IRLConfig(iterations={2 * max_iterations})) or irl_iterations=)"
+            )
         else:
-            dominant = int(result.mixture_weights[1:].argmax())
-            weights[k] = result.weight_history[dominant]
+            hint = (
+                "the margin had stopped falling: under the learned human behaviour no robot "
+                "policy reproduces what these types' demonstrations do with these features; "
+                "try the other human model (learn(..., human_model='chain' or 'state')) or "
+                "features that describe the types' choices (CollaborativeTask.features)"
+            )
+        warnings.warn(
+            f"reward learning (Abbeel-Ng IRL, rule={rule!r}, epsilon={epsilon:g}, "
+            f"{max_iterations} iterations) did not match the demonstrations of "
+            f"{len(stuck)} of {K} types beyond their noise floor: {rows}. Their rewards may "
+            f"be poor; {hint}.",
+            IRLConvergenceWarning,
+            stacklevel=2,
+        )
     return weights
 
 

@@ -314,6 +314,36 @@ def sharded_cluster_report(
     from torchhrc.mixture import fit_mixture
 
     _check_search(k_min, k_max, restarts)
+    started = False
+    if ray is not None:  # one cluster for every pass and E-step of the report
+        from torchhrc._ray import import_ray, init_ray
+
+        started = init_ray("local" if ray is True else str(ray))
+    try:
+        return _sharded_report(corpus, fit_mixture, k_min=k_min, k_max=k_max,
+                               restarts=restarts, method=method, criterion=criterion,
+                               seed=seed, save_model=save_model, ray=ray,
+                               min_gain=min_gain, objects=objects)  # fmt: skip
+    finally:
+        if started:
+            import_ray().shutdown()
+
+
+def _sharded_report(
+    corpus: Any,
+    fit_mixture: Any,
+    *,
+    k_min: int,
+    k_max: int,
+    restarts: int,
+    method: str,
+    criterion: str | None,
+    seed: int,
+    save_model: str | None,
+    ray: str | None,
+    min_gain: float | None,
+    objects: str | None,
+) -> dict[str, Any]:
     fit = fit_mixture(
         corpus,
         k_min=k_min,

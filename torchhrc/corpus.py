@@ -10,7 +10,15 @@ so each shard is reduced to its own distinct rows (a Ray task per shard with ``r
 shard after the other in this process), and the driver merges them exactly: the merged
 statistics equal those of the whole corpus in memory, row for row (distinct rows in the same
 lexicographic order, multiplicities summed), so the fit is the in-memory fit. The driver holds
-the distinct rows (``U <= N``), never the corpus; a worker holds one shard.
+the distinct rows (``U <= N``) and the sequence ids, never the corpus; a worker holds one
+shard.
+
+The defaults are those of the corpus in memory, ``objects="auto"`` included: a
+:class:`ShardedCorpus` offers ``fit_mixture`` the operations it asks of demonstrations in
+memory (``num_objects``, ``subjects``, ``subset``, ``relabel_objects``,
+``relabel_log_multiplicity``) as views of its shards (a mask of sequences, a relabelling done
+in each shard's task), so the two forms are compared, on the same sample of units, exactly as
+in memory. Merged :class:`CorpusStatistics` cannot be relabelled and say so.
 
 Every shard must have the same columns and the same vocabulary (the sorted set of
 ``(actor, action)`` symbols), and the sequences of one subject must lie in one shard (a

@@ -221,3 +221,80 @@ def test_bad_memory_limit_exits_2(capsys, tiger_file, tmp_path, value):
         main(["solve", str(tiger_file), f"--memory={value}", "--out", str(out_path)])
     _, err = capsys.readouterr()
     assert info.value.code == 2 and "--memory" in err and not out_path.exists()
+
+
+def test_policy_interval_needs_out_and_a_positive_number(capsys, tiger_file, tmp_path):
+    code, out, err = _run(capsys, "solve", tiger_file, "--policy-interval", "5")
+    assert code == 2 and out == ""
+    assert (
+        err == "torchhrc solve: error: --policy-interval needs --out (the policy file to write)\n"
+    )
+    for value in ("0", "-1", "often"):
+        out_path = tmp_path / "p.policyx"
+        with pytest.raises(SystemExit) as info:
+            main(["solve", str(tiger_file), "--policy-interval", value, "--out", str(out_path)])
+        assert info.value.code == 2 and not out_path.exists()
+        assert "--policy-interval" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("suffix", [".policyx", ".safetensors"])
+def test_a_killed_solve_leaves_its_last_checkpoint(tmp_path, suffix):
+    """``--policy-interval`` writes the policy atomically while the solve runs: SIGKILL after
+    the first checkpoint leaves a complete policy (RockSample(4, 4), 600 s, precision 1e-12,
+    so that only the kill ends it), whose value at b0 lies between the blind policy's and the
+    optimal value (18.04, the known optimum)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from torchhrc.tasks.classic import rock_sample
+
+    model_path = tmp_path / "rs44.pomdp"
+    model = rock_sample(4, 4, seed=0)
+    write_pomdp(model, model_path)
+    out_path = tmp_path / f"rs44{suffix}"
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "torchhrc.cli", "solve", str(model_path), "--time-limit", "600",
+         "--precision", "1e-12", "--policy-interval", "0.2", "--out", str(out_path), "--quiet"],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+    )  # fmt: skip
+    give_up = time.monotonic() + 600  # (a safety net against a hang, not a speed check)
+    try:
+        while not out_path.exists() and proc.poll() is None:  # the first checkpoint
+            if time.monotonic() > give_up:
+                pytest.fail("no checkpoint written in 600 s")
+            time.sleep(0.05)
+        assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    policy = load_policy(out_path)
+    b0 = model.b0.unsqueeze(0)
+    value = float(policy.value(b0)[0])
+    from torchhrc.solvers.blind import blind_policy
+
+    assert float(blind_policy(model).value(b0)[0]) - 1e-9 <= value <= 18.04 + 1e-2
+    if suffix == ".policyx":
+        _pomdpeval_accepts(model_path, out_path, tmp_path)
+
+
+def _pomdpeval_accepts(model_path, policy_path, cwd):
+    """Where APPL is installed, its ``pomdpeval`` reads the checkpoint and simulates it."""
+    import os
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    folder = os.environ.get("TORCHHRC_APPL_BIN")
+    path = Path(folder) / "pomdpeval" if folder else None
+    found = str(path) if path is not None and path.is_file() else shutil.which("pomdpeval")
+    if found is None:
+        return  # (APPL is not installed: the policy was checked above)
+    proc = subprocess.run([found, str(model_path), "--policy-file", str(policy_path),
+                           "--simLen", "50", "--simNum", "100", "--srand", "1"],
+                          capture_output=True, text=True, timeout=600, cwd=cwd)  # fmt: skip
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]

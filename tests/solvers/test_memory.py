@@ -189,3 +189,59 @@ def test_peak_resident_memory_stays_within_the_limit() -> None:
     assert reason == "memory" and iterations >= 1 and n_alphas > r["first_alphas"]
     assert peak <= 1.1 * r["limit"]
     assert lower <= upper
+
+
+# -- policy checkpoints (issue 34) ---------------------------------------------------------
+
+
+@pytest.mark.parametrize("solver", ["sarsop", "pbvi"])
+def test_checkpoints_hand_over_the_policy_so_far(solver: str) -> None:
+    from torchhrc.solvers.pbvi import PBVIConfig, pbvi
+
+    model = random_pomdp(6, 3, 3, seed=2)
+    got: list = []
+    ticks = itertools.count()
+    clock = lambda: float(next(ticks))  # noqa: E731  (a deterministic clock: 1 s a reading)
+    if solver == "sarsop":
+        cfg = SARSOPConfig(time_limit=1e12, precision=1e-12, max_iterations=12, clock=clock,
+                           policy_interval=1e-9, checkpoint=got.append)  # fmt: skip
+        sol = sarsop(model, cfg)
+    else:
+        cfg = PBVIConfig(time_limit=1e12, precision=1e-12, max_iterations=12, clock=clock,  # type: ignore[assignment]
+                         policy_interval=1e-9, checkpoint=got.append)  # fmt: skip
+        sol = pbvi(model, cfg)  # type: ignore[arg-type]
+    # an interval shorter than an iteration: one checkpoint after each, with that iteration's
+    # bounds, and the policy whose value at b0 is its lower bound
+    assert [c.info["iterations"] for c in got] == list(range(1, sol.info["iterations"] + 1))
+    lowers = [e["lower"] for e in sol.history if e["iteration"] >= 1][: len(got)]
+    assert [c.lower for c in got] == pytest.approx(lowers, abs=1e-12)
+    b0 = model.b0.unsqueeze(0)
+    for c in got:
+        assert c.info["checkpoint"] is True and c.lower <= c.upper
+        assert float(c.policy.value(b0)[0]) == pytest.approx(c.lower, abs=1e-9)
+    # an interval longer than the solve: none
+    late: list = []
+    if solver == "sarsop":
+        sarsop(model, SARSOPConfig(max_iterations=5, policy_interval=1e9, checkpoint=late.append))
+    else:
+        pbvi(model, PBVIConfig(max_iterations=5, policy_interval=1e9, checkpoint=late.append))
+    assert late == []
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error"),
+    [
+        ({"policy_interval": 1.0}, "policy_interval was given without checkpoint"),
+        ({"checkpoint": print}, "checkpoint was given without policy_interval"),
+        ({"policy_interval": 0, "checkpoint": print}, "positive number of seconds"),
+        ({"policy_interval": float("inf"), "checkpoint": print}, "positive number of seconds"),
+        ({"memory_reserve": -1.0}, "memory_reserve"),
+    ],
+)
+def test_checkpoint_settings_are_checked(kwargs: dict, error: str) -> None:
+    from torchhrc.solvers.pbvi import PBVIConfig
+
+    with pytest.raises(ValueError, match=error):
+        SARSOPConfig(**kwargs)
+    with pytest.raises(ValueError, match=error):
+        PBVIConfig(**kwargs)

@@ -58,12 +58,20 @@ def release_free_memory() -> bool:
     return True
 
 
-def check_memory_limit(limit: object, name: str = "memory_limit") -> None:
-    """Raise ``ValueError`` unless ``limit`` is ``None`` or a positive finite number of bytes.
+def check_memory_limit(limit: object, name: str = "memory_limit", *, reserve: object = 0.0,
+                       ) -> None:  # fmt: skip
+    """Raise ``ValueError`` unless ``limit`` is ``None`` or a positive finite number of bytes
+    and ``reserve`` (``memory_reserve``) a non-negative finite number.
 
     Example:
-        >>> check_memory_limit(2**30)
+        >>> check_memory_limit(2**30, reserve=1.5)
     """
+    if (
+        not isinstance(reserve, (int, float))
+        or isinstance(reserve, bool)
+        or not 0 <= reserve < float("inf")
+    ):
+        raise ValueError(f"expected memory_reserve to be a non-negative number, got {reserve!r}")
     if limit is None:
         return
     if (

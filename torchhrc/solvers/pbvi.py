@@ -84,10 +84,13 @@ class PBVIConfig:
             CPU seconds) or a callable (:mod:`torchhrc.solvers.clock`); checked after every
             backup sweep.
         memory_limit: bytes of resident memory the process may hold (None: no limit; the
-            whole process counts, see :class:`~torchhrc.solvers._memory.MemoryGuard`).
+            whole process counts, see ``MemoryGuard`` in ``torchhrc/solvers/_memory.py``).
             Checked after every backup sweep and before every expansion (which may double
             the next sweep's temporaries): the solve stops before the limit with the policy
             so far and ``stop_reason == "memory"``.
+        memory_reserve: bytes kept free under ``memory_limit`` per byte of the policy's
+            vectors, for what follows the stop (see
+            :class:`~torchhrc.solvers.sarsop.SARSOPConfig`; default 1.5).
         policy_interval: every this many seconds of ``clock`` (checked after every backup
             sweep), call ``checkpoint`` with the solution so far (None: never; both or
             neither must be given).
@@ -107,11 +110,12 @@ class PBVIConfig:
     callback: Callable[[dict[str, Any]], None] | None = None
     clock: Clock = "wall"
     memory_limit: float | None = None
+    memory_reserve: float = 1.5
     policy_interval: float | None = None
     checkpoint: Callable[[Solution], None] | None = None
 
     def __post_init__(self) -> None:
-        check_memory_limit(self.memory_limit)
+        check_memory_limit(self.memory_limit, reserve=self.memory_reserve)
         check_checkpoint(self.policy_interval, self.checkpoint)
         if not self.time_limit > 0:
             raise ValueError(f"expected time_limit > 0, got {self.time_limit}")
@@ -284,12 +288,17 @@ def pbvi(model: POMDP | MOMDP | SparsePOMDP, config: PBVIConfig | None = None) -
     memory = None if config.memory_limit is None else MemoryGuard(config.memory_limit)
     next_checkpoint = clock_start + (config.policy_interval or 0.0)
 
+    def reserve() -> int:  # what follows a stop: the policy's copies (memory_reserve)
+        return int(policy.alphas.numel() * policy.alphas.element_size() * config.memory_reserve)
+
     def bounds() -> tuple[float, float]:  # (upper within round-off of lower: lower)
         return lower, max(upper, lower) if math.isclose(upper, lower, abs_tol=1e-9) else upper
 
     try:
         for expansion in range(config.expansions + 1):
-            if memory is not None and memory.exceeded(memory.margin if expansion else 0):
+            if memory is not None and memory.exceeded(
+                reserve() + (memory.margin if expansion else 0)
+            ):
                 stop_reason = "memory"  # (an expansion may double the next sweep's temporaries)
                 break
             if expansion > 0:
@@ -324,7 +333,7 @@ def pbvi(model: POMDP | MOMDP | SparsePOMDP, config: PBVIConfig | None = None) -
                 if read_clock() - clock_start > config.time_limit:
                     stop_reason = "time_limit"
                     raise StopIteration
-                if memory is not None and memory.exceeded():
+                if memory is not None and memory.exceeded(reserve()):
                     stop_reason = "memory"
                     raise StopIteration
                 if iteration >= config.max_iterations:

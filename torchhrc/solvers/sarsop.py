@@ -241,13 +241,18 @@ class SARSOPConfig:
             (``init_time_fraction``) counts on the same clock.
         memory_limit: bytes of resident memory the process may hold (as APPL's ``pomdpsol
             --memory``, which counts MB; None: no limit). Checked where the time limit is
-            (:class:`~torchhrc.solvers._memory.MemoryGuard`): the solve stops before the
+            (``MemoryGuard`` of ``torchhrc/solvers/_memory.py``): the solve stops before the
             resident memory plus what the next steps are expected to add (a doubling of the
             belief tree or the alpha set, the final policy's copy of the vectors) would reach
             it, and returns the bounds and policy so far with ``stop_reason == "memory"``. It
             counts the whole process (interpreter, libraries and the model included): a limit
             below what the process holds when the search starts stops it at once, with the
             initial bounds.
+        memory_reserve: bytes kept free under ``memory_limit`` per byte of the alpha vectors,
+            for what follows the stop or a checkpoint (default 1.5: the policy's copy of the
+            vectors and its check, or a pruning's gather); a caller that writes the policy
+            adds its writer's share (``torchhrc solve``: 6 more for ``.policyx`` text, 1.5
+            for safetensors).
         policy_interval: every this many seconds of ``clock`` (between iterations), call
             ``checkpoint`` with the solution so far (as APPL's ``pomdpsol
             --policy-interval``; None: never). Both or neither must be given.
@@ -282,11 +287,12 @@ class SARSOPConfig:
     dtype: torch.dtype = torch.float64
     clock: Clock = "wall"
     memory_limit: float | None = None
+    memory_reserve: float = 1.5
     policy_interval: float | None = None
     checkpoint: Callable[[Solution], None] | None = None
 
     def __post_init__(self) -> None:
-        check_memory_limit(self.memory_limit)
+        check_memory_limit(self.memory_limit, reserve=self.memory_reserve)
         check_checkpoint(self.policy_interval, self.checkpoint)
         for name in ("time_limit", "precision", "kappa", "prune_growth", "init_time_fraction"):
             value = getattr(self, name)
@@ -751,13 +757,14 @@ class _SARSOP:
 
     # -- budget ----------------------------------------------------------------------------
     def _pending_bytes(self) -> int:
-        """What the search may allocate at once next, beyond its steady growth: a copy of
-        the alpha vectors and a half more (the final policy's copy and its check, or a
-        pruning's gather of the kept vectors), and the copy a doubling of the alpha storage
-        or of the belief tree makes when it is within a trial's reach of its capacity."""
+        """What the search may allocate at once next, beyond its steady growth:
+        ``memory_reserve`` times the alpha vectors' bytes (the final policy's copy and its
+        check, or a pruning's gather of the kept vectors, and the caller's writing of the
+        policy), and the copy a doubling of the alpha storage or of the belief tree makes when
+        it is within a trial's reach of its capacity."""
         alphas, tree = self.alphas, self.tree
         row = alphas.vectors.shape[1] * alphas.vectors.element_size()
-        pending = alphas.size * row * 3 // 2
+        pending = int(alphas.size * row * self.cfg.memory_reserve)
         if alphas.vectors.shape[0] - alphas.size <= self._longest:
             pending += alphas.size * row
         if tree.x.shape[0] - tree.size <= self._longest:

@@ -231,12 +231,17 @@ class SparseMOMDP:
             >>> SparseMOMDP.from_dense(random_momdp(3, 2, 2, 2, seed=0)).to_dense().num_hidden
             2
         """
-        P = self.joint_dense()
-        Tx = P.sum(-1)  # (A, X, Y, X2)
-        Y = self.num_hidden
-        eye = torch.eye(Y, dtype=P.dtype).view(1, 1, Y, 1, Y)
-        pos = (Tx > 0).unsqueeze(-1)
-        Ty = torch.where(pos, P / torch.where(pos, Tx.unsqueeze(-1), 1.0), eye)
+        A, X, Y = self.num_actions, self.num_observed, self.num_hidden
+        check_dense_size("Tx * Ty", A * (X * Y) ** 2, hint="keep the SparseMOMDP form")
+        dtype = self.R.dtype
+        index, prob = self.transitions
+        a, x, y, x2, y2 = index.unbind(-1)
+        Tx = torch.zeros(A, X, Y, X, dtype=dtype)
+        Tx.index_put_((a, x, y, x2), prob.to(dtype), accumulate=True)
+        # one (A, X, Y, X, Y) tensor in all (not the joint, then Ty): RockSample(5, 7) 1 GB
+        Ty = torch.eye(Y, dtype=dtype).view(1, 1, Y, 1, Y).expand(A, X, Y, X, Y).contiguous()
+        Ty[Tx > 0] = 0.0
+        Ty.index_put_((a, x, y, x2, y2), prob.to(dtype) / Tx[a, x, y, x2], accumulate=True)
         return MOMDP(
             Tx=Tx,
             Ty=Ty,

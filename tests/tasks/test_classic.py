@@ -8,15 +8,11 @@ import pytest
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.tasks.classic import (
-    ROCK_SAMPLE_INSTANCES,
-    rock_sample,
-    rock_sample_momdp,
-    rock_sample_sparse,
-    tag,
-    tag_momdp,
-    tiger,
-)
+from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.sparse import SparsePOMDP
+from torchhrc.sparse_momdp import SparseMOMDP
+from torchhrc.tasks import classic
+from torchhrc.tasks.classic import ROCK_SAMPLE_INSTANCES, rock_sample, tag, tiger
 
 
 def _rows_normalised(t: torch.Tensor) -> bool:
@@ -68,7 +64,7 @@ def test_tag_tagging_and_observations():
 
 
 def test_tag_momdp_matches_flat_tag():
-    mm = tag_momdp(robot_start=3)
+    mm = tag(form="momdp", robot_start=3)
     flat = tag(robot_start=3)
     f = mm.to_pomdp()
     assert (mm.num_observed, mm.num_hidden, mm.num_actions) == (29, 30, 5)
@@ -123,7 +119,7 @@ def test_rock_sample_dynamics_worked_by_hand():
 
 @pytest.mark.parametrize(("n", "k"), [(4, 4), (3, 2)])
 def test_rock_sample_momdp_agrees_with_the_flat_model(n, k):
-    mm = rock_sample_momdp(n, k, seed=3)
+    mm = rock_sample(n, k, form="momdp", seed=3)
     flat = rock_sample(n, k, seed=3)
     f = mm.to_pomdp()
     Q = 2**k
@@ -137,14 +133,17 @@ def test_rock_sample_momdp_agrees_with_the_flat_model(n, k):
 
 
 def test_rock_sample_7_8_sparse_and_size_guards():
-    sp = rock_sample_sparse(7, 8)
+    sp = rock_sample(7, 8, form="sparse")
     assert (sp.num_states, sp.num_actions, sp.num_observations) == (12545, 13, 3)
     assert sp.transitions[0].shape[0] == 13 * 12545  # deterministic moves
     assert sp.b0.sum().item() == pytest.approx(1.0)
     with pytest.raises(ModelError, match="entries"):
         rock_sample(7, 8)
     with pytest.raises(ModelError, match="Ty would have"):
-        rock_sample_momdp(7, 8)
+        rock_sample(7, 8, form="momdp")
+    sm = rock_sample(7, 8, form="sparse_momdp")  # the description fits: one successor each
+    assert (sm.num_observed, sm.num_hidden) == (50, 256)
+    assert sm.transitions[0].shape[0] == 13 * 50 * 256
 
 
 def test_rock_sample_bad_layouts():
@@ -156,3 +155,106 @@ def test_rock_sample_bad_layouts():
         rock_sample(3, 2, rocks=[(1, 1)])
     # seeded layouts are deterministic
     assert torch.equal(rock_sample(3, 2, seed=5).R, rock_sample(3, 2, seed=5).R)
+
+
+# One builder per benchmark: every form is a conversion of one description. Each form is
+# checked against another path: the dense MOMDP flattened by MOMDP.to_pomdp() and lumped here
+# by dense sums (not by the builder's coordinate lumping), the SparseMOMDP against
+# SparseMOMDP.from_dense of the dense MOMDP, the sparse flat form against the dense one.
+BENCHMARKS = {
+    "rock_sample_4_4": lambda **kw: rock_sample(4, 4, **kw),
+    "rock_sample_3_2_seed3": lambda **kw: rock_sample(3, 2, seed=3, **kw),
+    "tag": lambda **kw: tag(**kw),
+    "tag_start3_p06": lambda **kw: tag(robot_start=3, move_away_probability=0.6, **kw),
+}
+
+
+def _classes(name: str, mm: MOMDP) -> tuple[torch.Tensor, torch.Tensor]:
+    """One-hot maps of the flat MOMDP's states (X * Y) and observations (X * O) onto the
+    published flat model's (RockSample: the exit states are one terminal state, the position
+    is not observed; Tag: the robot's cell when apart, 29 when co-located)."""
+    X, Y, O = mm.num_observed, mm.num_hidden, mm.num_observations
+    s, o = torch.arange(X * Y), torch.arange(X * O)
+    if name.startswith("rock"):
+        state, obs = s.clamp(max=(X - 1) * Y), o % O
+    else:
+        state, obs = s, torch.where(o % 2 == 0, o // 2, X)
+    onehot = torch.nn.functional.one_hot
+    return onehot(state).double(), onehot(obs).double()
+
+
+@pytest.mark.parametrize("name", sorted(BENCHMARKS))
+def test_the_flattened_momdp_lumps_exactly_to_the_dense_form(name):
+    build = BENCHMARKS[name]
+    dense, mm = build(), build(form="momdp")
+    assert isinstance(dense, POMDP) and isinstance(mm, MOMDP)
+    f = mm.to_pomdp()
+    M, N = _classes(name, mm)  # (S_momdp, S), (O_momdp, O)
+    T = f.T @ M  # (A, S_momdp, S): the lumped rows of every state
+    Z = f.Z @ N  # (A, S_momdp, O)
+    first = M.argmax(0)  # the first state of each class
+    # lumpable: every state of a class has its class's rows, reward and observations
+    cls = M.argmax(1)
+    torch.testing.assert_close(T, T[:, first[cls]], rtol=0, atol=1e-12)
+    torch.testing.assert_close(Z, Z[:, first[cls]], rtol=0, atol=1e-12)
+    torch.testing.assert_close(f.R, f.R[:, first[cls]], rtol=0, atol=0)
+    torch.testing.assert_close(T[:, first], dense.T, rtol=0, atol=1e-12)
+    torch.testing.assert_close(Z[:, first], dense.Z, rtol=0, atol=1e-12)
+    torch.testing.assert_close(f.R[:, first], dense.R, rtol=0, atol=0)
+    torch.testing.assert_close(f.b0 @ M, dense.b0, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("name", sorted(BENCHMARKS))
+def test_the_sparse_forms_are_the_dense_forms(name):
+    build = BENCHMARKS[name]
+    sparse, dense = build(form="sparse"), build()
+    assert isinstance(sparse, SparsePOMDP)
+    back = sparse.to_dense()
+    for field in ("T", "Z", "R", "b0"):
+        torch.testing.assert_close(getattr(back, field), getattr(dense, field), rtol=0, atol=0)
+    assert (sparse.states, sparse.observations) == (dense.states, dense.observations)
+    sm, mm = build(form="sparse_momdp"), build(form="momdp")
+    assert isinstance(sm, SparseMOMDP)
+    ref = SparseMOMDP.from_dense(mm)
+    sizes = (mm.num_actions, mm.num_observed, mm.num_hidden, mm.num_observed, mm.num_hidden)
+
+    def joint(m: SparseMOMDP) -> torch.Tensor:
+        P = torch.zeros(sizes, dtype=torch.float64)
+        return P.index_put_(tuple(m.transitions[0].T), m.transitions[1], accumulate=True)
+
+    torch.testing.assert_close(joint(sm), joint(ref), rtol=0, atol=1e-15)
+    for field in ("Z", "R", "b0", "initial"):
+        torch.testing.assert_close(getattr(sm, field), getattr(ref, field), rtol=0, atol=0)
+    assert (sm.x0, sm.hidden_states, sm.observations) == (
+        ref.x0,
+        ref.hidden_states,
+        ref.observations,
+    )
+
+
+def test_old_builder_names_warn_and_equal_the_forms():
+    pairs = [
+        (lambda: classic.rock_sample_sparse(3, 2), lambda: rock_sample(3, 2, form="sparse")),
+        (lambda: classic.tag_sparse(robot_start=2), lambda: tag(form="sparse", robot_start=2)),
+    ]
+    for old, new in pairs:
+        with pytest.warns(DeprecationWarning, match="form="):
+            a = old()
+        b = new()
+        assert torch.equal(a.to_dense().T, b.to_dense().T) and torch.equal(a.b0, b.b0)
+    with pytest.warns(DeprecationWarning, match='form="momdp"'):
+        a = classic.rock_sample_momdp(3, 2)
+    assert torch.equal(a.Tx, rock_sample(3, 2, form="momdp").Tx)
+    with pytest.warns(DeprecationWarning, match="robot_start=0"):
+        a = classic.tag_momdp()  # the old default: the robot starts in cell 0
+    assert a.x0 == 0 and a.initial is None
+    assert tag(form="momdp").initial is not None  # tag's default: a random first cell
+
+
+def test_form_argument_is_checked():
+    with pytest.raises(ValueError, match="expected form to be one of"):
+        rock_sample(3, 2, form="pomdp")  # type: ignore[call-overload]
+    with pytest.raises(ValueError, match="device applies to the dense forms"):
+        tag(form="sparse", device="cpu")
+    with pytest.raises(ModelError, match="robot_start"):
+        tag(form="sparse_momdp", robot_start=29)

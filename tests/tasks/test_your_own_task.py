@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import sys
+import warnings
 from pathlib import Path
 
 import pytest
@@ -35,13 +36,16 @@ def test_the_example_is_short_and_uses_only_the_public_api():
 
 def test_kitchen_dynamics(kitchen):
     task = kitchen.Kitchen()
-    check_task(task)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # every state reachable: no TaskWarning
+        check_task(task)
     fetch_stir, do_stir, do_chop = 2, 1, 0
     x = task.step(torch.tensor(0), torch.tensor(do_chop), torch.tensor(fetch_stir))
     assert task.state_names[int(x)] == "chop|2"  # stir's ingredient waits on the counter
     x = task.step(x, torch.tensor(do_stir), torch.tensor(0))
     assert task.state_names[int(x)] == "chop+stir|0"  # the cook used it
-    assert int(task.terminal.sum()) == 5
+    assert int(task.terminal.sum()) == 1  # everything done, nothing left on the counter
+    assert task.step(0, 0, 0) == task.state_names.index("chop|0")  # ints in, int out
 
 
 @pytest.mark.slow

@@ -1,0 +1,100 @@
+"""The type-aware robot against the type-agnostic one on every suite task (issue 31 goal 3).
+
+For each task of :data:`torchhrc.tasks.suite.SUITE`: demonstrations (``--subjects`` x
+``--per-subject``, noise 0.05), ``torchhrc.learn`` with its defaults (type-aware) and with
+``k=1`` (type-agnostic), then :func:`torchhrc.evaluate_task` against the task's simulated
+people (``--episodes`` per true type, people's noise 0.05) under their true rewards. Prints a
+Markdown table: per task the population's mean return ± 95% CI of both robots, the per-type
+comparison (+ better beyond the CIs, = within, - worse), whether the types' best responses
+differ (the demonstrating partner's best action differs between types in a state the
+people reach), and the belief's status per type after ``--belief-steps`` steps.
+
+Run: ``python benchmarks/bench_evaluation.py [--tasks a,b] [--episodes 200] [--json out.json]``
+(about a minute per task on one core).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import warnings
+
+import torch
+
+import torchhrc
+from torchhrc.tasks.suite import SUITE, make_task
+
+
+def best_responses_differ(world) -> bool:
+    """The partner's best action (first by index on ties) differs between two true types in
+    a state that the people of some type reach (noise-free rollouts of the partner)."""
+    Y = world.num_types
+    g = torch.Generator().manual_seed(0)
+    types = torch.arange(Y).repeat_interleave(4)
+    states, _, _ = world.rollout(types, noise=0.0, generator=g)
+    seen = states[states >= 0].unique()
+    best = world.robot_demo_policy().argmax(-1)[:, seen]  # (Y, visited)
+    return bool((best != best[:1]).any())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", default=",".join(SUITE))
+    parser.add_argument("--subjects", type=int, default=30)
+    parser.add_argument("--per-subject", type=int, default=4)
+    parser.add_argument("--episodes", type=int, default=200)
+    parser.add_argument("--belief-steps", type=int, default=5)
+    parser.add_argument("--solver-time", type=float, default=3.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--human-model", default=None, help="learn()'s human_model (default)")
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    rows, records = [], {}
+    for name in args.tasks.split(","):
+        start = time.perf_counter()
+        world = make_task(name)
+        demos, _ = world.demonstrations(subjects=args.subjects, per_subject=args.per_subject,
+                                        noise=0.05, seed=args.seed)  # fmt: skip
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            aware = torchhrc.learn(world.task, demos, solver_time=args.solver_time,
+                                   human_model=args.human_model, seed=args.seed)  # fmt: skip
+            agnostic = torchhrc.learn(world.task, demos, k=1, solver_time=args.solver_time,
+                                      seed=args.seed)  # fmt: skip
+        result = torchhrc.evaluate_task(world, aware, demonstrations=demos, agnostic=agnostic,
+                                        episodes=args.episodes, noise=0.05,
+                                        belief_steps=args.belief_steps, seed=args.seed)  # fmt: skip
+        per_type = result.compare("type-aware", "type-agnostic")
+        overall = int(result.compare("type-aware", "type-agnostic", overall=True))
+        differ = best_responses_differ(world)
+        signs = "".join({1: "+", 0: "=", -1: "-"}[int(c)] for c in per_type)
+        status = ", ".join(f"{n}: {s}" for n, s in zip(result.type_names, result.belief_status))
+        m, c = result.overall_mean, result.overall_ci
+        used = aware.info.get("human_model", {})
+        used = used.get("used", "?") if isinstance(used, dict) else str(used)
+        rows.append(
+            f"| {name} | {world.num_types} | {aware.num_types} | {used} | "
+            f"{m[0]:.2f} ± {c[0]:.2f} | "
+            f"{m[1]:.2f} ± {c[1]:.2f} | {'+=-'[1 - overall]} | {signs} | "
+            f"{'yes' if differ else 'no'} | {status} |"
+        )
+        records[name] = {**result.to_dict(), "best_responses_differ": differ,
+                         "k_found": aware.num_types, "human_model": used,
+                         "seconds": time.perf_counter() - start}  # fmt: skip
+        print(rows[-1], flush=True)
+    print()
+    print("| task | true k | k found | human model | type-aware (all) | type-agnostic (all) | "
+          "overall | "
+          "per type | best responses differ | belief after "
+          f"{args.belief_steps} steps |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("\n".join(rows))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(records, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

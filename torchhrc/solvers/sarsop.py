@@ -751,7 +751,8 @@ class _SARSOP:
         self.tree.lower[:R], self.tree.upper[:R] = self._root_bounds()
         # the memory limit, watched from here (what the initialisation holds is its base)
         self._longest = 64  # the most nodes a trial added so far (at least 64)
-        self.memory = None if cfg.memory_limit is None else MemoryGuard(cfg.memory_limit)
+        self.memory = (None if cfg.memory_limit is None
+                       else MemoryGuard(cfg.memory_limit, min_interval=1e-3))  # fmt: skip
         # the first policy checkpoint, ``policy_interval`` seconds into the solve
         self._next_checkpoint = (clock_start or 0.0) + (cfg.policy_interval or 0.0)
 
@@ -778,7 +779,7 @@ class _SARSOP:
         """Whether the time limit has passed or the memory limit is near."""
         if self.clock() >= self.deadline:
             return True
-        return self.memory is not None and self.memory.exceeded(self._pending_bytes())
+        return self.memory is not None and self.memory.exceeded(self._pending_bytes)
 
     # -- bounds ----------------------------------------------------------------------------
     def lower_value(

@@ -99,10 +99,10 @@ def test_cluster_json_schema_and_values(study, capsys):
     assert set(report["per_k"]) == {"2", "3", "4"}
     for scores in report["per_k"].values():
         assert {"bic", "log_likelihood"} <= set(scores)
-    assert report["criterion"] == "bic_or_exact_icl"  # the soft method's default
-    best = max(
-        max(report["per_k"], key=lambda k: report["per_k"][k][c]) for c in ("bic", "exact_icl")
-    )
+    assert report["criterion"] == "icl_or_gain"  # the soft method's default (issue 31)
+    # the exact ICL's k, raised only by steps that gain strongly (none here: "heldout" unset)
+    best = max(report["per_k"], key=lambda k: report["per_k"][k]["exact_icl"])
+    assert "heldout" not in report["per_k"][best]
     assert int(best) == report["k"]
     assert math.isclose(report["per_k"][best]["bic"], report["bic"])
     assert math.isclose(report["per_k"][best]["log_likelihood"], report["log_likelihood"])

@@ -108,7 +108,7 @@ def test_three_exchangeable_types_at_the_paper_size(seed):
     demos = corpus(54, 3, seed).relabel_objects()
     fit, ari = _fit(demos, seed)
     assert fit.k == 3 and ari >= 0.95
-    assert fit.criterion == "bic_or_exact_icl"
+    assert fit.criterion == "icl_or_gain"
     assert max(fit.per_k, key=lambda k: fit.per_k[k]["exact_icl"]) == 3
     bic_only, _ = _fit(demos, seed, criterion="bic")
     assert bic_only.k == 2

@@ -64,9 +64,14 @@ def test_three_types_at_the_paper_size_are_found_by_default():
 
 
 def test_two_types_at_the_paper_size_keep_two():
+    """Since issue 31 (``criterion="icl_or_gain"``) seed 65 gives k = 3: its third cluster
+    gains 0.068 nats per transition in the fit and 30.7 nats on held-out subjects (measured
+    2026-12-04); the other 9 keep two."""
+    kept = 0
     for seed in range(60, 70):
         fit, ari = _fit(corpus(54, 2, seed), seed)
-        assert fit.k == 2 and ari >= 0.95
+        kept += fit.k == 2 and ari >= 0.95
+    assert kept >= 9
 
 
 @pytest.mark.parametrize("types", [2, 3])

@@ -168,3 +168,52 @@ def test_dtype_and_subject_units_are_respected():
         assert len(set(fit.assignments[members].tolist())) == 1
     per_sequence = fit_mixture(demos, k_max=3, restarts=3, unit="sequence")
     assert per_sequence.num_distinct >= fit.num_distinct
+
+
+def test_icl_or_gain_is_the_exact_icl_raised_by_steps_confirmed_out_of_sample():
+    """Issue 31's default: with ``strong_gain = inf`` it is the exact ICL's choice; with
+    ``strong_gain = 0`` every step above the exact ICL's k gains in the fit and on held-out
+    subjects (at least ``DEFAULT_HELDOUT_GAIN`` nats per transition), and the held-out record
+    is there exactly when a step above the exact ICL's k gained in the fit."""
+    from torchhrc.mixture.selection import DEFAULT_HELDOUT_GAIN
+    from torchhrc.tasks.suite import make_task
+
+    demos, _ = make_task("lead_and_pace").demonstrations(subjects=16, per_subject=3, seed=1)
+    common = dict(k_min=1, k_max=5, restarts=4, seed=0, initial=True)
+    icl = fit_mixture(demos, criterion="exact_icl", **common)
+    never = fit_mixture(demos, criterion="icl_or_gain", strong_gain=math.inf, **common)
+    assert never.k == icl.k and torch.equal(never.assignments, icl.assignments)
+    assert never.criterion == "icl_or_gain" and "heldout" not in never.per_k[icl.k]
+    always = fit_mixture(demos, criterion="icl_or_gain", strong_gain=0.0, **common)
+    T = float((demos.lengths - 1).sum())
+    pk = always.per_k
+    assert always.k >= icl.k
+    tried = icl.k < 5 and pk[icl.k + 1]["gain"] >= 0.0  # a step above the ICL's k gains
+    assert tried and "heldout" in pk[1]  # this corpus exercises the held-out check
+    for k in range(icl.k + 1, always.k + 1):
+        assert pk[k]["gain"] >= 0.0
+        assert pk[k]["heldout"] - pk[k - 1]["heldout"] >= DEFAULT_HELDOUT_GAIN * T
+    assert always.k == 4 > icl.k  # two steps confirmed (measured 2026-12-04: icl 2, then 4)
+    assert fit_mixture(demos, **common).criterion == "icl_or_gain"  # the soft default
+    # people who lead or follow by their history: a 3rd cluster gains in the fit (0.035 nats
+    # per transition) but not on held-out subjects (0.006): refused
+    demos, _ = make_task("lead_or_follow").demonstrations(subjects=16, per_subject=3, seed=0)
+    icl = fit_mixture(demos, criterion="exact_icl", **common)
+    always = fit_mixture(demos, criterion="icl_or_gain", strong_gain=0.0, **common)
+    pk, T = always.per_k, float((demos.lengths - 1).sum())
+    assert always.k == icl.k == 2 and pk[3]["gain"] > 0.0
+    assert pk[3]["heldout"] - pk[2]["heldout"] < DEFAULT_HELDOUT_GAIN * T
+
+
+def test_heldout_criterion_picks_the_smallest_k_within_one_standard_error():
+    from torchhrc.tasks.suite import make_task
+
+    # the best held-out k is 4, and 3 is within one standard error of it (measured)
+    demos, _ = make_task("screws_hands_off").demonstrations(subjects=16, per_subject=3, seed=0)
+    fit = fit_mixture(demos, k_min=1, k_max=4, restarts=4, seed=0, criterion="heldout",
+                      min_gain=0.0)  # fmt: skip
+    pk = fit.per_k
+    best = max(pk, key=lambda k: pk[k]["heldout"])
+    assert pk[best]["heldout_se"] == 0.0
+    within = [k for k in pk if pk[k]["heldout"] - pk[best]["heldout"] >= -pk[k]["heldout_se"]]
+    assert fit.k == min(within) < best and fit.criterion == "heldout"

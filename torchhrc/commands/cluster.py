@@ -88,9 +88,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--criterion",
-        choices=("bic", "icl", "exact_icl", "bic_or_exact_icl"),
+        choices=("icl_or_gain", "heldout", "bic", "icl", "exact_icl", "bic_or_exact_icl"),
         default=None,
-        help="model selection (soft: bic_or_exact_icl, paper: bic; see docs/clustering.md)",
+        help="model selection (soft: icl_or_gain, paper: bic; see docs/clustering.md)",
     )
     parser.add_argument(
         "--min-gain",

@@ -34,10 +34,17 @@ from torchhrc.mixture.likelihood import (
     sequence_log_likelihood,
 )
 from torchhrc.mixture.model import MarkovChainMixture
-from torchhrc.mixture.selection import MixtureFit, bic, fit_mixture, num_free_parameters
+from torchhrc.mixture.selection import (
+    ClusterConfig,
+    MixtureFit,
+    bic,
+    fit_mixture,
+    num_free_parameters,
+)
 from torchhrc.mixture.soft_em import soft_em
 
 __all__ = [
+    "ClusterConfig",
     "MarkovChainMixture",
     "MixtureFit",
     "SufficientStatistics",

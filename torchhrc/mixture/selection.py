@@ -13,11 +13,14 @@ Methods:
 * ``"paper"``: the paper's random initialisation and hard EM (:mod:`.hard_em`), its BIC.
 * ``"soft"`` (default, the better one): k-means++ initialisation (:mod:`.init`) and soft
   EM with Dirichlet smoothing (:mod:`.soft_em`); its BIC also counts the ``k - 1`` free
-  mixture weights (and ``k (A - 1)`` first-symbol parameters when ``initial=True``), and
-  ``l`` is the marginal log-likelihood. By default the k is the larger of BIC's and the exact
-  ICL's (below), and that k is an upper bound: the smallest k whose next cluster gains less than
-  ``min_gain`` (0.015) nats per transition is chosen, so a large corpus is not cut into
-  sub-clusters of one type (issue 12.1, ``docs/clustering.md``).
+  mixture weights (and ``k (A - 1)`` first-symbol parameters when ``initial=True``, as
+  :func:`torchhrc.tasks.learn` sets it), and ``l`` is the marginal log-likelihood. By default
+  the k is the exact ICL's (below), raised where every further cluster gains at least
+  ``strong_gain`` (0.04) nats per transition, confirmed on held-out units (``"icl_or_gain"``,
+  issue 31), and that k is an upper bound: the
+  smallest k whose next cluster gains less than ``min_gain`` (0.015) nats per transition is
+  chosen, so a large corpus is not cut into sub-clusters of one type (issue 12.1,
+  ``docs/clustering.md``).
 
 A ``RuntimeWarning`` says when the chosen k lies at the edge of the range searched.
 
@@ -26,10 +29,13 @@ likelihood ``ICL = BIC - H(r)`` (Biernacki, Celeux, Govaert 2000), ``H`` the ent
 responsibilities (0 for hard EM); ``"exact_icl"``, the exact integrated classification
 likelihood ``log p(D, z)`` of each k's partition with the chains and weights integrated out
 under Dirichlet priors (Biernacki, Celeux, Govaert 2010; :func:`exact_icl`); and
-``"bic_or_exact_icl"`` (the soft method's default), the larger of the k that BIC and the
-exact ICL choose. The exact ICL needs no parameter count: a transition row that a cluster
-never visits costs nothing and a sparsely visited row little, where BIC charges every one of
-the ``A (A - 1)`` transitions of every chain ``1/2 log n`` (``docs/clustering.md``).
+``"bic_or_exact_icl"``, the larger of the k that BIC and the exact ICL choose;
+``"icl_or_gain"`` (the soft method's default), the exact ICL's k or the largest k reached by
+steps that each gain ``strong_gain``; ``"heldout"``, held-out likelihood by subject
+(cross-validation, one-standard-error rule). The exact ICL needs no parameter count: a
+transition row that a cluster never visits costs nothing and a sparsely visited row little,
+where BIC charges every one of the ``A (A - 1)`` transitions of every chain ``1/2 log n``
+(``docs/clustering.md``).
 
 Example:
     >>> import torch
@@ -61,11 +67,14 @@ from torchhrc.mixture.model import MarkovChainMixture
 from torchhrc.mixture.soft_em import SoftStatistics, m_step, soft_em
 
 __all__ = [
+    "CRITERIA",
     "DEFAULT_MIN_GAIN",
     "DEFAULT_OBJECTS_SAMPLE",
     "DEFAULT_PSEUDO_COUNT",
+    "DEFAULT_STRONG_GAIN",
     "DEFAULT_WEIGHT_PSEUDO_COUNT",
     "EXACT_ICL_PRIOR",
+    "ClusterConfig",
     "MixtureFit",
     "bic",
     "exact_icl",
@@ -76,7 +85,11 @@ __all__ = [
 ]
 
 Method = Literal["soft", "paper"]
-Criterion = Literal["bic", "icl", "exact_icl", "bic_or_exact_icl"]
+Criterion = Literal["icl_or_gain", "heldout", "bic", "icl", "exact_icl", "bic_or_exact_icl"]
+#: The names ``criterion=`` takes.
+CRITERIA: tuple[str, ...] = (
+    "icl_or_gain", "heldout", "bic", "icl", "exact_icl", "bic_or_exact_icl",
+)  # fmt: skip
 Objects = Literal["auto", "raw", "exchangeable"]
 
 
@@ -173,6 +186,48 @@ class MixtureFit:
         rows = chains.sum(-1, keepdim=True)
         uniform = torch.full_like(chains, 1.0 / chains.shape[-1])
         return torch.where(rows > 0, chains / rows.clamp_min(1e-300), uniform)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ClusterConfig:
+    """Settings of the clustering into types (:func:`fit_mixture`'s options), as one value.
+
+    Every field left ``None`` takes the default of the function that uses the config:
+    :func:`fit_mixture`'s own, or those :func:`torchhrc.tasks.learn` documents (``k_min=1``,
+    ``k_max=6``, ``restarts=10``, ``parameters="support"``, ``initial=True``). A typo in a
+    field is a ``TypeError``. See :func:`fit_mixture` for what each one means.
+
+    Example:
+        >>> ClusterConfig(criterion="bic", k_max=4).options()
+        {'k_max': 4, 'criterion': 'bic'}
+    """
+
+    k_min: int | None = None
+    k_max: int | None = None
+    restarts: int | None = None
+    method: Method | None = None
+    criterion: Criterion | None = None
+    unit: Literal["auto", "sequence", "subject"] | None = None
+    parameters: Literal["auto", "full", "support"] | None = None
+    pseudo_count: float | None = None
+    weight_pseudo_count: float | None = None
+    max_iterations: int | None = None
+    short_iterations: int | None = None
+    tol: float | None = None
+    floor: float | None = None
+    initial: bool | None = None
+    min_gain: float | None = None
+    strong_gain: float | None = None
+    folds: int | None = None
+    se_factor: float | None = None
+    objects: Objects | None = None
+    object_separator: str | None = None
+    objects_sample: int | None = None
+
+    def options(self) -> dict[str, Any]:
+        """The fields that are set, as keyword arguments of :func:`fit_mixture`."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                if getattr(self, f.name) is not None}  # fmt: skip
 
 
 def num_free_parameters(
@@ -412,6 +467,28 @@ def gains_per_transition(log_likelihoods: torch.Tensor, transitions: float) -> t
     return gains
 
 
+def _largest_strong(gains: torch.Tensor, start: int, strong_gain: float) -> int:
+    """The largest index ``i >= start`` such that every k after ``ks[start]`` up to ``ks[i]``
+    gains at least ``strong_gain`` over the previous one."""
+    index = start
+    for i in range(start + 1, gains.shape[0]):
+        if not float(gains[i]) >= strong_gain:  # nan (a failed run) counts as no gain
+            break
+        index = i
+    return index
+
+
+#: The default ``strong_gain`` of ``criterion="icl_or_gain"``, nats per transition: a
+#: further type that raises the likelihood by this much is kept although the exact ICL would
+#: not pay for it (tuned on the task suite as a whole, ``docs/clustering.md``).
+DEFAULT_STRONG_GAIN = 0.04
+
+#: ``criterion="icl_or_gain"`` keeps a strong step only if it also gains this much on units
+#: held out of the fit (nats per transition, 5-fold cross-validation): on small studies an
+#: extra cluster's in-sample gain is partly overfitting (``docs/clustering.md``).
+DEFAULT_HELDOUT_GAIN = 0.01
+
+
 def _smallest_sufficient(gains: torch.Tensor, by_score: int, min_gain: float) -> int:
     """The smallest index ``i <= by_score`` whose next k gains less than ``min_gain``."""
     for i in range(by_score):
@@ -497,6 +574,9 @@ def fit_mixture(
     floor: float = 1e-10,
     initial: bool = False,
     min_gain: float | None = None,
+    strong_gain: float | None = None,
+    folds: int = 5,
+    se_factor: float = 1.0,
     objects: Objects | None = None,
     object_separator: str = "_",
     objects_sample: int | None = None,
@@ -517,16 +597,19 @@ def fit_mixture(
         restarts: EM runs per k (the paper's numOfIterations, 20).
         method: ``"soft"`` (k-means++ + smoothed soft EM, the default) or ``"paper"``
             (random init + hard EM, exactly the paper's algorithm).
-        criterion: how the score's k is chosen among the best run of every k: ``"bic"``
-            (the paper's), ``"icl"`` (BIC minus the entropy of the responsibilities),
-            ``"exact_icl"`` (:func:`exact_icl`, Jeffreys' prior; no parameter count) or
-            ``"bic_or_exact_icl"`` (the larger of BIC's k and the exact ICL's k). ``None``:
-            ``"bic_or_exact_icl"`` for ``"soft"``, ``"bic"`` for ``"paper"``. Why both: on
-            small studies each under-counts types where the other does not (BIC charges
-            ``k A (A - 1) / 2 log n`` for chains that visit a fraction of their transitions;
-            the exact ICL charges for overlapping types, e.g. 6 subjects of 2 types in
-            hand-finishing), and ``min_gain`` caps the larger k on large corpora
-            (``docs/clustering.md``).
+        criterion: how the k is chosen among the best run of every k: ``"icl_or_gain"``
+            (the soft method's default): the exact ICL's k (:func:`exact_icl`, Jeffreys'
+            prior, no parameter count), or a larger k when every step up to it raises the
+            log-likelihood by at least ``strong_gain`` nats per transition (an effect the
+            exact ICL's prior cost hides on small studies: three types of the kitting study
+            of issue 31); ``"heldout"``: the smallest k whose held-out log-likelihood by unit
+            (``folds``-fold cross-validation over subjects) is within ``se_factor`` standard
+            errors of the best k's; ``"bic"`` (the paper's; the default of ``"paper"``);
+            ``"icl"`` (BIC minus the entropy of the responsibilities); ``"exact_icl"``;
+            ``"bic_or_exact_icl"`` (the larger of BIC's k and the exact ICL's k, the soft
+            default before issue 31). ``min_gain`` then caps the k on large corpora. Why
+            this default, measured on the generated task suite, the paper's study and the
+            kitchen: ``docs/clustering.md`` ("Choosing k on tasks nobody tuned for").
         unit: what gets one cluster label: ``"sequence"`` (the paper) or ``"subject"`` (all
             demonstrations of a subject share one type, their evidence adds up; needs a
             ``Demonstrations``). ``"auto"``: ``"subject"`` for ``"soft"`` when subject ids
@@ -549,7 +632,9 @@ def fit_mixture(
             (by log-likelihood) runs to convergence.
         tol: relative log-likelihood change that stops soft EM.
         floor: probability that stands for 0 in the paper's E-step (see :mod:`.hard_em`).
-        initial: also model each cluster's first-symbol distribution.
+        initial: also model each cluster's first-symbol distribution (a type's opening
+            move: with short demonstrations it can be much of what tells types apart;
+            :func:`torchhrc.tasks.learn` sets it by default, ``docs/clustering.md``).
         min_gain: the least log-likelihood, in nats per transition of the data, that one
             more cluster must add to be kept (an effect size, so it does not grow with the
             corpus). The criterion's k is reduced to the smallest ``k`` whose ``k + 1``
@@ -559,6 +644,10 @@ def fit_mixture(
             ``log n`` while the misfit of first-order chains to real data grows like ``n``, so
             on large corpora BIC alone cuts every type into sub-clusters of noise patterns
             and orders (``docs/clustering.md``).
+        strong_gain: ``criterion="icl_or_gain"``'s effect size, nats per transition
+            (``None``: ``DEFAULT_STRONG_GAIN``, 0.04).
+        folds, se_factor: ``criterion="heldout"``'s number of folds over units and its
+            one-standard-error rule's factor.
         objects: how object names in the actions are read (``docs/clustering.md``,
             "Exchangeable objects"): ``"raw"``, the symbols as recorded (the paper);
             ``"exchangeable"``, every demonstration's objects renamed in order of first use
@@ -608,6 +697,8 @@ def fit_mixture(
         >>> fit_mixture((seqs, torch.full((10,), 4), 2), k_min=1, k_max=3, restarts=2).k
         2
     """
+    if not isinstance(initial, bool):
+        raise TypeError(f"expected initial to be a bool, got {initial!r}")
     if objects is None:
         objects = "auto" if method == "soft" else "raw"
     if objects not in ("auto", "raw", "exchangeable"):
@@ -626,7 +717,9 @@ def fit_mixture(
         unit=unit, parameters=parameters, pseudo_count=pseudo_count,
         weight_pseudo_count=weight_pseudo_count, max_iterations=max_iterations,
         short_iterations=short_iterations, tol=tol, floor=floor, initial=initial,
-        min_gain=min_gain, dtype=dtype, progress=progress, ray=ray,
+        min_gain=min_gain, strong_gain=strong_gain, folds=folds, se_factor=se_factor,
+        dtype=dtype, progress=progress,
+        ray=ray,
     )  # fmt: skip
     has_objects = callable(getattr(data, "relabel_objects", None)) and not isinstance(data, tuple)
     if objects == "exchangeable" and not has_objects:
@@ -644,6 +737,7 @@ def fit_mixture(
         return fit
 
     # "auto": compare the two forms (on a sample of units for a large corpus)
+    start = generator.get_state() if generator is not None else None
     groups = _groups(data, unit, method)
     units = data.num_sequences if groups is None else int(groups.max()) + 1
     sample = data
@@ -655,6 +749,8 @@ def fit_mixture(
         sample = data.subset(keep if groups is None else keep[groups])
     fits, caught = {}, {}
     for form in ("raw", "exchangeable"):
+        if start is not None:  # each form from the generator's state at the call, as a seed
+            generator.set_state(start)  # type: ignore[union-attr]
         fits[form], caught[form] = _caught(
             lambda form=form: _select_form(sample, form, object_separator, options, seed, generator)
         )
@@ -677,6 +773,8 @@ def fit_mixture(
         fit = fits[best]
         _rewarn(caught[best])
     else:
+        if start is not None:
+            generator.set_state(start)  # type: ignore[union-attr]
         fit, found = _caught(
             lambda: _select_form(data, best, object_separator, options, seed, generator)
         )
@@ -746,6 +844,175 @@ def _select_form(
     )
 
 
+def _em_all_k(
+    stats: SufficientStatistics,
+    ks: torch.Tensor,
+    gen: torch.Generator,
+    *,
+    method: str,
+    restarts: int,
+    pseudo_count: float,
+    weight_pseudo_count: float,
+    tol: float,
+    max_iterations: int | None,
+    short_iterations: int,
+    floor: float,
+    initial: bool,
+    dtype: torch.dtype,
+    e_step: Any = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[EMResult, torch.Tensor, torch.Tensor, int]:
+    """EM for every ``k`` in ``ks (num_k,)`` with ``restarts`` runs each, as one batch.
+
+    Returns:
+        ``(result, run_k (R,), cluster_mask (R, K), per_group)``: the runs of ``ks[i]`` are
+        ``i * per_group ... (i + 1) * per_group - 1`` (``per_group`` = 1 after the soft
+        method's em-EM keeps the best short run of each k).
+    """
+    device = stats.counts.device
+    A = stats.num_symbols
+    run_k = ks.repeat_interleave(restarts)  # (R,): run r = (k index) * restarts + restart
+    K = int(ks.max())
+    cluster_mask = torch.arange(K, device=device) < run_k.unsqueeze(-1)  # (R, K)
+
+    result: EMResult
+    per_group = restarts
+    if method == "paper":
+        lt0, z0 = random_init(stats, cluster_mask, generator=gen, dtype=dtype)
+        li0 = None
+        if initial:
+            li0 = lt0.new_full((run_k.shape[0], K, A), -math.log(A))
+        result = hard_em(
+            stats,
+            lt0,
+            cluster_mask,
+            assignments=z0,
+            log_initial=li0,
+            floor=floor,
+            max_iterations=100 if max_iterations is None else max_iterations,
+            progress=progress,
+        )
+    else:
+        z0 = kmeans_pp_init(stats, cluster_mask, generator=gen)
+        lt0, lw0, li0 = _soft_initial_parameters(
+            stats, z0, cluster_mask, pseudo_count, weight_pseudo_count, dtype
+        )
+        options = dict(
+            pseudo_count=pseudo_count,
+            weight_pseudo_count=weight_pseudo_count,
+            tol=tol,
+            e_step=e_step,
+        )
+        cap = 200 if max_iterations is None else max_iterations
+        if restarts > 1:  # em-EM: short runs for every restart, then the best of each k
+            short = soft_em(
+                stats,
+                lt0,
+                lw0,
+                cluster_mask,
+                log_initial=li0,
+                max_iterations=min(short_iterations, cap),
+                progress=progress,
+                details=False,  # only the log-likelihoods and parameters are kept
+                **options,
+            )
+            ll = torch.nan_to_num(short.log_likelihood, nan=-math.inf).view(len(ks), restarts)
+            keep = torch.arange(len(ks), device=device) * restarts + ll.argmax(-1)  # (num_k,)
+            lt0, lw0 = short.log_transition[keep], short.log_weights[keep]
+            li0 = short.log_initial[keep] if short.log_initial is not None else None
+            run_k, cluster_mask, per_group = run_k[keep], cluster_mask[keep], 1
+        result = soft_em(
+            stats,
+            lt0,
+            lw0,
+            cluster_mask,
+            log_initial=li0,
+            max_iterations=cap,
+            progress=progress,
+            **options,
+        )
+
+    return result, run_k, cluster_mask, per_group
+
+
+def _heldout_scores(
+    stats: SufficientStatistics,
+    ks: torch.Tensor,
+    gen: torch.Generator,
+    folds: int,
+    em: dict[str, Any],
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Held-out log-likelihood of every unit under every k, by ``folds``-fold cross-validation.
+
+    The units (subjects, or sequences) are dealt at random into ``F = min(folds, n)`` folds;
+    for each fold, the mixture of every k is fitted to the other folds (the same EM as the
+    full fit, :func:`_em_all_k`, its best run per k by log-likelihood) and each held-out unit
+    is scored by its mixture likelihood ``log sum_k w_k prod_(a,b) theta_k(b | a)^n(a, b)``
+    (no held-out label is used).
+
+    Returns:
+        ``(values (P, num_k), weights (P,))``: ``P`` pairs (distinct row, fold), the
+        held-out log-likelihood of one unit of the row under each k and how many units of
+        the row the fold holds out (their weighted sum is the held-out total).
+    """
+    U = stats.num_distinct
+    mult = stats.multiplicity.round().long().cpu()  # (U,)
+    n = int(mult.sum())
+    F_ = max(2, min(int(folds), n))
+    unit_row = torch.repeat_interleave(torch.arange(U), mult)  # (n,)
+    fold = torch.empty(n, dtype=torch.long)
+    fold[torch.randperm(n, generator=gen)] = torch.arange(n) % F_
+    held = torch.zeros(U, F_, dtype=torch.long)
+    held.index_put_((unit_row, fold), torch.ones(n, dtype=torch.long), accumulate=True)
+    device, floor = stats.counts.device, math.log(em["floor"])
+    values, weights = [], []
+    for f in range(F_):
+        train = (mult - held[:, f]).to(stats.multiplicity)
+        keep = torch.nonzero(train > 0).flatten().to(device)
+        part = dataclasses.replace(stats, multiplicity=train.to(device)).rows(keep)
+        result, _, mask, per_group = _em_all_k(part, ks, gen, **em)
+        ll = torch.nan_to_num(result.log_likelihood, nan=-math.inf).view(len(ks), per_group)
+        best = torch.arange(len(ks), device=device) * per_group + ll.argmax(-1)  # (num_k,)
+        out = torch.nonzero(held[:, f] > 0).flatten().to(device)
+        lt = result.log_transition[best].clamp_min(floor)  # (num_k, K, A, A)
+        li = None if result.log_initial is None else result.log_initial[best].clamp_min(floor)
+        first = None if stats.first_counts is None else stats.first_counts[out]
+        joint = e_table(stats.counts[out], first, lt.to(stats.counts.dtype), li)  # (u, num_k, K)
+        joint = joint + result.log_weights[best].to(joint.dtype)
+        joint = joint.masked_fill(~mask[best], -math.inf)
+        values.append(torch.logsumexp(joint, -1))  # (u, num_k)
+        weights.append(held[out.cpu(), f].to(joint.dtype).to(device))
+    return torch.cat(values), torch.cat(weights)
+
+
+def _one_standard_error(
+    values: torch.Tensor, weights: torch.Tensor, se_factor: float
+) -> tuple[int, torch.Tensor, torch.Tensor]:
+    """The smallest k (index) whose held-out total is within ``se_factor`` standard errors of
+    the best: ``sum_u (l_u(k) - l_u(k*)) >= -se_factor * SE_k``, ``SE_k`` the standard error
+    of that paired sum over the held-out units (Breiman et al. 1984's one-standard-error rule,
+    on paired per-unit differences).
+
+    Returns:
+        ``(index, total (num_k,), se (num_k,))``: the chosen index into the ks, each k's
+        held-out total and the standard error of its difference to the best k.
+    """
+    values = torch.nan_to_num(values, nan=-math.inf, posinf=-math.inf)
+    total = (values * weights[:, None]).sum(0)  # (num_k,)
+    best = int(total.argmax())
+    n = float(weights.sum())
+    diff = values - values[:, best : best + 1]  # (P, num_k)
+    diff = torch.nan_to_num(diff, nan=-math.inf)
+    mean = (diff * weights[:, None]).sum(0) / n
+    var = ((diff - mean) ** 2 * weights[:, None]).sum(0) / max(n - 1.0, 1.0)
+    se = (n * var).sqrt()
+    for i in range(best + 1):
+        margin = float(total[i] - total[best])
+        if math.isfinite(margin) and margin >= -se_factor * float(se[i]):
+            return i, total, se
+    return best, total, se
+
+
 def _select(
     data: Any,
     *,
@@ -766,6 +1033,9 @@ def _select(
     floor: float,
     initial: bool,
     min_gain: float | None,
+    strong_gain: float | None,
+    folds: int,
+    se_factor: float,
     dtype: torch.dtype,
     progress: Callable[[int, int], None] | None,
     ray: bool | str | None,
@@ -792,12 +1062,24 @@ def _select(
     if method not in ("soft", "paper"):
         raise ValueError(f"expected method 'soft' or 'paper', got {method!r}")
     if criterion is None:
-        criterion = "bic_or_exact_icl" if method == "soft" else "bic"
-    if criterion not in ("bic", "icl", "exact_icl", "bic_or_exact_icl"):
+        criterion = "icl_or_gain" if method == "soft" else "bic"
+    if criterion not in CRITERIA:
         raise ValueError(
-            "expected criterion 'bic', 'icl', 'exact_icl' or 'bic_or_exact_icl' (or None), "
+            f"expected criterion one of {', '.join(map(repr, CRITERIA))} (or None), "
             f"got {criterion!r}"
         )
+    if strong_gain is None:
+        strong_gain = DEFAULT_STRONG_GAIN
+    if (
+        isinstance(strong_gain, bool)
+        or not isinstance(strong_gain, (int, float))
+        or not (strong_gain >= 0)
+    ):
+        raise ValueError(f"expected strong_gain to be a float >= 0, got {strong_gain!r}")
+    if isinstance(folds, bool) or not isinstance(folds, int) or folds < 2:
+        raise ValueError(f"expected folds to be an int >= 2, got {folds!r}")
+    if isinstance(se_factor, bool) or not isinstance(se_factor, (int, float)) or not se_factor >= 0:
+        raise ValueError(f"expected se_factor to be a float >= 0, got {se_factor!r}")
     if unit not in ("auto", "sequence", "subject"):
         raise ValueError(f"expected unit 'auto', 'sequence' or 'subject', got {unit!r}")
     if parameters not in ("auto", "full", "support"):
@@ -830,75 +1112,23 @@ def _select(
         )
     device = stats.counts.device
     ks = torch.arange(k_min, k_max + 1, device=device)
-    run_k = ks.repeat_interleave(restarts)  # (R,): run r = (k index) * restarts + restart
-    K = k_max
-    cluster_mask = torch.arange(K, device=device) < run_k.unsqueeze(-1)  # (R, K)
+    em: dict[str, Any] = dict(
+        method=method, restarts=restarts, pseudo_count=pseudo_count,
+        weight_pseudo_count=weight_pseudo_count, tol=tol, max_iterations=max_iterations,
+        short_iterations=short_iterations, floor=floor, initial=initial, dtype=dtype,
+    )  # fmt: skip
+    e_step = None
+    if ray and method != "paper":  # every E-step on the Ray cluster, M-steps here
+        from torchhrc.corpus import RayEStep
 
-    result: EMResult
-    per_group = restarts
-    if method == "paper":
-        lt0, z0 = random_init(stats, cluster_mask, generator=gen, dtype=dtype)
-        li0 = None
-        if initial:
-            li0 = lt0.new_full((run_k.shape[0], K, A), -math.log(A))
-        result = hard_em(
-            stats,
-            lt0,
-            cluster_mask,
-            assignments=z0,
-            log_initial=li0,
-            floor=floor,
-            max_iterations=100 if max_iterations is None else max_iterations,
-            progress=progress,
+        e_step = RayEStep(stats, dtype=dtype, ray=ray)
+    try:
+        result, run_k, cluster_mask, per_group = _em_all_k(
+            stats, ks, gen, e_step=e_step, progress=progress, **em
         )
-    else:
-        e_step = None
-        if ray:  # every E-step on the Ray cluster, M-steps here
-            from torchhrc.corpus import RayEStep
-
-            e_step = RayEStep(stats, dtype=dtype, ray=ray)
-        try:
-            z0 = kmeans_pp_init(stats, cluster_mask, generator=gen)
-            lt0, lw0, li0 = _soft_initial_parameters(
-                stats, z0, cluster_mask, pseudo_count, weight_pseudo_count, dtype
-            )
-            options = dict(
-                pseudo_count=pseudo_count,
-                weight_pseudo_count=weight_pseudo_count,
-                tol=tol,
-                e_step=e_step,
-            )
-            cap = 200 if max_iterations is None else max_iterations
-            if restarts > 1:  # em-EM: short runs for every restart, then the best of each k
-                short = soft_em(
-                    stats,
-                    lt0,
-                    lw0,
-                    cluster_mask,
-                    log_initial=li0,
-                    max_iterations=min(short_iterations, cap),
-                    progress=progress,
-                    details=False,  # only the log-likelihoods and parameters are kept
-                    **options,
-                )
-                ll = torch.nan_to_num(short.log_likelihood, nan=-math.inf).view(len(ks), restarts)
-                keep = torch.arange(len(ks), device=device) * restarts + ll.argmax(-1)  # (num_k,)
-                lt0, lw0 = short.log_transition[keep], short.log_weights[keep]
-                li0 = short.log_initial[keep] if short.log_initial is not None else None
-                run_k, cluster_mask, per_group = run_k[keep], cluster_mask[keep], 1
-            result = soft_em(
-                stats,
-                lt0,
-                lw0,
-                cluster_mask,
-                log_initial=li0,
-                max_iterations=cap,
-                progress=progress,
-                **options,
-            )
-        finally:
-            if e_step is not None:
-                e_step.close()
+    finally:
+        if e_step is not None:
+            e_step.close()
 
     if parameters == "auto":  # see the docstring: "support" over-splits small studies
         parameters = "full"
@@ -912,11 +1142,42 @@ def _select(
     # the partition of every run: the most responsible slot of every distinct row
     exact = exact_icl(stats, result.assignments, cluster_mask).to(bics.dtype)  # (R,)
     scores = {"bic": bics, "icl": icls, "exact_icl": exact}
-    # "bic_or_exact_icl": the best run of each k by BIC, the larger of the two criteria's k
-    names = ("bic", "exact_icl") if criterion == "bic_or_exact_icl" else (criterion,)
+    used = criterion
+    if criterion == "heldout" and (len(ks) == 1 or stats.num_units < 3):
+        used = "bic_or_exact_icl"  # nothing to choose, or too few units to hold any out
+    # "bic_or_exact_icl": the best run of each k by BIC, the larger of the two criteria's k;
+    # "heldout": the best run of each k by BIC (by log-likelihood: the same k)
+    names = {"bic_or_exact_icl": ("bic", "exact_icl"), "heldout": ("bic",),
+             "icl_or_gain": ("bic", "exact_icl")}.get(used, (used,))  # fmt: skip
     grouped = [torch.nan_to_num(scores[c], nan=-math.inf).view(len(ks), per_group) for c in names]
     best_run = torch.arange(len(ks), device=device) * per_group + grouped[0].argmax(-1)
     by_score = max(int(g.max(-1).values.argmax()) for g in grouped)  # index into ks
+    heldout: dict[int, dict[str, float]] = {}
+    if used == "icl_or_gain":  # the exact ICL's k, or more where each step gains strong_gain
+        transitions = num_transitions(stats)
+        steps = gains_per_transition(result.log_likelihood[best_run], transitions)
+        by_score = _smallest_sufficient(steps, int(grouped[1].max(-1).values.argmax()), min_gain)
+        strong = _largest_strong(steps, by_score, float(strong_gain))
+        if strong > by_score and stats.num_units >= 3:  # confirmed on held-out units
+            values, weights = _heldout_scores(stats, ks, gen, folds, em)
+            total = (values * weights[:, None]).sum(0)  # (num_k,)
+            while by_score < strong:  # the step gains enough, beyond its own noise
+                step = values[:, by_score + 1] - values[:, by_score]  # (P,) per held-out unit
+                n = float(weights.sum())
+                mean = float((step * weights).sum()) / n
+                se = math.sqrt(n * float(((step - mean) ** 2 * weights).sum()) / max(n - 1, 1))
+                need = max(DEFAULT_HELDOUT_GAIN * max(transitions, 1.0), se_factor * se)
+                if not mean * n >= need:
+                    break
+                by_score += 1
+            heldout = {int(ks[i]): {"heldout": float(total[i])} for i in range(len(ks))}
+    if used == "heldout":  # held-out likelihood by unit, the smallest k within se_factor SEs
+        values, weights = _heldout_scores(stats, ks, gen, folds, em)
+        by_score, total, se = _one_standard_error(values, weights, se_factor)
+        heldout = {
+            int(ks[i]): {"heldout": float(total[i]), "heldout_se": float(se[i])}
+            for i in range(len(ks))
+        }
     lls = result.log_likelihood[best_run]  # (num_k,)
     gains = gains_per_transition(lls, num_transitions(stats))  # (num_k,), nan for ks[0]
     index = by_score
@@ -930,6 +1191,7 @@ def _select(
             "exact_icl": float(exact[best_run[i]]),
             "log_likelihood": float(lls[i]),
             **({"gain": float(gains[i])} if i > 0 else {}),
+            **heldout.get(int(ks[i]), {}),
         }
         for i in range(len(ks))
     }
@@ -943,7 +1205,7 @@ def _select(
         icls,
         per_k,
         method,
-        criterion,
+        used,
         vocabulary,
     )
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import pytest
 import torch
 
@@ -224,8 +226,12 @@ def test_check_task_reports_unreachable_states_and_tasks_without_an_end():
     from torchhrc.tasks.interface import TaskWarning, reachable_states
 
     assert reachable_states(Extra()).tolist() == [True, True, True, True, False]
+    extra = Extra()
     with pytest.warns(TaskWarning, match="1 of 5 states cannot be reached.*'island'"):
-        check_task(Extra())
+        check_task(extra)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the same task again (learn() checks it twice): once
+        check_task(extra)
 
     class NoEnd(Chores):  # the end is declared but the human can only do "a"
         human_effect = torch.tensor([[1, 0], [1, 2], [2, 2], [3, 3]])

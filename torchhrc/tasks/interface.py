@@ -545,7 +545,7 @@ def check_task(task: CollaborativeTask) -> None:
         TypeError: a table has the wrong kind.
 
     Warns:
-        TaskWarning: states that cannot be reached from ``x0``.
+        TaskWarning: states that cannot be reached from ``x0`` (once per task object).
 
     Example:
         >>> class Bad(CollaborativeTask):
@@ -591,6 +591,25 @@ def check_task(task: CollaborativeTask) -> None:
     _check_reach(task)
 
 
+#: id(task) -> weak reference, for the tasks whose unreachable states were reported (the
+#: pipeline checks a task more than once per learn() call; one warning is enough).
+_REPORTED: dict[int, Any] = {}
+
+
+def _first_report(task: CollaborativeTask) -> bool:
+    import weakref
+
+    key = id(task)
+    ref = _REPORTED.get(key)
+    if ref is not None and ref() is task:
+        return False
+    try:
+        _REPORTED[key] = weakref.ref(task, lambda _, key=key: _REPORTED.pop(key, None))
+    except TypeError:  # not weakly referenceable: report every time
+        pass
+    return True
+
+
 def _check_reach(task: CollaborativeTask) -> None:
     import warnings
 
@@ -629,7 +648,7 @@ def _check_reach(task: CollaborativeTask) -> None:
             f"{', '.join(task.state_names[i] for i in terminal.nonzero().flatten()[:5].tolist())}"
             "): episodes never end; check robot_effect, human_effect and terminal"
         )
-    if not reach.all():
+    if not reach.all() and _first_report(task):
         lost = (~reach).nonzero().flatten().tolist()
         shown = ", ".join(repr(task.state_names[i]) for i in lost[:5])
         more = f" and {len(lost) - 5} more" if len(lost) > 5 else ""

@@ -5,17 +5,26 @@ from __future__ import annotations
 
 import inspect
 import json
+import math
+import random
 from dataclasses import dataclass
 
 import pytest
 import torch
 
+from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.mixture import fit_mixture
 from torchhrc.tasks import pipeline
 from torchhrc.tasks.controller import Controller
-from torchhrc.tasks.interface import TypeEvidence
-from torchhrc.tasks.pipeline import LearnedModel, build_model, learn
+from torchhrc.tasks.interface import CollaborativeTask, TypeEvidence
+from torchhrc.tasks.pipeline import (
+    IRLConfig,
+    LearnedModel,
+    build_model,
+    compare_human_models,
+    learn,
+)
 from torchhrc.tasks.place_and_drill.demos import simulate_study
 from torchhrc.tasks.place_and_drill.model import (
     PlaceAndDrillTask,
@@ -148,3 +157,132 @@ def test_the_pipeline_does_not_dispatch_on_task_classes():
     assert "isinstance(task" not in source and "type(task)" not in source
     for name in ("PlaceAndDrill", "HandFinishing", "Kitchen"):
         assert name not in source.split('"""', 2)[2]  # beyond the module docstring
+
+
+# ---------------------------------------------------------------------------- issue 31 goal 4
+class _Turns(CollaborativeTask):
+    """Four phases in a cycle; the robot's "a"/"b" change nothing, the human's "left" and
+    "right" both advance the phase (both always legal)."""
+
+    state_names = ("p0", "p1", "p2", "p3")
+    robot_actions = ("a", "b")
+    human_actions = ("left", "right")
+    robot_effect = torch.tensor([[0, 1, 2, 3], [0, 1, 2, 3]])
+    human_effect = torch.tensor([[1, 1], [2, 2], [3, 3], [0, 0]])
+
+
+def _turn_demos(respond, subjects=8, per_subject=3, steps=8, seed=0):
+    """The robot picks a or b at random; the human answers ``respond(x, robot)`` (0 = left)."""
+    rng = random.Random(seed)
+    seqs, who = [], []
+    for s in range(subjects):
+        for _ in range(per_subject):
+            x, seq = 0, []
+            for _ in range(steps):
+                r = rng.randrange(2)
+                h = respond(x, r)
+                seq += [("robot", "ab"[r]), ("human", ("left", "right")[h])]
+                x = (x + 1) % 4
+            seqs.append(seq)
+            who.append(f"s{s}")
+    return Demonstrations.from_lists(seqs, subjects=who)
+
+
+@pytest.mark.parametrize(
+    "respond, expected",
+    [
+        (lambda x, r: x % 2, "state"),  # left in even phases: P(h | x), the robot irrelevant
+        (lambda x, r: r, "chain"),  # mirrors the robot's last action: P(h | a_r), any phase
+    ],
+)
+def test_auto_human_model_picks_the_model_the_human_follows(respond, expected):
+    task = _Turns()
+    demos = _turn_demos(respond)
+    types = torch.zeros(demos.num_sequences, dtype=torch.long)
+    record = compare_human_models(task, demos, types, noise=0.05, pause=0.01, seed=0)
+    assert record["used"] == expected and record["folds"] == 5 and record["subjects"] == 8
+    other = "chain" if expected == "state" else "state"
+    # the followed model predicts each held-out turn almost surely (1 - noise - pause, and
+    # half the noise lands on the right action): log(0.965) = -0.036 nats a turn; the other
+    # one cannot tell the two actions apart: log(0.99 / 2) = -0.703
+    assert record["per_step"][expected] == pytest.approx(math.log(0.94 + 0.025), abs=0.01)
+    assert record["per_step"][other] == pytest.approx(math.log(0.495), abs=0.05)
+    model = learn(task, demos, k=1, solve=False, irl_iterations=2)
+    assert model.info["human_model"]["used"] == expected
+    assert model.info["human_model"]["requested"] == "auto"
+    # the behaviour built is the chosen model's: the chain model's does not depend on x
+    b = model.behaviour[0, :, :, :2]  # (A, X, H)
+    depends_on_x = not torch.allclose(b[:, 0], b[:, 1])
+    assert depends_on_x == (expected == "state")
+    forced = learn(task, demos, k=1, solve=False, irl_iterations=2, human_model=other)
+    assert forced.info["human_model"] == {"requested": other, "used": other}
+
+
+def test_recorded_scores_pick_the_recorded_k(tmp_path):
+    from torchhrc.mixture.selection import DEFAULT_HELDOUT_GAIN
+
+    demos = simulate_study(n_subjects=8, n_demos=3, seed=2)
+    model = learn(PlaceAndDrillTask(3), demos, k_max=4, restarts=3, solve=False,
+                  irl_iterations=2)  # fmt: skip
+    info = model.info
+    scores = {int(k): row for k, row in info["scores"].items()}
+    assert sorted(scores) == [1, 2, 3, 4] and info["criterion"] == "icl_or_gain"
+    settings = info["cluster"]
+    assert settings["initial"] is True and settings["k_min"] == 1 and settings["k_max"] == 4
+    # the exact ICL's k, cut to the smallest k whose next k gains less than min_gain ...
+    top = max(scores, key=lambda k: scores[k]["exact_icl"])
+    gain = settings["min_gain"]
+    k_icl = next((k for k in range(1, top) if not scores[k + 1]["gain"] >= gain), top)
+    # ... raised only by steps that gain strong_gain in the fit and enough held out
+    T = float((demos.lengths - 1).sum())
+    expected = k_icl
+    while expected < 4 and scores[expected + 1]["gain"] >= settings["strong_gain"]:
+        step = scores[expected + 1]["heldout"] - scores[expected]["heldout"]
+        if step < DEFAULT_HELDOUT_GAIN * T:
+            break
+        expected += 1
+    if "heldout" not in scores[1]:  # no strong step was tried
+        assert expected == k_icl
+    assert info["k"] in (expected, k_icl) and info["k"] >= k_icl
+    assert info["k"] == model.num_types == 2
+    assert info["human_model"]["used"] == "chain"  # the task's own setting (the paper's)
+    again = LearnedModel.load(model.save(tmp_path / "m"))
+    assert again.info == json.loads(json.dumps(info))
+
+
+def test_learn_passes_its_settings_through(monkeypatch):
+    from torchhrc.mixture import ClusterConfig
+    from torchhrc.solvers.sarsop import SARSOPConfig
+
+    demos = simulate_study(n_subjects=6, n_demos=3, seed=0)
+    task = PlaceAndDrillTask(3)
+    seen = {}
+    original = pipeline.learn_type_weights
+
+    def spy(*args, **kwargs):
+        seen.update(kwargs)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "learn_type_weights", spy)
+    model = learn(task, demos, cluster=ClusterConfig(criterion="bic", k_min=2, k_max=3,
+                  restarts=2, objects="raw"), irl=IRLConfig(rule="last", epsilon=0.2,
+                  iterations=3), solver=SARSOPConfig(time_limit=5.0, max_iterations=2))  # fmt: skip
+    info = model.info
+    scores = {int(k): row for k, row in info["scores"].items()}
+    assert info["criterion"] == "bic" and sorted(scores) == [2, 3]
+    assert info["k"] <= max(scores, key=lambda k: scores[k]["bic"])
+    assert info["cluster"]["restarts"] == 2 and info["objects"] == "raw"
+    assert seen == {"rule": "last", "epsilon": 0.2, "max_iterations": 3, "seed": 0}
+    assert info["irl"] == {"rule": "last", "epsilon": 0.2, "iterations": 3}
+    assert info["solver"]["max_iterations"] == 2 and info["solver"]["time_limit"] == 5.0
+    assert info["solver"]["lower_bound_init"] == "type_policy_lower_bound"
+    # the keywords reach the same settings
+    again = learn(task, demos, criterion="bic", k_min=2, k_max=3, restarts=2, objects="raw",
+                  irl_epsilon=0.2, irl_iterations=3, solve=False)  # fmt: skip
+    assert again.info["scores"] == info["scores"] and again.info["k"] == info["k"]
+    with pytest.raises(ValueError, match="either in cluster= or as keywords"):
+        learn(task, demos, cluster=ClusterConfig(k_max=3), k_min=2, solve=False)
+    with pytest.raises(ValueError, match="either in irl="):
+        learn(task, demos, irl=IRLConfig(), irl_epsilon=0.1, solve=False)
+    with pytest.raises(TypeError):
+        ClusterConfig(k_maks=3)  # a typo is an error, not a silently ignored setting

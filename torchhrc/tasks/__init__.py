@@ -17,12 +17,13 @@ from torchhrc.tasks.interface import (
     tabular_features,
 )
 from torchhrc.tasks.people import SimulatedPeople, TabularPeople, TaskWithPeople
-from torchhrc.tasks.pipeline import LearnedModel, build_model, learn, solve_model
+from torchhrc.tasks.pipeline import IRLConfig, LearnedModel, build_model, learn, solve_model
 from torchhrc.tasks.suite import make_task, suite_tasks
 
 __all__ = [
     "CollaborativeTask",
     "Controller",
+    "IRLConfig",
     "LearnedModel",
     "SimulatedPeople",
     "TabularPeople",

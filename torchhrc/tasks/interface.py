@@ -119,6 +119,10 @@ class TypeEvidence:
             read its demonstrations as steps).
         noise: weight of a uniformly random legal human action in the behaviour.
         pause: probability that the human lets a turn pass although an action is legal.
+        human_model: the human model the pipeline chose (``"chain"`` or ``"state"``: the
+            task's :attr:`CollaborativeTask.human_model`, or ``"auto"`` resolved on held-out
+            data), which the default :meth:`~CollaborativeTask.human_policy` follows;
+            ``None``: the task's own setting (``"auto"`` then reads as ``"chain"``).
     """
 
     chains: torch.Tensor
@@ -127,6 +131,7 @@ class TypeEvidence:
     steps: TaskSteps | None
     noise: float = 0.05
     pause: float = 0.0
+    human_model: str | None = None
 
     @property
     def num_types(self) -> int:
@@ -210,7 +215,10 @@ class CollaborativeTask:
             (the paper's reading, place-and-drill); ``"state"``: from the type's
             demonstration steps, ``P(a_h | x after the robot's action)`` (counts with a
             Dirichlet pseudo-count), for tasks where the human's choice depends on the
-            task state more than on the robot's last move.
+            task state more than on the robot's last move; ``"auto"`` (default): the
+            pipeline fits both and keeps the one with the larger held-out likelihood of the
+            human's actions, held out by subject (:func:`torchhrc.tasks.pipeline.build_model`,
+            recorded in ``LearnedModel.info["human_model"]``).
         discount: discount factor of the MOMDP and of the IRL.
     """
 
@@ -219,7 +227,7 @@ class CollaborativeTask:
     human_actions: Sequence[str]
     robot_effect: torch.Tensor
     human_effect: torch.Tensor
-    human_model: Literal["chain", "state"] = "chain"
+    human_model: Literal["auto", "chain", "state"] = "auto"
     discount: float = 0.95
 
     # ------------------------------------------------------------------ sizes and defaults
@@ -435,16 +443,22 @@ class CollaborativeTask:
         dt, dev = chains.dtype, chains.device
         mid = torch.as_tensor(self.robot_effect).to(dev)  # (A, X)
         legal = torch.as_tensor(self.human_legal).to(dev)[mid]  # (A, X, H)
-        if self.human_model == "chain":
+        # the pipeline's choice (the task's own setting, or "auto" resolved on held-out data)
+        human_model = evidence.human_model or self.human_model
+        if human_model == "auto":
+            human_model = "chain"
+        if human_model == "chain":
             p = chain_preferences(chains, evidence.vocabulary, self.robot_actions,
                                   self.human_actions)  # fmt: skip
             p = p.unsqueeze(-2)  # (Y, A, 1, H)
-        elif self.human_model == "state":
+        elif human_model == "state":
             if evidence.steps is None:
                 raise ModelError("human_model='state' needs the demonstrations read as steps")
             p = _state_counts(self, evidence, dt, dev)  # (Y, A, X, H)
         else:
-            raise ModelError(f"expected human_model 'chain' or 'state', got {self.human_model!r}")
+            raise ModelError(
+                f"expected human_model 'auto', 'chain' or 'state', got {human_model!r}"
+            )
         legal_f = legal.to(dt)  # (A, X, H)
         num_legal = legal_f.sum(-1, keepdim=True)
         uniform = legal_f / num_legal.clamp_min(1.0)

@@ -41,8 +41,10 @@ from torchhrc.pomdp import MOMDP
 from torchhrc.tasks.interface import CollaborativeTask, TaskSteps, TypeEvidence, check_task
 
 __all__ = [
+    "IRLConfig",
     "LearnedModel",
     "build_model",
+    "compare_human_models",
     "learn",
     "learn_type_weights",
     "solve_model",
@@ -52,6 +54,39 @@ _FORMAT = "torchhrc.learned_task_model"
 _VERSION = 1
 
 RewardRule = Literal["dominant", "paper", "last"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class IRLConfig:
+    """Settings of the reward learning per type (:func:`learn_type_weights`).
+
+    Attributes:
+        rule: which reward of Abbeel and Ng's iterations is kept: ``"dominant"`` (default),
+            ``"paper"`` or ``"last"`` (:func:`learn_type_weights`).
+        epsilon: the projection algorithm's stopping margin on the feature expectations
+            (default 0.05).
+        iterations: cap on the IRL iterations (policies) per type (default 10).
+
+    Example:
+        >>> IRLConfig(epsilon=0.01).rule
+        'dominant'
+    """
+
+    rule: RewardRule = "dominant"
+    epsilon: float = 0.05
+    iterations: int = 10
+
+    def __post_init__(self) -> None:
+        if self.rule not in ("dominant", "paper", "last"):
+            raise ValueError(f"expected rule 'dominant', 'paper' or 'last', got {self.rule!r}")
+        if not self.epsilon > 0:
+            raise ValueError(f"expected epsilon > 0, got {self.epsilon!r}")
+        if (
+            isinstance(self.iterations, bool)
+            or not isinstance(self.iterations, int)
+            or (self.iterations < 1)
+        ):
+            raise ValueError(f"expected iterations to be an int >= 1, got {self.iterations!r}")
 
 
 @dataclass(frozen=True)
@@ -366,6 +401,126 @@ def learn_type_weights(
     return weights
 
 
+#: The human models :func:`compare_human_models` chooses from.
+HUMAN_MODELS: tuple[str, ...] = ("chain", "state")
+
+
+def _subset_steps(steps: TaskSteps, index: torch.Tensor) -> TaskSteps:
+    return TaskSteps(steps.states[index], steps.actions[index], steps.human[index],
+                     steps.next_states[index], steps.mask[index])  # fmt: skip
+
+
+def _type_chains(counts: torch.Tensor, assignments: torch.Tensor, K: int) -> torch.Tensor:
+    """``(K, V, V)`` each type's chain from its sequences' counts ``(N, V, V)``: the soft
+    method's M-step, ``(n_k(a, b) + 0.1) / sum_b' (n_k(a, b') + 0.1)``."""
+    from torchhrc.mixture.selection import DEFAULT_PSEUDO_COUNT
+
+    onehot = torch.nn.functional.one_hot(assignments.long(), K).to(counts.dtype)  # (N, K)
+    chains = torch.einsum("nk,nab->kab", onehot, counts) + DEFAULT_PSEUDO_COUNT
+    return chains / chains.sum(-1, keepdim=True)
+
+
+def compare_human_models(
+    task: CollaborativeTask,
+    demonstrations: Any,
+    assignments: torch.Tensor,
+    *,
+    noise: float = 0.05,
+    pause: float = 0.01,
+    folds: int = 5,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Held-out likelihood of the human's actions under each human model, by subject.
+
+    The subjects are dealt at random into ``F = min(folds, subjects)`` folds. For each fold
+    and each model in :data:`HUMAN_MODELS` (``task.human_model`` set to it through
+    ``TypeEvidence.human_model``), the behaviour ``P(a_h | x, a_r, y)`` of every type is
+    learned by ``task.human_policy`` from the other folds' demonstrations (their types
+    ``assignments``; chains re-estimated on them), and each held-out subject scores
+    ``log sum_y w_y prod_t P(a_h,t | x_t, a_r,t, y)`` over all its steps (``w_y``: the
+    training share of type ``y``, plus one; no held-out type is used). The model with the
+    larger total is ``"used"``; ties go to ``"chain"`` (the paper's).
+
+    Args:
+        task: a task whose :meth:`~CollaborativeTask.human_policy` reads
+            ``TypeEvidence.human_model`` (the default one does).
+        demonstrations: the training :class:`~torchhrc.data.Demonstrations` (``N``).
+        assignments: ``(N,)`` int64 type of every demonstration.
+        noise, pause: the behaviour's settings (:class:`TypeEvidence`).
+        folds: the number of folds over subjects.
+        seed: the fold split's seed.
+
+    Returns:
+        ``{"used", "heldout": {model: nats}, "per_step": {model: nats per human turn},
+        "folds", "subjects", "steps"}``; ``"used"`` is ``"same"`` (and nothing is held out)
+        when ``task.human_policy`` gives the same behaviour for every model (a task with its
+        own human policy, or one whose human has one legal action wherever it acts), and
+        ``"chain"`` when the task reads no steps or has one subject.
+
+    Example:
+        >>> from torchhrc.tasks.suite import make_task
+        >>> twp = make_task("fetch_order")
+        >>> demos, types = twp.demonstrations(subjects=6, per_subject=2, seed=0)
+        >>> compare_human_models(twp.task, demos, types)["used"] in HUMAN_MODELS
+        True
+    """
+    steps = task.read_steps(demonstrations)
+    N = demonstrations.num_sequences
+    assignments = assignments.long().cpu()
+    K = int(assignments.max()) + 1 if N else 1
+    counts = demonstrations.transition_counts(per_sequence=True).double().cpu()  # (N, V, V)
+    vocabulary = tuple(tuple(v) for v in demonstrations.vocabulary)
+
+    def behaviour(index: torch.Tensor, model: str) -> torch.Tensor:
+        evidence = TypeEvidence(
+            chains=_type_chains(counts[index], assignments[index], K),
+            vocabulary=vocabulary,  # type: ignore[arg-type]
+            assignments=assignments[index],
+            steps=None if steps is None else _subset_steps(steps, index.to(steps.mask.device)),
+            noise=noise, pause=pause, human_model=model,
+        )  # fmt: skip
+        return task.human_policy(evidence).detach().double().cpu()  # (K, A, X, H + 1)
+
+    every = torch.arange(N)
+    names = list(demonstrations.subjects)
+    index: dict[str, int] = {}
+    subject = torch.tensor([index.setdefault(n, len(index)) for n in names], dtype=torch.long)
+    S = len(index)
+    record: dict[str, Any] = {"folds": 0, "subjects": S, "heldout": {}, "per_step": {}}
+    if steps is None or S < 2:
+        return {**record, "used": "chain"}
+    full = [behaviour(every, m) for m in HUMAN_MODELS]
+    if all(torch.equal(full[0], b) for b in full[1:]):
+        return {**record, "used": "same"}
+    F_ = min(int(folds), S)
+    fold_of = torch.empty(S, dtype=torch.long)
+    fold_of[torch.randperm(S, generator=torch.Generator().manual_seed(int(seed)))] = (
+        torch.arange(S) % F_
+    )
+    fold = fold_of[subject]  # (N,)
+    mask = steps.mask.cpu()
+    x, a = steps.states.cpu(), steps.actions.cpu()
+    h = steps.human.cpu()
+    H = task.num_human_actions
+    column = torch.where(h < 0, H, h)  # (N, L), "no action" is the last column
+    totals = {m: 0.0 for m in HUMAN_MODELS}
+    for f in range(F_):
+        train, held = every[fold != f], every[fold == f]
+        sizes = torch.bincount(assignments[train], minlength=K).double() + 1.0
+        log_w = (sizes / sizes.sum()).log()  # (K,)
+        local = torch.unique(subject[held], return_inverse=True)[1]  # (n,)
+        for m in HUMAN_MODELS:
+            log_b = behaviour(train, m).clamp_min(1e-300).log()  # (K, A, X, H + 1)
+            per = log_b[:, a[held], x[held], column[held]]  # (K, n, L)
+            per = (per * mask[held]).sum(-1)  # (K, n)
+            by_subject = per.new_zeros(K, int(local.max()) + 1).index_add_(1, local, per)
+            totals[m] += float(torch.logsumexp(by_subject + log_w[:, None], 0).sum())
+    turns = max(int(mask.sum()), 1)
+    used = max(HUMAN_MODELS, key=lambda m: (totals[m], m == "chain"))
+    return {**record, "used": used, "folds": F_, "steps": turns, "heldout": totals,
+            "per_step": {m: totals[m] / turns for m in HUMAN_MODELS}}  # fmt: skip
+
+
 def build_model(
     task: CollaborativeTask,
     demonstrations: Any,
@@ -380,6 +535,7 @@ def build_model(
     irl_iterations: int = 10,
     seed: int = 0,
     info: dict[str, Any] | None = None,
+    human_model: str | None = None,
 ) -> LearnedModel:
     """Build the learned MOMDP from given types (no solve).
 
@@ -393,6 +549,11 @@ def build_model(
         pause: probability of a skipped human turn.
         rule, irl_epsilon, irl_iterations, seed: IRL settings (:func:`learn_type_weights`).
         info: extra facts stored with the model.
+        human_model: ``"chain"``, ``"state"`` or ``"auto"`` (:attr:`CollaborativeTask.human_model`
+            of the default human policy); ``None``: the task's own ``human_model``. With
+            ``"auto"`` the better of the two on held-out likelihood by subject is used
+            (:func:`compare_human_models`); ``info["human_model"]`` records the choice and
+            the held-out likelihoods.
 
     Returns:
         :class:`LearnedModel` with ``policy=None``.
@@ -414,6 +575,18 @@ def build_model(
         raise ModelError(f"expected assignments in [0, {K}), got range "
                          f"[{int(assignments.min())}, {int(assignments.max())}]")  # fmt: skip
     A, X, H = task.num_actions, task.num_states, task.num_human_actions
+    requested = getattr(task, "human_model", None) if human_model is None else human_model
+    if requested not in (None, "auto", *HUMAN_MODELS):
+        raise ValueError(f"expected human_model 'auto', 'chain' or 'state' (or None), "
+                         f"got {requested!r}")  # fmt: skip
+    chosen: dict[str, Any] = {"requested": requested}
+    if requested == "auto":
+        chosen.update(compare_human_models(task, demonstrations, assignments, noise=noise,
+                                           pause=pause, seed=seed))  # fmt: skip
+        model_name = chosen["used"] if chosen["used"] in HUMAN_MODELS else None
+    else:
+        chosen["used"] = requested
+        model_name = requested
     steps = task.read_steps(demonstrations)
     evidence = TypeEvidence(
         chains=chains,
@@ -422,6 +595,7 @@ def build_model(
         steps=steps,
         noise=noise,
         pause=pause,
+        human_model=model_name,
     )
     behaviour = _check_types("human_policy()", task.human_policy(evidence), 0, K,
                              f"(Y={K}, A={A}, X={X}, H+1={H + 1})")  # fmt: skip
@@ -482,7 +656,7 @@ def build_model(
         assignments=evidence.assignments,
         feature_names=tuple(task.feature_names) if R is not None and weights.numel() else (),
         human_actions=tuple(task.human_actions),
-        info=dict(info or {}),
+        info={**dict(info or {}), "human_model": chosen},
     )
 
 
@@ -493,6 +667,7 @@ def solve_model(
     precision: float = 1e-3,
     max_iterations: int | None = None,
     seed: int = 0,
+    config: Any = None,
 ) -> LearnedModel:
     """Solve the model's MOMDP with SARSOP (typed lower bound: the best per-type policy).
 
@@ -502,25 +677,38 @@ def solve_model(
         precision: target gap, relative to the reward span ``max R - min R``.
         max_iterations: cap on SARSOP iterations (deterministic stop).
         seed: solver seed.
+        config: a :class:`~torchhrc.solvers.sarsop.SARSOPConfig` used instead of the four
+            settings above, as given (``precision`` absolute), except that a config without
+            ``lower_bound_init`` gets the typed lower bound.
 
     Returns:
-        The model with ``policy``, ``lower`` and ``upper`` set.
+        The model with ``policy``, ``lower`` and ``upper`` set, and ``info["solver"]``: the
+        settings used.
     """
     from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
     from torchhrc.solvers.type_policies import type_policy_lower_bound
 
     m = model.momdp
-    span = float(m.R.max() - m.R.min()) or 1.0
-    config = SARSOPConfig(
-        time_limit=time_limit,
-        precision=precision * span,
-        max_iterations=max_iterations,
-        seed=seed,
-        lower_bound_init=type_policy_lower_bound,
-    )
+    if config is None:
+        span = float(m.R.max() - m.R.min()) or 1.0
+        config = SARSOPConfig(
+            time_limit=time_limit,
+            precision=precision * span,
+            max_iterations=max_iterations,
+            seed=seed,
+            lower_bound_init=type_policy_lower_bound,
+        )
+    elif not isinstance(config, SARSOPConfig):
+        raise TypeError(f"expected config to be a SARSOPConfig, got {type(config).__name__}")
+    elif config.lower_bound_init is None:
+        config = replace(config, lower_bound_init=type_policy_lower_bound)
     solution = sarsop(m, config)
+    used = {name: getattr(config, name) for name in ("time_limit", "precision",
+            "max_iterations", "seed", "tie_break", "kappa", "prediction", "clock")}  # fmt: skip
+    used["lower_bound_init"] = getattr(config.lower_bound_init, "__name__", "custom")
+    info = {**model.info, "solver": {"name": "sarsop", **used}}
     return replace(model, policy=solution.policy, lower=float(solution.lower),
-                   upper=float(solution.upper))  # fmt: skip
+                   upper=float(solution.upper), info=info)  # fmt: skip
 
 
 def learn(
@@ -528,14 +716,22 @@ def learn(
     demonstrations: Any,
     *,
     k: int | None = None,
-    k_min: int = 1,
-    k_max: int = 6,
-    restarts: int = 10,
-    mixture_method: str = "soft",
-    bic_parameters: str = "support",
+    cluster: Any = None,
+    irl: IRLConfig | None = None,
+    solver: Any = None,
+    human_model: str | None = None,
+    k_min: int | None = None,
+    k_max: int | None = None,
+    restarts: int | None = None,
+    mixture_method: str | None = None,
+    bic_parameters: str | None = None,
+    criterion: str | None = None,
+    objects: str | None = None,
+    min_gain: float | None = None,
     noise: float = 0.05,
     pause: float = 0.01,
-    irl_iterations: int = 10,
+    irl_epsilon: float | None = None,
+    irl_iterations: int | None = None,
     solve: bool = True,
     solver_time: float = 5.0,
     solver_precision: float = 1e-3,
@@ -544,42 +740,120 @@ def learn(
 ) -> LearnedModel:
     """Turn a task and its demonstrations into a learned, solved model (one call).
 
-    Steps: cluster the demonstrations into types (:func:`torchhrc.mixture.fit_mixture`,
-    BIC picks ``k`` in ``[k_min, k_max]``, or exactly ``k``; ``k=1`` pools all
-    demonstrations: a type-agnostic MDP), then :func:`build_model` and :func:`solve_model`.
+    Steps: cluster the demonstrations into types (:func:`torchhrc.mixture.fit_mixture`; its
+    criterion picks ``k`` in ``[k_min, k_max]``, or exactly ``k``; ``k=1`` pools all
+    demonstrations: a type-agnostic MDP), then :func:`build_model` (the human model, chosen
+    on held-out likelihood by default; rewards by IRL) and :func:`solve_model`.
+
+    Settings come as config objects (preferred) or as the keywords below them; a keyword
+    given together with the config that holds it is an error (``ValueError``).
 
     Args:
         task: the task.
         demonstrations: :class:`~torchhrc.data.Demonstrations` over the task's actions.
-        k, k_min, k_max, restarts, mixture_method: clustering settings.
-        bic_parameters: the BIC's parameter count (:func:`~torchhrc.mixture.fit_mixture`'s
-            ``parameters``): ``"support"`` (default: only transitions seen in the data are
-            free, so short demonstrations over many symbols are not over-penalised) or
-            ``"full"`` (the paper's ``k V (V - 1)``).
+        k: force the number of types (``k_min = k_max = k``).
+        cluster: a :class:`~torchhrc.mixture.ClusterConfig`; its unset fields take
+            ``learn``'s defaults (``k_min=1``, ``k_max=6``, ``restarts=10``,
+            ``parameters="support"``, ``initial=True``: each type's first move is modelled)
+            or :func:`~torchhrc.mixture.fit_mixture`'s (e.g.
+            ``criterion``: held-out likelihood for the soft method, BIC for ``"paper"``).
+        irl: an :class:`IRLConfig` (rule, epsilon, iterations).
+        solver: a :class:`~torchhrc.solvers.sarsop.SARSOPConfig`, used as given (its
+            ``precision`` is absolute; without a ``lower_bound_init`` the typed lower bound
+            of :func:`solve_model` is used).
+        human_model: ``"auto"``, ``"chain"`` or ``"state"`` (:func:`build_model`); ``None``:
+            the task's ``human_model`` (default ``"auto"``).
+        k_min, k_max, restarts, mixture_method, bic_parameters, criterion, objects,
+            min_gain: the clustering keywords (:func:`~torchhrc.mixture.fit_mixture`'s
+            ``k_min``, ``k_max``, ``restarts``, ``method``, ``parameters``, ``criterion``,
+            ``objects``, ``min_gain``), instead of ``cluster``.
         noise, pause: human-behaviour settings (:class:`~torchhrc.tasks.interface.TypeEvidence`).
-        irl_iterations: cap on the IRL policies per type.
+        irl_epsilon, irl_iterations: instead of ``irl``.
         solve: solve the MOMDP (SARSOP) too.
-        solver_time, solver_precision, solver_iterations: :func:`solve_model` settings.
+        solver_time, solver_precision, solver_iterations: :func:`solve_model` settings
+            (``solver_precision`` relative to the reward span), instead of ``solver``.
         seed: the seed of everything.
 
     Returns:
-        :class:`LearnedModel` (uniform ``b0``).
+        :class:`LearnedModel` (uniform ``b0``) whose ``info`` records what decided it
+        (JSON, saved with the model): ``k``, ``criterion``, ``scores`` (every k's scores
+        under every criterion: ``bic``, ``exact_icl``, ``log_likelihood``, ``gain``,
+        ``heldout`` and ``heldout_se``), ``objects``, ``cluster`` (the settings used),
+        ``irl``, ``solver``, ``human_model`` (requested, used, held-out likelihoods) and
+        ``seed``.
+
+    Example:
+        >>> from torchhrc.mixture import ClusterConfig
+        >>> from torchhrc.tasks.suite import make_task
+        >>> twp = make_task("tool_handover")
+        >>> demos, _ = twp.demonstrations(subjects=6, per_subject=2, seed=0)
+        >>> m = learn(twp.task, demos, cluster=ClusterConfig(criterion="bic", k_max=3,
+        ...           restarts=2), irl=IRLConfig(iterations=2), solve=False)
+        >>> m.info["criterion"], m.info["k"] in (1, 2, 3)
+        ('bic', True)
     """
     from torchhrc.mixture import fit_mixture
+    from torchhrc.mixture.selection import DEFAULT_MIN_GAIN, DEFAULT_STRONG_GAIN, ClusterConfig
 
     check_task(task)
+    keywords = dict(k_min=k_min, k_max=k_max, restarts=restarts, method=mixture_method,
+                    parameters=bic_parameters, criterion=criterion, objects=objects,
+                    min_gain=min_gain)  # fmt: skip
+    given = {name: v for name, v in keywords.items() if v is not None}
+    if cluster is None:
+        cluster = ClusterConfig(**given)  # type: ignore[arg-type]
+    elif not isinstance(cluster, ClusterConfig):
+        raise TypeError(f"expected cluster to be a ClusterConfig, got {type(cluster).__name__}")
+    elif given:
+        raise ValueError(f"pass the clustering settings either in cluster= or as keywords, "
+                         f"not both (got {', '.join(sorted(given))})")  # fmt: skip
+    options = {"k_min": 1, "k_max": 6, "restarts": 10, "parameters": "support",
+               "initial": True, **cluster.options()}  # fmt: skip
     if k is not None:
-        k_min = k_max = k
-    fit = fit_mixture(demonstrations, k_min=k_min, k_max=k_max, restarts=restarts,
-                      method=mixture_method, parameters=bic_parameters,
-                      seed=seed)  # type: ignore[arg-type]  # fmt: skip
-    info = {"k": int(fit.k), "bic": float(fit.bic), "log_likelihood": float(fit.log_likelihood),
-            "seed": seed}  # fmt: skip
+        options["k_min"] = options["k_max"] = k
+    if irl is None:
+        irl = IRLConfig(epsilon=0.05 if irl_epsilon is None else irl_epsilon,
+                        iterations=10 if irl_iterations is None else irl_iterations)  # fmt: skip
+    elif not isinstance(irl, IRLConfig):
+        raise TypeError(f"expected irl to be an IRLConfig, got {type(irl).__name__}")
+    elif irl_epsilon is not None or irl_iterations is not None:
+        raise ValueError("pass the IRL settings either in irl= or as irl_epsilon/irl_iterations, "
+                         "not both")  # fmt: skip
+    fit = fit_mixture(demonstrations, seed=seed, **options)
+    info: dict[str, Any] = {
+        "k": int(fit.k),
+        "criterion": fit.criterion,
+        "scores": {str(kk): dict(row) for kk, row in fit.per_k.items()},
+        "bic": float(fit.bic),
+        "log_likelihood": float(fit.log_likelihood),
+        "objects": fit.objects,
+        "cluster": _jsonable(
+            {
+                "method": fit.method,
+                "min_gain": DEFAULT_MIN_GAIN if fit.method == "soft" else 0.0,
+                "strong_gain": DEFAULT_STRONG_GAIN,
+                "se_factor": 1.0,
+                "folds": 5,
+                **options,
+            }
+        ),
+        "irl": {"rule": irl.rule, "epsilon": irl.epsilon, "iterations": irl.iterations},
+        "seed": seed,
+    }
     chains = fit.transition_over(demonstrations)  # over the recorded symbols (fit.objects)
     model = build_model(task, demonstrations, chains, fit.assignments, noise=noise,
-                        pause=pause, irl_iterations=irl_iterations, seed=seed,
-                        info=info)  # fmt: skip
+                        pause=pause, rule=irl.rule, irl_epsilon=irl.epsilon,
+                        irl_iterations=irl.iterations, seed=seed, info=info,
+                        human_model=human_model)  # fmt: skip
     if solve:
-        model = solve_model(model, time_limit=solver_time, precision=solver_precision,
-                            max_iterations=solver_iterations, seed=seed)  # fmt: skip
+        if solver is None:
+            model = solve_model(model, time_limit=solver_time, precision=solver_precision,
+                                max_iterations=solver_iterations, seed=seed)  # fmt: skip
+        else:
+            model = solve_model(model, config=solver)
     return model
+
+
+def _jsonable(options: dict[str, Any]) -> dict[str, Any]:
+    """Settings as JSON values (a dtype by name)."""
+    return {k: (str(v) if isinstance(v, torch.dtype) else v) for k, v in options.items()}

@@ -122,6 +122,9 @@ class PlaceAndDrillTask(CollaborativeTask):
 
     n_positions: int = 3
     discount: float = 0.95
+    #: the paper's reading of the human: each type's chain, ``P(a_h | previous robot action)``
+    #: (not a dataclass field; the pipeline's "auto" comparison is not run for this task)
+    human_model = "chain"
 
     def __post_init__(self) -> None:
         if not 0.0 < float(self.discount) < 1.0:

@@ -8,6 +8,7 @@ Example:
 """
 
 from torchhrc.tasks.controller import Controller
+from torchhrc.tasks.evaluation import TaskEvaluation, evaluate_task
 from torchhrc.tasks.interface import (
     CollaborativeTask,
     TaskSteps,
@@ -27,12 +28,14 @@ __all__ = [
     "LearnedModel",
     "SimulatedPeople",
     "TabularPeople",
+    "TaskEvaluation",
     "TaskSteps",
     "TaskWithPeople",
     "TypeEvidence",
     "build_model",
     "chain_preferences",
     "check_task",
+    "evaluate_task",
     "learn",
     "make_task",
     "solve_model",

@@ -201,6 +201,15 @@ def test_corpus_views_read_the_same_rows_as_in_memory(
 
 
 @pytest.fixture(scope="module")
+def unequal(study: Demonstrations) -> Demonstrations:
+    """The study without 4 subjects of one type (12 and 8 subjects): with types of equal
+    size, the cluster labels follow a tie of sizes that Ray's chunked E-step sums may break
+    the other way (the same partition, its labels swapped)."""
+    drop = [s for s, t in zip(study.subjects, study.types, strict=True) if t == "safe"][::3][:4]
+    return study.select_subjects(set(drop), exclude=True)
+
+
+@pytest.fixture(scope="module")
 def local_ray():
     ray = pytest.importorskip("ray", reason="the [ray] extra is not installed")
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
@@ -251,17 +260,37 @@ def _ran_on_ray_workers(record: dict[str, list], *, shards: bool) -> None:
 # 2 shards with Ray: test_ray_shard_statistics_run_in_ray_workers (each fit here starts actors)
 @pytest.mark.parametrize(("shards", "suffix"), [(1, ".csv"), (4, ".parquet")])
 def test_ray_shard_tasks_and_e_steps_give_the_in_memory_fit(
-    study: Demonstrations, tmp_path: Path, where_it_ran, shards: int, suffix: str
+    unequal: Demonstrations, tmp_path: Path, where_it_ran, shards: int, suffix: str
 ) -> None:
     """Shards reduced as Ray tasks, every E-step on Ray actors (a local cluster, 2 CPUs), in
     other processes than the driver (issue 30: a local run in their place passed)."""
-    ordered = _write_shards(study, tmp_path, shards, suffix)
+    ordered = _write_shards(unequal, tmp_path, shards, suffix)
     options = dict(k_min=1, k_max=3, restarts=3, seed=5)
     memory = fit_mixture(ordered, **options)
     assert not where_it_ran["e_steps"]
     on_ray = fit_mixture(ShardedCorpus.open(tmp_path), ray=True, **options)
     _ran_on_ray_workers(where_it_ran, shards=True)
     _same_fit(on_ray, memory)
+
+
+def test_cli_on_shards_with_ray_local_gives_the_in_memory_report(
+    unequal: Demonstrations, tmp_path: Path, where_it_ran, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 30: `torchhrc cluster SHARDDIR --ray local` fitted raw objects; now the in-memory
+    report, its shards reduced and its E-steps run by Ray workers."""
+    ordered = _write_shards(unequal, tmp_path / "shards", 4, ".csv")
+    ordered.write_csv(tmp_path / "all.csv")
+    argv = ["--k-max", "3", "--restarts", "3", "--json"]
+    assert main(["cluster", str(tmp_path / "shards"), "--ray", "local", *argv]) == 0
+    sharded = json.loads(capsys.readouterr().out)
+    _ran_on_ray_workers(where_it_ran, shards=True)
+    assert main(["cluster", str(tmp_path / "all.csv"), *argv]) == 0
+    memory = json.loads(capsys.readouterr().out)
+    assert sharded["objects"] == memory["objects"] == "exchangeable"
+    for key in ("k", "assignments", "adjusted_rand_index"):
+        assert sharded[key] == memory[key], key
+    for key in ("bic", "log_likelihood"):
+        assert sharded[key] == pytest.approx(memory[key], abs=1e-6), key
 
 
 def test_ray_shard_statistics_run_in_ray_workers(
@@ -277,13 +306,11 @@ def test_ray_shard_statistics_run_in_ray_workers(
     assert ordered.num_sequences == there.stats.num_sequences
 
 
-def test_ray_e_steps_for_data_in_memory(study: Demonstrations, where_it_ran) -> None:
+def test_ray_e_steps_for_data_in_memory(unequal: Demonstrations, where_it_ran) -> None:
     """``ray=`` with demonstrations in memory runs the E-steps on Ray actors (not ignored)."""
-    # raw: the two types are of equal size, and exchangeable chains tie in cluster order up to
-    # float rounding, which Ray's chunked sums may flip
-    options = dict(k_min=1, k_max=3, restarts=3, seed=2, objects="raw")
-    memory = fit_mixture(study, **options)
-    on_ray = fit_mixture(study, ray=True, **options)
+    options = dict(k_min=1, k_max=3, restarts=3, seed=2)  # the defaults, objects="auto"
+    memory = fit_mixture(unequal, **options)
+    on_ray = fit_mixture(unequal, ray=True, **options)
     _ran_on_ray_workers(where_it_ran, shards=False)
     _same_fit(on_ray, memory)
 

@@ -148,6 +148,16 @@ def test_belief_accuracy_and_split(fitted):
     assert "identified" in result.table()
 
 
+def test_told_the_type_gets_the_right_hand_every_time(fitted):
+    world, demos, aware, _ = fitted
+    result = evaluate_task(world, aware, demonstrations=demos, agnostic=False, episodes=50,
+                           noise=0.2, told_type=True, seed=4)  # fmt: skip
+    assert result.robots == ("type-aware", "told the type")
+    # its belief sits on the person's type whatever their first move: +g^2 for both types
+    torch.testing.assert_close(result.mean[1], torch.full((2,), G**2, dtype=torch.float64))
+    assert bool((result.mean[0] < result.mean[1]).all())  # slips mislead the filter only
+
+
 def test_seeded_and_validated(fitted):
     world, _, aware, agnostic = fitted
     a = evaluate_task(world, aware, agnostic=agnostic, episodes=20, seed=5)

@@ -202,6 +202,7 @@ def _simulate(
     seed: int,
     horizon: int,
     record_belief: bool,
+    prior: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, list[torch.Tensor]]:
     """``B`` episodes of ``robot`` against the people of ``types (B,)``: returns
     ``(return (B,), length (B,), beliefs)``, ``beliefs[t]`` the robot's belief ``(B, K)``
@@ -221,7 +222,10 @@ def _simulate(
     total = torch.zeros(B, dtype=torch.float64)
     length = torch.zeros(B, dtype=torch.long)
     o = torch.zeros(B, dtype=torch.long)
-    robot.reset(batch=B)
+    if prior is None:
+        robot.reset(batch=B)
+    else:
+        robot.reset(prior)  # (B, K): one belief per episode
     beliefs: list[torch.Tensor] = []
     for t in range(horizon + 1):
         a = robot.act((x, o) if z is not None else x)
@@ -258,6 +262,26 @@ def _true_type_ids(world: TaskWithPeople, demonstrations: Demonstrations) -> tor
     return torch.tensor([names[label] for label in labels], dtype=torch.long)
 
 
+def _type_map(
+    world: TaskWithPeople,
+    model: LearnedModel,
+    demonstrations: Demonstrations | None,
+    belief: torch.Tensor,
+    Y: int,
+    episodes: int,
+) -> tuple[torch.Tensor, str]:
+    """``(Y,)`` the learned type of each true type: the majority of its training
+    demonstrations' assignments, or the largest mean posterior of ``belief (B, K)``."""
+    K = model.num_types
+    truth = None if demonstrations is None else _true_type_ids(world, demonstrations)
+    if truth is not None and truth.shape[0] == model.assignments.shape[0]:
+        counts = torch.zeros(Y, K, dtype=torch.long)
+        counts.index_put_((truth, model.assignments.long().cpu()), torch.ones_like(truth),
+                          accumulate=True)  # fmt: skip
+        return counts.argmax(-1), "assignments"
+    return belief.view(Y, episodes, K).mean(1).argmax(-1), "posterior"
+
+
 def evaluate_task(
     world: TaskWithPeople,
     model: LearnedModel | None,
@@ -269,6 +293,7 @@ def evaluate_task(
     noise: float = 0.05,
     belief_steps: int | Sequence[int] = (1, 3, 5),
     split_threshold: float = 0.8,
+    told_type: bool = False,
     horizon: int | None = None,
     seed: int = 0,
 ) -> TaskEvaluation:
@@ -292,6 +317,11 @@ def evaluate_task(
             default 0.05, the demonstrations' default).
         belief_steps: the ``n`` (belief updates) at which the type-aware belief is checked.
         split_threshold: a type whose mean largest posterior stays below this is ``"split"``.
+        told_type: add the robot ``"told the type"``: the type-aware controller started
+            with all its belief on the learned type the person's true type maps to. It
+            separates the two ways a type-aware robot can fail: if it also loses, the
+            learned behaviour or reward of the type is wrong; if only the type-aware one
+            loses, the belief does not find the type in time.
         horizon: steps per episode (default ``world.horizon``).
         seed: the seed of the people's generator (the same for every robot).
 
@@ -354,9 +384,14 @@ def evaluate_task(
         raise ValueError("nothing to evaluate: give a model or robots")
 
     types = torch.arange(Y).repeat_interleave(episodes)  # (B,) episodes grouped by type
-    returns = torch.zeros(len(entries), Y, episodes, dtype=torch.float64)
-    steps = torch.zeros(len(entries), Y, dtype=torch.float64)
+    if told_type and model is None:
+        raise ValueError("told_type=True needs a model")
+    R = len(entries) + int(told_type)
+    returns = torch.zeros(R, Y, episodes, dtype=torch.float64)
+    steps = torch.zeros(R, Y, dtype=torch.float64)
     beliefs: list[torch.Tensor] = []
+    type_map = torch.full((Y,), -1, dtype=torch.long)
+    source = "none"
     for r, (_name, robot) in enumerate(entries):
         aware = model is not None and r == 0
         total, length, seen = _simulate(world, robot, types, noise=float(noise), seed=seed,
@@ -364,33 +399,33 @@ def evaluate_task(
         returns[r] = total.view(Y, episodes)
         steps[r] = length.double().view(Y, episodes).mean(-1)
         if aware:
+            assert model is not None
             beliefs = seen
+            at = checks[-1] if checks else T
+            type_map, source = _type_map(world, model, demonstrations, seen[at], Y, episodes)
+    if told_type:
+        assert model is not None
+        prior = torch.nn.functional.one_hot(type_map[types], model.num_types)
+        total, length, _ = _simulate(world, Controller.from_model(model), types,
+                                     noise=float(noise), seed=seed, horizon=T,
+                                     record_belief=False,
+                                     prior=prior.to(model.momdp.b0.dtype))  # fmt: skip
+        returns[-1] = total.view(Y, episodes)
+        steps[-1] = length.double().view(Y, episodes).mean(-1)
+        entries.append(("told the type", None))
     mean = returns.mean(-1)
     ci = Z95 * returns.std(-1, correction=1) / math.sqrt(episodes)
-    pooled = returns.view(len(entries), -1)
+    pooled = returns.view(R, -1)
     overall_mean = pooled.mean(-1)
     overall_ci = Z95 * pooled.std(-1, correction=1) / math.sqrt(pooled.shape[-1])
 
     S = len(checks) if beliefs else 0
-    type_map = torch.full((Y,), -1, dtype=torch.long)
-    source = "none"
     accuracy = torch.zeros(Y, S, dtype=torch.float64)
     top = torch.zeros(Y, S, dtype=torch.float64)
     status: tuple[str, ...] = ()
     if beliefs:
         assert model is not None
         K = model.num_types
-        truth = None if demonstrations is None else _true_type_ids(world, demonstrations)
-        if truth is not None and truth.shape[0] == model.assignments.shape[0]:
-            counts = torch.zeros(Y, K, dtype=torch.long)
-            counts.index_put_((truth, model.assignments.long().cpu()),
-                              torch.ones_like(truth), accumulate=True)  # fmt: skip
-            type_map = counts.argmax(-1)
-            source = "assignments"
-        else:
-            last = beliefs[checks[-1]].view(Y, episodes, K).mean(1)  # (Y, K)
-            type_map = last.argmax(-1)
-            source = "posterior"
         for s, n in enumerate(checks):
             b = beliefs[n].view(Y, episodes, K)
             # ties share the credit: a uniform belief is not "right" by index order

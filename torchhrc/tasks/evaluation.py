@@ -367,6 +367,12 @@ def evaluate_task(
                 f"the model has A={model.momdp.num_actions}, X={model.momdp.num_observed}; "
                 f"the task has A={A}, X={X}"
             )
+        z = world.true_observation
+        if world.observed and z is not None and model.momdp.num_observations != z.shape[-1]:
+            raise ModelError(
+                f"the model observes O={model.momdp.num_observations} signals, the world's "
+                f"true_observation gives O={z.shape[-1]}"
+            )
         entries.append(("type-aware", Controller.from_model(model)))
     if agnostic is None and demonstrations is not None and model is not None:
         from torchhrc.tasks.pipeline import learn

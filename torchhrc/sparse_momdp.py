@@ -17,8 +17,8 @@ Shapes::
     x0, b0:      the initial observed value and (Y,) hidden belief
 
 Example:
-    >>> from torchhrc.tasks.classic import rock_sample_momdp
-    >>> sm = SparseMOMDP.from_dense(rock_sample_momdp(4, 4))
+    >>> from torchhrc.tasks.classic import rock_sample
+    >>> sm = SparseMOMDP.from_dense(rock_sample(4, 4, form="momdp"))
     >>> sm.num_observed, sm.num_hidden, int(sm.transitions[0].shape[0])  # one per (a, x, y)
     (17, 16, 2448)
 """
@@ -224,7 +224,10 @@ class SparseMOMDP:
     def to_dense(self) -> MOMDP:
         """The dense :class:`~torchhrc.pomdp.MOMDP` (raises :class:`ModelError` when too large).
 
-        ``Ty`` is ``P / Tx`` where ``Tx > 0``; on impossible ``(a, x, y, x2)`` it keeps ``y``.
+        ``Ty`` is ``P / Tx`` where ``Tx > 0``; on impossible ``(a, x, y, x2)`` it is the
+        hidden part's move ``sum_x2 P(x2, y2 | a, x, y)``, so a ``Ty`` that does not depend
+        on ``x2`` (RockSample's rocks) comes back as it was. Memory: one ``(A, X, Y, X, Y)``
+        tensor (RockSample(5, 7): 1.06 GB in float64).
 
         Example:
             >>> from torchhrc.testing import random_momdp
@@ -238,8 +241,11 @@ class SparseMOMDP:
         a, x, y, x2, y2 = index.unbind(-1)
         Tx = torch.zeros(A, X, Y, X, dtype=dtype)
         Tx.index_put_((a, x, y, x2), prob.to(dtype), accumulate=True)
-        # one (A, X, Y, X, Y) tensor in all (not the joint, then Ty): RockSample(5, 7) 1 GB
-        Ty = torch.eye(Y, dtype=dtype).view(1, 1, Y, 1, Y).expand(A, X, Y, X, Y).contiguous()
+        # where x2 is impossible, Ty is the hidden part's move averaged over x2:
+        # sum_x2 P(x2, y2 | a, x, y); then one (A, X, Y, X, Y) tensor in all
+        marginal = torch.zeros(A, X, Y, Y, dtype=dtype)
+        marginal.index_put_((a, x, y, y2), prob.to(dtype), accumulate=True)
+        Ty = marginal.unsqueeze(-2).expand(A, X, Y, X, Y).contiguous()
         Ty[Tx > 0] = 0.0
         Ty.index_put_((a, x, y, x2, y2), prob.to(dtype) / Tx[a, x, y, x2], accumulate=True)
         return MOMDP(

@@ -3,9 +3,9 @@
 The file is RockSample(4, 4) written the way APPL's ``examples/POMDPX/RockSample_*.pomdpx``
 are: one observed ``robot`` variable and one hidden variable per rock, so the hidden index
 joins four variables. The model it is built from (:func:`~torchhrc.tasks.classic.
-rock_sample_momdp`) numbers the rock states the other way (bit ``i`` of ``y`` is rock ``i``),
-so every check below goes through the variables' names, independently of ``read_pomdpx``'s
-index:
+rock_sample` with ``form="momdp"``) numbers the rock states the other way (bit ``i`` of ``y``
+is rock ``i``), so every check below goes through the variables' names, independently of
+``read_pomdpx``'s index:
 
 * ``read_pomdpx`` joins the hidden variables as APPL's ``FactoredPomdp`` does (the first
   declared varies slowest, ``mapFactoredStatesToValue``): the tensors read equal the source
@@ -41,7 +41,7 @@ from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sampling import momdp_step, sample_categorical
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
 from torchhrc.sparse_momdp import SparseMOMDP
-from torchhrc.tasks.classic import rock_sample_momdp
+from torchhrc.tasks.classic import rock_sample
 
 K = 4  # rocks
 ITERATIONS = 60  # the old pruning had broken the policy by then (V_low - max Q_low = 0.5)
@@ -73,7 +73,7 @@ def _file_order(m: MOMDP) -> torch.Tensor:
 
 def factored_rocksample() -> tuple[str, MOMDP]:
     """RockSample(4, 4) as an APPL-style ``.pomdpx`` text with one variable per rock."""
-    m = rock_sample_momdp(4, K)
+    m = rock_sample(4, K, form="momdp")
     A, X, Y, O = m.num_actions, m.num_observed, m.num_hidden, m.num_observations
     perm = _file_order(m)
     robot = " ".join(m.observed_states)

@@ -258,3 +258,16 @@ def test_form_argument_is_checked():
         tag(form="sparse", device="cpu")
     with pytest.raises(ModelError, match="robot_start"):
         tag(form="sparse_momdp", robot_start=29)
+
+
+def test_rock_sample_momdp_rocks_do_not_depend_on_the_next_position():
+    # A rock changes with (a, x, y) only (sampling spoils it), so Ty must not depend on x2,
+    # also where x2 is impossible (SparseMOMDP.to_dense fills those with the hidden move):
+    # what a .pomdpx file with one variable per rock says (tests/io/test_pomdpx_policy.py).
+    mm = rock_sample(3, 2, form="momdp")
+    torch.testing.assert_close(mm.Ty, mm.Ty[..., :1, :].expand_as(mm.Ty), rtol=0, atol=0)
+    # the default layout of (3, 2) with seed 0 puts rock 1 at (0, 0) = x 0: sampling there
+    # spoils it (y 0b11 -> 0b01), whatever x2, even x2 = 5, which sampling never reaches
+    sample = 4
+    assert mm.Ty[sample, 0, 0b11, 5].tolist() == [0.0, 1.0, 0.0, 0.0]
+    assert mm.Tx[sample, 0, 0b11, 5].item() == 0.0

@@ -27,7 +27,7 @@ from _timing import median_time
 from torchhrc.solvers import PBVIConfig, pbvi
 from torchhrc.solvers.backup import momdp_point_backup, point_backup
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.tasks.classic import rock_sample_momdp, tiger
+from torchhrc.tasks.classic import rock_sample, tiger
 from torchhrc.testing import random_pomdp
 
 
@@ -36,7 +36,7 @@ def batched_vs_loop(repeats: int, M: int) -> list[tuple[str, int, int, float, fl
     problems = {
         "Tiger": tiger(),
         "random S=30 A=4 O=5": random_pomdp(30, 4, 5, seed=0),
-        "RockSample(4,4) flat": rock_sample_momdp(4, 4).to_pomdp(),
+        "RockSample(4,4) flat": rock_sample(4, 4, form="momdp").to_pomdp(),
     }
     for name, model in problems.items():
         generator = torch.Generator().manual_seed(0)
@@ -60,7 +60,7 @@ def batched_vs_loop(repeats: int, M: int) -> list[tuple[str, int, int, float, fl
 
 
 def factored_vs_flat(repeats: int, expansions: int) -> list[tuple[str, str, str]]:
-    momdp = rock_sample_momdp(4, 4)
+    momdp = rock_sample(4, 4, form="momdp")
     flat_model = momdp.to_pomdp()
     X, Y = momdp.num_observed, momdp.num_hidden
     # the belief set and vectors of a factored PBVI run: the same inputs for both kernels

@@ -28,7 +28,7 @@ from _timing import median_time
 
 from torchhrc.belief import momdp_update_all, update, update_all
 from torchhrc.pomdp import POMDP
-from torchhrc.tasks.classic import rock_sample, rock_sample_momdp, tag, tag_momdp, tiger
+from torchhrc.tasks.classic import rock_sample, tag, tiger
 
 
 def _pomdp_py_update(model: POMDP, belief: np.ndarray, action: int, observation: int):
@@ -112,7 +112,10 @@ def main(argv: list[str] | None = None) -> int:
 
     print("\n| problem | momdp_update_all s | update_all on to_pomdp() s | ratio |")
     print("|---|---|---|---|")
-    for name, mm in {"RockSample(4,4)": rock_sample_momdp(4, 4), "Tag": tag_momdp()}.items():
+    for name, mm in {
+        "RockSample(4,4)": rock_sample(4, 4, form="momdp"),
+        "Tag": tag(form="momdp", robot_start=0),
+    }.items():
         flat = mm.to_pomdp()
         m = min(M, 64)
         g = torch.Generator().manual_seed(2)

@@ -58,7 +58,7 @@ import torch
 
 from torchhrc.io.cassandra import read_pomdp
 from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig, sarsop
-from torchhrc.tasks.classic import rock_sample, rock_sample_momdp, tag, tiger
+from torchhrc.tasks.classic import rock_sample, tag, tiger
 
 HERE = Path(__file__).resolve().parent
 PROBLEMS = {
@@ -183,7 +183,9 @@ def momdp_table(limit: float, precision: float, sizes: list[int] | None = None) 
         flat = sarsop(rock_sample(n, k), SARSOPConfig(time_limit=limit, precision=precision))
         target = max(flat.upper - flat.lower, precision)
         t_flat = _time_to_gap(flat.history, target)
-        fact = sarsop(rock_sample_momdp(n, k), SARSOPConfig(time_limit=limit, precision=target))
+        fact = sarsop(
+            rock_sample(n, k, form="momdp"), SARSOPConfig(time_limit=limit, precision=target)
+        )
         t_fact = _time_to_gap(fact.history, target)
         ratio = f"{t_flat / t_fact:>8.1f}" if t_flat and t_fact else f"{'-':>8}"
         print(f"{f'RockSample({n},{k})':<16}{target:>11.4f}{_fmt(t_flat, 9)}{_fmt(t_fact, 9)}"

@@ -16,7 +16,7 @@ import torch
 from torchhrc.cli import main
 from torchhrc.io.cassandra import read_pomdp, write_pomdp
 from torchhrc.io.pomdpx import read_pomdpx, write_pomdpx
-from torchhrc.tasks.classic import rock_sample_momdp, tiger
+from torchhrc.tasks.classic import rock_sample, tiger
 from torchhrc.testing import random_pomdp
 
 
@@ -63,7 +63,7 @@ def test_round_trip_pomdp_pomdpx_pomdp(capsys, tmp_path, name):
 
 
 def test_momdp_pomdpx_becomes_its_flat_pomdp(capsys, tmp_path):
-    model = rock_sample_momdp(4, 2)
+    model = rock_sample(4, 2, form="momdp")
     src = write_pomdpx(model, tmp_path / "rs42.pomdpx")
     code, out, err = _run(capsys, "convert", src, tmp_path / "rs42.pomdp")
     assert code == 0, err

@@ -14,7 +14,7 @@ from torchhrc.io.policyx import save_policy
 from torchhrc.io.pomdpx import write_pomdpx
 from torchhrc.solvers import SARSOPConfig, solve
 from torchhrc.solvers.qmdp import qmdp_policy
-from torchhrc.tasks.classic import rock_sample_momdp, tiger
+from torchhrc.tasks.classic import rock_sample, tiger
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +92,7 @@ def test_depth_min_prob_and_svg(capsys, files, tmp_path):
 
 
 def test_momdp_nodes_show_the_observed_state_and_type_belief(capsys, tmp_path):
-    model = rock_sample_momdp(4, 2)
+    model = rock_sample(4, 2, form="momdp")
     path = write_pomdpx(model, tmp_path / "rs42.pomdpx")
     policy = save_policy(qmdp_policy(model), tmp_path / "rs42.safetensors")
     code, _, err = _run(
@@ -118,7 +118,9 @@ def test_momdp_nodes_show_the_observed_state_and_type_belief(capsys, tmp_path):
     ],
 )
 def test_bad_input_exits_2_without_writing(capsys, files, tmp_path, extra, message):
-    other = save_policy(qmdp_policy(rock_sample_momdp(4, 2).to_pomdp()), tmp_path / "o.policyx")
+    other = save_policy(
+        qmdp_policy(rock_sample(4, 2, form="momdp").to_pomdp()), tmp_path / "o.policyx"
+    )
     argv = ["graph", files["model"], "--policy", files["policy"], "--out", tmp_path / "g.dot"]
     argv += [a.format(tmp=tmp_path, other=other) for a in extra]
     code, _, err = _run(capsys, *argv)

@@ -24,7 +24,7 @@ from torchhrc.io.pomdpx import read_pomdpx, write_pomdpx
 from torchhrc.solvers import SARSOPConfig, solve
 from torchhrc.solvers.policy_graph import controller_value, policy_graph
 from torchhrc.solvers.qmdp import qmdp_policy
-from torchhrc.tasks.classic import rock_sample_momdp, tiger
+from torchhrc.tasks.classic import rock_sample, tiger
 
 
 @pytest.fixture(scope="module")
@@ -106,7 +106,7 @@ def test_simulate_trace_is_the_bayes_filter(capsys, files, tmp_path):
 
 
 def test_simulate_momdp_trace_shows_the_observed_state(capsys, tmp_path):
-    model = rock_sample_momdp(4, 2)
+    model = rock_sample(4, 2, form="momdp")
     path = write_pomdpx(model, tmp_path / "rs42.pomdpx")
     policy = save_policy(qmdp_policy(model), tmp_path / "rs42.safetensors")
     trace = tmp_path / "t.jsonl"
@@ -183,7 +183,9 @@ def test_evaluate_agrees_with_pomdpeval(capsys, files, tmp_path):
 )
 @pytest.mark.parametrize("command", ["simulate", "evaluate"])
 def test_bad_input_exits_2_without_writing(capsys, files, tmp_path, command, argv, message):
-    other = save_policy(qmdp_policy(rock_sample_momdp(4, 2).to_pomdp()), tmp_path / "o.policyx")
+    other = save_policy(
+        qmdp_policy(rock_sample(4, 2, form="momdp").to_pomdp()), tmp_path / "o.policyx"
+    )
     garbage = tmp_path / "g.safetensors"
     garbage.write_bytes(b"not safetensors")
     bad = tmp_path / "bad.pomdp"

@@ -110,7 +110,7 @@ def test_sarsop_reads_and_solves_sparsely_above_the_dense_threshold(
 
 def test_pomdpx_files_are_chosen_by_suffix(capsys, tmp_path, monkeypatch):
     from torchhrc.io.pomdpx import write_pomdpx
-    from torchhrc.tasks.classic import rock_sample_momdp
+    from torchhrc.tasks.classic import rock_sample
 
     path = write_pomdpx(tiger(), tmp_path / "tiger.pomdpx")
     code, out, _ = _run(capsys, "solve", path, "--precision", "0.01", "--json", "--quiet")
@@ -118,7 +118,7 @@ def test_pomdpx_files_are_chosen_by_suffix(capsys, tmp_path, monkeypatch):
     assert code == 0 and report["model"] == "POMDP" and report["sparse"] is False
     assert report["lower"] <= 19.3711 <= report["upper"] and report["gap"] <= 0.01
     # a file with an observed state variable is solved as a MOMDP, with the flat model's value
-    momdp = rock_sample_momdp(2, 1)
+    momdp = rock_sample(2, 1, form="momdp")
     path = write_pomdpx(momdp, tmp_path / "rs.pomdpx")
     code, out, _ = _run(capsys, "solve", path, "--precision", "0.01", "--json", "--quiet")
     report = json.loads(out)

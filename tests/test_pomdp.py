@@ -10,7 +10,7 @@ import torch
 from torchhrc.belief import momdp_update, update
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
-from torchhrc.tasks.classic import rock_sample_momdp, tiger
+from torchhrc.tasks.classic import rock_sample, tiger
 from torchhrc.testing import random_belief, random_momdp, random_pomdp
 
 
@@ -73,7 +73,7 @@ def test_to_pomdp_from_pomdp_round_trip(static, batch):
 
 
 def test_from_pomdp_recovers_names_and_beliefs_agree():
-    m = rock_sample_momdp(2, 1)
+    m = rock_sample(2, 1, form="momdp")
     flat = m.to_pomdp()
     back = MOMDP.from_pomdp(flat, num_hidden=m.num_hidden)
     assert back.observed_states == m.observed_states

@@ -23,28 +23,28 @@ import argparse
 from pathlib import Path
 
 from torchhrc.io.cassandra import read_pomdp, write_pomdp
-from torchhrc.tasks.classic import rock_sample_sparse, tag_sparse, tiger
+from torchhrc.tasks.classic import rock_sample, tag, tiger
 
 PROBLEMS = {
     "tiger": (lambda: tiger(), True, "Tiger (Kaelbling, Littman, Cassandra 1998)"),
     "rocksample_4_4": (
-        lambda: rock_sample_sparse(4, 4),
+        lambda: rock_sample(4, 4, form="sparse"),
         True,
         "RockSample(4,4) (Smith & Simmons 2004); states x<col>y<row>_<rock qualities G/B>",
     ),
     "rocksample_5_5": (
-        lambda: rock_sample_sparse(5, 5),
+        lambda: rock_sample(5, 5, form="sparse"),
         True,
         "RockSample(5,5) (Smith & Simmons 2004); states x<col>y<row>_<rock qualities G/B>",
     ),
     "rocksample_7_8": (
-        lambda: rock_sample_sparse(7, 8),
+        lambda: rock_sample(7, 8, form="sparse"),
         False,
         "RockSample(7,8) (Smith & Simmons 2004); state s = (row * 7 + col) * 256 + q, "
         "bit i of q = rock i good, s = 12544 + 1 terminal",
     ),
     "tag": (
-        lambda: tag_sparse(),
+        lambda: tag(form="sparse"),
         True,
         "Tag (Pineau, Gordon, Thrun 2003); states r<row>c<col>_<opponent cell | tagged>",
     ),

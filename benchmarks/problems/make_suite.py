@@ -74,7 +74,7 @@ from torchhrc.io.cassandra import read_pomdp, write_pomdp
 from torchhrc.io.pomdpx import write_pomdpx
 from torchhrc.pomdp import POMDP
 from torchhrc.sparse import SparsePOMDP
-from torchhrc.tasks.classic import rock_sample, rock_sample_momdp, tag, tag_momdp
+from torchhrc.tasks.classic import rock_sample, tag
 from torchhrc.testing import random_momdp, random_pomdp
 
 
@@ -122,7 +122,7 @@ def check_problems() -> dict[str, object]:
         ),
         "rs55_layoutB.pomdp": rock_sample(5, 5, rocks=[(0, 0), (4, 4), (2, 1), (1, 3), (3, 2)]),
         "tag_p06_d09.pomdp": tag(move_away_probability=0.6, discount=0.9),
-        "rs66_seed11.pomdpx": rock_sample_momdp(6, 6, seed=11),
+        "rs66_seed11.pomdpx": rock_sample(6, 6, seed=11, form="momdp"),
     }
 
 
@@ -145,7 +145,7 @@ def _random_start(model, seed: int):  # type: ignore[no-untyped-def]
 def _tag_any_cell(move_away_probability: float):  # type: ignore[no-untyped-def]
     """Tag as a MOMDP whose robot starts in any cell and the opponent in any other (as
     APPL's ``TagAvoid.pomdpx``)."""
-    model = tag_momdp(move_away_probability=move_away_probability)
+    model = tag(form="momdp", robot_start=0, move_away_probability=move_away_probability)
     cells = model.num_observed
     joint = torch.zeros(cells, model.num_hidden, dtype=torch.float64)
     joint[:, :cells] = 1.0
@@ -164,12 +164,12 @@ def more_check_sets() -> dict[str, dict[str, object]]:
             "h_S25_A10_O8_peaky.pomdp": random_pomdp(25, 10, 8, concentration=0.2, seed=205),
             "h_rs44_alt.pomdp": rock_sample(4, 4, rocks=[(3, 0), (0, 3), (2, 2), (1, 1)]),
             "h_tag_p08.pomdp": tag(move_away_probability=0.8, discount=0.95),
-            "h_rs75_momdp.pomdpx": rock_sample_momdp(7, 5, seed=21),
+            "h_rs75_momdp.pomdpx": rock_sample(7, 5, seed=21, form="momdp"),
         },
         "momdp": {
-            "m_tag_p06.pomdpx": tag_momdp(move_away_probability=0.6, robot_start=5),
-            "m_rs57.pomdpx": rock_sample_momdp(5, 7, seed=5),
-            "m_rs84.pomdpx": rock_sample_momdp(8, 4, seed=8),
+            "m_tag_p06.pomdpx": tag(form="momdp", move_away_probability=0.6, robot_start=5),
+            "m_rs57.pomdpx": rock_sample(5, 7, seed=5, form="momdp"),
+            "m_rs84.pomdpx": rock_sample(8, 4, seed=8, form="momdp"),
             "m_rnd_X12_Y8_static.pomdpx": random_momdp(12, 8, 4, 5, seed=301),
             "m_rnd_X20_Y6_dyn.pomdpx": random_momdp(
                 20, 6, 3, 4, static=False, sparsity=0.7, seed=302
@@ -179,7 +179,7 @@ def more_check_sets() -> dict[str, dict[str, object]]:
         "starts": {  # MOMDPs whose first observed value is random (MOMDP.initial)
             "s_tag_any_cell.pomdpx": _tag_any_cell(move_away_probability=0.7),
             "s_rs55_first_column.pomdpx": _start_over(
-                rock_sample_momdp(5, 5, seed=55), [row * 5 for row in range(5)]
+                rock_sample(5, 5, seed=55, form="momdp"), [row * 5 for row in range(5)]
             ),
             "s_rnd_X10_Y6.pomdpx": _random_start(random_momdp(10, 6, 3, 4, seed=501), 502),
             "s_rnd_X15_Y5_dyn.pomdpx": _start_over(
@@ -208,7 +208,7 @@ def more_check_sets() -> dict[str, dict[str, object]]:
             "e_blind_S20_A4_O1.pomdp": random_pomdp(20, 4, 1, seed=601),
             "e_neardet_S60_A4_O6.pomdp": random_pomdp(60, 4, 6, concentration=0.02, seed=602),
             "e_corridor40.pomdp": _STRUCTURED.corridor(40, landmarks=(0, 13, 27)),
-            "e_rs10_1.pomdpx": rock_sample_momdp(10, 1, seed=604),
+            "e_rs10_1.pomdpx": rock_sample(10, 1, seed=604, form="momdp"),
             "e_S6_A3_O3_d9999.pomdp": random_pomdp(6, 3, 3, seed=605, discount=0.9999),
             "e_S30_A5_O5_neg.pomdp": _shifted(random_pomdp(30, 5, 5, seed=606), -20.0),
             "e_mom_X40_Y2.pomdpx": random_momdp(40, 2, 4, 3, seed=607),

@@ -16,7 +16,7 @@ from torchhrc.errors import ParseError
 from torchhrc.io.cassandra import format_pomdp, parse_pomdp, read_pomdp, write_pomdp
 from torchhrc.pomdp import POMDP
 from torchhrc.sparse import SparsePOMDP
-from torchhrc.tasks.classic import rock_sample, rock_sample_sparse, tag, tiger
+from torchhrc.tasks.classic import rock_sample, tag, tiger
 from torchhrc.testing import random_pomdp
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -272,9 +272,9 @@ def _canonical(coo: tuple[torch.Tensor, torch.Tensor]) -> tuple[torch.Tensor, to
 @pytest.mark.slow
 def test_rocksample_7_8_file_reads_sparse_and_equals_the_generator(tmp_path):
     # Too large to keep in the repository (11 MB): written here, as make_problems.py does.
-    big = write_pomdp(rock_sample_sparse(7, 8), tmp_path / "rocksample_7_8.pomdp")
+    big = write_pomdp(rock_sample(7, 8, form="sparse"), tmp_path / "rocksample_7_8.pomdp")
     m = read_pomdp(big, sparse=True)
-    ref = rock_sample_sparse(7, 8)
+    ref = rock_sample(7, 8, form="sparse")
     assert (m.num_states, m.num_actions, m.num_observations) == (12545, 13, 3)
     for got, want in ((m.transitions, ref.transitions), (m.observations_, ref.observations_)):
         for x, y in zip(_canonical(got), _canonical(want)):

@@ -25,7 +25,7 @@ from torchhrc.io.pomdpx import (
 from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.sparse import SparsePOMDP
 from torchhrc.sparse_momdp import SparseMOMDP
-from torchhrc.tasks.classic import rock_sample_momdp, tiger
+from torchhrc.tasks.classic import rock_sample, tiger
 from torchhrc.testing import random_momdp, random_pomdp
 
 
@@ -77,7 +77,7 @@ def test_tables_are_the_model_tensors(static):
 
 
 def test_hidden_transition_independent_of_next_x_drops_that_parent(tmp_path):
-    m = rock_sample_momdp(3, 2, seed=1)  # sampling spoils a rock whatever x_1 is
+    m = rock_sample(3, 2, seed=1, form="momdp")  # sampling spoils a rock whatever x_1 is
     t = _tables(write_pomdpx(m, tmp_path / "rs.pomdpx").read_text(encoding="iso-8859-1"))
     assert t["y_1"][0] == "action x_0 y_0"
     table = _numbers(t["y_1"][2]).reshape(m.num_actions, m.num_observed, m.num_hidden, -1)
@@ -91,7 +91,7 @@ def test_hidden_transition_independent_of_next_x_drops_that_parent(tmp_path):
 
 
 def test_names_become_value_enums_and_bad_inputs_raise():
-    m = rock_sample_momdp(2, 1)
+    m = rock_sample(2, 1, form="momdp")
     root = ET.fromstring(format_pomdpx(m).encode("iso-8859-1"))
     actions = root.find("Variable/ActionVar").findtext("ValueEnum").split()
     assert tuple(actions) == m.actions

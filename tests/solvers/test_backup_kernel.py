@@ -17,7 +17,7 @@ from torchhrc.solvers import SARSOPConfig, backup_kernel
 from torchhrc.solvers.forms import as_solver_model
 from torchhrc.solvers.forms.base import SolverModel
 from torchhrc.sparse_momdp import SparseMOMDP
-from torchhrc.tasks.classic import rock_sample_momdp
+from torchhrc.tasks.classic import rock_sample
 from torchhrc.testing import random_momdp, random_pomdp
 
 kernel = backup_kernel.load()
@@ -52,7 +52,7 @@ _MODELS = {
     "flat_impossible_2": lambda: _impossible(2),
     "momdp_dynamic": lambda: random_momdp(4, 5, 3, 3, static=False, sparsity=0.4, seed=3),
     "momdp_static": lambda: random_momdp(5, 4, 2, 3, sparsity=0.3, seed=4),
-    "rocksample_momdp": lambda: rock_sample_momdp(4, 4),
+    "rocksample_momdp": lambda: rock_sample(4, 4, form="momdp"),
 }
 
 
@@ -273,7 +273,7 @@ def test_grouped_evaluation_equals_the_numpy_one(name: str) -> None:
     model = {
         "random_dynamic": lambda: random_momdp(5, 4, 3, 3, static=False, sparsity=0.3, seed=2),
         "random_static": lambda: random_momdp(6, 3, 2, 4, seed=5, discount=0.9),
-        "rocksample_sparse": lambda: SparseMOMDP.from_dense(rock_sample_momdp(4, 4)),
+        "rocksample_sparse": lambda: SparseMOMDP.from_dense(rock_sample(4, 4, form="momdp")),
     }[name]()
     solver = _solver(model, 12)
     assert solver._kernel is not None and solver.ub._group_kernel is not None

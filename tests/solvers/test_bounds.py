@@ -165,11 +165,11 @@ def test_blind_iteration_matches_direct_solve(monkeypatch, static):
 
 # -- the row-sparse transition operator ------------------------------------------------------
 def _sparse_models():
-    from torchhrc.tasks.classic import rock_sample, rock_sample_momdp
+    from torchhrc.tasks.classic import rock_sample
 
     return [
         rock_sample(4, 4),  # flat, deterministic moves
-        rock_sample_momdp(4, 4),  # joint Ty (a sampled rock turns bad)
+        rock_sample(4, 4, form="momdp"),  # joint Ty (a sampled rock turns bad)
         random_momdp(40, 3, 3, 2, static=True, sparsity=0.95, discount=0.9, seed=0),
         random_momdp(40, 3, 3, 2, static=False, sparsity=0.95, discount=0.9, seed=1),
     ]

@@ -11,13 +11,13 @@ import torch
 
 from torchhrc.solvers.eval_cache import PACK_FRACTION, EvaluationCache
 from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig
-from torchhrc.tasks.classic import tag_momdp
+from torchhrc.tasks.classic import tag
 
 
 def _tag_seeing_cells():  # type: ignore[no-untyped-def]
     """Tag as a MOMDP whose observation is the opponent's cell when they share the robot's
     (else "none"), as APPL's TagAvoid: 30 observations."""
-    model = tag_momdp()
+    model = tag(form="momdp", robot_start=0)
     A, X, Y, _ = model.Z.shape
     Z = torch.zeros(A, X, Y, Y, dtype=torch.float64)
     same = torch.arange(X)

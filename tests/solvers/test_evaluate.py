@@ -91,9 +91,9 @@ def test_sparse_form_draws_what_the_dense_form_draws():
 
 def test_sparse_momdp_agrees_with_the_dense_momdp():
     from torchhrc.sparse_momdp import SparseMOMDP
-    from torchhrc.tasks.classic import rock_sample_momdp
+    from torchhrc.tasks.classic import rock_sample
 
-    model = rock_sample_momdp(4, 2)
+    model = rock_sample(4, 2, form="momdp")
     policy = qmdp_policy(model)
     dense = evaluate_policy(model, policy, episodes=1500, seed=1)
     sparse = evaluate_policy(SparseMOMDP.from_dense(model), policy, episodes=1500, seed=2)

@@ -165,9 +165,9 @@ class _SupportMOMDP(MOMDPForm):
 
 
 def test_a_new_form_is_one_class_and_column_children_of_a_momdp_bound_correctly() -> None:
-    from torchhrc.tasks.classic import rock_sample_momdp
+    from torchhrc.tasks.classic import rock_sample
 
-    model = rock_sample_momdp(4, 4)
+    model = rock_sample(4, 4, form="momdp")
     form = _SupportMOMDP(model)
     assert as_solver_model(form) is form
     b = form.b0.numpy()

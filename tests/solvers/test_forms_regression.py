@@ -62,7 +62,7 @@ import torch
 
 from torchhrc.solvers import PBVIConfig, SARSOPConfig, backup_kernel, pbvi, sarsop
 from torchhrc.sparse import SparsePOMDP
-from torchhrc.tasks.classic import rock_sample, rock_sample_momdp, rock_sample_sparse, tag, tiger
+from torchhrc.tasks.classic import rock_sample, tag, tiger
 from torchhrc.testing import random_momdp, random_pomdp
 
 DATA = Path(__file__).parent / "data" / "forms_regression.json"
@@ -94,25 +94,25 @@ CASES: dict[str, Case] = {
     "sarsop/random_pomdp": _sarsop(lambda: random_pomdp(6, 3, 3, discount=0.9, seed=11), 40),
     "sarsop/rocksample44_dense": _sarsop(lambda: rock_sample(4, 4), 25),
     "sarsop/rocksample44_dense_sweep": _sarsop(lambda: rock_sample(4, 4), 12, sweep_interval=4),
-    "sarsop/rocksample44_momdp": _sarsop(lambda: rock_sample_momdp(4, 4), 25),
+    "sarsop/rocksample44_momdp": _sarsop(lambda: rock_sample(4, 4, form="momdp"), 25),
     "sarsop/rocksample44_momdp_sweep": _sarsop(
-        lambda: rock_sample_momdp(4, 4), 12, sweep_interval=4
+        lambda: rock_sample(4, 4, form="momdp"), 12, sweep_interval=4
     ),
     "sarsop/tag_dense": _sarsop(tag, 8),
     "sarsop/random_momdp": _sarsop(_rmomdp, 30),
     "sarsop/random_momdp_sweep": _sarsop(_rmomdp, 15, sweep_interval=3),
     "sarsop/random_momdp_static": _sarsop(_rmomdp_static, 20),
-    "sarsop/rocksample44_sparse": _sarsop(lambda: rock_sample_sparse(4, 4), 25),
+    "sarsop/rocksample44_sparse": _sarsop(lambda: rock_sample(4, 4, form="sparse"), 25),
     "sarsop/rocksample44_sparse_sweep": _sarsop(
-        lambda: rock_sample_sparse(4, 4), 12, sweep_interval=4
+        lambda: rock_sample(4, 4, form="sparse"), 12, sweep_interval=4
     ),
     "sarsop/tiger_sparse": _sarsop(lambda: SparsePOMDP.from_dense(tiger()), 40),
     # every child re-bounded at every backup (SARSOPConfig.lazy_upper=False)
     "sarsop/rocksample44_momdp_eager": _sarsop(
-        lambda: rock_sample_momdp(4, 4), 25, lazy_upper=False
+        lambda: rock_sample(4, 4, form="momdp"), 25, lazy_upper=False
     ),
     "sarsop/rocksample44_sparse_eager": _sarsop(
-        lambda: rock_sample_sparse(4, 4), 25, lazy_upper=False
+        lambda: rock_sample(4, 4, form="sparse"), 25, lazy_upper=False
     ),
     "pbvi/tiger": _pbvi(tiger, expansions=4),
     "pbvi/random_pomdp_qmdp": _pbvi(
@@ -121,7 +121,7 @@ CASES: dict[str, Case] = {
     "pbvi/random_momdp": _pbvi(_rmomdp, expansions=3),
     "pbvi/random_momdp_flattened": _pbvi(_rmomdp, expansions=2, factored=False),
     "pbvi/rocksample44_momdp": _pbvi(
-        lambda: rock_sample_momdp(4, 4), expansions=2, backups_per_expansion=5
+        lambda: rock_sample(4, 4, form="momdp"), expansions=2, backups_per_expansion=5
     ),
 }
 

@@ -25,11 +25,11 @@ from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sarsop import _SARSOP
 from torchhrc.solvers.sparse_model import blind_iteration_np, qmdp_iteration_np
 from torchhrc.sparse_momdp import SparseMOMDP
-from torchhrc.tasks.classic import rock_sample_momdp
+from torchhrc.tasks.classic import rock_sample
 from torchhrc.testing import random_momdp
 
 MODELS = {
-    "rock_sample_4_4": lambda: rock_sample_momdp(4, 4),  # Ty not the identity (sampling)
+    "rock_sample_4_4": lambda: rock_sample(4, 4, form="momdp"),  # Ty not the identity (sampling)
     "dynamic": lambda: random_momdp(5, 4, 3, 3, static=False, sparsity=0.4, seed=3),
     "static": lambda: random_momdp(4, 3, 2, 3, static=True, sparsity=0.3, seed=1),
 }
@@ -208,7 +208,7 @@ def test_sarsop_reaches_the_dense_momdp_bounds() -> None:
     """From the same initial bounds the search is the same up to round-off of the products
     (so the bounds agree after a fixed number of iterations); with each form's own initial
     bounds (equal to 1e-7, tested above) both converge on RockSample(4, 4)'s optimal value."""
-    model = rock_sample_momdp(4, 4)
+    model = rock_sample(4, 4, form="momdp")
     sparse = SparseMOMDP.from_dense(model)
     dense = as_solver_model(model)
     low = dense.blind_policy()
@@ -239,7 +239,7 @@ def test_sarsop_torch_path_brackets_the_numpy_path() -> None:
 
 @pytest.mark.parametrize("factored", [True, False])
 def test_pbvi_gives_the_dense_momdp_result(factored: bool) -> None:
-    model = rock_sample_momdp(4, 4)
+    model = rock_sample(4, 4, form="momdp")
     cfg = PBVIConfig(expansions=3, time_limit=1e9, factored=factored)
     ref = pbvi(model, cfg)
     got = pbvi(SparseMOMDP.from_dense(model), cfg)
@@ -356,7 +356,7 @@ def test_unsorted_and_duplicated_nonzeros_give_the_same_form() -> None:
     # may come in any order, a cell split in parts: the form sums and sorts them
     import dataclasses
 
-    model = SparseMOMDP.from_dense(rock_sample_momdp(4, 4))
+    model = SparseMOMDP.from_dense(rock_sample(4, 4, form="momdp"))
     index, prob = model.transitions
     g = torch.Generator().manual_seed(0)
     order = torch.randperm(prob.numel(), generator=g)
@@ -377,7 +377,7 @@ def test_sarsop_is_unchanged_by_the_blind_policy_without_repeated_vectors() -> N
     # the form's blind policy drops the vectors of actions identical to an earlier one; SARSOP
     # prunes dominated vectors (of equal ones the first stays) before it starts, so the solve
     # is bit-identical to one given every action's vector
-    model = SparseMOMDP.from_dense(rock_sample_momdp(4, 4))
+    model = SparseMOMDP.from_dense(rock_sample(4, 4, form="momdp"))
     form = as_solver_model(model)
     every = AlphaVectorPolicy.from_action_vectors(form.blind_vectors(), momdp=True)
     assert form.blind_policy().num_vectors < every.num_vectors

@@ -12,7 +12,7 @@ from torchhrc.solvers import SARSOPConfig, solve
 from torchhrc.solvers.blind import blind_policy
 from torchhrc.solvers.policy_graph import controller_value, draw_policy_graph, policy_graph
 from torchhrc.solvers.qmdp import qmdp_policy
-from torchhrc.tasks.classic import rock_sample_momdp, tiger
+from torchhrc.tasks.classic import rock_sample, tiger
 
 #: Tiger's listening accuracy: the belief after n net observations to one side is
 #: 0.85^n / (0.85^n + 0.15^n)
@@ -100,7 +100,7 @@ def test_depth_and_min_prob_cut_the_graph(tiger_solution):
 
 
 def test_edge_probabilities_sum_to_one_and_momdp_labels():
-    m = rock_sample_momdp(4, 4)
+    m = rock_sample(4, 4, form="momdp")
     g = policy_graph(m, qmdp_policy(m), depth=2)
     assert g.factored
     for i, node in enumerate(g.nodes):

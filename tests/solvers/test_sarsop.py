@@ -493,10 +493,10 @@ class _JumpingClock:
 
 def test_time_limit_is_checked_inside_an_iteration(monkeypatch):
     """A trial that runs past the time limit is cut short (the solver stays anytime)."""
-    from torchhrc.tasks.classic import rock_sample_momdp
+    from torchhrc.tasks.classic import rock_sample
 
     sarsop_module = sys.modules[_SARSOP.__module__]  # the module (the package re-exports sarsop)
-    model = rock_sample_momdp(4, 4)
+    model = rock_sample(4, 4, form="momdp")
     cfg = SARSOPConfig(time_limit=100.0, precision=1e-9, max_iterations=1)
     full = sarsop(model, cfg)  # one whole trial
     assert full.info["n_beliefs"] > 5
@@ -524,7 +524,7 @@ def test_time_limit_of_a_given_clock_is_honoured_at_every_check(monkeypatch):
     per new tree belief and per backup), the solve stops within one unit of the limit: the
     budget is read inside trials, between backups and before prunings, so no step runs
     unchecked, and no iteration begins after the limit."""
-    from torchhrc.tasks.classic import rock_sample_momdp
+    from torchhrc.tasks.classic import rock_sample
 
     sarsop_module = sys.modules[_SARSOP.__module__]
     work = [0]
@@ -540,7 +540,7 @@ def test_time_limit_of_a_given_clock_is_honoured_at_every_check(monkeypatch):
     limit = 150.0
     cfg = SARSOPConfig(time_limit=limit, precision=1e-9, clock=lambda: float(work[0]),
                        callback=lambda entry: seen.append(work[0]))  # fmt: skip
-    sol = sarsop(rock_sample_momdp(4, 4), cfg)
+    sol = sarsop(rock_sample(4, 4, form="momdp"), cfg)
     assert sol.info["stop_reason"] == "time_limit"
     assert sol.info["iterations"] == len(seen) > 5
     assert sum(w >= limit for w in seen) <= 1  # no iteration began after the limit
@@ -554,7 +554,7 @@ def test_sweeps_stop_at_the_time_limit(monkeypatch):
     that counts the work done (one unit per new tree belief, per one-belief backup and per
     batch), no batch begins after the limit and the solve stops within one unit of it (a sweep
     of RockSample(4, 4) as a MOMDP is one batch per robot cell, and ran all of them late)."""
-    from torchhrc.tasks.classic import rock_sample_momdp
+    from torchhrc.tasks.classic import rock_sample
 
     sarsop_module = sys.modules[_SARSOP.__module__]
     work = [0]
@@ -574,7 +574,7 @@ def test_sweeps_stop_at_the_time_limit(monkeypatch):
         monkeypatch.setattr(sarsop_module._SARSOP, name, counted)
     cfg = SARSOPConfig(time_limit=limit, precision=1e-9, sweep_interval=1,
                        clock=lambda: float(work[0]))  # fmt: skip
-    sol = sarsop(rock_sample_momdp(4, 4), cfg)
+    sol = sarsop(rock_sample(4, 4, form="momdp"), cfg)
     assert sol.info["stop_reason"] == "time_limit"
     assert late_batches[0] == 0  # no batch began after the limit
     assert limit <= work[0] <= limit + 1
@@ -582,10 +582,10 @@ def test_sweeps_stop_at_the_time_limit(monkeypatch):
 
 
 def test_process_clock_limits_cpu_time():
-    from torchhrc.tasks.classic import rock_sample_momdp
+    from torchhrc.tasks.classic import rock_sample
 
     cpu = time.process_time()
-    sol = sarsop(rock_sample_momdp(4, 4),
+    sol = sarsop(rock_sample(4, 4, form="momdp"),
                  SARSOPConfig(time_limit=0.5, precision=1e-9, clock="process"))  # fmt: skip
     assert sol.info["stop_reason"] == "time_limit"
     assert time.process_time() - cpu >= 0.5  # it ran until its CPU budget was spent
@@ -594,9 +594,9 @@ def test_process_clock_limits_cpu_time():
 
 
 def test_tiny_time_limit_returns_soon_with_valid_bounds():
-    from torchhrc.tasks.classic import rock_sample_momdp
+    from torchhrc.tasks.classic import rock_sample
 
-    model = rock_sample_momdp(4, 4)
+    model = rock_sample(4, 4, form="momdp")
     exact = sarsop(model, SARSOPConfig(time_limit=LONG, precision=0.5))
     sol = sarsop(model, SARSOPConfig(time_limit=0.3, precision=1e-9))
     assert sol.info["stop_reason"] == "time_limit"

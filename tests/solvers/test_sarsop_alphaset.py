@@ -72,13 +72,13 @@ def _children_bounds_after_pruning(model, iterations: int, monkeypatch, rule: bo
 
 @pytest.mark.parametrize("form", ["flat", "momdp"])
 def test_pruning_keeps_the_children_bounds_of_active_tree_beliefs(form, monkeypatch) -> None:
-    from torchhrc.tasks.classic import rock_sample_momdp
+    from torchhrc.tasks.classic import rock_sample
     from torchhrc.testing import random_pomdp
 
     if form == "flat":
         model = random_pomdp(6, 3, 3, discount=0.9, seed=11)
     else:
-        model = rock_sample_momdp(4, 4)
+        model = rock_sample(4, 4, form="momdp")
     checked, dropped = _children_bounds_after_pruning(model, 40, monkeypatch, rule=True)
     assert checked > 1000 and dropped == 0
     # the property is not automatic: pruning to the tree-belief winners and what they refer

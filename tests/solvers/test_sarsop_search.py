@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig, _Bins, sarsop
-from torchhrc.tasks.classic import rock_sample_momdp, tag
+from torchhrc.tasks.classic import rock_sample, tag
 from torchhrc.testing import random_momdp
 
 
@@ -72,7 +72,7 @@ def _solver(model) -> _SARSOP:
     return _SARSOP(model, SARSOPConfig(time_limit=1e9, max_iterations=5), time.perf_counter())
 
 
-@pytest.mark.parametrize("make", [lambda: tag(), lambda: rock_sample_momdp(4, 4)])
+@pytest.mark.parametrize("make", [lambda: tag(), lambda: rock_sample(4, 4, form="momdp")])
 def test_impossible_children_take_the_best_vector_at_the_parent_belief(make):
     """APPL's rule (``BackupAlphaPlaneMOMDP::getNewAlphaPlaneQ``, a ``NULL`` edge): the vector
     a backup uses at a child of probability 0 is the best vector of the child's ``x2`` at the

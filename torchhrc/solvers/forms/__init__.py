@@ -15,8 +15,8 @@ A new form (a device backend, a sparse MOMDP) is one new module with one class, 
 here with :func:`register_form`.
 
 Example:
-    >>> from torchhrc.tasks.classic import rock_sample_momdp
-    >>> type(as_solver_model(rock_sample_momdp(4, 4))).__name__
+    >>> from torchhrc.tasks.classic import rock_sample
+    >>> type(as_solver_model(rock_sample(4, 4, form="momdp"))).__name__
     'MOMDPForm'
 """
 

@@ -27,8 +27,8 @@ have the same vectors) and take a deterministic move of ``x`` that keeps ``y`` a
 Example:
     >>> from torchhrc.solvers.forms import as_solver_model
     >>> from torchhrc.sparse_momdp import SparseMOMDP
-    >>> from torchhrc.tasks.classic import rock_sample_momdp
-    >>> form = as_solver_model(SparseMOMDP.from_dense(rock_sample_momdp(4, 4)))
+    >>> from torchhrc.tasks.classic import rock_sample
+    >>> form = as_solver_model(SparseMOMDP.from_dense(rock_sample(4, 4, form="momdp")))
     >>> xs, J = form.expand(form.x0, form.b0.unsqueeze(0))
     >>> J.shape[-1], form.factored, type(form).__name__
     (16, True, 'SparseMOMDPForm')
@@ -227,8 +227,8 @@ class SparseMOMDPForm(SolverModel):
         Example:
             >>> from torchhrc.solvers.forms import as_solver_model
             >>> from torchhrc.sparse_momdp import SparseMOMDP
-            >>> from torchhrc.tasks.classic import rock_sample_momdp
-            >>> form = as_solver_model(SparseMOMDP.from_dense(rock_sample_momdp(4, 4)))
+            >>> from torchhrc.tasks.classic import rock_sample
+            >>> form = as_solver_model(SparseMOMDP.from_dense(rock_sample(4, 4, form="momdp")))
             >>> rows, inverse = form.distinct_actions()  # 4 moves, sample (4), 4 checks
             >>> rows.acts.tolist(), inverse.tolist()
             ([0, 1, 2, 3, 5, 4], [0, 1, 2, 3, 5, 4, 4, 4, 4])
@@ -441,8 +441,8 @@ class ActionRows:
         >>> import numpy as np
         >>> from torchhrc.solvers.forms import as_solver_model
         >>> from torchhrc.sparse_momdp import SparseMOMDP
-        >>> from torchhrc.tasks.classic import rock_sample_momdp
-        >>> form = as_solver_model(SparseMOMDP.from_dense(rock_sample_momdp(4, 4)))
+        >>> from torchhrc.tasks.classic import rock_sample
+        >>> form = as_solver_model(SparseMOMDP.from_dense(rock_sample(4, 4, form="momdp")))
         >>> rows = ActionRows(form, np.arange(form.num_actions))
         >>> V = np.ones((form.num_observed, form.num_hidden))  # next values all 1
         >>> bool((rows.expect(V) == 1.0).all())  # so is every expectation

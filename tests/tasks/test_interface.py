@@ -125,9 +125,14 @@ def test_state_behaviour_counts_the_demonstrated_choices():
                             torch.zeros(4, dtype=torch.long), steps, noise=0.0,
                             pause=0.0)  # fmt: skip
     p = task.human_policy(evidence)[0, 0]  # (X, H + 1)
-    # state "none": 3 x do_a, 1 x do_b (+0.1 each)
-    assert torch.allclose(p[0], torch.tensor([3.1 / 4.2, 1.1 / 4.2, 0.0]))
-    assert p[1].tolist() == [0.0, 1.0, 0.0] and p[3].tolist() == [0.0, 0.0, 1.0]
+    # 8 choices, no wait: "no action" rate .5 / 9 = 1/18; the chain has no robot symbol, so
+    # the prior is uniform over the legal actions x 17/18 (one pseudo-step, _state_counts)
+    # state "none": 3 x do_a, 1 x do_b + (17/36, 17/36, 1/18), over 5
+    assert torch.allclose(p[0], torch.tensor([(3 + 17 / 36) / 5, (1 + 17 / 36) / 5, 1 / 90],
+                                             dtype=p.dtype))  # fmt: skip
+    # state "a": 3 x do_b (the only legal action) + (0, 17/18, 1/18), over 4
+    assert torch.allclose(p[1], torch.tensor([0.0, (3 + 17 / 18) / 4, 1 / 72], dtype=p.dtype))
+    assert p[3].tolist() == [0.0, 0.0, 1.0]
 
 
 def test_check_task_names_the_bad_table():

@@ -430,14 +430,26 @@ class CollaborativeTask:
         """Per-type human behaviour ``P(a_h | x, a_r, y)``, the last column "no action".
 
         Default (:attr:`human_model`): preferences ``p[y, a, x, h]`` from the chains
-        (:func:`chain_preferences`, the same for every ``x``) or from the type's
-        demonstration steps (counts per ``(x after the robot, a_h)`` plus 0.1), restricted to
-        the actions legal after the robot's move, renormalised (uniform where ``p`` has no
-        mass), mixed with ``evidence.noise`` of a uniformly random legal action and scaled by
-        ``1 - evidence.pause``; the rest is "no action" (all of it where nothing is legal).
+        (:func:`chain_preferences`, the same for every ``x``; no mass on "no action") or from
+        the type's demonstration steps (``"state"``: counts per ``(x after the robot, a_h)``,
+        "no action" counted too, smoothed toward the type's chain preference, see
+        :func:`_state_counts`), restricted to the actions legal after the robot's move (and
+        "no action"), renormalised (uniform where ``p`` has no mass), mixed with
+        ``evidence.noise`` of a uniformly random legal action and scaled by
+        ``1 - evidence.pause``; ``evidence.pause`` is added to "no action" (a floor: all of it
+        where nothing is legal). With ``q`` the renormalised preference, ``u`` the uniform
+        legal action, ``e`` the noise and ``s`` the pause:
+        ``P(h) = (1 - s) * ((1 - e) * q(h) + e * u(h))`` and
+        ``P(none) = (1 - s) * (1 - e) * q(none) + s``.
 
         Returns:
             ``(Y, A, X, H + 1)`` probabilities, rows summing to 1.
+
+        Example:
+            >>> from torchhrc.tasks.suite import make_task
+            >>> task = make_task("tool_handover").task
+            >>> task.human_model
+            'auto'
         """
         chains = evidence.chains
         dt, dev = chains.dtype, chains.device
@@ -451,10 +463,12 @@ class CollaborativeTask:
             p = chain_preferences(chains, evidence.vocabulary, self.robot_actions,
                                   self.human_actions)  # fmt: skip
             p = p.unsqueeze(-2)  # (Y, A, 1, H)
+            none = None  # the chains give "no action" only the pause
         elif human_model == "state":
             if evidence.steps is None:
                 raise ModelError("human_model='state' needs the demonstrations read as steps")
-            p = _state_counts(self, evidence, dt, dev)  # (Y, A, X, H)
+            p = _state_counts(self, evidence, dt, dev)  # (Y, A, X, H + 1)
+            p, none = p[..., :-1], p[..., -1:]  # (Y, A, X, H), (Y, A, X, 1)
         else:
             raise ModelError(
                 f"expected human_model 'auto', 'chain' or 'state', got {human_model!r}"
@@ -464,11 +478,17 @@ class CollaborativeTask:
         uniform = legal_f / num_legal.clamp_min(1.0)
         masked = p * legal_f
         total = masked.sum(-1, keepdim=True)
+        if none is not None:  # "no action" learned, only where the human had a choice
+            none = none * (num_legal > 0).to(dt)
+            total = total + none
         chain = torch.where(total > 0, masked / total.clamp_min(1e-300), uniform)
         probs = (1.0 - evidence.noise) * chain + evidence.noise * uniform
         probs = probs * (1.0 - evidence.pause)  # (Y, A, X, H)
         stay = torch.where(num_legal == 0, 1.0, evidence.pause).to(dt)  # (A, X, 1)
         stay = stay.expand(*probs.shape[:-1], 1)
+        if none is not None:
+            q_none = torch.where(total > 0, none / total.clamp_min(1e-300), 0.0)
+            stay = stay + (1.0 - evidence.pause) * (1.0 - evidence.noise) * q_none
         return torch.cat([probs, stay], -1)
 
     def known_reward(self, evidence: TypeEvidence) -> torch.Tensor | None:
@@ -481,21 +501,65 @@ class CollaborativeTask:
         return tuple(f"type_{k}" for k in range(evidence.num_types))
 
 
+#: Dirichlet strength ``c`` of the state model's back-off (:func:`_state_counts`): the
+#: type's behaviour elsewhere weighs as ``c`` demonstration steps in each state.
+STATE_PRIOR_STRENGTH: float = 1.0
+
+
 def _state_counts(
     task: CollaborativeTask, evidence: TypeEvidence, dtype: torch.dtype, device: torch.device
 ) -> torch.Tensor:
+    """The state model's smoothed counts ``(K, A, X, H + 1)``, the last column "no action".
+
+    ``counts[y, x, h]`` counts the steps of type ``y``'s demonstrations in which the human
+    did ``h`` (``H``: let the turn pass) in ``x = robot_effect[a_r, x_before]``, over the
+    steps where some human action was legal (where none is, "no action" is forced and says
+    nothing of the type). A sequence's last step without a human turn is not counted: the
+    recording ended before the human's turn, which is no evidence of waiting.
+
+    Hierarchical Dirichlet smoothing: the posterior mean of ``P(h | x, a_r, y)`` under a
+    Dirichlet prior of strength ``c`` (:data:`STATE_PRIOR_STRENGTH`) centred on the type's
+    behaviour pooled over the states,
+    ``counts[y, x, h] + c * prior[y, a_r, x, h]``, where ``prior[y, a, x, :H]`` is the type's
+    chain preference ``P(a_h | a_r = a)`` (:func:`chain_preferences`) restricted to the
+    actions legal in ``x`` and renormalised (uniform over them where it has no mass), scaled
+    by ``1 - r_y``, and ``prior[y, a, x, H] = r_y``, the type's pooled rate of "no action"
+    ``(waits_y + 0.5) / (choices_y + 1)``. Why this prior and not a uniform one: a
+    type-aware robot steers people into states that the type's demonstrations never
+    visited (its partner there was a different robot); a uniform preference makes every
+    type look alike there, so the belief cannot tell them apart and the robot can model a
+    waiting person as acting. The chain preference is the same type's evidence from all its
+    states, so an unvisited state inherits what the type does after the same robot move;
+    where the type was seen often the counts dominate (``c`` = one step's worth).
+    """
     steps = evidence.steps
     assert steps is not None
     K, X, H = evidence.num_types, task.num_states, task.num_human_actions
-    mid = torch.as_tensor(task.robot_effect).to(steps.states.device)[steps.actions, steps.states]
-    keep = steps.mask & (steps.human >= 0)
-    y = evidence.assignments.to(steps.states.device).view(-1, 1).expand_as(mid)[keep]
-    counts = torch.zeros(K, X, H, dtype=dtype, device=steps.states.device)
-    flat = (y * X + mid[keep]) * H + steps.human[keep]
+    sdev = steps.states.device
+    effect = torch.as_tensor(task.robot_effect).to(sdev)  # (A, X)
+    legal = torch.as_tensor(task.human_legal).to(sdev).bool()  # (X, H)
+    mid = effect[steps.actions, steps.states]  # (N, L)
+    choice = legal[mid].any(-1)  # (N, L) some human action was legal
+    L = steps.mask.shape[-1]
+    last = torch.arange(L, device=sdev) == (steps.lengths.view(-1, 1) - 1)  # (N, L)
+    keep = steps.mask & choice & ~(last & (steps.human < 0))
+    column = torch.where(steps.human < 0, H, steps.human)  # (N, L)
+    y = evidence.assignments.to(sdev).view(-1, 1).expand_as(mid)[keep]
+    counts = torch.zeros(K, X, H + 1, dtype=dtype, device=sdev)
+    flat = (y * X + mid[keep]) * (H + 1) + column[keep]
     counts.view(-1).index_add_(0, flat, torch.ones_like(flat, dtype=dtype))
-    counts = counts + 0.1
-    index = torch.as_tensor(task.robot_effect).to(counts.device)  # (A, X)
-    return counts[:, index].to(device)  # (K, A, X, H)
+    # the prior: the type's chain preference after the same robot move, its pooled waiting
+    pref = chain_preferences(evidence.chains.to(sdev, dtype), evidence.vocabulary,
+                             task.robot_actions, task.human_actions)  # fmt: skip  # (K, A, H)
+    legal_f = legal[effect].to(dtype)  # (A, X, H)
+    pref = pref.unsqueeze(-2) * legal_f  # (K, A, X, H)
+    mass = pref.sum(-1, keepdim=True)
+    uniform = legal_f / legal_f.sum(-1, keepdim=True).clamp_min(1.0)
+    pref = torch.where(mass > 0, pref / mass.clamp_min(1e-300), uniform)
+    waits = counts[..., H].sum(-1)  # (K,)
+    rate = ((waits + 0.5) / (counts.sum((-1, -2)) + 1.0)).view(K, 1, 1, 1)  # (K, 1, 1, 1)
+    prior = torch.cat([(1.0 - rate) * pref, rate.expand(*pref.shape[:-1], 1)], -1)
+    return (counts[:, effect] + STATE_PRIOR_STRENGTH * prior).to(device)  # (K, A, X, H + 1)
 
 
 def _table(name: str, value: Any, shape: tuple[int, ...], kind: str) -> torch.Tensor:

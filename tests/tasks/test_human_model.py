@@ -1,0 +1,94 @@
+"""The state human model (CollaborativeTask.human_policy, human_model='state'): "no action"
+counted, hierarchical back-off to the type's chain preference, values worked by hand."""
+
+from __future__ import annotations
+
+import torch
+
+from torchhrc.data import Demonstrations
+from torchhrc.tasks.interface import CollaborativeTask, TypeEvidence
+
+
+class Chores(CollaborativeTask):
+    """Two chores a, b; the robot's "go" changes nothing; a done chore cannot be redone."""
+
+    state_names = ("none", "a", "b", "ab")
+    robot_actions = ("go",)
+    human_actions = ("do_a", "do_b")
+    robot_effect = torch.tensor([[0, 1, 2, 3]])
+    human_effect = torch.tensor([[1, 2], [1, 3], [3, 2], [3, 3]])
+    human_model = "state"
+
+
+VOCAB = (("human", "do_a"), ("human", "do_b"), ("robot", "go"))
+
+
+def _evidence(noise: float = 0.0, pause: float = 0.0, model: str | None = None):
+    task = Chores()
+    # type 0: go, do_a | go, (no action) | go, do_b; type 1: go, do_b | go (recording ends)
+    demos = Demonstrations.from_lists(
+        [
+            [("robot", "go"), ("human", "do_a"), ("robot", "go"), ("robot", "go"),
+             ("human", "do_b")],
+            [("robot", "go"), ("human", "do_b"), ("robot", "go")],
+        ],
+        vocabulary=list(VOCAB),
+    )  # fmt: skip
+    steps = task.read_steps(demos)
+    chains = torch.zeros(3, 3, 3, dtype=torch.float64)
+    chains[:, :2] = 1.0 / 3.0  # rows after a human symbol (unused)
+    chains[0, 2] = torch.tensor([0.6, 0.2, 0.2])  # P(. | robot:go), type 0
+    chains[1, 2] = torch.tensor([0.1, 0.5, 0.4])
+    chains[2, 2] = torch.tensor([0.3, 0.1, 0.6])  # type 2 has no demonstrations
+    evidence = TypeEvidence(chains, demos.vocabulary, torch.tensor([0, 1]), steps,
+                            noise=noise, pause=pause, human_model=model)  # fmt: skip
+    return task, evidence
+
+
+def test_counts_no_action_and_backs_off_to_the_type_chain_preference():
+    task, evidence = _evidence()
+    p = task.human_policy(evidence)[:, 0]  # (Y, X, H + 1), the one robot action
+    # pooled waiting rates: type 0 waited 1 of 3 choices -> (1 + .5) / (3 + 1) = 3/8;
+    # type 1 0 of 1 (its last step has no human turn: not counted) -> .5 / 2 = 1/4;
+    # type 2 no steps -> 1/2. Prior: chain preference over legal actions x (1 - rate), rate.
+    want = {
+        # type 0, "none": counts (1, 0, 0) + (5/8 * (.75, .25), 3/8), over 2
+        (0, 0): [47 / 64, 5 / 64, 12 / 64],
+        # type 0, "a" (only do_b legal): counts (0, 1, 1) + (0, 5/8, 3/8), over 3
+        (0, 1): [0.0, 13 / 24, 11 / 24],
+        # type 1, "none": counts (0, 1, 0) + (3/4 * (1/6, 5/6), 1/4), over 2
+        (1, 0): [1 / 16, 13 / 16, 1 / 8],
+        # type 1, "b": never seen with a human turn -> its prior (3/4 * (1, 0), 1/4)
+        (1, 2): [0.75, 0.0, 0.25],
+        # type 2, "none": no data -> its chain preference (.75, .25) x 1/2, not uniform
+        (2, 0): [0.375, 0.125, 0.5],
+    }
+    for (y, x), row in want.items():
+        assert torch.allclose(p[y, x], torch.tensor(row, dtype=p.dtype), atol=1e-12), (y, x)
+    # "ab": nothing legal, "no action" is certain for every type
+    assert torch.allclose(p[:, 3], torch.tensor([0.0, 0.0, 1.0], dtype=p.dtype))
+
+
+def test_noise_and_pause_mix_as_documented_and_rows_sum_to_one():
+    task, plain = _evidence()
+    q = task.human_policy(plain)[:, 0]
+    e, s = 0.1, 0.02
+    _, mixed = _evidence(noise=e, pause=s)
+    p = task.human_policy(mixed)
+    assert torch.allclose(p.sum(-1), torch.ones_like(p[..., 0]), atol=1e-12)
+    assert (p >= 0).all()
+    u = torch.tensor([[0.5, 0.5], [0.0, 1.0], [1.0, 0.0], [0.0, 0.0]], dtype=q.dtype)  # (X, H)
+    want_h = (1 - s) * ((1 - e) * q[..., :2] + e * u)
+    want_none = (1 - s) * (1 - e) * q[..., 2] + s
+    want_none[:, 3] = 1.0  # nothing legal: all "no action"
+    assert torch.allclose(p[:, 0, :, :2], want_h, atol=1e-12)
+    assert torch.allclose(p[:, 0, :, 2], want_none, atol=1e-12)
+
+
+def test_chain_model_gives_no_action_only_the_pause():
+    task, evidence = _evidence(noise=0.05, pause=0.03, model="chain")
+    p = task.human_policy(evidence)[:, 0]  # (Y, X, H + 1)
+    assert torch.allclose(p[:, :3, 2], torch.full((3, 3), 0.03, dtype=p.dtype), atol=1e-12)
+    # type 0 in "none": (1 - .03) * (.95 * (.75, .25) + .05 * (.5, .5))
+    want = 0.97 * (0.95 * torch.tensor([0.75, 0.25]) + 0.05 * torch.tensor([0.5, 0.5]))
+    assert torch.allclose(p[0, 0, :2], want.to(p.dtype), atol=1e-12)

@@ -29,7 +29,7 @@ repeat the position; Tag's observation is the robot's cell, or ``same``). No for
 through a dense tensor that it does not return.
 
 The names ``rock_sample_sparse``, ``rock_sample_momdp``, ``tag_sparse`` and ``tag_momdp``
-still work, with a :class:`DeprecationWarning`, for one release.
+still work, with a ``DeprecationWarning``, for one release.
 
 Example:
     >>> from torchhrc.tasks.classic import tiger, rock_sample
@@ -444,8 +444,11 @@ def rock_sample(
         (17, 16, 9, 3)
     """
     _check_form(form, device)
-    if form == "dense" and isinstance(n, int) and isinstance(k, int) and 0 <= k <= 30:
-        _check_size("T", (5 + k) * (n * n * 2**k + 1) ** 2)  # before building anything
+    if isinstance(n, int) and isinstance(k, int) and 0 <= k <= 30:  # before building anything
+        if form == "dense":
+            _check_size("T", (5 + k) * (n * n * 2**k + 1) ** 2)
+        elif form == "momdp":
+            _check_size("Tx * Ty", (5 + k) * ((n * n + 1) * 2**k) ** 2)
     model = _rock_sample_description(
         n, k, rocks, start, seed, half_efficiency_distance, discount, dtype
     )

@@ -118,7 +118,9 @@ class TypeEvidence:
         steps: the demonstrations as :class:`TaskSteps` (``None`` when the task does not
             read its demonstrations as steps).
         noise: weight of a uniformly random legal human action in the behaviour.
-        pause: probability that the human lets a turn pass although an action is legal.
+        pause: probability that the human lets a turn pass although an action is legal
+            (the chain model's only "no action"; a floor under the state model's learned
+            one, see :meth:`~CollaborativeTask.human_policy`).
         human_model: the human model the pipeline chose (``"chain"`` or ``"state"``: the
             task's :attr:`CollaborativeTask.human_model`, or ``"auto"`` resolved on held-out
             data), which the default :meth:`~CollaborativeTask.human_policy` follows;

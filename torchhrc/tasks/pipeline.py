@@ -763,15 +763,23 @@ def learn(
             of :func:`solve_model` is used).
         human_model: ``"auto"``, ``"chain"`` or ``"state"`` (:func:`build_model`); ``None``:
             the task's ``human_model`` (default ``"auto"``).
-        k_min, k_max, restarts, mixture_method, bic_parameters, criterion, objects,
-            min_gain: the clustering keywords (:func:`~torchhrc.mixture.fit_mixture`'s
-            ``k_min``, ``k_max``, ``restarts``, ``method``, ``parameters``, ``criterion``,
-            ``objects``, ``min_gain``), instead of ``cluster``.
-        noise, pause: human-behaviour settings (:class:`~torchhrc.tasks.interface.TypeEvidence`).
-        irl_epsilon, irl_iterations: instead of ``irl``.
+        k_min: instead of ``cluster``: :func:`~torchhrc.mixture.fit_mixture`'s ``k_min``.
+        k_max: instead of ``cluster``: ``fit_mixture``'s ``k_max``.
+        restarts: instead of ``cluster``: ``fit_mixture``'s ``restarts``.
+        mixture_method: instead of ``cluster``: ``fit_mixture``'s ``method``.
+        bic_parameters: instead of ``cluster``: ``fit_mixture``'s ``parameters``.
+        criterion: instead of ``cluster``: ``fit_mixture``'s ``criterion``.
+        objects: instead of ``cluster``: ``fit_mixture``'s ``objects``.
+        min_gain: instead of ``cluster``: ``fit_mixture``'s ``min_gain``.
+        noise: human-behaviour setting (:class:`~torchhrc.tasks.interface.TypeEvidence`).
+        pause: human-behaviour setting (:class:`~torchhrc.tasks.interface.TypeEvidence`).
+        irl_epsilon: instead of ``irl``: its ``epsilon``.
+        irl_iterations: instead of ``irl``: its ``iterations``.
         solve: solve the MOMDP (SARSOP) too.
-        solver_time, solver_precision, solver_iterations: :func:`solve_model` settings
-            (``solver_precision`` relative to the reward span), instead of ``solver``.
+        solver_time: instead of ``solver``: :func:`solve_model`'s time limit (seconds).
+        solver_precision: instead of ``solver``: :func:`solve_model`'s precision, relative
+            to the reward span.
+        solver_iterations: instead of ``solver``: :func:`solve_model`'s iteration cap.
         seed: the seed of everything.
 
     Returns:

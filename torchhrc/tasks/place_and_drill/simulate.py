@@ -132,7 +132,7 @@ class ExecutionController(Protocol):
     confused with the public :class:`torchhrc.tasks.Controller`, a learned model's online
     controller (``reset``/``act``), which is one concrete controller; this is the protocol
     of the place-and-drill simulation loop (formerly named ``Controller`` here; that name
-    still works, with a :class:`DeprecationWarning`, for one release).
+    still works, with a ``DeprecationWarning``, for one release).
     """
 
     def act(self, x: torch.Tensor, uniform: torch.Tensor) -> torch.Tensor:

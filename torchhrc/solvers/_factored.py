@@ -66,6 +66,20 @@ DIRECT_SOLVE_SIZE = 2048
 SPARSE_DIRECT_SOLVE_SIZE = 256
 
 
+def _batched_solve(lhs: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
+    """``torch.linalg.solve(lhs (..., n, n), rhs (..., n, 1))``, one system at a time on a
+    multi-threaded CPU: torch 2.13's batched LU (MKL) with 2 or more threads returns invalid
+    pivots for ``n`` above about 150 (``lu_solve`` then raises; found by the 2-thread rerun of
+    ``.ci/run``); a single system is factored correctly."""
+    batch = lhs.shape[:-2]
+    if lhs.device.type != "cpu" or torch.get_num_threads() < 2 or math.prod(batch) < 2:
+        return torch.linalg.solve(lhs, rhs)
+    n = lhs.shape[-1]
+    flat_l, flat_r = lhs.reshape(-1, n, n), rhs.reshape(-1, n, rhs.shape[-1])
+    out = [torch.linalg.solve(flat_l[i], flat_r[i]) for i in range(flat_l.shape[0])]
+    return torch.stack(out).reshape(*batch, n, rhs.shape[-1])
+
+
 class RowSparse:
     """A ``(R, C)`` matrix with few nonzeros per row, stored padded per row (ELL format).
 
@@ -195,7 +209,7 @@ class Expectation:
             rhs = R.transpose(-1, -2).unsqueeze(-1)  # (..., A, Y, X, 1)
             lhs = eye - discount * self.matrix
             batch = broadcast_shapes(lhs.shape[:-2], rhs.shape[:-2])
-            out = torch.linalg.solve(lhs.expand(*batch, n, n), rhs.expand(*batch, n, 1))
+            out = _batched_solve(lhs.expand(*batch, n, n), rhs.expand(*batch, n, 1))
             return out.squeeze(-1).transpose(-1, -2)
         n = self.matrix.shape[-1]
         if n > DIRECT_SOLVE_SIZE:
@@ -205,7 +219,7 @@ class Expectation:
         lhs = eye - discount * self.matrix
         rhs = flat_R.unsqueeze(-1)
         batch = broadcast_shapes(lhs.shape[:-2], rhs.shape[:-2])
-        out = torch.linalg.solve(lhs.expand(*batch, n, n), rhs.expand(*batch, n, 1)).squeeze(-1)
+        out = _batched_solve(lhs.expand(*batch, n, n), rhs.expand(*batch, n, 1)).squeeze(-1)
         return out if self.kind == "flat" else out.reshape(*out.shape[:-1], self.X, self.Y)
 
     def _densify(self) -> None:

@@ -157,7 +157,10 @@ def peak():
 settings = dict(time_limit=600.0, precision=1e-9, init_max_iterations=2)
 first = sarsop(model, SARSOPConfig(max_iterations=0, **settings))
 base = peak()  # the process with the model and its initial bounds: the least a solve holds
-below = sarsop(model, SARSOPConfig(memory_limit=base / 2, **settings))
+# a limit below what the process holds now (not its peak: an allocator may have returned a
+# build's temporaries, leaving the resident memory under half the peak on some machines)
+from torchhrc.solvers._memory import resident_bytes
+below = sarsop(model, SARSOPConfig(memory_limit=min(base, resident_bytes()) / 2, **settings))
 below_peak = peak()
 limit = base + float(sys.argv[1])
 sol = sarsop(model, SARSOPConfig(memory_limit=limit, **settings))

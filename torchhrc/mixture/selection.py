@@ -489,6 +489,22 @@ DEFAULT_STRONG_GAIN = 0.04
 DEFAULT_HELDOUT_GAIN = 0.01
 
 
+def _first_best(scores: torch.Tensor, rtol: float = 1e-9) -> torch.Tensor:
+    """``(...)`` index of the first entry of the last dim within ``rtol`` of its maximum.
+
+    Restarts that reach one partition with its clusters in another order tie in score up to
+    the last bits, which sums in another order (Ray's chunked E-step, another BLAS kernel)
+    change: a plain argmax would pick another run, and so other labels, on another machine.
+
+    Example:
+        >>> _first_best(torch.tensor([[1.0, 3.0, 3.0 + 1e-12], [2.0, 1.0, -math.inf]]))
+        tensor([1, 0])
+    """
+    top = scores.max(-1, keepdim=True).values
+    near = scores >= top - rtol * top.abs().clamp_min(1.0)
+    return near.to(torch.int8).argmax(-1)  # the first True
+
+
 def _smallest_sufficient(gains: torch.Tensor, by_score: int, min_gain: float) -> int:
     """The smallest index ``i <= by_score`` whose next k gains less than ``min_gain``."""
     for i in range(by_score):
@@ -917,7 +933,7 @@ def _em_all_k(
                 **options,
             )
             ll = torch.nan_to_num(short.log_likelihood, nan=-math.inf).view(len(ks), restarts)
-            keep = torch.arange(len(ks), device=device) * restarts + ll.argmax(-1)  # (num_k,)
+            keep = torch.arange(len(ks), device=device) * restarts + _first_best(ll)  # (num_k,)
             lt0, lw0 = short.log_transition[keep], short.log_weights[keep]
             li0 = short.log_initial[keep] if short.log_initial is not None else None
             run_k, cluster_mask, per_group = run_k[keep], cluster_mask[keep], 1
@@ -972,7 +988,7 @@ def _heldout_scores(
         part = dataclasses.replace(stats, multiplicity=train.to(device)).rows(keep)
         result, _, mask, per_group = _em_all_k(part, ks, gen, **em)
         ll = torch.nan_to_num(result.log_likelihood, nan=-math.inf).view(len(ks), per_group)
-        best = torch.arange(len(ks), device=device) * per_group + ll.argmax(-1)  # (num_k,)
+        best = torch.arange(len(ks), device=device) * per_group + _first_best(ll)  # (num_k,)
         out = torch.nonzero(held[:, f] > 0).flatten().to(device)
         lt = result.log_transition[best].clamp_min(floor)  # (num_k, K, A, A)
         li = None if result.log_initial is None else result.log_initial[best].clamp_min(floor)
@@ -1150,7 +1166,7 @@ def _select(
     names = {"bic_or_exact_icl": ("bic", "exact_icl"), "heldout": ("bic",),
              "icl_or_gain": ("bic", "exact_icl")}.get(used, (used,))  # fmt: skip
     grouped = [torch.nan_to_num(scores[c], nan=-math.inf).view(len(ks), per_group) for c in names]
-    best_run = torch.arange(len(ks), device=device) * per_group + grouped[0].argmax(-1)
+    best_run = torch.arange(len(ks), device=device) * per_group + _first_best(grouped[0])
     by_score = max(int(g.max(-1).values.argmax()) for g in grouped)  # index into ks
     heldout: dict[int, dict[str, float]] = {}
     if used == "icl_or_gain":  # the exact ICL's k, or more where each step gains strong_gain

@@ -45,10 +45,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+from torchhrc.commands._files import policy_path
+
 __all__ = ["make_config", "register", "run"]
 
 SOLVERS = ("sarsop", "pbvi", "qmdp", "fib")
-POLICY_SUFFIXES = (".policyx", ".policy", ".xml", ".safetensors")
 
 
 def _positive(text: str) -> float:
@@ -69,12 +70,6 @@ def _non_negative(text: str) -> float:
     if not value >= 0 or not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"expected a non-negative number, got {text!r}")
     return value
-
-
-def _out_path(text: str) -> str:
-    if Path(text).suffix.lower() not in POLICY_SUFFIXES:
-        raise argparse.ArgumentTypeError(f"expected a .policyx or .safetensors path, got {text!r}")
-    return text
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -107,7 +102,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--precision", type=_non_negative, default=1e-3, help="target gap upper - lower (1e-3)"
     )
     parser.add_argument(
-        "--out", type=_out_path, default=None, help="write the policy (.policyx / .safetensors)"
+        "--out", type=policy_path, default=None, help="write the policy (.policyx / .safetensors)"
     )
     parser.add_argument(
         "--memory",

@@ -27,7 +27,7 @@ from torchhrc.tasks.suite.builder import TaskSpec, build
 
 __all__ = ["workshop_five"]
 
-TODO, HUMAN, ROBOT = 0, 1, 2
+OPEN, HUMAN, ROBOT = 0, 1, 2
 PARTS = "ABCDE"
 OWN = {
     "left_worker": (0, 1),
@@ -41,22 +41,22 @@ TYPES = tuple(OWN)
 
 def _robot(s: tuple[int, ...], a: int) -> tuple[int, ...]:
     p = a - 1
-    return s if p < 0 or s[p] != TODO else (*s[:p], ROBOT, *s[p + 1 :])
+    return s if p < 0 or s[p] != OPEN else (*s[:p], ROBOT, *s[p + 1 :])
 
 
 def _human(s: tuple[int, ...], h: int) -> tuple[int, ...] | None:
-    return (*s[:h], HUMAN, *s[h + 1 :]) if s[h] == TODO else None
+    return (*s[:h], HUMAN, *s[h + 1 :]) if s[h] == OPEN else None
 
 
 def _first(s: tuple[int, ...]) -> int:
-    return next((p for p, v in enumerate(s) if v == TODO), -1)
+    return next((p for p, v in enumerate(s) if v == OPEN), -1)
 
 
 def _behaviour(y: int, m: int, s: tuple[int, ...], a: int) -> dict[int, float]:
     if TYPES[y] == "turn_taker":
         just = a > 0 and s[a - 1] == ROBOT  # the robot's move did a part (s: after it)
         return {_first(s): 1.0} if just else {-1: 1.0}
-    nxt = next((p for p in OWN[TYPES[y]] if s[p] == TODO), -1)
+    nxt = next((p for p in OWN[TYPES[y]] if s[p] == OPEN), -1)
     return {nxt: 1.0}
 
 
@@ -65,8 +65,8 @@ def _features(s: tuple[int, ...], a: int) -> dict[str, float]:
     f.update(do_first=0.0, **{f"wait_while_{p}": 0.0 for p in PARTS}, useless=0.0)
     if a == 0:
         for p in range(len(PARTS)):
-            f[f"wait_while_{PARTS[p]}"] = float(s[p] == TODO)
-    elif s[a - 1] != TODO:
+            f[f"wait_while_{PARTS[p]}"] = float(s[p] == OPEN)
+    elif s[a - 1] != OPEN:
         f["useless"] = 1.0
     else:
         f[f"do_{PARTS[a - 1]}"] = 1.0
@@ -97,12 +97,12 @@ def workshop_five() -> TaskWithPeople:
         TaskSpec(
             name="workshop_five",
             description="who does which part, whether the robot may help, and turn taking",
-            initial=(TODO,) * len(PARTS),
+            initial=(OPEN,) * len(PARTS),
             robot_actions=("wait", *(f"do_{p}" for p in PARTS)),
             human_actions=tuple(f"do_{p}" for p in PARTS),
             robot_step=_robot,
             human_step=_human,
-            terminal=lambda s: TODO not in s,
+            terminal=lambda s: OPEN not in s,
             state_name=lambda s: "".join("-hr"[v] for v in s),
             type_names=TYPES,
             behaviour=_behaviour,

@@ -31,7 +31,7 @@ from torchhrc.tasks.suite.builder import TaskSpec, build
 
 __all__ = ["division_of_labour", "kitting_observed"]
 
-TODO, HUMAN, ROBOT = 0, 1, 2
+OPEN, HUMAN, ROBOT = 0, 1, 2
 PARTS = ("A", "B", "C", "D", "E", "F")
 
 
@@ -54,23 +54,23 @@ def _spec(
 
     def robot_step(s: tuple[int, ...], a: int) -> tuple[int, ...]:
         p = a - 1
-        return s if p < 0 or s[p] != TODO else (*s[:p], by_robot, *s[p + 1 :])
+        return s if p < 0 or s[p] != OPEN else (*s[:p], by_robot, *s[p + 1 :])
 
     def human_step(s: tuple[int, ...], h: int) -> tuple[int, ...] | None:
-        return (*s[:h], HUMAN, *s[h + 1 :]) if s[h] == TODO else None
+        return (*s[:h], HUMAN, *s[h + 1 :]) if s[h] == OPEN else None
 
     def behaviour(y: int, m: int, s: tuple[int, ...], a: int) -> dict[int, float]:
-        nxt = next((p for p in own[types[y]] if s[p] == TODO), -1)
+        nxt = next((p for p in own[types[y]] if s[p] == OPEN), -1)
         return {nxt: 1.0}
 
     def reward(y: int, s: tuple[int, ...], a: int) -> float:
-        if all(v == TODO for v in s):  # the person starts; the robot joins after
+        if all(v == OPEN for v in s):  # the person starts; the robot joins after
             return 0.5 if a == 0 else -0.5
-        mine = [p for p in robot_order[types[y]] if s[p] == TODO]
+        mine = [p for p in robot_order[types[y]] if s[p] == OPEN]
         if a == 0:
             return -0.3 if mine else 0.0
         p = a - 1
-        if s[p] != TODO:
+        if s[p] != OPEN:
             return -0.2  # nothing to do there
         if p not in robot_order[types[y]]:
             return -1.0  # the person's part
@@ -79,12 +79,12 @@ def _spec(
     return TaskSpec(
         name=name,
         description=description,
-        initial=(TODO,) * P,
+        initial=(OPEN,) * P,
         robot_actions=("wait", *(f"do_{p}" for p in PARTS[:P])),
         human_actions=tuple(f"do_{p}" for p in PARTS[:P]),
         robot_step=robot_step,
         human_step=human_step,
-        terminal=lambda s: TODO not in s,
+        terminal=lambda s: OPEN not in s,
         state_name=lambda s: "".join(("-hr" if record_who else "-x")[v] for v in s),
         type_names=types,
         behaviour=behaviour,

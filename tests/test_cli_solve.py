@@ -242,7 +242,10 @@ def test_a_killed_solve_leaves_its_last_checkpoint(tmp_path, suffix):
     """``--policy-interval`` writes the policy atomically while the solve runs: SIGKILL after
     the first checkpoint leaves a complete policy (RockSample(4, 4), 600 s, precision 1e-12,
     so that only the kill ends it), whose value at b0 lies between the blind policy's and the
-    optimal value (18.04, the known optimum)."""
+    optimal value. The optimum of this instance (rocks placed by ``seed=0``, not the published
+    layout whose optimum is 18.04) is 19.01: APPL's pomdpsol brackets it in [19.0100, 19.0107]
+    (precision 1e-3), so the bound is 19.0107 + 1e-3. How far the first checkpoint gets depends
+    on the machine's speed; the bound does not."""
     import os
     import signal
     import subprocess
@@ -277,7 +280,7 @@ def test_a_killed_solve_leaves_its_last_checkpoint(tmp_path, suffix):
     value = float(policy.value(b0)[0])
     from torchhrc.solvers.blind import blind_policy
 
-    assert float(blind_policy(model).value(b0)[0]) - 1e-9 <= value <= 18.04 + 1e-2
+    assert float(blind_policy(model).value(b0)[0]) - 1e-9 <= value <= 19.0107 + 1e-3
     if suffix == ".policyx":
         _pomdpeval_accepts(model_path, out_path, tmp_path)
 

@@ -64,7 +64,8 @@ def synthetic(
     base = torch.zeros(symbols, symbols)
     for a in range(symbols):
         succ = torch.randperm(symbols, generator=g)[:2]
-        base[a, succ] = torch.distributions.Dirichlet(torch.ones(2)).sample()
+        u = float(torch.rand((), generator=g))  # Dirichlet(1, 1), from this generator
+        base[a, succ] = torch.tensor([u, 1.0 - u])
     chains = base.expand(types, symbols, symbols).clone()
     rows = torch.randperm(symbols, generator=g)[: max(1, round(differ * symbols))]
     for y in range(1, types):

@@ -130,7 +130,9 @@ def test_cluster_min_gain_option_sets_the_rule(study, capsys):
         max(report["per_k"], key=lambda k: report["per_k"][k][c]) for c in ("bic", "exact_icl")
     )
     assert report["k"] == int(best)
-    assert set(report["per_k"]["3"]) == {"bic", "icl", "exact_icl", "log_likelihood", "gain"}
+    assert set(report["per_k"]["3"]) == {
+        "bic", "icl", "exact_icl", "log_likelihood", "gain", "consistency"
+    }
     code, out, _ = _run(capsys, *argv, "--min-gain", "0", "--criterion", "bic")
     report = json.loads(out)
     best = max(report["per_k"], key=lambda k: report["per_k"][k]["bic"])

@@ -99,6 +99,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="least gain (nats per transition) an extra cluster must add (soft: 0.015; "
         "0 = BIC alone; see docs/clustering.md)",
     )
+    parser.add_argument(
+        "--min-consistency",
+        type=float,
+        default=None,
+        help="least subject consistency (ICC, 0-1) of every cluster: a type belongs to a "
+        "person (soft: 0.5; 0 = off; see docs/clustering.md)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="random seed (0)")
     parser.add_argument(
         "--loo",
@@ -195,10 +202,12 @@ def cluster_report(
     relabel_objects: bool = False,
     min_gain: float | None = None,
     objects: str | None = None,
+    min_consistency: float | None = None,
 ) -> dict[str, Any]:
     """Fit, score and summarise: the dict that ``--json`` prints.
 
-    ``min_gain`` is passed to ``fit_mixture`` (``None``: its default).
+    ``min_gain`` and ``min_consistency`` are passed to ``fit_mixture`` (``None``: its
+    default).
     With ``relabel_objects`` the demonstrations are first passed through
     :meth:`~torchhrc.data.Demonstrations.relabel_objects` (symbols, counts and the model are
     then over the relabelled vocabulary, and fitted as they are: ``objects="raw"``).
@@ -240,6 +249,7 @@ def cluster_report(
         criterion=criterion,  # type: ignore[arg-type]
         seed=seed,
         min_gain=min_gain,
+        min_consistency=min_consistency,
         objects=objects,  # type: ignore[arg-type]
     )
     if save_model is not None:
@@ -277,6 +287,7 @@ def cluster_report(
             inference=inference,  # type: ignore[arg-type]
             seed=seed,
             **({} if min_gain is None else {"min_gain": min_gain}),
+            **({} if min_consistency is None else {"min_consistency": min_consistency}),
             **({} if objects is None else {"objects": objects}),
         )
         report["loo"] = {
@@ -302,6 +313,7 @@ def sharded_cluster_report(
     ray: str | None = None,
     min_gain: float | None = None,
     objects: str | None = None,
+    min_consistency: float | None = None,
 ) -> dict[str, Any]:
     """:func:`cluster_report` for a :class:`~torchhrc.corpus.ShardedCorpus` (same keys).
 
@@ -323,7 +335,8 @@ def sharded_cluster_report(
         return _sharded_report(corpus, fit_mixture, k_min=k_min, k_max=k_max,
                                restarts=restarts, method=method, criterion=criterion,
                                seed=seed, save_model=save_model, ray=ray,
-                               min_gain=min_gain, objects=objects)  # fmt: skip
+                               min_gain=min_gain, objects=objects,
+                               min_consistency=min_consistency)  # fmt: skip
     finally:
         if started:
             import_ray().shutdown()
@@ -343,6 +356,7 @@ def _sharded_report(
     ray: str | None,
     min_gain: float | None,
     objects: str | None,
+    min_consistency: float | None,
 ) -> dict[str, Any]:
     fit = fit_mixture(
         corpus,
@@ -353,6 +367,7 @@ def _sharded_report(
         criterion=criterion,  # type: ignore[arg-type]
         seed=seed,
         min_gain=min_gain,
+        min_consistency=min_consistency,
         objects=objects,  # type: ignore[arg-type]
         ray=ray,
     )
@@ -499,7 +514,7 @@ def run(args: argparse.Namespace) -> int:
             corpus, k_min=args.k_min, k_max=args.k_max, restarts=args.restarts,
             method=args.method, criterion=args.criterion, seed=args.seed,
             save_model=args.save_model, ray=args.ray, min_gain=args.min_gain,
-            objects=args.objects,
+            objects=args.objects, min_consistency=args.min_consistency,
         )  # fmt: skip
         _emit(report, " ".join(paths), args.json)
         return 0
@@ -518,6 +533,7 @@ def run(args: argparse.Namespace) -> int:
         relabel_objects=args.relabel_objects,
         min_gain=args.min_gain,
         objects=args.objects,
+        min_consistency=args.min_consistency,
     )
     _emit(report, paths[0], args.json)
     return 0

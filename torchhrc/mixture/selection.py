@@ -60,6 +60,7 @@ import torch.nn.functional as F
 
 from torchhrc.errors import ModelError
 from torchhrc.mixture._em import EMResult, e_table
+from torchhrc.mixture.consistency import DEFAULT_MIN_CONSISTENCY, row_consistency
 from torchhrc.mixture.counts import SufficientStatistics, check_sequences, sufficient_statistics
 from torchhrc.mixture.hard_em import hard_em, partition_counts, partition_sizes
 from torchhrc.mixture.init import kmeans_pp_init, random_init
@@ -218,6 +219,7 @@ class ClusterConfig:
     initial: bool | None = None
     min_gain: float | None = None
     strong_gain: float | None = None
+    min_consistency: float | None = None
     folds: int | None = None
     se_factor: float | None = None
     objects: Objects | None = None
@@ -591,6 +593,7 @@ def fit_mixture(
     initial: bool = False,
     min_gain: float | None = None,
     strong_gain: float | None = None,
+    min_consistency: float | None = None,
     folds: int = 5,
     se_factor: float = 1.0,
     objects: Objects | None = None,
@@ -662,6 +665,16 @@ def fit_mixture(
             and orders (``docs/clustering.md``).
         strong_gain: ``criterion="icl_or_gain"``'s effect size, nats per transition
             (``None``: ``DEFAULT_STRONG_GAIN``, 0.04).
+        min_consistency: a type belongs to a person: with subjects as units (``unit``), the
+            chosen k is lowered while one of its clusters has a subject consistency below
+            this (the intraclass correlation of the sequences' own cluster posteriors with
+            subjects as groups, :mod:`torchhrc.mixture.consistency`: the share of their
+            variance that lies between subjects). It removes the clusters of sequences, not
+            of people, that every likelihood criterion keeps on large corpora when the chains
+            are misspecified (``docs/clustering.md``, "A type belongs to a person"). ``None``:
+            ``DEFAULT_MIN_CONSISTENCY`` (0.5) for ``"soft"``, 0 (off) for ``"paper"``.
+            Recorded as ``per_k[k]["consistency"]`` (the smallest of the k clusters) whenever
+            subjects with several sequences are the units, also when the check is off (0).
         folds, se_factor: ``criterion="heldout"``'s number of folds over units and its
             one-standard-error rule's factor.
         objects: how object names in the actions are read (``docs/clustering.md``,
@@ -733,8 +746,8 @@ def fit_mixture(
         unit=unit, parameters=parameters, pseudo_count=pseudo_count,
         weight_pseudo_count=weight_pseudo_count, max_iterations=max_iterations,
         short_iterations=short_iterations, tol=tol, floor=floor, initial=initial,
-        min_gain=min_gain, strong_gain=strong_gain, folds=folds, se_factor=se_factor,
-        dtype=dtype, progress=progress,
+        min_gain=min_gain, strong_gain=strong_gain, min_consistency=min_consistency,
+        folds=folds, se_factor=se_factor, dtype=dtype, progress=progress,
         ray=ray,
     )  # fmt: skip
     has_objects = callable(getattr(data, "relabel_objects", None)) and not isinstance(data, tuple)
@@ -1050,6 +1063,7 @@ def _select(
     initial: bool,
     min_gain: float | None,
     strong_gain: float | None,
+    min_consistency: float | None,
     folds: int,
     se_factor: float,
     dtype: torch.dtype,
@@ -1116,13 +1130,26 @@ def _select(
         raise ValueError(
             f"expected min_gain to be a float >= 0 (nats per transition), got {min_gain!r}"
         )
+    if min_consistency is None:
+        min_consistency = DEFAULT_MIN_CONSISTENCY if method == "soft" else 0.0
+    if (
+        isinstance(min_consistency, bool)
+        or not isinstance(min_consistency, (int, float))
+        or not (0 <= min_consistency <= 1)
+    ):
+        raise ValueError(
+            f"expected min_consistency to be a float in [0, 1], got {min_consistency!r}"
+        )
     gen = _generator(seed, generator)
+    by_subject = False
     if sharded:
         by = unit if unit != "auto" else ("subject" if method == "soft" else "sequence")
         corpus = data.statistics(unit=by, initial=initial, dtype=dtype, ray=ray)
         stats, vocabulary, A = corpus.stats, corpus.vocabulary, corpus.stats.num_symbols
+        by_subject = by == "subject"
     else:
         groups = _groups(data, unit, method)
+        by_subject = groups is not None
         stats = sufficient_statistics(
             sequences, lengths, A, initial=initial, groups=groups, dtype=dtype
         )
@@ -1199,6 +1226,15 @@ def _select(
     index = by_score
     if min_gain > 0:
         index = _smallest_sufficient(gains, by_score, float(min_gain))
+    consistency: torch.Tensor | None = None
+    if by_subject and len(ks) > 1:  # recorded always, applied when min_consistency > 0
+        consistency = _consistency_per_k(
+            data, sharded, stats, result, best_run, run_k,
+            initial=initial, dtype=dtype, ray=ray, floor=floor,
+        )  # fmt: skip
+        if consistency is not None and min_consistency > 0:  # not all clusters are types
+            while index > 0 and float(consistency[index]) < min_consistency:
+                index -= 1
     chosen = int(best_run[index])
     per_k = {
         int(ks[i]): {
@@ -1208,6 +1244,11 @@ def _select(
             "log_likelihood": float(lls[i]),
             **({"gain": float(gains[i])} if i > 0 else {}),
             **heldout.get(int(ks[i]), {}),
+            **(
+                {"consistency": float(consistency[i])}
+                if consistency is not None and not math.isnan(float(consistency[i]))
+                else {}
+            ),
         }
         for i in range(len(ks))
     }
@@ -1224,6 +1265,54 @@ def _select(
         used,
         vocabulary,
     )
+
+
+def _consistency_per_k(
+    data: Any,
+    sharded: bool,
+    stats: SufficientStatistics,
+    result: EMResult,
+    best_run: torch.Tensor,
+    run_k: torch.Tensor,
+    *,
+    initial: bool,
+    dtype: torch.dtype,
+    ray: bool | str | None,
+    floor: float,
+) -> torch.Tensor | None:
+    """``(num_k,)`` the smallest subject consistency (ICC) over the clusters of every k's
+    best run (``nan`` where undefined: one sequence per subject, k = 1), or None when the
+    data has no per-sequence counts (merged statistics of shards, computed by subject).
+
+    The subjects are the unit rows of ``stats`` (``stats.inverse (N,)``: subjects with equal
+    summed counts share a row, the same grouping in memory and in shards); the sequences'
+    own counts come from a second reduction by sequence."""
+    if sharded:
+        try:
+            per_sequence = data.statistics(unit="sequence", initial=initial, dtype=dtype,
+                                           ray=ray).stats  # fmt: skip
+        except ModelError:  # merged CorpusStatistics: computed by subject only
+            warnings.warn(
+                "fit_mixture: the subject-consistency check (min_consistency) needs each "
+                "sequence's counts, which merged statistics by subject do not hold; it was "
+                "skipped (fit the ShardedCorpus itself to run it)",
+                stacklevel=4,
+            )
+            return None
+    else:
+        sequences, lengths, A, _ = _unpack(data)
+        per_sequence = sufficient_statistics(sequences, lengths, A, initial=initial, dtype=dtype)
+    groups = stats.inverse.to(per_sequence.inverse.device)
+    out = []
+    for run in best_run.tolist():
+        k = int(run_k[run])
+        lw = result.log_weights[run, :k]
+        li = result.log_initial[run, :k] if result.log_initial is not None else None
+        icc = row_consistency(per_sequence, groups, result.log_transition[run, :k], li,
+                              lw - torch.logsumexp(lw, -1), floor=floor)  # fmt: skip
+        defined = icc[~icc.isnan()]
+        out.append(float(defined.min()) if k > 1 and defined.numel() else math.nan)
+    return torch.tensor(out, dtype=torch.float64)
 
 
 def _finish(

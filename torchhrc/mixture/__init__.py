@@ -19,6 +19,7 @@ Example:
 
 from __future__ import annotations
 
+from torchhrc.mixture.consistency import cluster_consistency, intraclass_correlation
 from torchhrc.mixture.counts import (
     SufficientStatistics,
     cluster_counts,
@@ -49,11 +50,13 @@ __all__ = [
     "MixtureFit",
     "SufficientStatistics",
     "bic",
+    "cluster_consistency",
     "cluster_counts",
     "count_log_likelihood",
     "fit_mixture",
     "hard_em",
     "infer_type",
+    "intraclass_correlation",
     "kmeans_pp_init",
     "mixture_log_likelihood",
     "num_free_parameters",

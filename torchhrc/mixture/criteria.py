@@ -1,0 +1,264 @@
+"""Scores that choose the number of types: BIC, the exact ICL, gains per transition, and
+the rules built on them (``fit_mixture``'s ``criterion=``, ``min_gain``, ``strong_gain``).
+
+Split out of :mod:`.selection` (which fits every k and applies these rules) so that each
+file holds one concept; ``torchhrc.mixture.selection`` re-exports every public name.
+
+Example:
+    >>> from torchhrc.mixture.criteria import bic
+    >>> round(float(bic(-100.0, 10, 50)), 3)
+    -119.56
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+import torch
+
+from torchhrc.mixture.counts import SufficientStatistics
+from torchhrc.mixture.hard_em import partition_counts, partition_sizes
+
+Method = Literal["soft", "paper"]
+
+__all__ = [
+    "DEFAULT_HELDOUT_GAIN",
+    "DEFAULT_MIN_GAIN",
+    "DEFAULT_STRONG_GAIN",
+    "EXACT_ICL_PRIOR",
+    "bic",
+    "exact_icl",
+    "gains_per_transition",
+    "num_free_parameters",
+    "num_transitions",
+]
+
+
+def num_free_parameters(
+    k: int | torch.Tensor, num_symbols: int, *, method: Method = "soft", initial: bool = False
+) -> int | torch.Tensor:
+    """Free parameters counted by the BIC.
+
+    ``"paper"``: ``k A (A - 1)`` (Select-Best-Model, line 5). ``"soft"``: plus ``k - 1``
+    weights, plus ``k (A - 1)`` when first symbols are modelled.
+
+    Example:
+        >>> num_free_parameters(2, 7, method="paper")
+        84
+    """
+    A = num_symbols
+    n = k * A * (A - 1)
+    if method != "paper":
+        n = n + (k - 1)
+        if initial:
+            n = n + k * (A - 1)
+    return n
+
+
+def bic(log_likelihood: torch.Tensor | float, num_parameters: Any, num_data: int) -> Any:
+    """``BIC = l - K/2 log n`` (the paper's sign convention: larger is better).
+
+    Example:
+        >>> round(bic(-100.0, 84, 54), 3)
+        -267.537
+    """
+    return log_likelihood - num_parameters / 2 * math.log(num_data)
+
+
+#: Dirichlet concentration of every transition row (and first-symbol distribution) in
+#: :func:`exact_icl`: Jeffreys' prior for a multinomial, as Biernacki, Celeux, Govaert (2010)
+#: use for the latent class model.
+EXACT_ICL_PRIOR = 0.5
+
+
+def _log_dirichlet_multinomial(counts: torch.Tensor, alpha: float) -> torch.Tensor:
+    """``(...)`` log marginal probability of the ordered draws with counts ``(..., A)`` under
+    a multinomial whose probabilities are integrated out over a symmetric Dirichlet(alpha):
+    ``log B(n + alpha) - log B(alpha)``, ``B`` the multivariate Beta function (0 for a row
+    without counts)."""
+    A = counts.shape[-1]
+    return (
+        torch.lgamma(counts + alpha).sum(-1)
+        - A * math.lgamma(alpha)
+        + math.lgamma(A * alpha)
+        - torch.lgamma(counts.sum(-1) + A * alpha)
+    )
+
+
+def exact_icl(
+    stats: SufficientStatistics,
+    assignments: torch.Tensor,
+    cluster_mask: torch.Tensor,
+    *,
+    prior: float = EXACT_ICL_PRIOR,
+    weight_prior: float = 1.0,
+) -> torch.Tensor:
+    """Exact integrated classification likelihood ``log p(D, z)`` of hard partitions.
+
+    Biernacki, Celeux, Govaert (2010), "Exact and Monte Carlo calculations of integrated
+    likelihoods for the latent class model", for Markov chains: with a symmetric
+    Dirichlet(``prior``) on every transition row of every cluster and a
+    Dirichlet(``weight_prior``) on the weights of the ``k_r`` clusters of run ``r``, the
+    parameters integrate out in closed form:
+
+    ``ICL(z) = sum_k sum_a [log B(n_k(a, .) + prior) - log B(prior)]
+    + log B(m + weight_prior) - log B(weight_prior)``,
+
+    ``n_k(a, b)`` the transitions ``a -> b`` of the units of cluster ``k``, ``m_k`` the units
+    in cluster ``k``, ``B`` the multivariate Beta function (plus the same term for the first
+    symbols when they are modelled). A row that a cluster never visits adds exactly 0, a row
+    visited ``n`` times with ``s`` distinct successors about ``(s - 1)/2 log n``: no count of
+    parameters is needed, unlike BIC's ``k A (A - 1)``.
+
+    Args:
+        stats: the distinct units.
+        assignments: ``(U, R)`` int64 cluster slot of every distinct row in each run.
+        cluster_mask: ``(R, K)`` bool, the slots each run uses (``k_r`` = its row sum).
+        prior: Dirichlet concentration of every transition row (default: Jeffreys, 1/2).
+        weight_prior: Dirichlet concentration of the mixture weights.
+
+    Returns:
+        ``(R,)`` float64 (larger is better).
+
+    Example:
+        >>> from torchhrc.mixture import sufficient_statistics
+        >>> seqs = torch.tensor([[0, 1, 0, 1]] * 5 + [[0, 0, 0, 0]] * 5)
+        >>> s = sufficient_statistics(seqs, torch.full((10,), 4), 2)  # 2 distinct rows
+        >>> mask = torch.ones(2, 2, dtype=torch.bool)
+        >>> icl = exact_icl(s, torch.tensor([[0, 0], [1, 0]]), mask)  # split, then merged
+        >>> bool(icl[0] > icl[1])
+        True
+    """
+    R, K = cluster_mask.shape
+    A = stats.num_symbols
+    counts, first = partition_counts(stats, assignments, K, torch.float64)  # (R*K, A*A)
+    out = _log_dirichlet_multinomial(counts.view(R, K, A, A), prior).sum((-1, -2))  # (R,)
+    if first is not None:
+        out = out + _log_dirichlet_multinomial(first.view(R, K, A), prior).sum(-1)
+    sizes = partition_sizes(assignments, stats.multiplicity.double(), K)  # (R, K)
+    k = cluster_mask.sum(-1).double()  # (R,)
+    weights = (torch.lgamma(sizes + weight_prior) - math.lgamma(weight_prior)).masked_fill(
+        ~cluster_mask, 0.0
+    )
+    n = sizes.sum(-1)
+    return (
+        out + weights.sum(-1) + torch.lgamma(k * weight_prior) - torch.lgamma(n + k * weight_prior)
+    )
+
+
+def _support_parameters(stats: SufficientStatistics) -> int:
+    """Free parameters of one chain on the observed support: ``sum_a max(s_a - 1, 0)``.
+
+    ``s_a`` = number of distinct successors of ``a`` seen anywhere in the data.
+    """
+    A = stats.num_symbols
+    seen = ((stats.counts * stats.multiplicity[:, None]).sum(0) > 0).view(A, A)
+    return int((seen.sum(-1) - 1).clamp_min(0).sum())
+
+
+#: The default ``min_gain`` of the soft method, nats per transition. Measured on the
+#: place-and-drill corpora of ``docs/clustering.md`` (seeds 0-2): a true type adds 0.04-0.27,
+#: a sub-cluster of one type (noise patterns, placement orders) 0.003-0.005.
+DEFAULT_MIN_GAIN = 0.015
+
+
+def num_transitions(stats: SufficientStatistics) -> float:
+    """``T``, the number of transitions in the data (all units, with multiplicity).
+
+    Example:
+        >>> from torchhrc.mixture import sufficient_statistics
+        >>> s = sufficient_statistics(torch.tensor([[0, 1, 1], [1, 0, 0]]), torch.tensor([3, 2]), 2)
+        >>> num_transitions(s)
+        3.0
+    """
+    return float((stats.counts.sum(-1) * stats.multiplicity).sum())
+
+
+def gains_per_transition(log_likelihoods: torch.Tensor, transitions: float) -> torch.Tensor:
+    """``(num_k,)`` gain of each k over the previous one, in nats per transition.
+
+    ``gain[i] = (l[i] - l[i - 1]) / T`` for consecutive ``k``; ``gain[0] = nan``.
+
+    Example:
+        >>> gains_per_transition(torch.tensor([-100.0, -50.0, -45.0]), 10.0).tolist()
+        [nan, 5.0, 0.5]
+    """
+    gains = torch.full_like(log_likelihoods, math.nan)
+    gains[1:] = (log_likelihoods[1:] - log_likelihoods[:-1]) / max(transitions, 1.0)
+    return gains
+
+
+def _largest_strong(gains: torch.Tensor, start: int, strong_gain: float) -> int:
+    """The largest index ``i >= start`` such that every k after ``ks[start]`` up to ``ks[i]``
+    gains at least ``strong_gain`` over the previous one."""
+    index = start
+    for i in range(start + 1, gains.shape[0]):
+        if not float(gains[i]) >= strong_gain:  # nan (a failed run) counts as no gain
+            break
+        index = i
+    return index
+
+
+#: The default ``strong_gain`` of ``criterion="icl_or_gain"``, nats per transition: a
+#: further type that raises the likelihood by this much is kept although the exact ICL would
+#: not pay for it (tuned on the task suite as a whole, ``docs/clustering.md``).
+DEFAULT_STRONG_GAIN = 0.04
+
+
+#: ``criterion="icl_or_gain"`` keeps a strong step only if it also gains this much on units
+#: held out of the fit (nats per transition, 5-fold cross-validation): on small studies an
+#: extra cluster's in-sample gain is partly overfitting (``docs/clustering.md``).
+DEFAULT_HELDOUT_GAIN = 0.01
+
+
+def _first_best(scores: torch.Tensor, rtol: float = 1e-9) -> torch.Tensor:
+    """``(...)`` index of the first entry of the last dim within ``rtol`` of its maximum.
+
+    Restarts that reach one partition with its clusters in another order tie in score up to
+    the last bits, which sums in another order (Ray's chunked E-step, another BLAS kernel)
+    change: a plain argmax would pick another run, and so other labels, on another machine.
+
+    Example:
+        >>> _first_best(torch.tensor([[1.0, 3.0, 3.0 + 1e-12], [2.0, 1.0, -math.inf]]))
+        tensor([1, 0])
+    """
+    top = scores.max(-1, keepdim=True).values
+    near = scores >= top - rtol * top.abs().clamp_min(1.0)
+    return near.to(torch.int8).argmax(-1)  # the first True
+
+
+def _smallest_sufficient(gains: torch.Tensor, by_score: int, min_gain: float) -> int:
+    """The smallest index ``i <= by_score`` whose next k gains less than ``min_gain``."""
+    for i in range(by_score):
+        if not float(gains[i + 1]) >= min_gain:  # nan (a failed run) counts as no gain
+            return i
+    return by_score
+
+
+def _one_standard_error(
+    values: torch.Tensor, weights: torch.Tensor, se_factor: float
+) -> tuple[int, torch.Tensor, torch.Tensor]:
+    """The smallest k (index) whose held-out total is within ``se_factor`` standard errors of
+    the best: ``sum_u (l_u(k) - l_u(k*)) >= -se_factor * SE_k``, ``SE_k`` the standard error
+    of that paired sum over the held-out units (Breiman et al. 1984's one-standard-error rule,
+    on paired per-unit differences).
+
+    Returns:
+        ``(index, total (num_k,), se (num_k,))``: the chosen index into the ks, each k's
+        held-out total and the standard error of its difference to the best k.
+    """
+    values = torch.nan_to_num(values, nan=-math.inf, posinf=-math.inf)
+    total = (values * weights[:, None]).sum(0)  # (num_k,)
+    best = int(total.argmax())
+    n = float(weights.sum())
+    diff = values - values[:, best : best + 1]  # (P, num_k)
+    diff = torch.nan_to_num(diff, nan=-math.inf)
+    mean = (diff * weights[:, None]).sum(0) / n
+    var = ((diff - mean) ** 2 * weights[:, None]).sum(0) / max(n - 1.0, 1.0)
+    se = (n * var).sqrt()
+    for i in range(best + 1):
+        margin = float(total[i] - total[best])
+        if math.isfinite(margin) and margin >= -se_factor * float(se[i]):
+            return i, total, se
+    return best, total, se

@@ -15,7 +15,8 @@ exact observation; the vectors are ``(A, X, Y)``. When the hidden value is stati
 Per iteration the flat cost is ``A * S * S * O * A`` (one batched matmul, no ``(A, O, S, S)``
 tensor). An unbatched model (dense, MOMDP or sparse) is iterated by its solver form
 (:meth:`~torchhrc.solvers.forms.base.SolverModel.fib_vectors`, SARSOP's initialisation: numpy
-on the CPU, ``Ty`` kept factored), a batch by the torch kernels below.
+on the CPU, ``Ty`` kept factored), a batch by the torch kernels of
+:mod:`~torchhrc.solvers.tensor_bounds` (:func:`fib_backup` is theirs, re-exported here).
 
 Example:
     >>> import torch
@@ -33,70 +34,16 @@ from typing import TYPE_CHECKING
 
 import torch
 
-from torchhrc.pomdp import MOMDP, POMDP
-from torchhrc.solvers._factored import check_model, check_unit_discount
 from torchhrc.solvers.clock import NEVER
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.qmdp import IterationConfig, bound_form, qmdp_vectors, solve_bound
+from torchhrc.solvers.qmdp import IterationConfig, bound_form, solve_bound
 from torchhrc.solvers.solution import Solution
+from torchhrc.solvers.tensor_bounds import fib_backup, tensor_fib_vectors
 
 if TYPE_CHECKING:
     from torchhrc.solvers.qmdp import AnyModel
 
 __all__ = ["FIBConfig", "fib", "fib_backup", "fib_policy", "fib_vectors"]
-
-_CHUNK_ELEMENTS = 1 << 24
-
-
-def _flat_step(model: POMDP, alpha: torch.Tensor) -> torch.Tensor:
-    T, Z, R = model.T, model.Z, model.R
-    A, S, O = T.shape[-3], T.shape[-1], Z.shape[-1]
-    # Y[..., a, s2, o, a2] = Z[..., a, s2, o] * alpha[..., a2, s2]
-    Y = Z.unsqueeze(-1) * alpha.transpose(-1, -2).unsqueeze(-2).unsqueeze(-4)
-    # G[..., a, s, o, a2] = sum_s2 T[..., a, s, s2] Y[..., a, s2, o, a2]
-    G = T @ Y.reshape(*Y.shape[:-3], S, O * A)
-    G = G.reshape(*G.shape[:-1], O, A)
-    return R + model.discount * G.amax(-1).sum(-1)
-
-
-def _momdp_step(model: MOMDP, alpha: torch.Tensor) -> torch.Tensor:
-    Tx, Ty, Z, R, g = model.Tx, model.Ty, model.Z, model.R, model.discount
-    if Ty is None:
-        # sum_y2 collapses to y2 = y: max_a2 moves inside the products of nonnegative terms.
-        # inner[..., a, x2, y] = sum_o Z[..., a, x2, y, o] * max_a2 alpha[..., a2, x2, y]
-        inner = Z.sum(-1) * alpha.amax(-3).unsqueeze(-3)
-        return R + g * torch.einsum("...axyz,...azy->...axy", Tx, inner)
-    A, X, Y = Tx.shape[-4], Tx.shape[-3], Tx.shape[-2]
-    O = Z.shape[-1]
-    # K[..., a, x2, o, a2, y2] = Z[..., a, x2, y2, o] * alpha[..., a2, x2, y2]
-    K = Z.permute(*range(Z.dim() - 4), -4, -3, -1, -2).unsqueeze(-2) * alpha.permute(
-        *range(alpha.dim() - 3), -2, -3, -1
-    ).unsqueeze(-4).unsqueeze(-3)
-    per_x = max(1, A * Y * X * O * A * Y)
-    chunk = max(1, _CHUNK_ELEMENTS // per_x)
-    parts = []
-    for start in range(0, X, chunk):
-        stop = min(X, start + chunk)
-        P = Tx[..., start:stop, :, :].unsqueeze(-1) * Ty[..., start:stop, :, :, :]
-        # G[..., a, x, y, x2, o, a2] = sum_y2 P[..., a, x, y, x2, y2] K[..., a, x2, o, a2, y2]
-        G = torch.einsum("...axyzw,...azoqw->...axyzoq", P, K)
-        parts.append(G.amax(-1).sum((-1, -2)))
-    return R + g * torch.cat(parts, dim=-2)
-
-
-def fib_backup(model: POMDP | MOMDP, vectors: torch.Tensor) -> torch.Tensor:
-    """One application of the FIB operator to ``vectors`` ``(..., A, S)`` / ``(..., A, X, Y)``.
-
-    Example:
-        >>> from torchhrc.testing import random_pomdp
-        >>> m = random_pomdp(3, 2, 2, seed=0)
-        >>> fib_backup(m, torch.zeros(2, 3, dtype=torch.float64)).allclose(m.R)
-        True
-    """
-    model = check_model(model)
-    if isinstance(model, MOMDP):
-        return _momdp_step(model, vectors)
-    return _flat_step(model, vectors)
 
 
 def fib_vectors(
@@ -113,13 +60,13 @@ def fib_vectors(
     0.8 s against 9.8 s for the batched torch kernel, which forms an ``(A, X, Y, X2, O, A)``
     product for every ``x``. The form's iteration also stops once the bounds of MacQueen
     (1966) put it within ``tol`` of the fixed point (near discount 1, long before the change
-    falls below ``tol``; see ``forms.base._iterate_fib``), so the two agree to about ``tol``.
+    falls below ``tol``; see ``tensor_bounds._iterate_fib``), so the two agree to about ``tol``.
 
     Args:
         model: a POMDP or MOMDP (leading batch dims allowed), or an unbatched
             :class:`~torchhrc.sparse.SparsePOMDP` / :class:`~torchhrc.sparse_momdp.SparseMOMDP`.
         tol: stop within ``tol`` of FIB's fixed point (MacQueen's bracket or the
-            contraction bound, as ``forms.base._iterate_fib``).
+            contraction bound, as ``tensor_bounds._iterate_fib``).
         max_iterations: cap on the iterations.
         initial: starting vectors, which must be an upper bound (default: QMDP).
 
@@ -138,19 +85,7 @@ def fib_vectors(
     """
     if initial is None and not len(getattr(model, "batch_shape", ())):
         return bound_form(model).fib_vectors(tol, NEVER, max_iterations)[0]
-    model = check_model(model)
-    check_unit_discount(model, "FIB")
-    from torchhrc.solvers.forms.base import _iterate_fib  # (the forms import this module)
-
-    alpha = qmdp_vectors(model, tol=tol) if initial is None else initial
-
-    # the same iteration and stopping rule as the form's: a change below tol alone stops
-    # discount / (1 - discount) times too early (over a batch, the bracket is taken over all
-    # its members, which is valid for each and stops no earlier than each would)
-    def step(vectors: torch.Tensor) -> torch.Tensor:
-        return fib_backup(model, vectors)
-
-    return _iterate_fib(alpha, step, tol, NEVER, max_iterations, {}, model.discount)
+    return tensor_fib_vectors(model, tol=tol, max_iterations=max_iterations, initial=initial)
 
 
 def fib_policy(model: AnyModel, *, tol: float = 1e-8) -> AlphaVectorPolicy:

@@ -28,19 +28,14 @@ from typing import TYPE_CHECKING
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.pomdp import MOMDP, POMDP
-from torchhrc.solvers._factored import (
-    BRACKET_ROUND_OFF,
-    Expectation,
-    check_model,
-    check_unit_discount,
-    state_dims,
-)
+from torchhrc.solvers.forms import as_solver_model
+from torchhrc.solvers.forms.base import SolverModel
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.solution import Solution
+from torchhrc.solvers.tensor_bounds import mdp_q_values, mdp_upper_vectors
 
 if TYPE_CHECKING:
-    from torchhrc.solvers.forms.base import SolverModel
+    from torchhrc.pomdp import MOMDP, POMDP
     from torchhrc.sparse import SparsePOMDP
     from torchhrc.sparse_momdp import SparseMOMDP
 
@@ -56,81 +51,6 @@ __all__ = [
     "qmdp_vectors",
     "solve_bound",
 ]
-
-
-def mdp_q_values(
-    model: POMDP | MOMDP, *, tol: float = 1e-8, max_iterations: int = 100_000
-) -> tuple[torch.Tensor, float]:
-    """Value iteration on the fully observable MDP underlying ``model``, batched.
-
-    From ``V = 0``, ``V <- max_a (R_a + discount E_a V)``. With ``d = V_new - V``, the bounds
-    of MacQueen (1966) and Porteus (1971), ``V_new + k min(d) <= V* <= V_new + k max(d)``
-    (``k = w / (1 - w)``, ``w`` the discount times the rows' sums, measured: 1 within a model's
-    tolerance), bracket ``V*`` at every step; the iteration stops once each problem's bracket
-    is narrower than ``tol`` (or than the round-off of ``d`` times ``k``, where that is wider:
-    ``error_bound`` says so) or the change is below ``tol (1 - discount) / (2 discount)``, and
-    ``V`` is the bracket's middle. Near discount 1 the bracket closes long before the change
-    does (discount 0.9999, 6 states: a few dozen steps instead of some 200,000).
-
-    Returns:
-        ``(Q, error_bound)``: ``Q`` is ``(..., A, S)`` for a POMDP or ``(..., A, X, Y)`` for a
-        MOMDP, and ``|Q - Q*| <= error_bound`` everywhere.
-
-    Example:
-        >>> from torchhrc.testing import random_momdp
-        >>> Q, err = mdp_q_values(random_momdp(3, 2, 2, 2, seed=0))
-        >>> tuple(Q.shape), err < 1e-8
-        ((2, 3, 2), True)
-    """
-    model = check_model(model)
-    check_unit_discount(model, "QMDP")
-    g = model.discount
-    sd = state_dims(model)
-    action_dim = -1 - sd
-    V = model.R.amax(action_dim) * 0.0
-    threshold = tol * (1.0 - g) / (2.0 * g)
-    E = Expectation(model)
-    state = tuple(range(-sd, 0))
-    batch = V.dim() - sd
-    # each problem's smallest and largest weight of a constant: g times its rows' sums
-    w = g * E(torch.ones_like(V))
-    w_lo = w.amin(dim=(action_dim, *state)) if w.numel() else w.new_zeros(V.shape[:batch])
-    w_hi = w.amax(dim=(action_dim, *state)) if w.numel() else w.new_zeros(V.shape[:batch])
-    k_lo, k_hi = w_lo / (1.0 - w_lo), w_hi / (1.0 - w_hi)
-    if not bool(((w_hi < 1.0) & (w_lo >= 0.0)).all()):  # rows far from stochastic
-        k_lo = k_hi = torch.full_like(w_lo, float("inf"))
-    residual = float("inf")
-    bracket = None  # the last step's (middle, half-width) of V* - V, per problem
-    closed = False  # stopped by the bracket
-    for _ in range(max_iterations):
-        V_new = (model.R + g * E(V)).amax(action_dim)
-        d = V_new - V
-        V = V_new
-        if not d.numel():
-            residual = 0.0
-            break
-        hi, lo = d.amax(dim=state), d.amin(dim=state)  # (*batch,)
-        upper = torch.where(hi >= 0, k_hi, k_lo) * hi  # V* - V <= upper
-        lower = torch.where(lo >= 0, k_lo, k_hi) * lo  # V* - V >= lower
-        residual = float(d.abs().max())
-        if residual < threshold:
-            bracket = None  # the contraction bound below
-            break
-        half = (upper - lower) / 2.0
-        bracket = ((upper + lower) / 2.0, half) if bool(torch.isfinite(half).all()) else None
-        # the bracket cannot close below the round-off of d, amplified by k: near discount 1
-        # and with large values, tol may lie below it (the bound is then that wide, and said)
-        floor = BRACKET_ROUND_OFF * float(k_hi.max()) * float(V.abs().max())
-        if bracket is not None and float(half.max()) < max(tol, floor) / 2.0:
-            closed = True
-            break
-    error = g * residual / (1.0 - g)  # the contraction bound on |V - V*|
-    # stopped by the bracket, or at the cap where the bracket is the narrower: its middle
-    if bracket is not None and (closed or float(bracket[1].max()) < error):
-        V = V + bracket[0].reshape(*V.shape[:batch], *(1,) * sd)
-        error = float(bracket[1].max())
-    Q = model.R + g * E(V)
-    return Q, g * error
 
 
 def qmdp_vectors(
@@ -153,16 +73,13 @@ def qmdp_vectors(
         >>> qmdp_vectors(random_pomdp(4, 3, 2, batch_shape=(5,), seed=1)).shape
         torch.Size([5, 3, 4])
     """
-    if not isinstance(model, (POMDP, MOMDP)):
-        return bound_form(model).upper_vectors("qmdp", tol)
-    Q, bound = mdp_q_values(model, tol=tol, max_iterations=max_iterations)
-    return Q + bound
+    if len(getattr(model, "batch_shape", ())):  # a batch of tensor models: the torch kernel
+        return mdp_upper_vectors(model, tol=tol, max_iterations=max_iterations)
+    return bound_form(model).upper_vectors("qmdp", tol, max_iterations)
 
 
 def bound_form(model: AnyModel) -> SolverModel:
     """The solver form of an unbatched model whose discount is below 1 (the bounds' check)."""
-    from torchhrc.solvers.forms import as_solver_model  # (the forms import this module)
-
     form = as_solver_model(model)
     if form.discount >= 1.0:
         raise ModelError(f"the upper bounds need discount < 1, got {form.discount}")

@@ -66,15 +66,15 @@ import torch
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import split_initial
 from torchhrc.solvers import backup_kernel
-from torchhrc.solvers._factored import BRACKET_ROUND_OFF, Expectation, bracket_slack
+from torchhrc.solvers._factored import Expectation
 from torchhrc.solvers.backup import BackupResult
 from torchhrc.solvers.belief_tree import BeliefTree
 from torchhrc.solvers.blind import blind_policy
 from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.qmdp import qmdp_vectors
 from torchhrc.solvers.sampling import sample_categorical
 from torchhrc.solvers.sparse_model import qmdp_iteration_np
+from torchhrc.solvers.tensor_bounds import _iterate_fib, mdp_upper_vectors
 
 __all__ = [
     "Children",
@@ -166,68 +166,6 @@ class Children:
     prob: np.ndarray
     child_x: np.ndarray
     reward: np.ndarray
-
-
-def _iterate_fib(start: torch.Tensor, step: Callable[[torch.Tensor], torch.Tensor],
-                 tol: float, deadline: Deadline, max_iterations: int,
-                 info: dict[str, Any], discount: float) -> torch.Tensor:  # fmt: skip
-    """``alpha <- min(step(alpha), alpha)`` from the upper bound ``start`` (Hauskrecht 2000).
-
-    The FIB operator ``F`` is monotone, so every iterate is an upper bound and stopping early
-    is safe. It is also a ``discount``-contraction that moves with a constant:
-    ``F(alpha + c) = F(alpha) + discount * c`` (the weights ``P(o | a, s)`` of an action's
-    row sum to 1), as a Bellman operator, so the bounds of MacQueen (1966) and Porteus (1971)
-    hold with ``d = F(alpha) - alpha`` and ``k = discount / (1 - discount)``::
-
-        F(alpha) + k min(d) <= F* <= F(alpha) + k max(d)
-
-    ``F(alpha) + k max(d)`` is another upper bound, much tighter near discount 1, where plain
-    iteration closes the excess over ``F*`` by ``discount`` a step. The iteration stops
-    within ``tol`` of ``F*``: when the change is below ``tol / (2 k)`` (the contraction
-    bound; the iterate is returned as it is), or once ``k (max d - min d) < tol`` (or below
-    the round-off of ``d`` amplified by ``k``, where that is wider); ``info["stop"] =
-    "converged"`` both. Else it stops after ``max_iterations`` or at ``deadline``. In all but
-    the first case the result is the smaller of the iterate and the bound of the last step.
-    (A change below ``tol`` alone is ``k`` times too weak: on pomdp.org's ``baseball``,
-    discount 0.999, FIB stopped after one step, 0.006 above ``F*`` at ``b0``.)
-
-    A model's rows may sum to 1 only within its validation's tolerance, so the weight of a
-    constant, ``F(1) - F(0)`` (``discount`` times each row's sum), is measured: ``k`` is
-    ``w / (1 - w)`` for its smallest entry ``w`` (:func:`~torchhrc.solvers._factored.\
-bracket_slack`), which keeps the bound valid when ``max(d) <= 0`` (always, from an upper
-    start); no shift is applied otherwise, nor where ``w`` is not below 1.
-    """
-    alpha = start
-    k = bracket_slack(float((step(torch.ones_like(start)) - step(torch.zeros_like(start))).min()))
-    # a change below this puts the iterate within tol of F* (the contraction bound, k max|d|)
-    threshold = tol / (2.0 * k) if 0.0 < k < math.inf else tol
-    info["stop"] = "max_iterations"
-    shifted = None  # the bound F(alpha) + k max(d) of the last step
-    for i in range(max_iterations):
-        if deadline.passed():
-            info["stop"] = "time_limit"
-            break
-        stepped = step(alpha)
-        d = stepped - alpha
-        hi, lo = (float(d.max()), float(d.min())) if d.numel() else (0.0, 0.0)
-        new = torch.minimum(stepped, alpha)
-        change = float((alpha - new).abs().max()) if new.numel() else 0.0
-        alpha = new
-        info["iterations"] = i + 1
-        if change < threshold:  # within tol of F*: as it is
-            info["stop"] = "converged"
-            shifted = None
-            break
-        shifted = stepped + k * hi if hi <= 0.0 and math.isfinite(k) else None
-        if shifted is not None:
-            # the bracket cannot close below the round-off of d amplified by k
-            floor = BRACKET_ROUND_OFF * k * float(alpha.abs().max())
-            if k * (hi - lo) < max(tol, floor):
-                info["stop"] = "converged"
-                break
-    if shifted is not None:
-        alpha = torch.minimum(alpha, shifted)
-    return alpha
 
 
 class SolverModel(ABC):
@@ -512,9 +450,10 @@ class SolverModel(ABC):
         return self
 
     @abstractmethod
-    def upper_vectors(self, kind: str, tol: float) -> torch.Tensor:
-        """``(A, *state_shape)`` FIB (``kind="fib"``) or QMDP upper-bound vectors (PBVI),
-        iterated until the change is below ``tol``."""
+    def upper_vectors(self, kind: str, tol: float, max_iterations: int = 100_000) -> torch.Tensor:
+        """``(A, *state_shape)`` FIB (``kind="fib"``) or QMDP upper-bound vectors (PBVI,
+        :func:`~torchhrc.solvers.qmdp.qmdp_vectors`), iterated to ``tol`` (at most
+        ``max_iterations`` steps, where the form's iteration has a cap)."""
 
     @abstractmethod
     def step(self, x: torch.Tensor, y: torch.Tensor, beliefs: torch.Tensor, actions: torch.Tensor,
@@ -594,8 +533,9 @@ class SolverModel(ABC):
 class TensorModelForm(SolverModel):
     """What the dense flat and the MOMDP forms share: a :class:`~torchhrc.pomdp.POMDP` or
     :class:`~torchhrc.pomdp.MOMDP` ``model`` held in the solve's dtype, whose bound kernels
-    (:func:`~torchhrc.solvers.blind.blind_policy`, :func:`~torchhrc.solvers.qmdp.qmdp_vectors`,
-    :func:`~torchhrc.solvers.fib.fib_backup`) take it directly.
+    (:func:`~torchhrc.solvers.blind.blind_policy`,
+    :func:`~torchhrc.solvers.tensor_bounds.mdp_upper_vectors`,
+    :func:`~torchhrc.solvers.tensor_bounds.fib_backup`) take it directly.
 
     Args:
         model: the unbatched model, already in the solve's dtype.
@@ -674,10 +614,10 @@ class TensorModelForm(SolverModel):
         k = int(min(2000, math.ceil(math.log(1e-12) / math.log(self.discount))))
         return blind_policy(self.model, max_iterations=k)
 
-    def upper_vectors(self, kind: str, tol: float) -> torch.Tensor:
+    def upper_vectors(self, kind: str, tol: float, max_iterations: int = 100_000) -> torch.Tensor:
         if kind == "fib":
-            return self.fib_vectors(tol)[0]
-        return qmdp_vectors(self.model, tol=tol)
+            return self.fib_vectors(tol, NEVER, max_iterations)[0]
+        return mdp_upper_vectors(self.model, tol=tol, max_iterations=max_iterations)
 
     def qmdp_start(
         self,
@@ -692,7 +632,7 @@ class TensorModelForm(SolverModel):
         stops at ``deadline``; ``expect(V)`` maps values ``(*state_shape)`` to their
         expectations under each action ``(A, *state_shape)`` (default: the model's
         :class:`~torchhrc.solvers._factored.Expectation`). Elsewhere
-        :func:`~torchhrc.solvers.qmdp.qmdp_vectors`, to its tolerance.
+        :func:`~torchhrc.solvers.tensor_bounds.mdp_upper_vectors`, to its tolerance.
 
         Example:
             >>> from torchhrc.solvers.forms import as_solver_model
@@ -703,7 +643,7 @@ class TensorModelForm(SolverModel):
         """
         model = self.model
         if model.R.device.type != "cpu":
-            return qmdp_vectors(model, tol=tol)
+            return mdp_upper_vectors(model, tol=tol)
         if expect is None:
             E = Expectation(model)
 

@@ -5,7 +5,7 @@ A flat POMDP is the mixed-observability model with one observed value (``X = K =
 structured problem (RockSample: the robot's position known) touches only the rows of ``T`` on
 its support. The FIB and QMDP initialisations run on per-action sparse CSR copies of ``T``
 when ``T`` is under 10 % dense (Tag, RockSample), else on the dense kernels of
-:mod:`torchhrc.solvers.fib` and :mod:`torchhrc.solvers.qmdp`.
+:mod:`torchhrc.solvers.tensor_bounds`.
 
 Example:
     >>> from torchhrc.solvers.forms import as_solver_model
@@ -26,10 +26,10 @@ import torch
 from torchhrc.pomdp import POMDP
 from torchhrc.solvers.backup import BackupResult, point_backup
 from torchhrc.solvers.clock import Deadline
-from torchhrc.solvers.fib import fib_backup
 from torchhrc.solvers.forms.base import FIBOperator, FlatFields, SimStep, TensorModelForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sampling import flat_step
+from torchhrc.solvers.tensor_bounds import fib_backup
 
 __all__ = ["DenseForm"]
 
@@ -94,9 +94,9 @@ class DenseForm(FlatFields, TensorModelForm):
 qmdp_iteration_np` (from zero, with the contraction bound: an upper bound wherever it
         stops, and it stops at ``deadline``), FIB as one batched product per step, or one
         sparse ``(S, S) x (S, O A)`` product per action when ``T`` is sparse. Elsewhere the
-        torch kernels (:func:`~torchhrc.solvers.qmdp.qmdp_vectors`,
-        :func:`~torchhrc.solvers.fib.fib_backup`). aloha-10max (discount 0.999, 30 states):
-        the torch QMDP took 1.2 CPU-s of a 10 s solve, its FIB steps 92 us each.
+        torch kernels (:func:`~torchhrc.solvers.tensor_bounds.mdp_upper_vectors`,
+        :func:`~torchhrc.solvers.tensor_bounds.fib_backup`). aloha-10max (discount 0.999,
+        30 states): the torch QMDP took 1.2 CPU-s of a 10 s solve, its FIB steps 92 us each.
         """
         T, model = self.T, self.model
         if T.device.type != "cpu":

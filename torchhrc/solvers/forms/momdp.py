@@ -31,7 +31,6 @@ import torch
 from torchhrc.pomdp import MOMDP
 from torchhrc.solvers.backup import BackupResult, momdp_point_backup
 from torchhrc.solvers.clock import Deadline
-from torchhrc.solvers.fib import fib_backup
 from torchhrc.solvers.forms.base import (
     FIBOperator,
     PerObserved,
@@ -42,6 +41,7 @@ from torchhrc.solvers.forms.base import (
 from torchhrc.solvers.forms.dense import DenseForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sampling import momdp_step
+from torchhrc.solvers.tensor_bounds import fib_backup
 
 __all__ = ["MOMDPForm"]
 

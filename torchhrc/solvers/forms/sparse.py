@@ -26,7 +26,7 @@ import torch
 
 from torchhrc.solvers.backup import CHUNK_ELEMENTS, BackupResult
 from torchhrc.solvers.belief_tree import BeliefTree, SparseBeliefTree
-from torchhrc.solvers.clock import Deadline
+from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.forms.base import Children, FIBOperator, FlatFields, SimStep, SolverModel
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sampling import mostly_zero, normalize_rows, sample_categorical, to_csr
@@ -104,9 +104,9 @@ class SparseForm(FlatFields, SolverModel):
         return SparseBeliefTree(self.b0, self.x0)
 
     # -- PBVI ----------------------------------------------------------------------------------
-    def upper_vectors(self, kind: str, tol: float) -> torch.Tensor:
+    def upper_vectors(self, kind: str, tol: float, max_iterations: int = 100_000) -> torch.Tensor:
         if kind == "fib":
-            return self.fib_vectors(tol)[0]
+            return self.fib_vectors(tol, NEVER, max_iterations)[0]
         return torch.from_numpy(self.sparse.qmdp_np(tol))
 
     def self_loop_probs(self) -> torch.Tensor:

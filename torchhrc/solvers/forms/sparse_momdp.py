@@ -345,9 +345,9 @@ class SparseMOMDPForm(SolverModel):
         flat = SparseFlatModel.from_model(self.source.to_sparse_pomdp(), dtype=self.dtype)
         return SparseForm(flat, self.source)
 
-    def upper_vectors(self, kind: str, tol: float) -> torch.Tensor:
+    def upper_vectors(self, kind: str, tol: float, max_iterations: int = 100_000) -> torch.Tensor:
         if kind == "fib":
-            return self.fib_vectors(tol)[0]
+            return self.fib_vectors(tol, NEVER, max_iterations)[0]
         return torch.from_numpy(self.qmdp_np(tol))
 
     def self_loop_probs(self) -> torch.Tensor:

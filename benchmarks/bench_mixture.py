@@ -218,7 +218,7 @@ def main() -> None:
     if args.shards:
         import _sharded
 
-        _sharded.run(args, make_data)
+        _sharded.run(args, make_data, study_corpus)
         return
     if args.threads:  # the same number of threads for torch and numpy's BLAS
         torch.set_num_threads(args.threads)

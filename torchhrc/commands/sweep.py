@@ -1,5 +1,7 @@
-"""``torchhrc sweep TASK``: a reproduction, or a user's function (``module:function`` or
-``file.py:function``), over a parameter grid and seeds, locally or on Ray.
+"""``torchhrc sweep TASK``: a reproduction, a task with simulated people (a suite task's name,
+or a user's factory ``module:factory`` / ``file.py:factory`` returning a ``TaskWithPeople``),
+or a user's function (``module:function`` or ``file.py:function``), over a parameter grid
+and seeds, locally or on Ray.
 
 Thin layer over :mod:`torchhrc.experiments.sweep`: parses ``--param NAME=V1,V2,...``
 (repeatable), ``--seeds 0-4``, picks the executor (local processes, one per core, by
@@ -86,25 +88,31 @@ def run(args: argparse.Namespace) -> int:
 def register(subparsers: Any) -> None:
     """Add the ``sweep`` sub-command."""
     from torchhrc.experiments.sweep import PARAMETERS
+    from torchhrc.experiments.task_sweep import TASK_PARAMETERS
 
     names = "; ".join(f"{task}: {', '.join(sorted(p))}" for task, p in PARAMETERS.items())
     studies = ", ".join(sorted(PARAMETERS))
     parser = subparsers.add_parser(
         "sweep",
-        help="run a reproduction or your own function over a parameter grid and seeds "
-        "(local processes or Ray)",
+        help="run a reproduction, a task with simulated people or your own function over a "
+        "parameter grid and seeds (local processes or Ray)",
         description=(
-            "Run a reproduction, or your own function (MODULE:FUNCTION or FILE.py:FUNCTION, "
+            "Run a reproduction; a task with simulated people (a suite task such as "
+            "fetch_order, or your own: MODULE:FACTORY or FILE.py:FACTORY, a function of no "
+            "argument returning a TaskWithPeople), whose every job draws demonstrations, "
+            "learns and evaluates; or your own function (MODULE:FUNCTION or FILE.py:FUNCTION, "
             "called as function(seed=..., **params) and returning a mapping of metrics), for "
             "every cell of a parameter grid and every seed; rows stream into OUT/results.csv, "
             "then OUT/summary.md and a PNG per metric. "
-            f"Study parameters: {names}; a function's are its keyword arguments."
+            f"Study parameters: {names}; a task's: {', '.join(TASK_PARAMETERS)}; a "
+            "function's are its keyword arguments."
         ),
     )
     parser.add_argument(
         "task",
         metavar="TASK",
-        help=f"the study ({studies}) or MODULE:FUNCTION or FILE.py:FUNCTION",
+        help=f"the study ({studies}), a suite task, MODULE:FACTORY or MODULE:FUNCTION, or "
+        "FILE.py:FACTORY or FILE.py:FUNCTION",
     )
     parser.add_argument(
         "--param",

@@ -1,11 +1,15 @@
-"""Parameter sweeps of the reproductions or of a user's own function: every grid cell x every
-seed, locally or on Ray.
+"""Parameter sweeps of the reproductions, of a task with simulated people, or of a user's own
+function: every grid cell x every seed, locally or on Ray.
 
 A sweep runs one task for every cell of a grid (the product of the swept parameters' values)
-and every seed. The task is a reproduction (``place-and-drill`` or ``hand-finishing``) or a
-user's function, named ``"module:function"`` or ``"path/to/file.py:function"`` (or passed
-itself to :func:`sweep`): ``function(seed=..., **params)`` returns a mapping of metrics (for
-example, it builds the user's task, learns from simulated demonstrations and evaluates). Both
+and every seed. The task is a reproduction (``place-and-drill`` or ``hand-finishing``); a
+task with simulated people (a :class:`~torchhrc.tasks.people.TaskWithPeople`: a suite task by
+name, e.g. ``"fetch_order"``, or a user's factory, a function of no argument that builds it,
+named ``"module:factory"`` or ``"path/to/file.py:factory"``), whose every job draws
+demonstrations, learns and evaluates (:mod:`torchhrc.experiments.task_sweep`); or a user's
+function, named the same way (or passed itself to :func:`sweep`):
+``function(seed=..., **params)`` returns a mapping of metrics. A named callable that takes a
+``seed`` is a function, one that takes no argument a task factory (:func:`task_kind`). All
 kinds run through the same jobs, executors, files, resume and retries. Each (cell, seed) is
 one independent job: it runs the study (or the function) in memory and returns one row (the
 parameters, the seed, every scalar of the metrics flattened to ``a.b.0`` keys, and the job's
@@ -61,10 +65,12 @@ __all__ = [
     "canonical_task",
     "flatten_scalars",
     "load_callable",
+    "load_world",
     "parse_seeds",
     "run_job",
     "run_sweep",
     "sweep",
+    "task_kind",
     "task_parameters",
     "write_summary",
 ]
@@ -78,12 +84,14 @@ class SweepParameter:
         kind: ``int`` or ``float``: the type its values are parsed as.
         low, high: inclusive range of valid values (``None``: unbounded).
         help: what it sets in the study.
+        choices: the values a ``str`` parameter may take (``None``: any).
     """
 
     kind: type
     low: float | None
     high: float | None
     help: str
+    choices: tuple[str, ...] | None = None
 
     def parse(self, name: str, text: Any) -> Value:
         """Parse one value (a string, or a Python value given to :func:`sweep`); raise
@@ -108,6 +116,10 @@ class SweepParameter:
             raise ModelError(
                 f"expected --param {name} values of type {self.kind.__name__}, got {text!r}"
             ) from None
+        if self.choices is not None and value not in self.choices:
+            raise ModelError(
+                f"expected --param {name} values in {{{', '.join(self.choices)}}}, got {value!r}"
+            )
         if isinstance(value, float) and not math.isfinite(value):
             raise ModelError(f"expected a finite --param {name} value, got {text!r}")
         if (self.low is not None and value < self.low) or (
@@ -381,19 +393,40 @@ _RUNNERS: dict[str, Callable[[Mapping[str, Any], int, bool], dict[str, Any]]] = 
 #: In :func:`task_parameters`: the function takes ``**kwargs`` (any parameter name).
 _ANY = "**"
 _LOADED: dict[str, Callable[..., Any]] = {}
+_WORLDS: dict[str, Any] = {}  # task -> its TaskWithPeople, built once per process
 _BY_PATH = "_torchhrc_sweep_"  # the name prefix of a module imported from its file
 
 
+def _suite() -> Mapping[str, Callable[..., Any]]:
+    from torchhrc.tasks.suite import SUITE
+
+    return SUITE
+
+
 def canonical_task(task: Any) -> str:
-    """The task's name as a sweep records it: a study name, ``"module:function"``, or
-    ``"/absolute/path.py:function"``; a module-level function given itself becomes its
-    ``"module:function"`` (the file's path when it lives in the ``__main__`` script).
+    """The task's name as a sweep records it: a study name, a suite task's name,
+    ``"module:function"``, or ``"/absolute/path.py:function"``; a module-level function given
+    itself becomes its ``"module:function"`` (the file's path when it lives in the
+    ``__main__`` script; a suite task's factory, its name).
 
     Raises:
-        ModelError: not a study, not a ``MODULE:FUNCTION`` string, or a function that workers
-            cannot import by name (a lambda, a nested function).
+        ModelError: not a study, not a suite task, not a ``MODULE:FUNCTION`` string, or a
+            function that workers cannot import by name (a lambda, a nested function).
+        TypeError: a :class:`~torchhrc.tasks.people.TaskWithPeople` object: workers rebuild
+            the task by name, so pass its factory (or the suite task's name).
     """
+    from torchhrc.tasks.people import TaskWithPeople
+
+    if isinstance(task, TaskWithPeople):
+        raise TypeError(
+            "a sweep cannot send a TaskWithPeople object to its workers: pass the module-level "
+            "function that builds it (no arguments, returns the TaskWithPeople; as itself or "
+            "'module:function' / 'file.py:function'), or a suite task's name"
+        )
     if callable(task) and not isinstance(task, str):
+        suite_name = next((n for n, f in _suite().items() if f is task), None)
+        if suite_name is not None:
+            return suite_name
         module = getattr(task, "__module__", None)
         name = getattr(task, "__qualname__", "")
         if not module or "<" in name or "." in name:
@@ -413,13 +446,13 @@ def canonical_task(task: Any) -> str:
         return f"{module}:{name}"
     if not isinstance(task, str):
         raise ModelError(f"expected a task name or a function, got {task!r}")
-    if task in _RUNNERS:
+    if task in _RUNNERS or task in _suite():
         return task
     where, sep, name = task.rpartition(":")
     if not sep or not where or not name.isidentifier():
         raise ModelError(
-            f"expected a task in {sorted(PARAMETERS)} or MODULE:FUNCTION or FILE.py:FUNCTION, "
-            f"got {task!r}"
+            f"expected a task: a study ({', '.join(sorted(PARAMETERS))}), a suite task "
+            f"({', '.join(_suite())}) or MODULE:FUNCTION or FILE.py:FUNCTION, got {task!r}"
         )
     if where.endswith(".py"):
         return f"{Path(where).resolve()}:{name}"
@@ -478,26 +511,106 @@ def _accepts(function: Callable[..., Any], name: str) -> bool:
     return name in parameters or any(p.kind is p.VAR_KEYWORD for p in parameters.values())
 
 
-def task_parameters(task: str) -> Mapping[str, SweepParameter | None]:
-    """The parameters a task may sweep: :data:`PARAMETERS` of a study; a function's keyword
-    arguments but ``seed`` and ``quick``, typed by annotation (``int``, ``float``, ``str``,
-    ``bool``) or by the default's type. ``None``: untyped, values read as int, float or text
-    (key ``"**"`` when the function takes ``**kwargs``: any other name too).
+def task_kind(task: str) -> str:
+    """What a (canonical) sweep task is: ``"study"`` (a reproduction), ``"task"`` (a task with
+    simulated people: a suite task's name, or a factory) or ``"function"`` (a metrics
+    function).
+
+    A named callable that takes a ``seed`` keyword argument (or ``**kwargs``) is a metrics
+    function, called ``function(seed=seed, **cell)`` per job. One that takes no ``seed`` and
+    can be called without arguments is a task factory: ``factory()`` must return a
+    :class:`~torchhrc.tasks.people.TaskWithPeople` (built once per process by
+    :func:`load_world`; a factory annotated to return something else is refused without a
+    call).
 
     Raises:
-        ModelError: the task is unknown, or a function that takes no ``seed``.
+        ModelError: the callable cannot be loaded, is neither (it needs arguments other than
+            ``seed``), or is a factory that does not return a ``TaskWithPeople``.
+    """
+    if task in _RUNNERS:
+        return "study"
+    if task in _suite():
+        return "task"
+    import inspect
+
+    function = load_callable(task)
+    if _accepts(function, "seed"):
+        return "function"
+    try:
+        inspect.signature(function).bind()
+    except TypeError:
+        raise ModelError(
+            f"the sweep task {task!r} must take a 'seed' keyword argument (a metrics function, "
+            "called as function(seed=..., **params)) or no argument (a task factory returning "
+            "a TaskWithPeople)"
+        ) from None
+    load_world(task)
+    return "task"
+
+
+def load_world(task: str) -> Any:
+    """The :class:`~torchhrc.tasks.people.TaskWithPeople` a task sweep names: ``make_task(name)``
+    of a suite task, or ``factory()`` of ``"module:factory"`` / ``"path/file.py:factory"``
+    (built once per process).
+
+    Raises:
+        ModelError: the factory fails, or returns something other than a ``TaskWithPeople``.
+    """
+    if task in _WORLDS:
+        return _WORLDS[task]
+    import typing
+
+    from torchhrc.tasks.people import TaskWithPeople
+
+    if task in _suite():
+        world = _suite()[task]()
+    else:
+        factory = load_callable(task)
+        try:
+            returns = typing.get_type_hints(factory).get("return")
+        except Exception:  # unresolvable annotations: the call decides
+            returns = None
+        wrong = (
+            f"the sweep task {task!r} takes no 'seed' keyword argument, so it is read as a "
+            "task factory, but it {} not a TaskWithPeople (a metrics function must take a "
+            "'seed' keyword argument)"
+        )
+        if isinstance(returns, type) and not issubclass(returns, TaskWithPeople):
+            raise ModelError(wrong.format(f"is annotated to return {returns.__name__},"))
+        try:
+            world = factory()
+        except Exception as error:
+            raise ModelError(
+                f"the sweep task factory {task!r} failed: {type(error).__name__}: {error}"
+            ) from error
+        if not isinstance(world, TaskWithPeople):
+            raise ModelError(wrong.format(f"returned {type(world).__name__},"))
+    _WORLDS[task] = world
+    return world
+
+
+def task_parameters(task: str) -> Mapping[str, SweepParameter | None]:
+    """The parameters a task may sweep: :data:`PARAMETERS` of a study;
+    :data:`~torchhrc.experiments.task_sweep.TASK_PARAMETERS` of a task with simulated people
+    (a suite task or a factory, see :func:`task_kind`); a function's keyword arguments but
+    ``seed`` and ``quick``, typed by annotation (``int``, ``float``, ``str``, ``bool``) or by
+    the default's type. ``None``: untyped, values read as int, float or text (key ``"**"``
+    when the function takes ``**kwargs``: any other name too).
+
+    Raises:
+        ModelError: the task is unknown, or a callable that is neither a metrics function nor
+            a task factory (:func:`task_kind`).
     """
     if task in PARAMETERS:
         return PARAMETERS[task]
+    if task_kind(task) == "task":
+        from torchhrc.experiments.task_sweep import TASK_PARAMETERS
+
+        return TASK_PARAMETERS
     import inspect
     import typing
 
     function = load_callable(task)
-    if not _accepts(function, "seed"):
-        raise ModelError(
-            f"the sweep task {task!r} must take a 'seed' keyword argument (each job passes its "
-            "seed)"
-        )
     try:
         hints = typing.get_type_hints(function)
     except Exception:  # unresolvable annotations: fall back to the defaults' types
@@ -539,6 +652,17 @@ def _function_metrics(task: str) -> Callable[[Mapping[str, Any], int, bool], Map
     return run
 
 
+def _world_metrics(task: str) -> Callable[[Mapping[str, Any], int, bool], Mapping[str, Any]]:
+    from torchhrc.experiments.task_sweep import task_metrics
+
+    world = load_world(task)
+
+    def run(params: Mapping[str, Any], seed: int, quick: bool) -> Mapping[str, Any]:
+        return task_metrics(world, seed=seed, quick=quick, **params)
+
+    return run
+
+
 def run_job(task: str, params: tuple[tuple[str, Any], ...], seed: int, quick: bool) -> dict:
     """Run one (cell, seed) of a sweep in this process; return its result row.
 
@@ -557,7 +681,13 @@ def run_job(task: str, params: tuple[tuple[str, Any], ...], seed: int, quick: bo
     torch.set_num_threads(1)
     start = time.perf_counter()
     try:
-        runner = _RUNNERS[task] if task in _RUNNERS else _function_metrics(task)
+        kind = task_kind(task)
+        if kind == "study":
+            runner = _RUNNERS[task]
+        elif kind == "task":
+            runner = _world_metrics(task)
+        else:
+            runner = _function_metrics(task)
         metrics = runner(dict(params), seed, quick)
     finally:
         torch.set_num_threads(threads)
@@ -850,7 +980,7 @@ def run_sweep(
 
 
 def sweep(
-    task: str | Callable[..., Mapping[str, Any]],
+    task: str | Callable[..., Any],
     params: Mapping[str, Sequence[Any]] | Sequence[str] | None = None,
     *,
     out: str | os.PathLike[str],
@@ -864,23 +994,43 @@ def sweep(
     executor: Executor | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> SweepResult:
-    """Sweep a task over a grid of parameters and seeds: a paper study or a user's function.
+    """Sweep a task over a grid of parameters and seeds: a paper study, a task with simulated
+    people, or a user's function.
 
-    The function is called as ``task(seed=seed, **cell)`` for every cell of the grid and
-    every seed, in a worker process (or a Ray task), and returns a mapping of metrics
-    (numbers, nested mappings or lists of numbers: :func:`flatten_scalars`). It must be a
-    module-level function, given itself or as ``"module:function"`` /
-    ``"path/file.py:function"``, since workers import it by name. The output directory gets
-    the paper studies' files: ``results.csv`` streamed as jobs finish, ``summary.md`` with
-    means and 95% CIs over seeds, a plot per metric, and ``results.jsonl`` for ``resume``.
+    A task with simulated people is a suite task's name (``"fetch_order"``, see
+    :mod:`torchhrc.tasks.suite`) or a factory: a module-level function of no argument that
+    returns a :class:`~torchhrc.tasks.people.TaskWithPeople` (your own task, e.g. built by
+    :func:`torchhrc.tasks.suite.builder.build`). Each job draws its demonstrations, learns the
+    type-aware and the type-agnostic (``k = 1``) models and evaluates both against the
+    people under their true rewards; its row holds the ``k`` found and the true one, the ARI
+    against the true types, the human model used, each robot's mean return and 95% CI
+    (overall and per type), the gain of the type-aware robot and the belief's accuracy after
+    ``n`` steps (:func:`~torchhrc.experiments.task_sweep.task_metrics`). Its parameters are
+    :data:`~torchhrc.experiments.task_sweep.TASK_PARAMETERS`: ``subjects``, ``per_subject``,
+    ``noise``; ``learn()``'s ``k``, ``k_min``, ``k_max``, ``restarts``, ``criterion``,
+    ``objects``, ``mixture_method``, ``min_gain``, ``human_model``, ``irl_iterations``,
+    ``irl_epsilon``, ``solver_time``, ``solver_iterations``; and ``episodes``.
+
+    A function (one that takes a ``seed`` keyword argument) is called as
+    ``task(seed=seed, **cell)`` and returns a mapping of metrics (numbers, nested mappings or
+    lists of numbers: :func:`flatten_scalars`). A factory or a function must be module-level,
+    given itself or as ``"module:function"`` / ``"path/file.py:function"``, since workers
+    import it by name (a ``TaskWithPeople`` object cannot travel: pass its factory). Every
+    job runs in a worker process (or a Ray task). The output directory gets the paper
+    studies' files: ``results.csv`` streamed as jobs finish, ``summary.md`` with means and
+    95% CIs over seeds, a plot per metric, and ``results.jsonl`` for ``resume``.
 
     Args:
-        task: ``"place-and-drill"``, ``"hand-finishing"``, a function, or its name.
+        task: ``"place-and-drill"``, ``"hand-finishing"``, a suite task's name, a task
+            factory, a function, or a factory's or function's name.
         params: ``name -> values`` (or ``"name=v1,v2"`` strings); the grid is the product.
-            A function's values are checked against its keyword arguments' types.
+            A task's values are checked against ``TASK_PARAMETERS``, a function's against
+            its keyword arguments' types.
         out: the sweep directory (empty or absent unless ``resume``).
         seeds: ``"0-4"``-style text or a sequence of seeds.
-        quick: the studies' quick versions (a function gets ``quick=True``).
+        quick: the studies' quick versions (a task: 3 restarts, a 1 s solver limit, 50
+            episodes per type where the cell does not set them; a function gets
+            ``quick=True``).
         workers: worker processes, or Ray CPUs of a local cluster (default: the cores).
         ray: ``"local"`` or ``"HOST:PORT"``: run every job as a Ray task.
         retries: extra tries of a job that raised or whose worker died.
@@ -895,12 +1045,17 @@ def sweep(
     Raises:
         ModelError: an unknown task or parameter, a bad value, a non-empty ``out`` without
             ``resume``.
+        TypeError: a ``TaskWithPeople`` object (pass its factory).
 
     Example:
+        >>> import tempfile
+        >>> result = sweep("tool_handover", {"noise": [0.0, 0.1], "subjects": [4]},
+        ...                seeds=[0], quick=True, out=tempfile.mkdtemp(),
+        ...                executor=SerialExecutor(), summary=False)
+        >>> [(r["noise"], r["true_k"]) for r in result.rows], result.failed
+        ([(0.0, 2), (0.1, 2)], {})
         >>> result = sweep("mypackage.study:run", {"noise": [0.0, 0.1]}, seeds="0-4",
         ...                out="runs/noise")  # doctest: +SKIP
-        >>> result.rows[0]["noise"], result.failed  # doctest: +SKIP
-        (0.0, {})
     """
     spec = SweepSpec.create(canonical_task(task), params or [], seeds=seeds, quick=quick)
     if executor is not None and (ray is not None or workers is not None):
@@ -920,9 +1075,10 @@ def sweep(
 
 
 def _is_summary_metric(name: str) -> bool:
-    """Headline columns: not a list element (``a.3``, its ``a.mean`` is kept), not a CI."""
+    """Headline columns: not a list element (``a.3``, its ``a.mean`` is kept), not a CI, not
+    a per-type breakdown (``a.by_type.<type>``)."""
     last = name.rsplit(".", 1)[-1]
-    return not last.isdigit() and "ci95" not in name
+    return not last.isdigit() and "ci95" not in name and ".by_type" not in name
 
 
 def _metric_columns(rows: Sequence[Mapping[str, Any]], spec: SweepSpec) -> list[str]:
@@ -982,8 +1138,8 @@ def write_summary(
     Each PNG has one panel per swept parameter: the metric's mean and 95% CI over seeds
     against that parameter, one line per combination of the other parameters. The headline
     metrics are summarised: scalars and the mean of each list (``reward.learned.mean``); list
-    elements and CI columns stay in ``results.csv``. Metrics that do not vary over the sweep
-    are listed once, not plotted.
+    elements, CI columns and per-type breakdowns (``.by_type.``) stay in ``results.csv``.
+    Metrics that do not vary over the sweep are listed once, not plotted.
     """
     from torchhrc.experiments.report import write_text_atomic
 

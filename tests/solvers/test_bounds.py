@@ -313,3 +313,14 @@ def test_batched_fib_stops_within_tol_of_its_fixed_point_near_discount_one():
             assert bool((got >= fixed - 1e-9).all())  # still an upper bound on the fixed point
             assert float((got - fixed).max()) <= tol  # before: 0.998 at tol 1e-3
             assert float((got - one).abs().max()) <= tol
+
+
+def test_qmdp_iteration_cap_reaches_the_unbatched_form():
+    """An unbatched model's QMDP vectors come from its solver form, a batch's from the torch
+    kernel: the cap ``max_iterations`` acts the same on both (one step stops far from the
+    fixed point, and both stop at the same vectors)."""
+    batch = random_pomdp(5, 3, 2, batch_shape=(2,), discount=0.95, seed=21)
+    one = POMDP(T=batch.T[1], Z=batch.Z[1], R=batch.R[1], b0=batch.b0[1], discount=0.95)
+    capped = qmdp_vectors(one, max_iterations=1)
+    torch.testing.assert_close(capped, qmdp_vectors(batch, max_iterations=1)[1])
+    assert float((capped - qmdp_vectors(one)).max()) > 1e-2  # an upper bound, not converged

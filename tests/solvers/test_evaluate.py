@@ -147,3 +147,15 @@ def test_sparse_belief_paths_match_the_dense_bayes_filter():
     policy = qmdp_policy(model)
     _, choose = _form_and_chooser(model, policy)
     assert torch.equal(choose(None, belief), policy.action(belief))
+
+
+def test_a_solver_form_is_evaluated_as_its_model():
+    """``evaluate_policy`` takes whatever ``as_solver_model`` takes, a form too: the same
+    draws, so the same returns as the model it adapts."""
+    from torchhrc.solvers.forms import as_solver_model
+
+    model = tiger()
+    policy = qmdp_policy(model)
+    direct = evaluate_policy(model, policy, episodes=50, horizon=20, seed=3)
+    via_form = evaluate_policy(as_solver_model(model), policy, episodes=50, horizon=20, seed=3)
+    torch.testing.assert_close(via_form.returns, direct.returns, rtol=0, atol=1e-12)

@@ -274,3 +274,51 @@ def test_momdp_qmdp_start_bounds_q_star_and_stops_at_the_deadline(static) -> Non
     assert float(late.max()) <= float(model.R.max()) / (1 - g) + 1e-9
     start, _ = form.fib_start(tol, NEVER, {})
     torch.testing.assert_close(start, Q, rtol=0, atol=0)  # what FIB starts from
+
+
+def test_the_forms_and_the_kernels_import_no_algorithm_above_them():
+    """The layers of solvers/ (docs/architecture.md): the tensor kernels, then the forms,
+    then the algorithms. No module of the two lower layers imports an algorithm module, not
+    even inside a function (that was the import circle fib/qmdp <-> forms)."""
+    import ast
+    from pathlib import Path
+
+    import torchhrc.solvers
+
+    root = Path(torchhrc.solvers.__file__).parent
+    lower = [*sorted((root / "forms").glob("*.py"))] + [
+        root / f"{name}.py"
+        for name in ("tensor_bounds", "_factored", "blind", "backup", "sparse_model", "sampling")
+    ]
+    above = {f"torchhrc.solvers.{m}" for m in
+             ("qmdp", "fib", "sarsop", "pbvi", "evaluate", "policy_graph")}  # fmt: skip
+    for path in lower:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                names = {node.module or ""} | {f"{node.module}.{a.name}" for a in node.names}
+            elif isinstance(node, ast.Import):
+                names = {a.name for a in node.names}
+            else:
+                continue
+            assert not names & above, (path.name, sorted(names & above))
+
+
+def test_a_form_and_a_prepared_sparse_model_in_another_dtype():
+    """``as_solver_model`` hands a form back as it is (found by its type like every model),
+    and rebuilds a prepared :class:`SparseFlatModel` in the dtype asked for (it raised a
+    TypeError): the float32 QMDP vectors are the float64 ones to float32's precision."""
+    from torchhrc.solvers.sparse_model import SparseFlatModel
+
+    form = as_solver_model(tiger())
+    assert as_solver_model(form) is form
+    prepared = SparseFlatModel.from_model(SparsePOMDP.from_dense(tiger()))
+    assert as_solver_model(prepared).sparse is prepared  # its own dtype: itself
+    single = as_solver_model(prepared, dtype=torch.float32)
+    assert single.sparse.dtype == torch.float32 and single.R.dtype == torch.float32
+    assert single.sparse.nnz == prepared.nnz
+    torch.testing.assert_close(
+        single.upper_vectors("qmdp", 1e-6).double(),
+        as_solver_model(prepared).upper_vectors("qmdp", 1e-6),
+        rtol=1e-5,
+        atol=1e-4,
+    )

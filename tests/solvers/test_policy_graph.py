@@ -12,6 +12,7 @@ from torchhrc.solvers import SARSOPConfig, solve
 from torchhrc.solvers.blind import blind_policy
 from torchhrc.solvers.policy_graph import controller_value, draw_policy_graph, policy_graph
 from torchhrc.solvers.qmdp import qmdp_policy
+from torchhrc.sparse import SparsePOMDP
 from torchhrc.tasks.classic import rock_sample, tiger
 
 #: Tiger's listening accuracy: the belief after n net observations to one side is
@@ -159,3 +160,5 @@ def test_controller_value_of_a_fully_observable_model_is_the_mdp_value():
     assert g.closed and len(g.nodes) <= 4
     exact = float(value_iteration(model.T, model.R, 0.9, tol=1e-12).values @ model.b0)
     assert controller_value(model, g) == pytest.approx(exact, abs=1e-8)
+    # a sparse model through its solver form: the same value
+    assert controller_value(SparsePOMDP.from_dense(model), g) == pytest.approx(exact, abs=1e-8)

@@ -17,6 +17,10 @@ state: RockSample, the hand-finishing task, Tag) is stored row-sparse (:class:`R
 built from the nonzeros of ``Tx`` and the ``Ty`` rows they select, never forming the dense
 ``Tx * Ty``), so an expectation costs ``O(nnz)``; the bounds then iterate it instead of a
 dense LU (:data:`SPARSE_DIRECT_SOLVE_SIZE`).
+
+The kernels learn a model's layout in one place, :func:`state_dims` (its type looked up in
+a table, as :func:`~torchhrc.solvers.forms.as_solver_model` picks a form): 1 for a flat
+model's values ``(S,)``, 2 for a MOMDP's ``(X, Y)``; they never test a model's class.
 """
 
 from __future__ import annotations
@@ -135,7 +139,7 @@ class Expectation:
     """
 
     def __init__(self, model: POMDP | MOMDP) -> None:
-        self.momdp = isinstance(model, MOMDP)
+        self.momdp = state_dims(model) == 2
         self.sparse: tuple[RowSparse, RowSparse] | None = None
         if not self.momdp:
             self.kind = "flat"
@@ -144,7 +148,6 @@ class Expectation:
                 self.sparse = _sparse_flat(model.T)
                 self.A = model.T.shape[0]
             return
-        assert isinstance(model, MOMDP)
         X, Y = model.num_observed, model.num_hidden
         self.X, self.Y = X, Y
         unbatched = model.Tx.dim() == 4
@@ -300,14 +303,34 @@ def momdp_expect(
 
 def expect(model: POMDP | MOMDP, V: torch.Tensor, *, per_action: bool = False) -> torch.Tensor:
     """Expected next values for either model kind (see the module docstring)."""
-    if isinstance(model, MOMDP):
+    if state_dims(model) == 2:
         return momdp_expect(model.Tx, model.Ty, V, per_action=per_action)
     return flat_expect(model.T, V, per_action=per_action)
 
 
-def state_dims(model: POMDP | MOMDP) -> int:
-    """Number of trailing state dims of a value tensor: 1 (S) or 2 (X, Y)."""
-    return 2 if isinstance(model, MOMDP) else 1
+#: the number of trailing state dims of a tensor model's values, by the model's type
+_STATE_DIMS: dict[type, int] = {POMDP: 1, MOMDP: 2}
+
+
+def state_dims(model: object) -> int:
+    """Number of trailing state dims of a value tensor: 1 (S) or 2 (X, Y).
+
+    The one place the tensor kernels learn a model's layout (its type, or a base of it, looked
+    up in ``_STATE_DIMS``).
+
+    Raises:
+        TypeError: ``model`` is no tensor model (a POMDP or MOMDP).
+
+    Example:
+        >>> from torchhrc.testing import random_momdp, random_pomdp
+        >>> state_dims(random_pomdp(3, 2, 2, seed=0)), state_dims(random_momdp(3, 2, 2, 2, seed=0))
+        (1, 2)
+    """
+    for cls in type(model).__mro__:
+        dims = _STATE_DIMS.get(cls)
+        if dims is not None:
+            return dims
+    raise TypeError(f"expected model to be a POMDP or MOMDP, got {type(model).__name__}")
 
 
 def reward_bounds(model: POMDP | MOMDP) -> tuple[torch.Tensor, torch.Tensor]:
@@ -318,10 +341,9 @@ def reward_bounds(model: POMDP | MOMDP) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def check_model(model: object) -> POMDP | MOMDP:
-    """Raise TypeError unless ``model`` is a POMDP or MOMDP."""
-    if not isinstance(model, (POMDP, MOMDP)):
-        raise TypeError(f"expected model to be a POMDP or MOMDP, got {type(model).__name__}")
-    return model
+    """Raise TypeError unless ``model`` is a POMDP or MOMDP (:func:`state_dims` knows it)."""
+    state_dims(model)
+    return model  # type: ignore[return-value]
 
 
 def check_unit_discount(model: POMDP | MOMDP, what: str) -> None:

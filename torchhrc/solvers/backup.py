@@ -49,6 +49,7 @@ import torch
 from torchhrc._checks import check_shape, check_tensor
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.solvers._factored import state_dims
 from torchhrc.solvers.policy import AlphaVectorPolicy
 
 __all__ = ["BackupResult", "momdp_point_backup", "point_backup"]
@@ -179,7 +180,7 @@ def point_backup(
         >>> point_backup(m, p, m.b0.unsqueeze(0)).values.shape
         torch.Size([1])
     """
-    if not isinstance(model, POMDP):
+    if state_dims(model) != 1:
         raise TypeError(f"expected model to be a POMDP, got {type(model).__name__}")
     _check_unbatched(model)
     if policy.is_momdp:
@@ -264,7 +265,7 @@ def momdp_point_backup(
         >>> r.observed.tolist()
         [0, 2]
     """
-    if not isinstance(model, MOMDP):
+    if state_dims(model) != 2:
         raise TypeError(f"expected model to be a MOMDP, got {type(model).__name__}")
     _check_unbatched(model)
     if not policy.is_momdp:

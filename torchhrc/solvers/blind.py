@@ -105,4 +105,4 @@ def blind_policy(
         [0, 0, 1, 1, 2, 2]
     """
     vectors = blind_vectors(model, tol=tol, max_iterations=max_iterations)
-    return AlphaVectorPolicy.from_action_vectors(vectors, momdp=isinstance(model, MOMDP))
+    return AlphaVectorPolicy.from_action_vectors(vectors, momdp=state_dims(model) == 2)

@@ -110,8 +110,6 @@ def _horizon(discount: float, max_reward: float, tail_tolerance: float) -> int:
 
 def _form_and_chooser(model: Any, policy: PolicyLike) -> tuple[SolverModel, Callable[..., Any]]:
     """The model's solver form and ``choose(x (E,), beliefs (E, Y)) -> actions (E,)``."""
-    if isinstance(model, SolverModel):
-        raise TypeError("expected a model, got a solver form")
     if len(getattr(model, "batch_shape", ())):
         raise ModelError(
             f"evaluate_policy takes one model, got batch_shape {tuple(model.batch_shape)}"
@@ -196,8 +194,9 @@ def evaluate_policy(
     Args:
         model: an unbatched :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`,
             or a :class:`~torchhrc.sparse.SparsePOMDP` or
-            :class:`~torchhrc.sparse_momdp.SparseMOMDP`. A flat policy of a MOMDP (solved
-            through ``to_pomdp()``) is evaluated on the flat model.
+            :class:`~torchhrc.sparse_momdp.SparseMOMDP`: whatever
+            :func:`~torchhrc.solvers.forms.as_solver_model` takes (a solver form too). A flat
+            policy of a MOMDP (solved through ``to_pomdp()``) is evaluated on the flat model.
         policy: an :class:`AlphaVectorPolicy`, or a callable ``belief (E, S) -> actions (E,)``
             (flat) / ``(x (E,), belief_y (E, Y)) -> actions (E,)`` (MOMDP).
         episodes: number of episodes ``E``.

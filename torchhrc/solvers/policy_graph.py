@@ -38,6 +38,7 @@ import torch
 from torchhrc.errors import ModelError
 from torchhrc.io._atomic import atomic_write_bytes
 from torchhrc.solvers.evaluate import PolicyLike, _form_and_chooser
+from torchhrc.solvers.forms import as_solver_model
 
 __all__ = [
     "PolicyGraph",
@@ -295,7 +296,8 @@ def controller_value(model: Any, graph: PolicyGraph) -> float:
     0; it never happens from the states the belief holds.
 
     Args:
-        model: the flat :class:`~torchhrc.pomdp.POMDP` the graph was made of.
+        model: the flat model the graph was made of (a :class:`~torchhrc.pomdp.POMDP`, or
+            any flat model :func:`~torchhrc.solvers.forms.as_solver_model` takes).
         graph: a :class:`PolicyGraph` with ``closed`` True.
 
     Returns:
@@ -310,18 +312,22 @@ def controller_value(model: Any, graph: PolicyGraph) -> float:
         >>> round(controller_value(tiger(), policy_graph(tiger(), blind_policy(tiger()))), 6)
         -20.0
     """
-    from torchhrc.pomdp import POMDP
-
-    if not isinstance(model, POMDP) or graph.factored:
+    form = as_solver_model(model)
+    if form.factored or graph.factored:
         raise ModelError("controller_value needs a flat POMDP and its graph")
     if not graph.closed:
         raise ModelError("controller_value needs a closed graph (no depth or min_prob cut)")
-    N, S, O = len(graph.nodes), model.num_states, model.num_observations
+    N, S, O = len(graph.nodes), form.num_hidden, form.num_observations
     succ = torch.full((N, O), -1, dtype=torch.long)
     for e in graph.edges:
         succ[e.source, e.observation] = e.target
     acts = torch.tensor([n.action for n in graph.nodes])
-    T, Z, R = model.T.double(), model.Z.double(), model.R.double()
+    # T[a, s] is the prediction of the corner belief s (exact: products with 1 and 0), and
+    # the observation slice of the one next observed value is Z[a, s2, o] transposed
+    corners = torch.eye(S, dtype=form.b0.dtype, device=form.b0.device)
+    T = form.predict(0, corners)[:, :, 0, :].transpose(0, 1).double().cpu()  # (A, S, S2)
+    Z = form.observation(0)[:, 0].transpose(1, 2).double().cpu()  # (A, S2, O)
+    R = form.R[:, 0, :].double().cpu()  # (A, S)
     M = torch.zeros(N, S, N, S, dtype=torch.float64)
     for n in range(N):
         a = int(acts[n])
@@ -329,7 +335,7 @@ def controller_value(model: Any, graph: PolicyGraph) -> float:
             m = int(succ[n, o])
             if m >= 0:
                 M[n, :, m, :] += T[a] * Z[a, :, o].unsqueeze(0)  # (S, S2)
-    system = torch.eye(N * S, dtype=torch.float64) - model.discount * M.reshape(N * S, N * S)
+    system = torch.eye(N * S, dtype=torch.float64) - form.discount * M.reshape(N * S, N * S)
     V = torch.linalg.solve(system, R[acts].reshape(N * S)).reshape(N, S)
     return float(graph.nodes[0].belief.double() @ V[0])
 

@@ -140,32 +140,26 @@ class SparseFlatModel:
 
     @classmethod
     def from_model(
-        cls, model: SparsePOMDP | POMDP, *, dtype: torch.dtype = torch.float64
+        cls, model: SparsePOMDP | POMDP | SparseFlatModel, *, dtype: torch.dtype | None = None
     ) -> SparseFlatModel:
-        """Build from a :class:`~torchhrc.sparse.SparsePOMDP` or an unbatched dense POMDP.
+        """Build from a :class:`~torchhrc.sparse.SparsePOMDP` or an unbatched dense POMDP, or
+        take a prepared model (itself where it has ``dtype`` already).
+
+        The builder is looked up by the model's type (``_SOURCES``), never by testing it.
+
+        Args:
+            model: the model.
+            dtype: the floating dtype (default float64; a prepared model's own).
 
         Raises:
             ModelError: a batched dense model, or ``Z`` too large to hold densely.
             TypeError: ``model`` of another type.
         """
-        if isinstance(model, POMDP):
-            if len(model.batch_shape):
-                raise ModelError(
-                    f"expected an unbatched POMDP, got batch shape {tuple(model.batch_shape)}"
-                )
-            index = torch.nonzero(model.T)
-            A, S, O = model.num_actions, model.num_states, model.num_observations
-            return cls(index, model.T[tuple(index.T)], model.Z.expand(A, S, O),
-                       model.R, model.b0, model.discount, dtype=dtype)  # fmt: skip
-        if not isinstance(model, SparsePOMDP):
-            raise TypeError(f"expected a SparsePOMDP or POMDP, got {type(model).__name__}")
-        A, S, O = model.num_actions, model.num_states, model.num_observations
-        check_dense_size("Z", A * S * O, hint="too many observations for the sparse solver")
-        Z = torch.zeros(A, S, O, dtype=dtype)
-        zi, zp = model.observations_
-        Z.index_put_((zi[:, 0], zi[:, 1], zi[:, 2]), zp.to(dtype), accumulate=True)
-        idx, p = model.transitions
-        return cls(idx, p, Z, model.R, model.b0, model.discount, dtype=dtype)
+        for kind in type(model).__mro__:
+            build = _SOURCES.get(kind)
+            if build is not None:
+                return build(cls, model, dtype)
+        raise TypeError(f"expected a SparsePOMDP or POMDP, got {type(model).__name__}")
 
     # -- numpy, one belief ---------------------------------------------------------------------
     def _entries(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -351,6 +345,53 @@ class SparseFlatModel:
         T = torch.zeros(A * S * S, dtype=self.dtype)
         T[torch.from_numpy(self._row * S + self._col)] = torch.from_numpy(self._val)
         return T.view(A, S, S)
+
+
+def _from_dense(
+    cls: type[SparseFlatModel], model: POMDP, dtype: torch.dtype | None
+) -> SparseFlatModel:
+    """:meth:`SparseFlatModel.from_model` of an unbatched dense POMDP."""
+    dtype = torch.float64 if dtype is None else dtype
+    if len(model.batch_shape):
+        raise ModelError(f"expected an unbatched POMDP, got batch shape {tuple(model.batch_shape)}")
+    index = torch.nonzero(model.T)
+    A, S, O = model.num_actions, model.num_states, model.num_observations
+    return cls(index, model.T[tuple(index.T)], model.Z.expand(A, S, O),
+               model.R, model.b0, model.discount, dtype=dtype)  # fmt: skip
+
+
+def _from_sparse(
+    cls: type[SparseFlatModel], model: SparsePOMDP, dtype: torch.dtype | None
+) -> SparseFlatModel:
+    """:meth:`SparseFlatModel.from_model` of a :class:`~torchhrc.sparse.SparsePOMDP`."""
+    dtype = torch.float64 if dtype is None else dtype
+    A, S, O = model.num_actions, model.num_states, model.num_observations
+    check_dense_size("Z", A * S * O, hint="too many observations for the sparse solver")
+    Z = torch.zeros(A, S, O, dtype=dtype)
+    zi, zp = model.observations_
+    Z.index_put_((zi[:, 0], zi[:, 1], zi[:, 2]), zp.to(dtype), accumulate=True)
+    idx, p = model.transitions
+    return cls(idx, p, Z, model.R, model.b0, model.discount, dtype=dtype)
+
+
+def _from_prepared(
+    cls: type[SparseFlatModel], model: SparseFlatModel, dtype: torch.dtype | None
+) -> SparseFlatModel:
+    """:meth:`SparseFlatModel.from_model` of a prepared model: itself in its own dtype, else
+    rebuilt from its nonzeros in ``dtype``."""
+    if dtype is None or dtype == model.dtype:
+        return model
+    index = torch.from_numpy(np.stack([model._act, model._src, model._col], axis=1))
+    return cls(index, torch.from_numpy(model._val), model.Z, model.R, model.b0, model.discount,
+               dtype=dtype)  # fmt: skip
+
+
+#: how :meth:`SparseFlatModel.from_model` builds from each kind of model
+_SOURCES: dict[type, Callable[..., SparseFlatModel]] = {
+    POMDP: _from_dense,
+    SparsePOMDP: _from_sparse,
+    SparseFlatModel: _from_prepared,
+}
 
 
 def sparse_blind_vectors(
@@ -583,8 +624,7 @@ def sparse_blind_policy(
         >>> sparse_blind_policy(SparsePOMDP.from_dense(tiger())).num_vectors
         3
     """
-    if not isinstance(model, SparseFlatModel):
-        model = SparseFlatModel.from_model(model)
+    model = SparseFlatModel.from_model(model)  # a prepared one: itself
     if max_iterations is None:
         max_iterations = default_blind_iterations(model.num_states, model.discount)
     vectors = sparse_blind_vectors(model, tol=tol, max_iterations=max_iterations)

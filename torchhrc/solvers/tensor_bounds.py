@@ -11,7 +11,7 @@ The solver forms (:mod:`torchhrc.solvers.forms`) build on these; the bound algor
 (:mod:`torchhrc.solvers.qmdp`, :mod:`torchhrc.solvers.fib`: ``qmdp_vectors``, ``fib_vectors``
 and the ``qmdp``/``fib`` solvers, which take any model with a form) build on the forms, and
 re-export these names. The kernels tell a flat model from a factored one by the layout of its
-values (:func:`~torchhrc.solvers._factored.state_dims`), never by its class.
+values (:func:`~torchhrc.solvers._factored.state_dims`), never by testing its class.
 
 Example:
     >>> from torchhrc.testing import random_pomdp
@@ -242,8 +242,7 @@ def fib_backup(model: POMDP | MOMDP, vectors: torch.Tensor) -> torch.Tensor:
         >>> fib_backup(m, torch.zeros(2, 3, dtype=torch.float64)).allclose(m.R)
         True
     """
-    model = check_model(model)
-    if isinstance(model, MOMDP):
+    if state_dims(model) == 2:
         return _momdp_step(model, vectors)
     return _flat_step(model, vectors)
 

@@ -74,11 +74,12 @@ def _tensor_model(form: type[DenseForm] | type[MOMDPForm]) -> FormBuilder:
 
 
 def _sparse_model(model: Any, dtype: torch.dtype | None) -> SolverModel:
-    dt = dtype or model.R.dtype
-    sparse = model
-    if not isinstance(model, SparseFlatModel) or model.dtype != dt:
-        sparse = SparseFlatModel.from_model(model, dtype=dt)
-    return SparseForm(sparse, model)
+    # a prepared SparseFlatModel already in the dtype is used as it is
+    return SparseForm(SparseFlatModel.from_model(model, dtype=dtype or model.R.dtype), model)
+
+
+def _as_is(model: SolverModel, dtype: torch.dtype | None) -> SolverModel:
+    return model
 
 
 _FORMS: dict[type, FormBuilder] = {
@@ -87,6 +88,7 @@ _FORMS: dict[type, FormBuilder] = {
     SparsePOMDP: _sparse_model,
     SparseFlatModel: _sparse_model,
     SparseMOMDP: lambda model, dtype: SparseMOMDPForm(model, dtype),
+    SolverModel: _as_is,  # an adapted model (any form's class derives from it)
 }
 
 
@@ -110,11 +112,12 @@ def has_form(model: Any) -> bool:
         >>> has_form(tiger()), has_form("tiger")
         (True, False)
     """
-    return isinstance(model, SolverModel) or any(cls in _FORMS for cls in type(model).__mro__)
+    return any(cls in _FORMS for cls in type(model).__mro__)
 
 
 def as_solver_model(model: Any, *, dtype: torch.dtype | None = None) -> SolverModel:
-    """The solver interface of ``model``, chosen once by its type (the only place that asks).
+    """The solver interface of ``model``, chosen once by its type (the only place that asks:
+    the first of its classes, in method resolution order, with a registered builder).
 
     Args:
         model: an unbatched :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`,
@@ -136,8 +139,6 @@ def as_solver_model(model: Any, *, dtype: torch.dtype | None = None) -> SolverMo
         >>> form.num_observed, form.num_hidden, form.state_shape
         (1, 2, (2,))
     """
-    if isinstance(model, SolverModel):
-        return model
     for cls in type(model).__mro__:
         if cls in _FORMS:
             return _FORMS[cls](model, dtype)

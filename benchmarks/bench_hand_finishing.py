@@ -24,8 +24,8 @@ import time
 import torch
 
 from torchhrc.experiments.hand_finishing import TRUE_HAND_LOC, factored_vs_flat, observation_grid
-from torchhrc.kinematics import BoxGeometry, feasible_box_configurations
 from torchhrc.tasks.hand_finishing import HandFinishingTask
+from torchhrc.tasks.hand_finishing.geometry import BoxGeometry, feasible_box_configurations
 
 
 def main() -> None:

@@ -20,7 +20,8 @@ import time
 
 import torch
 
-from torchhrc.kinematics import BoxGeometry, SerialArm, reach_check
+from torchhrc.kinematics import SerialArm, reach_check
+from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 
 
 def _best_of(fn, repeats: int) -> tuple[float, float]:

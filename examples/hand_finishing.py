@@ -17,10 +17,10 @@ from __future__ import annotations
 import torch
 
 from torchhrc.experiments.hand_finishing import observation_grid
-from torchhrc.kinematics import BoxGeometry
 from torchhrc.solvers import SARSOPConfig, solve
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.hand_finishing import ACTIONS, HandFinishingTask
+from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 from torchhrc.tasks.hand_finishing.person import simulate_episodes
 
 

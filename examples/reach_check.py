@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 
-from torchhrc.kinematics import BoxGeometry, feasible_box_configurations
+from torchhrc.tasks.hand_finishing.geometry import BoxGeometry, feasible_box_configurations
 
 
 def main() -> None:

@@ -1,4 +1,8 @@
-"""Tests of torchhrc.kinematics: FK against pinocchio and pytorch-kinematics, IK, reach, comfort."""
+"""Tests of torchhrc.kinematics: FK against pinocchio and pytorch-kinematics, IK, reach.
+
+The hand-finishing box (its poses serve here as IK targets) is tested in
+tests/tasks/test_hand_finishing_geometry.py.
+"""
 
 from __future__ import annotations
 
@@ -12,17 +16,14 @@ pytest.importorskip("pytorch_kinematics")
 
 from torchhrc.errors import ModelError
 from torchhrc.kinematics import (
-    BoxGeometry,
-    PersonModel,
     SerialArm,
     asset_path,
-    comfort_check,
-    feasible_box_configurations,
     human_arm_urdf,
     matrix_to_pose,
     pose_to_matrix,
     reach_check,
 )
+from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 
 D = torch.float64
 
@@ -129,8 +130,6 @@ def test_bad_inputs_are_rejected(panda):
         SerialArm(asset_path("panda/panda.urdf"), "no_such_link")
     with pytest.raises(FileNotFoundError):
         asset_path("nothing/here.urdf")
-    with pytest.raises(ModelError, match="side"):
-        BoxGeometry().work_points("top")
 
 
 # ------------------------------------------------------------------ inverse kinematics
@@ -191,28 +190,6 @@ def test_seeded_restarts_are_deterministic(panda):
     assert torch.equal(a.joints, b.joints) and torch.equal(a.reachable, b.reachable)
 
 
-# ----------------------------------------------------------------- box geometry
-def test_box_and_grip_poses_follow_the_documented_geometry():
-    g = BoxGeometry()
-    box = g.box_poses()
-    grip = g.grip_poses()
-    h, v, t = 1, 2, 4
-    assert torch.allclose(
-        box[h, v, t, :3, 3], torch.tensor([g.forward, g.horizontal[h], g.vertical[v]], dtype=D)
-    )
-    # the gripper approaches along +x of the base, from the box's back face
-    assert torch.allclose(grip[h, v, t, :3, 2], torch.tensor([1.0, 0.0, 0.0], dtype=D), atol=1e-12)
-    assert torch.allclose(
-        grip[h, v, t, :3, 3], box[h, v, t, :3, 3] - torch.tensor([g.size[0] / 2, 0, 0], dtype=D)
-    )
-    # positive tilt raises the left (+y) side surface by width/2 * sin(tilt)
-    left, right = g.work_points("left"), g.work_points("right")
-    rise = g.size[1] / 2 * math.sin(g.tilt[t])
-    assert left[h, v, t, 2].item() == pytest.approx(g.vertical[v] + rise)
-    assert right[h, v, t, 2].item() == pytest.approx(g.vertical[v] - rise)
-    assert g.index(1, 2, 4) == (1 * 4 + 2) * 5 + 4
-
-
 # ---------------------------------------------------------------- human comfort
 def test_shipped_human_arm_is_the_generator_output():
     assert asset_path("human_arm/human_arm.urdf").read_text() == human_arm_urdf()
@@ -227,46 +204,6 @@ def test_human_arm_lengths_follow_winter(human):
         (0.818 - 0.186 - 0.146 - 0.054) * H, abs=1e-6
     )  # the URDF has 6 digits
     assert pose[1, 3].item() == pytest.approx(-0.259 * H / 2, abs=1e-6)
-
-
-def test_comfort_check_rules(human):
-    person = PersonModel()
-    front_x = 0.75
-    body_x = front_x + person.standoff
-    elbow = person.elbow_height - person.floor_height  # elbow height in the robot base frame
-    pts = torch.tensor(
-        [
-            [body_x - 0.40, 0.0, elbow - 0.15],  # in the band, 40 cm ahead: comfortable
-            [body_x - 0.40, 0.0, elbow + 0.30],  # above the band
-            [body_x - 0.40, 0.0, elbow - 0.60],  # below the band
-            [body_x - 0.80, 0.0, elbow - 0.15],  # beyond the arm's reach (0.67 m)
-        ],
-        dtype=D,
-    )
-    r = comfort_check(pts, front_x=front_x, person=person, human=human)
-    assert r.height_ok.tolist() == [True, False, False, True]
-    assert r.reach_ok[0] and not r.reach_ok[3]
-    assert r.comfortable.tolist() == [True, False, False, False]
-    # the comfortable solution keeps the upper arm at or below 90 degrees
-    names = human.joint_names
-    q = r.joints[0]
-    assert q[names.index("shoulder_flexion")] <= math.pi / 2 + 1e-9
-    palm = human.forward(q)[:3, 3]
-    assert palm[0].item() == pytest.approx(0.40, abs=0.011)
-
-
-def test_feasible_configurations_combine_reach_and_comfort(panda):
-    g = BoxGeometry(horizontal=(0.0, 0.9), vertical=(0.05, 0.45, 1.2), tilt=(0.0,))
-    f = feasible_box_configurations(g, arm=panda)
-    assert f.mask.shape == (2, 3, 1) and f.comfortable.shape == (2, 3, 1, 2)
-    # 0.9 m to the side or 1.2 m up is beyond the Panda's reach (0.855 m from the shoulder)
-    assert not f.reachable[1].any() and not f.reachable[:, 2].any()
-    assert f.reachable[0, 0, 0] and f.reachable[0, 1, 0]
-    assert torch.equal(f.mask, f.reachable & f.comfortable.any(-1))
-    # the solutions of reachable configurations put the box where it should be
-    fk = panda.forward(f.joints[f.reachable])
-    assert torch.allclose(fk[:, :3, 3], g.grip_poses()[f.reachable][:, :3, 3], atol=1e-3)
-    assert 0.0 <= f.fraction <= 1.0
 
 
 # ------------------------------------------------------------ fast paths of reach_check

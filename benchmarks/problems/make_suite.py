@@ -228,7 +228,7 @@ def task_check_set() -> dict[str, object]:
     """
     from torchhrc.experiments.hand_finishing import HandFinishingSettings, _true_observation
     from torchhrc.experiments.place_and_drill import build_expert_momdp, load_expert_model
-    from torchhrc.kinematics import feasible_box_configurations
+    from torchhrc.tasks.hand_finishing.geometry import feasible_box_configurations
     from torchhrc.tasks.hand_finishing.model import HandFinishingTask
 
     study = HandFinishingSettings.create()

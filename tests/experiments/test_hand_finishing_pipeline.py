@@ -116,7 +116,7 @@ def test_type_accuracy_over_seeds():
         _episodes,
         _learn_approach,
     )
-    from torchhrc.kinematics import feasible_box_configurations
+    from torchhrc.tasks.hand_finishing.geometry import feasible_box_configurations
     from torchhrc.tasks.hand_finishing.model import HandFinishingTask
 
     accuracies = []
@@ -148,7 +148,7 @@ def test_the_generating_motion_as_filter_is_calibrated_at_the_first_move():
         _learn_observation,
         _true_observation,
     )
-    from torchhrc.kinematics import feasible_box_configurations
+    from torchhrc.tasks.hand_finishing.geometry import feasible_box_configurations
     from torchhrc.tasks.hand_finishing.model import HandFinishingTask
     from torchhrc.tasks.hand_finishing.person import simulate_episodes
 

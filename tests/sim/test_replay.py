@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.kinematics import BoxGeometry
 from torchhrc.sim.replay import box_moves
+from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 
 # a small grid: the moves of a quick hand-finishing episode
 GEOMETRY = BoxGeometry(horizontal=(-0.3, 0.0, 0.3), vertical=(0.2,), tilt=(-0.5, 0.0, 0.5))

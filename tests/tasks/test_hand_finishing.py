@@ -7,12 +7,12 @@ import torch
 from torchhrc.belief import momdp_update
 from torchhrc.errors import ModelError
 from torchhrc.experiments.hand_finishing import cluster_preferences, observation_grid
-from torchhrc.kinematics import BoxGeometry
 from torchhrc.mixture import fit_mixture
 from torchhrc.observation import discretize_positions
 from torchhrc.solvers import SARSOPConfig, solve
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.hand_finishing import ACTIONS, HandFinishingTask, count_states
+from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 from torchhrc.tasks.hand_finishing.person import (
     HandMotion,
     hand_trajectories,
@@ -41,7 +41,7 @@ def _task(work_units: int = 2, sides=("left", "right")) -> HandFinishingTask:
 def test_count_formula_and_paper_size():
     task = _task(work_units=3)
     assert task.num_states == count_states(task.num_configurations, 3) == 9 * 7 * 2
-    # the default geometry keeps 75 of 100 configurations (kinematics, see test_kinematics):
+    # the default geometry keeps 75 of 100 configurations (test_hand_finishing_geometry):
     assert count_states(75, 6) == 1950
     assert abs(count_states(75, 6) - 2000) / 2000 < 0.05
 

@@ -7,13 +7,13 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.experiments.hand_finishing import observation_grid
-from torchhrc.kinematics import BoxGeometry
 from torchhrc.mixture import fit_mixture
 from torchhrc.tasks.hand_finishing import HandFinishingTask
 from torchhrc.tasks.hand_finishing.collaborative import (
     HandFinishingCollaborativeTask,
     first_sides_from_chains,
 )
+from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 from torchhrc.tasks.hand_finishing.person import simulate_demonstrations
 from torchhrc.tasks.interface import check_task
 from torchhrc.tasks.pipeline import build_model

@@ -3,7 +3,8 @@
 Pipeline (:func:`reproduce_hand_finishing`):
 
 1. kinematic checks of every box configuration (Panda reach, person comfort;
-   :func:`torchhrc.kinematics.feasible_box_configurations`); the others leave the MOMDP;
+   :func:`torchhrc.tasks.hand_finishing.geometry.feasible_box_configurations`); the others leave
+   the MOMDP;
 2. demonstrations of 6 simulated subjects (3 left-first, 3 right-first, labels hidden) are
    clustered with the Markov-chain mixture (BIC picks ``k``); each cluster becomes a value of
    ``y`` and is mapped to a preference by its learned transitions
@@ -58,13 +59,13 @@ from torchhrc.approach_observation import ApproachObservation, fit_approach_obse
 from torchhrc.errors import ModelError
 from torchhrc.experiments.place_and_drill import prepare_output_dir
 from torchhrc.experiments.report import _pyplot, _save, write_json_atomic, write_text_atomic
-from torchhrc.kinematics import BoxGeometry
 from torchhrc.observation import ObservationGrid, fit_observation_model
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.hand_finishing.collaborative import (
     HandFinishingCollaborativeTask,
     first_sides_from_chains,
 )
+from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 from torchhrc.tasks.hand_finishing.model import SIDES, HandFinishingTask, RewardSettings
 from torchhrc.tasks.hand_finishing.person import (
     Episodes,
@@ -426,8 +427,8 @@ def _replay_in_sapien(task: HandFinishingTask, ep: Episodes, *,
 def run_study(settings: HandFinishingSettings, *, progress: Progress | None = None,
               feasibility: Any | None = None) -> dict[str, Any]:  # fmt: skip
     """Run the study and return its results (metrics and the data behind the plots)."""
-    from torchhrc.kinematics import feasible_box_configurations
     from torchhrc.mixture import fit_mixture
+    from torchhrc.tasks.hand_finishing.geometry import feasible_box_configurations
 
     def tick(stage: str, done: int, total: int) -> None:
         if progress is not None:

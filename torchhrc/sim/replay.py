@@ -1,8 +1,9 @@
 """Replay a path of box configurations in the SAPIEN scene and measure where the box settles.
 
 A policy's box moves (e.g. one simulated hand-finishing episode) are a path of
-configurations ``(h, v, t)`` of :class:`~torchhrc.kinematics.BoxGeometry`, one per step. The
-replay starts the arm at rest at the first configuration
+configurations ``(h, v, t)`` of
+:class:`~torchhrc.tasks.hand_finishing.geometry.BoxGeometry`, one per step. The replay starts
+the arm at rest at the first configuration
 (:meth:`~torchhrc.sim.scene.HandFinishingScene.reset_box`), then commands every change of
 configuration with joint position targets from the arm's inverse kinematics
 (:meth:`~torchhrc.sim.scene.HandFinishingScene.move_box`), and records after each move how
@@ -23,7 +24,7 @@ from dataclasses import dataclass
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.kinematics import BoxGeometry
+from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 
 __all__ = ["ReplayResult", "box_moves", "replay_box_moves"]
 

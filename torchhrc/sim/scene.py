@@ -3,8 +3,8 @@
 Physics only, on the CPU (``sapien.Scene([sapien.physx.PhysxCpuSystem()])``): the Panda
 (``assets/panda``) is mounted on a table, the box (a link rigidly fixed to the hand's
 TCP, with a box collision shape and the inertia of a solid box) is held at the configurations
-of :class:`torchhrc.kinematics.BoxGeometry`. The arm follows box moves with joint position
-targets: the targets come from :meth:`torchhrc.kinematics.SerialArm.inverse`, are
+of :class:`torchhrc.tasks.hand_finishing.geometry.BoxGeometry`. The arm follows box moves with
+joint position targets: the targets come from :meth:`torchhrc.kinematics.SerialArm.inverse`, are
 interpolated linearly over ``interpolation_steps`` physics steps, and physics is stepped until
 the arm settles (joint speeds and tracking errors below tolerances). Gravity and Coriolis
 forces are compensated each step with SAPIEN's passive forces, as a torque-controlled arm's
@@ -37,7 +37,8 @@ from pathlib import Path
 import torch
 
 from torchhrc.errors import ModelError, TorchHRCError
-from torchhrc.kinematics import BoxGeometry, SerialArm, asset_path, pose_to_matrix
+from torchhrc.kinematics import SerialArm, asset_path, pose_to_matrix
+from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 
 __all__ = ["HandFinishingScene", "MoveResult", "RenderUnavailableError", "check_render_device"]
 

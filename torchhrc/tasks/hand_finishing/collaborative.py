@@ -20,7 +20,7 @@ that :func:`torchhrc.tasks.pipeline.build_model` builds its MOMDP like any other
 
 Example:
     >>> import torch
-    >>> from torchhrc.kinematics import BoxGeometry
+    >>> from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
     >>> geometry = BoxGeometry(horizontal=(0.0,), vertical=(0.2, 0.4), tilt=(-0.5, 0.0, 0.5))
     >>> base = HandFinishingTask.build(feasible=torch.ones(1, 2, 3, 2, dtype=torch.bool),
     ...                                geometry=geometry, work_units=2)

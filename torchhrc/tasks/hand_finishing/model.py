@@ -7,9 +7,10 @@ horizontal plane, observed through a discretized 2D Gaussian
 (:class:`~torchhrc.observation.DiscretizedGaussianObservation`).
 
 Observed state ``x = (c, p)``: ``c`` indexes the box configurations kept by the kinematic
-checks (:func:`torchhrc.kinematics.feasible_box_configurations`: reachable by the robot and
-comfortable for the person; a configuration is a horizontal position x vertical position x
-tilt of :class:`~torchhrc.kinematics.BoxGeometry`), ``p`` the task progress in
+checks (:func:`~torchhrc.tasks.hand_finishing.geometry.feasible_box_configurations`:
+reachable by the robot and comfortable for the person; a configuration is a horizontal
+position x vertical position x tilt of
+:class:`~torchhrc.tasks.hand_finishing.geometry.BoxGeometry`), ``p`` the task progress in
 ``0 .. P - 1`` (``P = 2 W + 1``: ``W`` work units per side, the last value "done", absorbing).
 ``x = c * P + p``; ``X = C * P``. With the default geometry (75 of 100 configurations kept)
 and ``W = 6``, ``X = 975`` and ``X * Y = 1950`` states, the paper's "about 2000".
@@ -66,9 +67,9 @@ import torch
 
 from torchhrc._checks import check_tensor
 from torchhrc.errors import ModelError
-from torchhrc.kinematics import BoxGeometry
 from torchhrc.observation import DiscretizedGaussianObservation, ObservationGrid
 from torchhrc.pomdp import MOMDP
+from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 
 __all__ = [
     "ACTIONS",
@@ -225,8 +226,8 @@ class HandFinishingTask:
         Args:
             feasible: ``(H, V, T, 2)`` bool, comfortable for the person on ``[left, right]``
                 (and reachable, combined with ``reachable``); default: computed with
-                :func:`torchhrc.kinematics.feasible_box_configurations` (pytorch-kinematics,
-                tens of seconds).
+                :func:`~torchhrc.tasks.hand_finishing.geometry.feasible_box_configurations`
+                (pytorch-kinematics, tens of seconds).
             reachable: ``(H, V, T)`` bool robot reachability (default all True when
                 ``feasible`` is given).
             geometry: the configuration grid (default :class:`BoxGeometry`).
@@ -244,7 +245,7 @@ class HandFinishingTask:
         rewards = RewardSettings() if rewards is None else rewards
         H, V, T = geometry.shape
         if feasible is None:
-            from torchhrc.kinematics import feasible_box_configurations
+            from torchhrc.tasks.hand_finishing.geometry import feasible_box_configurations
 
             f = feasible_box_configurations(geometry, seed=seed)
             feasible, reachable = f.comfortable, f.reachable

@@ -188,3 +188,20 @@ def test_quick_settings_reach_learn_and_the_evaluation() -> None:
     # one learned type: the type-aware robot is the type-agnostic one (same settings)
     assert quick["k"] == 1 and quick["gain"]["mean"] == pytest.approx(0.0, abs=1e-12)
     assert quick["ari"] == pytest.approx(0.0)
+
+
+def test_text_parameters_are_plotted_at_their_grid_positions(tmp_path: Path) -> None:
+    """A summary over a text parameter (criterion=bic,icl_or_gain) plots categories in grid
+    order instead of failing to read them as numbers (the function sweep's ``label``)."""
+    from torchhrc.experiments.sweep import SweepSpec, write_summary
+
+    task = str(Path(__file__).with_name("sweep_task.py")) + ":simulate"
+    grid = {"label": ["bb", "a", "ccc"], "subjects": [3, 5]}
+    result = torchhrc.sweep(task, grid, seeds=[0], out=tmp_path / "s", executor=SerialExecutor(),
+                            summary=False)  # fmt: skip
+    spec = SweepSpec.create(task, grid, seeds=[0])
+    write_summary(tmp_path / "s", spec, [{k: v for k, v in r.items() if k != "pid"}
+                                         for r in result.rows])  # fmt: skip
+    summary = (tmp_path / "s" / "summary.md").read_text()
+    assert "## long_label" in summary and "| bb | 3 | 2 |" in summary
+    assert (tmp_path / "s" / "long_label.png").stat().st_size > 1000

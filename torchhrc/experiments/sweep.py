@@ -1197,11 +1197,17 @@ def _plot(target: Path, spec: SweepSpec, rows: Sequence[Mapping[str, Any]], metr
     stats = cell_statistics(rows, spec, metric)
     fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.2), squeeze=False)
     for ax, name in zip(axes[0], names, strict=True):
+        grid = dict(spec.grid)[name]
+        # numbers on a numeric axis; text (criterion=bic,icl) and bools at their grid positions
+        numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in grid)
         lines: dict[tuple[tuple[str, Any], ...], list[tuple[float, float, float]]] = {}
         for cell, mean, half, _ in stats:
             values = dict(cell)
             others = tuple((n, values[n]) for n in names if n != name)
-            lines.setdefault(others, []).append((float(values[name]), mean, half))
+            x_value = float(values[name]) if numeric else float(grid.index(values[name]))
+            lines.setdefault(others, []).append((x_value, mean, half))
+        if not numeric:
+            ax.set_xticks(range(len(grid)), [str(v) for v in grid])
         for others, points in lines.items():
             points.sort()
             x = [p[0] for p in points]

@@ -151,6 +151,8 @@ def test_a_users_factory_from_a_file_sweeps(tmp_path: Path) -> None:
         ({"human_model": ["markov"]}, "--param human_model values in {auto, chain, state}"),
         ({"episodes": [1]}, "--param episodes values in"),
         ({"k": [0]}, "--param k values in"),
+        ({"k_min": [2, 4], "k_max": [3]}, "k_min <= k_max in every cell, got k_min = 4, k_max = 3"),
+        ({"k_min": [7]}, r"k_max = 6 \(learn\(\)'s default\)"),
     ],
 )
 def test_a_bad_task_parameter_is_named(tmp_path: Path, params: dict, match: str) -> None:
@@ -178,6 +180,21 @@ def test_what_cannot_be_swept_is_refused_before_anything_is_written(
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--param criterion values in" in err
     assert not out.exists()
+
+
+def test_a_jobs_warnings_are_counted_not_printed(recwarn: pytest.WarningsRecorder) -> None:
+    """Noise-free demonstrations of fetch_order at 30 x 4: IRL's margin stays above its noise
+    floor (0), so learn() warns; the row counts the warnings and none escapes."""
+    import warnings
+
+    world = make_task("fetch_order")
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        metrics = task_metrics(world, seed=0, quick=True, subjects=30, per_subject=4, noise=0.0,
+                               episodes=4)  # fmt: skip
+    assert metrics["warnings"].get("IRLConvergenceWarning", 0) >= 1
+    assert sum(metrics["warnings"].values()) <= 8
+    assert not [w for w in recwarn if w.category.__name__ == "IRLConvergenceWarning"]
 
 
 def test_quick_settings_reach_learn_and_the_evaluation() -> None:

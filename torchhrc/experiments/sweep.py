@@ -302,6 +302,12 @@ class SweepSpec:
             if len(set(parsed)) != len(parsed):
                 raise ModelError(f"--param {name} repeats a value: {text!r}")
             grid.append((name, parsed))
+        if task_kind(task) == "task":  # a task's settings are also checked together
+            from torchhrc.experiments.task_sweep import check_cell
+
+            names = [name for name, _ in grid]
+            for cell in itertools.product(*(values for _, values in grid)):
+                check_cell(dict(zip(names, cell, strict=True)))
         seed_tuple = (
             parse_seeds(seeds) if isinstance(seeds, str) else tuple(sorted({int(s) for s in seeds}))
         )

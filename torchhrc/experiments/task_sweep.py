@@ -30,6 +30,9 @@ Example:
 
 from __future__ import annotations
 
+import warnings
+from collections import Counter
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from torchhrc.experiments.sweep import SweepParameter
@@ -37,7 +40,7 @@ from torchhrc.experiments.sweep import SweepParameter
 if TYPE_CHECKING:
     from torchhrc.tasks.people import TaskWithPeople
 
-__all__ = ["QUICK", "TASK_PARAMETERS", "task_metrics"]
+__all__ = ["QUICK", "TASK_PARAMETERS", "check_cell", "task_metrics"]
 
 _CRITERIA = ("icl_or_gain", "heldout", "bic", "icl", "exact_icl", "bic_or_exact_icl")
 
@@ -80,6 +83,7 @@ TASK_PARAMETERS: dict[str, SweepParameter] = {
 #: What ``quick`` changes where the cell does not set it.
 QUICK: dict[str, Any] = {"restarts": 3, "solver_time": 1.0, "episodes": 50}
 
+_DEFAULT_K_MAX = 6  # learn()'s
 _DEMONSTRATIONS = ("subjects", "per_subject", "noise")
 _CLUSTERING = ("k", "k_min", "k_max", "restarts", "criterion", "objects", "mixture_method",
                "min_gain")  # fmt: skip
@@ -111,11 +115,14 @@ def task_metrics(
         types), ``belief.max_posterior`` (the mean largest posterior after the last ``n``),
         ``belief.by_type.<type>`` (the accuracy after the last ``n``), the shares of true
         types ``belief.identified`` / ``split`` / ``merged``, and ``solver.gap`` /
-        ``solver.gap_agnostic`` (SARSOP's final upper minus lower bound). The per-type
-        breakdowns (``by_type``) and CIs go to ``results.csv``, not to the summary's plots.
+        ``solver.gap_agnostic`` (SARSOP's final upper minus lower bound), and
+        ``warnings.<category>``: how many warnings of each category the job raised (they are
+        counted, not printed: a sweep runs many jobs). The per-type breakdowns (``by_type``)
+        and CIs go to ``results.csv``, not to the summary's plots.
 
     Raises:
-        ModelError: an unknown setting or a bad value (named).
+        ModelError: an unknown setting or a bad value (named), or ``k_min > k_max``
+            (:func:`check_cell`).
 
     Example:
         >>> from torchhrc.tasks.suite import make_task
@@ -136,19 +143,24 @@ def task_metrics(
                 f"{', '.join(sorted(TASK_PARAMETERS))})"
             )
         TASK_PARAMETERS[name].parse(name, value)
+    check_cell(settings)
     options: dict[str, Any] = {**(QUICK if quick else {}), **settings}
     demo_options = {n: options[n] for n in _DEMONSTRATIONS if n in options}
-    demos, truth = world.demonstrations(seed=seed, **demo_options)
     model_options = {n: options[n] for n in _MODEL if n in options}
     cluster_options = {n: options[n] for n in _CLUSTERING if n in options}
-    model = learn(world.task, demos, seed=seed, **cluster_options, **model_options)
-    agnostic = learn(world.task, demos, k=1, seed=seed, **model_options)
     steps = tuple(n for n in (1, 3, 5) if n <= world.horizon)
-    evaluation = evaluate_task(
-        world, model, demonstrations=demos, agnostic=agnostic,
-        episodes=options.get("episodes", 200), noise=options.get("noise", 0.05),
-        belief_steps=steps, seed=seed,
-    )  # fmt: skip
+    # a sweep runs many jobs: their warnings become counts in the row, not lines on stderr
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        demos, truth = world.demonstrations(seed=seed, **demo_options)
+        model = learn(world.task, demos, seed=seed, **cluster_options, **model_options)
+        agnostic = learn(world.task, demos, k=1, seed=seed, **model_options)
+        evaluation = evaluate_task(
+            world, model, demonstrations=demos, agnostic=agnostic,
+            episodes=options.get("episodes", 200), noise=options.get("noise", 0.05),
+            belief_steps=steps, seed=seed,
+        )  # fmt: skip
+    warned = Counter(w.category.__name__ for w in caught)
 
     names = world.type_names
     k, true_k = int(model.num_types), int(world.num_types)
@@ -192,7 +204,37 @@ def task_metrics(
                for label in ("identified", "split", "merged")},
         },
         "solver": {"gap": _gap(model), "gap_agnostic": _gap(agnostic)},
+        "warnings": dict(sorted(warned.items())),
     }  # fmt: skip
+
+
+def check_cell(cell: Mapping[str, Any]) -> None:
+    """Check a cell's settings together (each value alone is checked by
+    :data:`TASK_PARAMETERS`): ``k_min <= k_max``, with ``learn()``'s defaults (1 and 6) for the
+    one not given, unless ``k`` forces the number of types.
+
+    Raises:
+        ModelError: naming the parameters.
+
+    Example:
+        >>> check_cell({"k_min": 2, "k_max": 4})
+        >>> try:
+        ...     check_cell({"k_min": 7})
+        ... except ValueError as error:
+        ...     print(str(error)[-44:])
+        got k_min = 7, k_max = 6 (learn()'s default)
+    """
+    from torchhrc.errors import ModelError
+
+    if "k" in cell:
+        return
+    low, high = cell.get("k_min", 1), cell.get("k_max", _DEFAULT_K_MAX)
+    if low > high:
+        source = "" if "k_max" in cell else " (learn()'s default)"
+        raise ModelError(
+            f"expected --param k_min <= k_max in every cell, got k_min = {low}, "
+            f"k_max = {high}{source}"
+        )
 
 
 def _gap(model: Any) -> float:

@@ -59,10 +59,12 @@ def qmdp_vectors(
     """QMDP upper-bound vectors, one per action: ``(..., A, S)`` or ``(..., A, X, Y)``.
 
     ``max_a vectors[a] . b >= V*(b)`` for every belief ``b`` (for a MOMDP at ``(x, b_y)``,
-    ``max_a vectors[a, x] . b_y >= V*(x, b_y)``). A sparse model
-    (:class:`~torchhrc.sparse.SparsePOMDP`, :class:`~torchhrc.sparse_momdp.SparseMOMDP`) is
-    iterated by its solver form, on its stored successors only (to ``tol``, without the
-    ``max_iterations`` cap).
+    ``max_a vectors[a, x] . b_y >= V*(x, b_y)``). A batch runs the torch kernel
+    (:func:`~torchhrc.solvers.tensor_bounds.mdp_upper_vectors`); an unbatched model of any
+    form is iterated by its solver form (``upper_vectors``): a dense POMDP or MOMDP by the same
+    kernel, a sparse model (:class:`~torchhrc.sparse.SparsePOMDP`,
+    :class:`~torchhrc.sparse_momdp.SparseMOMDP`) on its stored successors only (to ``tol``,
+    without the ``max_iterations`` cap).
 
     Raises:
         TypeError: ``model`` of no known form.

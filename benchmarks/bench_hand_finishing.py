@@ -23,9 +23,10 @@ import time
 
 import torch
 
-from torchhrc.experiments.hand_finishing import TRUE_HAND_LOC, factored_vs_flat, observation_grid
+from torchhrc.experiments.hand_finishing import factored_vs_flat
 from torchhrc.tasks.hand_finishing import HandFinishingTask
 from torchhrc.tasks.hand_finishing.geometry import BoxGeometry, feasible_box_configurations
+from torchhrc.tasks.hand_finishing.sensing import TRUE_HAND_LOC, observation_grid
 
 
 def main() -> None:

@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import torch
 
-from torchhrc.experiments.hand_finishing import observation_grid
 from torchhrc.solvers import SARSOPConfig, solve
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.hand_finishing import ACTIONS, HandFinishingTask
 from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 from torchhrc.tasks.hand_finishing.person import simulate_episodes
+from torchhrc.tasks.hand_finishing.sensing import observation_grid
 
 
 def main(seed: int = 0) -> None:

@@ -226,10 +226,11 @@ def task_check_set() -> dict[str, object]:
       study's tracks (offset ``TRUE_HAND_LOC``) at noise 0.1, 0.2 and 0.4 m per axis;
     * the place-and-drill expert MOMDP from a uniform type belief (27 observed values).
     """
-    from torchhrc.experiments.hand_finishing import HandFinishingSettings, _true_observation
     from torchhrc.experiments.place_and_drill import build_expert_momdp, load_expert_model
     from torchhrc.tasks.hand_finishing.geometry import feasible_box_configurations
     from torchhrc.tasks.hand_finishing.model import HandFinishingTask
+    from torchhrc.tasks.hand_finishing.sensing import true_observation
+    from torchhrc.tasks.hand_finishing.settings import HandFinishingSettings
 
     study = HandFinishingSettings.create()
     feasible = feasible_box_configurations(study.geometry, seed=0)
@@ -238,7 +239,7 @@ def task_check_set() -> dict[str, object]:
                                    rewards=study.rewards)  # fmt: skip
     out: dict[str, object] = {}
     for noise in (0.1, 0.2, 0.4):  # the study's generating hand model at each noise
-        hand = _true_observation(task, noise)
+        hand = true_observation(task, noise)
         out[f"t_handfinish_n{round(noise * 100):02d}.pomdpx"] = task.momdp(hand)
     expert = load_expert_model()
     Y = len(expert.type_names)

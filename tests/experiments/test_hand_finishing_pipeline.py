@@ -111,13 +111,10 @@ def test_type_accuracy_over_seeds():
     1.0 (min 0.985, mean 0.995); on seeds 1-4 0.99, 0.99, 1.0, 1.0 (mean 0.995). Bars: every
     seed >= 0.97 (margin 0.015 below the lowest of the ten; the binomial standard error of
     200 episodes at 0.99 is 0.007), the mean >= 0.98, the issue's goal (margin 0.015)."""
-    from torchhrc.experiments.hand_finishing import (
-        _accuracy,
-        _episodes,
-        _learn_approach,
-    )
+    from torchhrc.experiments.hand_finishing import _accuracy, _episodes
     from torchhrc.tasks.hand_finishing.geometry import feasible_box_configurations
     from torchhrc.tasks.hand_finishing.model import HandFinishingTask
+    from torchhrc.tasks.hand_finishing.sensing import learn_approach_observation
 
     accuracies = []
     for seed in (1, 2, 3, 4):
@@ -126,7 +123,7 @@ def test_type_accuracy_over_seeds():
         task = HandFinishingTask.build(first_sides=("left", "right"), feasible=feas.comfortable,
                                        reachable=feas.reachable, geometry=s.geometry,
                                        work_units=s.work_units)  # fmt: skip
-        approach, _ = _learn_approach(task, task, s.paper_noise, s)
+        approach, _ = learn_approach_observation(task, task, s.paper_noise, s)
         ep, _, _ = _episodes(task, task.momdp, s.paper_noise, s, approach.stationary,
                              observer=approach)  # fmt: skip
         accuracies.append(_accuracy(ep, ("left", "right"), ("left", "right")))
@@ -143,14 +140,11 @@ def test_the_generating_motion_as_filter_is_calibrated_at_the_first_move():
     import torch
 
     from torchhrc.approach_observation import ApproachObservation
-    from torchhrc.experiments.hand_finishing import (
-        _episodes,
-        _learn_observation,
-        _true_observation,
-    )
+    from torchhrc.experiments.hand_finishing import _episodes
     from torchhrc.tasks.hand_finishing.geometry import feasible_box_configurations
     from torchhrc.tasks.hand_finishing.model import HandFinishingTask
     from torchhrc.tasks.hand_finishing.person import simulate_episodes
+    from torchhrc.tasks.hand_finishing.sensing import learn_static_observation, true_observation
 
     correct, belief = [], []
     for seed in (1, 3):
@@ -159,9 +153,9 @@ def test_the_generating_motion_as_filter_is_calibrated_at_the_first_move():
         task = HandFinishingTask.build(first_sides=("left", "right"), feasible=feas.comfortable,
                                        reachable=feas.reachable, geometry=s.geometry,
                                        work_units=s.work_units)  # fmt: skip
-        learned, _, _ = _learn_observation(task, task, s.paper_noise, s)
+        learned, _, _ = learn_static_observation(task, task, s.paper_noise, s)
         _, solution, _ = _episodes(task, task.momdp, s.paper_noise, s, learned)
-        true_obs = _true_observation(task, s.paper_noise)
+        true_obs = true_observation(task, s.paper_noise)
         oracle = ApproachObservation(true_obs, approach=s.motion.approach - 1e-12,
                                      start=s.motion.start)  # fmt: skip
         ep = simulate_episodes(task.momdp(learned), solution.policy, task.momdp(true_obs),

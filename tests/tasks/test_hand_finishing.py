@@ -6,7 +6,7 @@ import torch
 
 from torchhrc.belief import momdp_update
 from torchhrc.errors import ModelError
-from torchhrc.experiments.hand_finishing import cluster_preferences, observation_grid
+from torchhrc.experiments.hand_finishing import cluster_preferences
 from torchhrc.mixture import fit_mixture
 from torchhrc.observation import discretize_positions
 from torchhrc.solvers import SARSOPConfig, solve
@@ -20,6 +20,7 @@ from torchhrc.tasks.hand_finishing.person import (
     simulate_episodes,
     simulate_hand_tracks,
 )
+from torchhrc.tasks.hand_finishing.sensing import observation_grid
 
 GEOMETRY = BoxGeometry(horizontal=(-0.3, 0.0, 0.3), vertical=(0.2,), tilt=(-0.5, 0.0, 0.5))
 

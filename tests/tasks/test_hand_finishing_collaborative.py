@@ -6,7 +6,6 @@ import pytest
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.experiments.hand_finishing import observation_grid
 from torchhrc.mixture import fit_mixture
 from torchhrc.tasks.hand_finishing import HandFinishingTask
 from torchhrc.tasks.hand_finishing.collaborative import (
@@ -15,6 +14,7 @@ from torchhrc.tasks.hand_finishing.collaborative import (
 )
 from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 from torchhrc.tasks.hand_finishing.person import simulate_demonstrations
+from torchhrc.tasks.hand_finishing.sensing import observation_grid
 from torchhrc.tasks.interface import check_task
 from torchhrc.tasks.pipeline import build_model
 

@@ -49,31 +49,37 @@ import math
 import os
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from torchhrc.approach_observation import ApproachObservation, fit_approach_observation
+from torchhrc.approach_observation import ApproachObservation
 from torchhrc.errors import ModelError
 from torchhrc.experiments.place_and_drill import prepare_output_dir
 from torchhrc.experiments.report import _pyplot, _save, write_json_atomic, write_text_atomic
-from torchhrc.observation import ObservationGrid, fit_observation_model
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.hand_finishing.collaborative import (
     HandFinishingCollaborativeTask,
     first_sides_from_chains,
 )
 from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
-from torchhrc.tasks.hand_finishing.model import SIDES, HandFinishingTask, RewardSettings
+from torchhrc.tasks.hand_finishing.model import SIDES, HandFinishingTask
 from torchhrc.tasks.hand_finishing.person import (
     Episodes,
-    HandMotion,
     simulate_demonstrations,
     simulate_episodes,
-    simulate_hand_tracks,
 )
+from torchhrc.tasks.hand_finishing.sensing import (
+    TRUE_HAND_LOC,
+    learn_approach_observation,
+    learn_static_observation,
+    observation_fit_error,
+    observation_grid,
+    true_observation,
+)
+from torchhrc.tasks.hand_finishing.settings import HandFinishingSettings
 
 __all__ = [
     "METRIC_KEYS",
@@ -85,6 +91,10 @@ __all__ = [
 ]
 
 Progress = Callable[[str, int, int], None]
+
+# The study's settings and hand models live with the task (issue 32):
+# torchhrc.tasks.hand_finishing.settings and .sensing; HandFinishingSettings, TRUE_HAND_LOC and
+# observation_grid stay importable from here, APPROACH_START_GUESS is a deprecated alias.
 
 #: Keys every ``metrics.json`` has.
 METRIC_KEYS: tuple[str, ...] = (
@@ -99,127 +109,6 @@ METRIC_KEYS: tuple[str, ...] = (
 
 #: Metrics that measure time (they differ between runs of the same seed).
 TIMING_KEYS: tuple[str, ...] = ("solve_time_s", "factored_speedup", "speedup_detail", "sim_time_s")
-
-#: True hand position relative to the worked surface's centre (m): a little towards the person.
-TRUE_HAND_LOC = (0.1, 0.0)
-
-#: Initial guess of the approach model's start (m): the centre of :func:`observation_grid`.
-APPROACH_START_GUESS = (0.85, 0.0)
-
-
-@dataclass(frozen=True, kw_only=True)
-class HandFinishingSettings:
-    """Settings of the study (``create(quick=...)`` gives the two presets).
-
-    Attributes:
-        geometry: box configuration grid.
-        work_units: ``W`` per side.
-        paper_noise: the hand noise (m, per axis) of the headline numbers.
-        noise_levels: noise levels of the waiting / accuracy table.
-        episodes: closed-loop episodes per noise level (half of each type).
-        steps: steps per episode.
-        tracks, track_length: hand tracks for learning the observation model.
-        fit_steps: optimiser steps of the observation fit.
-        solve_time: SARSOP time limit (s) of each solve whose policy is simulated: a safety
-            net only, far above the solve times, so that the solves stop on
-            ``plan_precision`` or ``max_iterations`` (deterministic) on slow machines too.
-        max_iterations: cap on the SARSOP iterations of those solves (the default run's
-            solves reach ``plan_precision`` within 3 to 20 iterations).
-        precision: target gap of the factored-vs-flat measurement.
-        plan_precision: target gap of the solves whose policies are simulated (tight: the
-            value of waiting for one more observation is a fraction of ``unwanted_cost``, and a
-            looser target can stop SARSOP at its initial lower bound, which never waits).
-        flat_time: time limit (s) of each solve of the speed-up measurement (a timing, not
-            part of the deterministic results).
-        motion: how the simulated persons' hands move.
-        approach_fit_steps: optimiser steps of the approach model's fit.
-        rewards: the task's rewards (default: the unwanted-move cost priced from a risk
-            tolerance of 0.02, :class:`~torchhrc.tasks.hand_finishing.RewardSettings`).
-        baseline_unwanted_cost: the unwanted-move cost of the baseline robot reported beside
-            the study's (the paper's static Gaussian model as filter and planning model, the
-            cost before issue 12: 2.0); ``None`` skips the baseline.
-        sim: replay one episode per true type in the SAPIEN scene when SAPIEN is installed.
-        speedup: measure factored vs flat SARSOP (a timing; sweeps turn it off).
-        subjects: demonstrating subjects whose demonstrations are clustered into types (half
-            left-first, half right-first).
-        speedup_horizontal: indices of the horizontal positions kept in the instance of the
-            factored-vs-flat measurement (``None``: the study's own MOMDP). At the paper's
-            size the flat POMDP does not fit in memory (its ``Z`` has ``A * X * Y * X * O``,
-            about 640 million, entries), so the default measures a reduced instance.
-        speedup_work_units: ``W`` of that instance.
-        seed: the seed of everything.
-    """
-
-    geometry: BoxGeometry
-    work_units: int
-    paper_noise: float
-    noise_levels: tuple[float, ...]
-    episodes: int
-    steps: int
-    tracks: int
-    track_length: int
-    fit_steps: int
-    solve_time: float
-    precision: float
-    flat_time: float
-    max_iterations: int = 200
-    plan_precision: float = 0.02
-    speedup_horizontal: tuple[int, ...] | None = None
-    speedup_work_units: int | None = None
-    motion: HandMotion = field(default_factory=HandMotion)
-    approach_fit_steps: int = 150
-    rewards: RewardSettings = field(default_factory=RewardSettings)
-    baseline_unwanted_cost: float | None = 2.0
-    sim: bool = True
-    speedup: bool = True
-    subjects: int = 6
-    seed: int = 0
-
-    @classmethod
-    def create(cls, *, quick: bool = False, seed: int = 0) -> HandFinishingSettings:
-        """The default study (the paper's size, ~2000 states) or a quick small one."""
-        if quick:
-            return cls(
-                geometry=BoxGeometry(
-                    horizontal=(-0.3, 0.0, 0.3),
-                    vertical=(0.2,),
-                    tilt=(-math.pi / 6, 0.0, math.pi / 6),
-                ),
-                work_units=2,
-                paper_noise=0.2,
-                noise_levels=(0.1, 0.2, 0.4),
-                episodes=200,
-                steps=12,
-                tracks=40,
-                track_length=8,
-                fit_steps=60,
-                solve_time=120.0,
-                precision=0.1,
-                flat_time=10.0,
-                seed=seed,
-            )
-        return cls(
-            geometry=BoxGeometry(),
-            work_units=6,
-            paper_noise=0.2,
-            noise_levels=(0.1, 0.2, 0.3, 0.4),
-            episodes=200,
-            steps=30,
-            tracks=60,
-            track_length=20,
-            fit_steps=80,
-            solve_time=600.0,
-            precision=0.5,
-            flat_time=120.0,
-            speedup_horizontal=(1, 2, 3),
-            speedup_work_units=3,
-            seed=seed,
-        )
-
-
-def observation_grid() -> ObservationGrid:
-    """The 4 x 12 grid (0.2 m cells) over the horizontal plane in front of the robot."""
-    return ObservationGrid.uniform((0.45, 1.25), (-1.2, 1.2), (4, 12))
 
 
 def cluster_preferences(fit: Any, vocabulary: tuple[tuple[str, str], ...]) -> tuple[str, ...]:
@@ -303,62 +192,6 @@ def factored_vs_flat(model: Any, *, precision: float, time_limit: float, flat_ti
     }
 
 
-def _true_observation(task: HandFinishingTask, noise: float) -> Any:
-    return task.observation_model(observation_grid(), loc=torch.tensor(TRUE_HAND_LOC),
-                                  scale=torch.tensor([noise, noise]))  # fmt: skip
-
-
-def _hand_tracks(task: HandFinishingTask, noise: float, settings: HandFinishingSettings) -> Any:
-    """The hand tracks (simulated persons of both types at ``noise``) both models learn from."""
-    true_obs = _true_observation(task, noise)
-    return simulate_hand_tracks(task.momdp(true_obs), true_obs, num_tracks=settings.tracks,
-                                length=settings.track_length, motion=settings.motion,
-                                seed=settings.seed + 1)  # fmt: skip
-
-
-def _fit_error(model: Any, noise: float) -> float:
-    """Max abs error (m) of a stationary model's hand offsets and noise against the
-    generating :data:`TRUE_HAND_LOC` and ``noise``."""
-    with torch.no_grad():
-        loc_err = (model.loc.reshape(-1, 2) - torch.tensor(TRUE_HAND_LOC)).abs().max()
-        scale_err = (model.log_scale.exp().reshape(-1, 2) - noise).abs().max()
-    return float(max(loc_err, scale_err))
-
-
-def _learn_observation(task: HandFinishingTask, robot_task: HandFinishingTask, noise: float,
-                       settings: HandFinishingSettings) -> tuple[Any, Any, float]:  # fmt: skip
-    """Learn the paper's static observation model from hand tracks at ``noise``, type unknown.
-
-    Returns ``(learned model, ObservationFit, max abs error of its means and standard
-    deviations against the generating TRUE_HAND_LOC and noise)``.
-    """
-    tracks = _hand_tracks(task, noise, settings)
-    Y = robot_task.num_types
-    learned = robot_task.observation_model(observation_grid(), loc=torch.zeros(Y, 2),
-                                           scale=torch.full((Y, 2), 0.35))  # fmt: skip
-    fit = fit_observation_model(learned, robot_task.momdp(), tracks, steps=settings.fit_steps,
-                                lr=0.05, seed=settings.seed)  # fmt: skip
-    return learned, fit, _fit_error(learned, noise)
-
-
-def _learn_approach(
-    task: HandFinishingTask,
-    robot_task: HandFinishingTask,
-    noise: float,
-    settings: HandFinishingSettings,
-) -> tuple[ApproachObservation, Any]:
-    """Learn the approach model (:mod:`torchhrc.approach_observation`) from the same hand
-    tracks as :func:`_learn_observation`, type unknown; start at the grid's centre."""
-    tracks = _hand_tracks(task, noise, settings)
-    Y = robot_task.num_types
-    target = robot_task.observation_model(observation_grid(), loc=torch.zeros(Y, 2),
-                                          scale=torch.full((Y, 2), 0.35))  # fmt: skip
-    model = ApproachObservation(target, approach=0.5, start=APPROACH_START_GUESS)
-    fit = fit_approach_observation(model, robot_task.momdp(), tracks,
-                                   steps=settings.approach_fit_steps, lr=0.05)  # fmt: skip
-    return model, fit
-
-
 def _episodes(
     task: HandFinishingTask,
     robot_momdp: Callable[[Any], Any],
@@ -373,7 +206,7 @@ def _episodes(
     have ``noise`` (half of each type; their rewards are ``task``'s); the robot's belief
     filter is ``observer`` when given (an approach model whose stationary part is
     ``learned``), else the planning model's ``Z``."""
-    true_obs = _true_observation(task, noise)
+    true_obs = true_observation(task, noise)
     truth = task.momdp(true_obs)
     robot = robot_momdp(learned)
     # QMDP upper bound: FIB's first sweep at the paper's size can use up the time budget
@@ -490,8 +323,8 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
     levels = sorted(set(settings.noise_levels) | {noise})
     table, runs = [], {}
     for i, level in enumerate(levels):
-        learned, obs_fit, static_error = _learn_observation(task, robot_task, level, settings)
-        approach, approach_fit = _learn_approach(task, robot_task, level, settings)
+        learned, obs_fit, static_error = learn_static_observation(task, robot_task, level, settings)
+        approach, approach_fit = learn_approach_observation(task, robot_task, level, settings)
         ep, solution, solve_time = _episodes(task, robot_momdp, level, settings,
                                              approach.stationary, observer=approach)  # fmt: skip
         runs[level] = (learned, obs_fit, approach, approach_fit, ep, solution, solve_time)
@@ -502,7 +335,7 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
                 "mean_wait_steps": float(ep.wait_steps().double().mean()),
                 "mean_belief_at_move": float(ep.belief_at_first_move().amax(-1).mean()),
                 "mean_reward": float(ep.rewards.sum(-1).mean()),
-                "observation_fit_error": _fit_error(approach.stationary, level),
+                "observation_fit_error": observation_fit_error(approach.stationary, level),
                 "learned_approach": float(approach.approach().detach()),
                 "static_observation_fit_error": static_error,
                 "solve_gap": solution.gap,
@@ -517,7 +350,7 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
             table.append(row)
         tick("hand-finishing", 2 + (i + 1) * 2 // len(levels), stages)
     learned, obs_fit, approach, approach_fit, ep, solution, solve_time = runs[noise]
-    true_obs = _true_observation(task, noise)
+    true_obs = true_observation(task, noise)
     at_noise = next((r for r in table if r["noise"] == noise), {})
     # factored vs flat (a timing: the factored solve's limit is the flat one's)
     plan = approach.stationary  # the robot's planning model
@@ -562,7 +395,7 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
         "solve_stop_reason": solution.info["stop_reason"],
         "factored_speedup": speed["speedup"],
         "speedup_detail": speed,
-        "observation_fit_error": _fit_error(approach.stationary, noise),
+        "observation_fit_error": observation_fit_error(approach.stationary, noise),
         "mean_belief_at_move": float(ep.belief_at_first_move().amax(-1).mean()),
         "unwanted_cost": robot_task.unwanted_cost,
         "risk_tolerance": settings.rewards.risk_tolerance,
@@ -581,7 +414,7 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
             "static_log_likelihood": obs_fit.log_likelihood,
         },
         "observation_fit": {  # the static (paper's) model, the baseline's
-            "fit_error": _fit_error(learned, noise),
+            "fit_error": observation_fit_error(learned, noise),
             "learned_loc": learned.loc.detach().reshape(-1, 2).tolist(),
             "learned_scale": learned.log_scale.detach().exp().reshape(-1, 2).tolist(),
             "true_loc": list(TRUE_HAND_LOC),
@@ -904,3 +737,19 @@ def reproduce_hand_finishing(
     write_json_atomic(path / "metrics.json", metrics)
     write_text_atomic(path / "report.md", _report(metrics))
     return metrics
+
+
+def __getattr__(name: str) -> object:
+    if name == "APPROACH_START_GUESS":
+        import warnings
+
+        from torchhrc.tasks.hand_finishing import sensing
+
+        warnings.warn(
+            "torchhrc.experiments.hand_finishing.APPROACH_START_GUESS is deprecated; use "
+            "torchhrc.tasks.hand_finishing.sensing.APPROACH_START_GUESS",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return sensing.APPROACH_START_GUESS
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -4,7 +4,7 @@
 
 * ``torchhrc/PlaceAndDrill-v0``: :class:`~torchhrc.envs.place_and_drill.PlaceAndDrillEnv`
   (options ``epsilon``, ``noise``, ``horizon``, ``type_probabilities``);
-* ``torchhrc/HandFinishing-v0``: :class:`~torchhrc.envs.hand_finishing.HandFinishingEnv`
+* ``torchhrc/HandFinishing-v0``: :class:`~torchhrc.tasks.hand_finishing.env.HandFinishingEnv`
   (options ``noise``, ``epsilon``, ``horizon``, ``task``, ``type_probabilities``);
 * ``torchhrc/POMDP-v0`` and ``torchhrc/MOMDP-v0``: :class:`~torchhrc.envs.pomdp_env.POMDPEnv`
   and :class:`~torchhrc.envs.momdp_env.MOMDPEnv` of the ``model`` passed to ``make``.
@@ -29,7 +29,6 @@ except ImportError as error:  # pragma: no cover - exercised only without the ex
     raise ImportError("torchhrc.envs needs gymnasium: pip install 'torchhrc[gym]'") from error
 
 from torchhrc.envs.agent import Agent, BeliefAgent, RandomAgent, rollout
-from torchhrc.envs.hand_finishing import HandFinishingEnv, quick_hand_finishing_task
 from torchhrc.envs.momdp_env import MOMDPEnv
 from torchhrc.envs.place_and_drill import PlaceAndDrillEnv, PlaceAndDrillHuman
 from torchhrc.envs.pomdp_env import POMDPEnv
@@ -39,14 +38,12 @@ __all__ = [
     "ENV_IDS",
     "Agent",
     "BeliefAgent",
-    "HandFinishingEnv",
     "MOMDPEnv",
     "POMDPEnv",
     "PlaceAndDrillEnv",
     "PlaceAndDrillHuman",
     "PlaceAndDrillVectorEnv",
     "RandomAgent",
-    "quick_hand_finishing_task",
     "rollout",
 ]
 
@@ -60,7 +57,7 @@ ENV_IDS: tuple[str, ...] = (
 
 _ENTRY_POINTS = {
     "torchhrc/PlaceAndDrill-v0": "torchhrc.envs.place_and_drill:PlaceAndDrillEnv",
-    "torchhrc/HandFinishing-v0": "torchhrc.envs.hand_finishing:HandFinishingEnv",
+    "torchhrc/HandFinishing-v0": "torchhrc.tasks.hand_finishing.env:HandFinishingEnv",
     "torchhrc/POMDP-v0": "torchhrc.envs.pomdp_env:POMDPEnv",
     "torchhrc/MOMDP-v0": "torchhrc.envs.momdp_env:MOMDPEnv",
 }
@@ -77,3 +74,25 @@ for _env_id, _entry_point in _ENTRY_POINTS.items():
             ),
             disable_env_checker=False,
         )
+
+#: Names that moved to their task's folder (issue 32: the generic envs import no task), kept
+#: here for one release as deprecated aliases: name -> the module that holds it now.
+_MOVED_TO_TASKS = {
+    "HandFinishingEnv": "torchhrc.tasks.hand_finishing.env",
+    "quick_hand_finishing_task": "torchhrc.tasks.hand_finishing.env",
+}
+
+
+def __getattr__(name: str) -> object:
+    if name in _MOVED_TO_TASKS:
+        import importlib
+        import warnings
+
+        new = _MOVED_TO_TASKS[name]
+        warnings.warn(
+            f"torchhrc.envs.{name} is deprecated; use {new}.{name}",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(importlib.import_module(new), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

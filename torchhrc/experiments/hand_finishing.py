@@ -28,9 +28,9 @@ Pipeline (:func:`reproduce_hand_finishing`):
    static model as filter and planning model, ``baseline_unwanted_cost``, the robot before
    issue 12);
 6. when SAPIEN is installed (the ``sim`` extra), one episode per true type is replayed in the
-   physics scene (:func:`torchhrc.sim.replay_box_moves`): the arm follows the policy's box
-   moves with joint position targets, and the box's settle error at each commanded pose is
-   reported.
+   physics scene (:func:`torchhrc.tasks.hand_finishing.replay.replay_box_moves`): the arm
+   follows the policy's box moves with joint position targets, and the box's settle error at
+   each commanded pose is reported.
 
 Determinism: every solve whose policy is simulated stops on its precision or on
 ``max_iterations`` (the time limit is only a safety net, far above the solve times), and
@@ -235,7 +235,7 @@ def _replay_in_sapien(task: HandFinishingTask, ep: Episodes, *,
     if importlib.util.find_spec("sapien") is None:
         note = "SAPIEN is not installed (pip install torchhrc[sim]): replay skipped"
         return {"available": False, "note": note}
-    from torchhrc.sim import replay_box_moves
+    from torchhrc.tasks.hand_finishing.replay import replay_box_moves
 
     start = time.perf_counter()
     per_type = []

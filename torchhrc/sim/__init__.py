@@ -1,11 +1,13 @@
-"""SAPIEN 3 scenes of the tasks (the ``sim`` extra: ``pip install torchhrc[sim]``): the
-hand-finishing scene (:mod:`.scene`, :mod:`.replay`) and the place-and-drill workbench with
-its separation measure (:mod:`.workbench`, :mod:`.drill_replay`, :mod:`.capsules`).
+"""SAPIEN 3 scenes of the tasks (the ``sim`` extra: ``pip install torchhrc[sim]``): the scene
+machinery the tasks' scenes share (:mod:`.scene`) and the place-and-drill workbench with its
+separation measure (:mod:`.workbench`, :mod:`.drill_replay`, :mod:`.capsules`). The
+hand-finishing scene and its replay live with their task
+(:mod:`torchhrc.tasks.hand_finishing.scene`, :mod:`torchhrc.tasks.hand_finishing.replay`).
 
 SAPIEN is imported only when a scene is built, so ``import torchhrc.sim`` works without it.
 
 Example:
-    >>> from torchhrc.sim import HandFinishingScene, RenderUnavailableError
+    >>> from torchhrc.sim import RenderUnavailableError
     >>> issubclass(RenderUnavailableError, RuntimeError)
     True
 """
@@ -14,30 +16,44 @@ from __future__ import annotations
 
 from torchhrc.sim.capsules import Capsule, capsule_separation, segment_distance
 from torchhrc.sim.drill_replay import ExecutionReplay, execution_steps, replay_execution
-from torchhrc.sim.replay import ReplayResult, box_moves, replay_box_moves
-from torchhrc.sim.scene import (
-    HandFinishingScene,
-    MoveResult,
-    RenderUnavailableError,
-    check_render_device,
-)
+from torchhrc.sim.scene import RenderUnavailableError, check_render_device
 from torchhrc.sim.workbench import DrillResult, PlaceAndDrillScene, WorkbenchLayout
 
 __all__ = [
     "Capsule",
     "DrillResult",
     "ExecutionReplay",
-    "HandFinishingScene",
-    "MoveResult",
     "PlaceAndDrillScene",
     "RenderUnavailableError",
-    "ReplayResult",
     "WorkbenchLayout",
-    "box_moves",
     "capsule_separation",
     "check_render_device",
     "execution_steps",
-    "replay_box_moves",
     "replay_execution",
     "segment_distance",
 ]
+
+#: Names that moved to their task's folder (issue 32: the generic scene machinery imports no
+#: task), kept here for one release as deprecated aliases: name -> the module that holds it now.
+_MOVED_TO_TASKS = {
+    "HandFinishingScene": "torchhrc.tasks.hand_finishing.scene",
+    "MoveResult": "torchhrc.tasks.hand_finishing.scene",
+    "ReplayResult": "torchhrc.tasks.hand_finishing.replay",
+    "box_moves": "torchhrc.tasks.hand_finishing.replay",
+    "replay_box_moves": "torchhrc.tasks.hand_finishing.replay",
+}
+
+
+def __getattr__(name: str) -> object:
+    if name in _MOVED_TO_TASKS:
+        import importlib
+        import warnings
+
+        new = _MOVED_TO_TASKS[name]
+        warnings.warn(
+            f"torchhrc.sim.{name} is deprecated; use {new}.{name}",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(importlib.import_module(new), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

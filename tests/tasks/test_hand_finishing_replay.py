@@ -1,4 +1,5 @@
-"""Tests of torchhrc.sim.replay: replaying box moves in the SAPIEN scene (physics only, CPU)."""
+"""Tests of torchhrc.tasks.hand_finishing.replay: replaying box moves in the SAPIEN scene
+(physics only, CPU)."""
 
 from __future__ import annotations
 
@@ -6,8 +7,8 @@ import pytest
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.sim.replay import box_moves
 from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
+from torchhrc.tasks.hand_finishing.replay import box_moves
 
 # a small grid: the moves of a quick hand-finishing episode
 GEOMETRY = BoxGeometry(horizontal=(-0.3, 0.0, 0.3), vertical=(0.2,), tilt=(-0.5, 0.0, 0.5))
@@ -32,7 +33,8 @@ def test_box_moves_rejects_bad_shapes():
 def test_replay_settles_at_every_commanded_pose_and_is_reproducible():
     pytest.importorskip("pytorch_kinematics")
     pytest.importorskip("sapien")
-    from torchhrc.sim import HandFinishingScene, replay_box_moves
+    from torchhrc.tasks.hand_finishing.replay import replay_box_moves
+    from torchhrc.tasks.hand_finishing.scene import HandFinishingScene
 
     first = replay_box_moves(PATH, geometry=GEOMETRY)
     assert first.num_moves == 3

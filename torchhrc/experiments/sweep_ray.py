@@ -1,7 +1,7 @@
 """Run sweep jobs as Ray tasks: a local Ray cluster or an existing one (the ``[ray]`` extra).
 
-Each (cell, seed) of a :class:`~torchhrc.experiments.sweep.SweepSpec` is one Ray task
-(:func:`~torchhrc.experiments.sweep.run_job`, one CPU); the driver collects results with
+Each (cell, seed) of a :class:`~torchhrc.experiments.sweep_tasks.SweepSpec` is one Ray task
+(:func:`~torchhrc.experiments.sweep_tasks.run_job`, one CPU); the driver collects results with
 ``ray.wait`` as they finish, so rows stream into the sweep's files in completion order. A
 task whose worker dies or that raises is retried by Ray (``max_retries``,
 ``retry_exceptions``); one that still fails is reported, not fatal, and ``--resume`` runs it
@@ -21,7 +21,8 @@ from typing import Any
 
 from torchhrc._ray import import_ray, init_ray, task_error
 from torchhrc.errors import ModelError
-from torchhrc.experiments.sweep import Job, SweepSpec, run_job
+from torchhrc.experiments.sweep_grid import Job
+from torchhrc.experiments.sweep_tasks import SweepSpec, run_job
 
 __all__ = ["RayExecutor"]
 
@@ -36,7 +37,7 @@ class RayExecutor:
         num_cpus: CPUs of a local cluster (default: all cores).
         max_retries: Ray's retries of a task that raised or whose worker died.
         function: what a Ray task runs per job, ``function(task, params, seed, quick)``
-            (:func:`~torchhrc.experiments.sweep.run_job` by default; module-level, so that
+            (:func:`~torchhrc.experiments.sweep_tasks.run_job` by default; module-level, so that
             Ray workers import it by name).
     """
 

@@ -35,7 +35,7 @@ from collections import Counter
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
-from torchhrc.experiments.sweep import SweepParameter
+from torchhrc.experiments.sweep_grid import SweepParameter
 
 if TYPE_CHECKING:
     from torchhrc.tasks.people import TaskWithPeople

@@ -30,6 +30,7 @@ from pathlib import Path
 import torch
 
 from torchhrc._checks import check_shape, check_tensor
+from torchhrc._deprecation import moved_attribute
 from torchhrc.errors import ModelError
 
 __all__ = [
@@ -1001,28 +1002,18 @@ _HUMAN_HEADER = """<?xml version="1.0"?>
 
 #: Names that moved to :mod:`torchhrc.tasks.hand_finishing.geometry` (issue 32): deprecated
 #: aliases here for one release.
-_MOVED_TO_TASK = frozenset(
-    {
+_MOVED_TO_TASK = {
+    name: "torchhrc.tasks.hand_finishing.geometry"
+    for name in (
         "BoxFeasibility",
         "BoxGeometry",
         "ComfortResult",
         "PersonModel",
         "comfort_check",
         "feasible_box_configurations",
-    }
-)
+    )
+}
 
 
 def __getattr__(name: str) -> object:
-    if name in _MOVED_TO_TASK:
-        import importlib
-        import warnings
-
-        new = "torchhrc.tasks.hand_finishing.geometry"
-        warnings.warn(
-            f"torchhrc.kinematics.{name} is deprecated; use {new}.{name}",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(importlib.import_module(new), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return moved_attribute(__name__, name, _MOVED_TO_TASK)

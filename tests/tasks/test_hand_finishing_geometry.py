@@ -23,16 +23,6 @@ from torchhrc.tasks.hand_finishing.geometry import (
 D = torch.float64
 
 
-@pytest.fixture(scope="module")
-def panda() -> SerialArm:
-    return SerialArm.panda()
-
-
-@pytest.fixture(scope="module")
-def human() -> SerialArm:
-    return SerialArm.human_arm()
-
-
 def test_bad_side_is_rejected():
     with pytest.raises(ModelError, match="side"):
         BoxGeometry().work_points("top")
@@ -60,7 +50,8 @@ def test_box_and_grip_poses_follow_the_documented_geometry():
 
 
 # ---------------------------------------------------------------- human comfort
-def test_comfort_check_rules(human):
+def test_comfort_check_rules():
+    human = SerialArm.human_arm()
     person = PersonModel()
     front_x = 0.75
     body_x = front_x + person.standoff
@@ -86,7 +77,8 @@ def test_comfort_check_rules(human):
     assert palm[0].item() == pytest.approx(0.40, abs=0.011)
 
 
-def test_feasible_configurations_combine_reach_and_comfort(panda):
+def test_feasible_configurations_combine_reach_and_comfort():
+    panda = SerialArm.panda()
     g = BoxGeometry(horizontal=(0.0, 0.9), vertical=(0.05, 0.45, 1.2), tilt=(0.0,))
     f = feasible_box_configurations(g, arm=panda)
     assert f.mask.shape == (2, 3, 1) and f.comfortable.shape == (2, 3, 1, 2)

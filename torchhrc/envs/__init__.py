@@ -28,6 +28,7 @@ try:
 except ImportError as error:  # pragma: no cover - exercised only without the extra
     raise ImportError("torchhrc.envs needs gymnasium: pip install 'torchhrc[gym]'") from error
 
+from torchhrc._deprecation import moved_attribute
 from torchhrc.envs.agent import Agent, BeliefAgent, RandomAgent, rollout
 from torchhrc.envs.momdp_env import MOMDPEnv
 from torchhrc.envs.place_and_drill import PlaceAndDrillEnv, PlaceAndDrillHuman
@@ -84,15 +85,4 @@ _MOVED_TO_TASKS = {
 
 
 def __getattr__(name: str) -> object:
-    if name in _MOVED_TO_TASKS:
-        import importlib
-        import warnings
-
-        new = _MOVED_TO_TASKS[name]
-        warnings.warn(
-            f"torchhrc.envs.{name} is deprecated; use {new}.{name}",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(importlib.import_module(new), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return moved_attribute(__name__, name, _MOVED_TO_TASKS)

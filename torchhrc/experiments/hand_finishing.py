@@ -55,6 +55,7 @@ from typing import Any
 
 import torch
 
+from torchhrc._deprecation import moved_attribute
 from torchhrc.approach_observation import ApproachObservation
 from torchhrc.errors import ModelError
 from torchhrc.experiments.place_and_drill import prepare_output_dir
@@ -740,16 +741,8 @@ def reproduce_hand_finishing(
 
 
 def __getattr__(name: str) -> object:
-    if name == "APPROACH_START_GUESS":
-        import warnings
-
-        from torchhrc.tasks.hand_finishing import sensing
-
-        warnings.warn(
-            "torchhrc.experiments.hand_finishing.APPROACH_START_GUESS is deprecated; use "
-            "torchhrc.tasks.hand_finishing.sensing.APPROACH_START_GUESS",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return sensing.APPROACH_START_GUESS
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return moved_attribute(
+        __name__,
+        name,
+        {"APPROACH_START_GUESS": "torchhrc.tasks.hand_finishing.sensing"},
+    )

@@ -14,6 +14,7 @@ Example:
 
 from __future__ import annotations
 
+from torchhrc._deprecation import moved_attribute
 from torchhrc.sim.capsules import Capsule, capsule_separation, segment_distance
 from torchhrc.sim.drill_replay import ExecutionReplay, execution_steps, replay_execution
 from torchhrc.sim.scene import RenderUnavailableError, check_render_device
@@ -45,15 +46,4 @@ _MOVED_TO_TASKS = {
 
 
 def __getattr__(name: str) -> object:
-    if name in _MOVED_TO_TASKS:
-        import importlib
-        import warnings
-
-        new = _MOVED_TO_TASKS[name]
-        warnings.warn(
-            f"torchhrc.sim.{name} is deprecated; use {new}.{name}",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(importlib.import_module(new), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return moved_attribute(__name__, name, _MOVED_TO_TASKS)

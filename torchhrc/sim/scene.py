@@ -22,6 +22,7 @@ from pathlib import Path
 
 import torch
 
+from torchhrc._deprecation import moved_attribute
 from torchhrc.errors import TorchHRCError
 
 __all__ = [
@@ -119,19 +120,11 @@ def set_joint_positions(articulation: object, q: torch.Tensor, joints: list | No
 
 #: Names that moved to :mod:`torchhrc.tasks.hand_finishing.scene` (issue 32: the generic
 #: scene machinery imports no task): deprecated aliases here for one release.
-_MOVED_TO_TASK = ("HandFinishingScene", "MoveResult")
+_MOVED_TO_TASK = {
+    "HandFinishingScene": "torchhrc.tasks.hand_finishing.scene",
+    "MoveResult": "torchhrc.tasks.hand_finishing.scene",
+}
 
 
 def __getattr__(name: str) -> object:
-    if name in _MOVED_TO_TASK:
-        import importlib
-        import warnings
-
-        new = "torchhrc.tasks.hand_finishing.scene"
-        warnings.warn(
-            f"torchhrc.sim.scene.{name} is deprecated; use {new}.{name}",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(importlib.import_module(new), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return moved_attribute(__name__, name, _MOVED_TO_TASK)

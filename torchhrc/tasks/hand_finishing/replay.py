@@ -3,12 +3,13 @@
 A policy's box moves (e.g. one simulated hand-finishing episode) are a path of
 configurations ``(h, v, t)`` of
 :class:`~torchhrc.tasks.hand_finishing.geometry.BoxGeometry`, one per step. The replay starts
-the arm at rest at the first configuration (:meth:`.HandFinishingScene.reset_box`), then
-commands every change of configuration with joint position targets from the arm's inverse
-kinematics (:meth:`.HandFinishingScene.move_box`), and records after each move how far the
-box settled from the commanded pose (position and rotation error) and whether the arm settled
-within the step budget. Steps where the configuration does not change are skipped (the arm
-holds the box still).
+the arm at rest at the first configuration
+(:meth:`~torchhrc.tasks.hand_finishing.scene.HandFinishingScene.reset_box`), then commands
+every change of configuration with joint position targets from the arm's inverse kinematics
+(:meth:`~torchhrc.tasks.hand_finishing.scene.HandFinishingScene.move_box`), and records after
+each move how far the box settled from the commanded pose (position and rotation error) and
+whether the arm settled within the step budget. Steps where the configuration does not change
+are skipped (the arm holds the box still).
 
 Example:
     >>> path = torch.tensor([[1, 0, 1], [1, 0, 1], [1, 0, 2], [2, 0, 2]])

@@ -4,7 +4,7 @@ import torch
 from test_hard_em import _data
 
 from torchhrc.mixture import kmeans_pp_init, sufficient_statistics
-from torchhrc.mixture.selection import _soft_initial_parameters
+from torchhrc.mixture.runs import _soft_initial_parameters
 from torchhrc.mixture.soft_em import soft_em
 
 

@@ -13,6 +13,7 @@ Example:
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any, Literal
 
 import torch
@@ -262,3 +263,60 @@ def _one_standard_error(
         if math.isfinite(margin) and margin >= -se_factor * float(se[i]):
             return i, total, se
     return best, total, se
+
+
+def _warn_at_edge(
+    stats: SufficientStatistics,
+    k: int,
+    k_min: int,
+    k_max: int,
+    per_k: dict[int, dict[str, float]],
+    min_gain: float,
+) -> None:
+    """Warn when the chosen k lies at an edge of the searched range and the data may want
+    one beyond it. Upper edge: always (``k = k_max > k_min``). Lower edge ``k = k_min > 1``:
+    when ``k_min = 2`` a single chain is fitted in closed form and the warning is given only
+    if ``k = 2`` gains less than ``min_gain`` over it (an effect size: on small studies BIC
+    often prefers one chain although the types differ by far more than ``min_gain``; that is
+    a lack of data, not a sign of one type); for ``k_min > 2`` always."""
+    if k_min == k_max:
+        return
+    if k == k_max:
+        warnings.warn(
+            f"the chosen number of clusters k = {k} is the largest searched (k_max = {k_max}); "
+            "a larger k may fit better: raise k_max, or see docs/clustering.md on "
+            "over-splitting large corpora (min_gain)",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+    elif k == k_min and k_min > 2:
+        warnings.warn(
+            f"the chosen number of clusters k = {k} is the smallest searched (k_min = {k_min}); "
+            "a smaller k may fit as well: lower k_min",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+    elif k == k_min == 2:
+        one = _single_chain_log_likelihood(stats)
+        A = stats.num_symbols
+        gain = (per_k[2]["log_likelihood"] - one) / max(num_transitions(stats), 1.0)
+        if gain < min_gain:
+            warnings.warn(
+                f"the chosen number of clusters k = 2 is the smallest searched, and one cluster "
+                f"(a single chain over all {A} symbols) fits as well (gain of k = 2: "
+                f"{gain:.4f} nats per transition): the data may hold a single type",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+
+
+def _single_chain_log_likelihood(stats: SufficientStatistics) -> float:
+    """Log-likelihood of one maximum-likelihood chain fitted to all the data (closed form)."""
+    A = stats.num_symbols
+    total = (stats.counts * stats.multiplicity[:, None]).sum(0).view(A, A).double()
+    rows = total.sum(-1, keepdim=True)
+    ll = torch.xlogy(total, total / rows.clamp_min(1.0)).sum()
+    if stats.first_counts is not None:
+        first = (stats.first_counts * stats.multiplicity[:, None]).sum(0).double()
+        ll = ll + torch.xlogy(first, first / first.sum().clamp_min(1.0)).sum()
+    return float(ll)

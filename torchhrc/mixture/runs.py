@@ -1,0 +1,193 @@
+"""EM for every k with restarts, as one batch: the runs that model selection scores.
+
+:func:`_em_all_k` runs every ``(k, restart)`` pair of a selection as one tensor program
+(hard EM for the paper's method; k-means++ starts, short em-EM runs and soft EM to
+convergence otherwise); :func:`_heldout_scores` refits them on folds of units for the
+held-out criteria. Used by :mod:`.selection` (``fit_mixture``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from typing import Any
+
+import torch
+
+from torchhrc.mixture._em import EMResult, e_table
+from torchhrc.mixture.counts import SufficientStatistics
+from torchhrc.mixture.criteria import _first_best
+from torchhrc.mixture.hard_em import hard_em, partition_counts, partition_sizes
+from torchhrc.mixture.init import kmeans_pp_init, random_init
+from torchhrc.mixture.soft_em import SoftStatistics, m_step, soft_em
+
+
+def _soft_initial_parameters(
+    stats: SufficientStatistics,
+    z: torch.Tensor,
+    cluster_mask: torch.Tensor,
+    pseudo_count: float,
+    weight_pseudo_count: float,
+    dtype: torch.dtype,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """Smoothed M-step from a hard partition ``z (U, R)``."""
+    R, K = cluster_mask.shape
+    A = stats.num_symbols
+    flat_counts, flat_init = partition_counts(stats, z, K, dtype)  # chunked, (R*K, ...)
+    counts = flat_counts.view(R, K, A, A)
+    init_counts = flat_init.view(R, K, A) if flat_init is not None else None
+    expected = SoftStatistics(
+        counts=counts,
+        initial_counts=init_counts,
+        sizes=partition_sizes(z, stats.multiplicity, K).to(dtype),
+        log_likelihood=counts.new_zeros(R),
+        entropy=counts.new_zeros(R),
+        assignments=z,
+    )
+    uniform = counts.new_full((R, K, A, A), -math.log(A))
+    uniform_init = (
+        counts.new_full((R, K, A), -math.log(A)) if stats.first_counts is not None else None
+    )
+    return m_step(expected, uniform, uniform_init, cluster_mask, pseudo_count, weight_pseudo_count)
+
+
+def _em_all_k(
+    stats: SufficientStatistics,
+    ks: torch.Tensor,
+    gen: torch.Generator,
+    *,
+    method: str,
+    restarts: int,
+    pseudo_count: float,
+    weight_pseudo_count: float,
+    tol: float,
+    max_iterations: int | None,
+    short_iterations: int,
+    floor: float,
+    initial: bool,
+    dtype: torch.dtype,
+    e_step: Any = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[EMResult, torch.Tensor, torch.Tensor, int]:
+    """EM for every ``k`` in ``ks (num_k,)`` with ``restarts`` runs each, as one batch.
+
+    Returns:
+        ``(result, run_k (R,), cluster_mask (R, K), per_group)``: the runs of ``ks[i]`` are
+        ``i * per_group ... (i + 1) * per_group - 1`` (``per_group`` = 1 after the soft
+        method's em-EM keeps the best short run of each k).
+    """
+    device = stats.counts.device
+    A = stats.num_symbols
+    run_k = ks.repeat_interleave(restarts)  # (R,): run r = (k index) * restarts + restart
+    K = int(ks.max())
+    cluster_mask = torch.arange(K, device=device) < run_k.unsqueeze(-1)  # (R, K)
+
+    result: EMResult
+    per_group = restarts
+    if method == "paper":
+        lt0, z0 = random_init(stats, cluster_mask, generator=gen, dtype=dtype)
+        li0 = None
+        if initial:
+            li0 = lt0.new_full((run_k.shape[0], K, A), -math.log(A))
+        result = hard_em(
+            stats,
+            lt0,
+            cluster_mask,
+            assignments=z0,
+            log_initial=li0,
+            floor=floor,
+            max_iterations=100 if max_iterations is None else max_iterations,
+            progress=progress,
+        )
+    else:
+        z0 = kmeans_pp_init(stats, cluster_mask, generator=gen)
+        lt0, lw0, li0 = _soft_initial_parameters(
+            stats, z0, cluster_mask, pseudo_count, weight_pseudo_count, dtype
+        )
+        options = dict(
+            pseudo_count=pseudo_count,
+            weight_pseudo_count=weight_pseudo_count,
+            tol=tol,
+            e_step=e_step,
+        )
+        cap = 200 if max_iterations is None else max_iterations
+        if restarts > 1:  # em-EM: short runs for every restart, then the best of each k
+            short = soft_em(
+                stats,
+                lt0,
+                lw0,
+                cluster_mask,
+                log_initial=li0,
+                max_iterations=min(short_iterations, cap),
+                progress=progress,
+                details=False,  # only the log-likelihoods and parameters are kept
+                **options,
+            )
+            ll = torch.nan_to_num(short.log_likelihood, nan=-math.inf).view(len(ks), restarts)
+            keep = torch.arange(len(ks), device=device) * restarts + _first_best(ll)  # (num_k,)
+            lt0, lw0 = short.log_transition[keep], short.log_weights[keep]
+            li0 = short.log_initial[keep] if short.log_initial is not None else None
+            run_k, cluster_mask, per_group = run_k[keep], cluster_mask[keep], 1
+        result = soft_em(
+            stats,
+            lt0,
+            lw0,
+            cluster_mask,
+            log_initial=li0,
+            max_iterations=cap,
+            progress=progress,
+            **options,
+        )
+
+    return result, run_k, cluster_mask, per_group
+
+
+def _heldout_scores(
+    stats: SufficientStatistics,
+    ks: torch.Tensor,
+    gen: torch.Generator,
+    folds: int,
+    em: dict[str, Any],
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Held-out log-likelihood of every unit under every k, by ``folds``-fold cross-validation.
+
+    The units (subjects, or sequences) are dealt at random into ``F = min(folds, n)`` folds;
+    for each fold, the mixture of every k is fitted to the other folds (the same EM as the
+    full fit, :func:`_em_all_k`, its best run per k by log-likelihood) and each held-out unit
+    is scored by its mixture likelihood ``log sum_k w_k prod_(a,b) theta_k(b | a)^n(a, b)``
+    (no held-out label is used).
+
+    Returns:
+        ``(values (P, num_k), weights (P,))``: ``P`` pairs (distinct row, fold), the
+        held-out log-likelihood of one unit of the row under each k and how many units of
+        the row the fold holds out (their weighted sum is the held-out total).
+    """
+    U = stats.num_distinct
+    mult = stats.multiplicity.round().long().cpu()  # (U,)
+    n = int(mult.sum())
+    F_ = max(2, min(int(folds), n))
+    unit_row = torch.repeat_interleave(torch.arange(U), mult)  # (n,)
+    fold = torch.empty(n, dtype=torch.long)
+    fold[torch.randperm(n, generator=gen)] = torch.arange(n) % F_
+    held = torch.zeros(U, F_, dtype=torch.long)
+    held.index_put_((unit_row, fold), torch.ones(n, dtype=torch.long), accumulate=True)
+    device, floor = stats.counts.device, math.log(em["floor"])
+    values, weights = [], []
+    for f in range(F_):
+        train = (mult - held[:, f]).to(stats.multiplicity)
+        keep = torch.nonzero(train > 0).flatten().to(device)
+        part = dataclasses.replace(stats, multiplicity=train.to(device)).rows(keep)
+        result, _, mask, per_group = _em_all_k(part, ks, gen, **em)
+        ll = torch.nan_to_num(result.log_likelihood, nan=-math.inf).view(len(ks), per_group)
+        best = torch.arange(len(ks), device=device) * per_group + _first_best(ll)  # (num_k,)
+        out = torch.nonzero(held[:, f] > 0).flatten().to(device)
+        lt = result.log_transition[best].clamp_min(floor)  # (num_k, K, A, A)
+        li = None if result.log_initial is None else result.log_initial[best].clamp_min(floor)
+        first = None if stats.first_counts is None else stats.first_counts[out]
+        joint = e_table(stats.counts[out], first, lt.to(stats.counts.dtype), li)  # (u, num_k, K)
+        joint = joint + result.log_weights[best].to(joint.dtype)
+        joint = joint.masked_fill(~mask[best], -math.inf)
+        values.append(torch.logsumexp(joint, -1))  # (u, num_k)
+        weights.append(held[out.cpu(), f].to(joint.dtype).to(device))
+    return torch.cat(values), torch.cat(weights)

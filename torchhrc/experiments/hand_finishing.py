@@ -65,7 +65,6 @@ from torchhrc.tasks.hand_finishing.collaborative import (
     HandFinishingCollaborativeTask,
     first_sides_from_chains,
 )
-from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 from torchhrc.tasks.hand_finishing.model import SIDES, HandFinishingTask
 from torchhrc.tasks.hand_finishing.person import (
     Episodes,
@@ -81,6 +80,7 @@ from torchhrc.tasks.hand_finishing.sensing import (
     true_observation,
 )
 from torchhrc.tasks.hand_finishing.settings import HandFinishingSettings
+from torchhrc.tasks.hand_finishing.speedup import speedup_momdp
 
 __all__ = [
     "METRIC_KEYS",
@@ -355,24 +355,7 @@ def run_study(settings: HandFinishingSettings, *, progress: Progress | None = No
     at_noise = next((r for r in table if r["noise"] == noise), {})
     # factored vs flat (a timing: the factored solve's limit is the flat one's)
     plan = approach.stationary  # the robot's planning model
-    if settings.speedup_horizontal is None:
-        speed_model = robot_task.momdp(plan)
-    else:
-        keep = list(settings.speedup_horizontal)
-        geo = settings.geometry
-        sub_geo = BoxGeometry(horizontal=[geo.horizontal[i] for i in keep], vertical=geo.vertical,
-                              tilt=geo.tilt, forward=geo.forward, size=geo.size)  # fmt: skip
-        sub = HandFinishingTask.build(
-            feasible=feasibility.comfortable[keep], reachable=feasibility.reachable[keep],
-            geometry=sub_geo, first_sides=robot_sides, rewards=settings.rewards,
-            work_units=settings.speedup_work_units or settings.work_units,
-        )  # fmt: skip
-        with torch.no_grad():
-            sub_obs = sub.observation_model(
-                observation_grid(), loc=plan.loc.reshape(-1, 2),
-                scale=plan.log_scale.exp().reshape(-1, 2),
-            )  # fmt: skip
-        speed_model = sub.momdp(sub_obs)
+    speed_model = speedup_momdp(settings, feasibility, robot_task, plan)
     if settings.speedup:
         speed = factored_vs_flat(speed_model, precision=settings.precision,
                                  time_limit=settings.flat_time, flat_time=settings.flat_time,

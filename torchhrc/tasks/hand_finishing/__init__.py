@@ -8,7 +8,8 @@ only orchestrates the study and reports it):
 * :mod:`.geometry`: the box configurations, the person's comfort and which configurations the
   task keeps (on the arm of :mod:`torchhrc.kinematics`);
 * :mod:`.settings`: the study's settings; :mod:`.sensing`: the sensor grid, the generating
-  hand model and the robot's learned hand models;
+  hand model and the robot's learned hand models; :mod:`.speedup`: the instance of the
+  factored-vs-flat measurement;
 * :mod:`.env`: the gymnasium env (the ``gym`` extra); :mod:`.scene` and :mod:`.replay`: the
   SAPIEN scene of the arm holding the box (the ``sim`` extra).
 """

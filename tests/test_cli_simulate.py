@@ -16,11 +16,11 @@ from pathlib import Path
 import pytest
 import torch
 
-from torchhrc.belief import momdp_update, update
 from torchhrc.cli import main
 from torchhrc.io.cassandra import write_pomdp
 from torchhrc.io.policyx import save_policy
 from torchhrc.io.pomdpx import read_pomdpx, write_pomdpx
+from torchhrc.pomdp.belief import momdp_update, update
 from torchhrc.solvers import SARSOPConfig, solve
 from torchhrc.solvers.policy_graph import controller_value, policy_graph
 from torchhrc.solvers.qmdp import qmdp_policy

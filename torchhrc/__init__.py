@@ -16,15 +16,6 @@ Example:
 
 from __future__ import annotations
 
-from torchhrc.belief import (
-    BeliefUpdate,
-    log_update,
-    momdp_log_update,
-    momdp_update,
-    momdp_update_all,
-    update,
-    update_all,
-)
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError, ParseError, TorchHRCError
 from torchhrc.experiments.sweep import sweep
@@ -38,8 +29,18 @@ from torchhrc.mixture import (
     infer_type,
     sequence_log_likelihood,
 )
-from torchhrc.observation import DiscretizedGaussianObservation, fit_observation_model
-from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.pomdp import MOMDP, POMDP, SparsePOMDP
+from torchhrc.pomdp.belief import (
+    BeliefUpdate,
+    log_update,
+    momdp_log_update,
+    momdp_update,
+    momdp_update_all,
+    update,
+    update_all,
+)
+from torchhrc.pomdp.observation import DiscretizedGaussianObservation
+from torchhrc.pomdp.observation_fit import fit_observation_model
 from torchhrc.resources import shipped_path
 from torchhrc.solvers import (
     AlphaVectorPolicy,
@@ -52,7 +53,6 @@ from torchhrc.solvers import (
     solve,
     value_iteration,
 )
-from torchhrc.sparse import SparsePOMDP
 from torchhrc.tasks import CollaborativeTask, Controller, LearnedModel, learn
 from torchhrc.tasks.evaluation import TaskEvaluation, evaluate_task
 from torchhrc.tasks.place_and_drill import simulate_study

@@ -12,7 +12,6 @@ import torch
 pytest.importorskip("gymnasium", reason="torchhrc.envs needs the gym extra (gymnasium)")
 
 from torchhrc.baselines.hand_coded import build_expert_momdp, load_expert_model
-from torchhrc.belief import momdp_update, update
 from torchhrc.envs import (
     BeliefAgent,
     MOMDPEnv,
@@ -21,6 +20,7 @@ from torchhrc.envs import (
     RandomAgent,
     rollout,
 )
+from torchhrc.pomdp.belief import momdp_update, update
 from torchhrc.solvers import SARSOPConfig, evaluate_policy, solve
 from torchhrc.tasks.classic import tiger
 from torchhrc.testing import random_momdp

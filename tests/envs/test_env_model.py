@@ -16,7 +16,7 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 from torchhrc.envs import MOMDPEnv, POMDPEnv  # noqa: E402
 from torchhrc.pomdp import MOMDP, POMDP  # noqa: E402
-from torchhrc.sparse import SparsePOMDP  # noqa: E402
+from torchhrc.pomdp.sparse import SparsePOMDP  # noqa: E402
 from torchhrc.tasks.classic import tiger  # noqa: E402
 from torchhrc.testing import random_momdp, random_pomdp  # noqa: E402
 

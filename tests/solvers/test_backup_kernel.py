@@ -12,11 +12,10 @@ import numpy as np
 import pytest
 import torch
 
-from torchhrc.pomdp import POMDP
+from torchhrc.pomdp import POMDP, SparseMOMDP
 from torchhrc.solvers import SARSOPConfig, backup_kernel
 from torchhrc.solvers.forms import as_solver_model
 from torchhrc.solvers.forms.base import SolverModel
-from torchhrc.sparse_momdp import SparseMOMDP
 from torchhrc.tasks.classic import rock_sample
 from torchhrc.testing import random_momdp, random_pomdp
 

@@ -11,13 +11,11 @@ import torch
 from _exact_pomdp import TIGER_OPTIMUM, exact_alpha_vectors, optimal_value_bounds
 
 from torchhrc.errors import ModelError
-from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.pomdp import MOMDP, POMDP, SparseMOMDP, SparsePOMDP
 from torchhrc.solvers.blind import blind_policy, blind_vectors
 from torchhrc.solvers.fib import fib, fib_backup, fib_policy, fib_vectors
 from torchhrc.solvers.qmdp import mdp_q_values, qmdp, qmdp_policy, qmdp_vectors
 from torchhrc.solvers.value_iteration import value_iteration
-from torchhrc.sparse import SparsePOMDP
-from torchhrc.sparse_momdp import SparseMOMDP
 from torchhrc.tasks.classic import tiger
 from torchhrc.testing import random_belief, random_momdp, random_pomdp
 

@@ -79,7 +79,7 @@ def test_bad_input():
 def test_sparse_form_draws_what_the_dense_form_draws():
     """Tiger's rows have their successors in the same order in both forms: the same seed
     gives the same returns (the sparse form steps the true state as the dense one does)."""
-    from torchhrc.sparse import SparsePOMDP
+    from torchhrc.pomdp import SparsePOMDP
 
     model, policy = tiger(), qmdp_policy(tiger())
     dense = evaluate_policy(model, policy, episodes=200, horizon=40, seed=5)
@@ -90,7 +90,7 @@ def test_sparse_form_draws_what_the_dense_form_draws():
 
 
 def test_sparse_momdp_agrees_with_the_dense_momdp():
-    from torchhrc.sparse_momdp import SparseMOMDP
+    from torchhrc.pomdp import SparseMOMDP
     from torchhrc.tasks.classic import rock_sample
 
     model = rock_sample(4, 2, form="momdp")
@@ -121,12 +121,12 @@ def test_absorbing_states_end_an_episode():
 
 def test_sparse_belief_paths_match_the_dense_bayes_filter():
     """Beliefs of 300 states with 3 nonzeros take the support-only products (CSR): the
-    same updates as torchhrc.belief.update, the same actions as the dense scores."""
-    from torchhrc.belief import update
+    same updates as torchhrc.pomdp.belief.update, the same actions as the dense scores."""
+    from torchhrc.pomdp import SparsePOMDP
+    from torchhrc.pomdp.belief import update
     from torchhrc.solvers.evaluate import _form_and_chooser
     from torchhrc.solvers.forms import as_solver_model
     from torchhrc.solvers.sampling import flat_step, mostly_zero
-    from torchhrc.sparse import SparsePOMDP
 
     model = random_pomdp(300, 3, 4, seed=11)
     g = torch.Generator().manual_seed(0)

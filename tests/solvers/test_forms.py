@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from torchhrc.errors import ModelError
+from torchhrc.pomdp import SparsePOMDP
 from torchhrc.solvers import PBVIConfig, SARSOPConfig, pbvi
 from torchhrc.solvers.backup import point_backup
 from torchhrc.solvers.blind import blind_policy
@@ -25,7 +26,6 @@ from torchhrc.solvers.forms import (
     as_solver_model,
 )
 from torchhrc.solvers.sarsop import _SARSOP
-from torchhrc.sparse import SparsePOMDP
 from torchhrc.tasks.classic import rock_sample, tiger
 from torchhrc.testing import random_momdp, random_pomdp
 

@@ -60,8 +60,8 @@ from typing import Any
 import pytest
 import torch
 
+from torchhrc.pomdp import SparsePOMDP
 from torchhrc.solvers import PBVIConfig, SARSOPConfig, backup_kernel, pbvi, sarsop
-from torchhrc.sparse import SparsePOMDP
 from torchhrc.tasks.classic import rock_sample, tag, tiger
 from torchhrc.testing import random_momdp, random_pomdp
 

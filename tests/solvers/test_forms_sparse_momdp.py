@@ -1,4 +1,4 @@
-"""The sparse MOMDP (torchhrc.sparse_momdp, torchhrc.solvers.forms.sparse_momdp).
+"""The sparse MOMDP (torchhrc.pomdp.sparse_momdp, torchhrc.solvers.forms.sparse_momdp).
 
 Reference: the dense MOMDP form of the same model. Every operation of the solver interface
 (children, back-projection, initial bounds, PBVI's backup and simulation) must agree with it,
@@ -17,6 +17,7 @@ import torch
 from torchhrc.errors import ModelError
 from torchhrc.io import format_pomdpx, read_pomdpx
 from torchhrc.io import pomdpx as pomdpx_io
+from torchhrc.pomdp import SparseMOMDP
 from torchhrc.solvers import PBVIConfig, SARSOPConfig, pbvi, sarsop, solve
 from torchhrc.solvers.clock import NEVER
 from torchhrc.solvers.forms import MOMDPForm, SparseMOMDPForm, as_solver_model
@@ -24,7 +25,6 @@ from torchhrc.solvers.forms import sparse_momdp as sparse_momdp_module
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sarsop import _SARSOP
 from torchhrc.solvers.sparse_model import blind_iteration_np, qmdp_iteration_np
-from torchhrc.sparse_momdp import SparseMOMDP
 from torchhrc.tasks.classic import rock_sample
 from torchhrc.testing import random_momdp
 

@@ -126,7 +126,7 @@ _PEAK_SCRIPT = r"""
 import json, resource, sys
 import torch
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
-from torchhrc.sparse import SparsePOMDP
+from torchhrc.pomdp import SparsePOMDP
 
 # a random sparse POMDP of 10,000 states (3 successors a state, 2 observations of 8 after
 # each): its dense alpha vectors (80 kB each) make a search grow by tens of MB a second

@@ -7,12 +7,11 @@ import pytest
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.pomdp import POMDP
+from torchhrc.pomdp import POMDP, SparsePOMDP
 from torchhrc.solvers import SARSOPConfig, solve
 from torchhrc.solvers.blind import blind_policy
 from torchhrc.solvers.policy_graph import controller_value, draw_policy_graph, policy_graph
 from torchhrc.solvers.qmdp import qmdp_policy
-from torchhrc.sparse import SparsePOMDP
 from torchhrc.tasks.classic import rock_sample, tiger
 
 #: Tiger's listening accuracy: the belief after n net observations to one side is

@@ -12,9 +12,9 @@ import pytest
 import torch
 from _exact_pomdp import optimal_value_bounds
 
-from torchhrc.belief import momdp_update_all
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.pomdp.belief import momdp_update_all
 from torchhrc.solvers.backup import momdp_point_backup, point_backup
 from torchhrc.solvers.belief_tree import BeliefTree
 from torchhrc.solvers.evaluate import evaluate_policy
@@ -35,7 +35,7 @@ LONG = 60.0  # time limits the tests never reach: they stop on precision or iter
 def _brute_force_bounds(model: MOMDP, horizon: int) -> tuple[float, float]:
     """Bracket V*(x0, b0) of a tiny MOMDP by full-width expectimax to ``horizon`` steps.
 
-    Beliefs are expanded level by level with torchhrc.belief.momdp_update_all (the model
+    Beliefs are expanded level by level with torchhrc.pomdp.belief.momdp_update_all (the model
     engineer's update, independent of the solver), then backed up from the leaves.
     """
     A, X, O = model.num_actions, model.num_observed, model.num_observations

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from torchhrc.pomdp import POMDP
+from torchhrc.pomdp import POMDP, SparsePOMDP
 from torchhrc.solvers import FIBConfig, PBVIConfig, QMDPConfig, solve
 from torchhrc.solvers import sparse_model as sparse_module
 from torchhrc.solvers.belief_tree import SparseBeliefTree
@@ -24,7 +24,6 @@ from torchhrc.solvers.sparse_model import (
     sparse_blind_vectors,
 )
 from torchhrc.solvers.upper_bound import SawtoothUpperBound
-from torchhrc.sparse import SparsePOMDP
 from torchhrc.tasks.classic import rock_sample, tiger
 from torchhrc.testing import random_pomdp
 

@@ -20,11 +20,11 @@ before the limit, write the policy so far and report ``"stop_reason": "memory"``
 killed at any moment leaves the last complete policy.
 
 A model whose dense ``T (A, S, S)`` or ``Z (A, S, O)`` would exceed
-:data:`torchhrc.sparse.MAX_DENSE_ENTRIES` (2e8 entries, 1.6 GB in float64; RockSample(7, 8):
-2e9) is read as a :class:`~torchhrc.sparse.SparsePOMDP` and solved through the solvers'
+:data:`torchhrc.pomdp.sparse.MAX_DENSE_ENTRIES` (2e8 entries, 1.6 GB in float64; RockSample(7, 8):
+2e9) is read as a :class:`~torchhrc.pomdp.SparsePOMDP` and solved through the solvers'
 sparse form (``"sparse": true``), by every solver. A ``.pomdpx`` MOMDP whose dense ``Ty``
 would not fit (APPL's RockSample_7_8) is read as a
-:class:`~torchhrc.sparse_momdp.SparseMOMDP` and solved as a MOMDP.
+:class:`~torchhrc.pomdp.SparseMOMDP` and solved as a MOMDP.
 
 Example:
     >>> import argparse
@@ -210,8 +210,8 @@ def run(args: argparse.Namespace) -> int:
 
         raise TorchHRCError("--policy-interval needs --out (the policy file to write)")
     from torchhrc.io.cassandra import read_pomdp
+    from torchhrc.pomdp import SparsePOMDP
     from torchhrc.solvers import solve
-    from torchhrc.sparse import SparsePOMDP
 
     # every solver has a sparse form: a model whose dense T (A, S, S) or Z would exceed
     # MAX_DENSE_ENTRIES (2e8 entries, 1.6 GB) is read and solved sparsely
@@ -237,8 +237,8 @@ def run(args: argparse.Namespace) -> int:
         model = read_pomdpx(args.model, sparse=mode, memory_budget=budget)
     else:
         model = read_pomdp(args.model, sparse=mode, memory_budget=budget)
+    from torchhrc.pomdp import SparseMOMDP
     from torchhrc.solvers._memory import release_free_memory
-    from torchhrc.sparse_momdp import SparseMOMDP
 
     release_free_memory()  # the reader's temporaries (the tokens), back to the OS
     sparse = isinstance(model, (SparsePOMDP, SparseMOMDP))

@@ -1,7 +1,7 @@
 """Row-stochastic tables in compressed form, sampled by inverse CDF (numpy, for single envs).
 
 A table of ``R`` rows over ``K`` outcomes (``T[a, s, :]`` flattened to rows ``a * S + s``,
-``Tx``, ``Ty``, ``Z`` of a MOMDP, or the nonzeros of a :class:`~torchhrc.sparse.SparsePOMDP`)
+``Tx``, ``Ty``, ``Z`` of a MOMDP, or the nonzeros of a :class:`~torchhrc.pomdp.SparsePOMDP`)
 keeps only its nonzero entries, sorted by row, and one global cumulative array in which row
 ``r``'s cumulative probabilities run over ``(r, r + 1]``::
 

@@ -1,7 +1,7 @@
 """An agent adapter: a solved :class:`~torchhrc.solvers.policy.AlphaVectorPolicy` and its belief
 filter acting in a torchhrc environment.
 
-The agent keeps the belief a planning robot keeps (:mod:`torchhrc.belief`; paper Eq. 3 for a
+The agent keeps the belief a planning robot keeps (:mod:`torchhrc.pomdp.belief`; paper Eq. 3 for a
 MOMDP) and acts greedily on it::
 
     reset:  b = b0                                 (the start observation carries nothing)
@@ -37,8 +37,8 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
-from torchhrc.belief import momdp_update, update
 from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.pomdp.belief import momdp_update, update
 from torchhrc.solvers.policy import AlphaVectorPolicy
 
 __all__ = ["Agent", "BeliefAgent", "RandomAgent", "rollout"]

@@ -38,8 +38,7 @@ import numpy as np
 
 from torchhrc.envs._base import check_action, check_horizon, check_unbatched
 from torchhrc.envs._tables import CategoricalRows
-from torchhrc.pomdp import POMDP
-from torchhrc.sparse import SparsePOMDP
+from torchhrc.pomdp import POMDP, SparsePOMDP
 
 __all__ = ["POMDPEnv"]
 
@@ -57,7 +56,7 @@ def _flat_tables(model: POMDP | SparsePOMDP) -> tuple[CategoricalRows, Categoric
 
 
 class POMDPEnv(gym.Env):
-    """A flat POMDP (:class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.sparse.SparsePOMDP`)
+    """A flat POMDP (:class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.SparsePOMDP`)
     as a gymnasium environment (see the module docstring).
 
     Args:

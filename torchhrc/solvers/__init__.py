@@ -107,7 +107,7 @@ def solve(model: Any, config: Any) -> Solution:
     Args:
         model: whatever :func:`~torchhrc.solvers.forms.as_solver_model` accepts: an unbatched
             :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`, a
-            :class:`~torchhrc.sparse.SparsePOMDP`, :class:`~torchhrc.sparse_momdp.SparseMOMDP`
+            :class:`~torchhrc.pomdp.SparsePOMDP`, :class:`~torchhrc.pomdp.SparseMOMDP`
             or :class:`~torchhrc.solvers.sparse_model.SparseFlatModel`, a
             :class:`~torchhrc.solvers.forms.SolverModel`, or an instance of a type added with
             :func:`~torchhrc.solvers.forms.register_form` (every built-in solver takes it

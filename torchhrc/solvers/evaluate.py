@@ -193,8 +193,8 @@ def evaluate_policy(
 
     Args:
         model: an unbatched :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`,
-            or a :class:`~torchhrc.sparse.SparsePOMDP` or
-            :class:`~torchhrc.sparse_momdp.SparseMOMDP`: whatever
+            or a :class:`~torchhrc.pomdp.SparsePOMDP` or
+            :class:`~torchhrc.pomdp.SparseMOMDP`: whatever
             :func:`~torchhrc.solvers.forms.as_solver_model` takes (a solver form too). A flat
             policy of a MOMDP (solved through ``to_pomdp()``) is evaluated on the flat model.
         policy: an :class:`AlphaVectorPolicy`, or a callable ``belief (E, S) -> actions (E,)``

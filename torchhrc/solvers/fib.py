@@ -64,7 +64,7 @@ def fib_vectors(
 
     Args:
         model: a POMDP or MOMDP (leading batch dims allowed), or an unbatched
-            :class:`~torchhrc.sparse.SparsePOMDP` / :class:`~torchhrc.sparse_momdp.SparseMOMDP`.
+            :class:`~torchhrc.pomdp.SparsePOMDP` / :class:`~torchhrc.pomdp.SparseMOMDP`.
         tol: stop within ``tol`` of FIB's fixed point (MacQueen's bracket or the
             contraction bound, as ``tensor_bounds._iterate_fib``).
         max_iterations: cap on the iterations.

@@ -46,13 +46,12 @@ from typing import Any
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.pomdp import MOMDP, POMDP, SparsePOMDP
 from torchhrc.solvers._memory import MemoryGuard, check_checkpoint, check_memory_limit
 from torchhrc.solvers.clock import Clock, check_clock, clock_function
 from torchhrc.solvers.forms import SolverModel, as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.solution import Solution
-from torchhrc.sparse import SparsePOMDP
 
 __all__ = ["PBVIConfig", "pbvi"]
 
@@ -214,7 +213,7 @@ def pbvi(model: POMDP | MOMDP | SparsePOMDP, config: PBVIConfig | None = None) -
 
     Args:
         model: an unbatched :class:`POMDP` or :class:`MOMDP` with discount < 1, or a
-            :class:`~torchhrc.sparse.SparsePOMDP` (sparse ``T``; beliefs and vectors dense
+            :class:`~torchhrc.pomdp.SparsePOMDP` (sparse ``T``; beliefs and vectors dense
             ``(S,)``).
         config: :class:`PBVIConfig` (defaults if None).
 

@@ -35,9 +35,7 @@ from torchhrc.solvers.solution import Solution
 from torchhrc.solvers.tensor_bounds import mdp_q_values, mdp_upper_vectors
 
 if TYPE_CHECKING:
-    from torchhrc.pomdp import MOMDP, POMDP
-    from torchhrc.sparse import SparsePOMDP
-    from torchhrc.sparse_momdp import SparseMOMDP
+    from torchhrc.pomdp import MOMDP, POMDP, SparseMOMDP, SparsePOMDP
 
     AnyModel = POMDP | MOMDP | SparsePOMDP | SparseMOMDP
 
@@ -62,8 +60,8 @@ def qmdp_vectors(
     ``max_a vectors[a, x] . b_y >= V*(x, b_y)``). A batch runs the torch kernel
     (:func:`~torchhrc.solvers.tensor_bounds.mdp_upper_vectors`); an unbatched model of any
     form is iterated by its solver form (``upper_vectors``): a dense POMDP or MOMDP by the same
-    kernel, a sparse model (:class:`~torchhrc.sparse.SparsePOMDP`,
-    :class:`~torchhrc.sparse_momdp.SparseMOMDP`) on its stored successors only (to ``tol``,
+    kernel, a sparse model (:class:`~torchhrc.pomdp.SparsePOMDP`,
+    :class:`~torchhrc.pomdp.SparseMOMDP`) on its stored successors only (to ``tol``,
     without the ``max_iterations`` cap).
 
     Raises:

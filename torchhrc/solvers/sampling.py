@@ -1,7 +1,7 @@
 """Batched simulation steps shared by belief expansion and Monte Carlo evaluation.
 
 One call advances many (state, belief) pairs by one step at once: sample the successor state
-and the observation from the model, then update the belief with :mod:`torchhrc.belief`.
+and the observation from the model, then update the belief with :mod:`torchhrc.pomdp.belief`.
 All randomness comes from an explicit ``torch.Generator``.
 
 Example:
@@ -21,8 +21,8 @@ from typing import NamedTuple
 
 import torch
 
-from torchhrc.belief import momdp_update, update
 from torchhrc.pomdp import MOMDP, POMDP, split_initial
+from torchhrc.pomdp.belief import momdp_update, update
 
 __all__ = [
     "SPARSE_BELIEF_STATES",
@@ -68,7 +68,7 @@ def mostly_zero(beliefs: torch.Tensor, *, fraction: float = 0.1) -> bool:
 def normalize_rows(joint: torch.Tensor) -> torch.Tensor:
     """``joint (M, S)`` with each row divided by its sum, in place; a row summing to 0 (an
     observation of probability 0, which a sampled one never has) becomes uniform, as
-    :func:`torchhrc.belief.update` with ``on_zero="ninf"``.
+    :func:`torchhrc.pomdp.belief.update` with ``on_zero="ninf"``.
 
     Example:
         >>> normalize_rows(torch.tensor([[1.0, 3.0], [0.0, 0.0]])).tolist()

@@ -68,7 +68,7 @@ observed value together as one batched backup.
 Batched models (leading batch dims) are not solved together: the tree search is sequential
 per problem, so :func:`sarsop` raises for them; solve ``model`` per batch index.
 
-Sparse flat models (:class:`~torchhrc.sparse.SparsePOMDP`, e.g. RockSample(7, 8) read with
+Sparse flat models (:class:`~torchhrc.pomdp.SparsePOMDP`, e.g. RockSample(7, 8) read with
 ``read_pomdp(path, sparse=True)``: 12545 states, a dense ``T`` of 2e9 entries) take a sparse
 form with the same algorithm (:class:`~torchhrc.solvers.forms.sparse.SparseForm`): ``T`` as
 per-action CSR (:class:`~torchhrc.solvers.sparse_model.SparseFlatModel`), tree beliefs stored
@@ -104,7 +104,7 @@ import torch
 from threadpoolctl import threadpool_limits
 
 from torchhrc.errors import ModelError
-from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.pomdp import MOMDP, POMDP, SparsePOMDP
 from torchhrc.solvers import backup_kernel
 from torchhrc.solvers._memory import (
     MemoryGuard,
@@ -120,7 +120,6 @@ from torchhrc.solvers.pruning import prune_dominated
 from torchhrc.solvers.solution import Solution
 from torchhrc.solvers.sparse_model import SparseFlatModel
 from torchhrc.solvers.upper_bound import _ROWS, SawtoothUpperBound
-from torchhrc.sparse import SparsePOMDP
 
 __all__ = ["SARSOPConfig", "fib_corner_values", "sarsop"]
 
@@ -149,7 +148,7 @@ def fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, *,
 
     Args:
         model: an unbatched POMDP or MOMDP, or a flat model with sparse transitions
-            (:class:`~torchhrc.sparse.SparsePOMDP` or
+            (:class:`~torchhrc.pomdp.SparsePOMDP` or
             :class:`~torchhrc.solvers.sparse_model.SparseFlatModel`).
         tol: stop when the largest change is below ``tol``.
         time_limit: seconds allowed for the whole computation (QMDP included).
@@ -1559,7 +1558,7 @@ def sarsop(model: POMDP | MOMDP | SparsePOMDP, config: SARSOPConfig | None = Non
 
     Args:
         model: an unbatched :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`
-            with ``discount < 1``, or a :class:`~torchhrc.sparse.SparsePOMDP` (the sparse
+            with ``discount < 1``, or a :class:`~torchhrc.pomdp.SparsePOMDP` (the sparse
             flat path, see the module docstring; custom ``lower_bound_init`` and
             ``upper_bound_init`` then receive the ``SparsePOMDP``).
         config: the settings (default :class:`SARSOPConfig()`).

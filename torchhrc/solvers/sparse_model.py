@@ -24,7 +24,7 @@ Every nonzero of ``T`` is touched at most once per operation; beliefs with a sma
 the batched path. Alpha vectors stay dense ``(S,)``.
 
 Example:
-    >>> from torchhrc.sparse import SparsePOMDP
+    >>> from torchhrc.pomdp import SparsePOMDP
     >>> from torchhrc.tasks.classic import tiger
     >>> sm = SparseFlatModel.from_model(SparsePOMDP.from_dense(tiger()))
     >>> sm.predict_np(sm.b0.numpy()).shape  # (A, S)
@@ -42,6 +42,7 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import POMDP
+from torchhrc.pomdp.sparse import SparsePOMDP, check_dense_size, coalesce
 from torchhrc.solvers._factored import (
     BRACKET_ROUND_OFF,
     DIRECT_SOLVE_SIZE,
@@ -50,7 +51,6 @@ from torchhrc.solvers._factored import (
 )
 from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.sparse import SparsePOMDP, check_dense_size, coalesce
 
 __all__ = ["SparseFlatModel", "sparse_blind_policy", "sparse_blind_vectors"]
 
@@ -142,7 +142,7 @@ class SparseFlatModel:
     def from_model(
         cls, model: SparsePOMDP | POMDP | SparseFlatModel, *, dtype: torch.dtype | None = None
     ) -> SparseFlatModel:
-        """Build from a :class:`~torchhrc.sparse.SparsePOMDP` or an unbatched dense POMDP, or
+        """Build from a :class:`~torchhrc.pomdp.SparsePOMDP` or an unbatched dense POMDP, or
         take a prepared model (itself where it has ``dtype`` already).
 
         The builder is looked up by the model's type (``_SOURCES``), never by testing it.
@@ -363,7 +363,7 @@ def _from_dense(
 def _from_sparse(
     cls: type[SparseFlatModel], model: SparsePOMDP, dtype: torch.dtype | None
 ) -> SparseFlatModel:
-    """:meth:`SparseFlatModel.from_model` of a :class:`~torchhrc.sparse.SparsePOMDP`."""
+    """:meth:`SparseFlatModel.from_model` of a :class:`~torchhrc.pomdp.SparsePOMDP`."""
     dtype = torch.float64 if dtype is None else dtype
     A, S, O = model.num_actions, model.num_states, model.num_observations
     check_dense_size("Z", A * S * O, hint="too many observations for the sparse solver")
@@ -409,7 +409,7 @@ def sparse_blind_vectors(
 
     Example:
         >>> from torchhrc.tasks.classic import tiger
-        >>> from torchhrc.sparse import SparsePOMDP
+        >>> from torchhrc.pomdp import SparsePOMDP
         >>> sm = SparseFlatModel.from_model(SparsePOMDP.from_dense(tiger()))
         >>> sparse_blind_vectors(sm).shape
         torch.Size([3, 2])
@@ -620,7 +620,7 @@ def sparse_blind_policy(
 
     Example:
         >>> from torchhrc.tasks.classic import tiger
-        >>> from torchhrc.sparse import SparsePOMDP
+        >>> from torchhrc.pomdp import SparsePOMDP
         >>> sparse_blind_policy(SparsePOMDP.from_dense(tiger())).num_vectors
         3
     """

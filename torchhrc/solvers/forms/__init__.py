@@ -6,10 +6,10 @@ each representation of a model implements it in its own module:
 * :class:`~torchhrc.solvers.forms.dense.DenseForm`: a flat :class:`~torchhrc.pomdp.POMDP`;
 * :class:`~torchhrc.solvers.forms.momdp.MOMDPForm`: a :class:`~torchhrc.pomdp.MOMDP`,
   factored over observed and hidden values (Ong et al. 2010);
-* :class:`~torchhrc.solvers.forms.sparse.SparseForm`: a :class:`~torchhrc.sparse.SparsePOMDP`
+* :class:`~torchhrc.solvers.forms.sparse.SparseForm`: a :class:`~torchhrc.pomdp.SparsePOMDP`
   (or a prepared :class:`~torchhrc.solvers.sparse_model.SparseFlatModel`), ``T`` sparse;
 * :class:`~torchhrc.solvers.forms.sparse_momdp.SparseMOMDPForm`: a
-  :class:`~torchhrc.sparse_momdp.SparseMOMDP`, factored like a MOMDP with ``Tx Ty`` sparse.
+  :class:`~torchhrc.pomdp.SparseMOMDP`, factored like a MOMDP with ``Tx Ty`` sparse.
 
 A new form (a device backend, a sparse MOMDP) is one new module with one class, registered
 here with :func:`register_form`.
@@ -28,15 +28,13 @@ from typing import Any
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.pomdp import MOMDP, POMDP, SparseMOMDP, SparsePOMDP
 from torchhrc.solvers.forms.base import Children, SolverModel
 from torchhrc.solvers.forms.dense import DenseForm
 from torchhrc.solvers.forms.momdp import MOMDPForm
 from torchhrc.solvers.forms.sparse import SparseForm
 from torchhrc.solvers.forms.sparse_momdp import SparseMOMDPForm
 from torchhrc.solvers.sparse_model import SparseFlatModel
-from torchhrc.sparse import SparsePOMDP
-from torchhrc.sparse_momdp import SparseMOMDP
 
 __all__ = [
     "Children",
@@ -121,7 +119,7 @@ def as_solver_model(model: Any, *, dtype: torch.dtype | None = None) -> SolverMo
 
     Args:
         model: an unbatched :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.MOMDP`,
-            a :class:`~torchhrc.sparse.SparsePOMDP`, a
+            a :class:`~torchhrc.pomdp.SparsePOMDP`, a
             :class:`~torchhrc.solvers.sparse_model.SparseFlatModel`, or an already adapted
             :class:`SolverModel` (returned as is), or a registered type.
         dtype: floating dtype of the solve (default: the model's own).

@@ -9,7 +9,7 @@ flat ``A (X Y)^2``. The expansion is the unnormalised MOMDP belief update of pap
     J[..., a, k, o, y2] = Z[a, x2_k, y2, o]
                           * sum_y Tx[a, x, y, x2_k] Ty[a, x, y, x2_k, y2] b[..., y]
 
-(it agrees with :func:`torchhrc.belief.momdp_update_all`, tested). Policies are vectors over
+(it agrees with :func:`torchhrc.pomdp.belief.momdp_update_all`, tested). Policies are vectors over
 ``Y`` tagged with their observed value.
 
 Example:

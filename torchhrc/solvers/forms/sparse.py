@@ -1,7 +1,7 @@
 """The sparse flat form: a flat POMDP whose ``T`` is kept as its nonzeros.
 
 For models too large for a dense ``T`` (RockSample(7, 8): 12545 states, a dense ``T`` of 2e9
-entries) read as a :class:`~torchhrc.sparse.SparsePOMDP`. The operations run on the per-action
+entries) read as a :class:`~torchhrc.pomdp.SparsePOMDP`. The operations run on the per-action
 CSR of :class:`~torchhrc.solvers.sparse_model.SparseFlatModel`; tree beliefs are stored by
 their support (:class:`~torchhrc.solvers.belief_tree.SparseBeliefTree`), and the children of
 one belief are formed and bounded only on the union of their supports (``Children.cols``;
@@ -9,7 +9,7 @@ RockSample(7, 8): about a thousand of 12545 states). Alpha vectors stay dense ``
 
 Example:
     >>> from torchhrc.solvers.forms import as_solver_model
-    >>> from torchhrc.sparse import SparsePOMDP
+    >>> from torchhrc.pomdp import SparsePOMDP
     >>> from torchhrc.tasks.classic import tiger
     >>> form = as_solver_model(SparsePOMDP.from_dense(tiger()))
     >>> ch = form.children_np(0, form.b0.numpy())
@@ -117,7 +117,7 @@ class SparseForm(FlatFields, SolverModel):
         """One sampled step from states ``y = s``: ``s2 ~ T[a, s, .]`` among the stored
         successors, ``o ~ Z[a, s2, .]``, then the Bayes update ``b2 ~ (b T_a) Z[a, ., o]``
         (the uniform belief where ``P(o) = 0``, which a sampled ``o`` never has, as
-        :func:`torchhrc.belief.update` with ``on_zero="ninf"``)."""
+        :func:`torchhrc.pomdp.belief.update` with ``on_zero="ninf"``)."""
         sp = self.sparse
         nxt, prob = sp.successors(actions, y)  # (M, W)
         s2 = nxt.gather(1, sample_categorical(prob, generator).unsqueeze(1)).squeeze(1)

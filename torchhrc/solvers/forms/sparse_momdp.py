@@ -1,4 +1,4 @@
-"""The sparse MOMDP form: a :class:`~torchhrc.sparse_momdp.SparseMOMDP` solved as a MOMDP.
+"""The sparse MOMDP form: a :class:`~torchhrc.pomdp.SparseMOMDP` solved as a MOMDP.
 
 Beliefs are ``(x, b_y)`` (Ong et al. 2010) as in :mod:`~torchhrc.solvers.forms.momdp`, but
 the joint transition ``P(x2, y2 | x, y, a) = Tx Ty`` is held as its nonzeros, never as the
@@ -26,7 +26,7 @@ have the same vectors) and take a deterministic move of ``x`` that keeps ``y`` a
 
 Example:
     >>> from torchhrc.solvers.forms import as_solver_model
-    >>> from torchhrc.sparse_momdp import SparseMOMDP
+    >>> from torchhrc.pomdp import SparseMOMDP
     >>> from torchhrc.tasks.classic import rock_sample
     >>> form = as_solver_model(SparseMOMDP.from_dense(rock_sample(4, 4, form="momdp")))
     >>> xs, J = form.expand(form.x0, form.b0.unsqueeze(0))
@@ -42,6 +42,8 @@ import numpy as np
 import torch
 
 from torchhrc.errors import ModelError
+from torchhrc.pomdp import SparseMOMDP
+from torchhrc.pomdp.sparse import coalesce
 from torchhrc.solvers._factored import SPARSE_DIRECT_SOLVE_SIZE
 from torchhrc.solvers.backup import BackupResult, _padded_vectors, _select_action
 from torchhrc.solvers.clock import NEVER, Deadline
@@ -57,14 +59,12 @@ from torchhrc.solvers.sparse_model import (
     qmdp_iteration_np,
     self_loop_probs,
 )
-from torchhrc.sparse import coalesce
-from torchhrc.sparse_momdp import SparseMOMDP
 
 __all__ = ["ActionRows", "SparseMOMDPForm"]
 
 
 class SparseMOMDPForm(SolverModel):
-    """A :class:`~torchhrc.sparse_momdp.SparseMOMDP` under the solver interface.
+    """A :class:`~torchhrc.pomdp.SparseMOMDP` under the solver interface.
 
     Attributes:
         Z: ``(A, X, Y, O)``; R: ``(A, X, Y)`` in the solve's dtype.
@@ -226,7 +226,7 @@ class SparseMOMDPForm(SolverModel):
 
         Example:
             >>> from torchhrc.solvers.forms import as_solver_model
-            >>> from torchhrc.sparse_momdp import SparseMOMDP
+            >>> from torchhrc.pomdp import SparseMOMDP
             >>> from torchhrc.tasks.classic import rock_sample
             >>> form = as_solver_model(SparseMOMDP.from_dense(rock_sample(4, 4, form="momdp")))
             >>> rows, inverse = form.distinct_actions()  # 4 moves, sample (4), 4 checks
@@ -440,7 +440,7 @@ class ActionRows:
     Example:
         >>> import numpy as np
         >>> from torchhrc.solvers.forms import as_solver_model
-        >>> from torchhrc.sparse_momdp import SparseMOMDP
+        >>> from torchhrc.pomdp import SparseMOMDP
         >>> from torchhrc.tasks.classic import rock_sample
         >>> form = as_solver_model(SparseMOMDP.from_dense(rock_sample(4, 4, form="momdp")))
         >>> rows = ActionRows(form, np.arange(form.num_actions))

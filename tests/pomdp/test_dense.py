@@ -7,9 +7,9 @@ import dataclasses
 import pytest
 import torch
 
-from torchhrc.belief import momdp_update, update
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.pomdp.belief import momdp_update, update
 from torchhrc.tasks.classic import rock_sample, tiger
 from torchhrc.testing import random_belief, random_momdp, random_pomdp
 

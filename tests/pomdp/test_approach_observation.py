@@ -1,22 +1,19 @@
-"""Tests of torchhrc.approach_observation (a hand that approaches its target)."""
+"""Tests of torchhrc.pomdp.approach_observation (a hand that approaches its target)."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from torchhrc.approach_observation import (
+from torchhrc.errors import ModelError
+from torchhrc.pomdp import MOMDP
+from torchhrc.pomdp.approach_observation import (
     ApproachObservation,
     approach_log_likelihood,
     fit_approach_observation,
 )
-from torchhrc.errors import ModelError
-from torchhrc.observation import (
-    DiscretizedGaussianObservation,
-    ObservationGrid,
-    track_log_likelihood,
-)
-from torchhrc.pomdp import MOMDP
+from torchhrc.pomdp.observation import DiscretizedGaussianObservation, ObservationGrid
+from torchhrc.pomdp.observation_fit import track_log_likelihood
 from torchhrc.tasks.hand_finishing.person import HandMotion, simulate_hand_tracks
 from torchhrc.testing import random_momdp
 

@@ -1,4 +1,4 @@
-"""Tests of torchhrc.belief: hand-worked values, flat == MOMDP, batched == loop, gradcheck."""
+"""Tests of torchhrc.pomdp.belief: hand-worked values, flat == MOMDP, batched == loop, gradcheck."""
 
 from __future__ import annotations
 
@@ -7,7 +7,9 @@ import math
 import pytest
 import torch
 
-from torchhrc.belief import (
+from torchhrc.errors import ModelError
+from torchhrc.pomdp import MOMDP, POMDP
+from torchhrc.pomdp.belief import (
     BeliefUpdate,
     correct,
     log_matmul_exp,
@@ -24,8 +26,6 @@ from torchhrc.belief import (
     update,
     update_all,
 )
-from torchhrc.errors import ModelError
-from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.tasks.classic import tiger
 from torchhrc.testing import random_belief, random_momdp, random_pomdp
 

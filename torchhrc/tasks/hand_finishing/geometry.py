@@ -1,8 +1,8 @@
 """The hand-finishing box: its configurations, the person's comfort, and which the task keeps.
 
-The robot (a Franka Emika Panda, :meth:`torchhrc.kinematics.SerialArm.panda`) holds a large box
-for a person who refinishes its side surfaces by hand (paper, "Online estimation of human
-type": the robot "can move the box along the horizontal and vertical axis and rotate it in
+The robot (a Franka Emika Panda, :meth:`~torchhrc.kinematics.chain.SerialArm.panda`) holds a
+large box for a person who refinishes its side surfaces by hand (paper, "Online estimation of
+human type": the robot "can move the box along the horizontal and vertical axis and rotate it in
 the tilt direction" and should move it "to a reachable, ergonomically friendly position").
 This module decides which box configurations the robot can reach and hold (inverse
 kinematics within joint limits, :func:`torchhrc.kinematics.reach_check`) and which are

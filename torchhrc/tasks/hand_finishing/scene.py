@@ -4,7 +4,7 @@ Physics only, on the CPU (``sapien.Scene([sapien.physx.PhysxCpuSystem()])``): th
 (``assets/panda``) is mounted on a table, the box (a link rigidly fixed to the hand's
 TCP, with a box collision shape and the inertia of a solid box) is held at the configurations
 of :class:`~torchhrc.tasks.hand_finishing.geometry.BoxGeometry`. The arm follows box moves with
-joint position targets: the targets come from :meth:`torchhrc.kinematics.SerialArm.inverse`,
+joint position targets: the targets come from :meth:`~torchhrc.kinematics.chain.SerialArm.inverse`,
 are interpolated linearly over ``interpolation_steps`` physics steps, and physics is stepped
 until the arm settles (joint speeds and tracking errors below tolerances). Gravity and Coriolis
 forces are compensated each step with SAPIEN's passive forces, as a torque-controlled arm's

@@ -1,4 +1,4 @@
-"""Tests of torchhrc.kinematics: FK against pinocchio and pytorch-kinematics, IK, reach.
+"""Tests of torchhrc.kinematics.chain: FK against pinocchio and pytorch-kinematics, IK, reach.
 
 The hand-finishing box (its poses serve here as IK targets) is tested in
 tests/tasks/test_hand_finishing_geometry.py.
@@ -18,24 +18,12 @@ from torchhrc.errors import ModelError
 from torchhrc.kinematics import (
     SerialArm,
     asset_path,
-    human_arm_urdf,
     matrix_to_pose,
-    pose_to_matrix,
     reach_check,
 )
 from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 
 D = torch.float64
-
-
-@pytest.fixture(scope="module")
-def panda() -> SerialArm:
-    return SerialArm.panda()
-
-
-@pytest.fixture(scope="module")
-def human() -> SerialArm:
-    return SerialArm.human_arm()
 
 
 def _random_q(arm: SerialArm, n: int, seed: int) -> torch.Tensor:
@@ -100,25 +88,6 @@ def test_forward_is_batched(panda, batch):
     flat = out.reshape(-1, 4, 4)
     for n, qn in enumerate(q.reshape(-1, 7)):
         assert torch.allclose(flat[n], panda.forward(qn), atol=1e-14)
-
-
-def test_pose_conversions_round_trip():
-    gen = torch.Generator().manual_seed(4)
-    pose = torch.randn(20, 7, generator=gen, dtype=D)
-    pose[:, 3:] = pose[:, 3:] / pose[:, 3:].norm(dim=-1, keepdim=True)
-    pose[:, 3:] = torch.where(pose[:, 3:4] < 0, -pose[:, 3:], pose[:, 3:])
-    mats = pose_to_matrix(pose)
-    rot = mats[:, :3, :3]
-    assert torch.allclose(
-        rot @ rot.transpose(-1, -2), torch.eye(3, dtype=D).expand(20, 3, 3), atol=1e-12
-    )
-    assert torch.allclose(matrix_to_pose(mats), pose, atol=1e-12)
-    # worked by hand: 90 deg about z
-    q = torch.tensor(
-        [0.0, 0.0, 0.0, math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)], dtype=D
-    )
-    expected = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=D)
-    assert torch.allclose(pose_to_matrix(q)[:3, :3], expected, atol=1e-15)
 
 
 def test_bad_inputs_are_rejected(panda):
@@ -190,22 +159,6 @@ def test_seeded_restarts_are_deterministic(panda):
     assert torch.equal(a.joints, b.joints) and torch.equal(a.reachable, b.reachable)
 
 
-# ---------------------------------------------------------------- human comfort
-def test_shipped_human_arm_is_the_generator_output():
-    assert asset_path("human_arm/human_arm.urdf").read_text() == human_arm_urdf()
-
-
-def test_human_arm_lengths_follow_winter(human):
-    # arm hanging: the palm is below the shoulder by upper arm + forearm + half a hand
-    # = (0.186 + 0.146 + 0.054) H, at shoulder height 0.818 H
-    pose = human.forward(torch.zeros(human.dof, dtype=D))
-    H = 1.75
-    assert pose[2, 3].item() == pytest.approx(
-        (0.818 - 0.186 - 0.146 - 0.054) * H, abs=1e-6
-    )  # the URDF has 6 digits
-    assert pose[1, 3].item() == pytest.approx(-0.259 * H / 2, abs=1e-6)
-
-
 # ------------------------------------------------------------ fast paths of reach_check
 def test_wrist_bound_is_the_exact_maximum_for_the_panda(panda):
     # |p_5 - p_0| depends only on joint 4 (index 3) for the Panda: sweep it (no limits).
@@ -251,7 +204,7 @@ def test_fast_reach_check_agrees_with_full_ik(panda):
 
 
 def test_staged_restarts_find_the_same_reachable_poses(panda, monkeypatch):
-    import torchhrc.kinematics as kin
+    import torchhrc.kinematics.chain as kin
 
     g = BoxGeometry(horizontal=(-0.6, 0.0, 0.6), vertical=(0.0, 0.5), tilt=(-1.2, 0.0, 1.2))
     poses = g.grip_poses().reshape(-1, 4, 4)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import pytest
 import torch
 
 from torchhrc.tasks.hand_finishing.geometry import BoxFeasibility
@@ -32,20 +33,12 @@ def _setup():
     return settings, feasibility, robot, plan
 
 
-def test_no_reduction_is_the_robots_own_momdp():
+@pytest.mark.parametrize("horizontal", [None, (0, 1, 2)], ids=["no reduction", "every position"])
+def test_no_reduction_and_every_position_give_the_robots_own_momdp(horizontal):
     settings, feasibility, robot, plan = _setup()
-    assert settings.speedup_horizontal is None
+    settings = replace(settings, speedup_horizontal=horizontal)
     own = robot.momdp(plan)
     got = speedup_momdp(settings, feasibility, robot, plan)
-    for name in ("Tx", "Z", "R"):
-        assert torch.equal(getattr(got, name), getattr(own, name)), name
-
-
-def test_keeping_every_position_rebuilds_the_same_momdp():
-    settings, feasibility, robot, plan = _setup()
-    every = replace(settings, speedup_horizontal=(0, 1, 2))
-    own = robot.momdp(plan)
-    got = speedup_momdp(every, feasibility, robot, plan)
     for name in ("Tx", "Z", "R"):
         assert torch.allclose(getattr(got, name), getattr(own, name)), name
 

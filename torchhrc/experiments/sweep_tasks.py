@@ -147,7 +147,8 @@ def _place_and_drill_metrics(params: Mapping[str, Any], seed: int, quick: bool) 
 
 
 def _hand_finishing_metrics(params: Mapping[str, Any], seed: int, quick: bool) -> dict[str, Any]:
-    from torchhrc.experiments.hand_finishing import HandFinishingSettings, run_study
+    from torchhrc.experiments.hand_finishing import run_study
+    from torchhrc.tasks.hand_finishing.settings import HandFinishingSettings
 
     settings = HandFinishingSettings.create(quick=quick, seed=seed)
     changes: dict[str, Any] = {"sim": False, "speedup": False}

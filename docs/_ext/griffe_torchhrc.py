@@ -84,6 +84,7 @@ class TorchHRCDocstrings(griffe.Extension):
     def on_package(self, *, pkg: griffe.Module, **kwargs: Any) -> None:
         objects: dict[str, griffe.Object] = {}
         self._collect(pkg, objects)
+        self._objects = objects
         self._paths = set(objects)
         for obj in objects.values():
             if obj.docstring is not None:
@@ -96,10 +97,37 @@ class TorchHRCDocstrings(griffe.Extension):
                 continue
             self._collect(member, out)  # type: ignore[arg-type]
 
+    def _member(self, node: griffe.Object, name: str, depth: int = 0) -> griffe.Object | None:
+        """``node``'s member ``name``: a re-export read as its target, an inherited member
+        (a dataclass field of a base class) found in the bases."""
+        member = node.members.get(name)
+        if member is not None:
+            return self._objects.get(member.target_path) if member.is_alias else member
+        if not node.is_class or depth > 8:
+            return None
+        for base in node.bases:  # type: ignore[attr-defined]
+            path = getattr(base, "canonical_path", None) or str(base)
+            parent = self._objects.get(path) or self._member(node.module, path)
+            found = None if parent is None else self._member(parent, name, depth + 1)
+            if found is not None:
+                return found
+        return None
+
+    def _follow(self, name: str) -> str | None:
+        """The path where ``name`` is documented, read through re-exports and inherited
+        members: ``torchhrc.pomdp.MOMDP.initial`` -> ``torchhrc.pomdp.base.MOMDPBase.initial``."""
+        head, *rest = name.split(".")
+        node = self._objects.get(head)
+        for part in rest:
+            node = None if node is None else self._member(node, part)
+        return None if node is None else node.path
+
     def _resolve(self, target: str, scope: griffe.Object) -> str | None:
         name = target.lstrip(".")
         if name in self._paths:
             return name
+        if self._follow(name) in self._paths:
+            return self._follow(name)
         node: griffe.Object | None = scope
         while node is not None:  # the documented object's scopes, innermost first
             head, _, rest = name.partition(".")
@@ -109,6 +137,8 @@ class TorchHRCDocstrings(griffe.Extension):
                 full = f"{base}.{rest}" if rest else base
                 if full in self._paths:
                     return full
+                if self._follow(full) in self._paths:
+                    return self._follow(full)
             node = node.parent
         suffix = [p for p in self._paths if p.endswith("." + name)]
         return suffix[0] if len(suffix) == 1 else None

@@ -1,0 +1,174 @@
+"""Writing a :class:`~torchhrc.pomdp.MOMDP` or :class:`~torchhrc.pomdp.POMDP` as ``.pomdpx``
+XML (:func:`format_pomdpx`, :func:`write_pomdpx`); the layout is in
+:mod:`torchhrc.io.pomdpx`."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import torch
+
+from torchhrc.errors import ModelError
+from torchhrc.io._atomic import atomic_write_bytes
+from torchhrc.pomdp import MOMDP, POMDP, split_initial
+
+__all__ = ["format_pomdpx", "write_pomdpx"]
+
+
+def _values(t: torch.Tensor) -> str:
+    flat = t.detach().double().cpu().numpy().reshape(-1)
+    return " ".join("0" if v == 0 else "1" if v == 1 else repr(float(v)) for v in flat)
+
+
+def _escape(text: str) -> str:
+    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+
+
+def _enum(names: tuple[str, ...] | None, count: int) -> str:
+    if names is not None and all(n.isidentifier() for n in names):
+        return f"<ValueEnum>{' '.join(names)}</ValueEnum>"
+    return f"<NumValues>{count}</NumValues>"
+
+
+def _cond_prob(var: str, parents: str, instance: str, table: str) -> str:
+    return (
+        f'<CondProb><Var>{var}</Var><Parent>{parents}</Parent><Parameter type="TBL">'
+        f"<Entry><Instance>{instance}</Instance><ProbTable>{table}</ProbTable></Entry>"
+        "</Parameter></CondProb>"
+    )
+
+
+def _header(discount: float, description: str) -> list[str]:
+    return [
+        '<?xml version="1.0" encoding="ISO-8859-1"?>',
+        '<pomdpx version="1.0" id="torchhrc" '
+        'xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
+        'xsi:noNamespaceSchemaLocation="pomdpx.xsd">',
+        f"<Description>{_escape(description)}</Description>",
+        f"<Discount>{discount!r}</Discount>",
+    ]
+
+
+def _reward(parents: str, instance: str, R: torch.Tensor) -> list[str]:
+    return [
+        "<RewardFunction>",
+        f'<Func><Var>reward</Var><Parent>{parents}</Parent><Parameter type="TBL">'
+        f"<Entry><Instance>{instance}</Instance><ValueTable>{_values(R)}</ValueTable></Entry>"
+        "</Parameter></Func>",
+        "</RewardFunction>",
+        "</pomdpx>",
+    ]
+
+
+def _format_pomdp(model: POMDP, description: str) -> str:
+    A, S, O = model.num_actions, model.num_states, model.num_observations
+    lines = [
+        *_header(model.discount, description),
+        "<Variable>",
+        '<StateVar vnamePrev="state_0" vnameCurr="state_1" fullyObs="false">'
+        f"{_enum(model.states, S)}</StateVar>",
+        f'<ObsVar vname="obs">{_enum(model.observations, O)}</ObsVar>',
+        f'<ActionVar vname="action">{_enum(model.actions, A)}</ActionVar>',
+        '<RewardVar vname="reward"/>',
+        "</Variable>",
+        "<InitialStateBelief>",
+        _cond_prob("state_0", "null", "-", _values(model.b0)),
+        "</InitialStateBelief>",
+        "<StateTransitionFunction>",
+        _cond_prob("state_1", "action state_0", "- - -", _values(model.T)),
+        "</StateTransitionFunction>",
+        "<ObsFunction>",
+        _cond_prob("obs", "action state_1", "- - -", _values(model.Z)),
+        "</ObsFunction>",
+    ]
+    return "\n".join(lines + _reward("action state_0", "- -", model.R.expand(A, S))) + "\n"
+
+
+def format_pomdpx(model: MOMDP | POMDP, *, description: str = "written by torchhrc") -> str:
+    """The ``.pomdpx`` text of an unbatched :class:`MOMDP` or :class:`POMDP`.
+
+    Args:
+        model: the MOMDP (observed ``x_0/x_1`` and hidden ``y_0/y_1``) or flat POMDP (one
+            hidden ``state_0/state_1``), no batch dims.
+        description: the ``<Description>`` text.
+
+    Returns:
+        The XML text.
+
+    Raises:
+        ModelError: the model has batch dims.
+
+    Example:
+        >>> from torchhrc.testing import random_momdp
+        >>> format_pomdpx(random_momdp(2, 2, 1, 1, seed=0)).count("<CondProb>")
+        5
+    """
+    if not isinstance(model, (MOMDP, POMDP)):
+        raise TypeError(f"expected a MOMDP or POMDP, got {type(model).__name__}")
+    if len(model.batch_shape):
+        raise ModelError(f"write one problem at a time: got batch shape {tuple(model.batch_shape)}")
+    if isinstance(model, POMDP):
+        return _format_pomdp(model, description)
+    A, X, Y, O = model.num_actions, model.num_observed, model.num_hidden, model.num_observations
+    mass = torch.zeros(X, dtype=torch.float64)  # P(x)
+    mass[model.x0] = 1.0
+    hidden = _cond_prob("y_0", "null", "-", _values(model.b0))
+    if model.initial is not None:  # a random start: P(x), and P(y | x) (uniform at no mass)
+        mass, given = split_initial(model.initial.double())
+        given = torch.where(mass[:, None] > 0, given, 1.0 / Y)
+        hidden = _cond_prob("y_0", "x_0", "- -", _values(given))
+    lines = [
+        *_header(model.discount, description),
+        "<Variable>",
+        '<StateVar vnamePrev="x_0" vnameCurr="x_1" fullyObs="true">'
+        f"{_enum(model.observed_states, X)}</StateVar>",
+        '<StateVar vnamePrev="y_0" vnameCurr="y_1" fullyObs="false">'
+        f"{_enum(model.hidden_states, Y)}</StateVar>",
+        f'<ObsVar vname="obs">{_enum(model.observations, O)}</ObsVar>',
+        f'<ActionVar vname="action">{_enum(model.actions, A)}</ActionVar>',
+        '<RewardVar vname="reward"/>',
+        "</Variable>",
+        "<InitialStateBelief>",
+        _cond_prob("x_0", "null", "-", _values(mass)),
+        hidden,
+        "</InitialStateBelief>",
+        "<StateTransitionFunction>",
+        _cond_prob("x_1", "action x_0 y_0", "- - - -", _values(model.Tx)),
+    ]
+    if model.Ty is None:
+        lines.append(_cond_prob("y_1", "y_0", "- -", "identity"))
+    else:
+        Ty = model.Ty
+        # Does Ty depend on x_1 where x_1 is reachable (Tx > 0)? If not, drop that parent.
+        reachable = model.Tx > 0  # (A, X, Y, X2)
+        pick = reachable.double().argmax(-1)  # a reachable x2 per (a, x, y)
+        rows = Ty.gather(-2, pick[..., None, None].expand(A, X, Y, 1, Y))  # (A, X, Y, 1, Y)
+        same = (Ty == rows).all(-1) | ~reachable
+        if bool(same.all()):
+            lines.append(_cond_prob("y_1", "action x_0 y_0", "- - - -", _values(rows[..., 0, :])))
+        else:
+            lines.append(_cond_prob("y_1", "action x_0 y_0 x_1", "- - - - -", _values(Ty)))
+    lines += [
+        "</StateTransitionFunction>",
+        "<ObsFunction>",
+        _cond_prob("obs", "action x_1 y_1", "- - - -", _values(model.Z)),
+        "</ObsFunction>",
+    ]
+    return "\n".join(lines + _reward("action x_0 y_0", "- - -", model.R)) + "\n"
+
+
+def write_pomdpx(
+    model: MOMDP | POMDP, path: str | os.PathLike[str], *, description: str = "written by torchhrc"
+) -> Path:
+    """Write ``model`` as ``.pomdpx`` XML, atomically. See :func:`format_pomdpx`.
+
+    Example:
+        >>> import os, tempfile
+        >>> from torchhrc.testing import random_momdp
+        >>> path = os.path.join(tempfile.mkdtemp(), "m.pomdpx")
+        >>> write_pomdpx(random_momdp(2, 2, 1, 1, seed=0), path).suffix
+        '.pomdpx'
+    """
+    text = format_pomdpx(model, description=description)
+    return atomic_write_bytes(path, text.encode("iso-8859-1", errors="xmlcharrefreplace"))

@@ -508,7 +508,7 @@ def test_tokens_are_the_grammar_tokens(text: str) -> None:
     """The tokenizer (str.split after dropping comments and spacing the colons) gives exactly
     the tokens of the grammar's regex: runs of characters other than whitespace, ':' and '#',
     and each ':' alone, with '#' to the end of the line a comment."""
-    from torchhrc.io.cassandra import _TOKEN, _Parser
+    from torchhrc.io.cassandra.tokens import _TOKEN, _Parser
 
     want = [t for t in _TOKEN.findall(text) if t]
     assert _Parser(text, "<text>").tokens == want

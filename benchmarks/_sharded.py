@@ -28,7 +28,7 @@ def _peak_mib() -> float:
 
 def _shard_worker_peak(path: str) -> tuple[float, float]:
     """Reduce one shard in this (worker) process: ``(seconds, peak RSS MiB)``."""
-    from torchhrc.corpus import shard_statistics
+    from torchhrc.mixture.sharded import shard_statistics
 
     t0 = time.perf_counter()
     shard_statistics(path, by_subject=True, initial=False)
@@ -37,8 +37,8 @@ def _shard_worker_peak(path: str) -> tuple[float, float]:
 
 def write_shards(args: Any, make_data: Any, study_corpus: Any, folder: Path) -> float:
     """Write the shards; return the seconds it took."""
-    from torchhrc.corpus import write_parquet
     from torchhrc.data import Demonstrations
+    from torchhrc.io.parquet import write_parquet
 
     per = args.total // args.shards
     t0 = time.perf_counter()
@@ -77,8 +77,8 @@ def run(args: Any, make_data: Any, study_corpus: Any) -> None:
     generators (passed in, so that this module imports no benchmark)."""
     import ray
 
-    from torchhrc.corpus import ShardedCorpus
     from torchhrc.mixture import fit_mixture
+    from torchhrc.mixture.sharded import ShardedCorpus
 
     folder = Path(args.shard_dir or tempfile.mkdtemp(prefix="torchhrc_shards_"))
     folder.mkdir(parents=True, exist_ok=True)

@@ -8,11 +8,11 @@ from pathlib import Path
 import pytest
 import torch
 
-from torchhrc.corpus import ShardedCorpus
 from torchhrc.errors import ModelError
 from torchhrc.metrics import adjusted_rand_index
 from torchhrc.mixture import fit_mixture
 from torchhrc.mixture.consistency import cluster_consistency, intraclass_correlation
+from torchhrc.mixture.sharded import ShardedCorpus
 from torchhrc.tasks import make_task
 
 pytestmark = pytest.mark.numeric

@@ -315,7 +315,7 @@ def sharded_cluster_report(
     objects: str | None = None,
     min_consistency: float | None = None,
 ) -> dict[str, Any]:
-    """:func:`cluster_report` for a :class:`~torchhrc.corpus.ShardedCorpus` (same keys).
+    """:func:`cluster_report` for a :class:`~torchhrc.mixture.sharded.ShardedCorpus` (same keys).
 
     ``fit_mixture`` reads the corpus shard by shard (each shard a Ray task with ``ray``, and
     the soft method's E-steps on Ray actors), with the same defaults as the same rows in
@@ -495,7 +495,7 @@ def run(args: argparse.Namespace) -> int:
     """Cluster ``args.demos`` and print the report; return the exit status."""
     paths = list(args.demos)
     if _is_sharded(paths) or args.ray is not None:
-        from torchhrc.corpus import ShardedCorpus
+        from torchhrc.mixture.sharded import ShardedCorpus
 
         for flag, value in (
             ("--loo", args.loo),

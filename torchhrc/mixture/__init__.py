@@ -5,7 +5,9 @@ transition matrix over the joint actions; hard EM (Cluster-Transition-Matrices) 
 sequences to types, and Select-Best-Model picks the number of types by BIC. This package
 adds soft EM with Dirichlet smoothing and k-means++ initialisation (the default), runs every
 ``(k, restart)`` pair as one batched tensor program, infers the type of a new subject, and
-offers a Pyro version of the model.
+offers a Pyro version of the model. A corpus too large for memory is clustered from its
+shards (:class:`ShardedCorpus`: each shard reduced to its distinct rows, the merge exact),
+and with ``ray=`` the E-steps run on a Ray cluster (:class:`RayEStep`).
 
 Example:
     >>> import torch
@@ -35,6 +37,7 @@ from torchhrc.mixture.likelihood import (
     sequence_log_likelihood,
 )
 from torchhrc.mixture.model import MarkovChainMixture
+from torchhrc.mixture.ray_estep import RayEStep
 from torchhrc.mixture.selection import (
     ClusterConfig,
     MixtureFit,
@@ -42,12 +45,22 @@ from torchhrc.mixture.selection import (
     fit_mixture,
     num_free_parameters,
 )
+from torchhrc.mixture.sharded import (
+    CorpusStatistics,
+    ShardedCorpus,
+    ShardStatistics,
+    shard_statistics,
+)
 from torchhrc.mixture.soft_em import soft_em
 
 __all__ = [
     "ClusterConfig",
+    "CorpusStatistics",
     "MarkovChainMixture",
     "MixtureFit",
+    "RayEStep",
+    "ShardStatistics",
+    "ShardedCorpus",
     "SufficientStatistics",
     "bic",
     "cluster_consistency",
@@ -62,6 +75,7 @@ __all__ = [
     "num_free_parameters",
     "random_init",
     "sequence_log_likelihood",
+    "shard_statistics",
     "soft_em",
     "sufficient_statistics",
     "transition_counts",

@@ -340,7 +340,7 @@ def fit_mixture(
     Args:
         data: a :class:`torchhrc.data.Demonstrations`, a tuple ``(sequences (N, L) int64,
             lengths (N,) int64, num_symbols)``, or a corpus in shards
-            (:class:`torchhrc.corpus.ShardedCorpus`: CSV or Parquet files), whose shards are
+            (:class:`torchhrc.mixture.ShardedCorpus`: CSV or Parquet files), whose shards are
             reduced to their distinct units one by one (or as Ray tasks, ``ray=``) and merged
             exactly: the same fit as the corpus in memory, with the same defaults
             (``objects="auto"`` included: the corpus relabels its shards as views).
@@ -436,7 +436,7 @@ def fit_mixture(
             ``None``: ``DEFAULT_OBJECTS_SAMPLE`` (3,000).
         dtype: float dtype of the computation (float32 halves time and memory on big data).
         progress: ``progress(iteration, runs_still_running)`` after every EM iteration.
-        ray: run every soft-EM E-step on a Ray cluster (:class:`torchhrc.corpus.RayEStep`,
+        ray: run every soft-EM E-step on a Ray cluster (:class:`torchhrc.mixture.RayEStep`,
             the distinct rows split among its actors), for data in memory as for a sharded
             corpus, whose shards are then also reduced in Ray tasks: ``True`` or ``"local"``
             (a local cluster, unless Ray is already initialised) or ``"HOST:PORT"``;
@@ -725,7 +725,7 @@ def _select(
     )  # fmt: skip
     e_step = None
     if ray and method != "paper":  # every E-step on the Ray cluster, M-steps here
-        from torchhrc.corpus import RayEStep
+        from torchhrc.mixture.ray_estep import RayEStep
 
         e_step = RayEStep(stats, dtype=dtype, ray=ray)
     try:

@@ -279,7 +279,7 @@ def soft_em(
             ``e_step(log_transition, log_weights, log_initial, cluster_mask, details)`` and
             returning :class:`SoftStatistics` of all of ``stats``' rows (e.g. the sum of the
             passes over chunks of the rows on a Ray cluster,
-            :class:`torchhrc.corpus.RayEStep`); ``None``: :func:`soft_pass` here.
+            :class:`torchhrc.mixture.ray_estep.RayEStep`); ``None``: :func:`soft_pass` here.
 
     Returns:
         :class:`~torchhrc.mixture._em.EMResult` whose ``log_likelihood`` is the marginal

@@ -1,26 +1,6 @@
-"""Joint-action demonstrations: action vocabulary, padded sequences, CSV/JSON IO.
-
-A demonstration is a sequence of steps, each the pair ``(actor, action)`` with ``actor`` in
-``{"human", "robot"}``. The pair is the *symbol* of the step: a human ``wait`` and a robot
-``wait`` are different symbols, so the alphabet is the paper's ``A = A_r ∪ A_h``
-(Nikolaidis et al., section "Clustering of Human Types"). Symbols are numbered by the
-vocabulary, and the ``N`` sequences are stored as one padded tensor::
-
-    sequences: (N, L) int64   sequences[n, t] = symbol index of step t of sequence n
-                              (0 beyond lengths[n]: padding, masked out)
-    lengths:   (N,)   int64   number of steps of each sequence, every one >= 2
-    mask:      (N, L) bool    mask[n, t] = t < lengths[n]
-
-The CSV form (shared/DESIGN.md) has one row per step, header
-``subject,sequence,step,actor,action[,type]``, steps ``0, 1, ...`` in order within each
-(subject, sequence); the optional ``type`` is a ground-truth label used only for scoring.
-
-Example:
-    >>> from torchhrc.data import Demonstrations
-    >>> demos = Demonstrations.from_lists([[("human", "place_A"), ("robot", "drill_A")]])
-    >>> demos.symbol_names, demos.sequences.tolist(), demos.lengths.tolist()
-    (('human:place_A', 'robot:drill_A'), [[0, 1]], [2])
-"""
+"""The :class:`Demonstrations` container: ``N`` joint-action sequences padded into one
+tensor, with their vocabulary, subjects and types; selection, relabelling of objects,
+transition counts; its CSV and JSON forms are parsed in :mod:`torchhrc.data.formats`."""
 
 from __future__ import annotations
 
@@ -29,100 +9,32 @@ import dataclasses
 import io
 import json
 import os
-import tempfile
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import torch
 
+from torchhrc.data.formats import (
+    _JSON_FORMAT,
+    _JSON_VERSION,
+    _TYPE_COLUMN,
+    CSV_COLUMNS,
+    _atomic_write_text,
+    _from_json_dict,
+    _parse_csv,
+    _read_text,
+)
+from torchhrc.data.vocabulary import (
+    ACTORS,
+    Step,
+    _check_strings,
+    _check_vocabulary,
+    _sorted_vocabulary,
+)
 from torchhrc.errors import ModelError, ParseError
 
-__all__ = ["ACTORS", "CSV_COLUMNS", "Demonstrations", "Step"]
-
-#: The two actors of a joint-action demonstration, in vocabulary order.
-ACTORS: tuple[str, str] = ("human", "robot")
-#: Required CSV columns, in the order :meth:`Demonstrations.write_csv` writes them.
-CSV_COLUMNS: tuple[str, ...] = ("subject", "sequence", "step", "actor", "action")
-_TYPE_COLUMN = "type"
-_JSON_FORMAT = "torchhrc.demonstrations"
-_JSON_VERSION = 1
-
-#: One step of a demonstration: ``(actor, action)``.
-Step = tuple[str, str]
-
-
-def _sorted_vocabulary(symbols: Iterable[Step]) -> tuple[Step, ...]:
-    """Canonical order: human symbols first, then robot; action names sorted."""
-    return tuple(sorted(set(symbols), key=lambda s: (ACTORS.index(s[0]), s[1])))
-
-
-def _check_vocabulary(vocabulary: object) -> tuple[Step, ...]:
-    if isinstance(vocabulary, (str, bytes)) or not isinstance(vocabulary, Iterable):
-        raise TypeError(
-            f"expected vocabulary to be a sequence of (actor, action) pairs, "
-            f"got {type(vocabulary).__name__}"
-        )
-    vocab: list[Step] = []
-    for i, entry in enumerate(vocabulary):
-        if (
-            not isinstance(entry, (tuple, list))
-            or len(entry) != 2
-            or not all(isinstance(part, str) for part in entry)
-        ):
-            raise TypeError(
-                f"expected vocabulary[{i}] to be an (actor, action) pair, got {entry!r}"
-            )
-        actor, action = entry
-        if actor not in ACTORS:
-            raise ModelError(
-                f"vocabulary[{i}] has actor {actor!r}, expected one of {', '.join(ACTORS)}"
-            )
-        if not action:
-            raise ModelError(f"vocabulary[{i}] has an empty action name")
-        vocab.append((actor, action))
-    seen: dict[Step, int] = {}
-    for i, symbol in enumerate(vocab):
-        if symbol in seen:
-            raise ModelError(
-                f"vocabulary[{i}] = {symbol!r} repeats vocabulary[{seen[symbol]}]; "
-                "symbols must be distinct"
-            )
-        seen[symbol] = i
-    return tuple(vocab)
-
-
-def _check_strings(name: str, values: object, size: int) -> tuple[str, ...]:
-    if isinstance(values, (str, bytes)) or not isinstance(values, Iterable):
-        raise TypeError(f"expected {name} to be a sequence of strings, got {type(values).__name__}")
-    out = tuple(values)
-    if len(out) != size:
-        raise ModelError(f"expected {name} to have one entry per sequence ({size}), got {len(out)}")
-    for i, value in enumerate(out):
-        if not isinstance(value, str):
-            raise TypeError(f"expected {name}[{i}] to be a string, got {type(value).__name__}")
-        if not value:
-            raise ModelError(f"{name}[{i}] is an empty string")
-    return out
-
-
-def _atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and ``os.replace``."""
-    target = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=target.parent or ".", prefix=f".{target.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+__all__ = ["Demonstrations"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -830,89 +742,7 @@ class Demonstrations:
     @classmethod
     def from_json_dict(cls, data: Mapping[str, Any], *, path: str = "<dict>") -> Demonstrations:
         """Inverse of :meth:`to_json_dict`; errors name ``path`` and the JSON location."""
-
-        def fail(where: str, reason: str) -> ParseError:
-            return ParseError(f"{where}: {reason}", path=path)
-
-        if not isinstance(data, Mapping):
-            raise fail("$", f"expected a JSON object, got {type(data).__name__}")
-        if data.get("format") != _JSON_FORMAT:
-            raise fail("$.format", f"expected {_JSON_FORMAT!r}, got {data.get('format')!r}")
-        if data.get("version") != _JSON_VERSION:
-            raise fail("$.version", f"expected {_JSON_VERSION}, got {data.get('version')!r}")
-        unknown = sorted(set(data) - {"format", "version", "vocabulary", "sequences"})
-        if unknown:
-            raise fail("$", f"unknown keys {unknown}")
-        raw_vocab = data.get("vocabulary")
-        if not isinstance(raw_vocab, list):
-            raise fail("$.vocabulary", "expected a list of [actor, action] pairs")
-        try:
-            vocab = _check_vocabulary([tuple(v) if isinstance(v, list) else v for v in raw_vocab])
-        except (TypeError, ModelError) as error:
-            raise fail("$.vocabulary", str(error)) from None
-        records = data.get("sequences")
-        if not isinstance(records, list):
-            raise fail("$.sequences", "expected a list of sequence records")
-        seqs: list[list[Step]] = []
-        subjects, ids, types = [], [], []
-        has_types = bool(records) and isinstance(records[0], Mapping) and "type" in records[0]
-        vocab_set = set(vocab)
-        for i, record in enumerate(records):
-            where = f"$.sequences[{i}]"
-            if not isinstance(record, Mapping):
-                raise fail(where, "expected an object")
-            allowed = {"subject", "sequence", "steps"} | ({"type"} if has_types else set())
-            extra = sorted(set(record) - allowed)
-            if extra:
-                if "type" in extra:
-                    reason = "type labels must be given for all sequences or none"
-                else:
-                    reason = f"unknown keys {extra}"
-                raise fail(where, reason)
-            for key in sorted(allowed):
-                if key not in record:
-                    raise fail(where, f"missing key {key!r}")
-            for key in ("subject", "sequence") + (("type",) if has_types else ()):
-                if not isinstance(record[key], str) or not record[key]:
-                    raise fail(
-                        f"{where}.{key}", f"expected a non-empty string, got {record[key]!r}"
-                    )
-            steps = record["steps"]
-            if not isinstance(steps, list):
-                raise fail(f"{where}.steps", "expected a list of [actor, action] pairs")
-            parsed: list[Step] = []
-            for t, step in enumerate(steps):
-                if (
-                    not isinstance(step, list)
-                    or len(step) != 2
-                    or not all(isinstance(part, str) for part in step)
-                ):
-                    raise fail(f"{where}.steps[{t}]", f"expected [actor, action], got {step!r}")
-                if step[0] not in ACTORS:
-                    raise fail(
-                        f"{where}.steps[{t}]",
-                        f"unknown actor {step[0]!r} (expected one of {', '.join(ACTORS)})",
-                    )
-                if (step[0], step[1]) not in vocab_set:
-                    raise fail(f"{where}.steps[{t}]", f"symbol {step!r} is not in the vocabulary")
-                parsed.append((step[0], step[1]))
-            if len(parsed) < 2:
-                raise fail(f"{where}.steps", f"{len(parsed)} step(s), expected at least 2")
-            seqs.append(parsed)
-            subjects.append(record["subject"])
-            ids.append(record["sequence"])
-            if has_types:
-                types.append(record["type"])
-        try:
-            return cls.from_lists(
-                seqs,
-                subjects=subjects,
-                sequence_ids=ids,
-                types=types if has_types else None,
-                vocabulary=vocab,
-            )
-        except ModelError as error:
-            raise fail("$.sequences", str(error)) from None
+        return _from_json_dict(cls, data, path)
 
     def write_json(self, path: str | os.PathLike[str]) -> None:
         """Write the JSON form atomically (temporary file + ``os.replace``)."""
@@ -944,233 +774,3 @@ class Demonstrations:
                 f"invalid JSON: {error.msg}", path=name, line=error.lineno, column=error.colno
             ) from None
         return cls.from_json_dict(data, path=name)
-
-
-def _read_text(path: str, *, encoding: str) -> str:
-    """The file's text; undecodable bytes are a :class:`ParseError` naming the line."""
-    with open(path, "rb") as handle:
-        raw = handle.read()
-    try:
-        return raw.decode(encoding)
-    except UnicodeDecodeError as error:
-        line = raw[: error.start].count(b"\n") + 1
-        raise ParseError(
-            f"not {encoding.split('-sig')[0].upper()} text (byte {error.start})",
-            path=path,
-            line=line,
-        ) from None
-
-
-class _SafeReader:
-    """A ``csv.reader`` whose ``csv.Error`` (e.g. a NUL byte) becomes a ParseError."""
-
-    def __init__(self, reader: Any, path: str) -> None:
-        self._reader = reader
-        self._path = path
-
-    @property
-    def line_num(self) -> int:
-        return self._reader.line_num
-
-    def __iter__(self) -> _SafeReader:
-        return self
-
-    def __next__(self) -> list[str]:
-        try:
-            return next(self._reader)
-        except csv.Error as error:
-            raise ParseError(
-                f"malformed CSV: {error}", path=self._path, line=self._reader.line_num + 1
-            ) from None
-
-
-def _parse_csv(
-    cls: type[Demonstrations],
-    text: str,
-    path: str,
-    vocabulary: Sequence[Step] | None,
-) -> Demonstrations:
-    """The CSV parser behind :meth:`Demonstrations.read_csv` (one pass, strict)."""
-    if text.startswith("\ufeff"):
-        text = text[1:]
-    reader = _SafeReader(csv.reader(io.StringIO(text, newline="")), path)
-    header: list[str] | None = None
-    header_line = 0
-    for row in reader:
-        if row and any(cell.strip() for cell in row):
-            header = [cell.strip() for cell in row]
-            header_line = reader.line_num
-            break
-    if header is None:
-        raise ParseError(
-            "empty file (expected the header subject,sequence,step,actor,action[,type])",
-            path=path,
-            line=1,
-        )
-    for j, col in enumerate(header):
-        if header.index(col) != j:
-            raise ParseError(
-                f"column {col!r} appears twice", path=path, line=header_line, column=j + 1
-            )
-    allowed = set(CSV_COLUMNS) | {_TYPE_COLUMN}
-    unknown = [c for c in header if c not in allowed]
-    if unknown:
-        raise ParseError(
-            f"unknown column {unknown[0]!r} (expected subject,sequence,step,actor,action[,type])",
-            path=path,
-            line=header_line,
-            column=header.index(unknown[0]) + 1,
-        )
-    missing = [c for c in CSV_COLUMNS if c not in header]
-    if missing:
-        raise ParseError(
-            f"missing column(s) {', '.join(missing)} "
-            "(expected subject,sequence,step,actor,action[,type])",
-            path=path,
-            line=header_line,
-        )
-    col = {name: header.index(name) for name in header}
-    has_types = _TYPE_COLUMN in col
-    fixed_vocab = None if vocabulary is None else set(_check_vocabulary(vocabulary))
-
-    seqs: list[list[Step]] = []
-    subjects: list[str] = []
-    ids: list[str] = []
-    types: list[str] = []
-    first_line: list[int] = []
-    done: dict[tuple[str, str], int] = {}  # finished sequence -> its first line
-    current: tuple[str, str] | None = None
-    last_step = -1
-
-    def close_current() -> None:
-        if current is not None and len(seqs[-1]) < 2:
-            raise ParseError(
-                f"sequence {current[0]}/{current[1]} has {len(seqs[-1])} step, expected at "
-                "least 2 (a sequence needs at least one transition)",
-                path=path,
-                line=first_line[-1],
-            )
-
-    for row in reader:
-        line = reader.line_num
-        if not row or not any(cell.strip() for cell in row):
-            continue
-        if len(row) != len(header):
-            raise ParseError(
-                f"expected {len(header)} fields ({','.join(header)}), got {len(row)}",
-                path=path,
-                line=line,
-            )
-        cells = [cell.strip() for cell in row]
-        for name, j in col.items():
-            if not cells[j]:
-                raise ParseError(f"empty {name!r} field", path=path, line=line, column=j + 1)
-        subject, seq_id = cells[col["subject"]], cells[col["sequence"]]
-        actor, action = cells[col["actor"]], cells[col["action"]]
-        raw_step = cells[col["step"]]
-        try:
-            step = int(raw_step)
-        except ValueError:
-            step = -1
-        if step < 0 or not raw_step.lstrip("+").isdigit():
-            raise ParseError(
-                f"step {raw_step!r} is not a non-negative integer",
-                path=path,
-                line=line,
-                column=col["step"] + 1,
-            )
-        if actor not in ACTORS:
-            raise ParseError(
-                f"unknown actor {actor!r} (expected one of {', '.join(ACTORS)})",
-                path=path,
-                line=line,
-                column=col["actor"] + 1,
-            )
-        if fixed_vocab is not None and (actor, action) not in fixed_vocab:
-            raise ParseError(
-                f"symbol {actor}:{action} is not in the given vocabulary",
-                path=path,
-                line=line,
-                column=col["action"] + 1,
-            )
-        key = (subject, seq_id)
-        if key != current:
-            if key in done:
-                raise ParseError(
-                    f"rows of sequence {subject}/{seq_id} are not contiguous (it started at "
-                    f"line {done[key]} and another sequence came in between)",
-                    path=path,
-                    line=line,
-                )
-            if (
-                current is not None
-                and seq_id == current[1]
-                and subject != current[0]
-                and step == last_step + 1
-                and step > 0
-            ):
-                raise ParseError(
-                    f"sequence {seq_id!r} changes subject from {current[0]!r} to {subject!r} "
-                    f"at step {step}",
-                    path=path,
-                    line=line,
-                    column=col["subject"] + 1,
-                )
-            close_current()
-            if step != 0:
-                raise ParseError(
-                    f"sequence {subject}/{seq_id} starts at step {step}; missing step(s) "
-                    f"0..{step - 1}",
-                    path=path,
-                    line=line,
-                    column=col["step"] + 1,
-                )
-            current = key
-            done[key] = line
-            last_step = -1
-            seqs.append([])
-            subjects.append(subject)
-            ids.append(seq_id)
-            first_line.append(line)
-            if has_types:
-                types.append(cells[col[_TYPE_COLUMN]])
-        if step <= last_step:
-            raise ParseError(
-                f"duplicate step {step} in sequence {subject}/{seq_id} "
-                f"(steps must be 0, 1, ... in order)",
-                path=path,
-                line=line,
-                column=col["step"] + 1,
-            )
-        if step != last_step + 1:
-            gap = f"{last_step + 1}" if step == last_step + 2 else f"{last_step + 1}..{step - 1}"
-            raise ParseError(
-                f"missing step(s) {gap} in sequence {subject}/{seq_id} before step {step}",
-                path=path,
-                line=line,
-                column=col["step"] + 1,
-            )
-        if has_types and cells[col[_TYPE_COLUMN]] != types[-1]:
-            raise ParseError(
-                f"type label changes within sequence {subject}/{seq_id}: "
-                f"{types[-1]!r} then {cells[col[_TYPE_COLUMN]]!r}",
-                path=path,
-                line=line,
-                column=col[_TYPE_COLUMN] + 1,
-            )
-        last_step = step
-        seqs[-1].append((actor, action))
-    close_current()
-    if not seqs:
-        raise ParseError(
-            "no data rows after the header (expected one row per step)",
-            path=path,
-            line=header_line + 1,
-        )
-    return cls.from_lists(
-        seqs,
-        subjects=subjects,
-        sequence_ids=ids,
-        types=types if has_types else None,
-        vocabulary=None if vocabulary is None else tuple(vocabulary),
-    )

@@ -14,6 +14,8 @@ from torchhrc.io._budget import check_budget
 from torchhrc.io.cassandra.tokens import _is_int, _Parser
 from torchhrc.pomdp.sparse import MAX_DENSE_ENTRIES
 
+__all__: list[str] = []  # private parts; the public names are the package's
+
 #: Peak bytes a cell of a table costs the sparse reader: its coordinate list (key, value and
 #: entry, 24 bytes) and the sorting and checks of :meth:`_SparseTable.finish`. Measured: 36
 #: million cells (``T: * uniform`` at 3,000 states, 4 actions) peaked 4.5 GB above the

@@ -9,6 +9,8 @@ import numpy as np
 
 from torchhrc.errors import ParseError
 
+__all__: list[str] = []  # private parts; the public names are the package's
+
 _TOKEN = re.compile(r"#[^\n]*|([^\s:#]+|:)")
 _COMMENT = re.compile(r"#[^\n]*")
 _NAME = re.compile(r"[A-Za-z][A-Za-z0-9_\-]*\Z")

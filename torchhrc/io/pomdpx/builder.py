@@ -17,6 +17,8 @@ from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.pomdp.sparse import SparsePOMDP
 from torchhrc.pomdp.sparse_momdp import SparseMOMDP
 
+__all__: list[str] = []  # private parts; the public names are the package's
+
 #: Peak bytes a nonzero of the sparse forms costs while it is expanded (its row, value and
 #: probability, one index per variable, the re-indexing), per variable of the expansion.
 _ENTRY_BYTES = 48

@@ -16,6 +16,8 @@ from torchhrc.io.pomdpx.variables import PomdpxVariable, PomdpxVariables
 from torchhrc.io.pomdpx.xml_tree import _line, _Node, _text
 from torchhrc.pomdp.sparse import MAX_DENSE_ENTRIES
 
+__all__: list[str] = []  # private parts; the public names are the package's
+
 _ROW_TOL = 1e-4  # rows of a CondProb must sum to 1 within this (then renormalised exactly)
 
 #: Bytes of a value named by ``<NumValues>``: its made-up name and the reader's lookup entry

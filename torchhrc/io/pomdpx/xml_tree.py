@@ -10,6 +10,8 @@ from xml.parsers import expat
 
 from torchhrc.errors import ParseError
 
+__all__: list[str] = []  # private parts; the public names are the package's
+
 
 class _Node:
     """An XML element with its 1-based line (expat tree; ElementTree drops lines)."""

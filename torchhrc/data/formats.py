@@ -10,17 +10,15 @@ import os
 import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from torchhrc.data.vocabulary import ACTORS, Step, _check_vocabulary
 from torchhrc.errors import ModelError, ParseError
 
-if TYPE_CHECKING:
-    from torchhrc.data.demonstrations import Demonstrations
-
 __all__ = ["CSV_COLUMNS"]
 
-#: Required CSV columns, in the order :meth:`Demonstrations.write_csv` writes them.
+#: Required CSV columns, in the order :meth:`~torchhrc.data.Demonstrations.write_csv` writes
+#: them.
 CSV_COLUMNS: tuple[str, ...] = ("subject", "sequence", "step", "actor", "action")
 _TYPE_COLUMN = "type"
 _JSON_FORMAT = "torchhrc.demonstrations"
@@ -45,11 +43,9 @@ def _atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
         raise
 
 
-def _from_json_dict(
-    cls: type[Demonstrations], data: Mapping[str, Any], path: str
-) -> Demonstrations:
-    """The JSON reader behind :meth:`Demonstrations.from_json_dict` (errors name ``path`` and
-    the JSON location)."""
+def _from_json_dict(cls: Any, data: Mapping[str, Any], path: str) -> Any:
+    """The JSON reader behind :meth:`~torchhrc.data.Demonstrations.from_json_dict` (``cls``: that
+    class, not imported here; errors name ``path`` and the JSON location)."""
 
     def fail(where: str, reason: str) -> ParseError:
         return ParseError(f"{where}: {reason}", path=path)
@@ -172,12 +168,13 @@ class _SafeReader:
 
 
 def _parse_csv(
-    cls: type[Demonstrations],
+    cls: Any,
     text: str,
     path: str,
     vocabulary: Sequence[Step] | None,
-) -> Demonstrations:
-    """The CSV parser behind :meth:`Demonstrations.read_csv` (one pass, strict)."""
+) -> Any:
+    """The CSV parser behind :meth:`~torchhrc.data.Demonstrations.read_csv` (one pass, strict;
+    ``cls``: that class, not imported here)."""
     if text.startswith("\ufeff"):
         text = text[1:]
     reader = _SafeReader(csv.reader(io.StringIO(text, newline="")), path)

@@ -23,7 +23,7 @@ The format of Anthony Cassandra's pomdp-solve, read by APPL SARSOP, ZMDP and POM
 
 * comments from ``#`` to the end of the line.
 
-``read_pomdp(..., sparse=True)`` returns a :class:`~torchhrc.sparse.SparsePOMDP` (coordinate
+``read_pomdp(..., sparse=True)`` returns a :class:`~torchhrc.pomdp.sparse.SparsePOMDP` (coordinate
 lists) for models too large to hold densely, e.g. RockSample(7, 8) with 12545 states.
 Rewards are reduced to the expected ``R[a, s] = sum_s2 T[a, s, s2] sum_o Z[a, s2, o]
 R(a, s, s2, o)`` (``values: cost`` negates them). Rows of ``T``, ``Z`` and ``start`` must sum to
@@ -88,7 +88,7 @@ __all__ = [
 AUTO_SPARSE_ENTRIES = 10_000_000
 #: ...unless at least this fraction of ``T``'s entries are nonzero (a dense model, held as
 #: coordinate lists of 4 numbers an entry, would take more memory and a slower solver path)
-#: and it fits under :data:`~torchhrc.sparse.MAX_DENSE_ENTRIES`: it is then returned dense,
+#: and it fits under :data:`~torchhrc.pomdp.sparse.MAX_DENSE_ENTRIES`: it is then returned dense,
 #: as is a model whose rewards depend on the next state or observation (which the sparse
 #: form cannot hold).
 AUTO_DENSE_FRACTION = 0.1
@@ -130,12 +130,12 @@ def read_pomdp(
 
     Args:
         source: a path (``str`` without newlines or ``:``, or ``os.PathLike``) or the text.
-        sparse: return a :class:`~torchhrc.sparse.SparsePOMDP` (coordinate lists; for models
+        sparse: return a :class:`~torchhrc.pomdp.sparse.SparsePOMDP` (coordinate lists; for models
             too large to hold densely, e.g. RockSample(7, 8); rewards must then be given as
             ``R: a : s : * : * v``); ``"auto"``: sparse when the dense ``T (A, S, S)`` or
             ``Z (A, S, O)`` would exceed :data:`AUTO_SPARSE_ENTRIES` entries (1e7: 80 MB in
             float64), else dense; also dense above it when the model fits under
-            :data:`~torchhrc.sparse.MAX_DENSE_ENTRIES` (2e8) and at least
+            :data:`~torchhrc.pomdp.sparse.MAX_DENSE_ENTRIES` (2e8) and at least
             :data:`AUTO_DENSE_FRACTION` of ``T``'s entries are nonzero or its rewards depend
             on the next state or observation.
         dtype, device: of the returned tensors (a sparse model stays on the CPU).
@@ -150,7 +150,7 @@ def read_pomdp(
 
     Returns:
         :class:`~torchhrc.pomdp.POMDP` with the file's names (``None`` where counts were
-        given), or :class:`~torchhrc.sparse.SparsePOMDP` when ``sparse``.
+        given), or :class:`~torchhrc.pomdp.sparse.SparsePOMDP` when ``sparse``.
 
     Raises:
         ParseError: the file is malformed (file, line, column and reason in the message), the

@@ -1,6 +1,6 @@
 """The tables a Cassandra ``.pomdp`` read fills: dense ``(A, S, N)`` probabilities
-(:class:`_DenseTable`), coordinate lists for the sparse form (:class:`_SparseTable`,
-:class:`_FastEntries`, with the budget's :class:`_Charge`), the name maps and the row checks."""
+(``_DenseTable``), coordinate lists for the sparse form (``_SparseTable``,
+``_FastEntries``, with the budget's ``_Charge``), the name maps and the row checks."""
 
 from __future__ import annotations
 

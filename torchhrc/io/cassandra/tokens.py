@@ -1,4 +1,4 @@
-"""The tokens of a Cassandra ``.pomdp`` file and the :class:`_Parser` over them (one
+"""The tokens of a Cassandra ``.pomdp`` file and the ``_Parser`` over them (one
 regex scan; names, numbers, the grammar's reserved words, errors with line and column)."""
 
 from __future__ import annotations

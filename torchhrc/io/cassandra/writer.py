@@ -1,4 +1,4 @@
-"""Writing a :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.sparse.SparsePOMDP` as
+"""Writing a :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.sparse.SparsePOMDP` as
 Cassandra ``.pomdp`` text (:func:`format_pomdp`, :func:`write_pomdp`): the sparse
 single-entry form, names where the grammar accepts them, floats at ``repr`` precision."""
 

@@ -36,13 +36,13 @@ an observed variable is returned as a :class:`~torchhrc.pomdp.MOMDP`
 (``Tx (A, X, Y, X)``, ``Ty (A, X, Y, X, Y)`` or ``None`` when every hidden variable keeps its
 value, ``Z (A, X, Y, O)``, ``R (A, X, Y)``; an initial belief spread over several ``x`` as its
 ``initial (X, Y)``, APPL's ``TagAvoid.pomdpx``), or as a
-:class:`~torchhrc.sparse_momdp.SparseMOMDP` when its dense ``Tx``/``Ty`` would be too large;
+:class:`~torchhrc.pomdp.sparse_momdp.SparseMOMDP` when its dense ``Tx``/``Ty`` would be too large;
 otherwise as a flat
 :class:`~torchhrc.pomdp.POMDP` over ``s = x * Y + y`` (names ``"x|y"``; observations
 ``x2 * O + o`` when some variable is observed, as :meth:`~torchhrc.pomdp.MOMDP.to_pomdp`,
 unless ``x`` is a function of the actions taken: one initial ``x`` and deterministic observed
 variables that depend on no hidden one), or as a
-:class:`~torchhrc.sparse.SparsePOMDP` when the dense tensors would be too large
+:class:`~torchhrc.pomdp.sparse.SparsePOMDP` when the dense tensors would be too large
 (RockSample(7, 8): ``Ty`` would hold 2e9 entries). Tables are parsed with numpy and combined
 by broadcasting (dense forms) or by expanding the nonzero successors of every ``(a, s)``
 (sparse form); no Python loop runs over states. XML is parsed by expat with document type
@@ -112,9 +112,9 @@ __all__ = [
 AUTO_SPARSE_ENTRIES = MAX_DENSE_ENTRIES
 
 #: ``read_pomdpx(..., sparse="auto")`` keeps a MOMDP's transitions as their nonzeros (a
-#: :class:`~torchhrc.sparse_momdp.SparseMOMDP`) when its dense ``Tx`` or ``Ty`` would have more
-#: entries than this (10^7, 80 MB in float64). Measured on RockSample(6, 6) as a MOMDP (a dense
-#: ``Ty`` of 6.2e7 entries): read in 1.0 instead of 3.6 CPU-s, peak memory 443 instead of
+#: :class:`~torchhrc.pomdp.sparse_momdp.SparseMOMDP`) when its dense ``Tx`` or ``Ty`` would
+#: have more entries than this (10^7, 80 MB in float64). Measured on RockSample(6, 6) as a MOMDP
+#: (a dense ``Ty`` of 6.2e7 entries): read in 1.0 instead of 3.6 CPU-s, peak memory 443 instead of
 #: 1,222 MB, and a tighter gap after 10 CPU-s of SARSOP (1.82 against 1.94).
 AUTO_SPARSE_MOMDP_ENTRIES = 10_000_000
 
@@ -180,16 +180,16 @@ def read_pomdpx(
 
     Args:
         source: a path (``str`` without ``<``, or ``os.PathLike``) or the XML text.
-        sparse: ``True``: a flat :class:`~torchhrc.sparse.SparsePOMDP`; ``False``: a dense
+        sparse: ``True``: a flat :class:`~torchhrc.pomdp.sparse.SparsePOMDP`; ``False``: a dense
             model (:class:`ParseError` when a tensor would exceed
-            :data:`~torchhrc.sparse.MAX_DENSE_ENTRIES`, 2e8 entries); ``"auto"``: dense when
+            :data:`~torchhrc.pomdp.sparse.MAX_DENSE_ENTRIES`, 2e8 entries); ``"auto"``: dense when
             every dense tensor is within :data:`AUTO_SPARSE_ENTRIES` (by default the same
             2e8) and a MOMDP's ``Tx`` and ``Ty`` within :data:`AUTO_SPARSE_MOMDP_ENTRIES`
             (1e7), else sparse (a MOMDP's transitions as a
-            :class:`~torchhrc.sparse_momdp.SparseMOMDP` when its ``Z`` fits).
+            :class:`~torchhrc.pomdp.sparse_momdp.SparseMOMDP` when its ``Z`` fits).
         momdp: return a :class:`~torchhrc.pomdp.MOMDP` when the file has an observed
             (``fullyObs="true"``) state variable and the dense ``Tx``, ``Ty`` (unless
-            static) and ``Z`` fit, a :class:`~torchhrc.sparse_momdp.SparseMOMDP` when only
+            static) and ``Z`` fit, a :class:`~torchhrc.pomdp.sparse_momdp.SparseMOMDP` when only
             ``Z`` fits (either with :attr:`~torchhrc.pomdp.MOMDP.initial` when the initial
             belief spreads over several observed values); ``False``: always flat.
         dtype, device: of the returned tensors (a sparse model stays on the CPU).
@@ -202,8 +202,8 @@ def read_pomdpx(
             picks a sparse form when the dense one would not fit.
 
     Returns:
-        :class:`~torchhrc.pomdp.MOMDP`, :class:`~torchhrc.sparse_momdp.SparseMOMDP`,
-        :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.sparse.SparsePOMDP`.
+        :class:`~torchhrc.pomdp.MOMDP`, :class:`~torchhrc.pomdp.sparse_momdp.SparseMOMDP`,
+        :class:`~torchhrc.pomdp.POMDP` or :class:`~torchhrc.pomdp.sparse.SparsePOMDP`.
 
     Raises:
         ParseError: the file is malformed, a table is inconsistent (wrong number of values, a

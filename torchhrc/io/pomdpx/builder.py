@@ -1,5 +1,5 @@
-"""Assembling a ``.pomdpx`` file's tables into a model: the :class:`_Builder` combines the
-:class:`~torchhrc.io.pomdpx.reader._Table` s into dense tensors by broadcasting or into the
+"""Assembling a ``.pomdpx`` file's tables into a model: the ``_Builder`` combines the
+``_Table``s into dense tensors by broadcasting or into the
 sparse forms by expanding nonzero successors, with the names of the flat form."""
 
 from __future__ import annotations

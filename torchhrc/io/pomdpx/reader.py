@@ -1,6 +1,6 @@
 """Reading a ``.pomdpx`` element tree into its variables and tables: the
-:class:`_Reader` (the document's elements, names, instances, ``<ProbTable>`` and
-``<ValueTable>`` numbers, checked) and the :class:`_Table` it yields per function."""
+``_Reader`` (the document's elements, names, instances, ``<ProbTable>`` and
+``<ValueTable>`` numbers, checked) and the ``_Table`` it yields per function."""
 
 from __future__ import annotations
 

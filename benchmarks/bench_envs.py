@@ -23,7 +23,8 @@ import numpy as np
 import torch
 from _timing import median_time
 
-from torchhrc.envs import PlaceAndDrillEnv, PlaceAndDrillVectorEnv
+from torchhrc.tasks.place_and_drill.env import PlaceAndDrillEnv
+from torchhrc.tasks.place_and_drill.vector_env import PlaceAndDrillVectorEnv
 
 
 def _runner(envs, actions: np.ndarray):

@@ -45,7 +45,7 @@ import json, sys
 import torchhrc
 from torchhrc.resources import shipped_path
 from torchhrc.kinematics import asset_path
-from torchhrc.baselines import DEFAULT_EXPERT_PATH, load_expert_model
+from torchhrc.tasks.place_and_drill.hand_coded import DEFAULT_EXPERT_PATH, load_expert_model
 expert = load_expert_model()
 print(json.dumps({
     "package": torchhrc.__file__,

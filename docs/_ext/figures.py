@@ -48,11 +48,11 @@ def online_cross_training_by_type(seed: int = 0) -> str:
     """
     import torch
 
-    from torchhrc.baselines.hand_coded import load_expert_model
     from torchhrc.experiments.online import human_chunk_size, pooled_cross_training
     from torchhrc.experiments.place_and_drill import StudySettings
     from torchhrc.experiments.robustness import simulate_subject
     from torchhrc.tasks.place_and_drill.demos import simulate_study
+    from torchhrc.tasks.place_and_drill.hand_coded import load_expert_model
     from torchhrc.tasks.place_and_drill.model import EMPTY, PLACED
     from torchhrc.tasks.place_and_drill.simulate import demonstrated_orders
 

@@ -11,11 +11,9 @@ import torch
 
 pytest.importorskip("gymnasium", reason="torchhrc.envs needs the gym extra (gymnasium)")
 
-from torchhrc.baselines.hand_coded import build_expert_momdp, load_expert_model
 from torchhrc.envs import (
     BeliefAgent,
     MOMDPEnv,
-    PlaceAndDrillVectorEnv,
     POMDPEnv,
     RandomAgent,
     rollout,
@@ -23,6 +21,8 @@ from torchhrc.envs import (
 from torchhrc.pomdp.belief import momdp_update, update
 from torchhrc.solvers import SARSOPConfig, evaluate_policy, solve
 from torchhrc.tasks.classic import tiger
+from torchhrc.tasks.place_and_drill.hand_coded import build_expert_momdp, load_expert_model
+from torchhrc.tasks.place_and_drill.vector_env import PlaceAndDrillVectorEnv
 from torchhrc.testing import random_momdp
 
 Z95 = 1.959963984540054

@@ -14,8 +14,9 @@ pytest.importorskip("scipy", reason="the frequency tests use scipy.stats")
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 import torchhrc.envs  # noqa: E402,F401  (registers the ids)
-from torchhrc.envs import PlaceAndDrillEnv, PlaceAndDrillVectorEnv  # noqa: E402
+from torchhrc.tasks.place_and_drill.env import PlaceAndDrillEnv  # noqa: E402
 from torchhrc.tasks.place_and_drill.model import placement_transition  # noqa: E402
+from torchhrc.tasks.place_and_drill.vector_env import PlaceAndDrillVectorEnv  # noqa: E402
 
 ALPHA = 1e-3
 

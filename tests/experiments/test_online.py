@@ -7,7 +7,6 @@ import warnings
 import pytest
 import torch
 
-from torchhrc.baselines.hand_coded import load_expert_model, parse_expert_model
 from torchhrc.errors import ModelError
 from torchhrc.experiments.online import (
     expert_online_momdp,
@@ -21,6 +20,7 @@ from torchhrc.experiments.robustness import POLICY_NAMES, MOMDPPolicy, simulate_
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.place_and_drill.demos import simulate_study
+from torchhrc.tasks.place_and_drill.hand_coded import load_expert_model, parse_expert_model
 from torchhrc.tasks.place_and_drill.model import (
     PlaceAndDrillTask,
     build_learned_model,
@@ -168,7 +168,7 @@ def test_expert_online_model_reads_the_file():
     assert model.Tx[0, x, 1, x].item() == pytest.approx(0.95)
     import json
 
-    from torchhrc.baselines.hand_coded import DEFAULT_EXPERT_PATH
+    from torchhrc.tasks.place_and_drill.hand_coded import DEFAULT_EXPERT_PATH
 
     data = json.loads(DEFAULT_EXPERT_PATH.read_text())
     data["human"]["waits_while_pending"]["safe"] = 1.5

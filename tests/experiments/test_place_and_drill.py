@@ -121,8 +121,8 @@ def test_quick_settings_are_small():
 
 def test_type_policy_lower_bound_is_achievable():
     """Each vector's value equals a Monte-Carlo-free check: it never exceeds the MDP optimum."""
-    from torchhrc.baselines.hand_coded import build_expert_momdp, load_expert_model
     from torchhrc.solvers.value_iteration import value_iteration
+    from torchhrc.tasks.place_and_drill.hand_coded import build_expert_momdp, load_expert_model
 
     model = build_expert_momdp(load_expert_model())
     policy = type_policy_lower_bound(model)

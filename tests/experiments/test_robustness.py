@@ -7,8 +7,6 @@ import math
 import pytest
 import torch
 
-from torchhrc.baselines.cross_training import fit_cross_training
-from torchhrc.baselines.hand_coded import build_expert_momdp, load_expert_model
 from torchhrc.data import Demonstrations
 from torchhrc.experiments.robustness import (
     EPSILONS,
@@ -18,7 +16,9 @@ from torchhrc.experiments.robustness import (
     simulate_subject,
     student_t_quantile,
 )
+from torchhrc.tasks.place_and_drill.cross_training import fit_cross_training
 from torchhrc.tasks.place_and_drill.demos import demonstration
+from torchhrc.tasks.place_and_drill.hand_coded import build_expert_momdp, load_expert_model
 
 
 @pytest.mark.parametrize(("dof", "value"), [(1, 12.706), (5, 2.571), (17, 2.110), (100, 1.984)])

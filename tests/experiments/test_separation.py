@@ -141,8 +141,8 @@ def test_separation_statistics_match_a_finer_sampling_of_the_replay():
     """
     pytest.importorskip("sapien")
     pytest.importorskip("pytorch_kinematics")
-    from torchhrc.sim.drill_replay import execution_steps, replay_execution
-    from torchhrc.sim.workbench import PlaceAndDrillScene, WorkbenchLayout
+    from torchhrc.tasks.place_and_drill.replay import execution_steps, replay_execution
+    from torchhrc.tasks.place_and_drill.workbench import PlaceAndDrillScene, WorkbenchLayout
 
     executions = [
         # efficient: the robot drills each screw while the person places the next one

@@ -5,10 +5,10 @@ from __future__ import annotations
 import pytest
 import torch
 
-from torchhrc.baselines.hand_coded import build_expert_momdp, load_expert_model
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.tasks.place_and_drill.demos import demonstration
+from torchhrc.tasks.place_and_drill.hand_coded import build_expert_momdp, load_expert_model
 from torchhrc.tasks.place_and_drill.model import (
     EMPTY,
     PLACED,

@@ -1,30 +1,32 @@
-"""Baselines of the paper's evaluation: the hand-coded expert MOMDP and human-robot cross-training.
-
-Example:
-    >>> from torchhrc.baselines import load_expert_model
-    >>> load_expert_model().type_names
-    ('safe', 'efficient')
+"""Deprecated package (issue 32): the baselines of the paper's evaluation are specific to the
+place-and-drill task and live with it, in :mod:`torchhrc.tasks.place_and_drill.hand_coded` (the
+hand-coded expert MOMDP) and :mod:`torchhrc.tasks.place_and_drill.cross_training` (human-robot
+cross-training). This package forwards their names for one release with a
+``DeprecationWarning``.
 """
 
 from __future__ import annotations
 
-from torchhrc.baselines.cross_training import CrossTrainingPolicy, fit_cross_training
-from torchhrc.baselines.hand_coded import (
-    DEFAULT_EXPERT_PATH,
-    ExpertModel,
-    build_expert_momdp,
-    expert_initial_belief,
-    load_expert_model,
-    parse_expert_model,
-)
+from torchhrc._deprecation import moved_attribute
 
-__all__ = [
-    "DEFAULT_EXPERT_PATH",
-    "CrossTrainingPolicy",
-    "ExpertModel",
-    "build_expert_momdp",
-    "expert_initial_belief",
-    "fit_cross_training",
-    "load_expert_model",
-    "parse_expert_model",
-]
+__all__: list[str] = []  # nothing to star-import: every name here is deprecated
+
+_MOVED = {
+    "CrossTrainingPolicy": "torchhrc.tasks.place_and_drill.cross_training",
+    "fit_cross_training": "torchhrc.tasks.place_and_drill.cross_training",
+    **{
+        name: "torchhrc.tasks.place_and_drill.hand_coded"
+        for name in (
+            "DEFAULT_EXPERT_PATH",
+            "ExpertModel",
+            "build_expert_momdp",
+            "expert_initial_belief",
+            "load_expert_model",
+            "parse_expert_model",
+        )
+    },
+}
+
+
+def __getattr__(name: str) -> object:
+    return moved_attribute(__name__, name, _MOVED)

@@ -2,7 +2,7 @@
 
 ``pip install torchhrc[gym]``. Importing this package imports gymnasium and registers:
 
-* ``torchhrc/PlaceAndDrill-v0``: :class:`~torchhrc.envs.place_and_drill.PlaceAndDrillEnv`
+* ``torchhrc/PlaceAndDrill-v0``: :class:`~torchhrc.tasks.place_and_drill.env.PlaceAndDrillEnv`
   (options ``epsilon``, ``noise``, ``horizon``, ``type_probabilities``);
 * ``torchhrc/HandFinishing-v0``: :class:`~torchhrc.tasks.hand_finishing.env.HandFinishingEnv`
   (options ``noise``, ``epsilon``, ``horizon``, ``task``, ``type_probabilities``);
@@ -31,9 +31,7 @@ except ImportError as error:  # pragma: no cover - exercised only without the ex
 from torchhrc._deprecation import moved_attribute
 from torchhrc.envs.agent import Agent, BeliefAgent, RandomAgent, rollout
 from torchhrc.envs.momdp_env import MOMDPEnv
-from torchhrc.envs.place_and_drill import PlaceAndDrillEnv, PlaceAndDrillHuman
 from torchhrc.envs.pomdp_env import POMDPEnv
-from torchhrc.envs.vector import PlaceAndDrillVectorEnv
 
 __all__ = [
     "ENV_IDS",
@@ -41,9 +39,6 @@ __all__ = [
     "BeliefAgent",
     "MOMDPEnv",
     "POMDPEnv",
-    "PlaceAndDrillEnv",
-    "PlaceAndDrillHuman",
-    "PlaceAndDrillVectorEnv",
     "RandomAgent",
     "rollout",
 ]
@@ -57,7 +52,7 @@ ENV_IDS: tuple[str, ...] = (
 )
 
 _ENTRY_POINTS = {
-    "torchhrc/PlaceAndDrill-v0": "torchhrc.envs.place_and_drill:PlaceAndDrillEnv",
+    "torchhrc/PlaceAndDrill-v0": "torchhrc.tasks.place_and_drill.env:PlaceAndDrillEnv",
     "torchhrc/HandFinishing-v0": "torchhrc.tasks.hand_finishing.env:HandFinishingEnv",
     "torchhrc/POMDP-v0": "torchhrc.envs.pomdp_env:POMDPEnv",
     "torchhrc/MOMDP-v0": "torchhrc.envs.momdp_env:MOMDPEnv",
@@ -69,7 +64,7 @@ for _env_id, _entry_point in _ENTRY_POINTS.items():
             id=_env_id,
             entry_point=_entry_point,
             vector_entry_point=(
-                "torchhrc.envs.vector:PlaceAndDrillVectorEnv"
+                "torchhrc.tasks.place_and_drill.vector_env:PlaceAndDrillVectorEnv"
                 if _env_id == "torchhrc/PlaceAndDrill-v0"
                 else None
             ),
@@ -81,6 +76,9 @@ for _env_id, _entry_point in _ENTRY_POINTS.items():
 _MOVED_TO_TASKS = {
     "HandFinishingEnv": "torchhrc.tasks.hand_finishing.env",
     "quick_hand_finishing_task": "torchhrc.tasks.hand_finishing.env",
+    "PlaceAndDrillEnv": "torchhrc.tasks.place_and_drill.env",
+    "PlaceAndDrillHuman": "torchhrc.tasks.place_and_drill.env",
+    "PlaceAndDrillVectorEnv": "torchhrc.tasks.place_and_drill.vector_env",
 }
 
 

@@ -59,12 +59,12 @@ from collections.abc import Sequence
 
 import torch
 
-from torchhrc.baselines.cross_training import CrossTrainingPolicy, fit_cross_training
-from torchhrc.baselines.hand_coded import ExpertModel
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP
+from torchhrc.tasks.place_and_drill.cross_training import CrossTrainingPolicy, fit_cross_training
 from torchhrc.tasks.place_and_drill.demos import STRATEGIES
+from torchhrc.tasks.place_and_drill.hand_coded import ExpertModel
 from torchhrc.tasks.place_and_drill.model import (
     EMPTY,
     PLACED,
@@ -245,7 +245,7 @@ def expert_online_momdp(expert: ExpertModel) -> MOMDP:
         ModelError: the expert file states no ``human.waits_while_pending``.
 
     Example:
-        >>> from torchhrc.baselines.hand_coded import load_expert_model
+        >>> from torchhrc.tasks.place_and_drill.hand_coded import load_expert_model
         >>> expert_online_momdp(load_expert_model()).b0.tolist()
         [0.5, 0.5]
     """
@@ -276,8 +276,8 @@ def pooled_cross_training(
     """Cross-training for a user without demonstrations: one MDP from everyone's (pooled).
 
     Returns:
-        :class:`~torchhrc.baselines.cross_training.CrossTrainingPolicy` with one subject,
-        ``"pooled"`` (use subject index 0).
+        :class:`~torchhrc.tasks.place_and_drill.cross_training.CrossTrainingPolicy` with one
+        subject, ``"pooled"`` (use subject index 0).
 
     Example:
         >>> demos = Demonstrations.from_lists([[("human", "place_A"), ("robot", "drill_A")]] * 2)

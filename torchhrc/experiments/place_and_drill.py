@@ -44,12 +44,6 @@ from typing import Any
 
 import torch
 
-from torchhrc.baselines.cross_training import fit_cross_training
-from torchhrc.baselines.hand_coded import (
-    build_expert_momdp,
-    expert_initial_belief,
-    load_expert_model,
-)
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.experiments.robustness import (
@@ -62,6 +56,12 @@ from torchhrc.experiments.robustness import (
 from torchhrc.pomdp import MOMDP
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.pipeline import build_model, solve_model
+from torchhrc.tasks.place_and_drill.cross_training import fit_cross_training
+from torchhrc.tasks.place_and_drill.hand_coded import (
+    build_expert_momdp,
+    expert_initial_belief,
+    load_expert_model,
+)
 from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask
 from torchhrc.tasks.place_and_drill.simulate import demonstrated_orders
 

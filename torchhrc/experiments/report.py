@@ -382,9 +382,9 @@ The paper scores policies by reward only; the types differ in what a physical sc
 measure: a safe person wants the robot to wait until every screw is placed. Sampled
 executions ({s.separation_runs} per policy and case, epsilon {s.separation_epsilon:g}, the
 first {s.separation_subjects} subject(s) of each type) are replayed in the SAPIEN workbench
-(`torchhrc.sim.workbench`, physics on the CPU): the Panda with its drill moves to each
-drilled screw (joint targets from inverse kinematics, interpolated) while the person's right
-arm reaches to the screw it places, at the same time, as in the task's turn. Per step: the
+(`torchhrc.tasks.place_and_drill.workbench`, physics on the CPU): the Panda with its drill moves
+to each drilled screw (joint targets from inverse kinematics, interpolated) while the person's
+right arm reaches to the screw it places, at the same time, as in the task's turn. Per step: the
 minimum distance between the robot's capsules (drill included) and the arm's, and the
 robot-person contact points SAPIEN reports (`separation` in `metrics.json`).
 

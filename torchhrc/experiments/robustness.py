@@ -184,7 +184,8 @@ def simulate_subject(
     Args:
         task: the task.
         momdp_policies: ``{name: MOMDPPolicy}`` (the learned and the hand-coded MOMDP).
-        cross_training: a :class:`~torchhrc.baselines.cross_training.CrossTrainingPolicy`
+        cross_training: a
+            :class:`~torchhrc.tasks.place_and_drill.cross_training.CrossTrainingPolicy`
             (its subject ``subject_index`` is used) or None.
         subject_index: the subject's index in the cross-training policy.
         orders: ``(M, n)`` int64 the subject's demonstrated placement orders; each run

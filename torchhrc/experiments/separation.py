@@ -5,10 +5,10 @@ scene can measure: a "safe" person wants the robot to wait until every screw is 
 drill working next to a placing hand is a hazard), an "efficient" person accepts it. This
 module samples simulated executions of each policy (learned, hand-coded, cross-training; in
 the offline case and, when run, the online one) for subjects of each type, replays them in
-:class:`~torchhrc.sim.workbench.PlaceAndDrillScene` (:func:`~torchhrc.sim.drill_replay.
-replay_execution`) and summarises, per case, policy and true type, the per-step minimum
-separations: median, 5th percentile, the fraction of steps below ``threshold`` and the
-robot-person contact points.
+:class:`~torchhrc.tasks.place_and_drill.workbench.PlaceAndDrillScene`
+(:func:`~torchhrc.tasks.place_and_drill.replay.replay_execution`) and summarises, per case,
+policy and true type, the per-step minimum separations: median, 5th percentile, the fraction of
+steps below ``threshold`` and the robot-person contact points.
 
 Sampling (:class:`TraceSampler`): in each sampled subject's simulation, the first ``runs``
 executions at ``epsilon`` (their bench states and robot actions), for the first ``subjects``
@@ -157,8 +157,8 @@ def separation_study(
     except ImportError:
         note = "SAPIEN is not installed (pip install torchhrc[sim]); no replay"
         return {"available": False, "note": note}
-    from torchhrc.sim.drill_replay import execution_steps, replay_execution
-    from torchhrc.sim.workbench import PlaceAndDrillScene, WorkbenchLayout
+    from torchhrc.tasks.place_and_drill.replay import execution_steps, replay_execution
+    from torchhrc.tasks.place_and_drill.workbench import PlaceAndDrillScene, WorkbenchLayout
 
     start = time.perf_counter()
     scene = PlaceAndDrillScene(layout or WorkbenchLayout(n_positions=task.n_positions), seed=seed)

@@ -1,8 +1,8 @@
 """SAPIEN 3 scenes of the tasks (the ``sim`` extra: ``pip install torchhrc[sim]``): the scene
-machinery the tasks' scenes share (:mod:`.scene`) and the place-and-drill workbench with its
-separation measure (:mod:`.workbench`, :mod:`.drill_replay`, :mod:`.capsules`). The
-hand-finishing scene and its replay live with their task
-(:mod:`torchhrc.tasks.hand_finishing.scene`, :mod:`torchhrc.tasks.hand_finishing.replay`).
+machinery the tasks' scenes share (:mod:`.scene`) and the capsule geometry of the separation
+measure (:mod:`.capsules`). Each task's scene and its replay live with their task
+(:mod:`torchhrc.tasks.place_and_drill.workbench`, :mod:`torchhrc.tasks.place_and_drill.replay`,
+:mod:`torchhrc.tasks.hand_finishing.scene`, :mod:`torchhrc.tasks.hand_finishing.replay`).
 
 SAPIEN is imported only when a scene is built, so ``import torchhrc.sim`` works without it.
 
@@ -16,21 +16,13 @@ from __future__ import annotations
 
 from torchhrc._deprecation import moved_attribute
 from torchhrc.sim.capsules import Capsule, capsule_separation, segment_distance
-from torchhrc.sim.drill_replay import ExecutionReplay, execution_steps, replay_execution
 from torchhrc.sim.scene import RenderUnavailableError, check_render_device
-from torchhrc.sim.workbench import DrillResult, PlaceAndDrillScene, WorkbenchLayout
 
 __all__ = [
     "Capsule",
-    "DrillResult",
-    "ExecutionReplay",
-    "PlaceAndDrillScene",
     "RenderUnavailableError",
-    "WorkbenchLayout",
     "capsule_separation",
     "check_render_device",
-    "execution_steps",
-    "replay_execution",
     "segment_distance",
 ]
 
@@ -42,6 +34,12 @@ _MOVED_TO_TASKS = {
     "ReplayResult": "torchhrc.tasks.hand_finishing.replay",
     "box_moves": "torchhrc.tasks.hand_finishing.replay",
     "replay_box_moves": "torchhrc.tasks.hand_finishing.replay",
+    "DrillResult": "torchhrc.tasks.place_and_drill.workbench",
+    "PlaceAndDrillScene": "torchhrc.tasks.place_and_drill.workbench",
+    "WorkbenchLayout": "torchhrc.tasks.place_and_drill.workbench",
+    "ExecutionReplay": "torchhrc.tasks.place_and_drill.replay",
+    "execution_steps": "torchhrc.tasks.place_and_drill.replay",
+    "replay_execution": "torchhrc.tasks.place_and_drill.replay",
 }
 
 

@@ -186,8 +186,9 @@ class CrossTrainingController:
     """A cross-training policy (state lookup, random among tied best actions; no belief).
 
     Args:
-        policy: a :class:`~torchhrc.baselines.cross_training.CrossTrainingPolicy`-like object
-            with ``action(subject, x, uniform)``.
+        policy: a
+            :class:`~torchhrc.tasks.place_and_drill.cross_training.CrossTrainingPolicy`-like
+            object with ``action(subject, x, uniform)``.
         subject: int or ``(B,)`` int64 subject index of each run.
     """
 

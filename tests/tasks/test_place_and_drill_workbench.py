@@ -7,7 +7,7 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.sim.capsules import Capsule
-from torchhrc.sim.workbench import WorkbenchLayout, human_urdf, robot_urdf
+from torchhrc.tasks.place_and_drill.workbench import WorkbenchLayout, human_urdf, robot_urdf
 
 pytestmark = pytest.mark.sim
 sapien = pytest.importorskip("sapien", reason="the [sim] extra (SAPIEN 3) is not installed")
@@ -15,7 +15,7 @@ sapien = pytest.importorskip("sapien", reason="the [sim] extra (SAPIEN 3) is not
 
 @pytest.fixture(scope="module")
 def scene():
-    from torchhrc.sim.workbench import PlaceAndDrillScene
+    from torchhrc.tasks.place_and_drill.workbench import PlaceAndDrillScene
 
     return PlaceAndDrillScene()
 
@@ -31,7 +31,7 @@ def test_layout_validation() -> None:
 
 
 def test_every_task_size_is_reachable() -> None:
-    from torchhrc.sim.workbench import PlaceAndDrillScene
+    from torchhrc.tasks.place_and_drill.workbench import PlaceAndDrillScene
 
     for n in (1, 8):
         scene = PlaceAndDrillScene(WorkbenchLayout(n_positions=n))
@@ -107,8 +107,8 @@ def test_drilling_where_the_hand_is_is_below_threshold_or_in_contact(scene) -> N
 
 
 def test_replay_of_an_execution(scene) -> None:
-    from torchhrc.sim.drill_replay import execution_steps, replay_execution
     from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask
+    from torchhrc.tasks.place_and_drill.replay import execution_steps, replay_execution
 
     task = PlaceAndDrillTask(3)
     # efficient turn taking: place A; drill A while placing B; drill B while placing C; drill C
@@ -131,7 +131,7 @@ def test_replay_of_an_execution(scene) -> None:
 
 def test_rendering_without_a_gpu_fails_clearly() -> None:
     from torchhrc.sim.scene import RenderUnavailableError
-    from torchhrc.sim.workbench import PlaceAndDrillScene
+    from torchhrc.tasks.place_and_drill.workbench import PlaceAndDrillScene
 
     if torch.cuda.is_available():
         pytest.skip("a GPU is present: the render path is checked on the device machine")

@@ -1,4 +1,5 @@
-"""Tests of torchhrc.baselines.hand_coded: the expert JSON model, its validation, its MOMDP."""
+"""Tests of torchhrc.tasks.place_and_drill.hand_coded: the expert JSON model, its validation,
+its MOMDP."""
 
 from __future__ import annotations
 
@@ -7,13 +8,13 @@ import json
 import pytest
 import torch
 
-from torchhrc.baselines.hand_coded import (
+from torchhrc.errors import ModelError, ParseError
+from torchhrc.tasks.place_and_drill.hand_coded import (
     DEFAULT_EXPERT_PATH,
     build_expert_momdp,
     expert_initial_belief,
     load_expert_model,
 )
-from torchhrc.errors import ModelError, ParseError
 from torchhrc.tasks.place_and_drill.model import FEATURE_NAMES
 
 

@@ -1,13 +1,13 @@
-"""Tests of torchhrc.baselines.cross_training (Nikolaidis & Shah 2013 as a baseline)."""
+"""Tests of torchhrc.tasks.place_and_drill.cross_training (Nikolaidis & Shah 2013 as a baseline)."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from torchhrc.baselines.cross_training import fit_cross_training
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
+from torchhrc.tasks.place_and_drill.cross_training import fit_cross_training
 from torchhrc.tasks.place_and_drill.demos import demonstration
 from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask, demonstration_steps
 

@@ -1,8 +1,8 @@
-"""Benchmark the belief updates (torchhrc.belief) against pomdp-py's histogram update.
+"""Benchmark the belief updates (torchhrc.pomdp.belief) against pomdp-py's histogram update.
 
 Three ratios, each measured in the same run:
 
-1. torchhrc vs pomdp-py: seconds per belief update of ``torchhrc.belief.update`` on a batch
+1. torchhrc vs pomdp-py: seconds per belief update of ``torchhrc.pomdp.belief.update`` on a batch
    of ``M`` beliefs (one call, per-belief actions and observations) against
    ``pomdp_py.update_histogram_belief`` (one belief at a time, a Python double loop over
    states calling the model's ``probability``; its models here read the same tables), on
@@ -26,8 +26,8 @@ import numpy as np
 import torch
 from _timing import median_time
 
-from torchhrc.belief import momdp_update_all, update, update_all
 from torchhrc.pomdp import POMDP
+from torchhrc.pomdp.belief import momdp_update_all, update, update_all
 from torchhrc.tasks.classic import rock_sample, tag, tiger
 
 

@@ -2,10 +2,11 @@
 
 APPL's ``--timeout`` is process CPU time (``std::clock``); on a loaded machine a wall-clock
 limit gives our solver fewer CPU seconds than APPL's. This script reads the file with
-:func:`torchhrc.io.read_pomdpx` (RockSample_7_8: a :class:`~torchhrc.sparse_momdp.SparseMOMDP`)
-and runs :func:`torchhrc.solvers.sarsop` until its own CPU time reaches the limit
-(``SARSOPConfig(clock="process")``), then prints the form, CPU seconds, bounds and peak RSS. Run
-APPL on the same file right before or after (``pomdpsol FILE --timeout L``).
+:func:`torchhrc.io.read_pomdpx` (RockSample_7_8: a
+:class:`~torchhrc.pomdp.sparse_momdp.SparseMOMDP`) and runs :func:`torchhrc.solvers.sarsop` until
+its own CPU time reaches the limit (``SARSOPConfig(clock="process")``), then prints the form, CPU
+seconds, bounds and peak RSS. Run APPL on the same file right before or after
+(``pomdpsol FILE --timeout L``).
 
 Usage::
 

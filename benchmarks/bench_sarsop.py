@@ -13,7 +13,7 @@ policy trees (exponential, infeasible beyond Tiger-sized problems) and ``POUCT``
 are online planners without bounds at ``b0``; none is a fair bound-for-bound comparison.
 
 RockSample(7, 8) (12545 states) is read from ``problems/rocksample_7_8.pomdp`` (regenerate it
-with ``problems/make_problems.py``) as a :class:`~torchhrc.sparse.SparsePOMDP` and solved by
+with ``problems/make_problems.py``) as a :class:`~torchhrc.pomdp.sparse.SparsePOMDP` and solved by
 SARSOP's sparse path: its dense transition tensor would have ``13 * 12545^2`` entries (16 GB)
 and its MOMDP form a dense ``Ty`` of 2.1e9 entries. Reading the file (about 5 s) is outside
 the time limit, as APPL's own loading is. The script limits numpy's BLAS to one thread

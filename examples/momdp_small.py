@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import torch
 
-from torchhrc.belief import momdp_update
 from torchhrc.pomdp import MOMDP
+from torchhrc.pomdp.belief import momdp_update
 from torchhrc.solvers import PBVIConfig, SARSOPConfig, solve
 from torchhrc.solvers.sampling import sample_categorical
 

@@ -13,12 +13,8 @@ import argparse
 
 import torch
 
-from torchhrc.observation import (
-    DiscretizedGaussianObservation,
-    ObservationGrid,
-    fit_observation_model,
-    simulate_tracks,
-)
+from torchhrc.pomdp.observation import DiscretizedGaussianObservation, ObservationGrid
+from torchhrc.pomdp.observation_fit import fit_observation_model, simulate_tracks
 
 
 def main() -> None:

@@ -73,7 +73,7 @@ from torchhrc.errors import ParseError
 from torchhrc.io.cassandra import read_pomdp, write_pomdp
 from torchhrc.io.pomdpx import write_pomdpx
 from torchhrc.pomdp import POMDP
-from torchhrc.sparse import SparsePOMDP
+from torchhrc.pomdp.sparse import SparsePOMDP
 from torchhrc.tasks.classic import rock_sample, tag
 from torchhrc.testing import random_momdp, random_pomdp
 

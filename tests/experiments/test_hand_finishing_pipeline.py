@@ -139,8 +139,8 @@ def test_the_generating_motion_as_filter_is_calibrated_at_the_first_move():
     standard error about 0.009; bar 0.03)."""
     import torch
 
-    from torchhrc.approach_observation import ApproachObservation
     from torchhrc.experiments.hand_finishing import _episodes
+    from torchhrc.pomdp.approach_observation import ApproachObservation
     from torchhrc.tasks.hand_finishing.geometry import feasible_box_configurations
     from torchhrc.tasks.hand_finishing.model import HandFinishingTask
     from torchhrc.tasks.hand_finishing.person import simulate_episodes

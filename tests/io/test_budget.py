@@ -14,7 +14,7 @@ import torch
 from torchhrc.errors import ParseError
 from torchhrc.io.cassandra import parse_pomdp
 from torchhrc.io.pomdpx import parse_pomdpx
-from torchhrc.sparse import SparsePOMDP
+from torchhrc.pomdp.sparse import SparsePOMDP
 
 
 def _pomdp(S: int, body: str = "T: * identity\nO: * uniform\n", A: int = 2, O: int = 2) -> str:

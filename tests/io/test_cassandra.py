@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from torchhrc.errors import ParseError
 from torchhrc.io.cassandra import format_pomdp, parse_pomdp, read_pomdp, write_pomdp
 from torchhrc.pomdp import POMDP
-from torchhrc.sparse import SparsePOMDP
+from torchhrc.pomdp.sparse import SparsePOMDP
 from torchhrc.tasks.classic import rock_sample, tag, tiger
 from torchhrc.testing import random_pomdp
 

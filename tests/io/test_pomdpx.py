@@ -23,8 +23,8 @@ from torchhrc.io.pomdpx import (
     write_pomdpx,
 )
 from torchhrc.pomdp import MOMDP, POMDP
-from torchhrc.sparse import SparsePOMDP
-from torchhrc.sparse_momdp import SparseMOMDP
+from torchhrc.pomdp.sparse import SparsePOMDP
+from torchhrc.pomdp.sparse_momdp import SparseMOMDP
 from torchhrc.tasks.classic import rock_sample, tiger
 from torchhrc.testing import random_momdp, random_pomdp
 

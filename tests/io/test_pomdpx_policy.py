@@ -36,11 +36,11 @@ import torch
 
 from torchhrc.io import read_policyx, read_pomdpx, read_pomdpx_variables, write_policyx
 from torchhrc.pomdp import MOMDP
+from torchhrc.pomdp.sparse_momdp import SparseMOMDP
 from torchhrc.solvers.evaluate import evaluate_policy
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sampling import momdp_step, sample_categorical
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
-from torchhrc.sparse_momdp import SparseMOMDP
 from torchhrc.tasks.classic import rock_sample
 
 K = 4  # rocks

@@ -9,8 +9,8 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
-from torchhrc.sparse import SparsePOMDP
-from torchhrc.sparse_momdp import SparseMOMDP
+from torchhrc.pomdp.sparse import SparsePOMDP
+from torchhrc.pomdp.sparse_momdp import SparseMOMDP
 from torchhrc.tasks import classic
 from torchhrc.tasks.classic import ROCK_SAMPLE_INSTANCES, rock_sample, tag, tiger
 

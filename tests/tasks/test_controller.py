@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from torchhrc.belief import momdp_update, update
 from torchhrc.errors import ModelError
+from torchhrc.pomdp.belief import momdp_update, update
 from torchhrc.solvers import AlphaVectorPolicy
 from torchhrc.tasks.controller import Controller
 from torchhrc.testing import random_momdp, random_pomdp

@@ -4,11 +4,11 @@ from dataclasses import replace
 import pytest
 import torch
 
-from torchhrc.belief import momdp_update
 from torchhrc.errors import ModelError
 from torchhrc.experiments.hand_finishing import cluster_preferences
 from torchhrc.mixture import fit_mixture
-from torchhrc.observation import discretize_positions
+from torchhrc.pomdp.belief import momdp_update
+from torchhrc.pomdp.observation import discretize_positions
 from torchhrc.solvers import SARSOPConfig, solve
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.hand_finishing import ACTIONS, HandFinishingTask, count_states

@@ -12,9 +12,9 @@ Pipeline (:func:`reproduce_hand_finishing`):
 3. at each noise level, the robot's hand model is learned from hand tracks of the simulated
    persons (their hands walk towards the side they work on,
    :mod:`torchhrc.tasks.hand_finishing.person`) with the type unknown: the approach model
-   (:func:`torchhrc.approach_observation.fit_approach_observation`, a learned motion per
+   (:func:`torchhrc.pomdp.approach_observation.fit_approach_observation`, a learned motion per
    type), and, for the baseline, the paper's static Gaussian
-   (:func:`torchhrc.observation.fit_observation_model`); both are compared with the
+   (:func:`torchhrc.pomdp.observation_fit.fit_observation_model`); both are compared with the
    generating one;
 4. the MOMDP is solved with SARSOP in the factored form on the approach model's stationary
    part (the hand at its target: a MOMDP's ``Z`` cannot hold the hand's history), with the
@@ -56,10 +56,10 @@ from typing import Any
 import torch
 
 from torchhrc._deprecation import moved_attribute
-from torchhrc.approach_observation import ApproachObservation
 from torchhrc.errors import ModelError
 from torchhrc.experiments.place_and_drill import prepare_output_dir
 from torchhrc.experiments.report import _pyplot, _save, write_json_atomic, write_text_atomic
+from torchhrc.pomdp.approach_observation import ApproachObservation
 from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.hand_finishing.collaborative import (
     HandFinishingCollaborativeTask,
@@ -575,7 +575,7 @@ def _report(metrics: dict[str, Any]) -> str:
         f"{motion.get('approach', '?')} of the remaining distance per step; the sensor adds "
         "Gaussian noise.",
         "- The robot's belief filter is the approach model "
-        "(`torchhrc.approach_observation`: a learned motion per type towards a Gaussian "
+        "(`torchhrc.pomdp.approach_observation`: a learned motion per type towards a Gaussian "
         "around the surface), learned from such tracks with the type unknown: rate "
         f"{af['approach']:.3f} (true {af['true_approach']}), start "
         f"({af['start'][0]:.2f}, {af['start'][1]:.2f}) m (true {tuple(af['true_start'])}), "

@@ -12,7 +12,7 @@ single description:
 * :func:`tag` -- Pineau, Gordon, Thrun (2003), "Point-based value iteration": a 29-cell map,
   ``S = 29 x 30 = 870``, ``A = 5``, ``O = 30``; the robot's own position is observed.
 
-RockSample and Tag are described once, as a :class:`~torchhrc.sparse_momdp.SparseMOMDP`
+RockSample and Tag are described once, as a :class:`~torchhrc.pomdp.sparse_momdp.SparseMOMDP`
 (robot position observed; it fits at every size, RockSample(7, 8) included), and lowered::
 
     form="sparse_momdp"   the description itself
@@ -51,8 +51,8 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP
-from torchhrc.sparse import SparsePOMDP, check_dense_size, coalesce
-from torchhrc.sparse_momdp import SparseMOMDP
+from torchhrc.pomdp.sparse import SparsePOMDP, check_dense_size, coalesce
+from torchhrc.pomdp.sparse_momdp import SparseMOMDP
 
 __all__ = [
     "BENCHMARK_FORMS",

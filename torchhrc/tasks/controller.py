@@ -48,7 +48,7 @@ if TYPE_CHECKING:
 __all__ = ["Controller"]
 
 #: ``filter(x, belief, action, x_next, observation) -> belief'`` (batched), or a
-#: :class:`~torchhrc.belief.BeliefUpdate` whose ``log_normalizer`` is ``-inf`` where the
+#: :class:`~torchhrc.pomdp.belief.BeliefUpdate` whose ``log_normalizer`` is ``-inf`` where the
 #: observation is impossible.
 Filter = Callable[[Any, torch.Tensor, torch.Tensor, Any, torch.Tensor], Any]
 #: ``choose(x, belief) -> action`` (batched).
@@ -99,8 +99,8 @@ class Controller:
     @classmethod
     def from_momdp(cls, momdp: MOMDP, policy: Any) -> Controller:
         """A controller of a MOMDP and a policy with ``action(x, belief_y) -> a``."""
-        from torchhrc.belief import momdp_update
         from torchhrc.pomdp import split_initial
+        from torchhrc.pomdp.belief import momdp_update
 
         # a random first x: the belief given the x seen (zeros where x has no mass)
         start = None if momdp.initial is None else split_initial(momdp.initial)[1]
@@ -131,7 +131,7 @@ class Controller:
     @classmethod
     def from_pomdp(cls, pomdp: POMDP, policy: Any) -> Controller:
         """A controller of a flat POMDP (belief over its ``S`` states; ``act(o)``)."""
-        from torchhrc.belief import update
+        from torchhrc.pomdp.belief import update
 
         def filt(x: Any, b: torch.Tensor, a: torch.Tensor, x2: Any, o: torch.Tensor) -> Any:
             return update(pomdp, b, a, o, on_zero="ninf")

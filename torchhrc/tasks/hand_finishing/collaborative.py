@@ -16,7 +16,7 @@ that :func:`torchhrc.tasks.pipeline.build_model` builds its MOMDP like any other
   clustering only, so :meth:`read_steps` reads none);
 * the robot observes the person through a noisy hand-position signal: ``observation`` gives
   ``Z (A, X, Y, O)`` for the model without it (e.g. a learned
-  :class:`~torchhrc.observation.DiscretizedGaussianObservation`).
+  :class:`~torchhrc.pomdp.observation.DiscretizedGaussianObservation`).
 
 Example:
     >>> import torch
@@ -200,7 +200,7 @@ class HandFinishingCollaborativeTask(CollaborativeTask):
     ) -> MOMDP:
         """The robot's MOMDP by :func:`torchhrc.tasks.pipeline.build_model` from the clusters
         (``chains (K, V, V)``, ``assignments (N,)``), with ``Z = observation()`` (e.g. a
-        :class:`~torchhrc.observation.DiscretizedGaussianObservation`, detached) or the
+        :class:`~torchhrc.pomdp.observation.DiscretizedGaussianObservation`, detached) or the
         trivial observation."""
         from torchhrc.tasks.pipeline import build_model
 

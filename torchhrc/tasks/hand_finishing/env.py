@@ -166,7 +166,7 @@ class HandFinishingEnv(gym.Env):
 
     def step(self, action: int) -> tuple[dict[str, int], float, bool, bool, dict[str, Any]]:
         """The robot's ``action``; the person works and moves the hand; the sensor sees it."""
-        from torchhrc.observation import discretize_positions
+        from torchhrc.pomdp.observation import discretize_positions
 
         if self._generator is None:
             raise RuntimeError("call reset() before step()")

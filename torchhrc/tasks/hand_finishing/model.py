@@ -4,7 +4,7 @@ A robot holds a box for a person who refinishes its two side surfaces by hand. T
 of one of two preference types, working the left (``+y``) side first or the right (``-y``)
 side first; the robot cannot see the type, only the person's hand position in the
 horizontal plane, observed through a discretized 2D Gaussian
-(:class:`~torchhrc.observation.DiscretizedGaussianObservation`).
+(:class:`~torchhrc.pomdp.observation.DiscretizedGaussianObservation`).
 
 Observed state ``x = (c, p)``: ``c`` indexes the box configurations kept by the kinematic
 checks (:func:`~torchhrc.tasks.hand_finishing.geometry.feasible_box_configurations`:
@@ -67,8 +67,8 @@ import torch
 
 from torchhrc._checks import check_tensor
 from torchhrc.errors import ModelError
-from torchhrc.observation import DiscretizedGaussianObservation, ObservationGrid
 from torchhrc.pomdp import MOMDP
+from torchhrc.pomdp.observation import DiscretizedGaussianObservation, ObservationGrid
 from torchhrc.tasks.hand_finishing.geometry import BoxGeometry
 
 __all__ = [

@@ -33,18 +33,17 @@ from dataclasses import dataclass
 
 import torch
 
-from torchhrc.approach_observation import ApproachObservation
-from torchhrc.belief import momdp_update
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
-from torchhrc.observation import (
+from torchhrc.pomdp import MOMDP
+from torchhrc.pomdp.approach_observation import ApproachObservation
+from torchhrc.pomdp.belief import momdp_update
+from torchhrc.pomdp.observation import (
     DiscretizedGaussianObservation,
-    HandTracks,
     discretize_positions,
     sample_positions,
-    simulate_tracks,
 )
-from torchhrc.pomdp import MOMDP
+from torchhrc.pomdp.observation_fit import HandTracks, simulate_tracks
 
 __all__ = [
     "Episodes",
@@ -133,9 +132,9 @@ def simulate_hand_tracks(
     """Recorded hand tracks of simulated persons, for learning the observation model.
 
     The task's states and the persons' types are drawn as in
-    :func:`torchhrc.observation.simulate_tracks` (type ``y ~ b0``, robot actions uniform at
-    random unless given, ``x_t+1 ~ Tx[a_t, x_t, y]``); the hand follows ``motion`` towards
-    ``person``'s mean for ``(x_t+1, y)`` (:func:`hand_trajectories`), and the sensor adds
+    :func:`torchhrc.pomdp.observation_fit.simulate_tracks` (type ``y ~ b0``, robot actions
+    uniform at random unless given, ``x_t+1 ~ Tx[a_t, x_t, y]``); the hand follows ``motion``
+    towards ``person``'s mean for ``(x_t+1, y)`` (:func:`hand_trajectories`), and the sensor adds
     ``person``'s Gaussian noise.
 
     Args:
@@ -148,8 +147,8 @@ def simulate_hand_tracks(
         seed: seed.
 
     Returns:
-        :class:`~torchhrc.observation.HandTracks` with ``positions`` (the sensed positions)
-        and ``types`` filled.
+        :class:`~torchhrc.pomdp.observation_fit.HandTracks` with ``positions`` (the sensed
+        positions) and ``types`` filled.
     """
     motion = HandMotion() if motion is None else motion
     base = simulate_tracks(person, truth, num_tracks=num_tracks, length=length,
@@ -310,7 +309,7 @@ def simulate_episodes(
             puts the hand at its target at every step).
         seed: seed.
         observer: when given, the robot's belief filter uses this approach model of the
-            hand (:meth:`~torchhrc.approach_observation.ApproachObservation.filter_update`)
+            hand (:meth:`~torchhrc.pomdp.approach_observation.ApproachObservation.filter_update`)
             instead of ``model.Z``; the policy is still ``policy``.
 
     Raises:
@@ -320,7 +319,7 @@ def simulate_episodes(
         >>> from torchhrc.solvers import AlphaVectorPolicy
         >>> from torchhrc.testing import random_momdp
         >>> m = random_momdp(3, 2, 2, 4, seed=0)
-        >>> from torchhrc.observation import ObservationGrid
+        >>> from torchhrc.pomdp.observation import ObservationGrid
         >>> g = ObservationGrid.uniform((-1.0, 1.0), (-1.0, 1.0), (2, 2))
         >>> hand = DiscretizedGaussianObservation(g, torch.zeros(2, dtype=torch.float64),
         ...     torch.ones(2, dtype=torch.float64), num_observed=3, num_hidden=2, num_actions=2)

@@ -8,9 +8,9 @@ from the centre of the surface they work on, with Gaussian noise of a given spre
 type unknown (:func:`hand_tracks`), the robot learns
 
 * the paper's static Gaussian per type and configuration (:func:`learn_static_observation`,
-  :func:`torchhrc.observation.fit_observation_model`), and
+  :func:`torchhrc.pomdp.observation_fit.fit_observation_model`), and
 * the approach model (:func:`learn_approach_observation`,
-  :class:`torchhrc.approach_observation.ApproachObservation`): a learned motion per type
+  :class:`torchhrc.pomdp.approach_observation.ApproachObservation`): a learned motion per type
   towards a Gaussian around the surface;
 
 :func:`observation_fit_error` scores a learned model's stationary part against the generating
@@ -34,8 +34,9 @@ from typing import Any
 
 import torch
 
-from torchhrc.approach_observation import ApproachObservation, fit_approach_observation
-from torchhrc.observation import ObservationGrid, fit_observation_model
+from torchhrc.pomdp.approach_observation import ApproachObservation, fit_approach_observation
+from torchhrc.pomdp.observation import ObservationGrid
+from torchhrc.pomdp.observation_fit import fit_observation_model
 from torchhrc.tasks.hand_finishing.model import HandFinishingTask
 from torchhrc.tasks.hand_finishing.person import simulate_hand_tracks
 from torchhrc.tasks.hand_finishing.settings import HandFinishingSettings
@@ -67,7 +68,7 @@ def true_observation(task: HandFinishingTask, noise: float) -> Any:
     """The generating hand model of ``task``'s persons: their hands at :data:`TRUE_HAND_LOC` from
     the worked surface's centre, Gaussian noise ``noise`` (m, per axis), on
     :func:`observation_grid` (a
-    :class:`~torchhrc.observation.DiscretizedGaussianObservation`, ``log_probs()`` of shape
+    :class:`~torchhrc.pomdp.observation.DiscretizedGaussianObservation`, ``log_probs()`` of shape
     ``(X, Y, O)``)."""
     return task.observation_model(
         observation_grid(), loc=torch.tensor(TRUE_HAND_LOC), scale=torch.tensor([noise, noise])
@@ -102,7 +103,7 @@ def observation_fit_error(model: Any, noise: float) -> float:
     generating :data:`TRUE_HAND_LOC` and ``noise``.
 
     Args:
-        model: a :class:`~torchhrc.observation.DiscretizedGaussianObservation` (``loc`` and
+        model: a :class:`~torchhrc.pomdp.observation.DiscretizedGaussianObservation` (``loc`` and
             ``log_scale`` of shape ``(..., 2)``), e.g. an approach model's ``stationary``.
         noise: the generating noise (m, per axis).
     """
@@ -124,8 +125,8 @@ def learn_static_observation(
         task: the true task, whose simulated persons make the tracks (:func:`hand_tracks`).
         robot_task: the robot's task (its types are the clusters'); the model is its
             ``observation_model``, started at the surface centres with spread 0.35 m and fitted
-            with :func:`~torchhrc.observation.fit_observation_model` (``settings.fit_steps``
-            steps, learning rate 0.05, seeded by ``settings.seed``).
+            with :func:`~torchhrc.pomdp.observation_fit.fit_observation_model`
+            (``settings.fit_steps`` steps, learning rate 0.05, seeded by ``settings.seed``).
         noise: the sensor's noise (m, per axis).
         settings: the study's settings.
 
@@ -150,7 +151,7 @@ def learn_approach_observation(
     noise: float,
     settings: HandFinishingSettings,
 ) -> tuple[ApproachObservation, Any]:
-    """Learn the approach model (:mod:`torchhrc.approach_observation`) from the same hand
+    """Learn the approach model (:mod:`torchhrc.pomdp.approach_observation`) from the same hand
     tracks as :func:`learn_static_observation`, type unknown; start at the grid's centre.
 
     Args:
@@ -158,7 +159,7 @@ def learn_approach_observation(
         robot_task: the robot's task; the approach model's target is its
             ``observation_model`` (started as in :func:`learn_static_observation`), its rate
             starts at 0.5 and its start at :data:`APPROACH_START_GUESS`; fitted with
-            :func:`~torchhrc.approach_observation.fit_approach_observation`
+            :func:`~torchhrc.pomdp.approach_observation.fit_approach_observation`
             (``settings.approach_fit_steps`` steps, learning rate 0.05).
         noise: the sensor's noise (m, per axis).
         settings: the study's settings.

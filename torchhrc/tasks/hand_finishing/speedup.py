@@ -51,7 +51,7 @@ def speedup_momdp(
         feasibility: the kinematic checks of ``settings.geometry``'s configurations.
         robot_task: the robot's task (its types' first sides and rewards are kept).
         plan: the robot's planning hand model, a
-            :class:`~torchhrc.observation.DiscretizedGaussianObservation` of ``robot_task``
+            :class:`~torchhrc.pomdp.observation.DiscretizedGaussianObservation` of ``robot_task``
             (``loc``, ``log_scale`` of shape ``(..., Y, 2)``); the reduced instance gets the
             same offsets and spreads per type.
 

@@ -53,7 +53,16 @@ __all__ = [
 _FORMAT = "torchhrc.learned_task_model"
 _VERSION = 1
 
-RewardRule = Literal["dominant", "paper", "last"]
+RewardRule = Literal["maxent", "dominant", "paper", "last"]
+
+#: The reward rules :func:`learn_type_weights` accepts.
+REWARD_RULES: tuple[str, ...] = ("maxent", "dominant", "paper", "last")
+
+#: The ridge penalty of the ``"maxent"`` rule (:func:`torchhrc.irl.maxent_irl`'s default).
+MAXENT_L2 = 1e-3
+
+#: The L-BFGS iteration cap of the ``"maxent"`` rule.
+MAXENT_ITERATIONS = 300
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -61,24 +70,34 @@ class IRLConfig:
     """Settings of the reward learning per type (:func:`learn_type_weights`).
 
     Attributes:
-        rule: which reward of Abbeel and Ng's iterations is kept: ``"dominant"`` (default),
-            ``"paper"`` or ``"last"`` (:func:`learn_type_weights`).
+        rule: ``"maxent"`` (default): maximum-entropy IRL (Ziebart), or which reward of Abbeel
+            and Ng's iterations is kept: ``"dominant"``, ``"paper"`` or ``"last"``
+            (:func:`learn_type_weights`). Why MaxEnt by default: with the per-``(a_r, x)``
+            indicator features of a task without compact ones, the projection algorithm
+            leaves the reward of every pair the type's ~40 demonstrations never show near 0
+            (an idle loop in a state off their path is worth as much as finishing the task,
+            and an action the type's partner never took is not penalised), whereas MaxEnt's
+            gradient lowers the reward of every pair its soft policy takes and the expert
+            does not (``docs/your_own_task.md`` section 8).
         epsilon: the projection algorithm's stopping margin on the feature expectations
-            (default 0.05).
-        iterations: cap on the IRL iterations (policies) per type (default 10).
+            (default 0.05; the projection rules only).
+        iterations: cap on the IRL iterations (policies) per type (default 10; the
+            projection rules only; ``"maxent"`` runs up to :data:`MAXENT_ITERATIONS` L-BFGS
+            iterations).
 
     Example:
         >>> IRLConfig(epsilon=0.01).rule
-        'dominant'
+        'maxent'
     """
 
-    rule: RewardRule = "dominant"
+    rule: RewardRule = "maxent"
     epsilon: float = 0.05
     iterations: int = 10
 
     def __post_init__(self) -> None:
-        if self.rule not in ("dominant", "paper", "last"):
-            raise ValueError(f"expected rule 'dominant', 'paper' or 'last', got {self.rule!r}")
+        if self.rule not in REWARD_RULES:
+            raise ValueError(f"expected rule 'maxent', 'dominant', 'paper' or 'last', "
+                             f"got {self.rule!r}")  # fmt: skip
         if not self.epsilon > 0:
             raise ValueError(f"expected epsilon > 0, got {self.epsilon!r}")
         if (
@@ -329,7 +348,10 @@ def learn_type_weights(
     """Reward weights per type by apprenticeship learning (Abbeel & Ng 2004; paper Sec. IRL).
 
     For type ``k`` the MDP is ``(X, A, Tx[:, :, k, :], phi, discount)`` and the expert's
-    trajectories are the demonstrations of type ``k``. The reward kept (``rule``):
+    trajectories are the demonstrations of type ``k``. ``rule="maxent"``: maximum-entropy
+    IRL (:func:`torchhrc.irl.maxent_irl`, ridge :data:`MAXENT_L2`) instead of the projection
+    algorithm (``epsilon``, ``max_iterations`` unused; no warning). The projection
+    algorithm's reward kept (``rule``):
     ``"dominant"`` (default): ``w^(i*)``, ``i* = argmax_{i >= 1} lambda_i``, the reward of
     the policy the expert's mixture relies on most (robust to noisy demonstrations, see
     :func:`torchhrc.tasks.place_and_drill.model.learn_type_weights`); ``"paper"``: the mean
@@ -347,11 +369,12 @@ def learn_type_weights(
     """
     import warnings
 
+    from torchhrc.irl.maxent import maxent_irl
     from torchhrc.irl.projection import IRLConvergenceWarning, apprenticeship_learning
     from torchhrc.irl.trajectories import Trajectories
 
-    if rule not in ("dominant", "paper", "last"):
-        raise ValueError(f"expected rule 'dominant', 'paper' or 'last', got {rule!r}")
+    if rule not in REWARD_RULES:
+        raise ValueError(f"expected rule 'maxent', 'dominant', 'paper' or 'last', got {rule!r}")
     K = Tx.shape[-2]
     phi = task.features(dtype=Tx.dtype, device=Tx.device).permute(1, 0, 2)  # (X, A, F)
     weights = Tx.new_zeros(K, phi.shape[-1])
@@ -363,6 +386,11 @@ def learn_type_weights(
         if idx.numel() == 0:
             continue
         demos = Trajectories(steps.states[idx], steps.actions[idx], lengths[idx])
+        if rule == "maxent":
+            fit = maxent_irl(Tx[:, :, k, :], phi, demos, discount=task.discount, l2=MAXENT_L2,
+                             max_iterations=MAXENT_ITERATIONS)  # fmt: skip
+            weights[k] = fit.weights
+            continue
         result = apprenticeship_learning(
             Tx[:, :, k, :], phi, demos, discount=task.discount, epsilon=epsilon,
             max_iterations=max_iterations, seed=seed, rule=rule, warn=False,

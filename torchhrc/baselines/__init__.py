@@ -8,24 +8,13 @@ cross-training). This package forwards their names for one release with a
 from __future__ import annotations
 
 from torchhrc._deprecation import moved_attribute
+from torchhrc.baselines import cross_training as _cross_training
+from torchhrc.baselines import hand_coded as _hand_coded
 
 __all__: list[str] = []  # nothing to star-import: every name here is deprecated
 
-_MOVED = {
-    "CrossTrainingPolicy": "torchhrc.tasks.place_and_drill.cross_training",
-    "fit_cross_training": "torchhrc.tasks.place_and_drill.cross_training",
-    **{
-        name: "torchhrc.tasks.place_and_drill.hand_coded"
-        for name in (
-            "DEFAULT_EXPERT_PATH",
-            "ExpertModel",
-            "build_expert_momdp",
-            "expert_initial_belief",
-            "load_expert_model",
-            "parse_expert_model",
-        )
-    },
-}
+# the old modules' tables (importing them imports nothing of the task)
+_MOVED = {**_cross_training._MOVED, **_hand_coded._MOVED}
 
 
 def __getattr__(name: str) -> object:

@@ -1,20 +1,22 @@
 """Old module path of :mod:`torchhrc.pomdp.approach_observation` (issue 32: the models package).
 
 This module re-exports its names for one release.
+
+Every name here is a deprecated alias (a ``DeprecationWarning`` naming its new place); import
+from :mod:`torchhrc.pomdp` instead.
 """
 
 from __future__ import annotations
 
-from torchhrc.pomdp.approach_observation import (
-    ApproachFit,
-    ApproachObservation,
-    approach_log_likelihood,
-    fit_approach_observation,
-)
+from torchhrc._deprecation import moved_attribute
 
-__all__ = [
-    "ApproachFit",
-    "ApproachObservation",
-    "approach_log_likelihood",
-    "fit_approach_observation",
-]
+#: Every name of this old path and the module that holds it now.
+_MOVED = {
+    "ApproachFit": "torchhrc.pomdp.approach_observation",
+    "ApproachObservation": "torchhrc.pomdp.approach_observation",
+    "approach_log_likelihood": "torchhrc.pomdp.approach_observation",
+    "fit_approach_observation": "torchhrc.pomdp.approach_observation",
+}
+
+def __getattr__(name: str) -> object:
+    return moved_attribute(__name__, name, _MOVED)

@@ -2,42 +2,32 @@
 (issue 32), split in two: the discretized Gaussian model and its grid in
 :mod:`torchhrc.pomdp.observation`, the hand tracks and the learning in
 :mod:`torchhrc.pomdp.observation_fit`; this module re-exports their names for one release.
+
+Every name here is a deprecated alias (a ``DeprecationWarning`` naming its new place); import
+from :mod:`torchhrc.pomdp` instead.
 """
 
 from __future__ import annotations
 
-from torchhrc.pomdp.observation import (
-    DiscretizedGaussianObservation,
-    ObservationGrid,
-    bivariate_normal_cdf,
-    discretize_positions,
-    discretized_gaussian,
-    log_discretized_gaussian,
-    sample_positions,
-)
-from torchhrc.pomdp.observation_fit import (
-    HandTracks,
-    ObservationFit,
-    fit_observation_model,
-    simulate_tracks,
-    track_log_likelihood,
-)
+from torchhrc._deprecation import moved_attribute
 
-# private helpers that modules imported from here before the move
-from torchhrc.pomdp.observation_fit import _safe_log as _safe_log
-from torchhrc.pomdp.observation_fit import _unpack_transition as _unpack_transition
+#: Every name of this old path and the module that holds it now.
+_MOVED = {
+    "DiscretizedGaussianObservation": "torchhrc.pomdp.observation",
+    "HandTracks": "torchhrc.pomdp.observation_fit",
+    "ObservationFit": "torchhrc.pomdp.observation_fit",
+    "ObservationGrid": "torchhrc.pomdp.observation",
+    "_safe_log": "torchhrc.pomdp.observation_fit",
+    "_unpack_transition": "torchhrc.pomdp.observation_fit",
+    "bivariate_normal_cdf": "torchhrc.pomdp.observation",
+    "discretize_positions": "torchhrc.pomdp.observation",
+    "discretized_gaussian": "torchhrc.pomdp.observation",
+    "fit_observation_model": "torchhrc.pomdp.observation_fit",
+    "log_discretized_gaussian": "torchhrc.pomdp.observation",
+    "sample_positions": "torchhrc.pomdp.observation",
+    "simulate_tracks": "torchhrc.pomdp.observation_fit",
+    "track_log_likelihood": "torchhrc.pomdp.observation_fit",
+}
 
-__all__ = [
-    "DiscretizedGaussianObservation",
-    "HandTracks",
-    "ObservationFit",
-    "ObservationGrid",
-    "bivariate_normal_cdf",
-    "discretize_positions",
-    "discretized_gaussian",
-    "fit_observation_model",
-    "log_discretized_gaussian",
-    "sample_positions",
-    "simulate_tracks",
-    "track_log_likelihood",
-]
+def __getattr__(name: str) -> object:
+    return moved_attribute(__name__, name, _MOVED)

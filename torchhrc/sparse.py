@@ -1,20 +1,22 @@
 """Old module path of :mod:`torchhrc.pomdp.sparse` (issue 32: the models package).
 
 This module re-exports its names for one release.
+
+Every name here is a deprecated alias (a ``DeprecationWarning`` naming its new place); import
+from :mod:`torchhrc.pomdp` instead.
 """
 
 from __future__ import annotations
 
-from torchhrc.pomdp.sparse import (
-    MAX_DENSE_ENTRIES,
-    SparsePOMDP,
-    check_dense_size,
-    coalesce,
-)
+from torchhrc._deprecation import moved_attribute
 
-__all__ = [
-    "MAX_DENSE_ENTRIES",
-    "SparsePOMDP",
-    "check_dense_size",
-    "coalesce",
-]
+#: Every name of this old path and the module that holds it now.
+_MOVED = {
+    "MAX_DENSE_ENTRIES": "torchhrc.pomdp.sparse",
+    "SparsePOMDP": "torchhrc.pomdp.sparse",
+    "check_dense_size": "torchhrc.pomdp.sparse",
+    "coalesce": "torchhrc.pomdp.sparse",
+}
+
+def __getattr__(name: str) -> object:
+    return moved_attribute(__name__, name, _MOVED)

@@ -41,7 +41,7 @@ from typing import Protocol
 
 import torch
 
-from torchhrc.belief import momdp_update
+from torchhrc.pomdp.belief import momdp_update
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP

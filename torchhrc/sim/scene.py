@@ -6,7 +6,8 @@ Physics only, on the CPU (``sapien.Scene([sapien.physx.PhysxCpuSystem()])``) by 
 raises :class:`RenderUnavailableError` at once; with CUDA the render system is first probed in
 a subprocess (a failing Vulkan driver can crash the process that tries it), and the probe's
 failure is raised the same way. The scenes themselves live with their tasks (the
-hand-finishing box held by the arm: :mod:`torchhrc.tasks.hand_finishing.scene`).
+hand-finishing box held by the arm: :mod:`torchhrc.tasks.hand_finishing.scene`; the
+place-and-drill workbench: :mod:`torchhrc.tasks.place_and_drill.workbench`).
 
 Example:
     >>> issubclass(RenderUnavailableError, RuntimeError)
@@ -48,8 +49,6 @@ def import_sapien():
         raise ImportError(f"torchhrc.sim needs SAPIEN 3: {_SIM_EXTRA}") from exc
     return sapien
 
-
-_import_sapien = import_sapien  # the name the workbench imports
 
 _PROBE = "import sapien; sapien.render.RenderSystem(); print('ok')"
 

@@ -41,8 +41,8 @@ from torchhrc.errors import ModelError
 from torchhrc.kinematics import SerialArm, asset_path, human_arm_urdf
 from torchhrc.sim.capsules import Capsule, add_capsule_collisions, capsules_from_urdf
 from torchhrc.sim.scene import (
-    _import_sapien,
     check_render_device,
+    import_sapien,
     load_urdf_text,
     set_joint_positions,
 )
@@ -252,7 +252,7 @@ class PlaceAndDrillScene:
     ) -> None:
         if render:
             check_render_device()
-        sapien = _import_sapien()
+        sapien = import_sapien()
         self.layout = WorkbenchLayout() if layout is None else layout
         self.seed = int(seed)
         systems = [sapien.physx.PhysxCpuSystem()]

@@ -36,6 +36,20 @@ def test_soft_value_iteration_matches_plain_sweeps():
     )
 
 
+def test_soft_value_iteration_stops_at_the_values_rounding_on_a_large_reward_scale():
+    """Rewards of order 1e4 give values of order 1e5, whose rounding (a few ulps, ~1e-11) is
+    far above ``tol=1e-12``: Newton reaches the fixed point in a handful of steps and then
+    only adds rounding; it stops there (it ran to ``max_iterations`` before, minutes per call
+    inside MaxEnt IRL). The values still satisfy the soft Bellman equation to rounding."""
+    g = torch.Generator().manual_seed(0)
+    T = torch.rand(2, 4, 4, generator=g, dtype=torch.float64).softmax(-1)
+    R = 1e4 * torch.randn(2, 4, dtype=torch.float64, generator=g)
+    solution = soft_value_iteration(T, R, 0.95, tol=1e-12, max_iterations=2_000)
+    assert solution.iterations < 50
+    backup = torch.logsumexp(R + 0.95 * torch.einsum("ast,t->as", T, solution.values), dim=0)
+    torch.testing.assert_close(solution.values, backup, rtol=1e-12, atol=0)
+
+
 @pytest.mark.parametrize("batch", [(), (2,), (2, 3)])
 def test_soft_value_iteration_batched_equals_loop(batch):
     T = _random_mdp()

@@ -28,6 +28,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -113,13 +114,22 @@ class _SoftValueFixedPoint(torch.autograd.Function):
         V = R.new_zeros(*batch, S) if initial is None else initial.expand(*batch, S).clone()
         eye = torch.eye(S, dtype=R.dtype, device=R.device)
         iterations = 0
+        eps = torch.finfo(R.dtype).eps
+        previous = math.inf
         for iterations in range(1, max_iterations + 1):  # noqa: B007 -- reported
             Q = _soft_backup(T, R, V, discount)
             V_backup = torch.logsumexp(Q, dim=-2)
-            residual = (V_backup - V).abs().max() if V.numel() else V.new_zeros(())
-            if residual <= tol:
+            residual = float((V_backup - V).abs().max()) if V.numel() else 0.0
+            # ``tol``, but no finer than the values' own rounding: with large values (a large
+            # reward scale) the residual stalls at a few ulps of |V| above a tight ``tol``,
+            # and Newton's steps then only add rounding; stop there too (it used to run to
+            # max_iterations, minutes per call)
+            scale = float(V_backup.abs().max()) if V.numel() else 0.0
+            floor = 64.0 * eps * max(1.0, scale)
+            if residual <= max(tol, floor) or (residual >= previous and residual <= 1e6 * floor):
                 V = V_backup
                 break
+            previous = residual
             if S <= _NEWTON_MAX_STATES:
                 # Newton step on V - f(V) = 0 (soft policy iteration): the Jacobian of the
                 # soft backup f is discount * P_pi, so V <- V - (I - discount P_pi)^-1 (V - f(V)).

@@ -57,7 +57,8 @@ import numpy as np
 import torch
 
 from torchhrc.io.cassandra import read_pomdp
-from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig, sarsop
+from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
+from torchhrc.solvers.sarsop.search import _SARSOP
 from torchhrc.tasks.classic import rock_sample, tag, tiger
 
 HERE = Path(__file__).resolve().parent

@@ -21,7 +21,7 @@ from torchhrc.testing import random_momdp, random_pomdp
 
 kernel = backup_kernel.load()
 needs_extension = pytest.mark.skipif(kernel is None, reason="the C extension is not built")
-SARSOP = __import__("torchhrc.solvers.sarsop", fromlist=["_SARSOP"])._SARSOP
+SARSOP = __import__("torchhrc.solvers.sarsop.search", fromlist=["_SARSOP"])._SARSOP
 
 
 def _impossible(seed: int) -> POMDP:

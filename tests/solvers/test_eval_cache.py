@@ -10,7 +10,8 @@ import pytest
 import torch
 
 from torchhrc.solvers.eval_cache import PACK_FRACTION, EvaluationCache
-from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig
+from torchhrc.solvers.sarsop import SARSOPConfig
+from torchhrc.solvers.sarsop.search import _SARSOP
 from torchhrc.tasks.classic import tag
 
 

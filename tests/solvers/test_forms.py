@@ -25,7 +25,7 @@ from torchhrc.solvers.forms import (
     SparseForm,
     as_solver_model,
 )
-from torchhrc.solvers.sarsop import _SARSOP
+from torchhrc.solvers.sarsop.search import _SARSOP
 from torchhrc.tasks.classic import rock_sample, tiger
 from torchhrc.testing import random_momdp, random_pomdp
 

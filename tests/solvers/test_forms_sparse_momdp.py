@@ -23,7 +23,7 @@ from torchhrc.solvers.clock import NEVER
 from torchhrc.solvers.forms import MOMDPForm, SparseMOMDPForm, as_solver_model
 from torchhrc.solvers.forms import sparse_momdp as sparse_momdp_module
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.sarsop import _SARSOP
+from torchhrc.solvers.sarsop.search import _SARSOP
 from torchhrc.solvers.sparse_model import blind_iteration_np, qmdp_iteration_np
 from torchhrc.tasks.classic import rock_sample
 from torchhrc.testing import random_momdp

@@ -20,7 +20,8 @@ from torchhrc.solvers.belief_tree import BeliefTree
 from torchhrc.solvers.evaluate import evaluate_policy
 from torchhrc.solvers.forms import as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig, fib_corner_values, sarsop
+from torchhrc.solvers.sarsop import SARSOPConfig, fib_corner_values, sarsop
+from torchhrc.solvers.sarsop.search import _SARSOP
 from torchhrc.solvers.upper_bound import SawtoothUpperBound
 from torchhrc.tasks.classic import tiger
 from torchhrc.testing import random_momdp, random_pomdp
@@ -607,7 +608,7 @@ def test_tiny_time_limit_returns_soon_with_valid_bounds():
 
 # -- the per-x grouped lower and upper bounds (Ong et al. 2010) ---------------------------------
 def test_alpha_groups_follow_the_flat_storage():
-    from torchhrc.solvers.sarsop import _AlphaSet
+    from torchhrc.solvers.sarsop.search import _AlphaSet
 
     g = torch.Generator().manual_seed(0)
     X, Y = 5, 3
@@ -732,7 +733,7 @@ def test_bins_predict_new_node_at_upper_and_clamps():
     per-x, two-level bins: tests/solvers/test_sarsop_search.py.)"""
     import numpy as np
 
-    from torchhrc.solvers.sarsop import _Bins
+    from torchhrc.solvers.sarsop.search import _Bins
 
     bins = _Bins(np.array([[0.0, 10.0]]), 1.0, 2)  # one x; levels of 1 and 2 bins per axis
     b = np.array([0.8, 0.2])  # initial upper bound 2.0: the lower half

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig, _AlphaSet, sarsop
+from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
+from torchhrc.solvers.sarsop.search import _SARSOP, _AlphaSet
 
 
 def _brute_force(V: np.ndarray, obs: np.ndarray, need: np.ndarray, kept: np.ndarray) -> list:

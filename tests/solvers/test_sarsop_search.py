@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig, _Bins, sarsop
+from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
+from torchhrc.solvers.sarsop.search import _SARSOP, _Bins
 from torchhrc.tasks.classic import rock_sample, tag
 from torchhrc.testing import random_momdp
 

@@ -15,7 +15,8 @@ from torchhrc.solvers.belief_tree import SparseBeliefTree
 from torchhrc.solvers.blind import blind_policy, blind_vectors
 from torchhrc.solvers.forms import as_solver_model
 from torchhrc.solvers.qmdp import mdp_q_values, qmdp_vectors
-from torchhrc.solvers.sarsop import _SARSOP, SARSOPConfig, fib_corner_values, sarsop
+from torchhrc.solvers.sarsop import SARSOPConfig, fib_corner_values, sarsop
+from torchhrc.solvers.sarsop.search import _SARSOP
 from torchhrc.solvers.sparse_model import (
     SparseFlatModel,
     blind_iteration_np,

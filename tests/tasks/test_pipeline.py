@@ -205,10 +205,13 @@ def test_auto_human_model_picks_the_model_the_human_follows(respond, expected):
     # the followed model predicts each held-out turn almost surely: (1 - pause) *
     # ((1 - noise) * q + noise / 2), half the noise landing on the right action, with q = 1
     # for the chain (log 0.965 = -0.036 nats a turn); the state model backs off by one
-    # pseudo-step (interface.STATE_PRIOR_STRENGTH) from ~38.4 training turns per phase:
-    # q = 38.9 / 39.4 (log 0.953 = -0.048); the other one cannot tell the two actions
-    # apart: log(0.99 / 2) = -0.703
-    q = 1.0 if expected == "chain" else 38.9 / 39.4
+    # pseudo-step (interface.STATE_PRIOR_STRENGTH) from ~38.4 training turns per phase, all
+    # the same answer, toward half the type's habit before the robot's move (the same
+    # phase: h = 38.9 / 39.4 of the chain's even split smoothed in) and half the
+    # population's (one type: (38.4 + h) / 39.4): q = (38.4 + prior) / 39.4 = 0.9998
+    # (log 0.965); the other one cannot tell the two actions apart: log(0.99 / 2) = -0.703
+    habit = 38.9 / 39.4
+    q = 1.0 if expected == "chain" else (38.4 + (habit + (38.4 + habit) / 39.4) / 2) / 39.4
     want = math.log(0.99 * (0.95 * q + 0.025))
     assert record["per_step"][expected] == pytest.approx(want, abs=0.01)
     assert record["per_step"][other] == pytest.approx(math.log(0.495), abs=0.05)

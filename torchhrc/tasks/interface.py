@@ -434,10 +434,11 @@ class CollaborativeTask:
         Default (:attr:`human_model`): preferences ``p[y, a, x, h]`` from the chains
         (:func:`chain_preferences`, the same for every ``x``; no mass on "no action") or from
         the type's demonstration steps (``"state"``: counts per ``(x after the robot, a_h)``,
-        "no action" counted too, smoothed toward the type's chain preference, see
-        :func:`_state_counts`), restricted to the actions legal after the robot's move (and
-        "no action"), renormalised (uniform where ``p`` has no mass), mixed with
-        ``evidence.noise`` of a uniformly random legal action and scaled by
+        "no action" counted too, smoothed toward the type's habit before the robot's move
+        and the population's behaviour in the state, see :func:`_state_counts`), restricted
+        to the actions legal after the robot's move (and "no action"), renormalised
+        (uniform where ``p`` has no mass), mixed with ``evidence.noise`` of a uniformly
+        random legal action and scaled by
         ``1 - evidence.pause``; ``evidence.pause`` is added to "no action" (a floor: all of it
         where nothing is legal). With ``q`` the renormalised preference, ``u`` the uniform
         legal action, ``e`` the noise and ``s`` the pause:
@@ -507,6 +508,12 @@ class CollaborativeTask:
 #: type's behaviour elsewhere weighs as ``c`` demonstration steps in each state.
 STATE_PRIOR_STRENGTH: float = 1.0
 
+#: Weight ``w`` of the type's own habit in the state model's prior (:func:`_state_counts`);
+#: ``1 - w`` goes to what the population does in the state. Where a type was never seen, a
+#: surprising action then costs it at most a factor ``1 / (1 - w)`` against a type seen
+#: there (when that type alone was seen): an unseen situation carries little evidence.
+STATE_HABIT_WEIGHT: float = 0.5
+
 
 def _state_counts(
     task: CollaborativeTask, evidence: TypeEvidence, dtype: torch.dtype, device: torch.device
@@ -520,19 +527,34 @@ def _state_counts(
     recording ended before the human's turn, which is no evidence of waiting.
 
     Hierarchical Dirichlet smoothing: the posterior mean of ``P(h | x, a_r, y)`` under a
-    Dirichlet prior of strength ``c`` (:data:`STATE_PRIOR_STRENGTH`) centred on the type's
-    behaviour pooled over the states,
-    ``counts[y, x, h] + c * prior[y, a_r, x, h]``, where ``prior[y, a, x, :H]`` is the type's
-    chain preference ``P(a_h | a_r = a)`` (:func:`chain_preferences`) restricted to the
-    actions legal in ``x`` and renormalised (uniform over them where it has no mass), scaled
-    by ``1 - r_y``, and ``prior[y, a, x, H] = r_y``, the type's pooled rate of "no action"
-    ``(waits_y + 0.5) / (choices_y + 1)``. Why this prior and not a uniform one: a
-    type-aware robot steers people into states that the type's demonstrations never
-    visited (its partner there was a different robot); a uniform preference makes every
-    type look alike there, so the belief cannot tell them apart and the robot can model a
-    waiting person as acting. The chain preference is the same type's evidence from all its
-    states, so an unvisited state inherits what the type does after the same robot move;
-    where the type was seen often the counts dominate (``c`` = one step's worth).
+    Dirichlet prior of strength ``c`` (:data:`STATE_PRIOR_STRENGTH`),
+    ``counts[y, x, h] + c * prior[y, a_r, x, h]``, whose centre mixes two parents with
+    weight ``w`` (:data:`STATE_HABIT_WEIGHT`):
+    ``prior = w * habit[y, a_r, x_before] + (1 - w) * population[a_r, x_before]``.
+
+    * ``habit``: what the type did in the state *before* the robot's move, whatever the move
+      (counts by ``x_before``, restricted to what is possible after this move), itself
+      smoothed (strength ``c``) toward the type's chain preference ``P(a_h | a_r = a)``
+      (:func:`chain_preferences`) restricted to the actions legal after the move and
+      renormalised (uniform where it has no mass), scaled by ``1 - r_y``, with
+      ``r_y = (waits_y + 0.5) / (choices_y + 1)`` on "no action".
+    * ``population``: every type's counts in ``x`` (after the move), smoothed (strength
+      ``c``) toward the types' habits weighted by their shares of the demonstrations.
+
+    Why: a type-aware robot steers people into states that the type's demonstrations never
+    visited (its partner there was a different robot). There the type's own counts are
+    empty, and what the prior predicts is what the belief filter reads as evidence. The
+    chain preference alone says "the person does what they did after this robot move
+    elsewhere", which holds along each type's demonstrated path (the partner served that
+    type) and is the same for every type when the partner's move decides the person's
+    (``fetch_order``: every type assembles the part just fetched, so the belief never
+    moves). The habit keeps what tells the types apart in a state they all visited (their
+    own choice there). The population half keeps an unseen situation from carrying strong
+    evidence: a person reacting in a way their type's demonstrations never show
+    (``screws_hands_off``: ``hands_off`` pulls back after an early drill) costs that type at
+    most about a factor ``1 / (1 - w)`` against a type seen there, instead of sending the
+    belief to the wrong type with near-certainty. Where the type was seen often its counts
+    dominate (``c`` = one step's worth).
     """
     steps = evidence.steps
     assert steps is not None
@@ -560,8 +582,26 @@ def _state_counts(
     pref = torch.where(mass > 0, pref / mass.clamp_min(1e-300), uniform)
     waits = counts[..., H].sum(-1)  # (K,)
     rate = ((waits + 0.5) / (counts.sum((-1, -2)) + 1.0)).view(K, 1, 1, 1)  # (K, 1, 1, 1)
-    prior = torch.cat([(1.0 - rate) * pref, rate.expand(*pref.shape[:-1], 1)], -1)
-    return (counts[:, effect] + STATE_PRIOR_STRENGTH * prior).to(device)  # (K, A, X, H + 1)
+    chain = torch.cat([(1.0 - rate) * pref, rate.expand(*pref.shape[:-1], 1)], -1)
+    c = STATE_PRIOR_STRENGTH
+    # the type's habit: what it did in the same state before the robot's move, whatever
+    # the move (counts by x_before), restricted to what is possible after this move, with
+    # the chain preference as its own prior
+    before = torch.zeros(K, X, H + 1, dtype=dtype, device=sdev)
+    flat = (y * X + steps.states[keep]) * (H + 1) + column[keep]
+    before.view(-1).index_add_(0, flat, torch.ones_like(flat, dtype=dtype))
+    possible = torch.cat([legal_f, legal_f.amax(-1, keepdim=True)], -1)  # (A, X, H + 1)
+    habit = before.unsqueeze(1) * possible + c * chain  # (K, A, X, H + 1)
+    habit = habit / habit.sum(-1, keepdim=True).clamp_min(1e-300)
+    # the population: every type's counts in the state after the move, with the types'
+    # habits (weighted by their sizes) as its prior
+    size = torch.bincount(evidence.assignments.to(sdev), minlength=K).to(dtype)
+    size = (size / size.sum().clamp_min(1.0)).view(K, 1, 1, 1)
+    population = counts.sum(0)[effect] + c * (size * habit).sum(0)  # (A, X, H + 1)
+    population = population / population.sum(-1, keepdim=True).clamp_min(1e-300)
+    w = STATE_HABIT_WEIGHT
+    prior = w * habit + (1.0 - w) * population  # (K, A, X, H + 1)
+    return (counts[:, effect] + c * prior).to(device)  # (K, A, X, H + 1)
 
 
 def _table(name: str, value: Any, shape: tuple[int, ...], kind: str) -> torch.Tensor:

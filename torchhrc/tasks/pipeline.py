@@ -464,10 +464,16 @@ def compare_human_models(
     and each model in :data:`HUMAN_MODELS` (``task.human_model`` set to it through
     ``TypeEvidence.human_model``), the behaviour ``P(a_h | x, a_r, y)`` of every type is
     learned by ``task.human_policy`` from the other folds' demonstrations (their types
-    ``assignments``; chains re-estimated on them), and each held-out subject scores
-    ``log sum_y w_y prod_t P(a_h,t | x_t, a_r,t, y)`` over all its steps (``w_y``: the
-    training share of type ``y``, plus one; no held-out type is used). The model with the
-    larger total is ``"used"``; ties go to ``"chain"`` (the paper's).
+    ``assignments``; chains re-estimated on them), and each held-out demonstration ``n``
+    scores the complete-data likelihood under its own type ``y_n = assignments[n]``,
+    ``log w_{y_n} + sum_t log P(a_h,t | x_t, a_r,t, y_n)`` (``w_y``: the training share of
+    type ``y``, plus one). This is the marginal likelihood
+    ``log sum_y w_y prod_t P(a_h,t | ..., y)`` plus ``log P(y_n | the demonstration's
+    actions)``: a model must both predict the human's actions and tell the types apart
+    from them, as the robot's belief filter must online (a model that predicts the actions
+    equally well for every type scores ``log w_{y_n}`` below one that identifies them;
+    with one type the two scores agree). The model with the larger total is ``"used"``;
+    ties go to ``"chain"`` (the paper's).
 
     Args:
         task: a task whose :meth:`~CollaborativeTask.human_policy` reads
@@ -536,13 +542,12 @@ def compare_human_models(
         train, held = every[fold != f], every[fold == f]
         sizes = torch.bincount(assignments[train], minlength=K).double() + 1.0
         log_w = (sizes / sizes.sum()).log()  # (K,)
-        local = torch.unique(subject[held], return_inverse=True)[1]  # (n,)
+        own = assignments[held]  # (n,)
         for m in HUMAN_MODELS:
             log_b = behaviour(train, m).clamp_min(1e-300).log()  # (K, A, X, H + 1)
             per = log_b[:, a[held], x[held], column[held]]  # (K, n, L)
             per = (per * mask[held]).sum(-1)  # (K, n)
-            by_subject = per.new_zeros(K, int(local.max()) + 1).index_add_(1, local, per)
-            totals[m] += float(torch.logsumexp(by_subject + log_w[:, None], 0).sum())
+            totals[m] += float((per.gather(0, own.view(1, -1)) + log_w[own]).sum())
     turns = max(int(mask.sum()), 1)
     used = max(HUMAN_MODELS, key=lambda m: (totals[m], m == "chain"))
     return {**record, "used": used, "folds": F_, "steps": turns, "heldout": totals,

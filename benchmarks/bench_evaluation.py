@@ -40,6 +40,52 @@ def best_responses_differ(world) -> bool:
     return bool((best != best[:1]).any())
 
 
+#: The Markdown header of :func:`evaluate_world`'s rows (``.format(steps=belief_steps)``).
+TABLE_HEADER = (
+    "| task | true k | k found | human model | type-aware (all) | type-agnostic (all) | "
+    "told the type (all) | overall | per type | best responses differ | belief after "
+    "{steps} steps |\n|---|---|---|---|---|---|---|---|---|---|---|"
+)
+
+
+def evaluate_world(name: str, world, demos, *, episodes: int = 200, belief_steps: int = 5,
+                   solver_time: float = 10.0, seed: int = 0,
+                   human_model: str | None = None) -> tuple[str, dict]:  # fmt: skip
+    """One task: learn() type-aware and with k=1 from ``demos``, evaluate_task against the
+    world's people; returns the Markdown row and the JSON record."""
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        aware = torchhrc.learn(world.task, demos, solver_time=solver_time,
+                               human_model=human_model, seed=seed)  # fmt: skip
+        agnostic = torchhrc.learn(world.task, demos, k=1, solver_time=solver_time,
+                                  seed=seed)  # fmt: skip
+    result = torchhrc.evaluate_task(world, aware, demonstrations=demos, agnostic=agnostic,
+                                    episodes=episodes, noise=0.05,
+                                    belief_steps=belief_steps, told_type=True,
+                                    seed=seed)  # fmt: skip
+    per_type = result.compare("type-aware", "type-agnostic")
+    overall = int(result.compare("type-aware", "type-agnostic", overall=True))
+    differ = best_responses_differ(world)
+    signs = "".join({1: "+", 0: "=", -1: "-"}[int(c)] for c in per_type)
+    status = ", ".join(f"{n}: {s}" for n, s in zip(result.type_names, result.belief_status))
+    m, c = result.overall_mean, result.overall_ci
+    used = aware.info.get("human_model", {})
+    used = used.get("used", "?") if isinstance(used, dict) else str(used)
+    row = (
+        f"| {name} | {world.num_types} | {aware.num_types} | {used} | "
+        f"{m[0]:.2f} ± {c[0]:.2f} | "
+        f"{m[1]:.2f} ± {c[1]:.2f} | {m[2]:.2f} ± {c[2]:.2f} | {'+=-'[1 - overall]} | "
+        f"{signs} | "
+        f"{'yes' if differ else 'no'} | {status} |"
+    )
+    record = {**result.to_dict(), "best_responses_differ": differ,
+              "k_found": aware.num_types, "human_model": used,
+              "gap": [aware.upper - aware.lower, agnostic.upper - agnostic.lower],
+              "seconds": time.perf_counter() - start}  # fmt: skip
+    return row, record
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", default=",".join(SUITE))
@@ -55,46 +101,17 @@ def main() -> None:
     torch.set_num_threads(1)
     rows, records = [], {}
     for name in args.tasks.split(","):
-        start = time.perf_counter()
         world = make_task(name)
         demos, _ = world.demonstrations(subjects=args.subjects, per_subject=args.per_subject,
                                         noise=0.05, seed=args.seed)  # fmt: skip
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            aware = torchhrc.learn(world.task, demos, solver_time=args.solver_time,
-                                   human_model=args.human_model, seed=args.seed)  # fmt: skip
-            agnostic = torchhrc.learn(world.task, demos, k=1, solver_time=args.solver_time,
-                                      seed=args.seed)  # fmt: skip
-        result = torchhrc.evaluate_task(world, aware, demonstrations=demos, agnostic=agnostic,
-                                        episodes=args.episodes, noise=0.05,
-                                        belief_steps=args.belief_steps, told_type=True,
-                                        seed=args.seed)  # fmt: skip
-        per_type = result.compare("type-aware", "type-agnostic")
-        overall = int(result.compare("type-aware", "type-agnostic", overall=True))
-        differ = best_responses_differ(world)
-        signs = "".join({1: "+", 0: "=", -1: "-"}[int(c)] for c in per_type)
-        status = ", ".join(f"{n}: {s}" for n, s in zip(result.type_names, result.belief_status))
-        m, c = result.overall_mean, result.overall_ci
-        used = aware.info.get("human_model", {})
-        used = used.get("used", "?") if isinstance(used, dict) else str(used)
-        rows.append(
-            f"| {name} | {world.num_types} | {aware.num_types} | {used} | "
-            f"{m[0]:.2f} ± {c[0]:.2f} | "
-            f"{m[1]:.2f} ± {c[1]:.2f} | {m[2]:.2f} ± {c[2]:.2f} | {'+=-'[1 - overall]} | "
-            f"{signs} | "
-            f"{'yes' if differ else 'no'} | {status} |"
-        )
-        records[name] = {**result.to_dict(), "best_responses_differ": differ,
-                         "k_found": aware.num_types, "human_model": used,
-                         "gap": [aware.upper - aware.lower, agnostic.upper - agnostic.lower],
-                         "seconds": time.perf_counter() - start}  # fmt: skip
-        print(rows[-1], flush=True)
+        row, records[name] = evaluate_world(name, world, demos, episodes=args.episodes,
+                                            belief_steps=args.belief_steps,
+                                            solver_time=args.solver_time, seed=args.seed,
+                                            human_model=args.human_model)  # fmt: skip
+        rows.append(row)
+        print(row, flush=True)
     print()
-    print("| task | true k | k found | human model | type-aware (all) | type-agnostic (all) | "
-          "told the type (all) | overall | "
-          "per type | best responses differ | belief after "
-          f"{args.belief_steps} steps |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print(TABLE_HEADER.format(steps=args.belief_steps))
     print("\n".join(rows))
     if args.json:
         with open(args.json, "w") as f:

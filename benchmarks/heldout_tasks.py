@@ -1,0 +1,473 @@
+"""Held-out collaborative tasks: our stand-in for the tasks issue 31's author runs and we never see.
+
+None of these is in :mod:`torchhrc.tasks.suite`, none was used to tune anything, and each is
+written as a user would write their own task: against the public API only
+(:class:`~torchhrc.tasks.CollaborativeTask`, :class:`~torchhrc.tasks.TabularPeople`,
+:class:`~torchhrc.tasks.TaskWithPeople`, ``TaskWithPeople.rollout``), through a small rule
+tabulator of our own (:func:`tabulate`), not the suite's builder. They vary what the suite
+holds fixed:
+
+=====================  ===  =====  ============  ===============================================
+name                   X    types  depends on    what is unusual
+=====================  ===  =====  ============  ===============================================
+``finish_late``        31   3      state         the types act alike for 4 of 6 stages and
+                                                 differ only in the finishing stage
+``twins``              22   2      state         two types identical except in one state
+``sorting_moody``      112  3      state         a type with a stochastic preference (a random
+                                                 remaining item); 6 robot and 5 human actions
+``tool_rhythm``        27   4      history       the person's next tool follows their own
+                                                 rhythm (memory), which the state does not show
+``crew_70_20_10``      64   3      state         types of 70 / 20 / 10 % of the subjects
+``five_parts``         243  5      state         5 types, 6 robot and 10 human actions
+=====================  ===  =====  ============  ===============================================
+
+``HELDOUT[name]() -> HeldoutWorld``, a TaskWithPeople whose ``demonstrations`` split the
+subjects between the types by its ``shares`` (None: balanced).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Hashable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+
+from torchhrc import Demonstrations
+from torchhrc.tasks import CollaborativeTask, TabularPeople, TaskWithPeople
+
+__all__ = ["HELDOUT", "HeldoutWorld", "tabulate"]
+
+
+# ------------------------------------------------------------------------------ the tabulator
+class RuleTask(CollaborativeTask):
+    """A task given by tables (built by :func:`tabulate`)."""
+
+    def __init__(self, name, state_names, robot_actions, human_actions, robot_effect,
+                 human_effect, legal, terminal) -> None:  # fmt: skip
+        self.name = name
+        self.state_names = tuple(state_names)
+        self.robot_actions = tuple(robot_actions)
+        self.human_actions = tuple(human_actions)
+        self.robot_effect = robot_effect  # (A, X)
+        self.human_effect = human_effect  # (X, H)
+        self._legal, self._terminal = legal, terminal
+
+    @property
+    def human_legal(self) -> torch.Tensor:
+        return self._legal
+
+    @property
+    def terminal(self) -> torch.Tensor:
+        return self._terminal
+
+
+def tabulate(
+    name: str,
+    *,
+    initial: Hashable,
+    robot_actions: Sequence[str],
+    human_actions: Sequence[str],
+    robot_step: Callable[[Any, int], Any],
+    human_step: Callable[[Any, int], Any],
+    terminal: Callable[[Any], bool],
+    type_names: Sequence[str],
+    behaviour: Callable[[int, int, Any, int], Mapping[int, float]],
+    reward: Callable[[int, Any, int], float],
+    horizon: int,
+    memory: int = 1,
+    memory_update: Callable[[int, int, Any, int, int], int] | None = None,
+    shares: tuple[float, ...] | None = None,
+) -> HeldoutWorld:
+    """Rules over Python states -> a TaskWithPeople. ``robot_actions[0]`` is "wait";
+    ``human_step(s, h)`` is None where ``h`` cannot happen; ``behaviour(y, m, s_mid, a_r)``
+    gives ``{a_h: p}`` (``-1``: no action); ``reward(y, s, a_r)`` the true reward."""
+    states, i = [initial], 0
+    seen = {initial}
+    while i < len(states):  # the states reachable from the initial one
+        s, i = states[i], i + 1
+        if terminal(s):
+            continue
+        for a in range(len(robot_actions)):
+            mid = robot_step(s, a)
+            for t in [mid, *(human_step(mid, h) for h in range(len(human_actions)))]:
+                if t is not None and t not in seen:
+                    seen.add(t)
+                    states.append(t)
+    index = {s: x for x, s in enumerate(states)}
+    X, A, H, Y = len(states), len(robot_actions), len(human_actions), len(type_names)
+    end = torch.tensor([bool(terminal(s)) for s in states])
+    robot_effect = torch.tensor([[x if end[x] else index[robot_step(s, a)] for x, s in
+                                  enumerate(states)] for a in range(A)])  # fmt: skip
+    nxt = [[None if end[x] else human_step(s, h) for h in range(H)] for x, s in enumerate(states)]
+    legal = torch.tensor([[t is not None and t != s for t in row] for row, s in zip(nxt, states)])
+    human_effect = torch.tensor([[index[t] if ok else x for t, ok in zip(row, legal[x].tolist())]
+                                 for x, row in enumerate(nxt)])  # fmt: skip
+    policy = torch.zeros(Y, memory, X, A, H + 1, dtype=torch.float64)
+    update = torch.zeros(Y, memory, X, A, H + 1, dtype=torch.long)
+    true_reward = torch.zeros(A, X, Y, dtype=torch.float64)
+    for x, s in enumerate(states):
+        if end[x]:
+            policy[..., x, :, H] = 1.0
+            update[:, :, x] = torch.arange(memory).view(memory, 1, 1)
+            continue
+        for y in range(Y):
+            for a in range(A):
+                true_reward[a, x, y] = float(reward(y, s, a))
+                for m in range(memory):
+                    rule = behaviour(y, m, s, a)
+                    total = sum(rule.values())
+                    for h, p in rule.items():
+                        policy[y, m, x, a, h] = p / total  # h = -1: the last column
+                    for h in range(-1, H):
+                        if h < 0 or legal[x, h]:
+                            nm = 0 if memory_update is None else memory_update(y, m, s, a, h)
+                            update[y, m, x, a, h] = nm
+    task = RuleTask(name, [str(s) for s in states], robot_actions, human_actions, robot_effect,
+                    human_effect, legal, end)  # fmt: skip
+    people = TabularPeople(type_names, policy, legal, update=update)
+    return HeldoutWorld(task, people, true_reward, horizon=horizon, observed=False, shares=shares)
+
+
+@dataclass(frozen=True, eq=False)
+class HeldoutWorld(TaskWithPeople):
+    """A TaskWithPeople whose subjects may split unevenly between the types.
+
+    Attributes:
+        shares: ``(Y_true,)`` share of each type among the subjects (None: balanced, as
+            ``TaskWithPeople.demonstrations``).
+    """
+
+    shares: tuple[float, ...] | None = None
+
+    def demonstrations(
+        self, *, subjects: int = 30, per_subject: int = 4, noise: float = 0.05, seed: int = 0
+    ) -> tuple[Demonstrations, torch.Tensor]:
+        """As ``TaskWithPeople.demonstrations``, the subjects split by ``shares`` (largest
+        remainders, every type at least one subject, subjects of one type in a row)."""
+        if self.shares is None:
+            return super().demonstrations(subjects=subjects, per_subject=per_subject,
+                                          noise=noise, seed=seed)  # fmt: skip
+        raw = [subjects * s / sum(self.shares) for s in self.shares]
+        counts = [max(1, math.floor(r)) for r in raw]
+        order = sorted(range(len(raw)), key=lambda y: raw[y] - math.floor(raw[y]), reverse=True)
+        for y in order:
+            if sum(counts) < subjects:
+                counts[y] += 1
+        subject_types = torch.tensor([y for y, c in enumerate(counts) for _ in range(c)])
+        types = subject_types.repeat_interleave(per_subject)
+        generator = torch.Generator().manual_seed(int(seed))
+        _, robot, human = self.rollout(types, noise=noise, generator=generator)
+        r_names, h_names = self.task.robot_actions, self.task.human_actions
+        seqs = []
+        for r_row, h_row in zip(robot.tolist(), human.tolist()):
+            seq = []
+            for a, h in zip(r_row, h_row):
+                if a == -2:
+                    break
+                seq.append(("robot", r_names[a]))
+                if h >= 0:
+                    seq.append(("human", h_names[h]))
+            seqs.append(seq)
+        n = len(subject_types)
+        demos = Demonstrations.from_lists(
+            seqs,
+            subjects=[f"s{s:03d}" for s in range(n) for _ in range(per_subject)],
+            sequence_ids=[str(i) for _ in range(n) for i in range(per_subject)],
+            types=[self.type_names[int(y)] for y in types],
+            vocabulary=sorted([("human", h) for h in h_names] + [("robot", a) for a in r_names]),
+        )
+        return demos, types
+
+
+def _pick(best: int, a: int, good: float = 1.0, idle: float = 0.0, bad: float = -1.0) -> float:
+    """+good for the wanted action, idle for waiting (action 0), bad for anything else."""
+    return good if a == best else (idle if a == 0 else bad)
+
+
+# ------------------------------------------------------------------------------ finish_late
+# stages 0-3: the person fits a part while the robot holds the frame (everyone alike);
+# stage 4: each type finishes in its own way (glue, screws or tape), wanting that item passed;
+# stage 5: the person inspects alone. State: (stage, what the robot has out).
+_ITEMS = ("none", "hold", "glue", "screws", "tape")
+
+
+def finish_late() -> HeldoutWorld:
+    types = ("glue", "screws", "tape")
+
+    def robot_step(s, a):
+        return s if a == 0 else (s[0], a)
+
+    def human_step(s, h):
+        stage = s[0]
+        ok = (h == 0 and stage < 4) or (1 <= h <= 3 and stage == 4) or (h == 4 and stage == 5)
+        return (stage + 1, 0) if ok else None
+
+    def behaviour(y, m, s, a):
+        stage = s[0]
+        if stage < 4:
+            return {0: 1.0} if s[1] == 1 else {0: 0.5, -1: 0.5}  # fits sooner when held
+        return {1 + y: 1.0} if stage == 4 else {4: 1.0}
+
+    def reward(y, s, a):
+        stage, item = s
+        if stage < 4:
+            return 0.2 if (a == 0 and item == 1) else _pick(1, a)
+        if stage == 4:
+            return 0.2 if (a == 0 and item == 2 + y) else _pick(2 + y, a)
+        return _pick(0, a, good=0.5, bad=-0.5)
+
+    return tabulate(
+        "finish_late", initial=(0, 0),
+        robot_actions=("wait", "hold", "pass_glue", "pass_screws", "pass_tape"),
+        human_actions=("fit", "glue", "screw", "tape", "inspect"),
+        robot_step=robot_step, human_step=human_step, terminal=lambda s: s[0] == 6,
+        type_names=types, behaviour=behaviour, reward=reward, horizon=14,
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ twins
+# five panels placed in order; a placed panel is bolted by the robot (bolt: all placed ones)
+# or by the person. Both types want each panel bolted at once by the robot, except at one
+# state, 3 placed and 2 bolted, where the "twin_self" person bolts the third panel herself
+# (and wants the robot to wait). State: (placed, bolted).
+def twins() -> HeldoutWorld:
+    panels, odd = 5, (3, 2)
+
+    def robot_step(s, a):
+        return (s[0], s[0]) if a == 1 else s
+
+    def human_step(s, h):
+        placed, bolted = s
+        if h == 0:
+            return (placed + 1, bolted) if placed < panels else None
+        if h == 1:
+            return (placed, bolted + 1) if bolted < placed else None
+        return ("done", "done") if placed == bolted == panels else None
+
+    def behaviour(y, m, s, a):
+        placed, bolted = s
+        if s == odd and y == 1:
+            return {1: 1.0}
+        if placed == bolted == panels:
+            return {2: 1.0}
+        if placed - bolted >= 2:
+            return {1: 1.0}  # too many loose panels: bolts one herself
+        return {0: 1.0} if placed < panels else {-1: 1.0}
+
+    def reward(y, s, a):
+        placed, bolted = s
+        if s == odd:
+            return _pick(1, a, idle=-0.5) if y == 0 else _pick(0, a, good=0.5)
+        return _pick(1, a) if bolted < placed else _pick(0, a, good=0.2, bad=-0.5)
+
+    return tabulate(
+        "twins", initial=(0, 0), robot_actions=("wait", "bolt"),
+        human_actions=("place", "bolt_self", "finish"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s[0] == "done",
+        type_names=("twin_robot", "twin_self"), behaviour=behaviour, reward=reward, horizon=16,
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ sorting_moody
+# five items A-E sorted into bins; the robot may present one item. "by_size" sorts A..E,
+# "by_colour" C, E, A, D, B; "moody" sorts a presented item half the time, else a random
+# remaining one, and dislikes being presented items. State: (sorted mask, presented or -1).
+_SORT_ORDERS = {"by_size": (0, 1, 2, 3, 4), "by_colour": (2, 4, 0, 3, 1)}
+
+
+def sorting_moody() -> HeldoutWorld:
+    types = ("by_size", "by_colour", "moody")
+
+    def robot_step(s, a):
+        mask, _ = s
+        return s if a == 0 or mask >> (a - 1) & 1 else (mask, a - 1)
+
+    def human_step(s, h):
+        mask, shown = s
+        return None if mask >> h & 1 else (mask | 1 << h, -1 if shown == h else shown)
+
+    def remaining(mask):
+        return [i for i in range(5) if not mask >> i & 1]
+
+    def nxt(y, mask):
+        return next(i for i in _SORT_ORDERS[types[y]] if not mask >> i & 1)
+
+    def behaviour(y, m, s, a):
+        mask, shown = s
+        if types[y] != "moody":
+            return {nxt(y, mask): 1.0}
+        rest = remaining(mask)
+        out = {i: (0.5 if shown >= 0 else 1.0) / len(rest) for i in rest}
+        if shown >= 0:
+            out[shown] += 0.5
+        return out
+
+    def reward(y, s, a):
+        mask, shown = s
+        if types[y] == "moody":
+            return _pick(0, a, good=0.3, bad=-0.3)
+        want = nxt(y, mask)
+        return 0.2 if (a == 0 and shown == want) else _pick(1 + want, a)
+
+    return tabulate(
+        "sorting_moody", initial=(0, -1),
+        robot_actions=("wait", *(f"present_{c}" for c in "ABCDE")),
+        human_actions=tuple(f"sort_{c}" for c in "ABCDE"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s[0] == 31, type_names=types,
+        behaviour=behaviour, reward=reward, horizon=12,
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ tool_rhythm
+# eight operations, each with the drill or the saw; the robot lays a tool out. The person's
+# next tool follows their own rhythm, kept in memory (a slip shifts it), not in the state:
+# "alternate" drill, saw, drill, ...; "pairs" drill, drill, saw, saw, ...; "drills_first"
+# four drills, then four saws; "follower" uses whatever tool lies out (else the drill).
+# State: (operations done, tool out: 0 none, 1 drill, 2 saw).
+def tool_rhythm() -> HeldoutWorld:
+    types, ops = ("alternate", "pairs", "drills_first", "follower"), 8
+
+    def phase_tool(y, m):  # 0 drill, 1 saw, from the memory m (a counter mod 4 or 8)
+        return {0: m % 2, 1: (m // 2) % 2, 2: int(m >= 4), 3: 0}[y]
+
+    def robot_step(s, a):
+        return s if a == 0 or s[0] == ops else (s[0], a)
+
+    def human_step(s, h):
+        done, out = s
+        return None if done == ops else (done + 1, 0 if out == h + 1 else out)
+
+    def behaviour(y, m, s, a):
+        if types[y] == "follower":
+            return {s[1] - 1 if s[1] else 0: 1.0}
+        return {phase_tool(y, m): 1.0}
+
+    def memory_update(y, m, s, a, h):
+        return m if h < 0 else (m + 1) % 8
+
+    def reward(y, s, a):
+        done, out = s
+        if types[y] == "follower":
+            return _pick(0, a, good=0.3, bad=-0.3)
+        want = 1 + phase_tool(y, done % 8)  # the tool of the rhythm at this count
+        return 0.2 if (a == 0 and out == want) else _pick(want, a)
+
+    return tabulate(
+        "tool_rhythm", initial=(0, 0), robot_actions=("wait", "lay_drill", "lay_saw"),
+        human_actions=("drill", "saw"), robot_step=robot_step, human_step=human_step,
+        terminal=lambda s: s[0] == ops, type_names=types, behaviour=behaviour, reward=reward,
+        horizon=12, memory=8, memory_update=memory_update,
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ crew_70_20_10
+# three tools T1-T3 on the shelf; the person uses each once, in order. The robot can hand a
+# tool to the right or the left hand (it lies on that side until used). "right_handed"
+# (70 % of the subjects) wants each tool handed to the right; "left_handed" (20 %) to the
+# left; "fetcher" (10 %) fetches their own tools and wants the robot to wait. State: per tool
+# 0 shelf, 1 right, 2 left, 3 used.
+def crew_70_20_10() -> HeldoutWorld:
+    types = ("right_handed", "left_handed", "fetcher")
+
+    def robot_step(s, a):
+        if a == 0:
+            return s
+        t, side = (a - 1) // 2, 1 + (a - 1) % 2
+        return s if s[t] != 0 else (*s[:t], side, *s[t + 1 :])
+
+    def human_step(s, h):  # h < 3: use tool h (from a hand); h >= 3: fetch tool h - 3 and use it
+        t = h % 3
+        if s[t] == 3 or (h < 3) != (s[t] in (1, 2)):
+            return None
+        return (*s[:t], 3, *s[t + 1 :])
+
+    def current(s):
+        return next(t for t in range(3) if s[t] != 3)
+
+    def behaviour(y, m, s, a):
+        t = current(s)
+        if s[t] in (1, 2):
+            return {t: 1.0} if (s[t] == 1) == (y != 1) or y == 2 else {t: 0.5, -1: 0.5}
+        return {3 + t: 1.0} if y == 2 else {-1: 1.0}  # waits for the robot, unless a fetcher
+
+    def reward(y, s, a):
+        t = current(s)
+        if y == 2:
+            return _pick(0, a, good=0.3, bad=-0.5)
+        want = 1 + 2 * t + (0 if y == 0 else 1)
+        return 0.2 if (a == 0 and s[t] == 1 + (y == 1)) else _pick(want, a)
+
+    return tabulate(
+        "crew_70_20_10", initial=(0, 0, 0),
+        robot_actions=("wait", *(f"hand_T{t}_{side}" for t in (1, 2, 3)
+                                 for side in ("right", "left"))),
+        human_actions=(*(f"use_T{t}" for t in (1, 2, 3)), *(f"fetch_T{t}" for t in (1, 2, 3))),
+        robot_step=robot_step, human_step=human_step, terminal=lambda s: s == (3, 3, 3),
+        type_names=types, behaviour=behaviour, reward=reward, horizon=12, shares=(0.7, 0.2, 0.1),
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ five_parts
+# five parts, each mounted by the person and then fastened (by the robot or the person).
+# "all_then_fasten": mounts all 1..5, wants them fastened after; "fasten_each": mount i, robot
+# fastens i at once; "self": mounts and fastens every part herself; "reverse": mounts 5..1,
+# robot fastens at once; "split": the robot fastens the even parts, she the odd ones.
+# State: per part 0 loose, 1 mounted, 2 fastened (243 states).
+def five_parts() -> HeldoutWorld:
+    types = ("all_then_fasten", "fasten_each", "self", "reverse", "split")
+    n = 5
+
+    def set_(s, i, v):
+        return (*s[:i], v, *s[i + 1 :])
+
+    def robot_step(s, a):
+        return set_(s, a - 1, 2) if a > 0 and s[a - 1] == 1 else s
+
+    def human_step(s, h):
+        i, op = h % n, h // n  # op 0 mount, 1 fasten
+        return set_(s, i, 1 + op) if s[i] == op else None
+
+    def plan(y, s):
+        """(the person's next action or -1, the robot action the type wants)."""
+        order = range(n - 1, -1, -1) if types[y] == "reverse" else range(n)
+        mounted = [i for i in order if s[i] == 1]
+        loose = [i for i in order if s[i] == 0]
+        if types[y] == "all_then_fasten":
+            return (loose[0], 0) if loose else (-1, 1 + mounted[0])
+        if types[y] == "self":
+            return (n + mounted[0] if mounted else loose[0], 0)
+        mine = [i for i in mounted if types[y] == "split" and i % 2 == 0]  # parts 1, 3, 5
+        if mine:
+            return n + mine[0], 0
+        if mounted:
+            return -1, 1 + mounted[0]
+        return loose[0], 0
+
+    def behaviour(y, m, s, a):
+        return {plan(y, s)[0]: 1.0}
+
+    def reward(y, s, a):
+        want = plan(y, s)[1]
+        return _pick(want, a, good=0.2 if want == 0 else 1.0, idle=-0.2, bad=-0.5)
+
+    return tabulate(
+        "five_parts", initial=(0,) * n,
+        robot_actions=("wait", *(f"fasten_{i + 1}" for i in range(n))),
+        human_actions=(*(f"mount_{i + 1}" for i in range(n)),
+                       *(f"fasten_{i + 1}" for i in range(n))),
+        robot_step=robot_step, human_step=human_step, terminal=lambda s: s == (2,) * n,
+        type_names=types, behaviour=behaviour, reward=reward, horizon=16,
+    )  # fmt: skip
+
+
+#: Every held-out task by name: ``HELDOUT[name]() -> HeldoutWorld``.
+HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
+    "finish_late": finish_late,
+    "twins": twins,
+    "sorting_moody": sorting_moody,
+    "tool_rhythm": tool_rhythm,
+    "crew_70_20_10": crew_70_20_10,
+    "five_parts": five_parts,
+}

@@ -22,6 +22,7 @@ from torchhrc.io.policyx import save_policy
 from torchhrc.io.pomdpx import read_pomdpx, write_pomdpx
 from torchhrc.pomdp.belief import momdp_update, update
 from torchhrc.solvers import SARSOPConfig, solve
+from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.policy_graph import controller_value, policy_graph
 from torchhrc.solvers.qmdp import qmdp_policy
 from torchhrc.tasks.classic import rock_sample, tiger
@@ -133,6 +134,42 @@ def test_simulate_momdp_trace_shows_the_observed_state(capsys, tmp_path):
             got = torch.tensor([nxt["belief"].get(y, 0.0) for y in Y], dtype=torch.float64)
             torch.testing.assert_close(got, expected, rtol=0, atol=1e-12)
             assert math.isclose(sum(nxt["belief"].values()), 1.0, abs_tol=1e-12)
+
+
+def test_simulate_traces_a_flat_policy_of_a_momdp(capsys, tmp_path):
+    """A flat policy of a MOMDP (solved through ``to_pomdp()``) runs on the flat model: the
+    trace names its states and observations as ``to_pomdp()`` does (``x|y``, ``x2|o``), and
+    each belief is the flat Bayes filter of the one before."""
+    model = rock_sample(4, 2, form="momdp")
+    path = write_pomdpx(model, tmp_path / "rs42.pomdpx")
+    # random vectors over the 68 flat states, one per action: moves, checks and samples
+    g = torch.Generator().manual_seed(5)
+    vectors = torch.rand(14, 68, generator=g, dtype=torch.float64)
+    flat_policy = AlphaVectorPolicy(vectors, torch.arange(14) % model.num_actions)
+    policy = save_policy(flat_policy, tmp_path / "flat.policyx")
+    trace = tmp_path / "t.jsonl"
+    code, out, err = _run(
+        capsys, "simulate", path, "--policy", policy, "--episodes", "3", "--horizon", "5",
+        "--seed", "2", "--trace", trace, "--json",
+    )  # fmt: skip
+    assert code == 0, err
+    flat = read_pomdpx(path).to_pomdp()  # the names as the file has them, flattened
+    S, A, O = list(flat.states), list(flat.actions), list(flat.observations)
+    lines = [json.loads(line) for line in trace.read_text().splitlines()]
+    assert len(lines) == 3 * 5 and "x" not in lines[0]
+    assert len({x["action"] for x in lines}) > 2 and any(x["reward"] != 0 for x in lines)
+    returns = json.loads(out)["returns"]
+    for e in range(3):
+        steps = sorted((x for x in lines if x["episode"] == e), key=lambda x: x["step"])
+        ret = sum(flat.discount**t * s["reward"] for t, s in enumerate(steps))
+        assert ret == pytest.approx(returns[e], abs=1e-9)
+        for now, nxt in itertools.pairwise(steps):
+            b = torch.tensor([now["belief"].get(s, 0.0) for s in S], dtype=torch.float64)
+            a, o = A.index(now["action"]), O.index(now["observation"])
+            expected = update(flat, b, a, o).belief
+            got = torch.tensor([nxt["belief"].get(s, 0.0) for s in S], dtype=torch.float64)
+            torch.testing.assert_close(got, expected, rtol=0, atol=1e-12)
+            assert now["reward"] == float(flat.R[a, S.index(now["state"])])
 
 
 def _pomdpeval() -> str:

@@ -10,8 +10,11 @@ the discounted return of each and their mean with its 95 % CI (as ``torchhrc eva
 ``{"episode", "step", "state", "belief", "action", "reward", "observation"}``, plus ``"x"``
 and ``"next_x"`` (the observed state before and after the step) for a MOMDP; ``state`` is
 the true (hidden) state, ``belief`` the belief the action was chosen at, as ``{name: p}``
-over its nonzero entries. A simulation that reaches an absorbing state (APPL's terminal
-states) has no more lines. The trace is written atomically when the run ends.
+over its nonzero entries. A flat policy of a MOMDP (solved through ``to_pomdp()``) runs on
+the flat model: its states and observations are named ``"x|y"`` and ``"x2|o"``, as
+``to_pomdp()`` names them, and there is no ``"x"``. A simulation that reaches an absorbing
+state (APPL's terminal states) has no more lines. The trace is written atomically when the
+run ends.
 
 Example:
     >>> import argparse
@@ -85,7 +88,7 @@ class _Trace:
             elif self.factored:  # a flat policy of a MOMDP: the states (x, y) of to_pomdp()
                 xs = _names(m, "observed_states", m.num_observed)
                 ys = _names(m, "hidden_states", m.num_hidden)
-                self.hidden = [f"{x}/{y}" for x in xs for y in ys]
+                self.hidden = [f"{x}|{y}" for x in xs for y in ys]
             else:
                 self.hidden = _names(m, "states", width)
         return self.hidden
@@ -96,6 +99,9 @@ class _Trace:
         observations = _names(m, "observations", m.num_observations)
         hidden = self._hidden_names(step.belief.shape[-1])
         factored = self.factored and step.belief.shape[-1] == m.num_hidden
+        if self.factored and not factored:  # to_pomdp()'s observations (x2, o), as x2 * O + o
+            xs = _names(m, "observed_states", m.num_observed)
+            observations = [f"{x}|{o}" for x in xs for o in observations]
         observed = _names(m, "observed_states", m.num_observed) if factored else None
         live = step.active.nonzero().squeeze(-1).tolist()
         beliefs = step.belief[live].double()

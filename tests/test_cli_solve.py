@@ -214,6 +214,15 @@ def test_a_model_over_the_memory_limit_is_refused_before_reading(capsys, tmp_pat
     assert err.count("\n") == 1 and "more than the memory budget of 476 MiB" in err
 
 
+def test_out_in_a_missing_folder_exits_2_before_solving(capsys, tiger_file, tmp_path):
+    """The folder of ``--out`` is checked before the model is read: no progress line (the
+    solve never started), one error line naming the folder, nothing written."""
+    folder = tmp_path / "no"
+    code, out, err = _run(capsys, "solve", tiger_file, "--out", folder / "p.policyx")
+    assert code == 2 and out == "" and not folder.exists()
+    assert err == f"torchhrc solve: error: No such file or directory: {folder}\n"
+
+
 @pytest.mark.parametrize("value", ["0", "-3", "lots", "inf"])
 def test_bad_memory_limit_exits_2(capsys, tiger_file, tmp_path, value):
     out_path = tmp_path / "p.policyx"

@@ -209,6 +209,10 @@ def run(args: argparse.Namespace) -> int:
         from torchhrc.errors import TorchHRCError
 
         raise TorchHRCError("--policy-interval needs --out (the policy file to write)")
+    if args.out is not None:  # its folder must exist before the solve, not after it
+        from torchhrc.commands._files import check_new_file
+
+        check_new_file(args.out, force=True)  # (an existing policy is replaced, as pomdpsol)
     from torchhrc.io.cassandra import read_pomdp
     from torchhrc.pomdp import SparsePOMDP
     from torchhrc.solvers import solve

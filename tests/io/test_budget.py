@@ -128,6 +128,25 @@ def test_pomdpx_dense_form_over_the_budget_is_refused_and_auto_goes_sparse() -> 
     assert model.num_states == 3600 and model.transitions[0].shape[0] == 2 * 3600  # identity
 
 
+def test_pomdpx_sparse_form_over_the_budget_is_refused() -> None:
+    """``sparse=True`` charges the sparse form: the nonzeros of T and Z, counted from the
+    tables before they are expanded (at least the true 2 x 3600 = 7,200 of the identity T
+    and 2 x 3600 x 2 = 14,400 of the uniform Z), and the bytes they would take."""
+    import re
+
+    text = _pomdpx_two(60)  # S = 3600
+    with pytest.raises(ParseError) as info:
+        parse_pomdpx(text, path="m.pomdpx", sparse=True, memory_budget=1e6)
+    message = str(info.value)
+    found = re.search(r"the nonzeros of T and Z \(about ([0-9.e+]+)\).*about .* \(([0-9.e+]+) "
+                      r"bytes\), more than the memory budget of 977 KiB \(1000000 bytes\)",
+                      message)  # fmt: skip
+    assert message.startswith("m.pomdpx: ") and found, message
+    assert float(found.group(1)) >= 7_200 + 14_400 and float(found.group(2)) > 1e6
+    model = parse_pomdpx(text, sparse=True, memory_budget=float(found.group(2)) + 1e6)
+    assert isinstance(model, SparsePOMDP) and model.num_states == 3600
+
+
 def test_pomdpx_num_values_over_the_budget_is_refused() -> None:
     with pytest.raises(ParseError, match="<NumValues>100000000</NumValues>: the names of 1e\\+08"):
         parse_pomdpx(_pomdpx(2, num_values=100_000_000), memory_budget=2**30)

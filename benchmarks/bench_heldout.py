@@ -18,12 +18,14 @@ Usage::
 
     python benchmarks/bench_heldout.py --goal 2 --seeds 0-9
     python benchmarks/bench_heldout.py --goal 2 --seeds 0-2 --subjects 300
+    python benchmarks/bench_heldout.py --goal 2 --tasks suite --cluster strong_gain=0.02
     python benchmarks/bench_heldout.py --goal 3 --tasks twins,finish_late --json out.json
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import sys
 import time
@@ -40,6 +42,7 @@ from heldout_tasks import HELDOUT
 
 from torchhrc.metrics import adjusted_rand_index
 from torchhrc.mixture import ClusterConfig, fit_mixture
+from torchhrc.tasks.suite import SUITE
 
 #: The clustering options ``torchhrc.tasks.learn`` passes to ``fit_mixture`` when given no
 #: clustering settings (its documented defaults; ``ClusterConfig()`` adds none).
@@ -55,17 +58,22 @@ def _seeds(text: str) -> list[int]:
     return out
 
 
-def cluster_row(name: str, seed: int, *, subjects: int, per_subject: int,
-                noise: float) -> dict[str, Any]:  # fmt: skip
-    """One clustering of task ``name`` at ``seed``: k, true k, ARI, the record of every k."""
-    world = HELDOUT[name]()
+def _world(name: str):
+    return HELDOUT[name]() if name in HELDOUT else SUITE[name]()
+
+
+def cluster_row(name: str, seed: int, *, subjects: int, per_subject: int, noise: float,
+                cluster: ClusterConfig | None = None) -> dict[str, Any]:  # fmt: skip
+    """One clustering of task ``name`` (held-out or suite) at ``seed``: k, true k, ARI, the
+    record of every k; ``cluster`` replaces learn()'s clustering defaults field by field."""
+    world = _world(name)
     demos, types = world.demonstrations(subjects=subjects, per_subject=per_subject, noise=noise,
                                         seed=seed)  # fmt: skip
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        fit = fit_mixture(demos, seed=seed, **{**LEARN_CLUSTER_OPTIONS,
-                                               **ClusterConfig().options()})  # fmt: skip
+        options = {**LEARN_CLUSTER_OPTIONS, **(cluster or ClusterConfig()).options()}
+        fit = fit_mixture(demos, seed=seed, **options)
     ari = adjusted_rand_index(types.tolist(), fit.assignments.tolist())
     return dict(task=name, states=world.task.num_states, seed=seed, true_k=world.num_types,
                 k=int(fit.k), ari=float(ari), hit=int(fit.k) == world.num_types and ari >= 0.9,
@@ -84,13 +92,13 @@ def goal2(tasks: list[str], seeds: list[int], args: argparse.Namespace) -> list[
     for name in tasks:
         for seed in seeds:
             row = cluster_row(name, seed, subjects=args.subjects, per_subject=args.per_subject,
-                              noise=args.noise)  # fmt: skip
+                              noise=args.noise, cluster=args.cluster)  # fmt: skip
             rows.append(row)
             mark = "" if row["hit"] else "   MISS: " + _per_k_text(row["per_k"])
             print(f"{name:16s} seed {seed:2d}  k {row['k']} (true {row['true_k']})  ARI "
                   f"{row['ari']:.3f}  {row['seconds']:.1f} s{mark}", flush=True)  # fmt: skip
     print(f"\n{args.subjects} subjects x {args.per_subject} demonstrations, noise {args.noise}, "
-          "learn()'s clustering defaults\n")  # fmt: skip
+          f"learn()'s clustering defaults {args.cluster or ''}\n")  # fmt: skip
     print("| task | X | true k | true k with ARI >= 0.9 | k per seed | ARI (min over hits) "
           "| s/run |\n|---|---|---|---|---|---|---|")  # fmt: skip
     for name in tasks:
@@ -106,7 +114,7 @@ def goal2(tasks: list[str], seeds: list[int], args: argparse.Namespace) -> list[
 def goal3(tasks: list[str], args: argparse.Namespace) -> dict[str, Any]:
     rows, records = [], {}
     for name in tasks:
-        world = HELDOUT[name]()
+        world = _world(name)
         demos, _ = world.demonstrations(subjects=args.subjects, per_subject=args.per_subject,
                                         noise=args.noise, seed=args.seed)  # fmt: skip
         row, record = evaluate_world(name, world, demos, episodes=args.episodes,
@@ -124,7 +132,15 @@ def goal3(tasks: list[str], args: argparse.Namespace) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--goal", type=int, choices=(2, 3), default=2)
-    parser.add_argument("--tasks", default=",".join(HELDOUT))
+    parser.add_argument("--tasks", default=",".join(HELDOUT),
+                        help="held-out or suite task names; 'suite': the suite's")  # fmt: skip
+    parser.add_argument(
+        "--cluster",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="goal 2: a ClusterConfig field (repeatable), e.g. strong_gain=0.02",
+    )
     parser.add_argument("--seeds", default="0-9", help="goal 2: e.g. 0-9 or 0,3,5")
     parser.add_argument("--seed", type=int, default=0, help="goal 3's seed")
     parser.add_argument("--subjects", type=int, default=30)
@@ -136,7 +152,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    tasks = args.tasks.split(",")
+    fields = dict(item.partition("=")[::2] for item in args.cluster)
+    config = ClusterConfig(**{k: ast.literal_eval(v) for k, v in fields.items()})
+    args.cluster = config if fields else None
+    tasks = list(SUITE) if args.tasks == "suite" else args.tasks.split(",")
     out: Any = goal2(tasks, _seeds(args.seeds), args) if args.goal == 2 else goal3(tasks, args)
     if args.json:
         with open(args.json, "w") as f:

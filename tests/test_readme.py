@@ -66,3 +66,21 @@ def _check_ten_line_example(ns: dict) -> None:
     majority = int(fit.assignments[mine].mode().values)
     assert int(posterior.argmax()) == majority
     assert float(posterior.max()) > 0.9
+
+
+def test_command_line_section_lists_every_command_with_real_options():
+    """The README's "Command line" block names every sub-command of ``torchhrc``, and every
+    ``--option`` it shows is one that command's parser takes."""
+    from torchhrc.cli import build_parser
+
+    text = README.read_text(encoding="utf-8")
+    block = re.search(r"^## Command line\n+```\n(.*?)^```", text, flags=re.M | re.S)
+    assert block, "README.md has no '## Command line' block"
+    lines = [line.split() for line in block.group(1).splitlines() if line.startswith("torchhrc ")]
+    parser = build_parser()
+    commands = next(a for a in parser._actions if a.dest == "command").choices
+    assert {words[1] for words in lines} == set(commands)
+    for words in lines:
+        known = set(commands[words[1]]._option_string_actions)
+        shown = {m for w in words for m in re.findall(r"--[a-z][a-z-]*", w)}
+        assert shown <= known, (words[1], shown - known)

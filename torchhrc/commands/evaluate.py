@@ -84,7 +84,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Evaluate a policy (.safetensors or APPL .policyx) on a model in Cassandra's "
             ".pomdp or APPL's .pomdpx format: run N simulations at once on tensors and print "
-            "the mean discounted reward with its 95%% confidence interval."
+            "the mean discounted reward with its 95 % confidence interval."
         ),
     )
     add_simulation_options(parser, episodes=1000)

@@ -125,6 +125,7 @@ def test_the_label_rule_by_hand():
             "sub 3.5",
             "## B",
             "b 4.5",
+            "a figure at the end of a sentence: 9.5.",
             "<!-- figures: x -->",
             "c 5.5",
             "<!-- /figures: x -->",
@@ -134,9 +135,10 @@ def test_the_label_rule_by_hand():
             "`span 7.5` and Python 3.11",
         ]
     )
-    assert [line for _, line in figures.unlabelled(text)] == ["intro 1.5", "b 4.5"]
+    end = "a figure at the end of a sentence: 9.5."  # missed while a full stop hid it
+    assert [line for _, line in figures.unlabelled(text)] == ["intro 1.5", "b 4.5", end]
     page = text.replace("# T\n", "# T\none-off figures of this page: 2026-12-01, commit abcdef1\n")
     assert figures.unlabelled(page) == []
     intro = text.replace("# T\n", "# T\none-off figures: 2026-12-01, commit abcdef1\n")
-    assert [line for _, line in figures.unlabelled(intro)] == ["b 4.5"]
-    assert len(figures.unlabelled(text.replace("commit abcdef1", "commit"))) == 4
+    assert [line for _, line in figures.unlabelled(intro)] == ["b 4.5", end]
+    assert len(figures.unlabelled(text.replace("commit abcdef1", "commit"))) == 5

@@ -290,7 +290,7 @@ def is_label(line: str) -> bool:
 
 
 #: A measured-looking number: decimals (counts and settings are integers or in code spans).
-DECIMAL = re.compile(r"(?<![\w.])\d+\.\d+(?![\w.])")
+DECIMAL = re.compile(r"(?<![\w.])\d+\.\d+(?!\w|\.\d)")  # a full stop may follow
 HEADING = re.compile(r"^(#{1,6}) ")
 #: Decimals that are names, not figures: versions, issue and section numbers.
 NOT_A_FIGURE = re.compile(

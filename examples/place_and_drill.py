@@ -12,10 +12,10 @@ from __future__ import annotations
 import torch
 
 from torchhrc.mixture import fit_mixture, infer_type
-from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
-from torchhrc.solvers.type_policies import type_policy_lower_bound
+from torchhrc.solvers.sarsop import SARSOPConfig
+from torchhrc.tasks.pipeline import build_model, solve_model
 from torchhrc.tasks.place_and_drill.demos import simulate_study
-from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask, build_learned_model
+from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask
 from torchhrc.tasks.place_and_drill.simulate import MOMDPController, run_executions
 
 SEED = 0
@@ -27,16 +27,14 @@ train = demos.select_subjects([new_subject], exclude=True)
 fit = fit_mixture(train, k_min=2, k_max=4, restarts=5, seed=SEED)
 print(f"clusters selected by BIC: k = {fit.k}")
 
-# 2. The learned MOMDP (Tx from each cluster's chain, reward by IRL), solved by SARSOP.
+# 2. The learned MOMDP through the task pipeline (Tx from each cluster's chain, reward by
+#    the paper's IRL), solved by SARSOP (from the best per-type policy as lower bound).
 task = PlaceAndDrillTask(3)
 chains = fit.transition_over(train)  # each type's chain over the recorded symbols
-learned = build_learned_model(task, chains, train, fit.assignments, seed=SEED)
+learned = build_model(task, train, chains, fit.assignments, seed=SEED)
 print("cluster interpretations:", learned.type_names)
-config = SARSOPConfig(
-    time_limit=3.0, precision=1e-3, seed=SEED, lower_bound_init=type_policy_lower_bound
-)
-solution = sarsop(learned.momdp, config)
-print(f"SARSOP bounds at b0: [{solution.lower:.3f}, {solution.upper:.3f}]")
+learned = solve_model(learned, config=SARSOPConfig(time_limit=3.0, precision=1e-3, seed=SEED))
+print(f"SARSOP bounds at b0: [{learned.lower:.3f}, {learned.upper:.3f}]")
 
 # 3. The new subject: its type from its 3 demonstrations (paper Eq. 1), or no prior at all.
 truth = dict(zip(demos.subjects, demos.types))[new_subject]
@@ -46,7 +44,7 @@ inferred = infer_type(fit.model, mine.sequences, mine.lengths).double()
 uniform = torch.full_like(inferred, 1.0 / len(inferred))
 print(f"new subject {new_subject} is truly '{truth}'")
 for title, b0 in (("belief from its demonstrations", inferred), ("uniform belief", uniform)):
-    robot = MOMDPController(learned.momdp, solution.policy, b0[None].clone(), record=True)
+    robot = MOMDPController(learned.momdp, learned.policy, b0[None].clone(), record=True)
     trace = run_executions(
         task,
         {"learned": robot},

@@ -14,8 +14,9 @@ pytest.importorskip("scipy", reason="the frequency tests use scipy.stats")
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 import torchhrc.envs  # noqa: E402,F401  (registers the ids)
+from torchhrc.tasks.interface import behaviour_from_preferences  # noqa: E402
+from torchhrc.tasks.pipeline import transition_from_behaviour  # noqa: E402
 from torchhrc.tasks.place_and_drill.env import PlaceAndDrillEnv  # noqa: E402
-from torchhrc.tasks.place_and_drill.model import placement_transition  # noqa: E402
 from torchhrc.tasks.place_and_drill.vector_env import PlaceAndDrillVectorEnv  # noqa: E402
 
 ALPHA = 1e-3
@@ -66,12 +67,17 @@ def test_random_placements_follow_the_expert_model(chi_square):
         envs = PlaceAndDrillVectorEnv(256, epsilon=1.0, noise=noise)
         x, a, y, x2, r = _vector_samples(envs, 60, seed=1)
         task, X = envs.task, envs.task.num_states
-        ones = torch.ones(1, task.num_actions, task.n_positions, dtype=torch.float64)
-        Tx = placement_transition(task, ones, noise=0.0, pause=noise)[..., 0, :].numpy()
+        ones = torch.ones(1, task.num_actions, 1, task.n_positions, dtype=torch.float64)
+
+        def uniform_tx(pause, ones=ones, task=task):  # (A, X, X): a uniform placement or a pause
+            behaviour = behaviour_from_preferences(task, ones, pause=pause)
+            return transition_from_behaviour(task, behaviour)[..., 0, :].numpy()
+
+        Tx = uniform_tx(noise)
         assert chi_square(a * X + x, x2, Tx.reshape(-1, X)) > ALPHA
         np.testing.assert_array_equal(r, envs.human.score.numpy()[a, x, y])
         if noise == 0.0:  # the test can fail: the same samples against a skipping human
-            wrong = placement_transition(task, ones, noise=0.0, pause=0.2)[..., 0, :].numpy()
+            wrong = uniform_tx(0.2)
             assert chi_square(a * X + x, x2, wrong.reshape(-1, X)) < ALPHA
     ordered = PlaceAndDrillVectorEnv(256, epsilon=0.0)
     x, a, y, x2, r = _vector_samples(ordered, 60, seed=2)

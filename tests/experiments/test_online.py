@@ -19,13 +19,11 @@ from torchhrc.experiments.online import (
 from torchhrc.experiments.robustness import POLICY_NAMES, MOMDPPolicy, simulate_subject
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
 from torchhrc.solvers.type_policies import type_policy_lower_bound
+from torchhrc.tasks.interface import behaviour_from_preferences, chain_preferences
+from torchhrc.tasks.pipeline import build_model, transition_from_behaviour
 from torchhrc.tasks.place_and_drill.demos import simulate_study
 from torchhrc.tasks.place_and_drill.hand_coded import load_expert_model, parse_expert_model
-from torchhrc.tasks.place_and_drill.model import (
-    PlaceAndDrillTask,
-    build_learned_model,
-    placement_transition,
-)
+from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask
 from torchhrc.tasks.place_and_drill.simulate import (
     MOMDPController,
     demonstrated_orders,
@@ -143,8 +141,8 @@ def test_turn_taking_counts_by_hand():
 
 def test_turn_taking_transition_is_a_distribution_and_the_mixture():
     g = torch.Generator().manual_seed(0)
-    placement = torch.rand(2, TASK.num_actions, 3, generator=g, dtype=torch.float64)
-    Tx = placement_transition(TASK, placement, noise=0.1)
+    placement = torch.rand(2, TASK.num_actions, 1, 3, generator=g, dtype=torch.float64)
+    Tx = transition_from_behaviour(TASK, behaviour_from_preferences(TASK, placement, noise=0.1))
     wait = torch.tensor([[0.1, 0.2], [0.3, 0.9]], dtype=torch.float64)
     out = turn_taking_transition(TASK, Tx, wait)
     torch.testing.assert_close(out.sum(-1), torch.ones_like(out.sum(-1)))
@@ -200,8 +198,10 @@ def online_setup():
         [train.subset(assignments == k).transition_counts() + 0.1 for k in range(2)]
     )
     chains = counts / counts.sum(-1, keepdim=True)
-    learned = build_learned_model(TASK, chains, train, assignments, irl_iterations=10)
+    learned = build_model(TASK, train, chains, assignments, irl_iterations=10)
     assert learned.type_names == ("safe", "efficient")
+    placement = chain_preferences(chains, train.vocabulary, TASK.robot_actions,
+                                  TASK.human_actions)  # fmt: skip
     wait = learn_turn_taking(TASK, train, assignments, 2)
     expert = load_expert_model()
     return {
@@ -210,6 +210,7 @@ def online_setup():
         "labels": labels,
         "held": held,
         "learned": learned,
+        "placement": placement,
         "wait": wait,
         "expert": expert,
         "orders": demonstrated_orders(TASK, demos),
@@ -257,11 +258,11 @@ def test_online_is_below_the_ceiling_and_a_degraded_model_scores_lower(online_se
     run; the test asks for 5.
     """
     learned, wait = online_setup["learned"], online_setup["wait"]
-    R = learned.momdp.R
+    R, placement = learned.momdp.R, online_setup["placement"]
     models = {
-        "learned": online_momdp(TASK, learned.placement, R, wait),
-        "swapped_rewards": online_momdp(TASK, learned.placement, R.flip(-1), wait),
-        "swapped_turns": online_momdp(TASK, learned.placement, R, wait.flip(0)),
+        "learned": online_momdp(TASK, placement, R, wait),
+        "swapped_rewards": online_momdp(TASK, placement, R.flip(-1), wait),
+        "swapped_turns": online_momdp(TASK, placement, R, wait.flip(0)),
         "hand_coded": expert_online_momdp(online_setup["expert"]),
     }
     policies = {n: MOMDPPolicy(m, _solve(m).policy, m.b0) for n, m in models.items()}
@@ -278,7 +279,7 @@ def test_online_is_below_the_ceiling_and_a_degraded_model_scores_lower(online_se
 def test_online_belief_moves_toward_the_true_type(online_setup):
     """A robot that waits at PEE: the learned filter's belief goes to the human's true type."""
     learned, wait = online_setup["learned"], online_setup["wait"]
-    model = online_momdp(TASK, learned.placement, learned.momdp.R, wait)
+    model = online_momdp(TASK, online_setup["placement"], learned.momdp.R, wait)
     pee = TASK.state_names.index("PEE")
     ppe = TASK.state_names.index("PPE")
     b = model.b0.expand(2, -1).clone()

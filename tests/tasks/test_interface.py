@@ -16,14 +16,8 @@ from torchhrc.tasks.interface import (
     check_task,
     tabular_features,
 )
-from torchhrc.tasks.pipeline import transition_from_behaviour
 from torchhrc.tasks.place_and_drill.demos import simulate_study
-from torchhrc.tasks.place_and_drill.model import (
-    PlaceAndDrillTask,
-    demonstration_steps,
-    placement_probabilities,
-    placement_transition,
-)
+from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask
 
 
 class Toggle(CollaborativeTask):
@@ -50,17 +44,45 @@ def test_default_features_are_one_hot_per_state_action_and_zero_when_terminal():
     assert len(Toggle().feature_names) == Toggle().features().shape[-1] == 4
 
 
-def test_read_steps_matches_the_place_and_drill_reader():
+def _bench_steps(symbols, n):
+    """Place-and-drill demonstration symbols as steps ``[x, a_r, a_h, x']`` in plain Python: the
+    bench is a list of statuses (0 empty, 1 placed, 2 drilled), ``x`` its base-3 number; a
+    human turn that follows no robot action is preceded by a robot wait."""
+    bench, steps, open_step = [0] * n, [], False
+
+    def number():
+        return sum(s * 3 ** (n - 1 - i) for i, s in enumerate(bench))
+
+    for actor, action in symbols:
+        i = "ABCDEFGH".find(action[-1])  # the position; -1 for "wait"
+        if actor == "robot":
+            x = number()
+            if i >= 0 and bench[i] == 1:
+                bench[i] = 2
+            steps.append([x, i + 1, -1, number()])
+            open_step = True
+            continue
+        if not open_step:
+            steps.append([number(), 0, -1, number()])
+        if i >= 0:
+            bench[i] = 1
+        steps[-1][2:] = [i, number()]
+        open_step = False
+    return steps
+
+
+def test_read_steps_follows_the_bench_worked_in_plain_python():
     task = PlaceAndDrillTask(3)
     demos = simulate_study(n_subjects=6, n_demos=3, seed=3)
     new = task.read_steps(demos)
-    old = demonstration_steps(task, demos)
-    assert torch.equal(new.mask, old.mask)
-    m = new.mask
-    for a, b in ((new.states, old.states), (new.actions, old.actions),
-                 (new.next_states, old.next_states)):  # fmt: skip
-        assert torch.equal(a[m], b[m])
+    seqs, lengths = demos.sequences.tolist(), demos.lengths.tolist()
+    for k, (seq, length) in enumerate(zip(seqs, lengths)):
+        ref = _bench_steps([demos.vocabulary[v] for v in seq[:length]], 3)
+        L = int(new.lengths[k])
+        got = torch.stack([new.states[k], new.actions[k], new.human[k], new.next_states[k]], -1)
+        assert got[:L].tolist() == ref, k
     # every step is one the dynamics produce
+    m = new.mask
     assert torch.equal(task.step(new.states, new.human, new.actions)[m], new.next_states[m])
 
 
@@ -95,10 +117,22 @@ def test_chain_behaviour_reproduces_the_place_and_drill_transition():
                             dtype=torch.long), None, noise=0.1, pause=0.02)  # fmt: skip
     behaviour = task.human_policy(evidence)
     assert torch.allclose(behaviour.sum(-1), torch.ones(2, 4, 27, dtype=torch.float64))
-    reference = placement_transition(
-        task, placement_probabilities(task, chains, demos.vocabulary), noise=0.1, pause=0.02
-    )
-    assert torch.equal(transition_from_behaviour(task, behaviour), reference)
+    # by hand: after robot action a the human places an empty position i with
+    # (1 - pause) ((1 - noise) q_i + noise / #empty), q the chain's P(place_i | a) over the
+    # empty positions, and lets the turn pass with the pause (always when nothing is empty)
+    v = {sym: i for i, sym in enumerate(demos.vocabulary)}
+    for y in range(2):
+        for a, name in enumerate(task.actions):
+            for x in range(27):
+                mid = int(task.robot_effect[a, x])
+                empty = [i for i in range(3) if int(task.status[mid, i]) == 0]
+                pref = [chains[y, v[("robot", name)], v[("human", f"place_{'ABC'[i]}")]].item()
+                        for i in empty]  # fmt: skip
+                want = [0.0, 0.0, 0.0, 1.0 if not empty else 0.02]
+                for i, p in zip(empty, pref):
+                    want[i] = 0.98 * (0.9 * p / sum(pref) + 0.1 / len(empty))
+                got = behaviour[y, a, x].tolist()
+                assert got == pytest.approx(want, rel=0, abs=1e-9), (y, name, x)
 
 
 def test_chain_preferences_pick_robot_rows_and_human_columns():

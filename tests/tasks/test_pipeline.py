@@ -1,4 +1,4 @@
-"""The task pipeline: same model as the hand-assembled place-and-drill one, consistency
+"""The task pipeline: the place-and-drill model against one worked in plain Python, consistency
 checks on type-dependent pieces, save / load, and one code path for every task."""
 
 from __future__ import annotations
@@ -26,15 +26,7 @@ from torchhrc.tasks.pipeline import (
     learn,
 )
 from torchhrc.tasks.place_and_drill.demos import simulate_study
-from torchhrc.tasks.place_and_drill.model import (
-    PlaceAndDrillTask,
-    build_momdp,
-    demonstration_steps,
-    interpret_clusters,
-    learn_type_weights,
-    placement_probabilities,
-    placement_transition,
-)
+from torchhrc.tasks.place_and_drill.model import FEATURE_NAMES, PlaceAndDrillTask
 
 
 @pytest.fixture(scope="module")
@@ -44,22 +36,60 @@ def study():
     return demos, fit
 
 
-def test_build_model_equals_the_hand_assembled_place_and_drill_model(study):
+def _place_and_drill_tx(chains, vocabulary, n, noise, pause):
+    """The paper's place-and-drill ``Tx[a][x][y][x2]`` in plain Python (module docstring of
+    torchhrc.tasks.place_and_drill.model): the robot acts, then the human places an empty
+    position ``i`` with ``(1 - pause) ((1 - noise) q_i + noise / #empty)``, ``q`` the type's
+    chain ``P(human:place_i | robot:a)`` over the empty positions, or lets the turn pass."""
+    lookup = {tuple(v): i for i, v in enumerate(vocabulary)}
+    actions = ["wait"] + [f"drill_{chr(65 + i)}" for i in range(n)]
+    X, K = 3**n, len(chains)
+    Tx = [[[[0.0] * X for _ in range(K)] for _ in range(X)] for _ in actions]
+    for a, name in enumerate(actions):
+        for x in range(X):
+            status = [(x // 3 ** (n - 1 - i)) % 3 for i in range(n)]
+            if a > 0 and status[a - 1] == 1:  # drilling a placed screw
+                status[a - 1] = 2
+            m = sum(s * 3 ** (n - 1 - i) for i, s in enumerate(status))
+            empty = [i for i in range(n) if status[i] == 0]
+            for y in range(K):
+                if not empty:
+                    Tx[a][x][y][m] = 1.0
+                    continue
+                row = chains[y][lookup[("robot", name)]]
+                pref = [row[lookup[("human", f"place_{chr(65 + i)}")]] for i in empty]
+                total = sum(pref)
+                q = [p / total if total > 0 else 1.0 / len(empty) for p in pref]
+                for i, qi in zip(empty, q):
+                    p_i = (1 - pause) * ((1 - noise) * qi + noise / len(empty))
+                    Tx[a][x][y][m + 3 ** (n - 1 - i)] += p_i
+                Tx[a][x][y][m] += pause
+    return torch.tensor(Tx, dtype=torch.float64)
+
+
+def test_build_model_equals_the_place_and_drill_model_worked_in_plain_python(study):
     demos, fit = study
     task = PlaceAndDrillTask(3)
     chains = fit.transition_over(demos).detach().double()  # over the recorded symbols
     model = build_model(task, demos, chains, fit.assignments, irl_iterations=5, seed=0)
-    # reference: the place-and-drill functions, assembled by hand
-    Tx = placement_transition(task, placement_probabilities(task, chains, demos.vocabulary),
-                              noise=0.05, pause=0.01)  # fmt: skip
-    w = learn_type_weights(task, Tx, demonstration_steps(task, demos), fit.assignments,
-                           max_iterations=5, seed=0)  # fmt: skip
-    names = interpret_clusters(task, chains, demos.vocabulary)
-    ref = build_momdp(task, Tx, task.reward(w), torch.full((fit.k,), 1.0 / fit.k,
-                      dtype=torch.float64), type_names=names)  # fmt: skip
-    assert torch.equal(model.momdp.Tx, ref.Tx) and torch.equal(model.momdp.R, ref.R)
-    assert torch.equal(model.weights, w) and model.type_names == names
-    assert set(names) == {"safe", "efficient"}
+    Tx = _place_and_drill_tx(chains.tolist(), demos.vocabulary, 3, noise=0.05, pause=0.01)
+    m = model.momdp
+    # 1e-9: the library rounds the pause through float32 (0.01 -> 0.0099999998)
+    assert torch.allclose(m.Tx, Tx, rtol=0, atol=1e-9)
+    # R = sum_f w[y, f] phi_f(x, a), zero in the all-drilled state (26), uniform start at 0
+    phi, w = task.features(), model.weights
+    R = [[[sum(w[y, f].item() * phi[a, x, f].item() for f in range(6)) if x != 26 else 0.0
+           for y in range(fit.k)] for x in range(27)] for a in range(4)]  # fmt: skip
+    assert torch.allclose(m.R, torch.tensor(R, dtype=torch.float64), rtol=0, atol=1e-12)
+    assert m.Ty is None and m.x0 == 0 and torch.equal(m.b0, torch.full((2,), 0.5).double())
+    assert m.Z.shape == (4, 27, 2, 1) and bool((m.Z == 1).all())
+    assert sorted(model.type_names) == ["efficient", "safe"]
+    # the IRL rewards say what each type's demonstrations do (module docstring): a safe
+    # partner's robot waits while a position is empty, an efficient one's drills at once
+    early, wait = FEATURE_NAMES.index("drill_early"), FEATURE_NAMES.index("wait_early")
+    for y, name in enumerate(model.type_names):
+        sign = 1.0 if name == "efficient" else -1.0
+        assert sign * (w[y, early] - w[y, wait]) > 0
 
 
 @dataclass(frozen=True)

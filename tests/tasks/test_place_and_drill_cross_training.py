@@ -9,7 +9,7 @@ from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.tasks.place_and_drill.cross_training import fit_cross_training
 from torchhrc.tasks.place_and_drill.demos import demonstration
-from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask, demonstration_steps
+from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +35,7 @@ def test_transitions_are_counts_plus_prior(fitted):
 
 def test_policy_replays_the_demonstrations(fitted):
     task, demos, ct = fitted
-    steps = demonstration_steps(task, demos)
+    steps = task.read_steps(demos)
     sid = demos.subject_index
     for n in range(demos.num_sequences):
         for t in range(int(steps.lengths[n])):

@@ -7,15 +7,11 @@ import torch
 
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
+from torchhrc.tasks.interface import behaviour_from_preferences
+from torchhrc.tasks.pipeline import task_momdp, transition_from_behaviour
 from torchhrc.tasks.place_and_drill.demos import demonstration
 from torchhrc.tasks.place_and_drill.hand_coded import build_expert_momdp, load_expert_model
-from torchhrc.tasks.place_and_drill.model import (
-    EMPTY,
-    PLACED,
-    PlaceAndDrillTask,
-    build_momdp,
-    placement_transition,
-)
+from torchhrc.tasks.place_and_drill.model import EMPTY, PLACED, PlaceAndDrillTask
 from torchhrc.tasks.place_and_drill.simulate import (
     MOMDPController,
     demonstrated_orders,
@@ -119,11 +115,11 @@ def test_controller_belief_is_bayes_rule():
     """The online belief equals the product of Tx likelihoods along the path, normalised."""
     task = PlaceAndDrillTask(3)
     g = torch.Generator().manual_seed(1)
-    p = torch.rand(2, 4, 3, generator=g, dtype=torch.float64)
-    Tx = placement_transition(task, p, noise=0.1)
+    p = torch.rand(2, 4, 1, 3, generator=g, dtype=torch.float64)  # (Y, A, X, H)
+    Tx = transition_from_behaviour(task, behaviour_from_preferences(task, p, noise=0.1))
     R = torch.zeros(4, 27, 2, dtype=torch.float64)
     b0 = torch.tensor([0.3, 0.7], dtype=torch.float64)
-    model = build_momdp(task, Tx, R, b0)
+    model = task_momdp(task, Tx, R, b0)
     B = 64
     ctrl = MOMDPController(model, RulePolicy(task, safe=True), b0.expand(B, 2).clone(), record=True)
     trace = run_executions(

@@ -62,17 +62,12 @@ import torch
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP
+from torchhrc.tasks.interface import behaviour_from_preferences
+from torchhrc.tasks.pipeline import task_momdp, transition_from_behaviour
 from torchhrc.tasks.place_and_drill.cross_training import CrossTrainingPolicy, fit_cross_training
 from torchhrc.tasks.place_and_drill.demos import STRATEGIES
 from torchhrc.tasks.place_and_drill.hand_coded import ExpertModel
-from torchhrc.tasks.place_and_drill.model import (
-    EMPTY,
-    PLACED,
-    PlaceAndDrillTask,
-    build_momdp,
-    demonstration_steps,
-    placement_transition,
-)
+from torchhrc.tasks.place_and_drill.model import EMPTY, PLACED, PlaceAndDrillTask
 
 __all__ = [
     "expert_online_momdp",
@@ -111,7 +106,7 @@ def learn_turn_taking(
 
     ``q[y, c] = (passes + prior) / (turns + 2 prior)`` over the steps ``(x, a, x2)`` of the
     demonstrations of cluster ``y``
-    (:func:`~torchhrc.tasks.place_and_drill.model.demonstration_steps`) whose post-robot
+    (:meth:`~torchhrc.tasks.interface.CollaborativeTask.read_steps`) whose post-robot
     bench ``m`` has an empty position and is in situation ``c`` (:func:`turn_situations`);
     a pass is ``x2 = m``.
 
@@ -143,7 +138,7 @@ def learn_turn_taking(
         and not 0 <= int(assignments.min()) <= int(assignments.max()) < num_types
     ):
         raise ModelError(f"expected assignments in [0, {num_types}), got {assignments.tolist()}")
-    steps = demonstration_steps(task, demonstrations)
+    steps = task.read_steps(demonstrations)
     situation, can_place = turn_situations(task)
     mid = task.robot_effect[steps.actions.cpu(), steps.states.cpu()]  # (N, H)
     c = situation[steps.actions.cpu(), steps.states.cpu()]
@@ -167,7 +162,7 @@ def turn_taking_transition(
     Args:
         task: the task.
         Tx: ``(A, X, Y, X)`` transition in which the human always places when it can
-            (:func:`~torchhrc.tasks.place_and_drill.model.placement_transition`, ``pause=0``).
+            (:func:`~torchhrc.tasks.pipeline.transition_from_behaviour`, ``pause=0``).
         wait: ``(Y, 2)`` probabilities ``q[y, c]`` in ``[0, 1]``.
 
     Returns:
@@ -175,7 +170,8 @@ def turn_taking_transition(
 
     Example:
         >>> task = PlaceAndDrillTask(1)
-        >>> Tx = placement_transition(task, torch.ones(1, 2, 1, dtype=torch.float64))
+        >>> uniform = torch.ones(1, 2, 1, 1, dtype=torch.float64)  # (Y, A, X, H)
+        >>> Tx = transition_from_behaviour(task, behaviour_from_preferences(task, uniform))
         >>> turn_taking_transition(task, Tx, torch.tensor([[0.25, 0.5]]))[0, 0, 0].tolist()
         [0.25, 0.75, 0.0]
     """
@@ -209,8 +205,9 @@ def online_momdp(
 
     Args:
         task: the task.
-        placement: ``(Y, A, n)`` placement preferences per type (as in
-            :func:`~torchhrc.tasks.place_and_drill.model.placement_transition`).
+        placement: ``(Y, A, n)`` placement preferences per type, the same in every state
+            (:func:`~torchhrc.tasks.interface.chain_preferences` of the learned chains;
+            :func:`~torchhrc.tasks.interface.behaviour_from_preferences`).
         R: ``(A, X, Y)`` rewards.
         wait: ``(Y, 2)`` turn passing probabilities (:func:`learn_turn_taking`).
         noise: random-placement floor of the placements.
@@ -228,11 +225,10 @@ def online_momdp(
         >>> m.b0.tolist()
         [0.5, 0.5]
     """
-    Tx = placement_transition(task, placement.to(torch.float64), noise=noise, pause=0.0)
-    Tx = turn_taking_transition(task, Tx, wait)
-    Y = Tx.shape[-2]
-    b0 = torch.full((Y,), 1.0 / Y, dtype=Tx.dtype)
-    return build_momdp(task, Tx, R.to(Tx.dtype), b0, discount=discount, type_names=type_names)
+    preferences = placement.to(torch.float64).unsqueeze(-2)  # (Y, A, 1, n)
+    behaviour = behaviour_from_preferences(task, preferences, noise=noise)
+    Tx = turn_taking_transition(task, transition_from_behaviour(task, behaviour), wait)
+    return task_momdp(task, Tx, R, discount=discount, type_names=type_names)
 
 
 def expert_online_momdp(expert: ExpertModel) -> MOMDP:

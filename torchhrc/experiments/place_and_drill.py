@@ -55,6 +55,7 @@ from torchhrc.experiments.robustness import (
 )
 from torchhrc.pomdp import MOMDP
 from torchhrc.solvers.type_policies import type_policy_lower_bound
+from torchhrc.tasks.interface import chain_preferences
 from torchhrc.tasks.pipeline import build_model, solve_model
 from torchhrc.tasks.place_and_drill.cross_training import fit_cross_training
 from torchhrc.tasks.place_and_drill.hand_coded import (
@@ -234,11 +235,11 @@ def _online_fold(
 
     t = time.perf_counter()
     wait = learn_turn_taking(task, train, fit.assignments, fit.k)
-    from torchhrc.tasks.place_and_drill.model import placement_probabilities
-
+    placement = chain_preferences(learned.chains, learned.vocabulary, task.robot_actions,
+                                  task.human_actions)  # fmt: skip
     model = online_momdp(
         task,
-        placement_probabilities(task, learned.chains, learned.vocabulary),
+        placement,
         learned.momdp.R,
         wait,
         discount=learned.momdp.discount,

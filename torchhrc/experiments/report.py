@@ -517,7 +517,7 @@ IRL reward weights of the first two folds (unit norm; features {", ".join(FEATUR
   expert reward of `models/place_and_drill_expert.json` (perfect run: +30).
 - The IRL reward is the reward of the dominant policy of Abbeel-Ng's final mixture, not the
   paper's mean of the second half of the weight iterates, which fails on noisy demonstrations
-  (see `torchhrc.tasks.place_and_drill.model.learn_type_weights`).
+  (see `torchhrc.tasks.pipeline.learn_type_weights` and docs/irl.md).
 - The hand-coded model's initial belief comes from the expert's label of the subject
   (probability {study["expert"].labelled_probability:g}), as the paper's expert partitioned
   the data by hand.

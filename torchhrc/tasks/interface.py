@@ -67,6 +67,7 @@ __all__ = [
     "TaskSteps",
     "TaskWarning",
     "TypeEvidence",
+    "behaviour_from_preferences",
     "chain_preferences",
     "check_task",
     "reachable_states",
@@ -202,6 +203,91 @@ def chain_preferences(
     picked = chains[..., rows.clamp_min(0)[:, None], cols.clamp_min(0)[None, :]]
     ok = (rows[:, None] >= 0) & (cols[None, :] >= 0)
     return torch.where(ok.to(chains.device), picked, torch.zeros_like(picked))
+
+
+def behaviour_from_preferences(
+    task: CollaborativeTask,
+    preferences: torch.Tensor,
+    *,
+    noise: float = 0.0,
+    pause: float = 0.0,
+) -> torch.Tensor:
+    """Human behaviour ``P(a_h | x, a_r, y)`` from per-type preferences over the human actions.
+
+    What :meth:`CollaborativeTask.human_policy` does with the preferences it reads from the
+    chains, for preferences given otherwise (a hand-coded model: ``torch.ones`` is a human who
+    picks uniformly among the legal actions). With ``q`` the preference restricted to the
+    actions legal after the robot's move (``human_legal[robot_effect[a, x]]``) and
+    renormalised (uniform where it has no mass), ``u`` the uniform legal action, ``e`` the
+    noise and ``s`` the pause: ``P(h) = (1 - s) * ((1 - e) * q(h) + e * u(h))`` and
+    ``P(none) = s`` (all of it where nothing is legal).
+
+    Args:
+        task: the task.
+        preferences: ``(..., Y, A, X, H)`` non-negative, finite preferences ``p[y, a, x, h]``
+            of human action ``h`` after robot action ``a`` in ``x`` (``X`` may be 1: the
+            same for every state); unnormalised.
+        noise: weight in ``[0, 1]`` of a uniformly random legal action.
+        pause: probability in ``[0, 1)`` that the human lets a turn pass although an action
+            is legal.
+
+    Returns:
+        ``(..., Y, A, X, H + 1)`` probabilities in ``preferences``' dtype and device, rows
+        summing to 1 (last column: no action);
+        :func:`torchhrc.tasks.pipeline.transition_from_behaviour` makes the task's ``Tx``.
+
+    Example:
+        >>> from torchhrc.tasks.place_and_drill import PlaceAndDrillTask
+        >>> task = PlaceAndDrillTask(2)  # H = 2 placements; from the empty bench, wait
+        >>> behaviour_from_preferences(task, torch.ones(1, 3, 1, 2))[0, 0, 0].tolist()
+        [0.5, 0.5, 0.0]
+    """
+    A, X, H = task.num_actions, task.num_states, task.num_human_actions
+    if not isinstance(preferences, torch.Tensor) or not preferences.is_floating_point():
+        raise TypeError("expected preferences to be a floating torch.Tensor of shape "
+                        "(..., Y, A, X, H)")  # fmt: skip
+    shape = tuple(preferences.shape)
+    if len(shape) < 4 or shape[-3] != A or shape[-2] not in (1, X) or shape[-1] != H:
+        raise ModelError(f"expected preferences of shape (..., Y, A={A}, X={X} or 1, H={H}), "
+                         f"actual shape = {shape}")  # fmt: skip
+    if (preferences < 0).any() or not torch.isfinite(preferences).all():
+        raise ModelError("expected preferences to be finite and non-negative")
+    if not 0.0 <= noise <= 1.0:
+        raise ModelError(f"expected noise in [0, 1], got {noise}")
+    if not 0.0 <= pause < 1.0:
+        raise ModelError(f"expected pause in [0, 1), got {pause}")
+    legal = _legal_after_robot(task, preferences.device).to(preferences.dtype)
+    return _behaviour(legal, preferences, noise, pause, None)
+
+
+def _legal_after_robot(task: CollaborativeTask, device: torch.device) -> torch.Tensor:
+    """``(A, X, H)`` bool: ``h`` is legal after robot action ``a`` in ``x``."""
+    mid = torch.as_tensor(task.robot_effect).to(device)  # (A, X)
+    return torch.as_tensor(task.human_legal).to(device)[mid]
+
+
+def _behaviour(legal_f: torch.Tensor, p: torch.Tensor, noise: float, pause: float,
+               none: torch.Tensor | None) -> torch.Tensor:  # fmt: skip
+    """``(..., Y, A, X, H + 1)`` behaviour from ``legal_f (A, X, H)`` (0/1 in ``p``'s dtype),
+    preferences ``p (..., Y, A, X or 1, H)`` and a learned "no action" ``none
+    (..., Y, A, X, 1)`` or ``None`` (:meth:`CollaborativeTask.human_policy`)."""
+    dt = p.dtype
+    num_legal = legal_f.sum(-1, keepdim=True)
+    uniform = legal_f / num_legal.clamp_min(1.0)
+    masked = p * legal_f
+    total = masked.sum(-1, keepdim=True)
+    if none is not None:  # "no action" learned, only where the human had a choice
+        none = none * (num_legal > 0).to(dt)
+        total = total + none
+    chain = torch.where(total > 0, masked / total.clamp_min(1e-300), uniform)
+    probs = (1.0 - noise) * chain + noise * uniform
+    probs = probs * (1.0 - pause)  # (Y, A, X, H)
+    stay = torch.where(num_legal == 0, 1.0, pause).to(dt)  # (A, X, 1)
+    stay = stay.expand(*probs.shape[:-1], 1)
+    if none is not None:
+        q_none = torch.where(total > 0, none / total.clamp_min(1e-300), 0.0)
+        stay = stay + (1.0 - pause) * (1.0 - noise) * q_none
+    return torch.cat([probs, stay], -1)
 
 
 class CollaborativeTask:
@@ -456,8 +542,7 @@ class CollaborativeTask:
         """
         chains = evidence.chains
         dt, dev = chains.dtype, chains.device
-        mid = torch.as_tensor(self.robot_effect).to(dev)  # (A, X)
-        legal = torch.as_tensor(self.human_legal).to(dev)[mid]  # (A, X, H)
+        legal = _legal_after_robot(self, dev)  # (A, X, H)
         # the pipeline's choice (the task's own setting, or "auto" resolved on held-out data)
         human_model = evidence.human_model or self.human_model
         if human_model == "auto":
@@ -476,23 +561,7 @@ class CollaborativeTask:
             raise ModelError(
                 f"expected human_model 'auto', 'chain' or 'state', got {human_model!r}"
             )
-        legal_f = legal.to(dt)  # (A, X, H)
-        num_legal = legal_f.sum(-1, keepdim=True)
-        uniform = legal_f / num_legal.clamp_min(1.0)
-        masked = p * legal_f
-        total = masked.sum(-1, keepdim=True)
-        if none is not None:  # "no action" learned, only where the human had a choice
-            none = none * (num_legal > 0).to(dt)
-            total = total + none
-        chain = torch.where(total > 0, masked / total.clamp_min(1e-300), uniform)
-        probs = (1.0 - evidence.noise) * chain + evidence.noise * uniform
-        probs = probs * (1.0 - evidence.pause)  # (Y, A, X, H)
-        stay = torch.where(num_legal == 0, 1.0, evidence.pause).to(dt)  # (A, X, 1)
-        stay = stay.expand(*probs.shape[:-1], 1)
-        if none is not None:
-            q_none = torch.where(total > 0, none / total.clamp_min(1e-300), 0.0)
-            stay = stay + (1.0 - evidence.pause) * (1.0 - evidence.noise) * q_none
-        return torch.cat([probs, stay], -1)
+        return _behaviour(legal.to(dt), p, evidence.noise, evidence.pause, none)
 
     def known_reward(self, evidence: TypeEvidence) -> torch.Tensor | None:
         """A reward ``(A, X, Y)`` the task knows, or ``None`` to learn one per type by IRL

@@ -35,16 +35,8 @@ __all__ = [
 # The task MOMDP and the execution simulator (torchhrc.tasks.place_and_drill.model / .simulate).
 from torchhrc.tasks.place_and_drill.model import (
     FEATURE_NAMES,
-    DemonstrationSteps,
-    LearnedTaskModel,
     PlaceAndDrillTask,
-    build_learned_model,
-    build_momdp,
-    demonstration_steps,
     interpret_clusters,
-    learn_type_weights,
-    placement_probabilities,
-    placement_transition,
 )
 from torchhrc.tasks.place_and_drill.simulate import (
     CrossTrainingController,
@@ -59,20 +51,21 @@ from torchhrc.tasks.place_and_drill.simulate import (
 __all__ += [
     "FEATURE_NAMES",
     "CrossTrainingController",
-    "DemonstrationSteps",
     "ExecutionController",
     "ExecutionTrace",
-    "LearnedTaskModel",
     "MOMDPController",
     "PlaceAndDrillTask",
-    "build_learned_model",
-    "build_momdp",
     "demonstrated_orders",
-    "demonstration_steps",
     "interpret_clusters",
-    "learn_type_weights",
-    "placement_probabilities",
-    "placement_transition",
     "run_executions",
     "step_human",
 ]
+
+
+def __getattr__(name: str) -> object:
+    # the task's old copy of the pipeline (issue 32): deprecated names of .model, one release
+    from torchhrc.tasks.place_and_drill import model
+
+    if name not in model._RENAMED:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return model.__getattr__(name)

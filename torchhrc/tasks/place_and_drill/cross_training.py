@@ -46,11 +46,9 @@ import torch
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.solvers.value_iteration import value_iteration
-from torchhrc.tasks.place_and_drill.model import (
-    PlaceAndDrillTask,
-    demonstration_steps,
-    placement_transition,
-)
+from torchhrc.tasks.interface import behaviour_from_preferences
+from torchhrc.tasks.pipeline import transition_from_behaviour
+from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask
 
 __all__ = ["CrossTrainingPolicy", "fit_cross_training"]
 
@@ -133,7 +131,7 @@ def fit_cross_training(
         raise ModelError(f"expected prior > 0, got {prior}")
     if not reward_per_step > 0:
         raise ModelError(f"expected reward_per_step > 0, got {reward_per_step}")
-    steps = demonstration_steps(task, demonstrations)
+    steps = task.read_steps(demonstrations)
     subjects = demonstrations.unique_subjects
     S, A, X = len(subjects), task.num_actions, task.num_states
     sid = demonstrations.subject_index.cpu()[:, None].expand_as(steps.states)  # (N, H)
@@ -142,7 +140,8 @@ def fit_cross_training(
     dt = torch.float64
     flat = ((s * A + a) * X + x) * X + x2
     counts = torch.bincount(flat, minlength=S * A * X * X).to(dt).view(S, A, X, X)
-    mechanics = placement_transition(task, torch.ones(1, A, task.n_positions, dtype=dt), noise=0.0)
+    uniform = torch.ones(1, A, 1, task.n_positions, dtype=dt)  # a uniformly random placement
+    mechanics = transition_from_behaviour(task, behaviour_from_preferences(task, uniform))
     mechanics = mechanics[:, :, 0, :]  # (A, X, X)
     T = (counts + prior * mechanics) / (counts.sum(-1, keepdim=True) + prior)
     moved = x2 != x  # a pause (nothing changed: a wait at a full bench) shows no preference

@@ -40,12 +40,9 @@ import torch
 from torchhrc.errors import ModelError, ParseError
 from torchhrc.pomdp import MOMDP
 from torchhrc.resources import shipped_path
-from torchhrc.tasks.place_and_drill.model import (
-    FEATURE_NAMES,
-    PlaceAndDrillTask,
-    build_momdp,
-    placement_transition,
-)
+from torchhrc.tasks.interface import behaviour_from_preferences
+from torchhrc.tasks.pipeline import task_momdp, transition_from_behaviour
+from torchhrc.tasks.place_and_drill.model import FEATURE_NAMES, PlaceAndDrillTask
 
 __all__ = [
     "DEFAULT_EXPERT_PATH",
@@ -297,7 +294,7 @@ def build_expert_momdp(expert: ExpertModel, b0: torch.Tensor | None = None) -> M
 
     Args:
         expert: the expert model.
-        b0: ``(..., Y)`` initial belief (uniform by default); per-subject beliefs are
+        b0: ``(Y,)`` initial belief (uniform by default); per-subject beliefs are
             passed to the policy at execution time, the solution does not depend on ``b0``
             beyond the solver's sampling.
 
@@ -310,10 +307,7 @@ def build_expert_momdp(expert: ExpertModel, b0: torch.Tensor | None = None) -> M
     """
     task = expert.task
     Y = len(expert.type_names)
-    placement = torch.ones(Y, task.num_actions, task.n_positions, dtype=torch.float64)
-    Tx = placement_transition(task, placement, noise=0.0)
-    if b0 is None:
-        b0 = torch.full((Y,), 1.0 / Y, dtype=torch.float64)
-    return build_momdp(
-        task, Tx, expert.reward(), b0, discount=expert.discount, type_names=expert.type_names
-    )
+    uniform = torch.ones(Y, task.num_actions, 1, task.n_positions, dtype=torch.float64)
+    Tx = transition_from_behaviour(task, behaviour_from_preferences(task, uniform))
+    return task_momdp(task, Tx, expert.reward(), b0, discount=expert.discount,
+                      type_names=expert.type_names)  # fmt: skip

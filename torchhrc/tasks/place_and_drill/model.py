@@ -55,13 +55,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, Literal
+from typing import Any
 
 import torch
 
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
-from torchhrc.pomdp import MOMDP
 from torchhrc.tasks.interface import CollaborativeTask, TypeEvidence
 
 __all__ = [
@@ -69,16 +68,8 @@ __all__ = [
     "EMPTY",
     "FEATURE_NAMES",
     "PLACED",
-    "DemonstrationSteps",
-    "LearnedTaskModel",
     "PlaceAndDrillTask",
-    "build_learned_model",
-    "build_momdp",
-    "demonstration_steps",
     "interpret_clusters",
-    "learn_type_weights",
-    "placement_probabilities",
-    "placement_transition",
 ]
 
 #: Status of an empty position (``status[x, i]``, see the module docstring).
@@ -296,356 +287,6 @@ class PlaceAndDrillTask(CollaborativeTask):
         return torch.einsum("axf,...yf->...axy", phi, weights)
 
 
-# ---------------------------------------------------------------------------- transitions
-
-
-def placement_transition(
-    task: PlaceAndDrillTask,
-    placement: torch.Tensor,
-    *,
-    noise: float = 0.05,
-    pause: float = 0.0,
-) -> torch.Tensor:
-    """The observed-part transition ``Tx`` from per-type placement preferences.
-
-    ``Tx[..., a, x, y, x2] = P(x2 | x, y, a)``: the robot's action moves ``x`` to
-    ``m = robot_effect[a, x]``; if ``m`` has an empty position the human places screw ``i``
-    with probability ``(1 - noise) * p[y, a, i] / sum_{j empty} p[y, a, j] + noise / #empty``
-    over the empty positions ``i`` (uniform when ``p`` puts no mass on them), all scaled by
-    ``1 - pause``; with probability ``pause`` the human lets a turn pass (``x2 = m``, as the
-    noisy demonstrations sometimes show); when nothing is empty ``x2 = m``. ``pause`` is
-    the same for every type, so it never moves the type belief.
-
-    Args:
-        task: the task.
-        placement: ``(..., Y, A, n)`` non-negative preferences ``p[y, a, i]`` of placing
-            position ``i`` right after robot action ``a`` (unnormalised).
-        noise: weight in ``[0, 1]`` of a uniformly random legal placement.
-        pause: probability in ``[0, 1)`` that the human skips a turn although a position
-            is empty.
-
-    Returns:
-        ``(..., A, X, Y, X)`` transition probabilities in ``placement``'s dtype/device.
-
-    Example:
-        >>> task = PlaceAndDrillTask(2)
-        >>> Tx = placement_transition(task, torch.ones(1, 3, 2, dtype=torch.float64))
-        >>> Tx[0, 0, 0].nonzero().flatten().tolist(), Tx[0, 0, 0, 3].item()  # EE -> PE or EP
-        ([1, 3], 0.5)
-    """
-    n, A, X = task.n_positions, task.num_actions, task.num_states
-    if not isinstance(placement, torch.Tensor) or not placement.is_floating_point():
-        raise TypeError("expected placement to be a floating torch.Tensor of shape (..., Y, A, n)")
-    if placement.dim() < 3 or placement.shape[-2:] != (A, n):
-        raise ModelError(
-            f"expected placement to have shape (..., Y, A={A}, n={n}), "
-            f"actual shape = {tuple(placement.shape)}"
-        )
-    if (placement < 0).any() or not torch.isfinite(placement).all():
-        raise ModelError("placement preferences must be finite and non-negative")
-    if not 0.0 <= noise <= 1.0:
-        raise ModelError(f"expected noise in [0, 1], got {noise}")
-    if not 0.0 <= pause < 1.0:
-        raise ModelError(f"expected pause in [0, 1), got {pause}")
-    dev, dt = placement.device, placement.dtype
-    mid = task.robot_effect.to(dev)  # (A, X)
-    legal = task.legal_placements.to(dev)[mid]  # (A, X, n)
-    dest = task.place_effect.to(dev)[mid]  # (A, X, n)
-    p = placement.movedim(-3, -2).unsqueeze(-3)  # (..., A, 1, Y, n)
-    legal_f = legal.unsqueeze(-2).to(dt)  # (A, X, 1, n)
-    num_legal = legal_f.sum(-1, keepdim=True)  # (A, X, 1, 1)
-    uniform = legal_f / num_legal.clamp_min(1.0)
-    masked = p * legal_f  # (..., A, X, Y, n)
-    total = masked.sum(-1, keepdim=True)
-    chain = torch.where(total > 0, masked / total.clamp_min(1e-300), uniform)
-    probs = (1.0 - noise) * chain + noise * uniform  # (..., A, X, Y, n); 0 where no legal
-    probs = probs * (1.0 - pause)
-    batch = probs.shape[:-4]
-    Y = probs.shape[-2]
-    Tx = torch.zeros(*batch, A, X, Y, X, dtype=dt, device=dev)
-    index = dest.unsqueeze(-2).expand(A, X, Y, n).expand(*batch, A, X, Y, n)
-    Tx = Tx.scatter_add(-1, index, probs)
-    nothing = num_legal.squeeze(-1) == 0  # (A, X, 1): nothing to place
-    stay = torch.where(nothing, 1.0, pause).to(dt)
-    Tx = Tx.scatter_add(
-        -1,
-        mid.view(A, X, 1, 1).expand(*batch, A, X, Y, 1),
-        stay.unsqueeze(-1).expand(*batch, A, X, Y, 1).contiguous(),
-    )
-    return Tx
-
-
-def placement_probabilities(
-    task: PlaceAndDrillTask,
-    transition: torch.Tensor,
-    vocabulary: Sequence[tuple[str, str]],
-) -> torch.Tensor:
-    """Per-type placement preferences from learned Markov chains over demonstration symbols.
-
-    ``p[k, a, i] = theta_k(human:place_i | robot:a)``, the chain's probability that the human
-    places screw ``i`` right after the robot's action ``a`` (paper: "the transition matrix
-    encodes information about how the human will act based on the previous robot action").
-    Symbols missing from the vocabulary give zero preference (uniform after restriction).
-
-    Args:
-        task: the task.
-        transition: ``(..., K, V, V)`` chains, ``transition[k, u, v] = P(next v | previous u)``.
-        vocabulary: ``(V,)`` symbols ``(actor, action)`` of the chains.
-
-    Returns:
-        ``(..., K, A, n)`` preferences (rows not normalised).
-    """
-    vocab = [tuple(v) for v in vocabulary]
-    V = len(vocab)
-    if transition.shape[-1] != V or transition.shape[-2] != V:
-        raise ModelError(
-            f"expected transition of shape (..., K, V={V}, V={V}), got {tuple(transition.shape)}"
-        )
-    lookup = {sym: i for i, sym in enumerate(vocab)}
-    rows = [lookup.get(("robot", a), -1) for a in task.actions]
-    cols = [lookup.get(("human", h), -1) for h in task.human_actions]
-    out = transition.new_zeros(*transition.shape[:-2], task.num_actions, task.n_positions)
-    for ai, r in enumerate(rows):
-        for i, c in enumerate(cols):
-            if r >= 0 and c >= 0:
-                out[..., ai, i] = transition[..., r, c]
-    return out
-
-
-# ---------------------------------------------------------------------------- demonstrations
-
-
-@dataclass(frozen=True)
-class DemonstrationSteps:
-    """Demonstrations rewritten as MOMDP steps ``(x, a, x2)``.
-
-    Attributes:
-        states: ``(N, H)`` int64, ``x`` before the robot's ``t``-th decision.
-        actions: ``(N, H)`` int64, the robot action taken (0 = wait, 1 + i = drill_i).
-        next_states: ``(N, H)`` int64, ``x2`` after the action and the human's placement.
-        mask: ``(N, H)`` bool, True on real steps (padding beyond).
-    """
-
-    states: torch.Tensor
-    actions: torch.Tensor
-    next_states: torch.Tensor
-    mask: torch.Tensor
-
-    @property
-    def lengths(self) -> torch.Tensor:
-        """``(N,)`` number of real steps of each sequence."""
-        return self.mask.sum(-1)
-
-
-def demonstration_steps(
-    task: PlaceAndDrillTask, demonstrations: Demonstrations
-) -> DemonstrationSteps:
-    """Rewrite joint-action demonstrations as the MOMDP's ``(x, a, x2)`` steps.
-
-    Reading rules: the bench starts empty; a robot symbol is one decision at the current
-    ``x``; a human turn right after it (a placement, or ``human:wait``: no placement) belongs
-    to the same step (the human's move that ``Tx`` models); a human turn that does not follow
-    a robot action (the first one, or two human turns in a row) is preceded by an implicit
-    robot ``wait``. Placing an occupied position leaves the bench unchanged. Symbols of other
-    tasks raise ``ModelError``.
-
-    Args:
-        task: the task.
-        demonstrations: sequences over ``human:place_<p>``, ``robot:drill_<p>``, ``robot:wait``.
-
-    Returns:
-        :class:`DemonstrationSteps` with tensors on the demonstrations' device.
-
-    Example:
-        >>> demos = Demonstrations.from_lists([[("human", "place_A"), ("robot", "drill_A")]])
-        >>> s = demonstration_steps(PlaceAndDrillTask(1), demos)
-        >>> s.states.tolist(), s.actions.tolist(), s.next_states.tolist()
-        ([[0, 1]], [[0, 1]], [[1, 2]])
-    """
-    robot_index = {a: i for i, a in enumerate(task.actions)}
-    human_index = {h: i for i, h in enumerate(task.human_actions)}
-    kinds: list[tuple[str, int]] = []
-    for actor, action in demonstrations.vocabulary:
-        if actor == "robot" and action in robot_index:
-            kinds.append(("robot", robot_index[action]))
-        elif actor == "human" and action in human_index:
-            kinds.append(("human", human_index[action]))
-        elif actor == "human" and action == "wait":
-            kinds.append(("human", -1))
-        else:
-            kinds.append(("other", -1))
-    effect = task.robot_effect.tolist()
-    place = task.place_effect.tolist()
-    seqs = demonstrations.sequences.cpu().tolist()
-    lengths = demonstrations.lengths.cpu().tolist()
-    all_steps: list[list[tuple[int, int, int]]] = []
-    for n, (seq, length) in enumerate(zip(seqs, lengths)):
-        x = task.initial_state
-        steps: list[list[int]] = []
-        open_step = False  # the last step is a robot action not yet followed by a placement
-        for t in range(length):
-            kind, idx = kinds[seq[t]]
-            if kind == "other":
-                actor, action = demonstrations.vocabulary[seq[t]]
-                raise ModelError(
-                    f"demonstration {n} step {t}: symbol {actor}:{action} is not a "
-                    f"place-and-drill action for {task.n_positions} positions"
-                )
-            if kind == "robot":
-                x_mid = effect[idx][x]
-                steps.append([x, idx, x_mid])
-                x = x_mid
-                open_step = True
-            else:
-                if not open_step:
-                    steps.append([x, 0, x])  # implicit robot wait before this human turn
-                if idx >= 0:
-                    x = place[x][idx]
-                steps[-1][2] = x
-                open_step = False
-        all_steps.append([tuple(s) for s in steps])  # type: ignore[misc]
-    H = max((len(s) for s in all_steps), default=0)
-    N = len(all_steps)
-    out = torch.zeros(3, N, max(H, 1), dtype=torch.long)
-    mask = torch.zeros(N, max(H, 1), dtype=torch.bool)
-    for n, steps in enumerate(all_steps):
-        if steps:
-            out[:, n, : len(steps)] = torch.tensor(steps, dtype=torch.long).T
-            mask[n, : len(steps)] = True
-    dev = demonstrations.device
-    return DemonstrationSteps(out[0].to(dev), out[1].to(dev), out[2].to(dev), mask.to(dev))
-
-
-# ---------------------------------------------------------------------------- IRL
-
-RewardRule = Literal["dominant", "paper", "last"]
-
-
-def learn_type_weights(
-    task: PlaceAndDrillTask,
-    Tx: torch.Tensor,
-    steps: DemonstrationSteps,
-    assignments: torch.Tensor,
-    *,
-    discount: float = 0.95,
-    rule: RewardRule = "dominant",
-    epsilon: float = 0.05,
-    max_iterations: int = 10,
-    seed: int = 0,
-) -> torch.Tensor:
-    """Reward weights per type by apprenticeship learning (Abbeel & Ng 2004; paper Sec. IRL).
-
-    For type ``k`` the MDP is ``(X, A, Tx[:, :, k, :], phi, discount)`` and the expert's
-    trajectories are the demonstrations assigned to cluster ``k``;
-    :func:`torchhrc.irl.projection.apprenticeship_learning` returns the policies
-    ``pi^(1..M)`` found by RL, their reward directions ``w^(1..M)`` and the mixture weights
-    ``lambda`` whose feature expectations are closest to the expert's. The reward kept:
-
-    * ``"dominant"`` (default): ``w^(i*)`` with ``i* = argmax_{i >= 1} lambda_i``, the reward
-      of the policy the expert's mixture relies on most;
-    * ``"paper"``: the mean of ``w^(i)`` over the second half of the iterations;
-    * ``"last"``: ``w^(M)``.
-
-    Why not the paper's rule by default: with noisy demonstrations (each subject deviates at
-    some steps) the expert's feature expectations are not those of any single policy, the
-    margin stalls at the noise level and the late ``w^(i)`` point in noise directions. On the
-    simulated study (seed 0, 9 subjects per type) the optimal policies of the second-half
-    mean contradict the type's demonstrated rule in 7 (safe) and 13 (efficient) of the 19
-    states with a screw waiting, the dominant policy's reward in 0.
-
-    Args:
-        task: the task.
-        Tx: ``(A, X, K, X)`` the model's transitions per type.
-        steps: the demonstrations as MOMDP steps (:func:`demonstration_steps`).
-        assignments: ``(N,)`` int64 cluster of each demonstration.
-        discount: discount of the feature expectations.
-        rule: which reward to keep (above).
-        epsilon: stopping margin of the IRL loop (feature-expectation units).
-        max_iterations: cap on the RL policies per type.
-        seed: seed of the random initial policy.
-
-    Returns:
-        ``(K, F)`` float64 weights (unit norm; zeros for a cluster without demonstrations).
-    """
-    from torchhrc.irl.projection import apprenticeship_learning
-    from torchhrc.irl.trajectories import Trajectories
-
-    if rule not in ("dominant", "paper", "last"):
-        raise ValueError(f"expected rule 'dominant', 'paper' or 'last', got {rule!r}")
-    K = Tx.shape[-2]
-    phi = task.features(dtype=Tx.dtype, device=Tx.device).permute(1, 0, 2)  # (X, A, F)
-    weights = Tx.new_zeros(K, len(FEATURE_NAMES))
-    lengths = steps.lengths
-    assignments = assignments.to(steps.states.device)
-    for k in range(K):
-        idx = torch.nonzero((assignments == k) & (lengths > 0)).flatten()
-        if idx.numel() == 0:
-            continue
-        demos = Trajectories(steps.states[idx], steps.actions[idx], lengths[idx])
-        result = apprenticeship_learning(
-            Tx[:, :, k, :],
-            phi,
-            demos,
-            discount=discount,
-            epsilon=epsilon,
-            max_iterations=max_iterations,
-            seed=seed,
-        )
-        if rule == "paper" or result.num_iterations == 0:
-            weights[k] = result.paper_weights
-        elif rule == "last":
-            weights[k] = result.last_weights
-        else:
-            dominant = int(result.mixture_weights[1:].argmax())
-            weights[k] = result.weight_history[dominant]
-    return weights
-
-
-# ---------------------------------------------------------------------------- MOMDP
-
-
-def build_momdp(
-    task: PlaceAndDrillTask,
-    Tx: torch.Tensor,
-    R: torch.Tensor,
-    b0: torch.Tensor,
-    *,
-    discount: float = 0.95,
-    type_names: Sequence[str] | None = None,
-) -> MOMDP:
-    """Assemble the task MOMDP (static type, trivial observation).
-
-    Args:
-        task: the task.
-        Tx: ``(..., A, X, Y, X)`` from :func:`placement_transition`.
-        R: ``(..., A, X, Y)`` rewards (zero in the terminal state is enforced).
-        b0: ``(..., Y)`` initial belief over the type.
-        discount: discount factor.
-        type_names: ``(Y,)`` names of the hidden values.
-
-    Returns:
-        A :class:`~torchhrc.pomdp.MOMDP` with ``Ty=None``, ``Z`` of ones ``(A, X, Y, 1)``.
-    """
-    A, X = task.num_actions, task.num_states
-    Y = Tx.shape[-2]
-    R = R.clone()
-    R[..., :, task.terminal_state, :] = 0.0
-    Z = torch.ones(A, X, Y, 1, dtype=Tx.dtype, device=Tx.device)
-    return MOMDP(
-        Tx=Tx,
-        Ty=None,
-        Z=Z,
-        R=R,
-        x0=task.initial_state,
-        b0=b0.to(Tx.dtype),
-        discount=discount,
-        observed_states=task.state_names,
-        hidden_states=None if type_names is None else tuple(type_names),
-        actions=task.actions,
-        observations=("placement",),
-    )
-
-
 def interpret_clusters(
     task: PlaceAndDrillTask,
     transition: torch.Tensor,
@@ -680,98 +321,107 @@ def interpret_clusters(
     return tuple(names)
 
 
-@dataclass(frozen=True)
-class LearnedTaskModel:
-    """A learned place-and-drill model: the MOMDP and what it was built from.
+# ---------------------------------------------------------------------------- deprecated
+# The task's own copy of the pipeline (issue 32): the MOMDP of this task is built by
+# torchhrc.tasks.pipeline (build_model, learn) like any task's. The old names stay one
+# release: the same objects under their new names, or thin forwards where the call differs.
 
-    Attributes:
-        momdp: the MOMDP over ``(x, type)`` (``b0`` uniform unless given).
-        weights: ``(Y, F)`` reward feature weights per type (IRL).
-        placement: ``(Y, A, n)`` placement preferences per type (from the chains).
-        type_names: ``(Y,)`` cluster interpretations.
-    """
+_RENAMED: dict[str, tuple[str, str, str]] = {  # old name: (module, new name, what to use)
+    "learn_type_weights": (
+        "torchhrc.tasks.pipeline",
+        "learn_type_weights",
+        "torchhrc.tasks.pipeline.learn_type_weights (the discount is the task's)",
+    ),
+    "DemonstrationSteps": (
+        "torchhrc.tasks.interface",
+        "TaskSteps",
+        "torchhrc.tasks.interface.TaskSteps",
+    ),
+    "demonstration_steps": (
+        "torchhrc.tasks.interface",
+        "CollaborativeTask.read_steps",
+        "task.read_steps(demonstrations)",
+    ),
+    "LearnedTaskModel": (
+        "torchhrc.tasks.pipeline",
+        "LearnedModel",
+        "torchhrc.tasks.pipeline.LearnedModel",
+    ),
+    "build_momdp": ("torchhrc.tasks.pipeline", "task_momdp", "torchhrc.tasks.pipeline.task_momdp"),
+    "placement_probabilities": (
+        __name__,
+        "_placement_probabilities",
+        "torchhrc.tasks.interface.chain_preferences(transition, "
+        "vocabulary, task.robot_actions, task.human_actions)",
+    ),
+    "placement_transition": (
+        __name__,
+        "_placement_transition",
+        "torchhrc.tasks.pipeline.transition_from_behaviour(task, "
+        "behaviour_from_preferences(task, placement.unsqueeze(-2), "
+        "noise=..., pause=...))",
+    ),
+    "build_learned_model": (
+        __name__,
+        "_build_learned_model",
+        "torchhrc.tasks.pipeline.build_model(task, demonstrations, chains, assignments, ...)",
+    ),
+}
 
-    momdp: MOMDP
-    weights: torch.Tensor
-    placement: torch.Tensor
-    type_names: tuple[str, ...]
+
+def __getattr__(name: str) -> object:
+    if name not in _RENAMED:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    import warnings
+
+    module, new, use = _RENAMED[name]
+    warnings.warn(f"{__name__}.{name} is deprecated; use {use}", DeprecationWarning,
+                  stacklevel=2)  # fmt: skip
+    found: Any = importlib.import_module(module)
+    for part in new.split("."):
+        found = getattr(found, part)
+    return found
 
 
-def build_learned_model(
+def _placement_probabilities(
+    task: PlaceAndDrillTask, transition: torch.Tensor, vocabulary: Sequence[tuple[str, str]]
+) -> torch.Tensor:
+    """Deprecated ``placement_probabilities``: ``(..., K, A, n)`` from chains ``(..., K, V, V)``."""
+    from torchhrc.tasks.interface import chain_preferences
+
+    return chain_preferences(transition, vocabulary, task.robot_actions, task.human_actions)
+
+
+def _placement_transition(
+    task: PlaceAndDrillTask, placement: torch.Tensor, *, noise: float = 0.05, pause: float = 0.0
+) -> torch.Tensor:
+    """Deprecated ``placement_transition``: ``Tx (..., A, X, Y, X)`` from ``(..., Y, A, n)``."""
+    from torchhrc.tasks.interface import behaviour_from_preferences
+    from torchhrc.tasks.pipeline import transition_from_behaviour
+
+    if not isinstance(placement, torch.Tensor) or placement.dim() < 3:
+        raise ModelError("expected placement to be a torch.Tensor of shape (..., Y, A, n)")
+    behaviour = behaviour_from_preferences(task, placement.unsqueeze(-2), noise=noise, pause=pause)
+    batch, Y = behaviour.shape[:-4], behaviour.shape[-4]
+    Tx = transition_from_behaviour(task, behaviour.reshape(-1, *behaviour.shape[-3:]))
+    Tx = Tx.reshape(*Tx.shape[:2], -1, Y, Tx.shape[-1])  # (A, X, B, Y, X)
+    return Tx.movedim(2, 0).reshape(*batch, *Tx.shape[:2], Y, Tx.shape[-1])
+
+
+def _build_learned_model(
     task: PlaceAndDrillTask,
     mixture: Any,
     demonstrations: Demonstrations,
     assignments: torch.Tensor,
     *,
-    b0: torch.Tensor | None = None,
-    noise: float = 0.05,
-    pause: float = 0.01,
     discount: float = 0.95,
-    rule: RewardRule = "dominant",
-    irl_epsilon: float = 0.05,
-    irl_iterations: int = 10,
-    seed: int = 0,
-) -> LearnedTaskModel:
-    """Build the learned MOMDP: cluster chains -> ``Tx``, IRL per cluster -> ``R``.
-
-    A thin wrapper of :func:`torchhrc.tasks.pipeline.build_model` (the task-independent
-    pipeline) that keeps the place-and-drill names (``placement``).
-
-    Paper (sections "MOMDP Formulation" and "Inverse Reinforcement Learning"): each cluster
-    is a value of the hidden type; its Markov chain gives the human's placements
-    (:func:`placement_probabilities`, :func:`placement_transition`), IRL on the cluster's
-    demonstrations gives its reward (:func:`learn_type_weights`).
-
-    Args:
-        task: the task.
-        mixture: a fitted :class:`~torchhrc.mixture.MarkovChainMixture` (or anything with a
-            ``transition (K, V, V)`` attribute), or the ``(K, V, V)`` chains themselves.
-        demonstrations: the training demonstrations (vocabulary of the chains).
-        assignments: ``(N,)`` int64 cluster of each training demonstration.
-        b0: ``(K,)`` initial type belief (uniform by default).
-        noise: random-placement floor of ``Tx`` (see :func:`placement_transition`).
-        pause: probability of a skipped human turn in ``Tx``.
-        discount: discount factor of the MOMDP and of the IRL.
-        rule, irl_epsilon, irl_iterations, seed: IRL settings (:func:`learn_type_weights`).
-
-    Returns:
-        :class:`LearnedTaskModel`.
-
-    Example:
-        >>> from torchhrc.tasks.place_and_drill.demos import simulate_study
-        >>> demos = simulate_study(n_subjects=4, n_demos=2, noise=0.0, seed=0)
-        >>> labels = torch.tensor([t == "efficient" for t in demos.types]).long()
-        >>> counts = torch.stack([demos.subset(labels == k).transition_counts() + 0.1
-        ...                       for k in range(2)])
-        >>> chains = counts / counts.sum(-1, keepdim=True)
-        >>> build_learned_model(PlaceAndDrillTask(3), chains, demos, labels).type_names
-        ('safe', 'efficient')
-    """
+    **options: Any,
+) -> Any:
+    """Deprecated ``build_learned_model``: :func:`torchhrc.tasks.pipeline.build_model`."""
     from torchhrc.tasks.pipeline import build_model
 
     transition = mixture if isinstance(mixture, torch.Tensor) else mixture.transition
-    transition = transition.detach().to(torch.float64)
-    if transition.dim() != 3:
-        raise ModelError(
-            f"expected the mixture's transition of shape (K, V, V), got {tuple(transition.shape)}"
-        )
     if task.discount != discount:
         task = PlaceAndDrillTask(task.n_positions, discount=discount)
-    learned = build_model(
-        task,
-        demonstrations,
-        transition,
-        assignments,
-        b0=b0,
-        noise=noise,
-        pause=pause,
-        rule=rule,
-        irl_epsilon=irl_epsilon,
-        irl_iterations=irl_iterations,
-        seed=seed,
-    )
-    placement = placement_probabilities(task, transition, demonstrations.vocabulary)
-    return LearnedTaskModel(
-        momdp=learned.momdp, weights=learned.weights, placement=placement,
-        type_names=learned.type_names,
-    )  # fmt: skip
+    return build_model(task, demonstrations, transition, assignments, **options)

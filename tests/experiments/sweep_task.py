@@ -6,8 +6,10 @@ a job ran in a worker and not in the driver, and it obeys two test switches read
 environment (a worker inherits it):
 
 * ``SWEEP_TEST_MARKERS=DIR``: every try writes ``DIR/start-<seed>-<n>`` and, when it
-  returns, ``DIR/end-<seed>``; the first try of seed 0 kills its own process (SIGKILL) when
-  ``SWEEP_TEST_KILL=1`` (unless it is the process ``SWEEP_TEST_DRIVER``: then it raises).
+  returns, ``DIR/end-<seed>``, holding the id of the Ray task it ran as (empty outside a Ray
+  task: a process pool's worker has other pids than the driver too); the first try of
+  seed 0 kills its own process (SIGKILL) when ``SWEEP_TEST_KILL=1`` (unless it is the
+  process ``SWEEP_TEST_DRIVER``: then it raises).
 * ``SWEEP_TEST_GATE=DIR``: jobs with seed >= 2 wait for ``DIR/go`` (so a test can kill the
   driver after the first jobs finished and before the rest did).
 """
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import time
 from pathlib import Path
 
@@ -47,8 +50,16 @@ def simulate(*, seed: int, subjects: int = 4, noise: float = 0.1, label: str = "
         "pid": os.getpid(),
     }
     if markers:
-        (Path(markers) / f"end-{seed}").touch()
+        (Path(markers) / f"end-{seed}").write_text(_ray_task_id())
     return result
+
+
+def _ray_task_id() -> str:
+    """The id of the Ray task this runs as, or ``""`` (the driver, another process)."""
+    ray = sys.modules.get("ray")  # a Ray worker imported it; a pool's worker did not
+    if ray is None or not ray.is_initialized():
+        return ""
+    return ray.get_runtime_context().get_task_id() or ""
 
 
 def no_seed(*, noise: float = 0.1) -> dict:

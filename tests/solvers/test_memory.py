@@ -22,7 +22,7 @@ def test_malloc_trim_runs_on_glibc() -> None:
 
 def test_a_solve_returns_memory_after_each_pruning(monkeypatch: pytest.MonkeyPatch) -> None:
     calls: list[int] = []
-    module = sys.modules["torchhrc.solvers.sarsop.search"]
+    module = sys.modules["torchhrc.solvers.sarsop.pruning"]  # (what runs a pruning)
     monkeypatch.setattr(module, "release_free_memory", lambda: calls.append(1) or True)
     history: list[dict] = []
     cfg = SARSOPConfig(time_limit=1e9, precision=1e-9, max_iterations=60,

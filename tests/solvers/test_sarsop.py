@@ -608,7 +608,7 @@ def test_tiny_time_limit_returns_soon_with_valid_bounds():
 
 # -- the per-x grouped lower and upper bounds (Ong et al. 2010) ---------------------------------
 def test_alpha_groups_follow_the_flat_storage():
-    from torchhrc.solvers.sarsop.search import _AlphaSet
+    from torchhrc.solvers.sarsop.alpha_set import _AlphaSet
 
     g = torch.Generator().manual_seed(0)
     X, Y = 5, 3
@@ -733,7 +733,7 @@ def test_bins_predict_new_node_at_upper_and_clamps():
     per-x, two-level bins: tests/solvers/test_sarsop_search.py.)"""
     import numpy as np
 
-    from torchhrc.solvers.sarsop.search import _Bins
+    from torchhrc.solvers.sarsop.bins import _Bins
 
     bins = _Bins(np.array([[0.0, 10.0]]), 1.0, 2)  # one x; levels of 1 and 2 bins per axis
     b = np.array([0.8, 0.2])  # initial upper bound 2.0: the lower half

@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
-from torchhrc.solvers.sarsop.search import _SARSOP, _AlphaSet
+from torchhrc.solvers.sarsop.alpha_set import _AlphaSet
+from torchhrc.solvers.sarsop.search import _SARSOP
 
 
 def _brute_force(V: np.ndarray, obs: np.ndarray, need: np.ndarray, kept: np.ndarray) -> list:

@@ -10,7 +10,8 @@ import pytest
 import torch
 
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
-from torchhrc.solvers.sarsop.search import _SARSOP, _Bins
+from torchhrc.solvers.sarsop.bins import _Bins
+from torchhrc.solvers.sarsop.search import _SARSOP
 from torchhrc.tasks.classic import rock_sample, tag
 from torchhrc.testing import random_momdp
 

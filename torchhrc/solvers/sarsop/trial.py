@@ -1,0 +1,150 @@
+"""SARSOP's trials: the path a trial samples from the root (the paper's "SamplePoints") and
+the tree nodes it adds, each with its entropy and the id of its distinct belief.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import torch
+
+__all__: list[str] = []
+
+
+class _Trials:
+    """Methods of the search (``_SARSOP`` of :mod:`~torchhrc.solvers.sarsop.search`) that
+    sample a trial and grow the belief tree ``tree`` along it."""
+
+    @staticmethod
+    def _entropy(beliefs: torch.Tensor) -> torch.Tensor:
+        p = beliefs.clamp(min=0)
+        return -(torch.where(p > 0, p * p.clamp(min=1e-300).log(), p.new_zeros(()))).sum(-1)
+
+    def sample(self, eps: float) -> list[int]:
+        tree, g = self.tree, self.gamma
+        node, t = 0, 0
+        L = float(tree.lower[0])
+        U = L + eps
+        if self.n_roots > 1:
+            # a random first x: the roots are the outcomes of a step without reward or
+            # discount, taken with probability ``w``; the trial enters the root of largest
+            # weighted gap (the observation choice below) with the targets of that step
+            R, w = self.n_roots, self.root_w
+            lo, up = tree.lower[:R], tree.upper[:R]
+            total = float(w @ lo)
+            node = int(np.argmax(w * (up - lo)))
+            L = float(lo[node])  # (total - sum of the others' w lo) / w[node]
+            U = float(up[node]) + (total + eps - float(w @ up)) / float(w[node])
+        path = [node]
+        seen = {int(self.belief_id[node])}
+        forward = self._forward = set()
+        while t < self.max_depth and not self._out_of_budget():
+            lo, up = float(tree.lower[node]), float(tree.upper[node])
+            if self.cfg.prediction == "binning":
+                v_hat = self.bins.predict(int(self.belief_id[node]), up, lo)
+            else:
+                v_hat = up
+            if up - lo <= 0.5 * eps * g ** (-t):
+                # APPL's final precision: the gap here is within half the trial's target
+                # error, whatever the predictor says (SampleBP::sample, ``finalExcess``);
+                # it ends a trial that a cycle's backups keep raising (shuttle: 238 steps)
+                break
+            if v_hat <= L and up <= max(U, lo + eps * g ** (-t)):
+                break
+            x = int(tree.x[node])
+            cached = self._cache.get(int(self.belief_id[node]))
+            if cached is None:
+                if self._np:
+                    full = self._evaluate_np(x, tree.beliefs_np[node])
+                    cached = full[:5]
+                    self._cache[int(self.belief_id[node])] = cached
+                    self._child_best[int(self.belief_id[node])] = full[5]
+                else:
+                    ev = self.evaluate(x, tree.beliefs[node].unsqueeze(0))
+                    cached = self._store(node, ev, 0)
+            q_low, q_up, prob_all, low_all, up_all = cached
+            q_low_max = float(q_low.max())
+            L1 = max(L, q_low_max)
+            U1 = max(U, q_low_max + eps * g ** (-t))
+            a = self._argmax_tie(q_up)
+            prob, up_a, low_a = prob_all[a], up_all[a], low_all[a]  # (K, O) each
+            excess = np.where(prob > 0, (up_a - low_a) - eps * g ** (-(t + 1)) * prob, -np.inf)
+            k, o = np.unravel_index(int(excess.argmax()), prob.shape)
+            k, o = int(k), int(o)
+            p = float(prob[k, o])
+            if p <= 0:
+                break
+            low_c, up_c = float(low_a[k, o]), float(up_a[k, o])
+            L = (L1 - float(q_low[a]) + g * low_c) / (g * p)
+            U = (U1 - float(q_up[a]) + g * up_c) / (g * p)
+            x2 = int(self.form.reach_np(x)[k]) if self._np else int(self.form.reach[x][k])
+            child = tree.child(node, a, x2, o)
+            if child < 0:
+                if self._np:
+                    row = self.form.child_np(x, tree.beliefs_np[node], a, k, o) / p
+                    child = self._add_node(row, x2, node, a, o)
+                else:
+                    _, J = self.form.expand(x, tree.beliefs[node].unsqueeze(0))
+                    child = self._add_node(J[0, a, k, o] / p, x2, node, a, o)
+                tree.lower[child] = low_c / p
+                tree.upper[child] = up_c / p
+            node = child
+            t += 1
+            path.append(node)
+            bid = int(self.belief_id[node])
+            if self.cfg.forward_backups and bid in seen:
+                # the trial reached a belief it already passed (a cycle of the model): back
+                # it up now, as APPL backs up every node a trial reaches, so that the descent
+                # itself propagates values around the cycle
+                self.backup(x2, np.array([node]))
+                forward.add(node)
+            seen.add(bid)
+        return path
+
+    def _add_node(self, belief: torch.Tensor | np.ndarray, x: int, parent: int, action: int,
+                  obs: int) -> int:  # fmt: skip
+        """Add a tree node (``belief`` a numpy row on the numpy path) with its entropy and the
+        id of its distinct belief."""
+        node = self.tree.add(belief, x, parent, action, obs)
+        if node >= self.entropy.shape[0]:
+            grown = np.zeros(2 * self.entropy.shape[0])
+            grown[: self.entropy.shape[0]] = self.entropy
+            self.entropy = grown
+            ids = np.zeros(2 * self.belief_id.shape[0], dtype=np.int64)
+            ids[: self.belief_id.shape[0]] = self.belief_id
+            self.belief_id = ids
+        if isinstance(belief, np.ndarray):
+            nz = np.flatnonzero(belief)  # the support (a belief has no negative entry)
+            p = belief[nz]
+            self.entropy[node] = float(-(p * np.log(p)).sum())
+            self.belief_id[node] = self._belief_key(x, belief, nz)
+        else:
+            self.entropy[node] = float(self._entropy(belief.unsqueeze(0))[0])
+            self.belief_id[node] = self._belief_key(x, belief.cpu().numpy())
+        self.children.setdefault(parent, []).append(node)
+        return node
+
+    def _belief_key(self, x: int, row: np.ndarray, nz: np.ndarray | None = None) -> int:
+        """The id of the distinct belief ``(x, row)`` (support and values to 12 digits).
+
+        Keyed by a 128-bit digest of the support and the rounded values rather than their
+        bytes (RockSample_7_8.pomdpx: 4 kB a belief, 16 MB after 10 s), with the same ids
+        unless two of the beliefs collide (probability about ``n^2 / 2^129``).
+        """
+        if nz is None:
+            nz = np.flatnonzero(row)  # (the caller's, when it has the support)
+        digest = hashlib.blake2b(nz.tobytes(), digest_size=16)
+        digest.update(np.round(row[nz], 12).tobytes())  # same length: the split is unambiguous
+        return self._belief_ids.setdefault((x, digest.digest()), len(self._belief_ids))
+
+    def _argmax_tie(self, q: np.ndarray) -> int:
+        """The action of highest ``q`` (ties within 1e-12 relative: the first, or one drawn
+        by the seeded generator); on a plain list, as ``q`` has a few entries."""
+        values = q.tolist()
+        top = max(values)
+        floor = top - 1e-12 * max(1.0, abs(top))
+        ties = [i for i, v in enumerate(values) if v >= floor]
+        if len(ties) == 1 or self.cfg.tie_break == "first":
+            return ties[0]
+        return ties[int(self.rng.integers(len(ties)))]

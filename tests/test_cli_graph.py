@@ -79,7 +79,7 @@ def test_depth_min_prob_and_svg(capsys, files, tmp_path):
     assert code == 0, err
     text, nodes, edges = _dot(out_dot)
     assert len(nodes) == 3 and len(edges) == 2 and text.count("style=dashed") == 2
-    assert "closed     false" in out
+    assert "closed     false (cut by --depth, --min-prob or --max-nodes)" in out
     assert b"<svg" in image.read_bytes()[:2000]
     code, _, err = _run(
         capsys, "graph", files["model"], "--policy", files["policy"], "--out", out_dot,

@@ -147,7 +147,12 @@ def run(args: argparse.Namespace) -> int:
         return 0
     print(f"nodes      {summary['nodes']}")
     print(f"edges      {summary['edges']}")
-    print(f"closed     {str(graph.closed).lower()} (every node expanded, no edge dropped)")
+    cut = (
+        "every node expanded, no edge dropped"
+        if graph.closed
+        else "cut by --depth, --min-prob or --max-nodes"
+    )
+    print(f"closed     {str(graph.closed).lower()} ({cut})")
     print(f"dot        {args.out}")
     if image is not None:
         print(f"image      {image}")

@@ -85,7 +85,7 @@ def test_momdp_pomdpx_becomes_its_flat_pomdp(capsys, tmp_path):
         (["{src}", "{src}"], "is the input"),
         (["{src}", "{tmp}/exists.pomdpx"], "file exists"),
         (["{src}", "{tmp}/no/out.pomdpx"], "No such file"),
-        (["{bad}", "{tmp}/bad.pomdpx"], "bad.pomdp"),
+        (["{bad}", "{tmp}/bad.pomdpx"], "bad.pomdp:5:1: T[0, 0, 0] = 2 is not a probability"),
     ],
 )
 def test_bad_input_exits_2_without_writing(capsys, tmp_path, argv, message):

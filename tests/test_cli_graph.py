@@ -114,7 +114,7 @@ def test_momdp_nodes_show_the_observed_state_and_type_belief(capsys, tmp_path):
         (["--depth", "-1"], "non-negative integer"),
         (["--image", "{tmp}/g.jpg"], "expected a .png or .svg path"),
         (["--policy", "{tmp}/none.policyx"], "No such file"),
-        (["--policy", "{other}"], "columns"),
+        (["--policy", "{other}"], "o.policyx does not fit the model"),
     ],
 )
 def test_bad_input_exits_2_without_writing(capsys, files, tmp_path, extra, message):

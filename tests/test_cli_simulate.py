@@ -211,11 +211,12 @@ def test_evaluate_agrees_with_pomdpeval(capsys, files, tmp_path):
         (["{missing}", "--policy", "{policyx}"], "No such file"),
         (["{model_txt}", "--policy", "{policyx}"], "expected a .pomdp or .pomdpx file"),
         (["{model}", "--policy", "{model}"], "expected a .policyx or .safetensors file"),
-        (["{model}", "--policy", "{other_policy}"], "columns"),
+        (["{model}", "--policy", "{other_policy}"], "o.policyx does not fit the model"),
+        (["{model}", "--policy", "{bad_actions}"], "expected policy actions < A=3, got 7"),
         (["{model}", "--policy", "{garbage_policy}"], "not a safetensors file"),
         (["{model}", "--policy", "{policyx}", "--episodes", "1"], "at least 2"),
         (["{model}", "--policy", "{policyx}", "--horizon", "0"], "positive integer"),
-        (["{bad_model}", "--policy", "{policyx}"], "bad.pomdp"),
+        (["{bad_model}", "--policy", "{policyx}"], "bad.pomdp:5:1: T[0, 0, 0] = 2 is not a"),
     ],
 )
 @pytest.mark.parametrize("command", ["simulate", "evaluate"])
@@ -225,6 +226,8 @@ def test_bad_input_exits_2_without_writing(capsys, files, tmp_path, command, arg
     )
     garbage = tmp_path / "g.safetensors"
     garbage.write_bytes(b"not safetensors")
+    two_states = AlphaVectorPolicy(torch.eye(2, dtype=torch.float64), torch.tensor([0, 7]))
+    bad_actions = save_policy(two_states, tmp_path / "a.safetensors")  # Tiger has 3 actions
     bad = tmp_path / "bad.pomdp"
     bad.write_text("discount: 0.9\nstates: 2\nactions: 1\nobservations: 1\nT: 0 : 0 : 0 2.0\n")
     names = {
@@ -234,6 +237,7 @@ def test_bad_input_exits_2_without_writing(capsys, files, tmp_path, command, arg
         "policyx": files["policyx"],
         "other_policy": other,
         "garbage_policy": garbage,
+        "bad_actions": bad_actions,
         "bad_model": bad,
     }
     args = [a.format(**names) for a in argv]

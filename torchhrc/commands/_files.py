@@ -22,6 +22,7 @@ __all__ = [
     "add_model_and_policy",
     "check_new_file",
     "model_path",
+    "policy_does_not_fit",
     "policy_path",
     "positive_int",
     "read_model",
@@ -100,6 +101,15 @@ def read_policy(path: str) -> Any:
         raise
     except ValueError as error:  # a malformed safetensors header, a bad tensor
         raise ModelError(f"cannot read policy {path}: {error}") from None
+
+
+def policy_does_not_fit(error: ModelError, policy: str, model: str) -> ModelError:
+    """``error`` (a policy that does not fit the model's states, actions or observed values)
+    with both files named; other errors as they are."""
+    text = str(error)
+    if text.startswith(("expected policy", "a MOMDP policy")):
+        return ModelError(f"the policy {policy} does not fit the model {model}: {text}")
+    return error
 
 
 def check_new_file(path: str, *, force: bool) -> None:

@@ -95,21 +95,25 @@ def run_simulations(
     args: argparse.Namespace, on_step: Any = None, *, model: Any = None
 ) -> tuple[Any, Any, float]:
     """Read the files (the model unless given), simulate; return ``(model, result, seconds)``."""
-    from torchhrc.commands._files import read_model, read_policy
+    from torchhrc.commands._files import policy_does_not_fit, read_model, read_policy
+    from torchhrc.errors import ModelError
     from torchhrc.solvers.evaluate import evaluate_policy
 
     model = read_model(args.model) if model is None else model
     policy = read_policy(args.policy)
     start = time.perf_counter()
-    result = evaluate_policy(
-        model,
-        policy,
-        episodes=args.episodes,
-        horizon=args.horizon,
-        tail_tolerance=args.tail,
-        seed=args.seed,
-        on_step=on_step,
-    )
+    try:
+        result = evaluate_policy(
+            model,
+            policy,
+            episodes=args.episodes,
+            horizon=args.horizon,
+            tail_tolerance=args.tail,
+            seed=args.seed,
+            on_step=on_step,
+        )
+    except ModelError as error:
+        raise policy_does_not_fit(error, args.policy, args.model) from None
     return model, result, time.perf_counter() - start
 
 

@@ -31,10 +31,12 @@ from pathlib import Path
 from torchhrc.commands._files import (
     add_model_and_policy,
     check_new_file,
+    policy_does_not_fit,
     positive_int,
     read_model,
     read_policy,
 )
+from torchhrc.errors import ModelError
 
 __all__ = ["register", "run"]
 
@@ -125,9 +127,12 @@ def run(args: argparse.Namespace) -> int:
         check_new_file(args.image, force=args.force)
     model = read_model(args.model)
     policy = read_policy(args.policy)
-    graph = policy_graph(
-        model, policy, depth=args.depth, min_prob=args.min_prob, max_nodes=args.max_nodes
-    )
+    try:
+        graph = policy_graph(
+            model, policy, depth=args.depth, min_prob=args.min_prob, max_nodes=args.max_nodes
+        )
+    except ModelError as error:
+        raise policy_does_not_fit(error, args.policy, args.model) from None
     dot = graph.to_dot()
     image, image_bytes = None, b""
     if args.image is not None:  # drawn before any file is written: a failure leaves none

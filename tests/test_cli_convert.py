@@ -123,7 +123,7 @@ def test_appl_solves_what_convert_writes(capsys, tmp_path, direction):
     assert code == 0, err
     proc = subprocess.run(
         [binary, str(out), "--precision", "0.01", "--output", str(tmp_path / "p.policyx")],
-        capture_output=True, text=True, timeout=600, cwd=tmp_path,
+        capture_output=True, text=True, cwd=tmp_path,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stdout[-2000:]
     last = [line for line in proc.stdout.splitlines() if line.strip()[:1].isdigit()][-1]

@@ -157,7 +157,7 @@ def test_same_graph_as_appl_polgraph(files, tmp_path):
     subprocess.run(
         [binary, str(files["model"]), "--policy-file", str(files["policy"]), "--policy-graph",
          str(tmp_path / "appl.dot")],
-        capture_output=True, timeout=600, check=True, cwd=tmp_path,
+        capture_output=True, check=True, cwd=tmp_path,
     )  # fmt: skip
     text = (tmp_path / "appl.dot").read_text()
     node = re.compile(r'^(\w+) \[label="Y \((\d+)\) ([0-9.]+)\\lA \((\d+)\)\\l"', re.M)

@@ -188,7 +188,7 @@ def test_evaluate_agrees_with_pomdpeval(capsys, files, tmp_path):
     proc = subprocess.run(
         [binary, str(files["model"]), "--policy-file", str(files["policyx"]), "--simLen", "283",
          "--simNum", "2000", "--srand", "1"],
-        capture_output=True, text=True, timeout=1800, cwd=tmp_path,
+        capture_output=True, text=True, cwd=tmp_path,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stdout[-2000:]
     row = re.compile(r"^\s*(\d+)\s+([-0-9.eE+]+)\s+\(([-0-9.eE+]+),\s*([-0-9.eE+]+)\)")

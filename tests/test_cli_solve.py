@@ -273,11 +273,8 @@ def test_a_killed_solve_leaves_its_last_checkpoint(tmp_path, suffix):
          "--precision", "1e-12", "--policy-interval", "0.2", "--out", str(out_path), "--quiet"],
         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
     )  # fmt: skip
-    give_up = time.monotonic() + 600  # (a safety net against a hang, not a speed check)
-    try:
+    try:  # (no wall-clock limit here: the solve's own --time-limit ends it)
         while not out_path.exists() and proc.poll() is None:  # the first checkpoint
-            if time.monotonic() > give_up:
-                pytest.fail("no checkpoint written in 600 s")
             time.sleep(0.05)
         assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
     finally:
@@ -308,5 +305,5 @@ def _pomdpeval_accepts(model_path, policy_path, cwd):
         return  # (APPL is not installed: the policy was checked above)
     proc = subprocess.run([found, str(model_path), "--policy-file", str(policy_path),
                            "--simLen", "50", "--simNum", "100", "--srand", "1"],
-                          capture_output=True, text=True, timeout=600, cwd=cwd)  # fmt: skip
+                          capture_output=True, text=True, cwd=cwd)  # fmt: skip
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]

@@ -62,10 +62,28 @@ NUMERIC_MODULES = frozenset(
         "tests/experiments/test_robustness.py",
         "tests/envs/test_env_tasks.py",
         "tests/envs/test_env_model.py",
+        # belief updates and fitted observation models; sharded = in-memory statistics and
+        # fits (issue 30 goal 4); the place-and-drill baselines and the hand-finishing MOMDP
+        # (moved into tests/tasks/ by issue 32)
+        "tests/pomdp/test_belief.py",
+        "tests/pomdp/test_dense.py",
+        "tests/pomdp/test_observation_fit.py",
+        "tests/mixture/test_em.py",
+        "tests/mixture/test_sharded.py",
+        "tests/tasks/test_place_and_drill_cross_training.py",
+        "tests/tasks/test_place_and_drill_hand_coded.py",
+        "tests/tasks/test_hand_finishing_collaborative.py",
     }
 )
 
 _ROOT = Path(__file__).resolve().parent.parent
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    # a moved or renamed test module would silently leave the CI reruns (issue 30)
+    stale = sorted(m for m in NUMERIC_MODULES if not (_ROOT / m).is_file())
+    if stale:
+        raise pytest.UsageError(f"tests/conftest.py NUMERIC_MODULES names no file: {stale}")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

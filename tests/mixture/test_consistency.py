@@ -11,7 +11,11 @@ import torch
 from torchhrc.errors import ModelError
 from torchhrc.metrics import adjusted_rand_index
 from torchhrc.mixture import fit_mixture
-from torchhrc.mixture.consistency import cluster_consistency, intraclass_correlation
+from torchhrc.mixture.consistency import (
+    cluster_consistency,
+    intraclass_correlation,
+    split_consistency,
+)
 from torchhrc.mixture.sharded import ShardedCorpus
 from torchhrc.tasks import make_task
 
@@ -27,6 +31,45 @@ def test_icc_worked_by_hand() -> None:
     # per column; the extremes: all variance between groups, all within
     two = torch.tensor([[1.0, 1.0], [1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
     assert intraclass_correlation(two, torch.tensor([0, 0, 1, 1])).tolist() == [1.0, -1.0]
+
+
+def _sub_cluster() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """3 types x 4 subjects x 4 sequences; a cluster holding 3 of the 4 sequences of every
+    subject of type 0 (a split of each person's sequences, not of people)."""
+    subject = torch.arange(12).repeat_interleave(4)  # (48,)
+    kind = subject // 4  # the subject's type
+    column = ((kind == 0) & (torch.arange(48) % 4 != 0)).double()
+    return column.view(48, 1), subject, kind
+
+
+def test_icc_within_strata_worked_by_hand() -> None:
+    """The sub-cluster's plain ICC: grand mean 1/4, MSB = (16 (3/4 - 1/4)^2 + 32 (1/4)^2) / 11
+    = 6/11, MSW = 4 * 4 * 3/16 / 36 = 1/12, n0 = 4, ICC = (6/11 - 1/12) / (6/11 + 3/12) =
+    0.5810 (above 0.5: the other types' subjects at 0 make it look like a property of people).
+    Within the types (strata): every type-0 subject has mean 3/4, MSB = 0 over G - S = 9
+    degrees of freedom, ICC = (0 - 1/12) / (0 + 3/12) = -1/3."""
+    values, subject, kind = _sub_cluster()
+    plain = intraclass_correlation(values, subject)
+    assert plain.tolist() == pytest.approx([(6 / 11 - 1 / 12) / (6 / 11 + 3 / 12)], rel=1e-12)
+    within = intraclass_correlation(values, subject, strata=kind)
+    assert within.tolist() == pytest.approx([-1 / 3], rel=1e-12)
+    # one stratum is the plain ICC; a type's own cluster splits people: 1 within its stratum
+    one = intraclass_correlation(values, subject, strata=torch.zeros_like(kind))
+    assert one.tolist() == pytest.approx(plain.tolist(), rel=1e-12)
+    own = (kind == 0).double().view(48, 1)
+    assert intraclass_correlation(own, subject, strata=kind // 2).tolist() == [1.0]
+    with pytest.raises(ValueError, match="strata of shape"):
+        intraclass_correlation(values, subject, strata=kind[:3])
+
+
+def test_split_consistency_tells_a_split_of_people_from_one_of_sequences() -> None:
+    values, subject, kind = _sub_cluster()
+    coarse = torch.nn.functional.one_hot(kind, 3).double()  # (48, 3): the types
+    random_split = torch.cat([coarse, values], -1)
+    random_split[:, 0] -= values[:, 0]  # type 0's sequences part in cluster 0, part in 3
+    assert split_consistency(random_split, coarse, subject) < 0.0
+    merged = torch.stack([(kind == 0).double(), (kind > 0).double()], -1)  # types 1, 2 merged
+    assert split_consistency(coarse, merged, subject) == pytest.approx(1.0)
 
 
 def test_icc_undefined_cases_are_nan_and_bad_input_is_named() -> None:

@@ -39,7 +39,12 @@ import torch
 from torchhrc._checks import check_tensor
 from torchhrc.errors import ModelError
 
-__all__ = ["DEFAULT_MIN_CONSISTENCY", "cluster_consistency", "intraclass_correlation"]
+__all__ = [
+    "DEFAULT_MIN_CONSISTENCY",
+    "cluster_consistency",
+    "intraclass_correlation",
+    "split_consistency",
+]
 
 #: The least subject consistency (ICC) each cluster of the chosen k must have (soft method,
 #: subjects known): a type is a property of a person. Measured on the task suite, the paper's
@@ -49,17 +54,26 @@ __all__ = ["DEFAULT_MIN_CONSISTENCY", "cluster_consistency", "intraclass_correla
 DEFAULT_MIN_CONSISTENCY = 0.5
 
 
-def intraclass_correlation(values: torch.Tensor, groups: torch.Tensor) -> torch.Tensor:
+def intraclass_correlation(
+    values: torch.Tensor, groups: torch.Tensor, *, strata: torch.Tensor | None = None
+) -> torch.Tensor:
     """ICC(1) of every column of ``values`` with rows grouped by ``groups``.
+
+    With ``strata`` (groups nested in strata, e.g. subjects in the types of a coarser
+    clustering) the between-group mean square is taken about each stratum's mean,
+    ``MSB = sum_g n_g (mean_g - mean_(s(g)))^2 / (G - S)``: the share of the variance that
+    lies between groups *of one stratum* (the one-way analysis within strata, pooled).
 
     Args:
         values: ``(N, C)`` float, one row per observation (e.g. a sequence's cluster
             posteriors).
         groups: ``(N,)`` int64 group of every row (e.g. its subject), any ids ``>= 0``.
+        strata: ``(N,)`` int64 stratum of every row, the same for all rows of a group
+            (default: one stratum, the plain ICC(1)).
 
     Returns:
-        ``(C,)`` float64 in ``(-inf, 1]``; ``nan`` where it is undefined: fewer than 2 groups,
-        no group with 2 or more rows, or a column without variance.
+        ``(C,)`` float64 in ``(-inf, 1]``; ``nan`` where it is undefined: fewer than 2 groups
+        (more groups than strata), no group with 2 or more rows, or a column without variance.
 
     Raises:
         ValueError: shapes that do not match, or negative group ids.
@@ -81,22 +95,67 @@ def intraclass_correlation(values: torch.Tensor, groups: torch.Tensor) -> torch.
         )
     if groups.numel() and int(groups.min()) < 0:
         raise ValueError(f"expected group ids >= 0, got {int(groups.min())}")
+    if strata is not None:
+        check_tensor("strata", strata, floating=False)
+        if strata.shape != groups.shape:
+            raise ValueError(f"expected strata of shape {tuple(groups.shape)} (one per row), "
+                             f"got {tuple(strata.shape)}")  # fmt: skip
     v = values.to(torch.float64)
     _, g = torch.unique(groups, return_inverse=True)
     N, C = v.shape
     G = int(g.max()) + 1 if N else 0
     nan = torch.full((C,), math.nan, dtype=torch.float64, device=v.device)
-    if G < 2 or N <= G:
+    _, s = torch.unique(torch.zeros_like(g) if strata is None else strata, return_inverse=True)
+    S = int(s.max()) + 1 if N else 0
+    if G - S < 1 or N <= G:
         return nan
     n = torch.bincount(g, minlength=G).to(v)  # (G,)
     sums = v.new_zeros(G, C).index_add_(0, g, v)
     mean_g = sums / n[:, None]  # (G, C)
-    mean = v.mean(0)
-    msb = (n[:, None] * (mean_g - mean) ** 2).sum(0) / (G - 1)
+    stratum = s.new_zeros(G).scatter_(0, g, s)  # (G,) the stratum of every group
+    size_s = v.new_zeros(S).index_add_(0, stratum, n)  # (S,)
+    mean_s = v.new_zeros(S, C).index_add_(0, stratum, sums) / size_s[:, None]  # (S, C)
+    msb = (n[:, None] * (mean_g - mean_s[stratum]) ** 2).sum(0) / (G - S)
     msw = ((v - mean_g[g]) ** 2).sum(0) / (N - G)
     n0 = (N - float((n**2).sum()) / N) / (G - 1)
     denominator = msb + (n0 - 1.0) * msw
     return torch.where(denominator > 0, (msb - msw) / denominator, nan)
+
+
+def split_consistency(rows: torch.Tensor, coarser: torch.Tensor, groups: torch.Tensor) -> float:
+    """Is going from a coarser clustering to this one a split of people? The largest ICC of
+    ``rows``' clusters among the subjects of one coarser cluster (:func:`intraclass_correlation`
+    with ``strata``: each subject in the coarser cluster holding most of its posterior mass).
+
+    A cluster that splits off a real type from a coarser one separates the subjects of that
+    coarser cluster (ICC near 1 within it); one that splits each subject's sequences at random
+    (slips, history a first-order chain cannot hold) does not, although its plain ICC over all
+    subjects can reach 0.5 from the coarser types alone (the other types' subjects sit at 0).
+    Clusters untouched by the split vary little within a stratum and do not count (``nan``).
+
+    Args:
+        rows: ``(N, K)`` each sequence's own posterior over the finer clustering's clusters.
+        coarser: ``(N, K')`` the same over the coarser clustering's (e.g. ``K' = K - 1``).
+        groups: ``(N,)`` int64 subject of every sequence.
+
+    Returns:
+        The largest defined ICC within strata, or ``nan`` (none defined).
+
+    Example:
+        >>> import torch
+        >>> g = torch.tensor([0, 0, 1, 1, 2, 2, 3, 3])
+        >>> one = torch.ones(8, 1)  # a coarser clustering of one cluster: the plain ICC
+        >>> rows = torch.tensor([[1.0, 0.0]] * 4 + [[0.0, 1.0]] * 4)  # subjects 0-1 and 2-3
+        >>> split_consistency(rows, one, g)
+        1.0
+    """
+    _, g = torch.unique(groups, return_inverse=True)
+    G = int(g.max()) + 1 if g.numel() else 0
+    mass = coarser.new_zeros(G, coarser.shape[-1]).index_add_(0, g, coarser)  # (G, K')
+    strata = mass.argmax(-1)[g]  # (N,)
+    icc = intraclass_correlation(rows, g, strata=strata)
+    defined = icc[~icc.isnan()]
+    return float(defined.max()) if defined.numel() else math.nan
 
 
 def _posteriors(

@@ -16,8 +16,8 @@ Methods:
   mixture weights (and ``k (A - 1)`` first-symbol parameters when ``initial=True``, as
   :func:`torchhrc.tasks.learn` sets it), and ``l`` is the marginal log-likelihood. By default
   the k is the exact ICL's (below), raised where every further cluster gains at least
-  ``strong_gain`` (0.04) nats per transition, confirmed on held-out units (``"icl_or_gain"``,
-  issue 31), and that k is an upper bound: the
+  ``strong_gain`` (= ``min_gain``, 0.015) nats per transition, confirmed on held-out units
+  (``"icl_or_gain"``, issue 31), and that k is an upper bound: the
   smallest k whose next cluster gains less than ``min_gain`` (0.015) nats per transition is
   chosen, so a large corpus is not cut into sub-clusters of one type (issue 12.1,
   ``docs/clustering.md``).
@@ -60,7 +60,12 @@ import torch.nn.functional as F
 
 from torchhrc.errors import ModelError
 from torchhrc.mixture._em import EMResult, e_table
-from torchhrc.mixture.consistency import DEFAULT_MIN_CONSISTENCY, row_consistency
+from torchhrc.mixture.consistency import (
+    DEFAULT_MIN_CONSISTENCY,
+    _posteriors,
+    intraclass_correlation,
+    split_consistency,
+)
 from torchhrc.mixture.counts import SufficientStatistics, check_sequences, sufficient_statistics
 from torchhrc.mixture.criteria import (
     DEFAULT_HELDOUT_GAIN,
@@ -396,7 +401,7 @@ def fit_mixture(
             on large corpora BIC alone cuts every type into sub-clusters of noise patterns
             and orders (``docs/clustering.md``).
         strong_gain: ``criterion="icl_or_gain"``'s effect size, nats per transition
-            (``None``: ``DEFAULT_STRONG_GAIN``, 0.04).
+            (``None``: ``DEFAULT_STRONG_GAIN``, 0.015, the ``min_gain`` default).
         min_consistency: a type belongs to a person: with subjects as units (``unit``), the
             chosen k is lowered while one of its clusters has a subject consistency below
             this (the intraclass correlation of the sequences' own cluster posteriors with
@@ -407,6 +412,12 @@ def fit_mixture(
             ``DEFAULT_MIN_CONSISTENCY`` (0.5) for ``"soft"``, 0 (off) for ``"paper"``.
             Recorded as ``per_k[k]["consistency"]`` (the smallest of the k clusters) whenever
             subjects with several sequences are the units, also when the check is off (0).
+            The k is also lowered while the step to it from k - 1 splits no one's people:
+            ``per_k[k]["split_consistency"]``, the largest ICC of its clusters among the
+            subjects of one cluster of k - 1
+            (:func:`~torchhrc.mixture.consistency.split_consistency`), below this. A
+            cluster that takes part of each person's sequences of one type has a plain ICC up
+            to about 0.6 from the other types' subjects alone, and one near 0 within them.
         folds, se_factor: ``criterion="heldout"``'s number of folds over units and its
             one-standard-error rule's factor.
         objects: how object names in the actions are read (``docs/clustering.md``,
@@ -790,13 +801,17 @@ def _select(
     if min_gain > 0:
         index = _smallest_sufficient(gains, by_score, float(min_gain))
     consistency: torch.Tensor | None = None
+    split = None
     if by_subject and len(ks) > 1:  # recorded always, applied when min_consistency > 0
-        consistency = _consistency_per_k(
+        both = _consistency_per_k(
             data, sharded, stats, result, best_run, run_k,
             initial=initial, dtype=dtype, ray=ray, floor=floor,
         )  # fmt: skip
-        if consistency is not None and min_consistency > 0:  # not all clusters are types
-            while index > 0 and float(consistency[index]) < min_consistency:
+        consistency, split = (None, None) if both is None else both
+        if consistency is not None and split is not None and min_consistency > 0:
+            # not all clusters are types, or the step from k - 1 splits no one's people
+            while index > 0 and (float(consistency[index]) < min_consistency
+                                 or float(split[index]) < min_consistency):  # fmt: skip
                 index -= 1
     chosen = int(best_run[index])
     per_k = {
@@ -810,6 +825,11 @@ def _select(
             **(
                 {"consistency": float(consistency[i])}
                 if consistency is not None and not math.isnan(float(consistency[i]))
+                else {}
+            ),
+            **(
+                {"split_consistency": float(split[i])}
+                if split is not None and not math.isnan(float(split[i]))
                 else {}
             ),
         }
@@ -842,10 +862,13 @@ def _consistency_per_k(
     dtype: torch.dtype,
     ray: bool | str | None,
     floor: float,
-) -> torch.Tensor | None:
+) -> tuple[torch.Tensor, torch.Tensor] | None:
     """``(num_k,)`` the smallest subject consistency (ICC) over the clusters of every k's
-    best run (``nan`` where undefined: one sequence per subject, k = 1), or None when the
-    data has no per-sequence counts (merged statistics of shards, computed by subject).
+    best run (``nan`` where undefined: one sequence per subject, k = 1), and ``(num_k,)``
+    the split consistency of every k's best run against the previous k's
+    (:func:`~torchhrc.mixture.consistency.split_consistency`; ``nan`` for the first k);
+    or None when the data has no per-sequence counts (merged statistics of shards, computed
+    by subject).
 
     The subjects are the unit rows of ``stats`` (``stats.inverse (N,)``: subjects with equal
     summed counts share a row, the same grouping in memory and in shards); the sequences'
@@ -866,16 +889,24 @@ def _consistency_per_k(
         sequences, lengths, A, _ = _unpack(data)
         per_sequence = sufficient_statistics(sequences, lengths, A, initial=initial, dtype=dtype)
     groups = stats.inverse.to(per_sequence.inverse.device)
-    out = []
+    out, splits = [], []
+    previous = None
     for run in best_run.tolist():
         k = int(run_k[run])
         lw = result.log_weights[run, :k]
         li = result.log_initial[run, :k] if result.log_initial is not None else None
-        icc = row_consistency(per_sequence, groups, result.log_transition[run, :k], li,
-                              lw - torch.logsumexp(lw, -1), floor=floor)  # fmt: skip
+        rows = _posteriors(per_sequence.counts, per_sequence.first_counts,
+                           result.log_transition[run, :k], li,
+                           lw - torch.logsumexp(lw, -1), floor)[per_sequence.inverse]  # fmt: skip
+        icc = intraclass_correlation(rows, groups)
         defined = icc[~icc.isnan()]
         out.append(float(defined.min()) if k > 1 and defined.numel() else math.nan)
-    return torch.tensor(out, dtype=torch.float64)
+        split = math.nan
+        if previous is not None and k > 1:
+            split = split_consistency(rows, previous, groups)
+        splits.append(split)
+        previous = rows
+    return torch.tensor(out, dtype=torch.float64), torch.tensor(splits, dtype=torch.float64)
 
 
 def _finish(

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+import sys
 
 import pytest
 
@@ -126,6 +127,17 @@ def test_bad_input_exits_2_without_writing(capsys, files, tmp_path, extra, messa
     code, _, err = _run(capsys, *argv)
     assert code == 2 and len(err.strip().splitlines()) == 1 and message in err, err
     assert not (tmp_path / "g.dot").exists() and not list(tmp_path.glob("g.*"))
+
+
+def test_image_without_matplotlib_exits_2_without_writing(capsys, files, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # (import matplotlib fails)
+    argv = ["graph", files["model"], "--policy", files["policy"], "--out", tmp_path / "g.dot"]
+    code, out, err = _run(capsys, *argv, "--image", tmp_path / "g.png")
+    assert code == 2 and out == "" and list(tmp_path.iterdir()) == []
+    assert err == (
+        "torchhrc graph: error: drawing a policy graph needs matplotlib: "
+        "pip install 'torchhrc[full]'\n"
+    )
 
 
 def test_existing_output_is_kept(capsys, files, tmp_path):

@@ -36,7 +36,7 @@ from torchhrc.commands._files import (
     read_model,
     read_policy,
 )
-from torchhrc.errors import ModelError
+from torchhrc.errors import ModelError, TorchHRCError
 
 __all__ = ["register", "run"]
 
@@ -136,7 +136,10 @@ def run(args: argparse.Namespace) -> int:
     dot = graph.to_dot()
     image, image_bytes = None, b""
     if args.image is not None:  # drawn before any file is written: a failure leaves none
-        image_bytes = _render(graph, args.image)
+        try:
+            image_bytes = _render(graph, args.image)
+        except ImportError as error:  # matplotlib missing: the message names the extra
+            raise TorchHRCError(str(error)) from None
     atomic_write_bytes(args.out, dot.encode())
     if args.image is not None:
         image = str(atomic_write_bytes(args.image, image_bytes))

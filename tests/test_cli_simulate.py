@@ -217,6 +217,7 @@ def test_evaluate_agrees_with_pomdpeval(capsys, files, tmp_path):
         (["{model}", "--policy", "{policyx}", "--episodes", "1"], "at least 2"),
         (["{model}", "--policy", "{policyx}", "--horizon", "0"], "positive integer"),
         (["{bad_model}", "--policy", "{policyx}"], "bad.pomdp:5:1: T[0, 0, 0] = 2 is not a"),
+        (["{undiscounted}", "--policy", "{policyx}"], "u.pomdp has discount 1: give --horizon"),
     ],
 )
 @pytest.mark.parametrize("command", ["simulate", "evaluate"])
@@ -230,7 +231,12 @@ def test_bad_input_exits_2_without_writing(capsys, files, tmp_path, command, arg
     bad_actions = save_policy(two_states, tmp_path / "a.safetensors")  # Tiger has 3 actions
     bad = tmp_path / "bad.pomdp"
     bad.write_text("discount: 0.9\nstates: 2\nactions: 1\nobservations: 1\nT: 0 : 0 : 0 2.0\n")
+    undiscounted = tmp_path / "u.pomdp"
+    undiscounted.write_text(
+        Path(files["model"]).read_text().replace("discount: 0.95", "discount: 1")
+    )
     names = {
+        "undiscounted": undiscounted,
         "missing": tmp_path / "missing.pomdp",
         "model_txt": tmp_path / "m.txt",
         "model": files["model"],

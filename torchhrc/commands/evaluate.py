@@ -100,6 +100,11 @@ def run_simulations(
     from torchhrc.solvers.evaluate import evaluate_policy
 
     model = read_model(args.model) if model is None else model
+    if args.horizon is None and not float(model.discount) < 1.0:
+        raise ModelError(
+            f"{args.model} has discount {float(model.discount):g}: give --horizon (the default "
+            "horizon bounds the discounted tail, which needs discount < 1)"
+        )
     policy = read_policy(args.policy)
     start = time.perf_counter()
     try:

@@ -182,6 +182,20 @@ def test_controller_needs_a_solved_model(study):
         Controller.from_model(model)
 
 
+def test_a_momdp_given_by_hand_is_solved_as_the_learned_one(study):
+    """The study's baselines (solve_momdp) and its learned model (solve_model) are solved with
+    the same settings: the same bounds on the same MOMDP."""
+    demos, fit = study
+    model = build_model(PlaceAndDrillTask(3), demos, fit.model.transition, fit.assignments,
+                        irl_iterations=2)  # fmt: skip
+    settings = dict(time_limit=60.0, precision=1e-2, max_iterations=3, seed=0)
+    solved = pipeline.solve_model(model, **settings)
+    by_hand = pipeline.solve_momdp(model.momdp, **settings)
+    assert (by_hand.lower, by_hand.upper) == (solved.lower, solved.upper)
+    assert solved.info["solver"]["precision"] == pytest.approx(1e-2 * float(
+        model.momdp.R.max() - model.momdp.R.min()))  # fmt: skip
+
+
 def test_the_pipeline_does_not_dispatch_on_task_classes():
     source = inspect.getsource(pipeline)
     assert "isinstance(task" not in source and "type(task)" not in source
@@ -236,12 +250,13 @@ def test_auto_human_model_picks_the_model_the_human_follows(respond, expected):
     # ((1 - noise) * q + noise / 2), half the noise landing on the right action, with q = 1
     # for the chain (log 0.965 = -0.036 nats a turn); the state model backs off by one
     # pseudo-step (interface.STATE_PRIOR_STRENGTH) from ~38.4 training turns per phase, all
-    # the same answer, toward half the type's habit before the robot's move (the same
-    # phase: h = 38.9 / 39.4 of the chain's even split smoothed in) and half the
-    # population's (one type: (38.4 + h) / 39.4): q = (38.4 + prior) / 39.4 = 0.9998
+    # the same answer, toward 3/4 the type's habit before the robot's move (the same
+    # phase: h = 38.9 / 39.4 of the chain's even split smoothed in) and 1/4 the
+    # population's (one type: (38.4 + h) / 39.4): q = (38.4 + prior) / 39.4 = 0.9997
     # (log 0.965); the other one cannot tell the two actions apart: log(0.99 / 2) = -0.703
     habit = 38.9 / 39.4
-    q = 1.0 if expected == "chain" else (38.4 + (habit + (38.4 + habit) / 39.4) / 2) / 39.4
+    prior = 0.75 * habit + 0.25 * (38.4 + habit) / 39.4
+    q = 1.0 if expected == "chain" else (38.4 + prior) / 39.4
     want = math.log(0.99 * (0.95 * q + 0.025))
     assert record["per_step"][expected] == pytest.approx(want, abs=0.01)
     assert record["per_step"][other] == pytest.approx(math.log(0.495), abs=0.05)

@@ -82,7 +82,7 @@ def cluster_row(name: str, seed: int, *, subjects: int, per_subject: int, noise:
 
 
 def _per_k_text(per_k: dict[int, dict[str, float]]) -> str:
-    keys = ("gain", "exact_icl", "bic", "heldout", "consistency")
+    keys = ("gain", "exact_icl", "bic", "heldout", "consistency", "split_consistency")
     return "; ".join(f"k={k}: " + ", ".join(f"{c} {v[c]:.4g}" for c in keys if c in v)
                      for k, v in sorted(per_k.items()))  # fmt: skip
 

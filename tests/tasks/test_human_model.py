@@ -1,5 +1,6 @@
 """The state human model (CollaborativeTask.human_policy, human_model='state'): "no action"
-counted, hierarchical back-off to the type's chain preference, values worked by hand."""
+counted, hierarchical back-off to the type's habit and the population, values worked by
+hand."""
 
 from __future__ import annotations
 
@@ -45,26 +46,43 @@ def _evidence(noise: float = 0.0, pause: float = 0.0, model: str | None = None):
     return task, evidence
 
 
-def test_counts_no_action_and_backs_off_to_the_type_chain_preference():
+def test_counts_no_action_and_backs_off_to_the_type_habit_and_the_population():
     task, evidence = _evidence()
     p = task.human_policy(evidence)[:, 0]  # (Y, X, H + 1), the one robot action
     # pooled waiting rates: type 0 waited 1 of 3 choices -> (1 + .5) / (3 + 1) = 3/8;
     # type 1 0 of 1 (its last step has no human turn: not counted) -> .5 / 2 = 1/4;
-    # type 2 no steps -> 1/2. Prior: chain preference over legal actions x (1 - rate), rate.
-    want = {
-        # type 0, "none": counts (1, 0, 0) + (5/8 * (.75, .25), 3/8), over 2
-        (0, 0): [47 / 64, 5 / 64, 12 / 64],
-        # type 0, "a" (only do_b legal): counts (0, 1, 1) + (0, 5/8, 3/8), over 3
-        (0, 1): [0.0, 13 / 24, 11 / 24],
-        # type 1, "none": counts (0, 1, 0) + (3/4 * (1/6, 5/6), 1/4), over 2
-        (1, 0): [1 / 16, 13 / 16, 1 / 8],
-        # type 1, "b": never seen with a human turn -> its prior (3/4 * (1, 0), 1/4)
-        (1, 2): [0.75, 0.0, 0.25],
-        # type 2, "none": no data -> its chain preference (.75, .25) x 1/2, not uniform
-        (2, 0): [0.375, 0.125, 0.5],
+    # type 2 no steps -> 1/2. Chain prior: chain preference over legal actions x (1 - rate),
+    # rate. "go" changes nothing, so the state before the robot's move is the state after:
+    # the habit is (counts + chain prior) / (n + 1) (one pseudo-step). The population: all
+    # counts + the habits weighted by the types' shares (1/2, 1/2, 0), normalised. The prior:
+    # 3/4 habit + 1/4 population (STATE_HABIT_WEIGHT); p = (counts + prior) / (n + 1).
+    habit = {
+        (0, 0): [47 / 64, 5 / 64, 12 / 64],  # (1, 0, 0) + (5/8 * (.75, .25), 3/8), over 2
+        (0, 1): [0.0, 13 / 24, 11 / 24],  # "a", only do_b legal: (0, 1, 1) + (0, 5/8, 3/8)
+        (1, 0): [1 / 16, 13 / 16, 1 / 8],  # (0, 1, 0) + (3/4 * (1/6, 5/6), 1/4), over 2
+        (1, 1): [0.0, 0.75, 0.25],  # "a" never seen: the chain prior
+        (1, 2): [0.75, 0.0, 0.25],  # "b" never seen with a human turn: the chain prior
+        (0, 2): [5 / 8, 0.0, 3 / 8],
+        (2, 0): [0.375, 0.125, 0.5],  # no data: its chain preference x 1/2, rate 1/2
     }
-    for (y, x), row in want.items():
-        assert torch.allclose(p[y, x], torch.tensor(row, dtype=p.dtype), atol=1e-12), (y, x)
+    population = {
+        # counts (1, 1, 0) + (habit00 + habit10) / 2 = (51, 57, 20) / 128, over 3
+        0: [179 / 384, 185 / 384, 20 / 384],
+        # counts (0, 1, 1) + (habit01 + habit11) / 2 = (0, 31, 17) / 48, over 3
+        1: [0.0, 79 / 144, 65 / 144],
+        # no counts: (habit02 + habit12) / 2
+        2: [11 / 16, 0.0, 5 / 16],
+    }
+    counts = {(0, 0): [1.0, 0.0, 0.0], (0, 1): [0.0, 1.0, 1.0], (1, 0): [0.0, 1.0, 0.0],
+              (1, 2): [0.0, 0.0, 0.0], (2, 0): [0.0, 0.0, 0.0]}  # fmt: skip
+    for (y, x), n in counts.items():
+        n_ = torch.tensor(n, dtype=p.dtype)
+        h, q = torch.tensor(habit[y, x], dtype=p.dtype), torch.tensor(population[x], dtype=p.dtype)
+        want = (n_ + 0.75 * h + 0.25 * q) / (n_.sum() + 1)
+        assert torch.allclose(p[y, x], want, atol=1e-12), (y, x)
+    # type 2 has no data: 3/4 its own chain preference, not the others' behaviour
+    assert torch.allclose(p[2, 0], torch.tensor([0.397, 0.214, 0.388], dtype=p.dtype),
+                          atol=1e-3)  # fmt: skip
     # "ab": nothing legal, "no action" is certain for every type
     assert torch.allclose(p[:, 3], torch.tensor([0.0, 0.0, 1.0], dtype=p.dtype))
 

@@ -83,8 +83,9 @@ def _ran_on_ray_workers(record: dict[str, list], *, shards: bool) -> None:
         assert record["shards"] and all(pid != driver for pid in record["shards"])
 
 
-# 2 shards with Ray: test_ray_shard_statistics_run_in_ray_workers (each fit here starts actors)
-@pytest.mark.parametrize(("shards", "suffix"), [(1, ".csv"), (4, ".parquet")])
+# with Ray: 1, 2 and 4 shards, CSV and Parquet (4 CSV shards: the CLI test below; 2 Parquet
+# shards' statistics: test_ray_shard_statistics_run_in_ray_workers); each fit starts actors
+@pytest.mark.parametrize(("shards", "suffix"), [(1, ".csv"), (2, ".csv"), (4, ".parquet")])
 def test_ray_shard_tasks_and_e_steps_give_the_in_memory_fit(
     unequal: Demonstrations, tmp_path: Path, where_it_ran, shards: int, suffix: str
 ) -> None:

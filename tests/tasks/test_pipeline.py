@@ -182,6 +182,20 @@ def test_controller_needs_a_solved_model(study):
         Controller.from_model(model)
 
 
+def test_a_momdp_given_by_hand_is_solved_as_the_learned_one(study):
+    """The study's baselines (solve_momdp) and its learned model (solve_model) are solved with
+    the same settings: the same bounds on the same MOMDP."""
+    demos, fit = study
+    model = build_model(PlaceAndDrillTask(3), demos, fit.model.transition, fit.assignments,
+                        irl_iterations=2)  # fmt: skip
+    settings = dict(time_limit=60.0, precision=1e-2, max_iterations=3, seed=0)
+    solved = pipeline.solve_model(model, **settings)
+    by_hand = pipeline.solve_momdp(model.momdp, **settings)
+    assert (by_hand.lower, by_hand.upper) == (solved.lower, solved.upper)
+    assert solved.info["solver"]["precision"] == pytest.approx(1e-2 * float(
+        model.momdp.R.max() - model.momdp.R.min()))  # fmt: skip
+
+
 def test_the_pipeline_does_not_dispatch_on_task_classes():
     source = inspect.getsource(pipeline)
     assert "isinstance(task" not in source and "type(task)" not in source

@@ -54,9 +54,8 @@ from torchhrc.experiments.robustness import (
     simulate_subject,
 )
 from torchhrc.pomdp import MOMDP
-from torchhrc.solvers.type_policies import type_policy_lower_bound
 from torchhrc.tasks.interface import chain_preferences
-from torchhrc.tasks.pipeline import build_model, solve_model
+from torchhrc.tasks.pipeline import build_model, solve_model, solve_momdp
 from torchhrc.tasks.place_and_drill.cross_training import fit_cross_training
 from torchhrc.tasks.place_and_drill.hand_coded import (
     build_expert_momdp,
@@ -175,17 +174,10 @@ def prepare_output_dir(out_dir: str | os.PathLike[str], *, force: bool = False) 
 
 
 def _solve(model: MOMDP, settings: StudySettings) -> Any:
-    from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
-
-    span = float(model.R.max() - model.R.min()) or 1.0
-    config = SARSOPConfig(
-        time_limit=settings.solver_time,
-        max_iterations=settings.solver_max_iterations,
-        precision=settings.solver_precision * span,
-        seed=settings.seed,
-        lower_bound_init=type_policy_lower_bound,
-    )
-    return sarsop(model, config)
+    """A baseline's MOMDP solved with the settings of the learned one (:func:`solve_model`)."""
+    s = settings
+    return solve_momdp(model, time_limit=s.solver_time, precision=s.solver_precision,
+                       max_iterations=s.solver_max_iterations, seed=s.seed)  # fmt: skip
 
 
 def _subject_types(demos: Demonstrations) -> dict[str, str]:

@@ -48,6 +48,7 @@ __all__ = [
     "learn",
     "learn_type_weights",
     "solve_model",
+    "solve_momdp",
     "task_momdp",
     "transition_from_behaviour",
 ]
@@ -754,6 +755,55 @@ def task_momdp(
     return momdp
 
 
+def _sarsop_config(m: MOMDP, time_limit: float, precision: float, max_iterations: int | None,
+                   seed: int, config: Any) -> Any:  # fmt: skip
+    """The SARSOP settings of :func:`solve_model` (a config without ``lower_bound_init``
+    gets the typed lower bound; ``precision`` relative to the reward span without one)."""
+    from torchhrc.solvers.sarsop import SARSOPConfig
+    from torchhrc.solvers.type_policies import type_policy_lower_bound
+
+    if config is None:
+        span = float(m.R.max() - m.R.min()) or 1.0
+        config = SARSOPConfig(
+            time_limit=time_limit,
+            precision=precision * span,
+            max_iterations=max_iterations,
+            seed=seed,
+            lower_bound_init=type_policy_lower_bound,
+        )
+    elif not isinstance(config, SARSOPConfig):
+        raise TypeError(f"expected config to be a SARSOPConfig, got {type(config).__name__}")
+    elif config.lower_bound_init is None:
+        config = replace(config, lower_bound_init=type_policy_lower_bound)
+    return config
+
+
+def solve_momdp(
+    momdp: MOMDP,
+    *,
+    time_limit: float = 5.0,
+    precision: float = 1e-3,
+    max_iterations: int | None = None,
+    seed: int = 0,
+    config: Any = None,
+) -> Any:
+    """SARSOP on a task's MOMDP with :func:`solve_model`'s settings, for a MOMDP built
+    otherwise (:func:`task_momdp`: a hand-coded baseline of the task).
+
+    Args:
+        momdp: the MOMDP.
+        time_limit, precision, max_iterations, seed, config: as :func:`solve_model`'s
+            (``precision`` relative to the reward span; a ``config`` as given, with the typed
+            lower bound when it has no ``lower_bound_init``).
+
+    Returns:
+        The :class:`~torchhrc.solvers.solution.Solution`.
+    """
+    from torchhrc.solvers.sarsop import sarsop
+
+    return sarsop(momdp, _sarsop_config(momdp, time_limit, precision, max_iterations, seed, config))
+
+
 def solve_model(
     model: LearnedModel,
     *,
@@ -779,24 +829,8 @@ def solve_model(
         The model with ``policy``, ``lower`` and ``upper`` set, and ``info["solver"]``: the
         settings used.
     """
-    from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
-    from torchhrc.solvers.type_policies import type_policy_lower_bound
-
-    m = model.momdp
-    if config is None:
-        span = float(m.R.max() - m.R.min()) or 1.0
-        config = SARSOPConfig(
-            time_limit=time_limit,
-            precision=precision * span,
-            max_iterations=max_iterations,
-            seed=seed,
-            lower_bound_init=type_policy_lower_bound,
-        )
-    elif not isinstance(config, SARSOPConfig):
-        raise TypeError(f"expected config to be a SARSOPConfig, got {type(config).__name__}")
-    elif config.lower_bound_init is None:
-        config = replace(config, lower_bound_init=type_policy_lower_bound)
-    solution = sarsop(m, config)
+    config = _sarsop_config(model.momdp, time_limit, precision, max_iterations, seed, config)
+    solution = solve_momdp(model.momdp, config=config)
     used = {name: getattr(config, name) for name in ("time_limit", "precision",
             "max_iterations", "seed", "tie_break", "kappa", "prediction", "clock")}  # fmt: skip
     used["lower_bound_init"] = getattr(config.lower_bound_init, "__name__", "custom")

@@ -471,15 +471,55 @@ def test_fib_initialisation_stops_on_its_tolerance_not_the_clock():
     corner = fib_corner_values(static)
     torch.testing.assert_close(corner, form.qmdp_start(1e-8).amax(0), atol=0, rtol=0)
     torch.testing.assert_close(corner, qmdp_vectors(static).amax(0), atol=1e-6, rtol=0)
-    # no time at all: the QMDP start stops at once too (the limit covers it), an upper bound
+    # no time at all: the QMDP start still runs to its tolerance (the limit does not cut it)
     exact, err = mdp_q_values(static, tol=1e-12)
     zero = fib_corner_values(static, time_limit=0.0)
     assert bool((zero >= exact.amax(0) - err).all())
-    assert float(zero.max()) <= float(static.R.max()) / (1 - static.discount) + 1e-9
-    # no time for the FIB iterations: the solve reports it (a time-dependent start)
+    assert float((zero - exact.amax(0)).max()) <= 1e-6
+    # no time for the FIB iterations: the first step runs, the solve reports the cut
     sol = sarsop(model, SARSOPConfig(time_limit=LONG, max_iterations=1, init_time_fraction=0.0))
     assert sol.info["init"]["upper_stop"] == "time_limit"
-    assert sol.info["init"]["upper_iterations"] == 0
+    assert sol.info["init"]["upper_iterations"] == 1
+
+
+class _RacingClock:
+    """A ``clock`` that jumps an hour at every reading: every deadline passes at once."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        self.now += 3600.0
+        return self.now
+
+
+@pytest.mark.parametrize("form", ["dense", "sparse", "momdp", "sparse_momdp"])
+def test_an_expired_clock_leaves_the_upper_bound_within_the_mdp_bound(form):
+    """The initial upper bound's safety net cannot leave it looser than QMDP, whatever the
+    clock says (on a loaded machine it cut the QMDP iteration before its first sweep, and
+    flat RockSample(4, 2) ended a 5 s solve at an upper bound of 125-147 against 15.18)."""
+    from torchhrc.tasks.classic import rock_sample
+
+    # the MDP value at b0, an upper bound of V*(b0), by plain value iteration (to 1e-12)
+    dense = rock_sample(4, 2)
+    T, R, g = dense.T.double(), dense.R.double(), dense.discount
+    V = torch.zeros(T.shape[-1], dtype=torch.float64)
+    for _ in range(2000):
+        new = (R + g * (T @ V)).amax(0)
+        done = float((new - V).abs().max()) < 1e-13
+        V = new
+        if done:
+            break
+    mdp = float(dense.b0.double() @ V)
+    assert float(R.max()) / (1 - g) > mdp + 100  # the trivial bound is far looser
+    model = rock_sample(4, 2, form=form)
+    sol = sarsop(model, SARSOPConfig(time_limit=5.0, clock=_RacingClock()))
+    init = sol.info["init"]
+    assert init["upper_stop"] in ("time_limit", "converged")
+    assert init["upper_iterations"] <= 1  # the clock cut FIB after its first step
+    assert sol.info["stop_reason"] == "time_limit"
+    assert sol.upper <= mdp + 1e-6
+    assert sol.lower <= sol.upper
 
 
 class _JumpingClock:

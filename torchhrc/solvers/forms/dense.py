@@ -25,7 +25,7 @@ import torch
 
 from torchhrc.pomdp import POMDP
 from torchhrc.solvers.backup import BackupResult, point_backup
-from torchhrc.solvers.clock import Deadline
+from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.forms.base import FIBOperator, FlatFields, SimStep, TensorModelForm
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.sampling import flat_step
@@ -91,8 +91,8 @@ class DenseForm(FlatFields, TensorModelForm):
                                                                  alpha[a2, s2]
 
         On the CPU both run in numpy: QMDP by :func:`~torchhrc.solvers.sparse_model.\
-qmdp_iteration_np` (from zero, with the contraction bound: an upper bound wherever it
-        stops, and it stops at ``deadline``), FIB as one batched product per step, or one
+qmdp_iteration_np` (from zero, with the contraction bound; to ``tol`` whatever
+        ``deadline`` says: see ``_iterate_fib``), FIB as one batched product per step, or one
         sparse ``(S, S) x (S, O A)`` product per action when ``T`` is sparse. Elsewhere the
         torch kernels (:func:`~torchhrc.solvers.tensor_bounds.mdp_upper_vectors`,
         :func:`~torchhrc.solvers.tensor_bounds.fib_backup`). aloha-10max (discount 0.999,
@@ -100,7 +100,7 @@ qmdp_iteration_np` (from zero, with the contraction bound: an upper bound wherev
         """
         T, model = self.T, self.model
         if T.device.type != "cpu":
-            return self.qmdp_start(tol, deadline), lambda alpha: fib_backup(model, alpha)
+            return self.qmdp_start(tol), lambda alpha: fib_backup(model, alpha)
         R, Z, g = model.R, model.Z, self.discount
         A, S, O = Z.shape
         if int((T != 0).sum()) * 10 > T.numel() or S < 64:  # dense products
@@ -130,7 +130,7 @@ qmdp_iteration_np` (from zero, with the contraction bound: an upper bound wherev
                 G = torch.stack([Ts[a] @ Yv[a].reshape(S, O * A) for a in range(A)])
                 return R + g * G.view(A, S, O, A).amax(-1).sum(-1)
 
-        return self.qmdp_start(tol, deadline, expect), fib
+        return self.qmdp_start(tol, NEVER, expect), fib
 
     # -- PBVI ----------------------------------------------------------------------------------
     def self_loop_probs(self) -> torch.Tensor:

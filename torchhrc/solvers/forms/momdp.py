@@ -151,9 +151,9 @@ class MOMDPForm(TensorModelForm):
         one batched ``(A, K, Y, Y2) x (A, K, Y2, O A)`` product per ``x``. With a static
         hidden value FIB equals QMDP (the next hidden value is known given the current one),
         so no FIB iteration runs. QMDP by :meth:`~.base.TensorModelForm.qmdp_start` (on the
-        CPU from zero, stopping at ``deadline``, as the other forms).
+        CPU from zero, to ``tol`` whatever ``deadline`` says, as the other forms).
         """
-        alpha = self.qmdp_start(tol, deadline)
+        alpha = self.qmdp_start(tol)
         if self.Ty is None:
             return alpha, None
         if self.Tx.device.type != "cpu":

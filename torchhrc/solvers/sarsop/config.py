@@ -61,8 +61,10 @@ class SARSOPConfig:
         init_max_iterations: cap on the FIB iterations (default 10,000).
         init_time_fraction: share of ``time_limit`` (of what is left of it once the model's
             solver form is built) the default FIB initialisation may use at most (a safety
-            net: it normally converges long before; when it does not, the result depends on
-            the machine's speed, reported as
+            net, read from its second FIB step on: QMDP and the first step always run, so
+            the start is never looser than one FIB step from QMDP; it normally converges
+            long before; when it does not, the result depends on the machine's speed,
+            reported as
             ``Solution.info["init"]["upper_stop"] == "time_limit"``).
         prune_alphas: prune dominated alpha vectors and those that win at no tree belief,
             except the vectors best at a child of an active tree belief (at the belief's last

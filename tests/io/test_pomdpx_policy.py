@@ -233,7 +233,7 @@ def test_pomdpeval_simulates_the_written_policy_within_bounds(factored, tmp_path
     proc = subprocess.run(
         [binary, str(model_path), "--policy-file", str(policy), "--simLen", str(length),
          "--simNum", str(runs), "--srand", "1"],
-        capture_output=True, text=True, timeout=1800, cwd=tmp_path,
+        capture_output=True, text=True, cwd=tmp_path,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     row = re.compile(r"^\s*(\d+)\s+([-0-9.eE+]+)\s+\(([-0-9.eE+]+),\s*([-0-9.eE+]+)\)")

@@ -75,7 +75,8 @@ def fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, *,
             (:class:`~torchhrc.pomdp.SparsePOMDP` or
             :class:`~torchhrc.solvers.sparse_model.SparseFlatModel`).
         tol: stop when the largest change is below ``tol``.
-        time_limit: seconds allowed for the whole computation (QMDP included).
+        time_limit: a safety net on the FIB iterations after the first: the QMDP start and
+            the first FIB step always run, so the bound never depends on the load more than that.
         max_iterations: cap on the FIB iterations.
 
     Returns:

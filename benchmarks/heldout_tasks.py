@@ -19,7 +19,14 @@ name                   X    types  depends on    what is unusual
                                                  rhythm (memory), which the state does not show
 ``crew_70_20_10``      64   3      state         types of 70 / 20 / 10 % of the subjects
 ``five_parts``         243  5      state         5 types, 6 robot and 10 human actions
+``slow_sanding``       9    2      state         two types alike but for the pace of one
+                                                 sub-step (the careful one lingers there)
+``paint_crews``        27   4      state         2 x 2 factorial types (order x who primes),
+                                                 shares 40 / 30 / 20 / 10 %
 =====================  ===  =====  ============  ===============================================
+
+``slow_sanding`` and ``paint_crews`` were added after the selection rule of 6701614 and
+kept out of every later tuning (evaluated only as a final check).
 
 ``HELDOUT[name]() -> HeldoutWorld``, a TaskWithPeople whose ``demonstrations`` split the
 subjects between the types by its ``shares`` (None: balanced).
@@ -462,6 +469,83 @@ def five_parts() -> HeldoutWorld:
     )  # fmt: skip
 
 
+# ------------------------------------------------------------------------------ slow_sanding
+# four steps (cut, sand, drill, finish), each done by the person; the robot holds the piece
+# or waits. "brisk" does each step at once when the piece is held; "careful" does the same,
+# except that at the sanding step she lingers (sands again, no progress) 2 turns in 3. Both
+# want the piece held (the same true reward): only the pace differs. State: (step, held).
+def slow_sanding() -> HeldoutWorld:
+    types, steps = ("brisk", "careful"), 4
+
+    def robot_step(s, a):
+        return s if s[0] == steps else (s[0], int(a == 1))
+
+    def human_step(s, h):
+        return (s[0] + 1, 0) if h == s[0] < steps else None
+
+    def behaviour(y, m, s, a):
+        step, held = s
+        if step == 1 and y == 1:
+            return {1: 1.0 / 3.0, -1: 2.0 / 3.0}
+        return {step: 1.0} if held else {step: 0.5, -1: 0.5}
+
+    def reward(y, s, a):  # the same for both: only the pace differs
+        return 0.2 if (a == 0 and s[1]) else _pick(1, a)
+
+    return tabulate(
+        "slow_sanding", initial=(0, 0), robot_actions=("wait", "hold"),
+        human_actions=("cut", "sand", "drill", "finish"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s[0] == steps, type_names=types,
+        behaviour=behaviour, reward=reward, horizon=14,
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ paint_crews
+# three boards, each primed and then painted. Types cross two choices: the order of the boards
+# (1, 2, 3 or 3, 2, 1) and who primes (the robot, the person waiting for it, or the person
+# herself, wanting the robot to wait); the person always paints. Shares 40 / 30 / 20 / 10 %.
+# State: per board 0 raw, 1 primed, 2 painted (27 states).
+def paint_crews() -> HeldoutWorld:
+    types = ("up_robot", "up_self", "down_robot", "down_self")
+    n = 3
+
+    def set_(s, i, v):
+        return (*s[:i], v, *s[i + 1 :])
+
+    def robot_step(s, a):
+        return set_(s, a - 1, 1) if a > 0 and s[a - 1] == 0 else s
+
+    def human_step(s, h):
+        i, op = h % n, h // n  # op 0 prime, 1 paint
+        return set_(s, i, 1 + op) if s[i] == op else None
+
+    def board(y, s):
+        order = range(n) if y < 2 else range(n - 1, -1, -1)
+        return next(i for i in order if s[i] != 2)
+
+    def behaviour(y, m, s, a):
+        i = board(y, s)
+        if s[i] == 1:
+            return {n + i: 1.0}
+        return {i: 1.0} if y % 2 else {-1: 1.0}
+
+    def reward(y, s, a):
+        i = board(y, s)
+        if s[i] == 0 and y % 2 == 0:
+            return _pick(1 + i, a)
+        return _pick(0, a, good=0.2, idle=0.0, bad=-0.5)
+
+    return tabulate(
+        "paint_crews", initial=(0,) * n,
+        robot_actions=("wait", *(f"prime_{i + 1}" for i in range(n))),
+        human_actions=(*(f"prime_{i + 1}" for i in range(n)),
+                       *(f"paint_{i + 1}" for i in range(n))),
+        robot_step=robot_step, human_step=human_step, terminal=lambda s: s == (2,) * n,
+        type_names=types, behaviour=behaviour, reward=reward, horizon=14,
+        shares=(0.4, 0.3, 0.2, 0.1),
+    )  # fmt: skip
+
+
 #: Every held-out task by name: ``HELDOUT[name]() -> HeldoutWorld``.
 HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "finish_late": finish_late,
@@ -470,4 +554,6 @@ HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "tool_rhythm": tool_rhythm,
     "crew_70_20_10": crew_70_20_10,
     "five_parts": five_parts,
+    "slow_sanding": slow_sanding,
+    "paint_crews": paint_crews,
 }

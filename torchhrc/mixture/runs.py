@@ -19,7 +19,7 @@ from torchhrc.mixture._em import EMResult, e_table
 from torchhrc.mixture.counts import SufficientStatistics
 from torchhrc.mixture.criteria import _first_best
 from torchhrc.mixture.hard_em import hard_em, partition_counts, partition_sizes
-from torchhrc.mixture.init import kmeans_pp_init, random_init
+from torchhrc.mixture.init import _features, kmeans_pp_init, random_init
 from torchhrc.mixture.soft_em import SoftStatistics, m_step, soft_em
 
 
@@ -69,8 +69,12 @@ def _em_all_k(
     dtype: torch.dtype,
     e_step: Any = None,
     progress: Callable[[int, int], None] | None = None,
+    split_restarts: bool = True,
 ) -> tuple[EMResult, torch.Tensor, torch.Tensor, int]:
     """EM for every ``k`` in ``ks (num_k,)`` with ``restarts`` runs each, as one batch.
+
+    The soft method then restarts every k from the fits of k - 1 and k + 1 with one cluster
+    split or two merged (:func:`_split_merge_restarts`) unless ``split_restarts`` is False.
 
     Returns:
         ``(result, run_k (R,), cluster_mask (R, K), per_group)``: the runs of ``ks[i]`` are
@@ -139,8 +143,121 @@ def _em_all_k(
             progress=progress,
             **options,
         )
+        if split_restarts and len(ks) > 1:
+            result = _split_merge_restarts(stats, result, cluster_mask, dict(
+                pseudo_count=pseudo_count, weight_pseudo_count=weight_pseudo_count,
+                dtype=dtype, options=dict(max_iterations=cap, progress=progress, **options),
+            ))  # fmt: skip
 
     return result, run_k, cluster_mask, per_group
+
+
+def _two_means(x: torch.Tensor, w: torch.Tensor, iterations: int = 5) -> torch.Tensor:
+    """``(n,)`` bool: a deterministic 2-means split of the rows of ``x (n, F)`` (weights
+    ``w (n,)``, positive): the halves of the principal axis of the weighted rows (power
+    iteration from the row farthest from the mean), then Lloyd iterations."""
+    mean = (w[:, None] * x).sum(0) / w.sum()
+    centred = x - mean
+    v = centred[int((centred * centred).sum(-1).argmax())]  # (F,)
+    for _ in range(20):  # power iteration on the weighted scatter matrix
+        v = centred.transpose(0, 1) @ (w * (centred @ v))
+        v = v / v.norm().clamp_min(torch.finfo(x.dtype).tiny)
+    side = (centred @ v) > 0  # (n,)
+    for _ in range(iterations):
+        if bool(side.all()) or not bool(side.any()):
+            break
+        a = (w[side, None] * x[side]).sum(0) / w[side].sum()
+        b = (w[~side, None] * x[~side]).sum(0) / w[~side].sum()
+        new = ((x - a) ** 2).sum(-1) < ((x - b) ** 2).sum(-1)
+        if bool((new == side).all()):
+            break
+        side = new
+    return side
+
+
+def _refit_starts(
+    stats: SufficientStatistics,
+    fields: dict[str, Any],
+    i: int,
+    starts: list[torch.Tensor],
+    mask_row: torch.Tensor,
+    em: dict[str, Any],
+) -> None:
+    """Fit the hard partitions ``starts`` (each ``(U,)``, slots of ``mask_row (K,)``) to
+    convergence as one batch; the best replaces run ``i`` of ``fields`` (in place) where its
+    log-likelihood is higher beyond round-off."""
+    if not starts:
+        return
+    z0 = torch.stack(starts, -1)  # (U, C)
+    mask = mask_row.expand(z0.shape[1], -1).contiguous()  # (C, K)
+    lt0, lw0, li0 = _soft_initial_parameters(
+        stats, z0, mask, em["pseudo_count"], em["weight_pseudo_count"], em["dtype"]
+    )
+    fits = soft_em(stats, lt0, lw0, mask, log_initial=li0, **em["options"])
+    ll = torch.nan_to_num(fits.log_likelihood, nan=-math.inf)
+    best = int(_first_best(ll[None])[0])
+    current = float(fields["log_likelihood"][i])
+    if not float(ll[best]) > current + 1e-7 * max(abs(current), 1.0):  # a real gain only
+        return
+    for name, value in fields.items():
+        if value is None:
+            continue
+        if name == "assignments":
+            value[:, i] = fits.assignments[:, best]
+        else:
+            value[i] = getattr(fits, name)[best]
+
+
+def _split_merge_restarts(
+    stats: SufficientStatistics,
+    result: EMResult,
+    cluster_mask: torch.Tensor,
+    em: dict[str, Any],
+) -> EMResult:
+    """Restarts of every k from the fits of k - 1 (a cluster split) and k + 1 (two merged).
+
+    Random starts of k clusters can miss a partition that the fit of ``k - 1`` misses by one
+    merged cluster, or that the fit of ``k + 1`` holds with one type cut in two (split and
+    merge moves, after Ueda, Nakano, Ghahramani and Hinton's SMEM, 2000). In increasing k,
+    every cluster ``j`` of the (final) fit of ``k - 1`` is split in two by 2-means of its
+    members' transition frequencies (:func:`_two_means`); then in decreasing k, every pair
+    of clusters of the fit of ``k + 1`` is merged. Each set of hard partitions is refitted to
+    convergence (one batch) and the best replaces the fit of k where its log-likelihood is
+    higher, so the fit of every k stays the best of its starts. All deterministic.
+
+    ``result`` holds one run per k (``cluster_mask (num_k, K)``, increasing k by one);
+    returns it with the improved runs replaced.
+    """
+    fields = {f.name: getattr(result, f.name) for f in dataclasses.fields(result)}
+    fields = {name: None if v is None else v.clone() for name, v in fields.items()}
+    k_of = cluster_mask.sum(-1).tolist()  # (num_k,)
+    x = _features(stats).to(em["dtype"])  # (U, F)
+    w = stats.multiplicity.to(em["dtype"])  # (U,)
+    for i in range(1, len(k_of)):  # split: k - 1 -> k
+        k = k_of[i]
+        parent = fields["assignments"][:, i - 1]  # (U,)
+        starts = []
+        for j in range(k - 1):
+            members = torch.nonzero(parent == j).squeeze(-1)
+            if members.numel() < 2:
+                continue
+            side = _two_means(x[members], w[members])
+            if bool(side.all()) or not bool(side.any()):
+                continue
+            z = parent.clone()
+            z[members[side]] = k - 1
+            starts.append(z)
+        _refit_starts(stats, fields, i, starts, cluster_mask[i], em)
+    for i in range(len(k_of) - 2, -1, -1):  # merge: k + 1 -> k
+        k = k_of[i]
+        parent = fields["assignments"][:, i + 1]  # (U,), slots 0..k
+        starts = []
+        for a in range(k + 1):
+            for b in range(a + 1, k + 1):
+                z = torch.where(parent == b, a, parent)
+                starts.append(torch.where(z == k, b, z) if b < k else z)  # slots 0..k - 1
+        _refit_starts(stats, fields, i, starts, cluster_mask[i], em)
+    return EMResult(**fields)
 
 
 def _heldout_scores(

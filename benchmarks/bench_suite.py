@@ -33,7 +33,7 @@ from typing import Any
 
 import torch
 
-from torchhrc.io._atomic import atomic_write_bytes
+from torchhrc._atomic import atomic_write_bytes
 from torchhrc.metrics import adjusted_rand_index
 from torchhrc.tasks import learn, make_task, suite_tasks
 

@@ -119,7 +119,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Build the graph, write DOT (and the image); return the exit status."""
-    from torchhrc.io._atomic import atomic_write_bytes
+    from torchhrc._atomic import atomic_write_bytes
     from torchhrc.solvers.policy_graph import policy_graph
 
     check_new_file(args.out, force=args.force)

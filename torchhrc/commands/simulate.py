@@ -29,9 +29,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import tempfile
-from pathlib import Path
 from typing import IO, Any
 
 from torchhrc.commands._files import check_new_file
@@ -130,20 +127,17 @@ def run(args: argparse.Namespace) -> int:
         _, result, elapsed = run_simulations(args)
     else:
         check_new_file(args.trace, force=args.force)
-        target = Path(args.trace)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-        try:
-            with os.fdopen(fd, "w") as out:
-                from torchhrc.commands._files import read_model
+        from torchhrc._atomic import atomic_write
+        from torchhrc.commands._files import read_model
 
+        def write(tmp: str) -> tuple[Any, Any, float]:
+            with open(tmp, "w") as out:
                 model = read_model(args.model)
-                _, result, elapsed = run_simulations(args, _Trace(model, out), model=model)
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, target)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+                return run_simulations(args, _Trace(model, out), model=model)
+
+        ran: list[tuple[Any, Any, float]] = []
+        atomic_write(args.trace, lambda tmp: ran.append(write(tmp)))
+        _, result, elapsed = ran[0]
     summary = report(args, result, elapsed)
     summary["returns"] = result.returns.tolist()
     summary["trace"] = args.trace

@@ -15,12 +15,12 @@ from typing import Any
 
 import torch
 
+from torchhrc._atomic import atomic_write_text
 from torchhrc.data.formats import (
     _JSON_FORMAT,
     _JSON_VERSION,
     _TYPE_COLUMN,
     CSV_COLUMNS,
-    _atomic_write_text,
     _from_json_dict,
     _parse_csv,
     _read_text,
@@ -670,7 +670,7 @@ class Demonstrations:
             >>> d.write_csv(path); Demonstrations.read_csv(path) == d
             True
         """
-        _atomic_write_text(path, self.to_csv_string())
+        atomic_write_text(path, self.to_csv_string())
 
     @classmethod
     def read_csv(
@@ -746,7 +746,7 @@ class Demonstrations:
 
     def write_json(self, path: str | os.PathLike[str]) -> None:
         """Write the JSON form atomically (temporary file + ``os.replace``)."""
-        _atomic_write_text(path, json.dumps(self.to_json_dict(), indent=1) + "\n")
+        atomic_write_text(path, json.dumps(self.to_json_dict(), indent=1) + "\n")
 
     @classmethod
     def read_json(cls, path: str | os.PathLike[str]) -> Demonstrations:

@@ -1,15 +1,11 @@
 """The CSV and JSON forms of :class:`~torchhrc.data.Demonstrations`: their columns and
-version, the strict one-pass CSV parser, the JSON reader, and the atomic text write the
-writers use."""
+version, the strict one-pass CSV parser and the JSON reader."""
 
 from __future__ import annotations
 
 import csv
 import io
-import os
-import tempfile
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 from torchhrc.data.vocabulary import ACTORS, Step, _check_vocabulary
@@ -23,24 +19,6 @@ CSV_COLUMNS: tuple[str, ...] = ("subject", "sequence", "step", "actor", "action"
 _TYPE_COLUMN = "type"
 _JSON_FORMAT = "torchhrc.demonstrations"
 _JSON_VERSION = 1
-
-
-def _atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and ``os.replace``."""
-    target = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=target.parent or ".", prefix=f".{target.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
 
 
 def _from_json_dict(cls: Any, data: Mapping[str, Any], path: str) -> Any:

@@ -134,7 +134,7 @@ def _plot(target: Path, spec: SweepSpec, rows: Sequence[Mapping[str, Any]], metr
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from torchhrc.experiments.report import _atomic
+    from torchhrc._atomic import atomic_write
 
     names = spec.parameter_names
     stats = cell_statistics(rows, spec, metric)
@@ -168,6 +168,6 @@ def _plot(target: Path, spec: SweepSpec, rows: Sequence[Mapping[str, Any]], metr
         fig.savefig(tmp, format="png", dpi=90)
 
     try:
-        _atomic(target, write)
+        atomic_write(target, write)
     finally:
         plt.close(fig)

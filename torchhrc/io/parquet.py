@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 import torch
 
+from torchhrc._atomic import atomic_write_bytes
 from torchhrc.data import CSV_COLUMNS, Demonstrations, Step
 from torchhrc.errors import ModelError, ParseError
-from torchhrc.io._atomic import atomic_write_bytes
 
 __all__ = ["read_parquet", "write_parquet"]
 

@@ -39,8 +39,8 @@ from xml.parsers import expat
 import numpy as np
 import torch
 
+from torchhrc._atomic import atomic_write_bytes
 from torchhrc.errors import ModelError, ParseError
-from torchhrc.io._atomic import atomic_write_bytes
 
 __all__ = [
     "format_policyx",

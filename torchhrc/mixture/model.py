@@ -28,13 +28,13 @@ import dataclasses
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from torchhrc._atomic import atomic_write, atomic_write_text
 from torchhrc._checks import broadcast_shapes, check_shape, check_tensor, format_index
 from torchhrc.errors import ModelError, ParseError
 
@@ -68,20 +68,6 @@ def _check_log_normalised(name: str, value: torch.Tensor, atol: float) -> None:
             f"{total[tuple(bad)].exp().item():.6g}, "
             "expected 1 (logsumexp over the last dim must be 0)"
         )
-
-
-def _atomic_write_bytes(path: Path, write: Any) -> None:
-    """Write through a temporary file in the same folder, then ``os.replace`` it into place."""
-    directory = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 @dataclass(frozen=True)
@@ -301,13 +287,13 @@ class MarkovChainMixture:
             for name, t in tensors.items():
                 doc[name.removeprefix("log_")] = t.detach().exp().cpu().tolist()
             text = json.dumps(doc, indent=1)
-            _atomic_write_bytes(path, lambda tmp: Path(tmp).write_text(text + "\n"))
+            atomic_write_text(path, text + "\n")
         elif suffix == ".safetensors":
             from safetensors.torch import save_file
 
             flat = {k: v.detach().cpu().contiguous() for k, v in tensors.items()}
             metadata = {k: json.dumps(v) for k, v in meta.items()}
-            _atomic_write_bytes(path, lambda tmp: save_file(flat, tmp, metadata=metadata))
+            atomic_write(path, lambda tmp: save_file(flat, tmp, metadata=metadata))
         else:
             raise ValueError(f"expected path to end in .json or .safetensors, got {str(path)!r}")
 

@@ -35,8 +35,8 @@ from typing import Any
 
 import torch
 
+from torchhrc._atomic import atomic_write_bytes
 from torchhrc.errors import ModelError
-from torchhrc.io._atomic import atomic_write_bytes
 from torchhrc.solvers.evaluate import PolicyLike, _form_and_chooser
 from torchhrc.solvers.forms import as_solver_model
 

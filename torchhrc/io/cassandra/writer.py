@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from torchhrc._atomic import atomic_write_bytes
 from torchhrc.errors import ModelError
-from torchhrc.io._atomic import atomic_write_bytes
 from torchhrc.io.cassandra.tokens import _NAME, _RESERVED
 from torchhrc.pomdp import POMDP
 from torchhrc.pomdp.sparse import SparsePOMDP, coalesce

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import torch
 
+from torchhrc._atomic import atomic_write_bytes
 from torchhrc.errors import ModelError
-from torchhrc.io._atomic import atomic_write_bytes
 from torchhrc.pomdp import MOMDP, POMDP, split_initial
 
 __all__ = ["format_pomdpx", "write_pomdpx"]

@@ -47,8 +47,9 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP, SparsePOMDP
-from torchhrc.solvers._memory import MemoryGuard, check_checkpoint, check_memory_limit
-from torchhrc.solvers.clock import Clock, check_clock, clock_function
+from torchhrc.solvers._budget import SolverBudget
+from torchhrc.solvers._memory import MemoryGuard
+from torchhrc.solvers.clock import clock_function
 from torchhrc.solvers.forms import SolverModel, as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.solvers.solution import Solution
@@ -62,7 +63,7 @@ _NEW_X_DISTANCE = 3.0
 
 
 @dataclass(frozen=True, kw_only=True)
-class PBVIConfig:
+class PBVIConfig(SolverBudget):
     """Settings of :func:`pbvi` (keyword-only; a typo is a TypeError).
 
     Attributes:
@@ -107,18 +108,11 @@ class PBVIConfig:
     upper_bound: str = "fib"
     seed: int = 0
     callback: Callable[[dict[str, Any]], None] | None = None
-    clock: Clock = "wall"
-    memory_limit: float | None = None
-    memory_reserve: float = 1.5
-    policy_interval: float | None = None
-    checkpoint: Callable[[Solution], None] | None = None
 
     def __post_init__(self) -> None:
-        check_memory_limit(self.memory_limit, reserve=self.memory_reserve)
-        check_checkpoint(self.policy_interval, self.checkpoint)
+        super().__post_init__()  # clock, memory_limit, memory_reserve, policy_interval, checkpoint
         if not self.time_limit > 0:
             raise ValueError(f"expected time_limit > 0, got {self.time_limit}")
-        check_clock(self.clock)
         if not self.precision >= 0:
             raise ValueError(f"expected precision >= 0, got {self.precision}")
         for name in ("max_iterations", "backups_per_expansion", "max_beliefs"):

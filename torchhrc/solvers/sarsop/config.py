@@ -11,10 +11,8 @@ from typing import Any, Literal
 import torch
 
 from torchhrc.pomdp import MOMDP, POMDP
-from torchhrc.solvers._memory import check_checkpoint, check_memory_limit
-from torchhrc.solvers.clock import Clock, check_clock
+from torchhrc.solvers._budget import SolverBudget
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.solution import Solution
 
 __all__ = ["SARSOPConfig"]
 
@@ -23,7 +21,7 @@ UpperInit = Callable[[POMDP | MOMDP], torch.Tensor]
 
 
 @dataclass(frozen=True, kw_only=True)
-class SARSOPConfig:
+class SARSOPConfig(SolverBudget):
     """Settings of :func:`sarsop` (keyword-only; a typo is a TypeError).
 
     Attributes:
@@ -142,15 +140,9 @@ class SARSOPConfig:
     forward_backups: bool = True
     callback: Callable[[dict[str, Any]], bool | None] | None = None
     dtype: torch.dtype = torch.float64
-    clock: Clock = "wall"
-    memory_limit: float | None = None
-    memory_reserve: float = 1.5
-    policy_interval: float | None = None
-    checkpoint: Callable[[Solution], None] | None = None
 
     def __post_init__(self) -> None:
-        check_memory_limit(self.memory_limit, reserve=self.memory_reserve)
-        check_checkpoint(self.policy_interval, self.checkpoint)
+        super().__post_init__()  # clock, memory_limit, memory_reserve, policy_interval, checkpoint
         for name in ("time_limit", "precision", "kappa", "prune_growth", "init_time_fraction"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
@@ -183,4 +175,3 @@ class SARSOPConfig:
             )
         if not isinstance(self.dtype, torch.dtype) or not self.dtype.is_floating_point:
             raise TypeError(f"expected dtype to be a floating torch.dtype, got {self.dtype!r}")
-        check_clock(self.clock)

@@ -43,7 +43,8 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(1)
     makers = HELDOUT if args.heldout else SUITE
     print("| task | types | auto picks | chain (nats/turn) | state (nats/turn) | "
-          f"seeds 0-{args.seeds - 1} picking it |\n|---|---|---|---|---|---|")  # fmt: skip
+          "demonstrated moves: chain / state | confounded turns | "
+          f"seeds 0-{args.seeds - 1} picking it |\n|---|---|---|---|---|---|---|---|")  # fmt: skip
     for name, make in makers.items():
         world = make()
         picks, first = [], None
@@ -60,8 +61,11 @@ def main(argv: list[str] | None = None) -> None:
         per = first["per_step"]
         chain = f"{per['chain']:.3f}" if "chain" in per else "-"
         state = f"{per['state']:.3f}" if "state" in per else "-"
-        print(f"| {name} | {world.num_types} | {first['used']} | {chain} | {state} | "
-              f"{picks.count(first['used'])}/{len(picks)} |", flush=True)  # fmt: skip
+        shown = first.get("per_step_demonstrated", {})
+        shown = " / ".join(f"{shown[m]:.3f}" for m in ("chain", "state")) if shown else "-"
+        conf = f"{first['confounded']:.2f}" if "confounded" in first else "-"
+        print(f"| {name} | {world.num_types} | {first['used']} | {chain} | {state} | {shown} | "
+              f"{conf} | {picks.count(first['used'])}/{len(picks)} |", flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -271,6 +271,37 @@ def test_auto_human_model_picks_the_model_the_human_follows(respond, expected):
     assert forced.info["human_model"] == {"requested": other, "used": other}
 
 
+def test_auto_human_model_scores_without_a_move_that_carries_the_type():
+    # two types; each type's partner always makes its own move (type 0 "a", type 1 "b") and
+    # each person does their own thing (type 0 "left", type 1 "right") whatever the move.
+    # With the demonstrated moves the chain "left after a" predicts as well as the state
+    # model (better: it pools the four phases), but online the robot picks the move itself
+    # and the chain cannot tell the types apart. Every phase is confounded (the partners'
+    # moves differ by total variation 1), so the person is scored under the pooled partner
+    # (a or b, 1/2 each): the chain's type 0 answers "left" after "a" with
+    # (1 - pause) * (0.95 * 1 + 0.025) = 0.965 and after "b" (never seen) with
+    # 0.99 * (0.95 / 2 + 0.025) = 0.495, so each turn costs log(0.73 / 0.965) = -0.279
+    # against the demonstrated moves (the log w_y terms cancel); the state model predicts
+    # the person from the phase, the same after either move.
+    seqs, who, types = [], [], []
+    for s in range(8):
+        y = s % 2
+        for _ in range(3):
+            seqs.append([("robot", "ab"[y]), ("human", ("left", "right")[y])] * 8)
+            who.append(f"s{s}")
+            types.append(y)
+    demos = Demonstrations.from_lists(seqs, subjects=who)
+    record = compare_human_models(_Turns(), demos, torch.tensor(types), noise=0.05,
+                                  pause=0.01, seed=0)  # fmt: skip
+    assert record["confounded"] == 1.0
+    demonstrated = record["per_step_demonstrated"]
+    assert demonstrated["chain"] > demonstrated["state"]  # the old rule would pick chain
+    assert record["used"] == "state"
+    cost = math.log((0.965 + 0.495) / 2 / 0.965)
+    assert record["per_step"]["chain"] - demonstrated["chain"] == pytest.approx(cost, abs=0.02)
+    assert record["per_step"]["state"] == pytest.approx(demonstrated["state"], abs=0.01)
+
+
 def test_recorded_scores_pick_the_recorded_k(tmp_path):
     from torchhrc.mixture.selection import DEFAULT_HELDOUT_GAIN
 

@@ -440,6 +440,11 @@ def learn_type_weights(
 #: The human models :func:`compare_human_models` chooses from.
 HUMAN_MODELS: tuple[str, ...] = ("chain", "state")
 
+#: Total variation between two types' demonstrating partners' moves in a state above which
+#: :func:`compare_human_models` scores the person there without the move (the move carries
+#: the type).
+PARTNER_CONFOUNDED: float = 0.5
+
 
 def _subset_steps(steps: TaskSteps, index: torch.Tensor) -> TaskSteps:
     return TaskSteps(steps.states[index], steps.actions[index], steps.human[index],
@@ -474,14 +479,25 @@ def compare_human_models(
     learned by ``task.human_policy`` from the other folds' demonstrations (their types
     ``assignments``; chains re-estimated on them), and each held-out demonstration ``n``
     scores the complete-data likelihood under its own type ``y_n = assignments[n]``,
-    ``log w_{y_n} + sum_t log P(a_h,t | x_t, a_r,t, y_n)`` (``w_y``: the training share of
-    type ``y``, plus one). This is the marginal likelihood
-    ``log sum_y w_y prod_t P(a_h,t | ..., y)`` plus ``log P(y_n | the demonstration's
-    actions)``: a model must both predict the human's actions and tell the types apart
-    from them, as the robot's belief filter must online (a model that predicts the actions
-    equally well for every type scores ``log w_{y_n}`` below one that identifies them;
-    with one type the two scores agree). The model with the larger total is ``"used"``;
-    ties go to ``"chain"`` (the paper's).
+    ``log w_{y_n} + sum_t log q_t(y_n)`` (``w_y``: the training share of type ``y``, plus
+    one). This is the marginal likelihood ``log sum_y w_y prod_t q_t(y)`` plus
+    ``log P(y_n | the demonstration's actions)``: a model must both predict the human's
+    actions and tell the types apart from them, as the robot's belief filter must online
+    (a model that predicts the actions equally well for every type scores ``log w_{y_n}``
+    below one that identifies them; with one type the two scores agree).
+
+    ``q_t(y) = P(a_h,t | x_t, a_r,t, y)``, except in a state where the demonstrating
+    partner's move depends on the type (:data:`PARTNER_CONFOUNDED`: the training partners
+    of two types moved differently there, total variation above 0.5). There the move
+    carries the type, and online the robot chooses it itself, so the person is predicted
+    without it: ``q_t(y) = sum_a P_pool(a | x_t) P(a_h,t | x_t, a, y)``, with ``P_pool``
+    the training partners' moves in ``x_t``, all types pooled (plus 0.01 per move). A model
+    that explains the person by a move that only served their type ("sort what was
+    presented", when each type's partner presented that type's next item) then loses to
+    one that knows what the type does whatever the move; the score with the
+    demonstrated moves everywhere is recorded too (``"per_step_demonstrated"``).
+
+    The model with the larger total is ``"used"``; ties go to ``"chain"`` (the paper's).
 
     Args:
         task: a task whose :meth:`~CollaborativeTask.human_policy` reads
@@ -494,7 +510,9 @@ def compare_human_models(
 
     Returns:
         ``{"used", "heldout": {model: nats}, "per_step": {model: nats per human turn},
-        "folds", "subjects", "steps"}``; ``"used"`` is ``"same"`` (and nothing is held out)
+        "per_step_demonstrated": {model: nats per turn with the demonstrated moves},
+        "confounded": the fraction of turns in confounded states, "folds", "subjects",
+        "steps"}``; ``"used"`` is ``"same"`` (and nothing is held out)
         when ``task.human_policy`` gives the same behaviour for every model (a task with its
         own human policy, or one whose human has one legal action wherever it acts), and
         ``"chain"`` when the task reads no steps or has one subject.
@@ -546,20 +564,47 @@ def compare_human_models(
     H = task.num_human_actions
     column = torch.where(h < 0, H, h)  # (N, L), "no action" is the last column
     totals = {m: 0.0 for m in HUMAN_MODELS}
+    plain = {m: 0.0 for m in HUMAN_MODELS}
+    A, X = task.num_actions, task.num_states
+    confounded_turns = 0
     for f in range(F_):
         train, held = every[fold != f], every[fold == f]
         sizes = torch.bincount(assignments[train], minlength=K).double() + 1.0
         log_w = (sizes / sizes.sum()).log()  # (K,)
         own = assignments[held]  # (n,)
+        # the training partners' moves per type and state
+        on = mask[train]
+        moves = torch.zeros(K * X * A, dtype=torch.float64)
+        kind = assignments[train].view(-1, 1).expand_as(x[train])[on]
+        moves.index_add_(0, (kind * X + x[train][on]) * A + a[train][on],
+                         torch.ones(int(on.sum()), dtype=torch.float64))  # fmt: skip
+        moves = moves.view(K, X, A)
+        seen = moves.sum(-1) > 0  # (K, X)
+        share = moves / moves.sum(-1, keepdim=True).clamp_min(1.0)
+        tv = 0.5 * (share.unsqueeze(0) - share.unsqueeze(1)).abs().sum(-1)  # (K, K, X)
+        both = seen.unsqueeze(0) & seen.unsqueeze(1)
+        confounded = ((tv > PARTNER_CONFOUNDED) & both).flatten(0, 1).any(0)  # (X,)
+        pooled = moves.sum(0) + 0.01
+        pooled = pooled / pooled.sum(-1, keepdim=True)  # (X, A)
+        xs, cs = x[held], column[held]  # (n, L)
+        blind = confounded[xs]  # (n, L)
+        confounded_turns += int((blind & mask[held]).sum())
         for m in HUMAN_MODELS:
-            log_b = behaviour(train, m).clamp_min(1e-300).log()  # (K, A, X, H + 1)
-            per = log_b[:, a[held], x[held], column[held]]  # (K, n, L)
-            per = (per * mask[held]).sum(-1)  # (K, n)
-            totals[m] += float((per.gather(0, own.view(1, -1)) + log_w[own]).sum())
+            b = behaviour(train, m)  # (K, A, X, H + 1)
+            log_b = b.clamp_min(1e-300).log()
+            per = log_b[:, a[held], xs, cs]  # (K, n, L)
+            # without the move: sum_a P_pool(a | x) P(a_h | x, a, y)
+            q = (b.permute(0, 2, 3, 1)[:, xs, cs, :] * pooled[xs]).sum(-1)  # (K, n, L)
+            score = torch.where(blind, q.clamp_min(1e-300).log(), per)
+            for store, value in ((totals, score), (plain, per)):
+                value = (value * mask[held]).sum(-1)  # (K, n)
+                store[m] += float((value.gather(0, own.view(1, -1)) + log_w[own]).sum())
     turns = max(int(mask.sum()), 1)
     used = max(HUMAN_MODELS, key=lambda m: (totals[m], m == "chain"))
     return {**record, "used": used, "folds": F_, "steps": turns, "heldout": totals,
-            "per_step": {m: totals[m] / turns for m in HUMAN_MODELS}}  # fmt: skip
+            "per_step": {m: totals[m] / turns for m in HUMAN_MODELS},
+            "per_step_demonstrated": {m: plain[m] / turns for m in HUMAN_MODELS},
+            "confounded": confounded_turns / turns}  # fmt: skip
 
 
 def build_model(

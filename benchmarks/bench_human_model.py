@@ -5,8 +5,10 @@ For every task and seed: demonstrations (``--subjects`` x ``--per-subject``, noi
 :func:`torchhrc.tasks.pipeline.compare_human_models` on those types, as ``build_model`` calls
 it (noise 0.05, pause 0.01, the fold split's seed = the seed). Prints the table of
 ``docs/clustering.md`` ("Which human model `learn()` uses"): the model picked on the first
-seed, the held-out log-likelihood per human turn of both models on the first seed, and the
-seeds picking that model.
+seed, the held-out log-likelihood per human turn of both models on the first seed (the
+score that chooses, then the score with the demonstrated partner moves everywhere), the
+share of turns in states where the partner's move depends on the type (scored under the
+pooled partner), and the seeds picking that model.
 
 Usage::
 

@@ -60,7 +60,7 @@ def load() -> ModuleType | None:
     if os.environ.get("TORCHHRC_NO_EXTENSION", "") not in ("", "0"):
         return None
     try:
-        from torchhrc.solvers import _backup
+        import torchhrc.solvers._backup as _backup
     except ImportError:
         return None
     return _backup

@@ -1,5 +1,6 @@
-"""Tests of torchhrc.solvers._budget: the budget fields every solver config shares are declared
-and checked once, in SolverBudget, and each config keeps them and their checks."""
+"""Tests of torchhrc.solvers._budget (a name apart from tests/io/test_budget.py: test file
+names are unique): the budget fields every solver config shares are declared and checked once,
+in SolverBudget, and each config keeps them and their checks."""
 
 from __future__ import annotations
 

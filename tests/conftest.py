@@ -39,7 +39,7 @@ NUMERIC_MODULES = frozenset(
         "tests/solvers/test_upper_bound.py",
         "tests/solvers/test_sawtooth_kernel.py",
         "tests/solvers/test_evaluate.py",
-        "tests/solvers/test_sarsop_alphaset.py",
+        "tests/solvers/sarsop/test_alpha_set.py",
         "tests/solvers/test_policy.py",
         "tests/solvers/test_pbvi.py",
         "tests/mixture/test_soft_em_reference.py",

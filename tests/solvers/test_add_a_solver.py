@@ -15,7 +15,7 @@ from torchhrc.solvers.forms import as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
 from torchhrc.tasks.classic import rock_sample, tiger
 
-TIGER_OPTIMUM = 19.3714  # discount 0.95 (tests/solvers/test_sarsop.py)
+TIGER_OPTIMUM = 19.3714  # discount 0.95 (tests/solvers/sarsop/test_sarsop.py)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -14,7 +14,7 @@ from torchhrc.solvers import PBVIConfig, QMDPConfig, SARSOPConfig, SparseFlatMod
 from torchhrc.solvers.forms import as_solver_model, has_form, register_form
 from torchhrc.tasks.classic import tiger
 
-# Tiger, discount 0.95: V*(b0) = 19.3714 (tests/solvers/test_sarsop.py).
+# Tiger, discount 0.95: V*(b0) = 19.3714 (tests/solvers/sarsop/test_sarsop.py).
 TIGER_OPTIMUM = 19.3714
 CONFIG = SARSOPConfig(time_limit=60.0, precision=1e-3, max_iterations=300)
 

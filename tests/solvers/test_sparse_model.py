@@ -28,7 +28,7 @@ from torchhrc.solvers.upper_bound import SawtoothUpperBound
 from torchhrc.tasks.classic import rock_sample, tiger
 from torchhrc.testing import random_pomdp
 
-TIGER_OPTIMUM = 19.3714  # Tiger, discount 0.95 (see tests/solvers/test_sarsop.py)
+TIGER_OPTIMUM = 19.3714  # Tiger, discount 0.95 (see tests/solvers/sarsop/test_sarsop.py)
 
 
 def _sparse_random(S: int = 12, A: int = 3, O: int = 2, seed: int = 0) -> POMDP:

@@ -770,7 +770,7 @@ def test_flat_sawtooth_value_np_mixed_widths_matches_formula():
 def test_bins_predict_new_node_at_upper_and_clamps():
     """SARSOP's predictor: a belief alone in its bin is predicted at its upper bound (explore
     it); otherwise the bin's mean lower bound, clamped to the node's [lower, upper]. (APPL's
-    per-x, two-level bins: tests/solvers/test_sarsop_search.py.)"""
+    per-x, two-level bins: tests/solvers/sarsop/test_search.py.)"""
     import numpy as np
 
     from torchhrc.solvers.sarsop.bins import _Bins

@@ -92,7 +92,9 @@ def test_ray_shard_tasks_and_e_steps_give_the_in_memory_fit(
     """Shards reduced as Ray tasks, every E-step on Ray actors (a local cluster, 2 CPUs), in
     other processes than the driver (issue 30: a local run in their place passed)."""
     ordered = write_shards(unequal, tmp_path, shards, suffix)
-    options = dict(k_min=1, k_max=3, restarts=3, seed=5)
+    # one form (auto fits both, each with its own actors and shard tasks: new Ray worker
+    # processes, most of the time here); objects="auto" on shards with Ray: the CLI test below
+    options = dict(k_min=1, k_max=3, restarts=3, seed=5, objects="exchangeable")
     memory = fit_mixture(ordered, **options)
     assert not where_it_ran["e_steps"]
     on_ray = fit_mixture(ShardedCorpus.open(tmp_path), ray=True, **options)

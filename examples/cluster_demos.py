@@ -6,12 +6,18 @@ BIC, shows how each learned type's robot responds to a placement, and evaluates 
 leave-one-subject-out type accuracy with the paper's likelihood-weighted vote (paper:
 96.5%). Then a harder study (three strategies, 4 positions, 150 subjects) clustered with the
 positions read as recorded and as the default reads them (exchangeable objects detected,
-docs/clustering.md). Runs in seconds on a CPU:
+docs/clustering.md). Runs in a minute or two on a CPU:
 
     python examples/cluster_demos.py
+
+``TORCHHRC_EXAMPLES_QUICK=1`` (set by ``tests/test_examples.py``) runs every step at a
+smaller size (fewer k and restarts, 60 subjects in the harder study): the same calls, in
+seconds; the numbers printed are then not the ones above.
 """
 
 from __future__ import annotations
+
+import os
 
 import torch
 
@@ -21,6 +27,8 @@ from torchhrc.mixture import fit_mixture
 from torchhrc.tasks.place_and_drill import simulate_study
 
 SEED = 0
+#: smaller sizes for the smoke test (tests/test_examples.py): the same steps
+QUICK = os.environ.get("TORCHHRC_EXAMPLES_QUICK") == "1"
 
 
 def main() -> None:
@@ -29,7 +37,9 @@ def main() -> None:
     for steps in demos.select_subjects(["S01"]).to_lists()[:1]:
         print("a demonstration of S01:", " ".join(f"{a[0]}:{b}" for a, b in steps))
 
-    fit = fit_mixture(demos, k_min=2, k_max=10, restarts=20, seed=SEED)
+    fit = fit_mixture(
+        demos, k_min=2, k_max=4 if QUICK else 10, restarts=5 if QUICK else 20, seed=SEED
+    )
     print("\n  k        BIC   log-likelihood")
     for k, scores in fit.per_k.items():
         mark = "  <- selected" if k == fit.k else ""
@@ -56,7 +66,9 @@ def main() -> None:
         )
 
     # 18 folds, each a full Select-Best-Model on 17 subjects (k up to 6 here, for speed).
-    result = leave_one_subject_out(demos, k_max=6, restarts=10, seed=SEED, inference="vote")
+    result = leave_one_subject_out(
+        demos, k_max=3 if QUICK else 6, restarts=3 if QUICK else 10, seed=SEED, inference="vote"
+    )
     wrong = [f.subject for f in result.folds if not f.correct]
     print(
         f"\nleave-one-subject-out accuracy (likelihood-weighted vote): {result.accuracy:.3f} "
@@ -70,7 +82,7 @@ def main() -> None:
     # (objects="auto": both forms fitted and scored on the recorded data); objects="raw"
     # forces the recorded position symbols.
     harder = simulate_study(
-        n_subjects=150,
+        n_subjects=60 if QUICK else 150,
         n_positions=4,
         strategies=("safe", "efficient", "pairs"),
         noise=0.1,

@@ -16,7 +16,9 @@ TIMEOUT_S = 300  # generous: CI shares 2 cores; each example should take seconds
 @pytest.mark.slow
 @pytest.mark.parametrize("script", EXAMPLES, ids=[p.name for p in EXAMPLES])
 def test_example_runs(script: Path, tmp_path: Path):
-    env = dict(os.environ, MPLBACKEND="Agg", PYTHONHASHSEED="0")
+    # TORCHHRC_EXAMPLES_QUICK=1: an example that reads it runs the same steps at smaller
+    # sizes (cluster_demos.py: about 100 s of CPU at its full size, 22 s quick)
+    env = dict(os.environ, MPLBACKEND="Agg", PYTHONHASHSEED="0", TORCHHRC_EXAMPLES_QUICK="1")
     completed = subprocess.run(
         [sys.executable, str(script)],
         cwd=tmp_path,  # examples must not depend on the working directory or litter it

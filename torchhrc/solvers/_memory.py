@@ -60,6 +60,49 @@ def release_free_memory() -> bool:
     return True
 
 
+_MADVISE: Any = None  # libc's madvise once looked up; False where there is none
+_MADV_DONTNEED = 4  # Linux's value (the only system where it is used)
+
+
+def release_pages(array: Any, start: int) -> int:
+    """Drop the resident pages of ``array``'s buffer from byte ``start`` to its end (the whole
+    pages in that range; Linux ``madvise(MADV_DONTNEED)``), returning how many bytes were
+    released (0 where nothing was, or on another system).
+
+    The contents there are lost: a page reads back as zeros when it is next touched. For the
+    unused tail of a store that grows by capacity and shrinks in place (the alpha vectors
+    after a pruning): the rows past its size are written before they are read, so their pages
+    need not stay resident until then.
+
+    Args:
+        array: a C-contiguous numpy array that owns its memory (or a view of one).
+        start: the first byte of ``array`` whose page may go (rounded up to a page).
+
+    Example:
+        >>> import numpy as np
+        >>> a = np.ones(1 << 16)
+        >>> release_pages(a, a.nbytes) == 0
+        True
+    """
+    global _MADVISE
+    if _MADVISE is None:
+        _MADVISE = False
+        if sys.platform.startswith("linux"):
+            fn = getattr(ctypes.CDLL(None), "madvise", None)
+            if fn is not None:
+                fn.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+                fn.restype = ctypes.c_int
+                _MADVISE = fn
+    if _MADVISE is False or not array.flags.c_contiguous:
+        return 0
+    base = int(array.ctypes.data)
+    lo = -(-(base + max(int(start), 0)) // _PAGE) * _PAGE  # the first whole page
+    hi = (base + int(array.nbytes)) // _PAGE * _PAGE  # past the last whole page
+    if hi <= lo or _MADVISE(lo, hi - lo, _MADV_DONTNEED) != 0:
+        return 0
+    return hi - lo
+
+
 def check_memory_limit(limit: object, name: str = "memory_limit", *, reserve: object = 0.0,
                        ) -> None:  # fmt: skip
     """Raise ``ValueError`` unless ``limit`` is ``None`` or a positive finite number of bytes

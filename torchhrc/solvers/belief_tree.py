@@ -243,17 +243,33 @@ class SparseBeliefTree(BeliefTree):
 
     def keep_alphas(self, vectors: torch.Tensor, groups: torch.Tensor | None,
                     nodes: np.ndarray) -> torch.Tensor:  # fmt: skip
-        """``(N,)`` bool: the vectors that win at some tree belief of ``nodes`` (one sparse
-        ``(M, S) x (S, N)`` product; flat, so ``groups`` is unused).
+        """``(N,)`` bool: the vectors that win at some tree belief of ``nodes`` (a sparse
+        ``(M, S) x (S, N)`` product, by blocks; flat, so ``groups`` is unused).
 
         The pointwise-dominance test is skipped: it costs ``N^2 S`` comparisons (large ``S``
         is why this storage exists), and a dominated vector never wins at a belief unless tied.
         """
-        keep = torch.zeros(vectors.shape[0], dtype=torch.bool)
-        vt = vectors.T.contiguous()
-        step = max(1, _GATHER_ELEMENTS // max(1, vectors.shape[0]))  # (m, N) scores a block at once
-        for start in range(0, len(nodes), step):
-            keep[(self.csr(nodes[start : start + step]) @ vt).argmax(-1)] = True
+        N, M = vectors.shape[0], len(nodes)
+        keep = torch.zeros(N, dtype=torch.bool)
+        if not M or not N:
+            return keep
+        # the vectors as columns a block at a time (16 MB; a whole transposed copy is as large
+        # as the vectors: 200 MB at 1,300 vectors of 20,000 states), each belief's first
+        # maximum over the blocks as an argmax over all
+        cols = max(1, min(N, (_GATHER_ELEMENTS * 8) // max(1, vectors.shape[1])))
+        step = max(1, _GATHER_ELEMENTS // cols)  # (m, cols) scores a block at once
+        best_v = torch.full((M,), -torch.inf, dtype=vectors.dtype)
+        best_i = torch.zeros(M, dtype=torch.long)
+        csr = [self.csr(nodes[start : start + step]) for start in range(0, M, step)]
+        for j in range(0, N, cols):
+            vt = vectors[j : j + cols].T.contiguous()
+            for start, rows in zip(range(0, M, step), csr):
+                v, i = (rows @ vt).max(-1)
+                sl = slice(start, start + v.shape[0])
+                up = v > best_v[sl]  # ties stay with the earlier block (the first maximum)
+                best_v[sl] = torch.where(up, v, best_v[sl])
+                best_i[sl] = torch.where(up, i + j, best_i[sl])
+        keep[best_i] = True
         return keep
 
     def support_sizes(self) -> np.ndarray:

@@ -10,8 +10,15 @@ import numpy as np
 import torch
 
 from torchhrc.solvers import backup_kernel
+from torchhrc.solvers._memory import release_pages
 
 __all__: list[str] = []
+
+# floats copied at a time where the vectors are moved about (a pruning's compaction and
+# regrouping): 16 MB, not a second copy of every vector (on a 20,000-state model, 1,300
+# vectors are 200 MB)
+_BLOCK = 1 << 21
+_EMPTY = np.zeros((0, 0))
 
 
 class _AlphaSet:
@@ -29,6 +36,13 @@ class _AlphaSet:
     (``V_low(b) <= max_a Q_low(b, a)`` at every belief, Pineau et al. 2003) and the greedy
     policy of the written vectors earns at least ``V_low(b0)``. The initial vectors (blind
     policies: fixed points of their own action) refer to none.
+
+    Memory: the vectors are held twice (the flat rows, which backups gather, and the
+    per-``x`` columns, which bounding scores), but never three times: a block that grows is
+    refilled from the flat rows after the old one is freed, the blocks are dropped while the
+    flat storage is copied into a larger one and rebuilt after, and a pruning compacts the
+    rows in place a block at a time and hands the dropped rows' pages back to the OS
+    (:func:`~torchhrc.solvers._memory.release_pages`).
     """
 
     def __init__(self, alphas: torch.Tensor, actions: torch.Tensor, observed: torch.Tensor,
@@ -42,6 +56,7 @@ class _AlphaSet:
         self.observed = torch.zeros(cap, dtype=torch.long, device=alphas.device)
         self.vectors[:n], self.actions[:n], self.observed[:n] = alphas, actions, observed
         self.size = n
+        self._released = False  # the per-x blocks freed by release_groups, until rebuilt
         self._views()
         self._regroup()
 
@@ -94,7 +109,7 @@ class _AlphaSet:
         if self.np_vectors is None:
             return
         assert self.np_observed is not None
-        n, Y = self.size, self.np_vectors.shape[1]
+        n = self.size
         obs = self.np_observed[:n]
         order = np.argsort(obs, kind="stable")
         counts = np.bincount(obs, minlength=self.num_observed)
@@ -104,13 +119,31 @@ class _AlphaSet:
         self._gid: list[np.ndarray] = []
         for x in range(self.num_observed):
             ids = order[ends[x] - counts[x] : ends[x]]
-            cap = max(4, 2 * ids.size)
-            col = np.empty((Y, cap), dtype=self.np_vectors.dtype)
-            col[:, : ids.size] = self.np_vectors[ids].T
-            gid = np.empty(cap, dtype=np.int64)
-            gid[: ids.size] = ids
+            col, gid = self._columns(ids, max(4, 2 * ids.size))
             self._gcol.append(col)
             self._gid.append(gid)
+        self._released = False
+
+    def release_groups(self) -> None:
+        """Free the per-``x`` blocks (the second copy of the vectors), as before the final
+        policy's copy; the next use rebuilds them from the flat storage."""
+        self._gcol, self._gid = [], []
+        self._released = self.np_vectors is not None
+
+    def _columns(self, ids: np.ndarray, cap: int) -> tuple[np.ndarray, np.ndarray]:
+        """A group's ``(Y, cap)`` column block and ``(cap,)`` index array holding the flat
+        storage's vectors ``ids`` first, copied a block of vectors at a time (no whole
+        transposed copy beside the two stores)."""
+        assert self.np_vectors is not None
+        Y = self.np_vectors.shape[1]
+        col = np.empty((Y, cap), dtype=self.np_vectors.dtype)
+        step = max(1, _BLOCK // max(Y, 1))
+        for b0 in range(0, ids.size, step):
+            part = ids[b0 : b0 + step]
+            col[:, b0 : b0 + part.size] = self.np_vectors[part].T
+        gid = np.empty(cap, dtype=np.int64)
+        gid[: ids.size] = ids
+        return col, gid
 
     def group(self, x: int) -> tuple[np.ndarray, np.ndarray]:
         """``(N_x, Y)`` the vectors of observed value ``x`` (a transposed view of
@@ -123,6 +156,8 @@ class _AlphaSet:
         ``(Y, capacity)`` copy: ``rows @ columns`` is a plain BLAS product, a third faster
         than ``rows @ vectors.T`` on aloha-10max's 28 x 30 x 600) and ``(N_x,)`` their
         indices in the flat storage."""
+        if self._released:
+            self._regroup()
         m = self._gn[x]
         return self._gcol[x][:, :m], self._gid[x][:m]
 
@@ -132,18 +167,20 @@ class _AlphaSet:
         ``(B,)`` that vector's index, in one compiled call over the group columns
         (:func:`~torchhrc.solvers.backup_kernel.group_scores`; ``rows`` ``(B, Y)``
         C-contiguous, or ``(1, Y)``: one belief under each ``x`` of ``rows_x``)."""
+        if self._released:
+            self._regroup()
         return backup_kernel.group_scores(kernel, rows, rows_x.astype(np.int64, copy=False),
                                           self._gcol, self._gid, self._gn)  # fmt: skip
 
     def _append_group(self, x: int, alpha: np.ndarray, index: int) -> None:
         m = self._gn[x]
         if m == self._gid[x].shape[0]:
-            old = self._gcol[x]
-            col = np.empty((old.shape[0], 2 * m), dtype=old.dtype)
-            col[:, :m] = old[:, :m]
-            gid = np.empty(2 * m, dtype=np.int64)
-            gid[:m] = self._gid[x]
-            self._gcol[x], self._gid[x] = col, gid
+            # a block twice as wide, filled from the flat storage after the old block is
+            # freed: the same floats as a copy of the old block, without holding both blocks
+            # at once (three copies of the vectors at the peak, with the flat storage)
+            ids = self._gid[x][:m].copy()
+            self._gcol[x] = self._gid[x] = _EMPTY
+            self._gcol[x], self._gid[x] = self._columns(ids, 2 * m)
         self._gcol[x][:, m] = alpha
         self._gid[x][m] = index
         self._gn[x] = m + 1
@@ -162,12 +199,20 @@ class _AlphaSet:
         self.np_observed[n] = observed
         self.size = n + 1
         self.refs.append(np.asarray(() if refs is None else refs, dtype=np.int64))
-        self._append_group(observed, self.np_vectors[n], n)
+        if self._released:  # (rebuilt with the new vector)
+            self._regroup()
+        else:
+            self._append_group(observed, self.np_vectors[n], n)
 
     def _reserve(self, need: int) -> None:
         cap = self.vectors.shape[0]
         while cap < need:
             cap *= 2
+        # the per-x blocks go while the flat storage is copied and are rebuilt from the new
+        # one: two copies of the vectors at the peak, not three
+        grouped = self.np_vectors is not None
+        if grouped:
+            self._gcol, self._gid = [], []
         for name in ("vectors", "actions", "observed"):
             old = getattr(self, name)
             # rows past ``size`` are written before they are read; empty leaves their pages
@@ -175,7 +220,10 @@ class _AlphaSet:
             new = old.new_empty(cap, *old.shape[1:])
             new[: self.size] = old[: self.size]
             setattr(self, name, new)
+            del old, new
         self._views()
+        if grouped:
+            self._regroup()
 
     def add(self, alphas: torch.Tensor, actions: torch.Tensor, observed: torch.Tensor,
             refs: list[np.ndarray] | None = None) -> None:  # fmt: skip
@@ -188,7 +236,9 @@ class _AlphaSet:
         s = slice(self.size, self.size + m)
         self.vectors[s], self.actions[s], self.observed[s] = alphas, actions, observed
         self.size += m
-        if self.np_vectors is not None:
+        if self._released:  # (rebuilt with the new vectors)
+            self._regroup()
+        elif self.np_vectors is not None:
             assert self.np_observed is not None
             for i in range(s.start, s.stop):
                 self._append_group(int(self.np_observed[i]), self.np_vectors[i], i)
@@ -222,9 +272,17 @@ class _AlphaSet:
         moved = remap[target]
         idx = torch.from_numpy(kept).to(self.vectors.device)
         n = idx.numel()
-        self.vectors[:n] = self.vectors[idx]
+        # in place, a block of rows at a time: ``kept`` rises, so a block's rows are read
+        # before a later block writes over them (kept[i] >= i)
+        step = max(1, _BLOCK // max(self.vectors.shape[1], 1))
+        for b0 in range(0, n, step):
+            part = idx[b0 : b0 + step]
+            self.vectors[b0 : b0 + part.numel()] = self.vectors[part]
         self.actions[:n] = self.actions[idx]
         self.observed[:n] = self.observed[idx]
         self.size = n
+        self._gcol, self._gid = [], []  # the old per-x copy goes before the new is built
         self._regroup()
+        if self.np_vectors is not None:  # the dropped vectors' pages go back to the OS
+            release_pages(self.np_vectors, n * self.np_vectors.strides[0])
         return moved

@@ -337,8 +337,11 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
             self._cache, self._child_best, self.children = EvaluationCache(), {}, {}
             self.tree = self.form.new_tree()
             del self.ub, self.bins  # (the solver is not used after this)
-            self.alphas._gcol, self.alphas._gid = [], []  # the vectors' per-x copy
-            release_free_memory()
+        # the vectors' per-x copy is done with too, whatever the reason: freed before the
+        # policy copies the vectors (a third copy at the peak otherwise); a later use of the
+        # solver (tests, benchmarks) rebuilds it
+        self.alphas.release_groups()
+        release_free_memory()
         policy = self._policy()
         return Solution(policy, lower=last["lower"], upper=last["upper"],
                         history=self.history, info=info)  # fmt: skip

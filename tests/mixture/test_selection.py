@@ -217,3 +217,45 @@ def test_heldout_criterion_picks_the_smallest_k_within_one_standard_error():
     assert pk[best]["heldout_se"] == 0.0
     within = [k for k in pk if pk[k]["heldout"] - pk[best]["heldout"] >= -pk[k]["heldout_se"]]
     assert fit.k == min(within) < best and fit.criterion == "heldout"
+
+
+def _one_row_apart(p=0.85, subjects=40, per_subject=4, length=120, A=6):
+    """Two types of chains over ``A`` symbols (each symbol to the next two, 1/2 each) that
+    differ in one row: from symbol 0 the second type goes to 1 with probability ``p``."""
+    from torchhrc import Demonstrations
+
+    g = torch.Generator().manual_seed(0)
+    base = torch.zeros(A, A)
+    for a in range(A):
+        base[a, (a + 1) % A] = base[a, (a + 2) % A] = 0.5
+    other = base.clone()
+    other[0, 1], other[0, 2] = p, 1.0 - p
+    rows, subject_ids, types = [], [], []
+    for s in range(subjects):
+        chain = base if s % 2 == 0 else other
+        for _ in range(per_subject):
+            x = [int(torch.randint(A, (), generator=g))]
+            for _ in range(length - 1):
+                x.append(int(torch.multinomial(chain[x[-1]], 1, generator=g)))
+            rows.append([("human", f"s{v}") for v in x])
+            subject_ids.append(f"S{s:02d}")
+            types.append(s % 2)
+    vocabulary = [("human", f"s{v}") for v in range(A)]
+    demos = Demonstrations.from_lists(rows, subjects=subject_ids, vocabulary=vocabulary)
+    return demos, types
+
+
+def test_a_step_the_exact_icl_takes_and_that_splits_people_is_not_cut_by_min_gain():
+    """Two types whose chains differ in one of 6 rows: the second cluster gains less than
+    ``min_gain`` per transition (the rest of the chain dilutes it), but the exact ICL prefers
+    it and each person's demonstrations agree on it (consistency well above 0.5): kept. With
+    the consistency check off, the ``min_gain`` cut applies as before."""
+    demos, types = _one_row_apart()
+    common = dict(k_min=1, k_max=3, restarts=3, seed=0)
+    fit = fit_mixture(demos, **common)
+    pk = fit.per_k
+    assert pk[2]["gain"] < 0.015 * 0.8  # well below min_gain (measured 0.0096)
+    assert pk[2]["exact_icl"] > pk[1]["exact_icl"] + 20.0  # measured +86
+    assert pk[2]["split_consistency"] > 0.6  # measured 0.76
+    assert fit.k == 2 and adjusted_rand_index(types, fit.assignments.tolist()) == 1.0
+    assert fit_mixture(demos, min_consistency=0.0, **common).k == 1  # cut by min_gain

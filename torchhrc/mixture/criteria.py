@@ -233,9 +233,14 @@ def _first_best(scores: torch.Tensor, rtol: float = 1e-9) -> torch.Tensor:
     return near.to(torch.int8).argmax(-1)  # the first True
 
 
-def _smallest_sufficient(gains: torch.Tensor, by_score: int, min_gain: float) -> int:
-    """The smallest index ``i <= by_score`` whose next k gains less than ``min_gain``."""
+def _smallest_sufficient(
+    gains: torch.Tensor, by_score: int, min_gain: float, exempt: torch.Tensor | None = None
+) -> int:
+    """The smallest index ``i <= by_score`` whose next k gains less than ``min_gain``
+    (a step ``i + 1`` with ``exempt[i + 1]`` True is not cut)."""
     for i in range(by_score):
+        if exempt is not None and bool(exempt[i + 1]):
+            continue
         if not float(gains[i + 1]) >= min_gain:  # nan (a failed run) counts as no gain
             return i
     return by_score

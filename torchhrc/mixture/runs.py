@@ -220,10 +220,12 @@ def _split_merge_restarts(
     merged cluster, or that the fit of ``k + 1`` holds with one type cut in two (split and
     merge moves, after Ueda, Nakano, Ghahramani and Hinton's SMEM, 2000). In increasing k,
     every cluster ``j`` of the (final) fit of ``k - 1`` is split in two by 2-means of its
-    members' transition frequencies (:func:`_two_means`); then in decreasing k, every pair
-    of clusters of the fit of ``k + 1`` is merged. Each set of hard partitions is refitted to
-    convergence (one batch) and the best replaces the fit of k where its log-likelihood is
-    higher, so the fit of every k stays the best of its starts. All deterministic.
+    members' transition frequencies (:func:`_two_means`); then in decreasing k, every cluster
+    of the fit of ``k + 1`` is merged with its nearest one (by their members' mean transition
+    frequencies; at most ``k + 1`` pairs, not all ``k (k + 1) / 2``). Each set of hard
+    partitions is refitted to convergence (one batch) and the best replaces the fit of k
+    where its log-likelihood is higher, so the fit of every k stays the best of its starts.
+    All deterministic.
 
     ``result`` holds one run per k (``cluster_mask (num_k, K)``, increasing k by one);
     returns it with the improved runs replaced.
@@ -251,11 +253,17 @@ def _split_merge_restarts(
     for i in range(len(k_of) - 2, -1, -1):  # merge: k + 1 -> k
         k = k_of[i]
         parent = fields["assignments"][:, i + 1]  # (U,), slots 0..k
+        onehot = torch.nn.functional.one_hot(parent, k + 1).to(x.dtype) * w[:, None]
+        size = onehot.sum(0)  # (k + 1,)
+        centre = (onehot.transpose(0, 1) @ x) / size.clamp_min(1e-300)[:, None]  # (k + 1, F)
+        gap = torch.cdist(centre, centre).fill_diagonal_(math.inf)
+        gap[:, size == 0] = math.inf
+        pairs = sorted({tuple(sorted((a, int(gap[a].argmin())))) for a in range(k + 1)
+                        if bool(size[a] > 0) and bool(gap[a].isfinite().any())})  # fmt: skip
         starts = []
-        for a in range(k + 1):
-            for b in range(a + 1, k + 1):
-                z = torch.where(parent == b, a, parent)
-                starts.append(torch.where(z == k, b, z) if b < k else z)  # slots 0..k - 1
+        for a, b in pairs:  # each cluster with its nearest one (by mean frequencies)
+            z = torch.where(parent == b, a, parent)
+            starts.append(torch.where(z == k, b, z) if b < k else z)  # slots 0..k - 1
         _refit_starts(stats, fields, i, starts, cluster_mask[i], em)
     return EMResult(**fields)
 

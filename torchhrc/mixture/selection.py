@@ -20,7 +20,9 @@ Methods:
   (``"icl_or_gain"``, issue 31), and that k is an upper bound: the
   smallest k whose next cluster gains less than ``min_gain`` (0.015) nats per transition is
   chosen, so a large corpus is not cut into sub-clusters of one type (issue 12.1,
-  ``docs/clustering.md``).
+  ``docs/clustering.md``), unless the exact ICL prefers that next cluster and it passes the
+  subject-consistency checks. Every k is also restarted from the fits of k - 1 and k + 1
+  with a cluster split or two merged (``split_merge``).
 
 A ``RuntimeWarning`` says when the chosen k lies at the edge of the range searched.
 
@@ -390,11 +392,12 @@ def fit_mixture(
             (by log-likelihood) runs to convergence.
         split_merge: ``"soft"`` then restarts every k from the fit of k - 1 with each
             cluster split in two (2-means of its members' transition frequencies) and from
-            the fit of k + 1 with each pair of clusters merged, keeping a restart where its
-            log-likelihood is higher (split and merge moves after Ueda et al. 2000's SMEM;
-            deterministic). Random starts of k clusters can miss a partition that the
-            neighbouring k holds but for one split or merge (a held-out task with 5 types:
-            its k = 5 fit no better than k = 4 on 2 seeds of 10, ``docs/clustering.md``).
+            the fit of k + 1 with each cluster merged into its nearest one, keeping a
+            restart where its log-likelihood is higher (split and merge moves after Ueda et
+            al. 2000's SMEM; deterministic). Random starts of k clusters can miss a
+            partition that the neighbouring k holds but for one split or merge (a held-out
+            task with 5 types: its k = 5 fit no better than k = 4 on 2 seeds of 10,
+            ``docs/clustering.md``).
         tol: relative log-likelihood change that stops soft EM.
         floor: probability that stands for 0 in the paper's E-step (see :mod:`.hard_em`).
         initial: also model each cluster's first-symbol distribution (a type's opening
@@ -408,7 +411,11 @@ def fit_mixture(
             (off: the paper's BIC alone) for ``"paper"``. Why: BIC's penalty grows like
             ``log n`` while the misfit of first-order chains to real data grows like ``n``, so
             on large corpora BIC alone cuts every type into sub-clusters of noise patterns
-            and orders (``docs/clustering.md``).
+            and orders (``docs/clustering.md``). With ``criterion="icl_or_gain"`` a step to
+            ``k + 1`` that the exact ICL itself prefers over ``k`` and that passes both
+            subject-consistency checks (``min_consistency`` > 0) is not cut: the checks catch
+            sub-clusters of one type directly, and a real type may differ from another in a
+            little of the data (a rhythm, a held-out task: 0.005-0.014 nats per transition).
         strong_gain: ``criterion="icl_or_gain"``'s effect size, nats per transition
             (``None``: ``DEFAULT_STRONG_GAIN``, 0.015, the ``min_gain`` default).
         min_consistency: a type belongs to a person: with subjects as units (``unit``), the
@@ -783,10 +790,26 @@ def _select(
     best_run = torch.arange(len(ks), device=device) * per_group + _first_best(grouped[0])
     by_score = max(int(g.max(-1).values.argmax()) for g in grouped)  # index into ks
     heldout: dict[int, dict[str, float]] = {}
+    consistency: torch.Tensor | None = None
+    split = None
+    if by_subject and len(ks) > 1:  # recorded always, applied when min_consistency > 0
+        both = _consistency_per_k(
+            data, sharded, stats, result, best_run, run_k,
+            initial=initial, dtype=dtype, ray=ray, floor=floor,
+        )  # fmt: skip
+        consistency, split = (None, None) if both is None else both
+    exempt = None  # the steps the min_gain cut spares
+    if used == "icl_or_gain" and consistency is not None and split is not None:
+        if min_consistency > 0:  # a step the exact ICL itself takes, that splits people
+            better = exact[best_run].cpu()
+            better = torch.cat([better.new_zeros(1, dtype=torch.bool), better[1:] > better[:-1]])
+            exempt = better & (consistency >= min_consistency) & (split >= min_consistency)
     if used == "icl_or_gain":  # the exact ICL's k, or more where each step gains strong_gain
         transitions = num_transitions(stats)
         steps = gains_per_transition(result.log_likelihood[best_run], transitions)
-        by_score = _smallest_sufficient(steps, int(grouped[1].max(-1).values.argmax()), min_gain)
+        by_score = _smallest_sufficient(
+            steps, int(grouped[1].max(-1).values.argmax()), min_gain, exempt
+        )
         strong = _largest_strong(steps, by_score, float(strong_gain))
         if strong > by_score and stats.num_units >= 3:  # confirmed on held-out units
             values, weights = _heldout_scores(stats, ks, gen, folds, em)
@@ -812,20 +835,12 @@ def _select(
     gains = gains_per_transition(lls, num_transitions(stats))  # (num_k,), nan for ks[0]
     index = by_score
     if min_gain > 0:
-        index = _smallest_sufficient(gains, by_score, float(min_gain))
-    consistency: torch.Tensor | None = None
-    split = None
-    if by_subject and len(ks) > 1:  # recorded always, applied when min_consistency > 0
-        both = _consistency_per_k(
-            data, sharded, stats, result, best_run, run_k,
-            initial=initial, dtype=dtype, ray=ray, floor=floor,
-        )  # fmt: skip
-        consistency, split = (None, None) if both is None else both
-        if consistency is not None and split is not None and min_consistency > 0:
-            # not all clusters are types, or the step from k - 1 splits no one's people
-            while index > 0 and (float(consistency[index]) < min_consistency
-                                 or float(split[index]) < min_consistency):  # fmt: skip
-                index -= 1
+        index = _smallest_sufficient(gains, by_score, float(min_gain), exempt)
+    if consistency is not None and split is not None and min_consistency > 0:
+        # not all clusters are types, or the step from k - 1 splits no one's people
+        while index > 0 and (float(consistency[index]) < min_consistency
+                             or float(split[index]) < min_consistency):  # fmt: skip
+            index -= 1
     chosen = int(best_run[index])
     per_k = {
         int(ks[i]): {

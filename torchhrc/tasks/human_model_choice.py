@@ -1,0 +1,183 @@
+"""Which human model a learned task uses: :func:`compare_human_models` scores the ``chain``
+and ``state`` human models on held-out demonstrations of each type (issue 31 goal 4).
+
+``learn(human_model="auto")`` (:mod:`torchhrc.tasks.pipeline`) calls it and keeps the better
+model; its record goes into the learned model's diagnosis.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from torchhrc.tasks.interface import CollaborativeTask, TaskSteps, TypeEvidence
+
+#: The human models :func:`compare_human_models` chooses from.
+HUMAN_MODELS: tuple[str, ...] = ("chain", "state")
+
+#: Total variation between two types' demonstrating partners' moves in a state above which
+#: :func:`compare_human_models` scores the person there without the move (the move carries
+#: the type).
+PARTNER_CONFOUNDED: float = 0.5
+
+
+def _subset_steps(steps: TaskSteps, index: torch.Tensor) -> TaskSteps:
+    return TaskSteps(steps.states[index], steps.actions[index], steps.human[index],
+                     steps.next_states[index], steps.mask[index])  # fmt: skip
+
+
+def _type_chains(counts: torch.Tensor, assignments: torch.Tensor, K: int) -> torch.Tensor:
+    """``(K, V, V)`` each type's chain from its sequences' counts ``(N, V, V)``: the soft
+    method's M-step, ``(n_k(a, b) + 0.1) / sum_b' (n_k(a, b') + 0.1)``."""
+    from torchhrc.mixture.selection import DEFAULT_PSEUDO_COUNT
+
+    onehot = torch.nn.functional.one_hot(assignments.long(), K).to(counts.dtype)  # (N, K)
+    chains = torch.einsum("nk,nab->kab", onehot, counts) + DEFAULT_PSEUDO_COUNT
+    return chains / chains.sum(-1, keepdim=True)
+
+
+def compare_human_models(
+    task: CollaborativeTask,
+    demonstrations: Any,
+    assignments: torch.Tensor,
+    *,
+    noise: float = 0.05,
+    pause: float = 0.01,
+    folds: int = 5,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Held-out likelihood of the human's actions under each human model, by subject.
+
+    The subjects are dealt at random into ``F = min(folds, subjects)`` folds. For each fold
+    and each model in :data:`HUMAN_MODELS` (``task.human_model`` set to it through
+    ``TypeEvidence.human_model``), the behaviour ``P(a_h | x, a_r, y)`` of every type is
+    learned by ``task.human_policy`` from the other folds' demonstrations (their types
+    ``assignments``; chains re-estimated on them), and each held-out demonstration ``n``
+    scores the complete-data likelihood under its own type ``y_n = assignments[n]``,
+    ``log w_{y_n} + sum_t log q_t(y_n)`` (``w_y``: the training share of type ``y``, plus
+    one). This is the marginal likelihood ``log sum_y w_y prod_t q_t(y)`` plus
+    ``log P(y_n | the demonstration's actions)``: a model must both predict the human's
+    actions and tell the types apart from them, as the robot's belief filter must online
+    (a model that predicts the actions equally well for every type scores ``log w_{y_n}``
+    below one that identifies them; with one type the two scores agree).
+
+    ``q_t(y) = P(a_h,t | x_t, a_r,t, y)``, except in a state where the demonstrating
+    partner's move depends on the type (:data:`PARTNER_CONFOUNDED`: the training partners
+    of two types moved differently there, total variation above 0.5). There the move
+    carries the type, and online the robot chooses it itself, so the person is predicted
+    without it: ``q_t(y) = sum_a P_pool(a | x_t) P(a_h,t | x_t, a, y)``, with ``P_pool``
+    the training partners' moves in ``x_t``, all types pooled (plus 0.01 per move). A model
+    that explains the person by a move that only served their type ("sort what was
+    presented", when each type's partner presented that type's next item) then loses to
+    one that knows what the type does whatever the move; the score with the
+    demonstrated moves everywhere is recorded too (``"per_step_demonstrated"``).
+
+    The model with the larger total is ``"used"``; ties go to ``"chain"`` (the paper's).
+
+    Args:
+        task: a task whose :meth:`~CollaborativeTask.human_policy` reads
+            ``TypeEvidence.human_model`` (the default one does).
+        demonstrations: the training :class:`~torchhrc.data.Demonstrations` (``N``).
+        assignments: ``(N,)`` int64 type of every demonstration.
+        noise, pause: the behaviour's settings (:class:`TypeEvidence`).
+        folds: the number of folds over subjects.
+        seed: the fold split's seed.
+
+    Returns:
+        ``{"used", "heldout": {model: nats}, "per_step": {model: nats per human turn},
+        "per_step_demonstrated": {model: nats per turn with the demonstrated moves},
+        "confounded": the fraction of turns in confounded states, "folds", "subjects",
+        "steps"}``; ``"used"`` is ``"same"`` (and nothing is held out)
+        when ``task.human_policy`` gives the same behaviour for every model (a task with its
+        own human policy, or one whose human has one legal action wherever it acts), and
+        ``"chain"`` when the task reads no steps or has one subject.
+
+    Example:
+        >>> from torchhrc.tasks.suite import make_task
+        >>> twp = make_task("fetch_order")
+        >>> demos, types = twp.demonstrations(subjects=6, per_subject=2, seed=0)
+        >>> compare_human_models(twp.task, demos, types)["used"] in HUMAN_MODELS
+        True
+    """
+    steps = task.read_steps(demonstrations)
+    N = demonstrations.num_sequences
+    assignments = assignments.long().cpu()
+    K = int(assignments.max()) + 1 if N else 1
+    counts = demonstrations.transition_counts(per_sequence=True).double().cpu()  # (N, V, V)
+    vocabulary = tuple(tuple(v) for v in demonstrations.vocabulary)
+
+    def behaviour(index: torch.Tensor, model: str) -> torch.Tensor:
+        evidence = TypeEvidence(
+            chains=_type_chains(counts[index], assignments[index], K),
+            vocabulary=vocabulary,  # type: ignore[arg-type]
+            assignments=assignments[index],
+            steps=None if steps is None else _subset_steps(steps, index.to(steps.mask.device)),
+            noise=noise, pause=pause, human_model=model,
+        )  # fmt: skip
+        return task.human_policy(evidence).detach().double().cpu()  # (K, A, X, H + 1)
+
+    every = torch.arange(N)
+    names = list(demonstrations.subjects)
+    index: dict[str, int] = {}
+    subject = torch.tensor([index.setdefault(n, len(index)) for n in names], dtype=torch.long)
+    S = len(index)
+    record: dict[str, Any] = {"folds": 0, "subjects": S, "heldout": {}, "per_step": {}}
+    if steps is None or S < 2:
+        return {**record, "used": "chain"}
+    full = [behaviour(every, m) for m in HUMAN_MODELS]
+    if all(torch.equal(full[0], b) for b in full[1:]):
+        return {**record, "used": "same"}
+    F_ = min(int(folds), S)
+    fold_of = torch.empty(S, dtype=torch.long)
+    fold_of[torch.randperm(S, generator=torch.Generator().manual_seed(int(seed)))] = (
+        torch.arange(S) % F_
+    )
+    fold = fold_of[subject]  # (N,)
+    mask = steps.mask.cpu()
+    x, a = steps.states.cpu(), steps.actions.cpu()
+    h = steps.human.cpu()
+    H = task.num_human_actions
+    column = torch.where(h < 0, H, h)  # (N, L), "no action" is the last column
+    totals = {m: 0.0 for m in HUMAN_MODELS}
+    plain = {m: 0.0 for m in HUMAN_MODELS}
+    A, X = task.num_actions, task.num_states
+    confounded_turns = 0
+    for f in range(F_):
+        train, held = every[fold != f], every[fold == f]
+        sizes = torch.bincount(assignments[train], minlength=K).double() + 1.0
+        log_w = (sizes / sizes.sum()).log()  # (K,)
+        own = assignments[held]  # (n,)
+        # the training partners' moves per type and state
+        on = mask[train]
+        moves = torch.zeros(K * X * A, dtype=torch.float64)
+        kind = assignments[train].view(-1, 1).expand_as(x[train])[on]
+        moves.index_add_(0, (kind * X + x[train][on]) * A + a[train][on],
+                         torch.ones(int(on.sum()), dtype=torch.float64))  # fmt: skip
+        moves = moves.view(K, X, A)
+        seen = moves.sum(-1) > 0  # (K, X)
+        share = moves / moves.sum(-1, keepdim=True).clamp_min(1.0)
+        tv = 0.5 * (share.unsqueeze(0) - share.unsqueeze(1)).abs().sum(-1)  # (K, K, X)
+        both = seen.unsqueeze(0) & seen.unsqueeze(1)
+        confounded = ((tv > PARTNER_CONFOUNDED) & both).flatten(0, 1).any(0)  # (X,)
+        pooled = moves.sum(0) + 0.01
+        pooled = pooled / pooled.sum(-1, keepdim=True)  # (X, A)
+        xs, cs = x[held], column[held]  # (n, L)
+        blind = confounded[xs]  # (n, L)
+        confounded_turns += int((blind & mask[held]).sum())
+        for m in HUMAN_MODELS:
+            b = behaviour(train, m)  # (K, A, X, H + 1)
+            log_b = b.clamp_min(1e-300).log()
+            per = log_b[:, a[held], xs, cs]  # (K, n, L)
+            # without the move: sum_a P_pool(a | x) P(a_h | x, a, y)
+            q = (b.permute(0, 2, 3, 1)[:, xs, cs, :] * pooled[xs]).sum(-1)  # (K, n, L)
+            score = torch.where(blind, q.clamp_min(1e-300).log(), per)
+            for store, value in ((totals, score), (plain, per)):
+                value = (value * mask[held]).sum(-1)  # (K, n)
+                store[m] += float((value.gather(0, own.view(1, -1)) + log_w[own]).sum())
+    turns = max(int(mask.sum()), 1)
+    used = max(HUMAN_MODELS, key=lambda m: (totals[m], m == "chain"))
+    return {**record, "used": used, "folds": F_, "steps": turns, "heldout": totals,
+            "per_step": {m: totals[m] / turns for m in HUMAN_MODELS},
+            "per_step_demonstrated": {m: plain[m] / turns for m in HUMAN_MODELS},
+            "confounded": confounded_turns / turns}  # fmt: skip

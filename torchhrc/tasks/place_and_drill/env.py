@@ -150,6 +150,21 @@ class PlaceAndDrillHuman:
         return x2, reward
 
 
+def _attach_human(env: Any, *, epsilon: float, noise: float, horizon: int | None,
+                  type_probabilities: Sequence[float] | None,
+                  expert_path: str | os.PathLike[str] | None) -> None:  # fmt: skip
+    """Give ``env`` (the single or the vector env) its simulated person and what follows from
+    it: ``human``, ``task``, ``model``, ``discount`` and ``horizon`` (default 4 steps per
+    position)."""
+    env.human = PlaceAndDrillHuman(epsilon=epsilon, noise=noise,
+                                   type_probabilities=type_probabilities,
+                                   expert_path=expert_path)  # fmt: skip
+    env.task = env.human.task
+    env.model = env.human.model
+    env.discount = float(env.model.discount)
+    env.horizon = check_horizon(4 * env.task.n_positions if horizon is None else horizon)
+
+
 class PlaceAndDrillEnv(gym.Env):
     """The place-and-drill task with a simulated human (module docstring).
 
@@ -183,16 +198,8 @@ class PlaceAndDrillEnv(gym.Env):
     ) -> None:
         if render_mode not in (None, "ansi"):
             raise ValueError(f"expected render_mode None or 'ansi', got {render_mode!r}")
-        self.human = PlaceAndDrillHuman(
-            epsilon=epsilon,
-            noise=noise,
-            type_probabilities=type_probabilities,
-            expert_path=expert_path,
-        )
-        self.task = self.human.task
-        self.model = self.human.model
-        self.discount = float(self.model.discount)
-        self.horizon = check_horizon(4 * self.task.n_positions if horizon is None else horizon)
+        _attach_human(self, epsilon=epsilon, noise=noise, horizon=horizon,
+                      type_probabilities=type_probabilities, expert_path=expert_path)  # fmt: skip
         self.render_mode = render_mode
         self.action_space = gym.spaces.Discrete(self.task.num_actions)
         self.observation_space = gym.spaces.Dict(

@@ -40,8 +40,8 @@ import torch
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from torchhrc.envs._base import check_horizon, torch_generator
-from torchhrc.tasks.place_and_drill.env import PlaceAndDrillHuman
+from torchhrc.envs._base import torch_generator
+from torchhrc.tasks.place_and_drill.env import _attach_human
 
 __all__ = ["PlaceAndDrillVectorEnv"]
 
@@ -75,17 +75,9 @@ class PlaceAndDrillVectorEnv(VectorEnv):
     ) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"expected num_envs to be a positive int, got {num_envs!r}")
-        self.human = PlaceAndDrillHuman(
-            epsilon=epsilon,
-            noise=noise,
-            type_probabilities=type_probabilities,
-            expert_path=expert_path,
-        )
-        self.task = self.human.task
-        self.model = self.human.model
-        self.discount = float(self.model.discount)
+        _attach_human(self, epsilon=epsilon, noise=noise, horizon=horizon,
+                      type_probabilities=type_probabilities, expert_path=expert_path)  # fmt: skip
         n = self.task.n_positions
-        self.horizon = check_horizon(4 * n if horizon is None else horizon)
         self.num_envs = num_envs
         self.single_action_space = gym.spaces.Discrete(self.task.num_actions)
         self.single_observation_space = gym.spaces.Dict(

@@ -21,8 +21,8 @@ Methods:
   smallest k whose next cluster gains less than ``min_gain`` (0.015) nats per transition is
   chosen, so a large corpus is not cut into sub-clusters of one type (issue 12.1,
   ``docs/clustering.md``), unless the exact ICL prefers that next cluster and it passes the
-  subject-consistency checks. Every k is also restarted from the fits of k - 1 and k + 1
-  with a cluster split or two merged (``split_merge``).
+  subject-consistency checks. With ``split_merge=True`` every k is also restarted from the
+  fits of k - 1 and k + 1 with a cluster split or two merged.
 
 A ``RuntimeWarning`` says when the chosen k lies at the edge of the range searched.
 
@@ -328,7 +328,7 @@ def fit_mixture(
     weight_pseudo_count: float | None = None,
     max_iterations: int | None = None,
     short_iterations: int = 5,
-    split_merge: bool = True,
+    split_merge: bool = False,
     tol: float = 1e-6,
     floor: float = 1e-10,
     initial: bool = False,
@@ -397,7 +397,9 @@ def fit_mixture(
             al. 2000's SMEM; deterministic). Random starts of k clusters can miss a
             partition that the neighbouring k holds but for one split or merge (a held-out
             task with 5 types: its k = 5 fit no better than k = 4 on 2 seeds of 10,
-            ``docs/clustering.md``).
+            ``docs/clustering.md``). Off by default: it multiplies a default selection's
+            time by about 4 (the paper-size fits of ``tests/mixture/test_objects.py``:
+            63 -> 280 CPU-s), measured 2026-12-04 at commit 72e9ac6.
         tol: relative log-likelihood change that stops soft EM.
         floor: probability that stands for 0 in the paper's E-step (see :mod:`.hard_em`).
         initial: also model each cluster's first-symbol distribution (a type's opening

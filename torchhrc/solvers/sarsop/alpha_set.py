@@ -56,7 +56,8 @@ class _AlphaSet:
         self.observed = torch.zeros(cap, dtype=torch.long, device=alphas.device)
         self.vectors[:n], self.actions[:n], self.observed[:n] = alphas, actions, observed
         self.size = n
-        self._released = False  # the per-x blocks freed by release_groups, until rebuilt
+        self._gcol: list[np.ndarray] = []  # the per-x blocks (empty: freed, see _released)
+        self._gid: list[np.ndarray] = []
         self._views()
         self._regroup()
 
@@ -115,20 +116,24 @@ class _AlphaSet:
         counts = np.bincount(obs, minlength=self.num_observed)
         ends = np.cumsum(counts)
         self._gn = counts.astype(np.int64)
-        self._gcol: list[np.ndarray] = []
-        self._gid: list[np.ndarray] = []
+        self._gcol = []
+        self._gid = []
         for x in range(self.num_observed):
             ids = order[ends[x] - counts[x] : ends[x]]
             col, gid = self._columns(ids, max(4, 2 * ids.size))
             self._gcol.append(col)
             self._gid.append(gid)
-        self._released = False
 
     def release_groups(self) -> None:
         """Free the per-``x`` blocks (the second copy of the vectors), as before the final
         policy's copy; the next use rebuilds them from the flat storage."""
         self._gcol, self._gid = [], []
-        self._released = self.np_vectors is not None
+
+    @property
+    def _released(self) -> bool:
+        """Whether the per-``x`` blocks are freed (:meth:`release_groups`) and due for a
+        rebuild before their next use."""
+        return self.np_vectors is not None and not self._gcol
 
     def _columns(self, ids: np.ndarray, cap: int) -> tuple[np.ndarray, np.ndarray]:
         """A group's ``(Y, cap)`` column block and ``(cap,)`` index array holding the flat
@@ -212,7 +217,7 @@ class _AlphaSet:
         # one: two copies of the vectors at the peak, not three
         grouped = self.np_vectors is not None
         if grouped:
-            self._gcol, self._gid = [], []
+            self.release_groups()
         for name in ("vectors", "actions", "observed"):
             old = getattr(self, name)
             # rows past ``size`` are written before they are read; empty leaves their pages
@@ -281,7 +286,7 @@ class _AlphaSet:
         self.actions[:n] = self.actions[idx]
         self.observed[:n] = self.observed[idx]
         self.size = n
-        self._gcol, self._gid = [], []  # the old per-x copy goes before the new is built
+        self.release_groups()  # the old per-x copy goes before the new is built
         self._regroup()
         if self.np_vectors is not None:  # the dropped vectors' pages go back to the OS
             release_pages(self.np_vectors, n * self.np_vectors.strides[0])

@@ -69,12 +69,13 @@ def _em_all_k(
     dtype: torch.dtype,
     e_step: Any = None,
     progress: Callable[[int, int], None] | None = None,
-    split_restarts: bool = True,
+    split_restarts: bool = False,
 ) -> tuple[EMResult, torch.Tensor, torch.Tensor, int]:
     """EM for every ``k`` in ``ks (num_k,)`` with ``restarts`` runs each, as one batch.
 
-    The soft method then restarts every k from the fits of k - 1 and k + 1 with one cluster
-    split or two merged (:func:`_split_merge_restarts`) unless ``split_restarts`` is False.
+    With ``split_restarts`` (``fit_mixture``'s ``split_merge``, off by default there too) the
+    soft method then restarts every k from the fits of k - 1 and k + 1 with one cluster split
+    or two merged (:func:`_split_merge_restarts`).
 
     Returns:
         ``(result, run_k (R,), cluster_mask (R, K), per_group)``: the runs of ``ks[i]`` are

@@ -38,8 +38,13 @@ class BuildPyWithShippedFiles(build_py):
 FLAGS = ["-O3"] if not sys.platform.startswith("win") else []
 SHARED = ["torchhrc/solvers/_kernel_util.h"]
 EXTENSIONS = [
-    Extension(f"torchhrc.solvers.{name}", sources=[f"torchhrc/solvers/{name}.c"], depends=SHARED,
-              extra_compile_args=FLAGS, optional=True)  # fmt: skip
+    Extension(
+        f"torchhrc.solvers.{name}",
+        sources=[f"torchhrc/solvers/{name}.c"],
+        depends=SHARED,
+        extra_compile_args=FLAGS,
+        optional=True,
+    )
     for name in ("_sawtooth", "_backup")
 ]
 

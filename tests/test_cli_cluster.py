@@ -131,7 +131,12 @@ def test_cluster_min_gain_option_sets_the_rule(study, capsys):
     )
     assert report["k"] == int(best)
     assert set(report["per_k"]["3"]) == {
-        "bic", "icl", "exact_icl", "log_likelihood", "gain", "consistency"
+        "bic",
+        "icl",
+        "exact_icl",
+        "log_likelihood",
+        "gain",
+        "consistency",
     }
     code, out, _ = _run(capsys, *argv, "--min-gain", "0", "--criterion", "bic")
     report = json.loads(out)

@@ -18,5 +18,6 @@ _MOVED = {
     "fit_approach_observation": "torchhrc.pomdp.approach_observation",
 }
 
+
 def __getattr__(name: str) -> object:
     return moved_attribute(__name__, name, _MOVED)

@@ -30,5 +30,6 @@ _MOVED = {
     "update_all": "torchhrc.pomdp.belief",
 }
 
+
 def __getattr__(name: str) -> object:
     return moved_attribute(__name__, name, _MOVED)

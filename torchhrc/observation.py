@@ -29,5 +29,6 @@ _MOVED = {
     "track_log_likelihood": "torchhrc.pomdp.observation_fit",
 }
 
+
 def __getattr__(name: str) -> object:
     return moved_attribute(__name__, name, _MOVED)

@@ -18,5 +18,6 @@ _MOVED = {
     "coalesce": "torchhrc.pomdp.sparse",
 }
 
+
 def __getattr__(name: str) -> object:
     return moved_attribute(__name__, name, _MOVED)

@@ -15,5 +15,6 @@ _MOVED = {
     "SparseMOMDP": "torchhrc.pomdp.sparse_momdp",
 }
 
+
 def __getattr__(name: str) -> object:
     return moved_attribute(__name__, name, _MOVED)

@@ -77,4 +77,3 @@ def test_old_paths_warn_and_return_the_moved_object(old, name, new):
         assert getattr(old_module, name) is getattr(new_module, name)
     with pytest.raises(AttributeError):
         old_module.no_such_name  # noqa: B018
-

@@ -150,3 +150,28 @@ def test_done_marks_terminal_states():
     # ints in, ints out; the same action as the tensor form
     c.reset()
     assert isinstance(c.act(1), int)
+
+
+def test_act_checks_the_state_and_signal_indices():
+    # x = 7 of a 4-state model, or x = 0.5, is not a state: said so, not an alpha-vector miss
+    m = random_momdp(4, 3, 2, 2, seed=1)
+    c = Controller.from_momdp(m, _blind(m))
+    for bad, msg in ((7, r"expected x in \[0, 4\).*got 7"), (-1, r"got -1"),
+                     (0.5, "integer index"), (torch.tensor([0, 4]), "got 4")):  # fmt: skip
+        c.reset(batch=2 if isinstance(bad, torch.Tensor) else None)
+        with pytest.raises(ModelError, match=msg):
+            c.act(bad)
+    c.reset()
+    c.act(0)
+    with pytest.raises(ModelError, match=r"expected o in \[0, 2\).*got 2"):
+        c.act((1, 2))
+    # an impossible step names the states when the model has names
+    Tx = torch.zeros_like(m.Tx)
+    Tx[..., 0] = 1.0  # every step goes to x = 0
+    named = type(m)(Tx=Tx, Ty=None, Z=m.Z, R=m.R, x0=0, b0=m.b0, discount=m.discount,
+                    observed_states=("start", "b", "c", "d"))  # fmt: skip
+    c = Controller.from_momdp(named, _blind(named))
+    c.reset()
+    c.act(0)
+    with pytest.raises(ModelError, match=r"x = 0 \('start'\), the state x' = 2 \('c'\)"):
+        c.act(2)

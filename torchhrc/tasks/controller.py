@@ -68,6 +68,9 @@ class Controller:
             first state is random (:attr:`~torchhrc.pomdp.MOMDP.initial`): after a
             :meth:`reset` without a prior, the first :meth:`act` starts from ``start[x]``.
         terminal: ``(X,)`` bool, the states that end an episode (:attr:`done`); default none.
+        sizes: ``(X, O)``, the number of states and of signals, to check what :meth:`act`
+            is given (``X`` is ``None`` for a flat POMDP); default: unchecked.
+        state_names: ``(X,)`` names used in error messages.
 
     Most users build one with :meth:`from_model`.
     """
@@ -81,6 +84,8 @@ class Controller:
         names: tuple[str, ...] | None = None,
         start: torch.Tensor | None = None,
         terminal: torch.Tensor | None = None,
+        sizes: tuple[int | None, int | None] | None = None,
+        state_names: tuple[str, ...] | None = None,
     ) -> None:
         self._filter = filter
         self._choose = choose
@@ -90,6 +95,8 @@ class Controller:
         self._from_start = start is not None  # the next first act reads start[x]
         self.terminal = None if terminal is None else torch.as_tensor(terminal, dtype=torch.bool)
         self.names = names
+        self._sizes = sizes
+        self._state_names = state_names
         self.belief: torch.Tensor = prior.clone()
         self.state: torch.Tensor | None = None
         self.last_action: torch.Tensor | None = None
@@ -112,7 +119,10 @@ class Controller:
             return policy.action(x, b)
 
         names = tuple(momdp.actions or ()) or None
-        return cls(filt, choose, momdp.b0, int(momdp.x0), names, start, _absorbing(momdp))
+        states = tuple(momdp.observed_states or ()) or None
+        sizes = (momdp.num_observed, momdp.num_observations)
+        return cls(filt, choose, momdp.b0, int(momdp.x0), names, start, _absorbing(momdp),
+                   sizes, states)  # fmt: skip
 
     @classmethod
     def from_model(cls, model: LearnedModel) -> Controller:
@@ -139,7 +149,8 @@ class Controller:
         def choose(x: Any, b: torch.Tensor) -> torch.Tensor:
             return policy.action(b)
 
-        return cls(filt, choose, pomdp.b0, None, tuple(pomdp.actions or ()) or None)
+        return cls(filt, choose, pomdp.b0, None, tuple(pomdp.actions or ()) or None,
+                   sizes=(None, pomdp.num_observations))  # fmt: skip
 
     # ------------------------------------------------------------------ loop
     def reset(self, prior: torch.Tensor | None = None, *, batch: int | None = None) -> None:
@@ -199,9 +210,9 @@ class Controller:
             The robot action (int for an int ``x``, else an int64 tensor ``(B,)``).
 
         Raises:
-            ModelError: the observation is impossible under the belief (the human did
-                something no type explains), or, for a random start, the first state has
-                no mass.
+            ModelError: a state or signal that is not an integer index of the model, the
+                observation is impossible under the belief (the human did something no
+                type explains), or, for a random start, the first state has no mass.
 
         Example:
             >>> from torchhrc.testing import random_momdp
@@ -219,8 +230,9 @@ class Controller:
         else:
             x, o = observation, 0
         scalar = not isinstance(x, torch.Tensor) and not isinstance(o, torch.Tensor)
-        xt = None if x is None else torch.as_tensor(x, dtype=torch.long)
-        ot = torch.as_tensor(o, dtype=torch.long)
+        X, O = self._sizes if self._sizes is not None else (None, None)
+        xt = None if x is None else _index(x, X, "x")
+        ot = _index(o, O, "o")
         if self.last_action is not None:
             updated = self._filter(self.state, self.belief, self.last_action, xt, ot)
             if hasattr(updated, "log_normalizer"):
@@ -258,18 +270,41 @@ class Controller:
             return int(t.expand(impossible.shape)[i]) if t.dim() else int(t)
 
         a, x0, x1, o1 = (pick(self.last_action), pick(self.state), pick(x), pick(o))
-        seen = f"observation o = {o1}" if x1 is None else f"state x' = {x1} (signal o = {o1})"
+        seen = (f"observation o = {o1}" if x1 is None
+                else f"state x' = {self.state_name(x1)} (signal o = {o1})")  # fmt: skip
         raise ModelError(
-            f"{at}after action {self.action_name(a)!r} in state x = {x0}, the {seen} has "
+            f"{at}after action {self.action_name(a)!r} in state x = {self.state_name(x0)}, "
+            f"the {seen} has "
             "probability zero under every type the belief allows: the human did something "
             "the model does not explain. Check the state passed to act(), start a new episode "
             "with reset() (or reset(prior=...) to allow every type), or learn the model with "
             "a larger noise= so every legal human action keeps some probability"
         )
 
+    def state_name(self, x: int | None) -> str:
+        """``x`` and, when the model names its states, its name (for messages)."""
+        if x is None or not self._state_names or not 0 <= x < len(self._state_names):
+            return str(x)
+        return f"{x} ({self._state_names[x]!r})"
+
     def action_name(self, action: int) -> str:
         """The name of ``action`` (its index when the model has no names)."""
         return self.names[action] if self.names else str(action)
+
+
+def _index(value: Any, size: int | None, name: str) -> torch.Tensor:
+    """``value`` (int or tensor) as int64, checked to be whole and in ``[0, size)``."""
+    t = torch.as_tensor(value)
+    if t.is_floating_point() or t.is_complex() or t.dtype == torch.bool:
+        if not (t.is_floating_point() and bool((t == t.round()).all())):
+            raise ModelError(f"expected {name} to be an integer index (int or int64 tensor), "
+                             f"got {value!r}")  # fmt: skip
+    t = t.to(torch.long)
+    if size is not None and t.numel() and bool(((t < 0) | (t >= size)).any()):
+        bad = int(t[(t < 0) | (t >= size)].reshape(-1)[0])
+        raise ModelError(f"expected {name} in [0, {size}) (the model's "
+                         f"{'states' if name == 'x' else 'signals'}), got {bad}")  # fmt: skip
+    return t
 
 
 def _absorbing(momdp: MOMDP) -> torch.Tensor | None:

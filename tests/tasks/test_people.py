@@ -102,7 +102,7 @@ def test_tabular_people_validation_names_the_problem():
     policy[..., 2] = 1.0
     bad = policy.clone()
     bad[0, 0, 1, 0] = torch.tensor([1.0, 0.0, 0.0])  # h = 0 illegal in x = 1
-    with pytest.raises(ModelError, match="illegal in state 1"):
+    with pytest.raises(ModelError, match=r"\(type 'p'\).*illegal in state 1.*after the robot's"):
         TabularPeople(("p",), bad, LEGAL)
     with pytest.raises(ModelError, match="summing to 1"):
         TabularPeople(("p",), policy * 0.5, LEGAL)

@@ -15,6 +15,7 @@ from torchhrc.tasks.interface import (
     TypeEvidence,
     chain_preferences,
     check_task,
+    reachable_states,
     tabular_features,
 )
 from torchhrc.tasks.people import SimulatedPeople, TabularPeople, TaskWithPeople
@@ -38,6 +39,7 @@ __all__ = [
     "evaluate_task",
     "learn",
     "make_task",
+    "reachable_states",
     "solve_model",
     "suite_tasks",
     "tabular_features",

@@ -849,7 +849,7 @@ def _check_reach(task: CollaborativeTask) -> None:
             f"{task.state_names[task.initial_state]!r} under any robot action and legal "
             f"human action: {shown}{more}. They cost solver time for nothing: leave them out "
             "of state_names (or check robot_effect and human_effect if they should be "
-            "reachable); torchhrc.tasks.interface.reachable_states(task) lists them",
+            "reachable); torchhrc.tasks.reachable_states(task) lists them",
             TaskWarning,
             stacklevel=3,
         )

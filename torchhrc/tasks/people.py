@@ -174,7 +174,9 @@ class TabularPeople:
         if illegal.any():
             y, m, x, a, h = torch.nonzero(illegal)[0].tolist()
             raise ModelError(
-                f"policy[{y}, {m}, {x}, {a}, {h}] > 0 but human action {h} is illegal in state {x}"
+                f"policy[{y}, {m}, {x}, {a}, {h}] > 0 (type {names[y]!r}) but human action "
+                f"{h} is illegal in state {x} (legal[{x}, {h}] is False); policy's x is the "
+                "state after the robot's move, x_mid = robot_effect[a_r, x]"
             )
         if update is None:
             update = torch.zeros(Y, M, X, A, H1, dtype=torch.long)

@@ -370,3 +370,8 @@ def test_learn_passes_its_settings_through(monkeypatch):
         learn(task, demos, irl=IRLConfig(), irl_epsilon=0.1, solve=False)
     with pytest.raises(TypeError):
         ClusterConfig(k_maks=3)  # a typo is an error, not a silently ignored setting
+    # more types than demonstrations: refused before any fit (it gave 43 empty types in silence)
+    with pytest.raises(ValueError, match=r"expected k <= the number of demonstrations \(18\)"):
+        learn(task, demos, k=19, solve=False)
+    with pytest.raises(ValueError, match=r"expected k_min <= .*\(18\), got k_min = 20"):
+        learn(task, demos, k_min=20, k_max=25, solve=False)

@@ -758,7 +758,8 @@ def learn(
     Args:
         task: the task.
         demonstrations: :class:`~torchhrc.data.Demonstrations` over the task's actions.
-        k: force the number of types (``k_min = k_max = k``).
+        k: force the number of types (``k_min = k_max = k``; at most the number of
+            demonstrations).
         cluster: a :class:`~torchhrc.mixture.ClusterConfig`; its unset fields take
             ``learn``'s defaults (``k_min=1``, ``k_max=6``, ``restarts=10``,
             ``parameters="support"``, ``initial=True``: each type's first move is modelled)
@@ -826,6 +827,13 @@ def learn(
                "initial": True, **cluster.options()}  # fmt: skip
     if k is not None:
         options["k_min"] = options["k_max"] = k
+    N = demonstrations.num_sequences
+    if isinstance(options["k_min"], int) and options["k_min"] > N:
+        name = "k" if k is not None else "k_min"
+        raise ValueError(
+            f"expected {name} <= the number of demonstrations ({N}), got "
+            f"{name} = {options['k_min']}: a type needs demonstrations of its own"
+        )
     if irl is None:
         irl = IRLConfig(epsilon=0.05 if irl_epsilon is None else irl_epsilon,
                         iterations=10 if irl_iterations is None else irl_iterations)  # fmt: skip

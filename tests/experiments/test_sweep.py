@@ -403,3 +403,20 @@ def test_ray_runs_jobs_on_workers_and_retries_a_killed_worker(
     tasks = {seed: (markers / f"end-{seed}").read_text() for seed in range(4)}
     assert all(tasks.values()) and len(set(tasks.values())) == 4, tasks
     assert _comparable(on_ray.rows) == _comparable(serial.rows)
+
+
+def test_a_sweep_started_while_a_worker_imports_the_script_says_to_guard_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # a spawn worker runs the user's script as __mp_main__ with _inheriting set; an unguarded
+    # top-level sweep() there used to fail on the non-empty out ("use --resume"), every job
+    # then reported only as a dead worker (BrokenProcessPool)
+    import multiprocessing
+
+    from torchhrc.experiments.sweep import sweep
+
+    out = tmp_path / "sweep"
+    monkeypatch.setattr(multiprocessing.current_process(), "_inheriting", True, raising=False)
+    with pytest.raises(RuntimeError, match=r"if __name__ == \"__main__\""):
+        sweep("tool_handover", {"subjects": [4]}, out=out, quick=True, executor=SerialExecutor())
+    assert not out.exists()  # nothing written

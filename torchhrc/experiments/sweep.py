@@ -325,6 +325,7 @@ def sweep(
         >>> result = sweep("mypackage.study:run", {"noise": [0.0, 0.1]}, seeds="0-4",
         ...                out="runs/noise")  # doctest: +SKIP
     """
+    _refuse_while_a_worker_imports_main()
     spec = SweepSpec.create(canonical_task(task), params or [], seeds=seeds, quick=quick)
     if executor is not None and (ray is not None or workers is not None):
         raise ModelError("pass either executor or ray/workers, not both (the executor decides)")
@@ -337,6 +338,21 @@ def sweep(
             executor = LocalExecutor(workers=workers, retries=retries)
     return run_sweep(spec, out, executor=executor, resume=resume, progress=progress,
                      summary=summary)  # fmt: skip
+
+
+def _refuse_while_a_worker_imports_main() -> None:
+    """A ``spawn`` worker imports the script that started the sweep (as ``__mp_main__``): a
+    ``sweep()`` at the script's top level would start again in every worker, each failing
+    on the now non-empty ``out`` (the parent then sees only dead workers). The same test as
+    multiprocessing's own ``_check_not_importing_main``."""
+    import multiprocessing
+
+    if getattr(multiprocessing.current_process(), "_inheriting", False):
+        raise RuntimeError(
+            "torchhrc.sweep() was called while a sweep worker process imported your script: "
+            "put the call under 'if __name__ == \"__main__\":' (workers import the script "
+            "to find your task or function; they must not start the sweep again)"
+        )
 
 
 # --- summary --------------------------------------------------------------------------------

@@ -37,7 +37,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-__all__ = ["sawtooth_corrections", "support_signatures"]
+__all__ = ["sawtooth_corrections", "support_signature", "support_signatures"]
 
 _SLACK = 1.0 + 1e-12  # the key bound with room for the round-off of the products
 
@@ -84,6 +84,8 @@ def _corrections(*args: np.ndarray) -> None:
 
 _KERNEL: Callable[..., None] | None = None
 _NO_MAP = np.empty(0, dtype=np.int64)
+_FIRST = np.zeros(1, dtype=np.int64)  # one support, from entry 0 (support_signature)
+_FIRST.flags.writeable = False
 # the dtypes the extension takes, argument by argument (``out`` aside)
 _DTYPES = (np.float64, np.int64, np.int64, np.int64, np.float64, np.int64, np.int64,
            np.float64, np.float64, np.int64, np.int64)  # fmt: skip
@@ -127,6 +129,23 @@ def support_signatures(idx: np.ndarray, starts: np.ndarray) -> np.ndarray:
     """
     bits = np.left_shift(np.int64(1), idx.astype(np.int64, copy=False) & 63)
     return np.bitwise_or.reduceat(bits, starts)
+
+
+def support_signature(idx: np.ndarray) -> int:
+    """The support signature of one support ``idx (w,)`` (:func:`support_signatures`), as a
+    Python int in int64's range; a loop over plain ints for a narrow support (a point of a
+    small model: the array calls cost more than its few bits).
+
+    Example:
+        >>> support_signature(np.array([0, 2, 65]))
+        7
+    """
+    if idx.size > 16:
+        return int(support_signatures(idx, _FIRST)[0])
+    s = 0
+    for y in idx.tolist():
+        s |= 1 << (y & 63)
+    return s - (1 << 64) if s >> 63 else s  # bit 63 set: the int64's negative value
 
 
 def sawtooth_corrections(

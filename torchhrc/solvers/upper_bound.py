@@ -42,7 +42,11 @@ import torch
 
 from torchhrc.errors import ModelError
 from torchhrc.solvers import backup_kernel
-from torchhrc.solvers.sawtooth_kernel import sawtooth_corrections, support_signatures
+from torchhrc.solvers.sawtooth_kernel import (
+    sawtooth_corrections,
+    support_signature,
+    support_signatures,
+)
 
 __all__ = ["SawtoothUpperBound"]
 
@@ -52,8 +56,6 @@ _CHUNK = 1 << 19
 _COMPACT_ENTRIES = 1 << 18  # support entries moved at once when a pruning compacts them
 _ROWS = np.arange(1024)  # row indices 0..B-1 of a query, sliced (read only)
 _ROWS.flags.writeable = False
-_FIRST = np.zeros(1, dtype=np.int64)  # one support, from entry 0 (support_signatures)
-_FIRST.flags.writeable = False
 
 
 class SawtoothUpperBound:
@@ -514,7 +516,7 @@ class SawtoothUpperBound:
             x: its observed value.
             value: an upper bound ``v >= V*(x, b)``.
         """
-        idx = np.flatnonzero(belief)  # (w,) the support
+        idx = belief.nonzero()[0]  # (w,) the support (a 1-D belief: flatnonzero's array)
         w = idx.size
         assert self._np is not None
         corner = self._np[0]
@@ -524,17 +526,26 @@ class SawtoothUpperBound:
                 corner[x, y] = value
                 self._refresh_gain(x)
             return
-        n = self.size
+        # (one point a backup: _append's steps inline, without its calls and the array
+        # wrappers' overheads; the same values stored)
+        n, start = self.size, self._used
+        if n >= self._off.shape[0] or start + w > self._fidx.shape[0]:
+            self._grow(n + 1, start + w)
+        _, fidx, finv, px, v, gain, wid, mass, off, sig = self._np
         val = belief[idx]
-        start = self._append(idx, 1.0 / val)
-        _, _, _, px, v, gain, wid, mass, off, sig = self._np
+        fidx[start : start + w] = idx
+        np.divide(1.0, val, out=finv[start : start + w])
+        self._used = start + w
+        if w > self._kmax:
+            self._kmax = w
+        self._stamp += 1
         off[n] = start
         px[n] = x
         v[n] = value
         gain[n] = value - float(corner[x, idx] @ val)
         wid[n] = w
-        mass[n] = val.sum()
-        sig[n] = support_signatures(idx, _FIRST)[0]
+        mass[n] = np.add.reduce(val)
+        sig[n] = support_signature(idx)
         self.size = n + 1
         self._add_member(x, n)
 

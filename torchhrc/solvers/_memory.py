@@ -11,11 +11,14 @@ Elsewhere (another C library, or none found) :func:`release_free_memory` does no
 
 A solve's memory limit (``SARSOPConfig(memory_limit=...)``, ``PBVIConfig(memory_limit=...)``,
 ``torchhrc solve --memory MB``) is enforced by a :class:`MemoryGuard`: the process's resident
-memory read from ``/proc/self/statm`` (one ``pread``, about 1 us), checked wherever the solver
+memory read from ``/proc/self/statm`` (one ``pread``, about 1 us; its file-backed pages counted
+at no less than at the guard's start, as evicted ones come back), checked wherever the solver
 checks its clock, against the limit less what the next steps are expected to add: the largest
 growth seen between two checks, the largest short-lived peak seen above the resident memory
-(from ``getrusage``'s peak), and what the caller knows is coming (the copy a doubling of the
-belief tree or the alpha set makes, the final policy's copy of the alpha vectors).
+(from the process's own peak: ``getrusage``'s, or ``VmHWM`` where that one is carried over
+from the program that started this one), and what the caller knows is coming (the copy a
+doubling of the belief tree or the alpha set makes, the final policy's copy of the alpha
+vectors).
 """
 
 from __future__ import annotations
@@ -151,14 +154,8 @@ def check_checkpoint(interval: object, checkpoint: object) -> None:
         raise TypeError(f"expected checkpoint to be callable, got {type(checkpoint).__name__}")
 
 
-def resident_bytes() -> int | None:
-    """The process's resident memory in bytes (``/proc/self/statm``), ``None`` where unknown.
-
-    Example:
-        >>> r = resident_bytes()
-        >>> r is None or r > 0
-        True
-    """
+def _statm() -> list[bytes] | None:
+    """The fields of ``/proc/self/statm`` (in pages), ``None`` where it cannot be read."""
     global _STATM
     if _STATM is None:
         try:
@@ -168,20 +165,92 @@ def resident_bytes() -> int | None:
     if _STATM < 0:
         return None
     try:
-        return int(os.pread(_STATM, 128, 0).split()[1]) * _PAGE
-    except (OSError, IndexError, ValueError):
+        return os.pread(_STATM, 128, 0).split()
+    except OSError:
+        return None
+
+
+def resident_bytes() -> int | None:
+    """The process's resident memory in bytes (``/proc/self/statm``), ``None`` where unknown.
+
+    Example:
+        >>> r = resident_bytes()
+        >>> r is None or r > 0
+        True
+    """
+    fields = _statm()
+    try:
+        return None if fields is None else int(fields[1]) * _PAGE
+    except (IndexError, ValueError):
+        return None
+
+
+def shared_resident_bytes() -> int | None:
+    """The part of :func:`resident_bytes` backed by files or shared memory (the libraries'
+    code and data mapped from disk: ``RssFile + RssShmem``, ``/proc/self/statm``'s third
+    field), ``None`` where unknown. The kernel may evict these pages under memory pressure
+    (without swap they are the only ones it can), and a process refaults them as it runs.
+
+    Example:
+        >>> shared, rss = shared_resident_bytes(), resident_bytes()
+        >>> shared is None or 0 <= shared <= rss
+        True
+    """
+    fields = _statm()
+    try:
+        return None if fields is None else int(fields[2]) * _PAGE
+    except (IndexError, ValueError):
+        return None
+
+
+_STATUS: int | None = None  # an open descriptor of /proc/self/status; -1 where there is none
+_INHERITED_PEAK: int | None = None  # ru_maxrss (bytes) carried over exec; 0: none was
+
+
+def _own_peak_bytes() -> int | None:
+    """``VmHWM`` of ``/proc/self/status``: the peak resident memory of this process's own
+    address space (since its ``exec``), ``None`` where unknown."""
+    global _STATUS
+    if _STATUS is None:
+        try:
+            _STATUS = os.open("/proc/self/status", os.O_RDONLY)
+        except OSError:
+            _STATUS = -1
+    if _STATUS < 0:
+        return None
+    try:
+        text = os.pread(_STATUS, 8192, 0)
+        at = text.index(b"\nVmHWM:") + 7
+        return int(text[at : text.index(b"kB", at)]) * 1024
+    except (OSError, ValueError):
         return None
 
 
 def peak_resident_bytes() -> int:
-    """The process's peak resident memory in bytes so far (``getrusage``'s ``ru_maxrss``).
+    """The process's own peak resident memory in bytes so far.
+
+    ``getrusage``'s ``ru_maxrss`` (one system call, about 1 us) is that peak unless the
+    process was started by a larger one: Linux carries the peak of the address space an
+    ``exec`` replaces over to the new program, and ``subprocess`` starts a child through
+    ``vfork`` (or ``posix_spawn``), so a child of a pytest run that once held 1.1 GB read
+    1.1 GB as its peak from its start. Where ``ru_maxrss`` is above the process's own peak
+    (``VmHWM`` of ``/proc/self/status``, a few us to read) at the first call, that own peak
+    is read instead until it passes the carried one.
 
     Example:
         >>> peak_resident_bytes() > 0
         True
     """
+    global _INHERITED_PEAK
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return int(peak) if sys.platform == "darwin" else int(peak) * 1024  # macOS: bytes
+    peak = int(peak) if sys.platform == "darwin" else int(peak) * 1024  # macOS: bytes
+    if _INHERITED_PEAK is None:
+        own = _own_peak_bytes()
+        _INHERITED_PEAK = peak if own is not None and peak > own else 0
+    if peak > _INHERITED_PEAK:  # the process's own peak (ru_maxrss is the larger of the two)
+        return peak
+    own = _own_peak_bytes()
+    return peak if own is None else own
 
 
 class MemoryGuard:
@@ -192,8 +261,14 @@ class MemoryGuard:
     it is about to allocate and ``margin`` what the guard has learned: the largest growth
     between two of its checks, and the largest short-lived peak above the resident memory of
     the check before (a pruning's or an expansion's temporaries, seen through the process's
-    peak). Once it has answered ``True`` it keeps answering ``True``. Where the resident
-    memory cannot be read (no ``/proc``), it never stops a solve.
+    own peak, :func:`peak_resident_bytes`). Once it has answered ``True`` it keeps answering
+    ``True``. Where the resident memory cannot be read (no ``/proc``), it never stops a solve.
+
+    ``rss`` counts the file-backed pages (:func:`shared_resident_bytes`: the libraries' code
+    and data) at no less than at the guard's start: under memory pressure the kernel evicts
+    them, and a reading then falls by up to their size (about 100 MB with torch) while the
+    memory the solve holds does not; the process refaults them as it runs, so a limit
+    checked against the lower reading would be passed by that much.
 
     Args:
         limit: bytes of resident memory (the whole process: interpreter, libraries, model).
@@ -215,12 +290,15 @@ class MemoryGuard:
         self._pending = 0  # the pending bytes of the last check
         rss = resident_bytes()
         self.enabled = rss is not None
-        self._rss = rss or 0
+        shared = shared_resident_bytes() if self.enabled else None
+        self._shared = shared or 0  # the file-backed pages at the start, counted at no less
+        self._read = rss or 0  # the resident memory read at the last check
+        self._rss = self._read  # ... and as counted (file-backed pages at no less than above)
         self._peak = peak_resident_bytes()
         self._step = 0  # the largest growth between two checks
         self._transient = 0  # the largest peak above the resident memory of the check before
         self.tripped = False
-        self.last = self._rss  # the resident memory at the last check
+        self.last = self._rss  # the resident memory counted at the last check
 
     @property
     def margin(self) -> int:
@@ -244,13 +322,18 @@ class MemoryGuard:
                 return self.tripped
             self._next = now + self.min_interval
         pending = self._pending = pending() if callable(pending) else pending
-        rss = resident_bytes() or self._rss
+        read, rss = resident_bytes(), self._rss
+        if read is None:
+            read = self._read
+        else:  # evicted file-backed pages count as held: the process will fault them back
+            shared = shared_resident_bytes()
+            rss = read + (0 if shared is None else max(0, self._shared - shared))
         peak = peak_resident_bytes()
         if peak > self._peak:  # a new peak since the last check: how far above it went
-            self._transient = max(self._transient, peak - self._rss)
+            self._transient = max(self._transient, peak - self._read)
             self._peak = peak
         self._step = max(self._step, rss - self._rss)
-        self._rss = self.last = rss
+        self._read, self._rss, self.last = read, rss, rss
         if rss + pending + self.margin >= self.limit:
             self.tripped = True
         return self.tripped

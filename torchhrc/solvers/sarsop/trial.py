@@ -5,6 +5,7 @@ the tree nodes it adds, each with its entropy and the id of its distinct belief.
 from __future__ import annotations
 
 import hashlib
+import math
 
 import numpy as np
 import torch
@@ -22,7 +23,7 @@ class _Trials:
         return -(torch.where(p > 0, p * p.clamp(min=1e-300).log(), p.new_zeros(()))).sum(-1)
 
     def sample(self, eps: float) -> list[int]:
-        tree, g = self.tree, self.gamma
+        tree, g, cfg = self.tree, self.gamma, self.cfg
         node, t = 0, 0
         L = float(tree.lower[0])
         U = L + eps
@@ -37,63 +38,65 @@ class _Trials:
             L = float(lo[node])  # (total - sum of the others' w lo) / w[node]
             U = float(up[node]) + (total + eps - float(w @ up)) / float(w[node])
         path = [node]
-        seen = {int(self.belief_id[node])}
+        bid = int(self.belief_id[node])
+        seen = {bid}
         forward = self._forward = set()
+        binning = cfg.prediction == "binning"
+        # (the step's loop reads these once: attribute chains and numpy scalars cost more
+        # than the arithmetic on a small model; the same values as before)
+        cache, form, numpy_path = self._cache, self.form, self._np
+        scale = 1.0  # g ** (-t)
         while t < self.max_depth and not self._out_of_budget():
             lo, up = float(tree.lower[node]), float(tree.upper[node])
-            if self.cfg.prediction == "binning":
-                v_hat = self.bins.predict(int(self.belief_id[node]), up, lo)
-            else:
-                v_hat = up
-            if up - lo <= 0.5 * eps * g ** (-t):
+            v_hat = self.bins.predict(bid, up, lo) if binning else up
+            if up - lo <= 0.5 * eps * scale:
                 # APPL's final precision: the gap here is within half the trial's target
                 # error, whatever the predictor says (SampleBP::sample, ``finalExcess``);
                 # it ends a trial that a cycle's backups keep raising (shuttle: 238 steps)
                 break
-            if v_hat <= L and up <= max(U, lo + eps * g ** (-t)):
+            if v_hat <= L and up <= max(U, lo + eps * scale):
                 break
             x = int(tree.x[node])
-            cached = self._cache.get(int(self.belief_id[node]))
+            cached = cache.get(bid)
             if cached is None:
-                if self._np:
+                if numpy_path:
                     full = self._evaluate_np(x, tree.beliefs_np[node])
                     cached = full[:5]
-                    self._cache[int(self.belief_id[node])] = cached
-                    self._child_best[int(self.belief_id[node])] = full[5]
+                    cache[bid] = cached
+                    self._child_best[bid] = full[5]
                 else:
                     ev = self.evaluate(x, tree.beliefs[node].unsqueeze(0))
                     cached = self._store(node, ev, 0)
             q_low, q_up, prob_all, low_all, up_all = cached
-            q_low_max = float(q_low.max())
+            q_low_max = max(q_low.tolist())
             L1 = max(L, q_low_max)
-            U1 = max(U, q_low_max + eps * g ** (-t))
+            U1 = max(U, q_low_max + eps * scale)
             a = self._argmax_tie(q_up)
             prob, up_a, low_a = prob_all[a], up_all[a], low_all[a]  # (K, O) each
-            excess = np.where(prob > 0, (up_a - low_a) - eps * g ** (-(t + 1)) * prob, -np.inf)
-            k, o = np.unravel_index(int(excess.argmax()), prob.shape)
-            k, o = int(k), int(o)
-            p = float(prob[k, o])
+            scale_next = g ** (-(t + 1))
+            k, o, p = self._child_choice(prob, up_a, low_a, eps * scale_next)
             if p <= 0:
                 break
             low_c, up_c = float(low_a[k, o]), float(up_a[k, o])
             L = (L1 - float(q_low[a]) + g * low_c) / (g * p)
             U = (U1 - float(q_up[a]) + g * up_c) / (g * p)
-            x2 = int(self.form.reach_np(x)[k]) if self._np else int(self.form.reach[x][k])
+            x2 = int(form.reach_np(x)[k]) if numpy_path else int(form.reach[x][k])
             child = tree.child(node, a, x2, o)
             if child < 0:
-                if self._np:
-                    row = self.form.child_np(x, tree.beliefs_np[node], a, k, o) / p
+                if numpy_path:
+                    row = form.child_np(x, tree.beliefs_np[node], a, k, o) / p
                     child = self._add_node(row, x2, node, a, o)
                 else:
-                    _, J = self.form.expand(x, tree.beliefs[node].unsqueeze(0))
+                    _, J = form.expand(x, tree.beliefs[node].unsqueeze(0))
                     child = self._add_node(J[0, a, k, o] / p, x2, node, a, o)
                 tree.lower[child] = low_c / p
                 tree.upper[child] = up_c / p
             node = child
             t += 1
+            scale = scale_next
             path.append(node)
             bid = int(self.belief_id[node])
-            if self.cfg.forward_backups and bid in seen:
+            if cfg.forward_backups and bid in seen:
                 # the trial reached a belief it already passed (a cycle of the model): back
                 # it up now, as APPL backs up every node a trial reaches, so that the descent
                 # itself propagates values around the cycle
@@ -101,6 +104,30 @@ class _Trials:
                 forward.add(node)
             seen.add(bid)
         return path
+
+    @staticmethod
+    def _child_choice(prob: np.ndarray, up: np.ndarray, low: np.ndarray,
+                      target: float) -> tuple[int, int, float]:  # fmt: skip
+        """The child ``(k, o)`` of largest excess gap ``(up - low) - target * P`` among the
+        possible ones (``P > 0``; the first of equal ones; ``(0, 0)`` if none), and its ``P``.
+
+        On plain lists where the action has a few children (numpy's calls cost more than
+        the arithmetic there); the same floats either way.
+        """
+        K, O = prob.shape
+        if K * O > 64:
+            excess = np.where(prob > 0, (up - low) - target * prob, -np.inf)
+            j = int(excess.argmax())
+            k, o = divmod(j, O)
+            return k, o, float(prob[k, o])
+        ps, us, ls = prob.ravel().tolist(), up.ravel().tolist(), low.ravel().tolist()
+        best, j = -math.inf, 0
+        for i, p in enumerate(ps):
+            if p > 0:
+                e = (us[i] - ls[i]) - target * p
+                if e > best:
+                    best, j = e, i
+        return j // O, j % O, ps[j]
 
     def _add_node(self, belief: torch.Tensor | np.ndarray, x: int, parent: int, action: int,
                   obs: int) -> int:  # fmt: skip
@@ -115,17 +142,18 @@ class _Trials:
             ids[: self.belief_id.shape[0]] = self.belief_id
             self.belief_id = ids
         if isinstance(belief, np.ndarray):
-            nz = np.flatnonzero(belief)  # the support (a belief has no negative entry)
+            nz = belief.nonzero()[0]  # the support (a belief has no negative entry)
             p = belief[nz]
-            self.entropy[node] = float(-(p * np.log(p)).sum())
-            self.belief_id[node] = self._belief_key(x, belief, nz)
+            self.entropy[node] = -float(np.add.reduce(p * np.log(p)))
+            self.belief_id[node] = self._belief_key(x, belief, nz, p)
         else:
             self.entropy[node] = float(self._entropy(belief.unsqueeze(0))[0])
             self.belief_id[node] = self._belief_key(x, belief.cpu().numpy())
         self.children.setdefault(parent, []).append(node)
         return node
 
-    def _belief_key(self, x: int, row: np.ndarray, nz: np.ndarray | None = None) -> int:
+    def _belief_key(self, x: int, row: np.ndarray, nz: np.ndarray | None = None,
+                    values: np.ndarray | None = None) -> int:  # fmt: skip
         """The id of the distinct belief ``(x, row)`` (support and values to 12 digits).
 
         Keyed by a 128-bit digest of the support and the rounded values rather than their
@@ -133,9 +161,11 @@ class _Trials:
         unless two of the beliefs collide (probability about ``n^2 / 2^129``).
         """
         if nz is None:
-            nz = np.flatnonzero(row)  # (the caller's, when it has the support)
+            nz = np.flatnonzero(row)  # (the caller's, when it has the support and its values)
+        if values is None:
+            values = row[nz]
         digest = hashlib.blake2b(nz.tobytes(), digest_size=16)
-        digest.update(np.round(row[nz], 12).tobytes())  # same length: the split is unambiguous
+        digest.update(values.round(12).tobytes())  # same length: the split is unambiguous
         return self._belief_ids.setdefault((x, digest.digest()), len(self._belief_ids))
 
     def _argmax_tie(self, q: np.ndarray) -> int:

@@ -420,3 +420,39 @@ def test_a_sweep_started_while_a_worker_imports_the_script_says_to_guard_it(
     with pytest.raises(RuntimeError, match=r"if __name__ == \"__main__\""):
         sweep("tool_handover", {"subjects": [4]}, out=out, quick=True, executor=SerialExecutor())
     assert not out.exists()  # nothing written
+
+
+def test_an_interrupted_local_sweep_ends_its_workers_at_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C while seed 2 runs: the worker is ended, not waited for (seed 2 never ends,
+    though its gate opens 1 s after the interrupt, which a waiting shutdown would see)."""
+    import os
+    import signal
+    import threading
+    import time
+
+    markers, gate = tmp_path / "markers", tmp_path / "gate"
+    markers.mkdir()
+    gate.mkdir()
+    monkeypatch.setenv("SWEEP_TEST_MARKERS", str(markers))
+    monkeypatch.setenv("SWEEP_TEST_GATE", str(gate))  # seeds >= 2 wait for gate/go
+    spec = SweepSpec.create(USER_TASK, [], seeds="0-2")
+
+    def interrupt_when_seed_2_runs() -> None:
+        for _ in range(1200):
+            if list(markers.glob("start-2-*")):
+                break
+            time.sleep(0.05)
+        os.kill(os.getpid(), signal.SIGINT)  # the main thread waits on the pool
+        time.sleep(1.0)
+        (gate / "go").touch()
+
+    rows = {}
+    threading.Thread(target=interrupt_when_seed_2_runs, daemon=True).start()
+    with pytest.raises(KeyboardInterrupt):
+        for job, row in LocalExecutor(workers=1, retries=0).run(spec, spec.jobs()):
+            rows[job.seed] = row
+    assert sorted(rows) == [0, 1]
+    time.sleep(1.5)  # past the gate's opening: a worker still alive would end seed 2 now
+    assert list(markers.glob("start-2-*")) and not (markers / "end-2").exists()

@@ -46,6 +46,16 @@ class SerialExecutor:
             yield job, result
 
 
+def _stop_workers(pool: Any) -> None:
+    """End a process pool's workers now, jobs in flight included (they are not recorded, so
+    ``resume`` runs them again). Waiting for them instead made an interrupted sweep run on
+    for as long as its longest job, and a second Ctrl-C during that wait left the driver
+    joining an idle worker forever."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        if process.is_alive():
+            process.terminate()
+
+
 @dataclass(frozen=True)
 class LocalExecutor:
     """Runs the jobs in local worker processes (``spawn``), one per core by default.
@@ -54,7 +64,8 @@ class LocalExecutor:
     times. When a worker process dies the pool is restarted and the jobs that were in flight
     run again one at a time, so that a death is charged to the job that caused it (a try of
     its own) and never to a job that happened to run beside it; jobs that had finished are
-    never run again.
+    never run again. An interrupt (``KeyboardInterrupt``) ends the workers at once; the jobs
+    that were in flight are not recorded.
 
     Attributes:
         workers: worker processes (``None``: ``os.cpu_count()``).
@@ -127,5 +138,8 @@ class LocalExecutor:
                         yield job, error
                     else:
                         todo.appendleft(job)
+        except BaseException:  # an interrupt (Ctrl-C) or an abandoned sweep: stop at once
+            _stop_workers(pool)
+            raise
         finally:
             pool.shutdown(wait=True, cancel_futures=True)

@@ -26,6 +26,7 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import torch
 
 from torchhrc.pomdp import MOMDP, POMDP
@@ -169,8 +170,17 @@ def _iterate_fib(start: torch.Tensor, step: Callable[[torch.Tensor], torch.Tenso
 bracket_slack`), which keeps the bound valid when ``max(d) <= 0`` (always, from an upper
     start); no shift is applied otherwise, nor where ``w`` is not below 1.
     """
-    alpha = start
-    k = bracket_slack(float((step(torch.ones_like(start)) - step(torch.zeros_like(start))).min()))
+    if start.device.type == "cpu":
+        # numpy between the steps (the same elementwise floats): on a small model a step is
+        # a few us of arithmetic, and each torch call here cost more (tiger: 12 % of a solve
+        # to 1e-3 in this loop)
+        def advance(a: np.ndarray) -> np.ndarray:
+            return step(torch.from_numpy(a)).numpy()
+
+        alpha, minimum, like = start.numpy(), np.minimum, np.full_like
+    else:
+        advance, alpha, minimum, like = step, start, torch.minimum, torch.full_like  # type: ignore[assignment]
+    k = bracket_slack(float((advance(like(alpha, 1.0)) - advance(like(alpha, 0.0))).min()))
     # a change below this puts the iterate within tol of F* (the contraction bound, k max|d|)
     threshold = tol / (2.0 * k) if 0.0 < k < math.inf else tol
     info["stop"] = "max_iterations"
@@ -179,11 +189,12 @@ bracket_slack`), which keeps the bound valid when ``max(d) <= 0`` (always, from 
         if i > 0 and deadline.passed():  # the first step runs whatever the clock says
             info["stop"] = "time_limit"
             break
-        stepped = step(alpha)
+        stepped = advance(alpha)
         d = stepped - alpha
-        hi, lo = (float(d.max()), float(d.min())) if d.numel() else (0.0, 0.0)
-        new = torch.minimum(stepped, alpha)
-        change = float((alpha - new).abs().max()) if new.numel() else 0.0
+        nonempty = math.prod(d.shape) > 0
+        hi, lo = (float(d.max()), float(d.min())) if nonempty else (0.0, 0.0)
+        new = minimum(stepped, alpha)
+        change = float(abs(alpha - new).max()) if nonempty else 0.0
         alpha = new
         info["iterations"] = i + 1
         if change < threshold:  # within tol of F*: as it is
@@ -193,13 +204,13 @@ bracket_slack`), which keeps the bound valid when ``max(d) <= 0`` (always, from 
         shifted = stepped + k * hi if hi <= 0.0 and math.isfinite(k) else None
         if shifted is not None:
             # the bracket cannot close below the round-off of d amplified by k
-            floor = BRACKET_ROUND_OFF * k * float(alpha.abs().max())
+            floor = BRACKET_ROUND_OFF * k * float(abs(alpha).max())
             if k * (hi - lo) < max(tol, floor):
                 info["stop"] = "converged"
                 break
     if shifted is not None:
-        alpha = torch.minimum(alpha, shifted)
-    return alpha
+        alpha = minimum(alpha, shifted)
+    return torch.from_numpy(alpha) if isinstance(alpha, np.ndarray) else alpha
 
 
 _CHUNK_ELEMENTS = 1 << 24

@@ -23,10 +23,17 @@ name                   X    types  depends on    what is unusual
                                                  sub-step (the careful one lingers there)
 ``paint_crews``        27   4      state         2 x 2 factorial types (order x who primes),
                                                  shares 40 / 30 / 20 / 10 %
+``shelf_kitting``      97   3      state         a kitting step and one tool: order x who
+                                                 kits; a robot move good for every type
+                                                 (hand the tool) that no partner makes first
 =====================  ===  =====  ============  ===============================================
 
 ``slow_sanding`` and ``paint_crews`` were added after the selection rule of 6701614 and
-kept out of every later tuning (evaluated only as a final check).
+kept out of every later tuning (evaluated only as a final check). ``shelf_kitting`` was
+written by the issue-31 audit from the docs alone (/work/helpers/AUDIT31.md): 30 x 4 seeds
+0-9 k = 3 with ARI 1 (goal 2 holds), but with the default features the type-aware robot is
+worse than the pooled one overall on seed 1 (goal 3: the hedge move leaves every type's
+demonstrated path, where the learned reward is flat); keep it out of tuning too.
 
 ``HELDOUT[name]() -> HeldoutWorld``, a TaskWithPeople whose ``demonstrations`` split the
 subjects between the types by its ``shares`` (None: balanced).
@@ -546,6 +553,65 @@ def paint_crews() -> HeldoutWorld:
     )  # fmt: skip
 
 
+# ------------------------------------------------------------------------------ shelf_kitting
+# four parts A-D, each in storage (0), kitted on the bench (1) or mounted (2), and one
+# screwdriver on the rack or in the person's hand; mounting needs the part kitted and the
+# tool in hand. "ab" and "dc" want the robot to kit, in the order A-D or D-A, and mount as
+# the parts come (waiting when theirs is not on the bench); "self" kits everything first,
+# then mounts A-D, and wants only the tool handed over. State: (parts, tool).
+def shelf_kitting() -> HeldoutWorld:
+    types = ("ab", "dc", "self")
+    orders = ((0, 1, 2, 3), (3, 2, 1, 0), (0, 1, 2, 3))
+    n = 4
+
+    def set_(parts, i, v):
+        return (*parts[:i], v, *parts[i + 1 :])
+
+    def robot_step(s, a):
+        parts, tool = s
+        if 1 <= a <= n and parts[a - 1] == 0:
+            return (set_(parts, a - 1, 1), tool)
+        return (parts, 1) if a == n + 1 else s
+
+    def human_step(s, h):
+        parts, tool = s
+        if h < n:
+            return (set_(parts, h, 1), tool) if parts[h] == 0 else None
+        if h == n:
+            return None if tool else (parts, 1)
+        i = h - n - 1
+        return (set_(parts, i, 2), tool) if parts[i] == 1 and tool else None
+
+    def behaviour(y, m, s, a):
+        parts, tool = s
+        if y == 2 and 0 in parts:
+            return {next(i for i in orders[y] if parts[i] == 0): 1.0}
+        if not tool:
+            return {n: 1.0}
+        i = next(i for i in orders[y] if parts[i] != 2)
+        return {n + 1 + i: 1.0} if parts[i] == 1 else {-1: 1.0}
+
+    def reward(y, s, a):
+        parts, tool = s
+        if a == 0:
+            return 0.0
+        if a == n + 1:
+            return (1.0 if y == 2 else 0.5) if not tool else -1.0
+        if parts[a - 1] != 0 or y == 2:
+            return -1.0
+        return 1.0 if a - 1 == next(i for i in orders[y] if parts[i] == 0) else -0.5
+
+    return tabulate(
+        "shelf_kitting", initial=((0,) * n, 0),
+        robot_actions=("wait", *(f"kit_{p}" for p in "ABCD"), "hand_tool"),
+        human_actions=(*(f"kit_{p}" for p in "ABCD"), "get_tool",
+                       *(f"mount_{p}" for p in "ABCD")),
+        robot_step=robot_step, human_step=human_step,
+        terminal=lambda s: s[0] == (2,) * n, type_names=types, behaviour=behaviour,
+        reward=reward, horizon=12,
+    )  # fmt: skip
+
+
 #: Every held-out task by name: ``HELDOUT[name]() -> HeldoutWorld``.
 HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "finish_late": finish_late,
@@ -556,4 +622,5 @@ HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "five_parts": five_parts,
     "slow_sanding": slow_sanding,
     "paint_crews": paint_crews,
+    "shelf_kitting": shelf_kitting,
 }

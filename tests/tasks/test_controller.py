@@ -161,6 +161,9 @@ def test_act_checks_the_state_and_signal_indices():
         c.reset(batch=2 if isinstance(bad, torch.Tensor) else None)
         with pytest.raises(ModelError, match=msg):
             c.act(bad)
+    for batch in (0, -2, 2.0):
+        with pytest.raises(ModelError, match="expected batch to be a positive int"):
+            c.reset(batch=batch)
     c.reset()
     c.act(0)
     with pytest.raises(ModelError, match=r"expected o in \[0, 2\).*got 2"):

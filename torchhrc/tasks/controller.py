@@ -163,7 +163,8 @@ class Controller:
             batch: run ``B`` episodes at once (the prior is repeated).
 
         Raises:
-            ModelError: the prior is not a distribution over the model's ``K`` values.
+            ModelError: the prior is not a distribution over the model's ``K`` values, or
+                ``batch`` is not a positive int.
         """
         p = self._prior if prior is None else torch.as_tensor(prior)
         K = self._prior.shape[-1]
@@ -175,6 +176,8 @@ class Controller:
                                                atol=1e-6):  # fmt: skip
             raise ModelError("expected prior to be non-negative and sum to 1 over the last dim")
         if batch is not None:
+            if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
+                raise ModelError(f"expected batch to be a positive int, got {batch!r}")
             p = p.expand(batch, K)
         self.belief = p.clone()
         self._from_start = self._start is not None and prior is None

@@ -169,3 +169,6 @@ def test_seeded_and_validated(fitted):
         evaluate_task(world, aware, agnostic=False, noise=2.0)
     with pytest.raises(ValueError, match="nothing to evaluate"):
         evaluate_task(world, None)
+    # a robot without reset/act is named at once (it was "'object' object has no attribute")
+    with pytest.raises(TypeError, match=r"robots\['lazy'\] \(object\) has no reset\(\) or act\(\)"):
+        evaluate_task(world, None, robots={"lazy": object()})

@@ -332,6 +332,7 @@ def evaluate_task(
         ModelError: the model is not solved, does not fit the task, or a robot returns an
             action out of range.
         ValueError: a bad setting (named).
+        TypeError: a robot without ``reset`` or ``act``.
 
     Example:
         >>> from torchhrc.tasks.suite import make_task
@@ -385,6 +386,11 @@ def evaluate_task(
     for name, robot in (robots or {}).items():
         if name in dict(entries):
             raise ValueError(f"robot name {name!r} is taken; use another")
+        missing = [m for m in ("reset", "act") if not callable(getattr(robot, m, None))]
+        if missing:
+            raise TypeError(f"robots[{name!r}] ({type(robot).__name__}) has no "
+                            f"{' or '.join(f'{m}()' for m in missing)}: a robot needs "
+                            "reset(*, batch=B) and act(x) -> (B,) actions")  # fmt: skip
         entries.append((str(name), robot))
     if not entries:
         raise ValueError("nothing to evaluate: give a model or robots")

@@ -301,14 +301,31 @@ def test_grouped_lower_bounds_on_given_columns_equal_the_full_rows() -> None:
 
 @needs_extension
 def test_group_scores_and_upper_by_hand() -> None:
-    # x = 0 has vectors 5: (1, 0) and 7: (0, 2); x = 1 has 2: (1, 1) and 9: (2, 0)
-    gcol = [np.array([[1.0, 0.0, -9.0], [0.0, 2.0, -9.0]]), np.array([[1.0, 2.0], [1.0, 0.0]])]
+    # x = 0 has vectors 5: (1, 0) and 7: (0, 2); x = 1 has 2: (1, 1) and 9: (2, 0), rows
+    # of the one store V (the other rows: never read)
+    V = np.full((10, 2), -9.0)
+    V[5], V[7], V[2], V[9] = (1.0, 0.0), (0.0, 2.0), (1.0, 1.0), (2.0, 0.0)
     gid = [np.array([5, 7, -1]), np.array([2, 9])]
     gn = np.array([2, 2])
     rows = np.array([[1.0, 0.0], [0.5, 0.5], [0.2, 0.4]])
-    val, best = backup_kernel.group_scores(kernel, rows, np.array([0, 1, 0]), gcol, gid, gn)
+    val, best = backup_kernel.group_scores(kernel, rows, np.array([0, 1, 0]), V, gid, gn)
     # row 0 at x=0: 1 vs 0; row 1 at x=1: 1 vs 1, a tie to the first; row 2 at x=0: 0.2 vs 0.8
     assert val.tolist() == [1.0, 1.0, 0.8] and best.tolist() == [5, 2, 7]
+    # the same rows given on their column 1 only (column 0 dropped): 0 vs 0, 0.5 vs 0 (x=1),
+    # 0 vs 0.8; and columns gathered, transposed, for a BLAS product
+    on_one = np.ascontiguousarray(rows[:, 1:])
+    val, best = backup_kernel.group_scores(kernel, on_one, np.array([0, 1, 0]), V, gid, gn,
+                                           np.array([1]))  # fmt: skip
+    assert val.tolist() == [0.0, 0.5, 0.8] and best.tolist() == [5, 2, 7]
+    out = backup_kernel.gather_columns(kernel, V, 8, np.array([1, 0, 1]))
+    np.testing.assert_array_equal(out, V[:8][:, [1, 0, 1]].T)
+    with pytest.raises(ValueError, match="cols within V's width"):
+        backup_kernel.gather_columns(kernel, V, 8, np.array([2]))
+    with pytest.raises(ValueError, match="n <= V's rows"):
+        backup_kernel.gather_columns(kernel, V, 11, np.array([0]))
+    with pytest.raises(ValueError, match=r"vector indices in \[0, 10\)"):
+        far = [gid[0], np.array([2, 10])]
+        backup_kernel.group_scores(kernel, rows, np.array([0, 1, 0]), V, far, gn)
     # the upper bound: corner[x] . b, lowered by x's one point b_1 = (0.5, 0.5) of value 1
     # at x = 1 (corner (4, 2): gain 1 - 3 = -2): row (0.2, 0.4) at x = 1: 1.6 - 2 * 0.4 = 0.8
     corner = np.array([[1.0, 1.0], [4.0, 2.0]])
@@ -337,17 +354,17 @@ def test_group_scores_and_upper_by_hand() -> None:
                                   (corner, sorted_points, *storage[:5], np.zeros(2, np.int64)),
                                   out)  # fmt: skip
     # errors name the argument
-    with pytest.raises(TypeError, match="gcol to be a list"):
-        backup_kernel.group_scores(kernel, rows, np.array([0, 1, 0]), tuple(gcol), gid, gn)
+    with pytest.raises(TypeError, match="gid to be a list"):
+        backup_kernel.group_scores(kernel, rows, np.array([0, 1, 0]), V, tuple(gid), gn)
     with pytest.raises(IndexError, match="observed value 2, outside"):
-        backup_kernel.group_scores(kernel, rows, np.array([0, 2, 0]), gcol, gid, gn)
-    with pytest.raises(ValueError, match="n=0 >= 1 vectors"):
-        backup_kernel.group_scores(kernel, rows, np.array([0, 1, 0]), gcol, gid, np.array([0, 2]))
+        backup_kernel.group_scores(kernel, rows, np.array([0, 2, 0]), V, gid, gn)
+    with pytest.raises(ValueError, match="n=0 >= 1 vector"):
+        backup_kernel.group_scores(kernel, rows, np.array([0, 1, 0]), V, gid, np.array([0, 2]))
     # one row, scored under each x: (0.5, 0.5) at x = 0 (0.5 vs 1) and at x = 1 (the tie)
-    val, best = backup_kernel.group_scores(kernel, rows[1:2], np.array([0, 1]), gcol, gid, gn)
+    val, best = backup_kernel.group_scores(kernel, rows[1:2], np.array([0, 1]), V, gid, gn)
     assert val.tolist() == [1.0, 1.0] and best.tolist() == [7, 2]
-    with pytest.raises(ValueError, match="rows of B=2 rows"):
-        backup_kernel.group_scores(kernel, rows, np.array([0, 1]), gcol, gid, gn)
+    with pytest.raises(ValueError, match="rows of B rows"):
+        backup_kernel.group_scores(kernel, rows, np.array([0, 1]), V, gid, gn)
     with pytest.raises(TypeError, match="sorted\\[0\\] to be an \\(order, key\\) pair"):
         backup_kernel.group_upper(kernel, rows, np.array([0, 1, 1]),
                                   (corner, [None, None], *storage), out)  # fmt: skip

@@ -20,13 +20,18 @@
  *   inv, off, wid, gain, sig); written: low (C,), best (C,) int64, q_low (A,), up (C,),
  *   q_up (A,); gamma a float. Returns V_up(b).
  *
- * group_scores(rows, rows_x, gcol, gid, gn, val, best) -> None
- *   rows (B, Y) or (1, Y) float64 (one row: scored at each x of rows_x), rows_x (B,) int64
- *   each row's observed value, gcol and gid lists of
- *   (at least) X arrays: gcol[x] (Y, cap_x) float64 the vectors of x as columns, gid[x]
- *   (cap_x,) int64 their indices; gn (X,) int64 how many of each are in use. Written:
- *   val (B,) the best score of each row among its own x's vectors, best (B,) int64 that
- *   vector's index (the first maximum in group order, as numpy's argmax).
+ * group_scores(rows, rows_x, V, cols, gid, gn, val, best) -> None
+ *   rows (B, W) or (1, W) float64 (one row: scored at each x of rows_x), rows_x (B,) int64
+ *   each row's observed value, V (N, Y) float64 the alpha vectors (the one store: rows),
+ *   cols (W,) int64 the columns of V the rows are given on, or empty (W = Y: all), gid a
+ *   list of (at least) X arrays: gid[x] (cap_x,) int64 the indices of x's vectors in V; gn
+ *   (X,) int64 how many of each are in use. Written: val (B,) the best score of each row
+ *   among its own x's vectors, best (B,) int64 that vector's index (the first maximum in
+ *   group order, as numpy's argmax).
+ *
+ * gather_columns(V, cols, out) -> None
+ *   V (N, Y) float64, cols (c,) int64, out (c, n) float64 written: out[q, j] = V[j, cols[q]]
+ *   for the first n rows (the columns a sparse belief lives on, as one BLAS operand).
  *
  * group_upper(rows, rows_x, corner, sorted, idx, inv, off, wid, gain, sig, out) -> None
  *   rows (B, Y) float64, rows_x (B,) int64, corner (X, Y) float64, sorted a list of X
@@ -567,55 +572,56 @@ static PyObject *propagate_inactive(PyObject *self, PyObject *const *args, Py_ss
     Py_RETURN_NONE;
 }
 
-/* Borrowed item x of a list, checked to be one. */
-static PyObject *list_item(PyObject *list, const char *name, Py_ssize_t x) {
-    if (!PyList_Check(list)) {
-        PyErr_Format(PyExc_TypeError, "group_scores(): expected %s to be a list of arrays, got %s",
-                     name, Py_TYPE(list)->tp_name);
-        return NULL;
-    }
-    if (x >= PyList_GET_SIZE(list)) {
-        PyErr_Format(PyExc_ValueError,
-                     "group_scores(): %s has %zd entries, observed value %zd has none", name,
-                     PyList_GET_SIZE(list), x);
-        return NULL;
-    }
-    return PyList_GET_ITEM(list, x);
-}
-
 static PyObject *group_scores(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    static const spec_t spec[5] = {
-        {"rows", 2, 'd', 0}, {"rows_x", 1, 'q', 0}, {"gn", 1, 'q', 0},
-        {"val", 1, 'd', 1},  {"best", 1, 'q', 1},
+    enum { NB = 7 };
+    static const spec_t spec[NB] = {
+        {"rows", 2, 'd', 0}, {"rows_x", 1, 'q', 0}, {"V", 2, 'd', 0}, {"cols", 1, 'q', 0},
+        {"gn", 1, 'q', 0},   {"val", 1, 'd', 1},    {"best", 1, 'q', 1},
     };
-    Py_buffer v[5];
+    Py_buffer v[NB];
     (void)self;
-    if (nargs != 7) {
-        PyErr_Format(PyExc_TypeError, "group_scores() takes 7 arguments (%zd given)", nargs);
+    if (nargs != NB + 1) {
+        PyErr_Format(PyExc_TypeError, "group_scores() takes %d arguments (%zd given)", NB + 1,
+                     nargs);
         return NULL;
     }
-    PyObject *const arrays[5] = {args[0], args[1], args[4], args[5], args[6]};
-    PyObject *gcol = args[2], *gid = args[3];
-    if (get_all(arrays, v, spec, 5) < 0) return NULL;
-    const Py_ssize_t B = v[1].shape[0], Y = v[0].shape[1], X = v[2].shape[0];
-    const Py_ssize_t step = v[0].shape[0] == 1 ? 0 : Y; /* one row: scored at every x */
-    if ((v[0].shape[0] != B && v[0].shape[0] != 1) || v[3].shape[0] != B ||
-        v[4].shape[0] != B) {
+    PyObject *const arrays[NB] = {args[0], args[1], args[2], args[3], args[5], args[6], args[7]};
+    PyObject *gid = args[4];
+    if (!PyList_Check(gid)) {
+        PyErr_Format(PyExc_TypeError, "group_scores(): expected gid to be a list of arrays, got %s",
+                     Py_TYPE(gid)->tp_name);
+        return NULL;
+    }
+    if (get_all(arrays, v, spec, NB) < 0) return NULL;
+    const Py_ssize_t B = v[1].shape[0], W = v[0].shape[1], X = v[4].shape[0];
+    const Py_ssize_t N = v[2].shape[0], Y = v[2].shape[1], ncols = v[3].shape[0];
+    const Py_ssize_t step = v[0].shape[0] == 1 ? 0 : W; /* one row: scored at every x */
+    const int64_t *cols = v[3].buf;
+    const char *bad = NULL;
+    if ((v[0].shape[0] != B && v[0].shape[0] != 1) || v[5].shape[0] != B || v[6].shape[0] != B)
+        bad = "rows of B rows (rows_x's length) or one, val and best of B entries";
+    else if (ncols > 0 ? W != ncols : W != Y)
+        bad = "rows of V's width, or of cols' length where cols is given";
+    else if (PyList_GET_SIZE(gid) < X)
+        bad = "gid of at least X entries (gn's length)";
+    for (Py_ssize_t q = 0; q < ncols && bad == NULL; q++)
+        if (cols[q] < 0 || cols[q] >= Y) bad = "cols within V's width";
+    if (bad != NULL) {
         PyErr_Format(PyExc_ValueError,
-                     "group_scores(): expected rows of B=%zd rows (rows_x's length) or one, "
-                     "val and best of B entries, got %zd, %zd and %zd",
-                     B, v[0].shape[0], v[3].shape[0], v[4].shape[0]);
-        release_all(v, 5);
+                     "group_scores(): expected %s (B=%zd, rows (%zd, %zd), V (%zd, %zd), %zd "
+                     "cols)",
+                     bad, B, v[0].shape[0], W, N, Y, ncols);
+        release_all(v, NB);
         return NULL;
     }
-    groups_t g; /* each group's buffers are taken once, on its first row */
-    double *acc = NULL;
-    Py_ssize_t acc_size = 0;
-    int failed = groups_init(&g, X) < 0;
-    const double *rows = v[0].buf;
-    const int64_t *rows_x = v[1].buf, *gn = v[2].buf;
-    double *val = v[3].buf;
-    int64_t *best = v[4].buf;
+    groups_t g; /* each group's index array is taken once, on its first row (buf[2 x]) */
+    Py_ssize_t *supp = PyMem_Malloc((size_t)(W > 0 ? W : 1) * sizeof(Py_ssize_t));
+    int failed = supp == NULL ? (PyErr_NoMemory(), 1) : 0;
+    if (!failed) failed = groups_init(&g, X) < 0;
+    const double *rows = v[0].buf, *V = v[2].buf;
+    const int64_t *rows_x = v[1].buf, *gn = v[4].buf;
+    double *val = v[5].buf;
+    int64_t *best = v[6].buf;
     for (Py_ssize_t i = 0; i < B && !failed; i++) {
         const int64_t x = rows_x[i];
         if (!row_x_ok("group_scores", i, x, X)) {
@@ -623,71 +629,114 @@ static PyObject *group_scores(PyObject *self, PyObject *const *args, Py_ssize_t 
             break;
         }
         const int64_t n = gn[x];
-        Py_buffer *col = &g.buf[2 * x], *ids = &g.buf[2 * x + 1];
+        Py_buffer *ids = &g.buf[2 * x];
         if (!g.got[x]) {
-            PyObject *c = list_item(gcol, "gcol", x), *d = c ? list_item(gid, "gid", x) : NULL;
-            if (d == NULL || get_buffer(c, col, 2, 'd', "gcol[x]", 0) < 0) {
-                failed = 1;
-                break;
-            }
-            if (get_buffer(d, ids, 1, 'q', "gid[x]", 0) < 0) {
-                PyBuffer_Release(col);
+            if (get_buffer(PyList_GET_ITEM(gid, x), ids, 1, 'q', "gid[x]", 0) < 0) {
                 failed = 1;
                 break;
             }
             g.got[x] = 1;
-            if (col->shape[0] != Y || col->shape[1] < n || ids->shape[0] < n || n < 1) {
+            int ok = ids->shape[0] >= n && n >= 1;
+            for (int64_t j = 0; j < n && ok; j++) {
+                const int64_t id = ((const int64_t *)ids->buf)[j];
+                ok = id >= 0 && id < N;
+            }
+            if (!ok) {
                 PyErr_Format(PyExc_ValueError,
-                             "group_scores(): observed value %lld: expected gcol[x] (Y=%zd, "
-                             "cap >= n) and gid[x] (cap,) with n=%lld >= 1 vectors, got (%zd, "
-                             "%zd) and (%zd,)",
-                             (long long)x, Y, (long long)n, col->shape[0], col->shape[1],
-                             ids->shape[0]);
+                             "group_scores(): observed value %lld: expected gid[x] of at least "
+                             "n=%lld >= 1 vector indices in [0, %zd), got %zd entries",
+                             (long long)x, (long long)n, N, ids->shape[0]);
                 failed = 1;
                 break;
             }
         }
-        if (n > acc_size) {
-            PyMem_Free(acc);
-            acc = PyMem_Malloc((size_t)n * sizeof(double));
-            acc_size = n;
-            if (acc == NULL) {
-                PyErr_NoMemory();
-                failed = 1;
-                break;
-            }
-        }
-        /* scores of every vector of x: the sum over the row's support, column by column */
-        const double *b = rows + i * step, *c = col->buf;
-        const Py_ssize_t cap = col->shape[1];
-        memset(acc, 0, (size_t)n * sizeof(double));
-        for (Py_ssize_t y = 0; y < Y; y++) {
-            const double w = b[y];
-            if (w == 0.0) continue;
-            const double *cy = c + y * cap;
-            for (int64_t j = 0; j < n; j++) acc[j] += w * cy[j];
-        }
+        /* the row's support, in column order: each vector's score is the sum over it, in
+         * that order (the same floats as the column-by-column sum of the former per-x
+         * column blocks) */
+        const double *b = rows + i * step;
+        Py_ssize_t m = 0;
+        for (Py_ssize_t q = 0; q < W; q++)
+            if (b[q] != 0.0) supp[m++] = q;
+        const int64_t *id = ids->buf;
         int64_t arg = 0;
-        double top = acc[0];
-        if (top == top)
-            for (int64_t j = 1; j < n; j++) {
-                if (acc[j] != acc[j]) { /* NaN: numpy's argmax takes the first */
-                    arg = j;
-                    top = acc[j];
-                    break;
-                }
-                if (acc[j] > top) {
-                    top = acc[j];
-                    arg = j;
-                }
+        double top = 0.0;
+        for (int64_t j0 = 0; j0 < n; j0 += 4) {
+            /* four vectors at a time: four independent sums (each in support order) */
+            double s4[4] = {0.0, 0.0, 0.0, 0.0};
+            const int64_t nj = n - j0 < 4 ? n - j0 : 4;
+            const double *r0 = V + id[j0] * Y, *r1 = nj > 1 ? V + id[j0 + 1] * Y : r0;
+            const double *r2 = nj > 2 ? V + id[j0 + 2] * Y : r0;
+            const double *r3 = nj > 3 ? V + id[j0 + 3] * Y : r0;
+            for (Py_ssize_t k = 0; k < m; k++) {
+                const Py_ssize_t q = supp[k], c = ncols > 0 ? cols[q] : q;
+                const double w = b[q];
+                s4[0] += w * r0[c];
+                s4[1] += w * r1[c];
+                s4[2] += w * r2[c];
+                s4[3] += w * r3[c];
             }
+            int nan = 0;
+            for (int64_t t = 0; t < nj; t++) {
+                const double sc = s4[t];
+                const int64_t j = j0 + t;
+                if (j == 0) {
+                    top = sc;
+                    if (top != top) nan = 1; /* NaN: numpy's argmax takes the first */
+                } else if (sc != sc) {
+                    arg = j;
+                    top = sc;
+                    nan = 1;
+                } else if (sc > top) {
+                    top = sc;
+                    arg = j;
+                }
+                if (nan) break;
+            }
+            if (nan) break;
+        }
         val[i] = top;
-        best[i] = ((const int64_t *)ids->buf)[arg];
+        best[i] = id[arg];
     }
-    groups_release(&g);
-    PyMem_Free(acc);
-    release_all(v, 5);
+    if (supp != NULL) groups_release(&g);
+    PyMem_Free(supp);
+    release_all(v, NB);
     if (failed) return NULL;
+    Py_RETURN_NONE;
+}
+
+static PyObject *gather_columns(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    enum { NB = 3 };
+    static const spec_t spec[NB] = {{"V", 2, 'd', 0}, {"cols", 1, 'q', 0}, {"out", 2, 'd', 1}};
+    Py_buffer v[NB];
+    (void)self;
+    if (nargs != NB) {
+        PyErr_Format(PyExc_TypeError, "gather_columns() takes %d arguments (%zd given)", NB,
+                     nargs);
+        return NULL;
+    }
+    if (get_all(args, v, spec, NB) < 0) return NULL;
+    const Py_ssize_t N = v[0].shape[0], Y = v[0].shape[1], c = v[1].shape[0];
+    const Py_ssize_t n = v[2].shape[1];
+    const int64_t *cols = v[1].buf;
+    const char *bad = NULL;
+    if (v[2].shape[0] != c || n > N) bad = "out (len(cols), n) with n <= V's rows";
+    for (Py_ssize_t q = 0; q < c && bad == NULL; q++)
+        if (cols[q] < 0 || cols[q] >= Y) bad = "cols within V's width";
+    if (bad != NULL) {
+        PyErr_Format(PyExc_ValueError,
+                     "gather_columns(): expected %s (V (%zd, %zd), %zd cols, out (%zd, %zd))",
+                     bad, N, Y, c, v[2].shape[0], n);
+        release_all(v, NB);
+        return NULL;
+    }
+    const double *V = v[0].buf;
+    double *out = v[2].buf;
+    /* vector by vector (each row of V read once, along the columns asked for) */
+    for (Py_ssize_t j = 0; j < n; j++) {
+        const double *r = V + j * Y;
+        for (Py_ssize_t q = 0; q < c; q++) out[q * n + j] = r[cols[q]];
+    }
+    release_all(v, NB);
     Py_RETURN_NONE;
 }
 
@@ -743,6 +792,8 @@ static PyMethodDef methods[] = {
      "Bounds of one belief's children, lazily (see torchhrc.solvers.backup_kernel)."},
     {"group_scores", (PyCFunction)(void (*)(void))group_scores, METH_FASTCALL,
      "Best alpha vector of each row among its observed value's (see backup_kernel)."},
+    {"gather_columns", (PyCFunction)(void (*)(void))gather_columns, METH_FASTCALL,
+     "Columns of the first rows of the alpha vectors, transposed (see backup_kernel)."},
     {"group_upper", (PyCFunction)(void (*)(void))group_upper, METH_FASTCALL,
      "Sawtooth upper bound of each row at its own observed value (see backup_kernel)."},
     {"backup_vector", (PyCFunction)(void (*)(void))backup_vector, METH_FASTCALL,

@@ -13,7 +13,9 @@ built by ``pip install`` beside the sawtooth loop, the CPython API only):
   child's own observed value ``x`` only (a MOMDP's children lie at several; the numpy
   reference, ``_SARSOP._lower_np``, scores them in one product against the vectors of every
   ``x`` among them and masks the others out: twenty times the arithmetic on a 20-position
-  random MOMDP). With one observed value the lower bounds stay one BLAS product.
+  random MOMDP). It reads the vectors' one store, their rows, through each ``x``'s indices.
+  With one observed value the lower bounds stay one BLAS product; for beliefs given on a
+  few columns, :func:`gather_columns` gathers its operand from the rows.
 * :func:`bound_children`: from the children's lower bounds, every child's bounds and
   ``Q_low``, ``Q_up``, with the sawtooth upper bound evaluated lazily: only the children of
   the action with the highest cached ``Q_up`` are re-bounded until the best action is one
@@ -50,7 +52,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["bound_children", "children", "group_scores", "group_upper", "load"]
+__all__ = ["bound_children", "children", "gather_columns", "group_scores", "group_upper", "load"]
 
 
 def load() -> ModuleType | None:
@@ -162,36 +164,58 @@ def group_scores(
     kernel: ModuleType,
     rows: np.ndarray,
     rows_x: np.ndarray,
-    gcol: list[np.ndarray],
+    vectors: np.ndarray,
     gid: list[np.ndarray],
     gn: np.ndarray,
+    cols: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``max_n rows[i] . V_n`` over the vectors ``n`` of row ``i``'s own observed value, and
     the argmax (the first maximum in group order, as ``numpy.argmax``).
 
+    Each score is summed over the row's support in column order, reading each vector's row
+    of ``vectors`` there (the one store of the alpha vectors: a backup reads whole rows).
+
     Args:
         kernel: the module of :func:`load`.
-        rows: ``(B, Y)`` C-contiguous float64 (unnormalised) beliefs, or ``(1, Y)``: one
+        rows: ``(B, W)`` C-contiguous float64 (unnormalised) beliefs, or ``(1, W)``: one
             belief, scored under each observed value of ``rows_x``.
         rows_x: ``(B,)`` int64 the rows' observed values.
-        gcol, gid: per observed value ``x``, ``(Y, cap_x)`` float64 its vectors as columns
-            and ``(cap_x,)`` int64 their indices (``_AlphaSet``'s group storage).
+        vectors: ``(N, Y)`` C-contiguous float64 the alpha vectors (``_AlphaSet``'s storage).
+        gid: per observed value ``x``, ``(cap_x,)`` int64 the indices of its vectors.
         gn: ``(X,)`` int64 the vectors in use per group (at least one where a row needs it).
+        cols: ``(W,)`` int64 the columns of ``vectors`` the rows are given on (a sparse
+            belief's support), or ``None``: ``W = Y``, every column.
 
     Returns:
         ``(B,)`` the best scores and ``(B,)`` int64 the indices of the vectors.
 
     Raises:
-        TypeError: an array of another dtype or rank, not C-contiguous, or ``gcol`` / ``gid``
-            not lists (named).
-        ValueError: shapes that do not agree, or a group without vectors.
+        TypeError: an array of another dtype or rank, not C-contiguous, or ``gid`` not a
+            list (named).
+        ValueError: shapes that do not agree, a group without vectors, or an index out of
+            range.
         IndexError: an observed value outside ``[0, X)``.
     """
     B = rows_x.shape[0]
     val = np.empty(B)
     best = np.empty(B, dtype=np.int64)
-    kernel.group_scores(rows, rows_x, gcol, gid, gn, val, best)
+    kernel.group_scores(rows, rows_x, vectors, _NO_COLS if cols is None else cols, gid, gn, val,
+                        best)  # fmt: skip
     return val, best
+
+
+def gather_columns(kernel: ModuleType, vectors: np.ndarray, n: int, cols: np.ndarray,
+                   ) -> np.ndarray:  # fmt: skip
+    """``(c, n)`` C-contiguous ``vectors[:n, cols].T``: the columns ``cols (c,)`` int64 of the
+    first ``n`` rows of ``vectors (N, Y)`` (C-contiguous float64), read row by row.
+
+    Raises:
+        TypeError: an array of another dtype or rank, or not C-contiguous (named).
+        ValueError: ``n`` above ``N`` or a column outside ``[0, Y)``.
+    """
+    out = np.empty((cols.shape[0], n))
+    kernel.gather_columns(vectors, cols.astype(np.int64, copy=False), out)
+    return out
 
 
 def group_upper(
@@ -227,3 +251,4 @@ def group_upper(
 
 
 _EMPTY = np.empty(0)
+_NO_COLS = np.empty(0, dtype=np.int64)

@@ -1,9 +1,10 @@
 """The lower bound's alpha-vector set: each vector with its action, its observed value and the
-vectors it was built from, stored flat and grouped by observed value.
+vectors it was built from, stored once as rows, with the indices of each observed value's.
 """
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from typing import Any
 
 import numpy as np
@@ -14,20 +15,27 @@ from torchhrc.solvers._memory import release_pages
 
 __all__: list[str] = []
 
-# floats copied at a time where the vectors are moved about (a pruning's compaction and
-# regrouping): 16 MB, not a second copy of every vector (on a 20,000-state model, 1,300
+# floats copied at a time where the vectors are moved about (a growth's copy, a pruning's
+# compaction): 16 MB, not a second copy of every vector (on a 20,000-state model, 1,300
 # vectors are 200 MB)
 _BLOCK = 1 << 21
-_EMPTY = np.zeros((0, 0))
+# how many calls of :meth:`_AlphaSet.best_on_columns` it remembers, and at most how many
+# bytes of their rows (16 MB)
+_SCORED = 64
+_SCORED_BYTES = 1 << 24
 
 
 class _AlphaSet:
     """Alpha vectors ``(N, Y)`` with their action and observed value, grown geometrically.
 
-    On CPU the vectors are also kept grouped by observed value (Ong et al. 2010: a MOMDP
-    lower bound is a set of vectors over ``Y`` per ``x``): ``group(x)`` returns the ``(N_x, Y)``
-    contiguous block of ``x``'s vectors and their indices in the flat storage, so bounding a
-    belief at ``x`` touches only ``N_x`` vectors, not all ``N``.
+    The vectors are held once, as rows (``vectors``, ``(capacity, Y)``): a backup reads the
+    few rows it combines whole, and bounding a belief reads every vector of its observed value
+    along the belief's support only. On CPU the indices of each observed value's vectors are
+    kept too (Ong et al. 2010: a MOMDP lower bound is a set of vectors over ``Y`` per ``x``):
+    ``group(x)`` gives ``x``'s vectors and their indices, so bounding a belief at ``x`` touches
+    only ``N_x`` vectors, not all ``N``; the compiled scoring
+    (:func:`~torchhrc.solvers.backup_kernel.group_scores`) reads the rows through those
+    indices.
 
     Each vector also keeps ``refs[n]``, the indices of the vectors its backup chose at the
     possible children (the plan it is the value of: ``alpha = R_a + gamma sum P Z alpha_ref``).
@@ -37,12 +45,20 @@ class _AlphaSet:
     policy of the written vectors earns at least ``V_low(b0)``. The initial vectors (blind
     policies: fixed points of their own action) refer to none.
 
-    Memory: the vectors are held twice (the flat rows, which backups gather, and the
-    per-``x`` columns, which bounding scores), but never three times: a block that grows is
-    refilled from the flat rows after the old one is freed, the blocks are dropped while the
-    flat storage is copied into a larger one and rebuilt after, and a pruning compacts the
-    rows in place a block at a time and hands the dropped rows' pages back to the OS
-    (:func:`~torchhrc.solvers._memory.release_pages`).
+    Memory: one copy of the vectors, also while the storage grows (on CPU the rows are copied
+    into the larger storage from the last, a block at a time, and each copied block's old
+    pages go back to the OS at once) and while a pruning compacts the rows in place (the
+    dropped rows' pages go back too, :func:`~torchhrc.solvers._memory.release_pages`).
+    Before, a second copy as per-``x`` column blocks served the scoring: on a 20,000-state
+    model 335 MB at 2,092 vectors (docs/benchmarks.md).
+
+    Example:
+        >>> import torch
+        >>> s = _AlphaSet(torch.eye(2, dtype=torch.float64), torch.tensor([0, 1]),
+        ...               torch.tensor([0, 1]), num_observed=2)
+        >>> s.add_np(np.array([0.5, 0.5]), 1, 0)
+        >>> s.group(0)[1].tolist(), s.size
+        ([0, 2], 3)
     """
 
     def __init__(self, alphas: torch.Tensor, actions: torch.Tensor, observed: torch.Tensor,
@@ -56,8 +72,14 @@ class _AlphaSet:
         self.observed = torch.zeros(cap, dtype=torch.long, device=alphas.device)
         self.vectors[:n], self.actions[:n], self.observed[:n] = alphas, actions, observed
         self.size = n
-        self._gcol: list[np.ndarray] = []  # the per-x blocks (empty: freed, see _released)
-        self._gid: list[np.ndarray] = []
+        self._gid: list[np.ndarray] = []  # per x: the indices of its vectors (CPU only)
+        self._gn = np.zeros(self.num_observed, dtype=np.int64)  # how many of each in use
+        # the last calls of :meth:`best_on_columns`, by their columns: their rows, how many
+        # vectors were scored, the maxima and their indices
+        self._scored: OrderedDict[bytes, tuple[np.ndarray, int, np.ndarray, np.ndarray]] = (
+            OrderedDict())  # fmt: skip
+        self._scored_bytes = 0
+        self._lent = False  # whether :meth:`lend` handed out views of the storage
         self._views()
         self._regroup()
 
@@ -106,87 +128,114 @@ class _AlphaSet:
         self.np_observed = self.observed.numpy() if cpu else None
 
     def _regroup(self) -> None:
-        """Rebuild the per-``x`` blocks from the flat storage (CPU only)."""
+        """Rebuild the per-``x`` index lists from the flat storage (CPU only)."""
         if self.np_vectors is None:
             return
         assert self.np_observed is not None
-        n = self.size
-        obs = self.np_observed[:n]
+        obs = self.np_observed[: self.size]
         order = np.argsort(obs, kind="stable")
         counts = np.bincount(obs, minlength=self.num_observed)
         ends = np.cumsum(counts)
         self._gn = counts.astype(np.int64)
-        self._gcol = []
         self._gid = []
         for x in range(self.num_observed):
-            ids = order[ends[x] - counts[x] : ends[x]]
-            col, gid = self._columns(ids, max(4, 2 * ids.size))
-            self._gcol.append(col)
+            gid = np.empty(max(4, 2 * int(counts[x])), dtype=np.int64)
+            gid[: counts[x]] = order[ends[x] - counts[x] : ends[x]]
             self._gid.append(gid)
 
     def release_groups(self) -> None:
-        """Free the per-``x`` blocks (the second copy of the vectors), as before the final
-        policy's copy; the next use rebuilds them from the flat storage."""
-        self._gcol, self._gid = [], []
+        """Forget the remembered maxima (:meth:`best_on_columns`), as before the final
+        policy."""
+        self._scored.clear()
+        self._scored_bytes = 0
 
-    @property
-    def _released(self) -> bool:
-        """Whether the per-``x`` blocks are freed (:meth:`release_groups`) and due for a
-        rebuild before their next use."""
-        return self.np_vectors is not None and not self._gcol
-
-    def _columns(self, ids: np.ndarray, cap: int) -> tuple[np.ndarray, np.ndarray]:
-        """A group's ``(Y, cap)`` column block and ``(cap,)`` index array holding the flat
-        storage's vectors ``ids`` first, copied a block of vectors at a time (no whole
-        transposed copy beside the two stores)."""
-        assert self.np_vectors is not None
-        Y = self.np_vectors.shape[1]
-        col = np.empty((Y, cap), dtype=self.np_vectors.dtype)
-        step = max(1, _BLOCK // max(Y, 1))
-        for b0 in range(0, ids.size, step):
-            part = ids[b0 : b0 + step]
-            col[:, b0 : b0 + part.size] = self.np_vectors[part].T
-        gid = np.empty(cap, dtype=np.int64)
-        gid[: ids.size] = ids
-        return col, gid
+    def lend(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(N, Y)`` the vectors, ``(N,)`` their actions and observed values: views of the
+        storage, not copies (the final policy's: a copy would be a second copy of every
+        vector at the end of the solve). The set stays usable: adding writes past the views,
+        and a pruning, which moves rows, first moves the set to storage of its own."""
+        self._lent = True
+        n = self.size
+        return self.vectors[:n], self.actions[:n], self.observed[:n]
 
     def group(self, x: int) -> tuple[np.ndarray, np.ndarray]:
-        """``(N_x, Y)`` the vectors of observed value ``x`` (a transposed view of
-        :meth:`group_columns`) and ``(N_x,)`` their indices."""
-        cols, ids = self.group_columns(x)
-        return cols.T, ids
+        """``(N_x, Y)`` the vectors of observed value ``x`` and ``(N_x,)`` their indices in
+        the flat storage, ascending (with one observed value a view of the storage; else a
+        gathered copy, for the numpy path)."""
+        assert self.np_vectors is not None
+        ids = self._gid[x][: self._gn[x]]
+        if self.num_observed == 1:
+            return self.np_vectors[: ids.size], ids
+        return self.np_vectors[ids], ids
 
-    def group_columns(self, x: int) -> tuple[np.ndarray, np.ndarray]:
-        """``(Y, N_x)`` the vectors of observed value ``x`` as columns (a view of the group's
-        ``(Y, capacity)`` copy: ``rows @ columns`` is a plain BLAS product, a third faster
-        than ``rows @ vectors.T`` on aloha-10max's 28 x 30 x 600) and ``(N_x,)`` their
-        indices in the flat storage."""
-        if self._released:
-            self._regroup()
-        m = self._gn[x]
-        return self._gcol[x][:, :m], self._gid[x][:m]
+    def best_on_columns(self, kernel: Any, rows: np.ndarray, cols: np.ndarray,
+                        ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """``(B,)`` ``max_n rows . vectors[n, cols]`` over every vector and ``(B,)`` the first
+        argmax, for rows ``(B, c)`` given on the columns ``cols (c,)`` (one observed value:
+        the children of a sparse belief, on the union of their supports).
+
+        The product is ``rows @ vectors[:N, cols].T``, the operand gathered from the rows
+        (compiled where ``kernel`` is given,
+        :func:`~torchhrc.solvers.backup_kernel.gather_columns`): the same BLAS product, the
+        same floats, as from the former column copy. Gathering a column of every row costs a
+        cache miss an entry (on a 20,000-state model at 2,000 vectors, 2 ms for a belief's 86
+        columns, against 0.1 ms from a column store), but most calls score the same rows as
+        one of the last few dozen calls (a trial expands a belief, then backs it up) with a
+        few vectors added since: the maxima of the last ``_SCORED`` calls are kept, with
+        their rows, and only the vectors added since are scored (ties stay with the lower
+        index, as one argmax over all); a pruning empties them.
+        """
+        assert self.np_vectors is not None
+        n, V, B = self.size, self.np_vectors, rows.shape[0]
+        key = cols.tobytes()
+        hit = self._scored.pop(key, None)
+        if (hit is not None and hit[1] <= n and hit[0].shape == rows.shape
+                and np.array_equal(hit[0], rows)):  # fmt: skip
+            kept, m, val, arg = hit
+            if m < n:
+                scores = rows @ self._gather(kernel, V[m:n], cols)  # (B, n - m)
+                j = scores.argmax(-1)
+                new = scores[np.arange(B), j]
+                better = new > val
+                val, arg = np.where(better, new, val), np.where(better, j + m, arg)
+        else:
+            kept = np.array(rows, copy=True)
+            scores = rows @ self._gather(kernel, V[:n], cols)  # (B, n)
+            arg = scores.argmax(-1)
+            val = scores[np.arange(B), arg]
+        if hit is not None:
+            self._scored_bytes -= hit[0].nbytes
+        self._scored[key] = (kept, n, val, arg)
+        self._scored_bytes += kept.nbytes
+        while len(self._scored) > 1 and (len(self._scored) > _SCORED
+                                         or self._scored_bytes > _SCORED_BYTES):  # fmt: skip
+            self._scored_bytes -= self._scored.popitem(last=False)[1][0].nbytes
+        return val.copy(), arg.copy()
+
+    @staticmethod
+    def _gather(kernel: Any, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """``(c, len(rows))`` ``rows[:, cols].T`` (``rows`` C-contiguous)."""
+        if kernel is None:
+            return np.ascontiguousarray(rows.T[cols])
+        return backup_kernel.gather_columns(kernel, rows, rows.shape[0], cols)
 
     def group_scores(self, kernel: Any, rows: np.ndarray, rows_x: np.ndarray,
-                     ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+                     cols: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """``(B,)`` the best score of each row among its own observed value's vectors and
-        ``(B,)`` that vector's index, in one compiled call over the group columns
+        ``(B,)`` that vector's index, in one compiled call over the rows of the storage
         (:func:`~torchhrc.solvers.backup_kernel.group_scores`; ``rows`` ``(B, Y)``
-        C-contiguous, or ``(1, Y)``: one belief under each ``x`` of ``rows_x``)."""
-        if self._released:
-            self._regroup()
+        C-contiguous, or ``(1, Y)``: one belief under each ``x`` of ``rows_x``; or ``(B, c)``
+        on the columns ``cols``)."""
+        assert self.np_vectors is not None
         return backup_kernel.group_scores(kernel, rows, rows_x.astype(np.int64, copy=False),
-                                          self._gcol, self._gid, self._gn)  # fmt: skip
+                                          self.np_vectors, self._gid, self._gn, cols)  # fmt: skip
 
-    def _append_group(self, x: int, alpha: np.ndarray, index: int) -> None:
+    def _append_group(self, x: int, index: int) -> None:
         m = self._gn[x]
         if m == self._gid[x].shape[0]:
-            # a block twice as wide, filled from the flat storage after the old block is
-            # freed: the same floats as a copy of the old block, without holding both blocks
-            # at once (three copies of the vectors at the peak, with the flat storage)
-            ids = self._gid[x][:m].copy()
-            self._gcol[x] = self._gid[x] = _EMPTY
-            self._gcol[x], self._gid[x] = self._columns(ids, 2 * m)
-        self._gcol[x][:, m] = alpha
+            grown = np.empty(2 * m, dtype=np.int64)
+            grown[:m] = self._gid[x]
+            self._gid[x] = grown
         self._gid[x][m] = index
         self._gn[x] = m + 1
 
@@ -204,31 +253,31 @@ class _AlphaSet:
         self.np_observed[n] = observed
         self.size = n + 1
         self.refs.append(np.asarray(() if refs is None else refs, dtype=np.int64))
-        if self._released:  # (rebuilt with the new vector)
-            self._regroup()
-        else:
-            self._append_group(observed, self.np_vectors[n], n)
+        self._append_group(observed, n)
 
     def _reserve(self, need: int) -> None:
         cap = self.vectors.shape[0]
         while cap < need:
             cap *= 2
-        # the per-x blocks go while the flat storage is copied and are rebuilt from the new
-        # one: two copies of the vectors at the peak, not three
-        grouped = self.np_vectors is not None
-        if grouped:
-            self.release_groups()
         for name in ("vectors", "actions", "observed"):
             old = getattr(self, name)
             # rows past ``size`` are written before they are read; empty leaves their pages
             # untouched (not resident) until then
             new = old.new_empty(cap, *old.shape[1:])
-            new[: self.size] = old[: self.size]
+            if name == "vectors" and self.np_vectors is not None:
+                # from the last rows to the first, a block at a time, each block's old pages
+                # handed back once copied: one copy of the vectors at the peak, not two
+                step = max(1, _BLOCK // max(old.shape[1], 1))
+                for b1 in range(self.size, 0, -step):
+                    b0 = max(0, b1 - step)
+                    new[b0:b1] = old[b0:b1]
+                    release_pages(self.np_vectors, b0 * self.np_vectors.strides[0])
+                self.np_vectors = None  # (a view of the old storage)
+            else:
+                new[: self.size] = old[: self.size]
             setattr(self, name, new)
             del old, new
         self._views()
-        if grouped:
-            self._regroup()
 
     def add(self, alphas: torch.Tensor, actions: torch.Tensor, observed: torch.Tensor,
             refs: list[np.ndarray] | None = None) -> None:  # fmt: skip
@@ -241,12 +290,10 @@ class _AlphaSet:
         s = slice(self.size, self.size + m)
         self.vectors[s], self.actions[s], self.observed[s] = alphas, actions, observed
         self.size += m
-        if self._released:  # (rebuilt with the new vectors)
-            self._regroup()
-        elif self.np_vectors is not None:
+        if self.np_vectors is not None:
             assert self.np_observed is not None
             for i in range(s.start, s.stop):
-                self._append_group(int(self.np_observed[i]), self.np_vectors[i], i)
+                self._append_group(int(self.np_observed[i]), i)
 
     def keep(self, mask: torch.Tensor) -> np.ndarray:
         """Keep the vectors of ``mask (N,)`` and, transitively, those they refer to; a
@@ -275,6 +322,11 @@ class _AlphaSet:
         remap[kept] = np.arange(kept.size)
         self.refs = [remap[target[self.refs[i]]] for i in kept.tolist()]
         moved = remap[target]
+        if self._lent:  # the lent views keep the old rows: the set moves to a copy
+            self.vectors = self.vectors.clone()
+            self.actions, self.observed = self.actions.clone(), self.observed.clone()
+            self._lent = False
+            self._views()
         idx = torch.from_numpy(kept).to(self.vectors.device)
         n = idx.numel()
         # in place, a block of rows at a time: ``kept`` rises, so a block's rows are read
@@ -286,7 +338,8 @@ class _AlphaSet:
         self.actions[:n] = self.actions[idx]
         self.observed[:n] = self.observed[idx]
         self.size = n
-        self.release_groups()  # the old per-x copy goes before the new is built
+        self._scored.clear()  # (the vectors moved)
+        self._scored_bytes = 0
         self._regroup()
         if self.np_vectors is not None:  # the dropped vectors' pages go back to the OS
             release_pages(self.np_vectors, n * self.np_vectors.strides[0])

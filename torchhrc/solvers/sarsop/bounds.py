@@ -113,47 +113,42 @@ class _Bounds:
         Only the vectors of the rows' own observed values are scored (``alphas.group(x)``,
         ``N_x * Y`` per row instead of ``N * Y``); ties go to the lowest index, as a scan of
         the whole set would. Rows given on the columns ``cols`` only (children of a sparse
-        belief, :class:`~torchhrc.solvers.forms.base.Children`) are scored against the
-        groups' columns restricted to them.
+        belief, :class:`~torchhrc.solvers.forms.base.Children`) are scored against those
+        columns of the vectors only.
         """
+        alphas = self.alphas
         if self.X == 1:
-            Vt, ids = self.alphas.group_columns(0)
-            return self._score_np(rows, Vt if cols is None else Vt[cols], ids)
-        if self._kernel is not None and cols is None:  # each row against its own x's, compiled
-            return self.alphas.group_scores(self._kernel, np.ascontiguousarray(rows), rows_x)
-        B = rows.shape[0]
+            V, ids = alphas.group(0)  # (N, Y) a view of the storage, (N,) 0..N-1
+            if cols is None and rows.shape[1] >= 64:
+                sup = np.flatnonzero(rows.any(0))
+                if sup.size * 2 <= rows.shape[1]:  # sparse beliefs: only their support matters
+                    rows, cols = rows[:, sup], sup
+            if cols is None:
+                return self._best(rows @ V.T, ids)
+            return alphas.best_on_columns(self._kernel, rows, cols)  # (ids: 0..N-1)
+        if self._kernel is not None:  # each row against its own x's, compiled
+            rows = np.ascontiguousarray(rows)
+            return alphas.group_scores(self._kernel, rows, rows_x, cols)
         first = rows_x[0]
         if (rows_x == first).all():
-            Vt, ids = self.alphas.group_columns(int(first))
-            return self._score_np(rows, Vt if cols is None else Vt[cols], ids)
+            V, ids = alphas.group(int(first))
+            return self._best(rows @ (V.T if cols is None else V[:, cols].T), ids)
         # one product against the vectors of all the rows' observed values, masked to each
         # row's own: fewer array ops than one product per observed value
         xs = np.unique(rows_x)
-        blocks = [self.alphas.group_columns(int(u)) for u in xs]
-        Vt = np.concatenate([v for v, _ in blocks], axis=1)  # (Y, sum N_x)
-        if cols is not None:
-            Vt = Vt[cols]
+        blocks = [alphas.group(int(u)) for u in xs]
+        V = np.concatenate([v for v, _ in blocks])  # (sum N_x, Y)
         ids = np.concatenate([i for _, i in blocks])
         label = np.repeat(xs, [i.size for _, i in blocks])  # (sum N_x,) observed value
-        scores = rows @ Vt  # (B, sum N_x)
+        scores = rows @ (V.T if cols is None else V[:, cols].T)  # (B, sum N_x)
         scores[rows_x[:, None] != label[None, :]] = -np.inf
-        j = scores.argmax(-1)
-        return scores[np.arange(B), j], ids[j]
+        return self._best(scores, ids)
 
     @staticmethod
-    def _score_np(rows: np.ndarray, Vt: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, ...]:
-        """``max_n rows . V[n]`` ``(B,)`` and ``ids`` of the argmax, for the vectors given as
-        columns ``Vt (Y, N)``."""
-        if rows.shape[1] >= 64:
-            cols = np.flatnonzero(rows.any(0))
-            if cols.size * 2 <= rows.shape[1]:  # sparse beliefs: only their support matters
-                scores = rows[:, cols] @ Vt[cols]  # (B, N)
-            else:
-                scores = rows @ Vt
-        else:
-            scores = rows @ Vt  # (B, N)
+    def _best(scores: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(B,)`` the row maxima of ``scores (B, N)`` and ``ids`` of the argmax."""
         j = scores.argmax(-1)  # one pass; the maximum is the score there
-        B = rows.shape[0]
+        B = scores.shape[0]
         return scores[_ROWS[:B] if B <= _ROWS.size else np.arange(B), j], ids[j]
 
     def _upper_np(

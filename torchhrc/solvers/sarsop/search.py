@@ -337,12 +337,12 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
             self._cache, self._child_best, self.children = EvaluationCache(), {}, {}
             self.tree = self.form.new_tree()
             del self.ub, self.bins  # (the solver is not used after this)
-        # the vectors' per-x copy is done with too, whatever the reason: freed before the
-        # policy copies the vectors (a third copy at the peak otherwise); a later use of the
-        # solver (tests, benchmarks) rebuilds it
+        # the policy takes the vectors as views of the alpha set's storage, not a copy (a
+        # second copy of every vector at the peak otherwise); a later use of the solver
+        # (tests, benchmarks) still may add and prune (see _AlphaSet.lend)
         self.alphas.release_groups()
         release_free_memory()
-        policy = self._policy()
+        policy = self.form.policy(*self.alphas.lend())
         return Solution(policy, lower=last["lower"], upper=last["upper"],
                         history=self.history, info=info)  # fmt: skip
 

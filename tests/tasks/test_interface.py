@@ -15,6 +15,7 @@ from torchhrc.tasks.interface import (
     chain_preferences,
     check_task,
     tabular_features,
+    wasted_move_feature,
 )
 from torchhrc.tasks.place_and_drill.demos import simulate_study
 from torchhrc.tasks.place_and_drill.model import PlaceAndDrillTask
@@ -336,3 +337,92 @@ def test_state_behaviour_an_unseen_reaction_carries_little_evidence():
     assert float(posterior[1]) < 0.82
     # where the shy type was seen (s0 after a wait, 8 goes) its own counts still decide
     assert float(behaviour[0, 0, 0, 0]) > 0.85
+
+
+def test_wasted_move_marks_a_move_that_changes_nothing_where_it_is_made():
+    # states s0, s1, end; "wait" changes nothing anywhere, "push" moves s0 -> s1 and does
+    # nothing in s1, "pull" moves s1 -> s0 and does nothing in s0, "finish" moves s1 -> end
+    # and does nothing in s0; the end is terminal (every action stays there)
+    effect = torch.tensor([[0, 1, 2], [1, 1, 2], [0, 0, 2], [0, 2, 2]])
+    end = torch.tensor([False, False, True])
+    phi = wasted_move_feature(effect, end)
+    assert phi.shape == (4, 3, 1) and phi.dtype == torch.float64
+    assert phi[..., 0].tolist() == [
+        [0.0, 0.0, 0.0],  # wait: not a move, never marked
+        [0.0, 1.0, 0.0],  # push in s1
+        [1.0, 0.0, 0.0],  # pull in s0
+        [1.0, 0.0, 0.0],  # finish in s0
+    ]
+    assert wasted_move_feature(effect)[..., 2, 0].tolist() == [0.0, 1.0, 1.0, 1.0]
+    with pytest.raises(ValueError, match="robot_effect of shape \\(A, X\\)"):
+        wasted_move_feature(effect.double())
+    with pytest.raises(ValueError, match="terminal of shape \\(X,\\) = \\(3,\\)"):
+        wasted_move_feature(effect, end[:2])
+
+
+class _TwoParts(CollaborativeTask):
+    """Parts A and B, each in storage (0), kitted (1) or mounted (2): state "ab"; the robot
+    kits a part in storage (else its move changes nothing), the human mounts a kitted one."""
+
+    state_names = tuple(f"{a}{b}" for a in range(3) for b in range(3))
+    robot_actions = ("wait", "kit_A", "kit_B")
+    human_actions = ("mount_A", "mount_B")
+    human_model = "state"
+
+    @staticmethod
+    def _to(s: str, part: int, old: str, new: str) -> int:
+        """The index of ``s`` with ``part`` moved from ``old`` to ``new`` (if it is ``old``)."""
+        return int(s[:part] + new + s[part + 1 :] if s[part] == old else s, 3)
+
+    @property
+    def robot_effect(self) -> torch.Tensor:
+        kits = [[self._to(s, p, "0", "1") for s in self.state_names] for p in (0, 1)]
+        return torch.tensor([list(range(9)), *kits])  # "22" has no part in storage: stays
+
+    @property
+    def human_effect(self) -> torch.Tensor:
+        return torch.tensor([[self._to(s, p, "1", "2") for p in (0, 1)] for s in self.state_names])
+
+    @property
+    def terminal(self) -> torch.Tensor:
+        return torch.tensor([s == "22" for s in self.state_names])
+
+
+class _TwoPartsWasted(_TwoParts):
+    """The same task with the wasted-move column added to the default features (the recipe
+    of docs/your_own_task.md, section 4)."""
+
+    @property
+    def feature_names(self) -> tuple[str, ...]:
+        return (*super().feature_names, "wasted_move")
+
+    def features(self, *, dtype=torch.float64, device=None):  # type: ignore[no-untyped-def]
+        wasted = wasted_move_feature(self.robot_effect, self.terminal, dtype=dtype)
+        return torch.cat([super().features(dtype=dtype), wasted], -1).to(device)
+
+
+@pytest.mark.parametrize("task", [_TwoParts(), _TwoPartsWasted()], ids=["tabular", "wasted"])
+def test_the_wasted_move_column_teaches_that_a_move_off_the_demonstrated_path_does_not_pay(
+    task,
+):  # type: ignore[no-untyped-def]
+    # every partner kits A, the person mounts it, then B: states 00 -> 10 -> 20 -> 21 -> 22.
+    # "01" (B kitted first) is off that path; there kit_B changes nothing. With per-(x, a_r)
+    # indicators alone its learned reward is level with the useful kit_A (nothing was seen
+    # there); the shared column carries "partners never waste a move" (kit_B in 20, 21 and
+    # kit_A in 10, 20, 21 were never made) to it
+    from torchhrc import learn
+
+    seq = [("robot", "kit_A"), ("human", "mount_A"), ("robot", "kit_B"), ("human", "mount_B")]
+    demos = Demonstrations.from_lists([seq] * 12, subjects=[f"s{i // 3}" for i in range(12)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = learn(task, demos, k=1, solve=False, seed=0)
+    R = model.momdp.R[..., 0]  # (A, X)
+    off = task.state_names.index("01")
+    wasted_gap = float(R[1, off] - R[2, off])  # kit_A (useful) over kit_B (wasted) there
+    if isinstance(task, _TwoPartsWasted):
+        assert wasted_gap > 1.0
+        assert float(R[0, off] - R[2, off]) > 1.0  # waiting beats the wasted move too
+        assert float(model.weights[0, -1]) < 0.0  # the shared weight: a wasted move costs
+    else:
+        assert abs(wasted_gap) < 0.5  # unconstrained: nothing tells the two apart

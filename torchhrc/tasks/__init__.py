@@ -17,6 +17,7 @@ from torchhrc.tasks.interface import (
     check_task,
     reachable_states,
     tabular_features,
+    wasted_move_feature,
 )
 from torchhrc.tasks.people import SimulatedPeople, TabularPeople, TaskWithPeople
 from torchhrc.tasks.pipeline import IRLConfig, LearnedModel, build_model, learn, solve_model
@@ -43,4 +44,5 @@ __all__ = [
     "solve_model",
     "suite_tasks",
     "tabular_features",
+    "wasted_move_feature",
 ]

@@ -72,6 +72,7 @@ __all__ = [
     "check_task",
     "reachable_states",
     "tabular_features",
+    "wasted_move_feature",
 ]
 
 #: Human symbols read as "the human lets this turn pass" when not a task action.
@@ -165,6 +166,59 @@ def tabular_features(
     if terminal is not None:
         phi = phi * (~terminal.to(torch.bool)).to(dtype).view(1, -1, 1)
     return phi
+
+
+def wasted_move_feature(
+    robot_effect: torch.Tensor,
+    terminal: torch.Tensor | None = None,
+    *,
+    dtype: torch.dtype = torch.float64,
+) -> torch.Tensor:
+    """One shared reward feature: a robot move that is wasted where it is made.
+
+    ``phi[a, x] = 1`` where robot action ``a`` leaves ``x`` unchanged
+    (``robot_effect[a, x] == x``) although ``a`` changes some other state; zero for an
+    action that changes no state at all (the task's wait), and zero in terminal states.
+
+    Why: with only the per-``(x, a_r)`` indicators of :func:`tabular_features`, the reward
+    of a pair no demonstration visits is unconstrained, and maximum-entropy IRL can leave a
+    move that changes nothing with a positive reward off the demonstrated path; the robot
+    then repeats it to the horizon rather than finish (the task's end is an absorbing
+    zero-reward state). Seen on the held-out task ``shelf_kitting``
+    (``benchmarks/heldout_tasks.py``): ``kit_C`` with ``C`` already mounted learned
+    ``+1.44``, and the type-aware robot lost to the pooled one. One column shared by every
+    state lets the ridge carry what the demonstrations show where partners were (they never
+    waste a move) to the states they never visited. Not in the default features: it helps
+    the held-out tasks but moves a suite task's bet (docs/your_own_task.md, section 4, has
+    the figures); add it to a task's :meth:`CollaborativeTask.features` as that section
+    shows.
+
+    Args:
+        robot_effect: ``(A, X)`` int64, ``x`` after robot action ``a``.
+        terminal: ``(X,)`` bool (None: no terminal state).
+
+    Returns:
+        ``(A, X, 1)`` float.
+
+    Example:
+        >>> effect = torch.tensor([[0, 1, 2], [1, 1, 2]])  # wait; "press" 0 -> 1, else nothing
+        >>> wasted_move_feature(effect, torch.tensor([False, False, True]))[..., 0].tolist()
+        [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+    """
+    effect = torch.as_tensor(robot_effect)
+    if effect.dim() != 2 or effect.dtype.is_floating_point or effect.dtype == torch.bool:
+        raise ValueError(f"expected robot_effect of shape (A, X) with integer entries, got "
+                         f"shape {tuple(effect.shape)} of {effect.dtype}")  # fmt: skip
+    X = effect.shape[-1]
+    if terminal is not None and tuple(torch.as_tensor(terminal).shape) != (X,):
+        raise ValueError(f"expected terminal of shape (X,) = ({X},) like robot_effect's "
+                         f"states, got {tuple(torch.as_tensor(terminal).shape)}")  # fmt: skip
+    same = effect == torch.arange(X, device=effect.device)  # (A, X)
+    moves = ~same.all(-1, keepdim=True)  # (A, 1): the action changes some state
+    phi = (same & moves).to(dtype)
+    if terminal is not None:
+        phi = phi * (~torch.as_tensor(terminal).to(torch.bool)).to(dtype).view(1, -1)
+    return phi.unsqueeze(-1)
 
 
 def chain_preferences(

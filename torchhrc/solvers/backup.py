@@ -42,6 +42,8 @@ Example:
 
 from __future__ import annotations
 
+from bisect import bisect_right
+from collections.abc import Iterator
 from typing import NamedTuple
 
 import torch
@@ -109,15 +111,34 @@ def _select_action(
     return alphas, actions, values, q
 
 
-def _flat_gamma(model: POMDP, alphas: torch.Tensor, beliefs: torch.Tensor) -> torch.Tensor:
-    """Vectors (M, A, S) via the projections Gamma (A, O, N, S)."""
+def _new_result(beliefs: torch.Tensor, num_actions: int) -> BackupResult:
+    """An unfilled result for ``beliefs (M, D)``, filled chunk by chunk by :func:`_select_into`."""
+    M, D = beliefs.shape
+    actions = torch.empty(M, dtype=torch.int64, device=beliefs.device)
+    return BackupResult(beliefs.new_empty(M, D), actions, beliefs.new_empty(M),
+                        beliefs.new_empty(M, num_actions))  # fmt: skip
+
+
+def _select_into(result: BackupResult, rows: slice | torch.Tensor, beliefs: torch.Tensor,
+                 vectors: torch.Tensor) -> None:  # fmt: skip
+    """Each belief's best action among its vectors ``(m, A, D)`` (beliefs ``(m, D)``), written
+    into ``rows`` of ``result``: only the chosen ``(m, D)`` vectors are kept, so a backup holds
+    its ``(M, D)`` result and one chunk's ``(m, A, D)`` vectors, never an ``(M, A, D)`` block."""
+    new, actions, values, q = _select_action(beliefs, vectors)
+    result.alphas[rows], result.actions[rows], result.values[rows] = new, actions, values
+    result.q_values[rows] = q
+
+
+def _flat_gamma(model: POMDP, alphas: torch.Tensor, beliefs: torch.Tensor,
+                ) -> Iterator[tuple[int, torch.Tensor]]:  # fmt: skip
+    """The vectors ``(m, A, S)`` of each chunk of beliefs (with its first row), via the
+    projections Gamma (A, O, N, S)."""
     T, Z, R, g = model.T, model.Z, model.R, model.discount
     A, S, O = T.shape[0], T.shape[-1], Z.shape[-1]
     N, M = alphas.shape[0], beliefs.shape[0]
     # W[a, o, n, s2] = Z[a, s2, o] * alpha[n, s2]; Gamma[a, o, n, s] = g sum_s2 T[a, s, s2] W
     W = Z.transpose(-1, -2).unsqueeze(2) * alphas.unsqueeze(0).unsqueeze(0)  # (A, O, N, S)
     gamma = g * (W.reshape(A, O * N, S) @ T.transpose(-1, -2)).reshape(A, O, N, S)
-    out = R.unsqueeze(0).expand(M, A, S).clone()
     chunk = max(1, CHUNK_ELEMENTS // max(1, A * O * max(N, S)))
     flat_gamma = gamma.reshape(A * O * N, S)
     a_index = torch.arange(A, device=T.device).view(1, A, 1)
@@ -127,16 +148,16 @@ def _flat_gamma(model: POMDP, alphas: torch.Tensor, beliefs: torch.Tensor) -> to
         scores = (b @ flat_gamma.T).view(-1, A, O, N)  # (m, A, O, N)
         best = scores.argmax(-1)  # (m, A, O)
         chosen = gamma[a_index, o_index, best]  # (m, A, O, S)
-        out[start : start + chunk] += chosen.sum(2)
-    return out
+        yield start, R + chosen.sum(2)
 
 
-def _flat_belief_side(model: POMDP, alphas: torch.Tensor, beliefs: torch.Tensor) -> torch.Tensor:
-    """Vectors (M, A, S) by scoring the predicted beliefs b T Z against the vectors."""
+def _flat_belief_side(model: POMDP, alphas: torch.Tensor, beliefs: torch.Tensor,
+                      ) -> Iterator[tuple[int, torch.Tensor]]:  # fmt: skip
+    """The vectors ``(m, A, S)`` of each chunk of beliefs (with its first row), by scoring the
+    predicted beliefs b T Z against the vectors."""
     T, Z, R, g = model.T, model.Z, model.R, model.discount
     A, S, O = T.shape[0], T.shape[-1], Z.shape[-1]
     N, M = alphas.shape[0], beliefs.shape[0]
-    out = []
     chunk = max(1, CHUNK_ELEMENTS // max(1, A * O * max(N, S)))
     Zt = Z.transpose(-1, -2)  # (A, O, S2)
     for start in range(0, M, chunk):
@@ -146,8 +167,7 @@ def _flat_belief_side(model: POMDP, alphas: torch.Tensor, beliefs: torch.Tensor)
         best = (W @ alphas.T).argmax(-1)  # (m, A, O)
         chosen = alphas[best]  # (m, A, O, S2)
         inner = (chosen * Zt.unsqueeze(0)).sum(2)  # (m, A, S2)
-        out.append(R.unsqueeze(0) + g * torch.einsum("ast,mat->mas", T, inner))
-    return torch.cat(out, 0)
+        yield start, R.unsqueeze(0) + g * torch.einsum("ast,mat->mas", T, inner)
 
 
 def point_backup(
@@ -203,14 +223,14 @@ def point_backup(
             if gamma_cost <= belief_cost and A * O * N * S <= 4 * CHUNK_ELEMENTS
             else "belief"
         )
-    if method == "gamma":
-        vectors = _flat_gamma(model, alphas, beliefs)
-    elif method == "belief":
-        vectors = _flat_belief_side(model, alphas, beliefs)
-    else:
+    if method not in ("gamma", "belief"):
         raise ValueError(f"expected method in ('auto', 'gamma', 'belief'), got {method!r}")
-    new, actions, values, q = _select_action(beliefs, vectors)
-    return BackupResult(new, actions, values, q)
+    kernel = _flat_gamma if method == "gamma" else _flat_belief_side
+    result = _new_result(beliefs, A)
+    for start, vectors in kernel(model, alphas, beliefs):  # (m, A, S) a chunk
+        stop = start + vectors.shape[0]
+        _select_into(result, slice(start, stop), beliefs[start:stop], vectors)
+    return result
 
 
 def _padded_vectors(policy: AlphaVectorPolicy, X: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -294,32 +314,40 @@ def momdp_point_backup(
     # reachable (a, x, x2): some hidden value moves x to x2 under a
     reach = Tx.amax(-2) > 0  # (A, X, X2)
     triples = torch.nonzero(reach[:, x, :].permute(1, 0, 2))  # (K, 3): m, a, x2
-    vectors = R[:, x, :].transpose(0, 1).contiguous()  # (M, A, Y), a fresh copy
-    K = triples.shape[0]
     per_triple = max(O * Y + n_max * Y + O * n_max, Y * Y if Ty is not None else 0)
     chunk = max(1, CHUNK_ELEMENTS // max(1, per_triple))
     Zt = Z.transpose(-1, -2)  # (A, X2, O, Y2)
-    for start in range(0, K, chunk):
-        m, a, x2 = triples[start : start + chunk].unbind(-1)
-        xm = x[m]
-        tx = Tx[a, xm, :, x2]  # (k, Y): Tx[a, x, y, x2]
-        if Ty is None:
-            pred = beliefs[m] * tx  # (k, Y2 = Y)
-        else:
-            ty = Ty[a, xm, :, x2, :]  # (k, Y, Y2)
-            pred = torch.einsum("ky,kyw->kw", beliefs[m] * tx, ty)
-        z = Zt[a, x2]  # (k, O, Y2)
-        W = pred.unsqueeze(1) * z  # (k, O, Y2)
-        cand = padded[x2]  # (k, Nmax, Y2)
-        scores = (W @ cand.transpose(-1, -2)).masked_fill(~valid[x2].unsqueeze(1), -torch.inf)
-        best = scores.argmax(-1)  # (k, O)
-        chosen = cand.gather(1, best.unsqueeze(-1).expand(-1, -1, Y))  # (k, O, Y2)
-        inner = (z * chosen).sum(1)  # (k, Y2): sum_o Z alpha*
-        if Ty is None:
-            contrib = tx * inner
-        else:
-            contrib = tx * torch.einsum("kyw,kw->ky", ty, inner)
-        flat_index = m * A + a
-        vectors.view(M * A, Y).index_add_(0, flat_index, g * contrib)
-    new, actions, values, q = _select_action(beliefs, vectors)
-    return BackupResult(new, actions, values, q, observed=x.clone())
+    # chunks of whole beliefs (at most `chunk` triples, or one belief), so that each chunk's
+    # (m, A, Y) vectors are complete and reduced to the chosen one before the next chunk
+    ends = torch.cumsum(torch.bincount(triples[:, 0], minlength=M), 0).tolist()
+    result = _new_result(beliefs, A)
+    first = lo = 0  # the chunk's first belief and first triple
+    while first < M:
+        last = max(first + 1, bisect_right(ends, lo + chunk))
+        hi = ends[last - 1]  # beliefs first:last, triples lo:hi
+        vectors = R[:, x[first:last], :].transpose(0, 1).contiguous()  # (m, A, Y), a fresh copy
+        for start in range(lo, hi, chunk):  # one pass unless one belief has > chunk triples
+            m, a, x2 = triples[start : min(start + chunk, hi)].unbind(-1)
+            xm = x[m]
+            tx = Tx[a, xm, :, x2]  # (k, Y): Tx[a, x, y, x2]
+            if Ty is None:
+                pred = beliefs[m] * tx  # (k, Y2 = Y)
+            else:
+                ty = Ty[a, xm, :, x2, :]  # (k, Y, Y2)
+                pred = torch.einsum("ky,kyw->kw", beliefs[m] * tx, ty)
+            z = Zt[a, x2]  # (k, O, Y2)
+            W = pred.unsqueeze(1) * z  # (k, O, Y2)
+            cand = padded[x2]  # (k, Nmax, Y2)
+            scores = (W @ cand.transpose(-1, -2)).masked_fill(~valid[x2].unsqueeze(1), -torch.inf)
+            best = scores.argmax(-1)  # (k, O)
+            chosen = cand.gather(1, best.unsqueeze(-1).expand(-1, -1, Y))  # (k, O, Y2)
+            inner = (z * chosen).sum(1)  # (k, Y2): sum_o Z alpha*
+            if Ty is None:
+                contrib = tx * inner
+            else:
+                contrib = tx * torch.einsum("kyw,kw->ky", ty, inner)
+            flat_index = (m - first) * A + a
+            vectors.view(-1, Y).index_add_(0, flat_index, g * contrib)
+        _select_into(result, slice(first, last), beliefs[first:last], vectors)
+        first, lo = last, hi
+    return result._replace(observed=x.clone())

@@ -139,8 +139,10 @@ class SparseForm(FlatFields, SolverModel):
             Q[m, a]       = b_m . R[a] + gamma (b_m T_a) . inner[m, a]
 
         and only the chosen action's vector ``R[a] + gamma T_a inner[m, a]`` is formed (one
-        sparse back-projection), so no ``(M, A, S)`` vector block is held; chunked over
-        beliefs to bound the ``(m, A, O, S)`` children.
+        sparse back-projection per chunk), chunked over beliefs to bound the ``(m, A, O, S)``
+        children: what is held across chunks is the ``(M, S)`` result and ``(M, A)`` Q-values,
+        no ``(M, A, S)`` block (at M = 1020, S = 10^4, A = 4 that block was 326 MB, copied once
+        more by a concatenation).
         """
         sp = self.sparse
         alphas = policy.alphas.to(sp.dtype)
@@ -150,17 +152,24 @@ class SparseForm(FlatFields, SolverModel):
         R, g = sp.R, self.discount
         Zt = sp.Z.transpose(-1, -2)  # (A, O, S)
         chunk = max(1, CHUNK_ELEMENTS // max(1, A * O * max(N, S)))
-        q_parts, inner_parts = [], []
+        new = beliefs.new_empty(M, S)
+        q = beliefs.new_empty(M, A)
+        values = beliefs.new_empty(M)
+        actions = torch.empty(M, dtype=torch.int64, device=beliefs.device)
         for start in range(0, M, chunk):
-            b = beliefs[start : start + chunk]
+            stop = min(start + chunk, M)
+            b = beliefs[start:stop]
             pred = sp.predict(b)  # (m, A, S)
-            W = pred.unsqueeze(2) * Zt.unsqueeze(0)  # (m, A, O, S)
+            W = pred.new_empty(stop - start, A, O, S)  # contiguous: the product below
+            torch.mul(pred.unsqueeze(2), Zt.unsqueeze(0), out=W)  # needs no copy
             best = (W @ alphas.T).argmax(-1)  # (m, A, O)
-            inner = (alphas[best] * Zt.unsqueeze(0)).sum(2)  # (m, A, S)
-            q_parts.append(b @ R.T + g * (pred * inner).sum(-1))  # (m, A)
-            inner_parts.append(inner)
-        q = torch.cat(q_parts)
-        values, actions = q.max(-1)
-        inner = torch.cat(inner_parts)[torch.arange(M), actions]  # (M, S)
-        new = R[actions] + g * sp.backproject(actions, inner)
+            del W  # one (m, A, O, S) block at a time
+            chosen = alphas[best].mul_(Zt.unsqueeze(0))  # (m, A, O, S)
+            inner = chosen.sum(2)  # (m, A, S)
+            del chosen
+            q[start:stop] = b @ R.T + g * (pred * inner).sum(-1)  # (m, A)
+            values[start:stop], act = q[start:stop].max(-1)
+            actions[start:stop] = act
+            chosen_inner = inner[torch.arange(stop - start, device=inner.device), act]  # (m, S)
+            new[start:stop] = R[act] + g * sp.backproject(act, chosen_inner)
         return BackupResult(new, actions, values, q)

@@ -45,7 +45,13 @@ from torchhrc.errors import ModelError
 from torchhrc.pomdp import SparseMOMDP
 from torchhrc.pomdp.sparse import coalesce
 from torchhrc.solvers._factored import SPARSE_DIRECT_SOLVE_SIZE
-from torchhrc.solvers.backup import BackupResult, _padded_vectors, _select_action
+from torchhrc.solvers.backup import (
+    CHUNK_ELEMENTS,
+    BackupResult,
+    _new_result,
+    _padded_vectors,
+    _select_into,
+)
 from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.forms.base import FIBOperator, PerObserved, SimStep, SolverModel, field
 from torchhrc.solvers.forms.momdp import MOMDPForm
@@ -386,28 +392,35 @@ class SparseMOMDPForm(SolverModel):
                      beliefs: torch.Tensor) -> BackupResult:  # fmt: skip
         """The factored point backup (Pineau et al. 2003) of ``(x (M,), beliefs (M, Y))``,
         grouped by ``x``: the best vector of each child ``J[a, k, o]`` among those tagged
-        ``x2_k``, then every action's vector ``R[a, x] + gamma P_a sum_o Z alpha*``."""
-        A, X, Y = self.num_actions, self.num_observed, self.num_hidden
+        ``x2_k``, then every action's vector ``R[a, x] + gamma P_a sum_o Z alpha*``; chunked
+        over the beliefs of a group to bound the ``(B, A, K, O, max(N, Y))`` children and
+        scores, each chunk's ``(B, A, Y)`` vectors reduced to the chosen one at once (the
+        result ``(M, Y)`` is all that is held across chunks)."""
+        A, X, Y, O = self.num_actions, self.num_observed, self.num_hidden, self.num_observations
         beliefs = beliefs.to(self.dtype)
         padded, valid = _padded_vectors(policy.to(dtype=self.dtype), X)  # (X, N, Y), (X, N)
-        M = beliefs.shape[0]
-        vectors = beliefs.new_empty(M, A, Y)
+        N = padded.shape[1]
+        result = _new_result(beliefs, A)
         for xv in torch.unique(x).tolist():
-            m = (x == xv).nonzero().squeeze(-1)
-            B = m.numel()
-            xs, J = self.expand(xv, beliefs[m])  # (B, A, K, O, Y)
-            cand = padded[xs]  # (K, N, Y)
-            scores = torch.einsum("bakoy,kny->bakon", J, cand)
-            scores = scores.masked_fill(~valid[xs].view(1, 1, -1, 1, valid.shape[1]), -torch.inf)
-            best = scores.argmax(-1)  # (B, A, K, O)
-            K = xs.numel()
-            chosen = cand[torch.arange(K).view(1, 1, K, 1), best]  # (B, A, K, O, Y)
-            inner = (self.observation(xv).unsqueeze(0) * chosen).sum(3)  # (B, A, K, Y)
-            acts = torch.arange(A).repeat(B)
-            back = self.backproject(xv, acts, inner.reshape(B * A, K, Y)).view(B, A, Y)
-            vectors[m] = self.R[:, xv, :].unsqueeze(0) + self.discount * back
-        new, actions, values, q = _select_action(beliefs, vectors)
-        return BackupResult(new, actions, values, q, observed=x.clone())
+            K = self.reach[xv].numel()
+            chunk = max(1, CHUNK_ELEMENTS // max(1, A * K * O * max(N, Y)))
+            for m in (x == xv).nonzero().squeeze(-1).split(chunk):
+                B = m.numel()
+                xs, J = self.expand(xv, beliefs[m])  # (B, A, K, O, Y)
+                cand = padded[xs]  # (K, N, Y)
+                scores = torch.einsum("bakoy,kny->bakon", J, cand)
+                del J
+                scores = scores.masked_fill_(~valid[xs].view(1, 1, K, 1, N), -torch.inf)
+                best = scores.argmax(-1)  # (B, A, K, O)
+                del scores
+                chosen = cand[torch.arange(K).view(1, 1, K, 1), best]  # (B, A, K, O, Y)
+                inner = (self.observation(xv).unsqueeze(0) * chosen).sum(3)  # (B, A, K, Y)
+                del chosen
+                acts = torch.arange(A).repeat(B)
+                back = self.backproject(xv, acts, inner.reshape(B * A, K, Y)).view(B, A, Y)
+                vectors = self.R[:, xv, :].unsqueeze(0) + self.discount * back  # (B, A, Y)
+                _select_into(result, m, beliefs[m], vectors)
+        return result._replace(observed=x.clone())
 
     # -- policies: vectors over Y tagged with their observed value (as the dense MOMDP form) ----
     policy = MOMDPForm.policy

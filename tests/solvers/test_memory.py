@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ctypes.util
 import itertools
+import os
 import sys
 
 import pytest
@@ -312,3 +313,33 @@ def test_checkpoint_settings_are_checked(kwargs: dict, error: str) -> None:
         SARSOPConfig(**kwargs)
     with pytest.raises(ValueError, match=error):
         PBVIConfig(**kwargs)
+
+
+@pytest.mark.skipif(not hasattr(os, "fork") or not os.path.exists("/proc/self/statm"),
+                    reason="needs fork and /proc")  # fmt: skip
+def test_a_forked_child_reads_its_own_memory_not_its_parents():
+    # the readers keep /proc/self/... open; /proc/self is resolved at open, so a child made by
+    # fork (a multiprocessing pool's default on Linux) would read the parent's figures
+    from torchhrc.solvers._memory import resident_bytes
+
+    before = resident_bytes()  # opens the descriptor in this (the parent) process
+    assert before is not None
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: touch 256 MiB, then the reader's figure and a fresh read
+        try:
+            block = bytearray(256 * 2**20)
+            block[::4096] = b"\1" * len(block[::4096])
+            with open("/proc/self/statm", "rb") as f:
+                fresh = int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+            os.write(write, f"{resident_bytes()} {fresh}".encode())
+        finally:
+            os._exit(0)
+    os.close(write)
+    seen, fresh = (int(v) for v in os.read(read, 64).decode().split())
+    os.waitpid(pid, 0)
+    os.close(read)
+    # the child's own resident memory (its copy of the parent's file pages is not mapped
+    # until used, so it need not exceed the parent's), and the 256 MiB it touched in it
+    assert abs(seen - fresh) < 32 * 2**20
+    assert fresh > 256 * 2**20

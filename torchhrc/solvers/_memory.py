@@ -34,7 +34,6 @@ from typing import Any
 __all__: list[str] = []
 
 _PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
-_STATM: int | None = None  # an open descriptor of /proc/self/statm; -1 where there is none
 
 _TRIM: Any = None  # the C function once looked up; False where there is none
 
@@ -154,19 +153,52 @@ def check_checkpoint(interval: object, checkpoint: object) -> None:
         raise TypeError(f"expected checkpoint to be callable, got {type(checkpoint).__name__}")
 
 
-def _statm() -> list[bytes] | None:
-    """The fields of ``/proc/self/statm`` (in pages), ``None`` where it cannot be read."""
-    global _STATM
-    if _STATM is None:
+_PROC: dict[str, int] = {}  # open descriptors of /proc/self files; -1 where there is none
+
+
+def _forget_proc() -> None:
+    """In a child made by ``fork``: the descriptors name the parent's ``/proc/<pid>`` files
+    (``/proc/self`` was resolved when they were opened), so close them; the child opens its
+    own on its next read. The carried peak is measured again too."""
+    global _INHERITED_PEAK
+    for fd in _PROC.values():
+        if fd >= 0:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+    _PROC.clear()
+    _INHERITED_PEAK = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_proc)
+
+
+def _read_proc(name: str, size: int) -> bytes | None:
+    """The first ``size`` bytes of ``/proc/self/<name>`` (one ``pread`` on a descriptor kept
+    open), ``None`` where it cannot be read."""
+    fd = _PROC.get(name)
+    if fd is None:
         try:
-            _STATM = os.open("/proc/self/statm", os.O_RDONLY)
+            fd = os.open(f"/proc/self/{name}", os.O_RDONLY)
         except OSError:
-            _STATM = -1
-    if _STATM < 0:
+            fd = -1
+        _PROC[name] = fd
+    if fd < 0:
         return None
     try:
-        return os.pread(_STATM, 128, 0).split()
+        return os.pread(fd, size, 0)
     except OSError:
+        return None
+
+
+def _statm_bytes(field: int) -> int | None:
+    """Field ``field`` of ``/proc/self/statm`` (pages) in bytes, ``None`` where unknown."""
+    text = _read_proc("statm", 128)
+    try:
+        return None if text is None else int(text.split()[field]) * _PAGE
+    except (IndexError, ValueError):
         return None
 
 
@@ -178,11 +210,7 @@ def resident_bytes() -> int | None:
         >>> r is None or r > 0
         True
     """
-    fields = _statm()
-    try:
-        return None if fields is None else int(fields[1]) * _PAGE
-    except (IndexError, ValueError):
-        return None
+    return _statm_bytes(1)
 
 
 def shared_resident_bytes() -> int | None:
@@ -196,30 +224,19 @@ def shared_resident_bytes() -> int | None:
         >>> shared is None or 0 <= shared <= rss
         True
     """
-    fields = _statm()
-    try:
-        return None if fields is None else int(fields[2]) * _PAGE
-    except (IndexError, ValueError):
-        return None
+    return _statm_bytes(2)
 
 
-_STATUS: int | None = None  # an open descriptor of /proc/self/status; -1 where there is none
 _INHERITED_PEAK: int | None = None  # ru_maxrss (bytes) carried over exec; 0: none was
 
 
 def _own_peak_bytes() -> int | None:
     """``VmHWM`` of ``/proc/self/status``: the peak resident memory of this process's own
     address space (since its ``exec``), ``None`` where unknown."""
-    global _STATUS
-    if _STATUS is None:
-        try:
-            _STATUS = os.open("/proc/self/status", os.O_RDONLY)
-        except OSError:
-            _STATUS = -1
-    if _STATUS < 0:
+    text = _read_proc("status", 8192)
+    if text is None:
         return None
     try:
-        text = os.pread(_STATUS, 8192, 0)
         at = text.index(b"\nVmHWM:") + 7
         return int(text[at : text.index(b"kB", at)]) * 1024
     except (OSError, ValueError):

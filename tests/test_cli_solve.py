@@ -170,6 +170,7 @@ def _rising_memory(monkeypatch):
         return reads[-1]
 
     monkeypatch.setattr(_memory, "resident_bytes", fake)
+    monkeypatch.setattr(_memory, "_statm_bytes", lambda: (fake(), 0))  # the guard's one read
     monkeypatch.setattr(_memory, "peak_resident_bytes", lambda: reads[-1] if reads else 1 << 30)
     return reads
 

@@ -69,6 +69,7 @@ def _rising_memory(monkeypatch: pytest.MonkeyPatch, step: int, *,
 
     monkeypatch.setattr(_memory, "resident_bytes", fake)
     monkeypatch.setattr(_memory, "shared_resident_bytes", file_backed)
+    monkeypatch.setattr(_memory, "_statm_bytes", lambda: (fake(), file_backed()))  # the guard's
     monkeypatch.setattr(_memory, "peak_resident_bytes", lambda: max(readings, default=start))
     return reads
 

@@ -193,11 +193,15 @@ def _read_proc(name: str, size: int) -> bytes | None:
         return None
 
 
-def _statm_bytes(field: int) -> int | None:
-    """Field ``field`` of ``/proc/self/statm`` (pages) in bytes, ``None`` where unknown."""
+def _statm_bytes() -> tuple[int, int] | None:
+    """``/proc/self/statm``'s resident and file-backed (or shared) memory in bytes, from one
+    read, ``None`` where unknown."""
     text = _read_proc("statm", 128)
+    if text is None:
+        return None
+    fields = text.split()
     try:
-        return None if text is None else int(text.split()[field]) * _PAGE
+        return int(fields[1]) * _PAGE, int(fields[2]) * _PAGE
     except (IndexError, ValueError):
         return None
 
@@ -210,7 +214,8 @@ def resident_bytes() -> int | None:
         >>> r is None or r > 0
         True
     """
-    return _statm_bytes(1)
+    both = _statm_bytes()
+    return None if both is None else both[0]
 
 
 def shared_resident_bytes() -> int | None:
@@ -224,7 +229,8 @@ def shared_resident_bytes() -> int | None:
         >>> shared is None or 0 <= shared <= rss
         True
     """
-    return _statm_bytes(2)
+    both = _statm_bytes()
+    return None if both is None else both[1]
 
 
 _INHERITED_PEAK: int | None = None  # ru_maxrss (bytes) carried over exec; 0: none was
@@ -239,7 +245,7 @@ def _own_peak_bytes() -> int | None:
     try:
         at = text.index(b"\nVmHWM:") + 7
         return int(text[at : text.index(b"kB", at)]) * 1024
-    except (OSError, ValueError):
+    except ValueError:
         return None
 
 
@@ -305,11 +311,11 @@ class MemoryGuard:
         self.min_interval = float(min_interval)
         self._next = 0.0  # when the next reading is due (time.perf_counter)
         self._pending = 0  # the pending bytes of the last check
-        rss = resident_bytes()
-        self.enabled = rss is not None
-        shared = shared_resident_bytes() if self.enabled else None
-        self._shared = shared or 0  # the file-backed pages at the start, counted at no less
-        self._read = rss or 0  # the resident memory read at the last check
+        both = _statm_bytes()
+        self.enabled = both is not None
+        rss, shared = both if both is not None else (0, 0)
+        self._shared = shared  # the file-backed pages at the start, counted at no less
+        self._read = rss  # the resident memory read at the last check
         self._rss = self._read  # ... and as counted (file-backed pages at no less than above)
         self._peak = peak_resident_bytes()
         self._step = 0  # the largest growth between two checks
@@ -339,12 +345,12 @@ class MemoryGuard:
                 return self.tripped
             self._next = now + self.min_interval
         pending = self._pending = pending() if callable(pending) else pending
-        read, rss = resident_bytes(), self._rss
-        if read is None:
+        both, rss = _statm_bytes(), self._rss
+        if both is None:
             read = self._read
         else:  # evicted file-backed pages count as held: the process will fault them back
-            shared = shared_resident_bytes()
-            rss = read + (0 if shared is None else max(0, self._shared - shared))
+            read, shared = both
+            rss = read + max(0, self._shared - shared)
         peak = peak_resident_bytes()
         if peak > self._peak:  # a new peak since the last check: how far above it went
             self._transient = max(self._transient, peak - self._read)

@@ -143,9 +143,9 @@ class _AlphaSet:
             gid[: counts[x]] = order[ends[x] - counts[x] : ends[x]]
             self._gid.append(gid)
 
-    def release_groups(self) -> None:
-        """Forget the remembered maxima (:meth:`best_on_columns`), as before the final
-        policy."""
+    def forget_scores(self) -> None:
+        """Forget the remembered maxima (:meth:`best_on_columns`): after the vectors moved
+        (a pruning), and before the final policy (their rows' memory)."""
         self._scored.clear()
         self._scored_bytes = 0
 
@@ -338,8 +338,7 @@ class _AlphaSet:
         self.actions[:n] = self.actions[idx]
         self.observed[:n] = self.observed[idx]
         self.size = n
-        self._scored.clear()  # (the vectors moved)
-        self._scored_bytes = 0
+        self.forget_scores()  # (the vectors moved)
         self._regroup()
         if self.np_vectors is not None:  # the dropped vectors' pages go back to the OS
             release_pages(self.np_vectors, n * self.np_vectors.strides[0])

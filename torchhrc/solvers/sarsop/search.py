@@ -340,7 +340,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         # the policy takes the vectors as views of the alpha set's storage, not a copy (a
         # second copy of every vector at the peak otherwise); a later use of the solver
         # (tests, benchmarks) still may add and prune (see _AlphaSet.lend)
-        self.alphas.release_groups()
+        self.alphas.forget_scores()
         release_free_memory()
         policy = self.form.policy(*self.alphas.lend())
         return Solution(policy, lower=last["lower"], upper=last["upper"],

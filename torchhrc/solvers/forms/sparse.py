@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from torchhrc.solvers.backup import CHUNK_ELEMENTS, BackupResult
+from torchhrc.solvers.backup import CHUNK_ELEMENTS, BackupResult, _new_result
 from torchhrc.solvers.belief_tree import BeliefTree, SparseBeliefTree
 from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.forms.base import Children, FIBOperator, FlatFields, SimStep, SolverModel
@@ -152,10 +152,7 @@ class SparseForm(FlatFields, SolverModel):
         R, g = sp.R, self.discount
         Zt = sp.Z.transpose(-1, -2)  # (A, O, S)
         chunk = max(1, CHUNK_ELEMENTS // max(1, A * O * max(N, S)))
-        new = beliefs.new_empty(M, S)
-        q = beliefs.new_empty(M, A)
-        values = beliefs.new_empty(M)
-        actions = torch.empty(M, dtype=torch.int64, device=beliefs.device)
+        result = _new_result(beliefs, A)
         for start in range(0, M, chunk):
             stop = min(start + chunk, M)
             b = beliefs[start:stop]
@@ -167,9 +164,10 @@ class SparseForm(FlatFields, SolverModel):
             chosen = alphas[best].mul_(Zt.unsqueeze(0))  # (m, A, O, S)
             inner = chosen.sum(2)  # (m, A, S)
             del chosen
-            q[start:stop] = b @ R.T + g * (pred * inner).sum(-1)  # (m, A)
-            values[start:stop], act = q[start:stop].max(-1)
-            actions[start:stop] = act
+            q = result.q_values[start:stop]
+            q[:] = b @ R.T + g * (pred * inner).sum(-1)  # (m, A)
+            result.values[start:stop], act = q.max(-1)
+            result.actions[start:stop] = act
             chosen_inner = inner[torch.arange(stop - start, device=inner.device), act]  # (m, S)
-            new[start:stop] = R[act] + g * sp.backproject(act, chosen_inner)
-        return BackupResult(new, actions, values, q)
+            result.alphas[start:stop] = R[act] + g * sp.backproject(act, chosen_inner)
+        return result

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 
 from torchhrc.errors import ModelError
@@ -15,6 +16,7 @@ from torchhrc.errors import ModelError
 __all__ = [
     "broadcast_shapes",
     "check_discount",
+    "check_index",
     "check_probabilities",
     "check_shape",
     "check_tensor",
@@ -57,6 +59,50 @@ def format_index(index: Sequence[int] | torch.Tensor) -> str:
     """Format a multi-index as ``[i, j, k]``."""
     values = index.tolist() if isinstance(index, torch.Tensor) else list(index)
     return "[" + ", ".join(str(int(v)) for v in values) + "]"
+
+
+def check_index(
+    name: str,
+    value: object,
+    size: int | None,
+    *,
+    device: torch.device | str | None = None,
+    what: str = "",
+) -> torch.Tensor:
+    """``value`` as an int64 index tensor, checked to be integer and in ``[0, size)``.
+
+    Accepted: a Python ``int``, a NumPy integer, or an integer tensor / NumPy array / list
+    (any shape, e.g. a batch). Refused with ``TypeError``: ``bool``, floats (``3.0`` too: an
+    index is not a measurement), anything else. Out of range: ``ModelError`` naming the
+    first bad value; ``size=None`` skips the range check. ``what`` is added to the range
+    message (e.g. ``"the model's states"``).
+
+    Example:
+        >>> import numpy as np
+        >>> check_index("x", np.int64(2), 3).item()
+        2
+        >>> check_index("x", 3, 3)
+        Traceback (most recent call last):
+        ...
+        torchhrc.errors.ModelError: expected x in [0, 3), got 3
+    """
+    if isinstance(value, torch.Tensor):
+        t = value
+    elif isinstance(value, bool) or not isinstance(
+        value, (int, np.integer, np.ndarray, list, tuple)
+    ):
+        raise TypeError(f"expected {name} to be an integer index (an int, or an integer "
+                        f"tensor or array), got {type(value).__name__} {value!r}")  # fmt: skip
+    else:
+        t = torch.as_tensor(value)
+    if t.is_floating_point() or t.is_complex() or t.dtype == torch.bool:
+        raise TypeError(f"expected {name} to be an integer index (an int, or an integer "
+                        f"tensor or array), got {t.dtype} {value!r}")  # fmt: skip
+    if size is not None and t.numel() and bool(((t < 0) | (t >= size)).any()):
+        bad = int(t[(t < 0) | (t >= size)].reshape(-1)[0])
+        hint = f" ({what})" if what else ""
+        raise ModelError(f"expected {name} in [0, {size}){hint}, got {bad}")
+    return t.to(device=device if device is not None else t.device, dtype=torch.long)
 
 
 def check_tensor(name: str, value: object, *, floating: bool = True) -> torch.Tensor:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -358,6 +359,10 @@ def test_bad_inputs_raise_clear_errors():
         update(m, m.b0, 0, torch.tensor([0, -1]))
     with pytest.raises(TypeError, match="action"):
         update(m, m.b0, torch.tensor(0.0), 0)
+    with pytest.raises(TypeError, match="observation"):
+        update(m, m.b0, 0, 1.0)  # a float is not an index, even a whole one
+    # NumPy integers are indices (as in the Controller): the same belief as Python ints
+    torch.testing.assert_close(update(m, m.b0, np.int64(0), np.int32(1)), update(m, m.b0, 0, 1))
     with pytest.raises(ModelError, match=r"belief.*last dim 2"):
         update(m, torch.ones(3, dtype=torch.float64) / 3, 0, 0)
     with pytest.raises(TypeError, match="model"):

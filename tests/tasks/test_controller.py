@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -157,10 +158,16 @@ def test_act_checks_the_state_and_signal_indices():
     m = random_momdp(4, 3, 2, 2, seed=1)
     c = Controller.from_momdp(m, _blind(m))
     for bad, msg in ((7, r"expected x in \[0, 4\).*got 7"), (-1, r"got -1"),
-                     (0.5, "integer index"), (torch.tensor([0, 4]), "got 4")):  # fmt: skip
-        c.reset(batch=2 if isinstance(bad, torch.Tensor) else None)
+                     (torch.tensor([0, 4]), "got 4"), (np.array([4, 0]), "got 4")):  # fmt: skip
+        c.reset(batch=2 if isinstance(bad, (torch.Tensor, np.ndarray)) else None)
         with pytest.raises(ModelError, match=msg):
             c.act(bad)
+    for bad in (0.5, 2.0, True, torch.tensor([0.0, 1.0]), "2"):  # not an index: a TypeError
+        c.reset(batch=2 if isinstance(bad, torch.Tensor) else None)
+        with pytest.raises(TypeError, match="expected x to be an integer index"):
+            c.act(bad)
+    c.reset()
+    assert isinstance(c.act(np.int64(1)), int)  # NumPy integers are indices
     for batch in (0, -2, 2.0):
         with pytest.raises(ModelError, match="expected batch to be a positive int"):
             c.reset(batch=batch)

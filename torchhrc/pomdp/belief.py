@@ -59,7 +59,7 @@ from typing import Literal, NamedTuple
 
 import torch
 
-from torchhrc._checks import broadcast_shapes
+from torchhrc._checks import broadcast_shapes, check_index
 from torchhrc.errors import ModelError
 from torchhrc.pomdp.dense import MOMDP, POMDP
 
@@ -139,23 +139,8 @@ def log_matmul_exp(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
 
 
 def _as_index(name: str, value: Index, size: int, device: torch.device) -> torch.Tensor:
-    """Validate an int / integer tensor index in ``[0, size)``; return an int64 tensor."""
-    if isinstance(value, bool):
-        raise TypeError(f"expected {name} to be an int or an integer tensor, got bool")
-    if isinstance(value, int):
-        if not 0 <= value < size:
-            raise ModelError(f"expected {name} in [0, {size}), got {value}")
-        return torch.tensor(value, dtype=torch.long, device=device)
-    if not isinstance(value, torch.Tensor):
-        raise TypeError(
-            f"expected {name} to be an int or an integer tensor, got {type(value).__name__}"
-        )
-    if value.is_floating_point() or value.is_complex() or value.dtype == torch.bool:
-        raise TypeError(f"expected {name} to have an integer dtype, got {value.dtype}")
-    if value.numel() and (int(value.min()) < 0 or int(value.max()) >= size):
-        bad = value[(value < 0) | (value >= size)].flatten()[0].item()
-        raise ModelError(f"expected {name} in [0, {size}), got {bad}")
-    return value.to(device=device, dtype=torch.long)
+    """Validate an int / integer tensor (or NumPy) index in ``[0, size)``; return int64."""
+    return check_index(name, value, size, device=device)
 
 
 def _take(t: torch.Tensor, core_ndim: int, indices: list[torch.Tensor | None]) -> torch.Tensor:

@@ -37,8 +37,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import torch
 
+from torchhrc._checks import check_index
 from torchhrc.errors import ModelError
 
 if TYPE_CHECKING:
@@ -204,16 +206,18 @@ class Controller:
         """Update the belief with what the robot sees now and return its next action.
 
         Args:
-            observation: the current task state ``x`` (int or ``(B,)`` int64); for a task
+            observation: the current task state ``x`` (an int or NumPy integer, or ``(B,)``
+                integers as a tensor, array or list); for a task
                 with a noisy human signal, the pair ``(x, o)``; for a flat POMDP, ``o``.
                 At the first call after :meth:`reset` there is nothing to update: ``x`` is
                 the start state (its signal, if any, is ignored).
 
         Returns:
             The robot action (int for an int ``x``, else an int64 tensor ``(B,)``).
+            ``x`` or ``o`` of another type (a float, a bool, a string) raises ``TypeError``.
 
         Raises:
-            ModelError: a state or signal that is not an integer index of the model, the
+            ModelError: a state or signal out of the model's range, the
                 observation is impossible under the belief (the human did something no
                 type explains), or, for a random start, the first state has no mass.
 
@@ -232,10 +236,10 @@ class Controller:
             x, o = None, observation
         else:
             x, o = observation, 0
-        scalar = not isinstance(x, torch.Tensor) and not isinstance(o, torch.Tensor)
+        scalar = all(v is None or isinstance(v, (int, np.integer)) for v in (x, o))
         X, O = self._sizes if self._sizes is not None else (None, None)
-        xt = None if x is None else _index(x, X, "x")
-        ot = _index(o, O, "o")
+        xt = None if x is None else check_index("x", x, X, what="the model's states")
+        ot = check_index("o", o, O, what="the model's signals")
         if self.last_action is not None:
             updated = self._filter(self.state, self.belief, self.last_action, xt, ot)
             if hasattr(updated, "log_normalizer"):
@@ -293,21 +297,6 @@ class Controller:
     def action_name(self, action: int) -> str:
         """The name of ``action`` (its index when the model has no names)."""
         return self.names[action] if self.names else str(action)
-
-
-def _index(value: Any, size: int | None, name: str) -> torch.Tensor:
-    """``value`` (int or tensor) as int64, checked to be whole and in ``[0, size)``."""
-    t = torch.as_tensor(value)
-    if t.is_floating_point() or t.is_complex() or t.dtype == torch.bool:
-        if not (t.is_floating_point() and bool((t == t.round()).all())):
-            raise ModelError(f"expected {name} to be an integer index (int or int64 tensor), "
-                             f"got {value!r}")  # fmt: skip
-    t = t.to(torch.long)
-    if size is not None and t.numel() and bool(((t < 0) | (t >= size)).any()):
-        bad = int(t[(t < 0) | (t >= size)].reshape(-1)[0])
-        raise ModelError(f"expected {name} in [0, {size}) (the model's "
-                         f"{'states' if name == 'x' else 'signals'}), got {bad}")  # fmt: skip
-    return t
 
 
 def _absorbing(momdp: MOMDP) -> torch.Tensor | None:

@@ -503,15 +503,39 @@ _TOKEN_CHARS = list("T:0a-_.# \t\n\r\x0b\x0c\x1c\x85\u00a0\u2003\u2028x9")
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.text(alphabet=st.sampled_from(_TOKEN_CHARS), max_size=80))
-def test_tokens_are_the_grammar_tokens(text: str) -> None:
-    """The tokenizer (str.split after dropping comments and spacing the colons) gives exactly
-    the tokens of the grammar's regex: runs of characters other than whitespace, ':' and '#',
-    and each ':' alone, with '#' to the end of the line a comment."""
-    from torchhrc.io.cassandra.tokens import _TOKEN, _Parser
+@given(
+    st.text(alphabet=st.sampled_from(_TOKEN_CHARS), max_size=80),
+    st.sampled_from([(1, 1), (7, 7), (2, 16), (1 << 12, 1 << 18)]),
+)
+def test_tokens_are_the_grammar_tokens(text: str, pieces: tuple[int, int]) -> None:
+    """The tokenizer (str.split after dropping comments and spacing the colons, a piece of
+    lines at a time) gives exactly the tokens of the grammar's regex: runs of characters other
+    than whitespace, ':' and '#', and each ':' alone, with '#' to the end of the line a
+    comment; each at the line and column the regex finds it, and the same again when the
+    parser moves back to it (pieces of 1 and 7 characters, cut at the next newline, and of 2
+    doubling to 16)."""
+    from unittest import mock
 
-    want = [t for t in _TOKEN.findall(text) if t]
-    assert _Parser(text, "<text>").tokens == want
+    from torchhrc.io.cassandra import tokens
+
+    want = [(m.group(1), m.start(1)) for m in tokens._TOKEN.finditer(text) if m.group(1)]
+    first, piece = pieces
+    with (
+        mock.patch.object(tokens, "_FIRST_PIECE", first),
+        mock.patch.object(tokens, "_PIECE", piece),
+    ):
+        p = tokens._Parser(text, "<text>")
+        got = []
+        while p.peek() is not None:
+            got.append(p.next("a token"))
+        assert got == [tok for tok, _ in want]
+        for index, (tok, start) in reversed(list(enumerate(want))):
+            line = text.count("\n", 0, start) + 1
+            assert p.position(index) == (line, start - (text.rfind("\n", 0, start) + 1) + 1)
+            p.seek(index)
+            assert p.peek() == tok and p.ahead(2) == got[index : index + 2]
+        p.seek(0)
+        assert p.ahead(len(want) + 1) == got  # across every piece, at once
 
 
 def test_auto_reads_large_sparse_models_sparsely_and_dense_ones_densely(monkeypatch):

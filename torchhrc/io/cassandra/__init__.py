@@ -95,8 +95,17 @@ AUTO_DENSE_FRACTION = 0.1
 
 
 #: Bytes of memory a character of the file takes as tokens (a str and its pointer per token;
-#: RockSample(5, 5), 0.74 MB, peaked 16 MB above the process read sparsely).
+#: RockSample(5, 5), 0.74 MB, peaked 16 MB above the process read sparsely)...
 _TEXT_BYTES = 16
+#: ...of at most this many characters: the parser holds the tokens of a few pieces of lines
+#: at a time (:class:`~torchhrc.io.cassandra.tokens._Parser`), not the whole file's.
+_TEXT_HELD = 1 << 20
+
+
+def _token_bytes(text: str) -> int:
+    return _TEXT_BYTES * min(len(text), _TEXT_HELD)
+
+
 #: Bytes of a state name the sparse reader makes up (``"12345"``: a str and its pointer).
 _NAME_BYTES = 64
 
@@ -191,7 +200,7 @@ def parse_pomdp(
     if not isinstance(text, str):
         raise TypeError(f"expected text to be a str, got {type(text).__name__}")
     budget = resolve_budget(memory_budget)
-    check_budget(_TEXT_BYTES * len(text), budget, f"the tokens of {len(text)} characters of "
+    check_budget(_token_bytes(text), budget, f"the tokens of {len(text)} characters of "
                  "text", path=path)  # fmt: skip
     parser = _Parser(text, path)
     try:
@@ -257,7 +266,7 @@ def _parse(
     # (start, rewards, made-up state names); a sparse table's cells are charged as they are
     # set (_SparseTable)
     dense_cells = A * S * S + A * S * O
-    tokens = _TEXT_BYTES * len(p.text)  # (held until the end of the parse)
+    tokens = _token_bytes(p.text)  # (held until the end of the parse)
     dense_bytes = 8 * dense_cells + 40 * A * S + 8 * S + tokens
     if dtype != torch.float64:  # the tensors are a converted copy
         dense_bytes += dense_cells * torch.empty(0, dtype=dtype).element_size()
@@ -428,7 +437,7 @@ def _parse_start(
     if spec is None:
         return np.full(S, 1.0 / S)
     mode, first, key_index = spec
-    p.i = first  # type: ignore[assignment]
+    p.seek(first)  # type: ignore[arg-type]
     if mode in ("include", "exclude"):
         chosen = np.zeros(S, dtype=bool)
         while p.peek() is not None and not p._at_keyword():

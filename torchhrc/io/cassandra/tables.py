@@ -22,6 +22,9 @@ __all__: list[str] = []  # private parts; the public names are the package's
 #: process before the read, 125 bytes a cell; the model kept 32.
 _SPARSE_CELL_BYTES = 128
 _ROW_TOL = 1e-4
+#: Most entries :class:`_FastEntries` reads at once (as tokens: 40,000 and about 3 MB; the
+#: block's arrays cost little beside the entries' own, and the parser's pieces hold as many).
+_WINDOW = 1 << 12
 
 
 class _Charge:
@@ -208,31 +211,31 @@ class _FastEntries:
 
     def __init__(self, p: _Parser, stores: dict, lookup: dict, sizes: tuple) -> None:
         self.p = p
-        self.tokens = np.array(p.tokens, dtype=object)
         self.stores = stores
         A, S, O = sizes
         self.num_actions = A
+        tokens = len(p.text) // 2  # (about the most tokens the text can hold)
         self.maps = {
-            "action": _index_map(lookup["actions"], A, len(p.tokens)),
-            "state": _index_map(lookup["states"], S, len(p.tokens)),
-            "observation": _index_map(lookup["observations"], O, len(p.tokens)),
+            "action": _index_map(lookup["actions"], A, tokens),
+            "state": _index_map(lookup["states"], S, tokens),
+            "observation": _index_map(lookup["observations"], O, tokens),
         }
         self.maps["action"]["*"] = -1  # -1: every action
         self.window = 16
 
     def run(self, rewards: list) -> int | None:
-        p, tk = self.p, self.tokens
+        p = self.p
         kind = p.peek()
         if kind not in ("T", "O", "R"):
             return None
         width = 10 if kind == "R" else 8
-        n = min(self.window, (len(tk) - p.i) // width)
-        if n < 2:
-            return None
         # the first two entries in plain Python first: a file written with wildcards or
         # whole rows (Hallway: 849 entries, none in the fast form) would otherwise pay the
         # numpy block below at every entry, 70 % of its reading time
-        for e in (p.i, p.i + width):
+        tk, at = p.window(2 * width)
+        if len(tk) - at < 2 * width:
+            return None
+        for e in (at, at + width):
             fits = (tk[e] == kind and tk[e + 1] == ":" and tk[e + 3] == ":" and tk[e + 5] == ":"
                     and tk[e + 4] != "*")  # fmt: skip
             if kind == "R":
@@ -242,7 +245,10 @@ class _FastEntries:
             if not fits:
                 self.window = 16
                 return None
-        block = tk[p.i : p.i + n * width].reshape(n, width)
+        # the block of the next `window` entries (held as tokens only while it is read)
+        tk, at = p.window(self.window * width)
+        n = min(len(tk) - at, self.window * width) // width
+        block = np.array(tk[at : at + n * width], dtype=object).reshape(n, width)
         ok = (block[:, 0] == kind) & (block[:, 1] == ":") & (block[:, 3] == ":")
         ok &= (block[:, 5] == ":") & (block[:, 4] != "*")
         if kind == "R":
@@ -250,7 +256,7 @@ class _FastEntries:
         else:
             ok &= block[:, 6] != "*"
         count = n if ok.all() else int(np.argmin(ok))
-        self.window = min(self.window * 2, 1 << 16) if count == n else 16
+        self.window = min(self.window * 2, _WINDOW) if count == n else 16
         if count < 2:
             return None
         block = block[:count]

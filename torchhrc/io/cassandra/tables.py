@@ -155,10 +155,13 @@ class _SparseTable:
 
     def finish(self, p: _Parser) -> tuple[np.ndarray, np.ndarray]:
         A, S, N = self.shape
-        if self.keys:
+        if self.keys:  # (each list let go once it is joined: the read's peak is here)
             keys = np.concatenate(self.keys)
+            self.keys = []
             values = np.concatenate(self.values)
+            self.values = []
             tokens = np.concatenate(self.tokens)
+            self.tokens = []
         else:
             keys = values = tokens = np.zeros(0, dtype=np.int64)
         if self.cleared:  # cells set before their action's last identity: overwritten
@@ -167,8 +170,11 @@ class _SparseTable:
             keep = np.arange(len(keys)) >= cut[keys // (S * N)]
             keys, values, tokens = keys[keep], values[keep], tokens[keep]
         uniq, last = np.unique(keys[::-1], return_index=True)
-        pick = len(keys) - 1 - last
-        keys, values, tokens = uniq, values[pick].astype(np.float64), tokens[pick]
+        del keys
+        pick = len(values) - 1 - last
+        del last
+        keys, values, tokens = uniq, values[pick].astype(np.float64, copy=False), tokens[pick]
+        del uniq, pick
         rows = keys // N
         where = np.full(A * S, -1, dtype=np.int64)
         np.maximum.at(where, rows, tokens)
@@ -190,11 +196,21 @@ class _SparseTable:
             raise _row_error(
                 p, self.name, where[r], f"{self.name} row for action {r // S}, state {r % S} {what}"
             )
+        del tokens, where, bad
         drift = off[rows] > 1e-12
-        values = np.where(drift, values / sums[rows], values)
+        if drift.any():
+            values = np.where(drift, values / sums[rows], values)
+        del rows, drift
         nonzero = values != 0
-        keys, values = keys[nonzero], values[nonzero]
-        index = np.stack([keys // (S * N), (keys // N) % S, keys % N], 1).astype(np.int64)
+        if not nonzero.all():
+            keys, values = keys[nonzero], values[nonzero]
+        del nonzero
+        # (A, S, N) coordinates written in place: no temporaries of their size
+        index = np.empty((len(keys), 3), dtype=np.int64)
+        np.floor_divide(keys, S * N, out=index[:, 0])
+        np.floor_divide(keys, N, out=index[:, 1])
+        np.remainder(index[:, 1], S, out=index[:, 1])
+        np.remainder(keys, N, out=index[:, 2])
         return index, values
 
 

@@ -228,8 +228,8 @@ print(json.dumps({"grew": peak() - before, "size": os.path.getsize(sys.argv[1]),
 def test_a_large_file_is_not_held_as_tokens(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """Reading a 7.5 MB file of 20,000 states (160,000 entries, 1.5 M tokens) sparsely grows
     the process's peak by less than 8 bytes a character of the file: the text itself (1) and
-    the tables (measured: 5.2 in all). The whole file as a list of tokens was 12.5 (a str
-    and its pointer per token: at 100,000 states, 1.0 GB of a 94 MB file)."""
+    the tables (measured: 4.4 in all). The whole file as a list of tokens was 10.3 here (a
+    str and its pointer per token: at 100,000 states, 1.0 GB of a 94 MB file)."""
     path = tmp_path / "big.pomdp"
     path.write_text(_numbered_pomdp(20_000))
     env = dict(os.environ, OMP_NUM_THREADS="1")

@@ -1,5 +1,6 @@
-"""The tokens of a Cassandra ``.pomdp`` file and the ``_Parser`` over them (one
-regex scan; names, numbers, the grammar's reserved words, errors with line and column)."""
+"""The tokens of a Cassandra ``.pomdp`` file and the ``_Parser`` over them (made a piece
+of lines at a time; names, numbers, the grammar's reserved words, errors with line and
+column)."""
 
 from __future__ import annotations
 

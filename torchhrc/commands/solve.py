@@ -154,18 +154,8 @@ def make_config(args: argparse.Namespace, callback: Any = None, checkpoint: Any 
         return solvers.QMDPConfig()
     if args.solver == "fib":
         return solvers.FIBConfig()
-    if args.solver == "pbvi":
-        return solvers.PBVIConfig(
-            time_limit=args.time_limit,
-            precision=args.precision,
-            seed=args.seed,
-            callback=callback,
-            clock=clock,
-            memory_limit=memory_limit,
-            memory_reserve=reserve,
-            **checkpoints,
-        )
-    return solvers.SARSOPConfig(
+    config = solvers.PBVIConfig if args.solver == "pbvi" else solvers.SARSOPConfig
+    return config(
         time_limit=args.time_limit,
         precision=args.precision,
         seed=args.seed,

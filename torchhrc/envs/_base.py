@@ -17,6 +17,13 @@ def check_horizon(horizon: object) -> int | None:
     return int(horizon)
 
 
+def check_render_mode(render_mode: object) -> str | None:
+    """``None`` or ``"ansi"``, the one render mode the model environments offer."""
+    if render_mode not in (None, "ansi"):
+        raise ValueError(f"expected render_mode None or 'ansi', got {render_mode!r}")
+    return render_mode  # type: ignore[return-value]
+
+
 def check_probability(name: str, value: object, *, upper_open: bool = False) -> float:
     """A float in ``[0, 1]`` (``[0, 1)`` with ``upper_open``)."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)):

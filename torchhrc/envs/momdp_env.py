@@ -32,7 +32,12 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
-from torchhrc.envs._base import check_action, check_horizon, check_unbatched
+from torchhrc.envs._base import (
+    check_action,
+    check_horizon,
+    check_render_mode,
+    check_unbatched,
+)
 from torchhrc.envs._tables import CategoricalRows
 from torchhrc.pomdp import MOMDP
 
@@ -70,12 +75,10 @@ class MOMDPEnv(gym.Env):
         if not isinstance(model, MOMDP):
             raise TypeError(f"expected model to be a MOMDP, got {type(model).__name__}")
         check_unbatched(model)
-        if render_mode not in (None, "ansi"):
-            raise ValueError(f"expected render_mode None or 'ansi', got {render_mode!r}")
+        self.render_mode = check_render_mode(render_mode)
         self.model = model
         self.discount = float(model.discount)
         self.horizon = check_horizon(horizon)
-        self.render_mode = render_mode
         A, X, Y, O = model.num_actions, model.num_observed, model.num_hidden, model.num_observations
         self._X, self._Y, self._O = X, Y, O
         self._Tx = CategoricalRows.from_dense(model.Tx)  # rows (a, x, y)

@@ -36,7 +36,12 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
-from torchhrc.envs._base import check_action, check_horizon, check_unbatched
+from torchhrc.envs._base import (
+    check_action,
+    check_horizon,
+    check_render_mode,
+    check_unbatched,
+)
 from torchhrc.envs._tables import CategoricalRows
 from torchhrc.pomdp import POMDP, SparsePOMDP
 
@@ -89,12 +94,10 @@ class POMDPEnv(gym.Env):
                 f"expected model to be a POMDP or SparsePOMDP, got {type(model).__name__}"
             )
         check_unbatched(model)
-        if render_mode not in (None, "ansi"):
-            raise ValueError(f"expected render_mode None or 'ansi', got {render_mode!r}")
+        self.render_mode = check_render_mode(render_mode)
         self.model = model
         self.discount = float(model.discount)
         self.horizon = check_horizon(horizon)
-        self.render_mode = render_mode
         A, S, O = model.num_actions, model.num_states, model.num_observations
         self._S, self._O = S, O
         self._T, self._Z = _flat_tables(model)

@@ -64,6 +64,14 @@ def grid_transition(size: int, slip: float, *, dtype: torch.dtype = torch.float6
     return (1.0 - slip) * deterministic + slip * slipped
 
 
+def _check_slip_and_discount(slip: float, discount: float) -> None:
+    """The options both gridworlds share: ``slip`` in ``[0, 1]``, ``discount`` in ``(0, 1)``."""
+    if not 0.0 <= slip <= 1.0:
+        raise ModelError(f"expected slip in [0, 1], got {slip}")
+    if not 0.0 < discount < 1.0:
+        raise ModelError(f"expected discount in (0, 1), got {discount}")
+
+
 @dataclass(frozen=True)
 class Gridworld:
     """An n x n gridworld (see the module docstring for the dynamics and the reward).
@@ -105,10 +113,7 @@ class Gridworld:
                 )
         if self.goal in self.hazards:
             raise ModelError(f"the goal {self.goal} must not be a hazard")
-        if not 0.0 <= self.slip <= 1.0:
-            raise ModelError(f"expected slip in [0, 1], got {self.slip}")
-        if not 0.0 < self.discount < 1.0:
-            raise ModelError(f"expected discount in (0, 1), got {self.discount}")
+        _check_slip_and_discount(self.slip, self.discount)
 
     @classmethod
     def random(
@@ -310,10 +315,7 @@ class ColourGridworld:
         C = self.weights.shape[-1]
         if self.weights.dim() != 1 or int(self.colours.min()) < 0 or int(self.colours.max()) >= C:
             raise ModelError(f"expected weights (C,) and colours in [0, C={C})")
-        if not 0.0 <= self.slip <= 1.0:
-            raise ModelError(f"expected slip in [0, 1], got {self.slip}")
-        if not 0.0 < self.discount < 1.0:
-            raise ModelError(f"expected discount in (0, 1), got {self.discount}")
+        _check_slip_and_discount(self.slip, self.discount)
 
     @classmethod
     def random(

@@ -57,14 +57,20 @@ print(json.dumps({
 """
 
 
-@pytest.mark.slow
-def test_a_built_wheel_ships_and_finds_the_files(tmp_path: Path):
-    source = tmp_path / "src"
+def _copy_source(source: Path) -> Path:
+    """A copy of what a build reads (the package, the shipped files, the build config), without
+    this checkout's build leftovers; returns ``source``."""
     ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "*.egg-info", "build")
     for name in ("torchhrc", "assets", "models"):
         shutil.copytree(ROOT / name, source / name, ignore=ignore)
     for name in ("pyproject.toml", "setup.py", "MANIFEST.in", "README.md"):
         shutil.copy2(ROOT / name, source / name)
+    return source
+
+
+@pytest.mark.slow
+def test_a_built_wheel_ships_and_finds_the_files(tmp_path: Path):
+    source = _copy_source(tmp_path / "src")
     wheels = tmp_path / "wheels"
     pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "--no-input"]
     subprocess.run([*pip, "wheel", str(source), "--no-deps", "--no-build-isolation",
@@ -245,12 +251,7 @@ print(out / build_meta.build_wheel(str(out)))
 @pytest.mark.slow
 def test_the_wheel_built_from_the_sdist_ships_the_files(tmp_path: Path):
     """``python -m build`` builds the sdist, then the wheel from the unpacked sdist."""
-    source = tmp_path / "src"
-    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "*.egg-info", "build")
-    for name in ("torchhrc", "assets", "models"):
-        shutil.copytree(ROOT / name, source / name, ignore=ignore)
-    for name in ("pyproject.toml", "setup.py", "MANIFEST.in", "README.md"):
-        shutil.copy2(ROOT / name, source / name)
+    source = _copy_source(tmp_path / "src")
     out = tmp_path / "dist"
     out.mkdir()
     done = subprocess.run([sys.executable, "-c", _SDIST_THEN_WHEEL, str(out)], cwd=source,

@@ -11,6 +11,7 @@ import torch
 gym = pytest.importorskip("gymnasium", reason="torchhrc.envs needs the gym extra (gymnasium)")
 pytest.importorskip("scipy", reason="the frequency tests use scipy.stats")
 
+from _stated_rewards import stated_reward  # noqa: E402
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 import torchhrc.envs  # noqa: E402,F401  (registers the ids)
@@ -207,33 +208,6 @@ def test_vector_env_reset_seed_fixes_the_batch():
     assert run(7) != run(8)
 
 
-#: The task's stated rewards (``models/place_and_drill_expert.json`` and
-#: docs/place_and_drill.md: a safe person penalises drilling while a position is still empty,
-#: an efficient one rewards it and penalises waiting then), written out here, not read from
-#: the library.
-STATED_REWARD = {
-    "safe": {"drill_ready": 10, "drill_early": -10, "wait_early": 0, "wait_late": -5,
-             "wait_idle": 0, "drill_invalid": -5},
-    "efficient": {"drill_ready": 10, "drill_early": 10, "wait_early": -5, "wait_late": -5,
-                  "wait_idle": 0, "drill_invalid": -5},
-}  # fmt: skip
-
-
-def _stated_reward(bench: str, action: int, label: str) -> float:
-    """Reward of robot ``action`` (0 wait, 1 + p drill p) on ``bench`` (e.g. ``"PED"``) for a
-    person of type ``label``, from the situation definitions of the task."""
-    if set(bench) == {"D"}:
-        return 0.0
-    empty, pending = "E" in bench, "P" in bench
-    if action == 0:
-        situation = "wait_idle" if not pending else ("wait_early" if empty else "wait_late")
-    elif bench[action - 1] != "P":
-        situation = "drill_invalid"
-    else:
-        situation = "drill_early" if empty else "drill_ready"
-    return float(STATED_REWARD[label][situation])
-
-
 def test_place_and_drill_rewards_are_the_tasks_stated_rewards():
     """Every reward of the single and the vector env is the stated reward of the episode's
     true type (a safe person's drill_early is -10, an efficient person's +10), and every
@@ -253,13 +227,13 @@ def test_place_and_drill_rewards_are_the_tasks_stated_rewards():
             bench = names[obs["x"]]
             a = int(rng.integers(env.task.num_actions))
             obs, r, term, trunc, info = env.step(a)
-            assert r == _stated_reward(bench, a, info["type"]), (bench, a, info["type"], r)
-            seen.add((info["type"], _stated_reward(bench, a, info["type"]), bench, a))
+            assert r == stated_reward(bench, a, info["type"]), (bench, a, info["type"], r)
+            seen.add((info["type"], stated_reward(bench, a, info["type"]), bench, a))
             done = term or trunc
     envs = PlaceAndDrillVectorEnv(64, epsilon=0.3)
     x, a, y, _, r = _vector_samples(envs, 30, seed=3)
     labels = envs.human.type_names
-    stated = [_stated_reward(names[i], j, labels[k]) for i, j, k in zip(x, a, y)]
+    stated = [stated_reward(names[i], j, labels[k]) for i, j, k in zip(x, a, y)]
     np.testing.assert_array_equal(r, stated)
     for label in ("safe", "efficient"):
         # each type met drilling early (the swap's tell: -10 against +10)

@@ -6,6 +6,7 @@ import warnings
 
 import pytest
 import torch
+from _stated_rewards import stated_reward
 
 from torchhrc.errors import ModelError
 from torchhrc.experiments.online import (
@@ -293,31 +294,6 @@ def test_online_belief_moves_toward_the_true_type(online_setup):
 # --------------------------------------------------------------------------------------------
 # The online Fig. 3 against a second, plain-Python computation (issue 30, goal 5)
 
-#: The rewards the task states (``models/place_and_drill_expert.json``, docs/place_and_drill.md:
-#: a safe person: drill_early -10, wait_early 0; an efficient one: drill_early +10,
-#: wait_early -5), written out here rather than read from the library's reward table.
-STATED_REWARD = {
-    "safe": {"drill_ready": 10, "drill_early": -10, "wait_early": 0, "wait_late": -5,
-             "wait_idle": 0, "drill_invalid": -5},
-    "efficient": {"drill_ready": 10, "drill_early": 10, "wait_early": -5, "wait_late": -5,
-                  "wait_idle": 0, "drill_invalid": -5},
-}  # fmt: skip
-
-
-def _stated_reward(bench: str, action: int, label: str) -> float:
-    """The true type's reward of robot ``action`` (0 wait, 1 + p drill p) on ``bench``
-    (e.g. ``"PED"``), from the situation definitions of the task; 0 once all is drilled."""
-    if set(bench) == {"D"}:
-        return 0.0
-    empty, pending = "E" in bench, "P" in bench
-    if action == 0:
-        situation = "wait_idle" if not pending else ("wait_early" if empty else "wait_late")
-    elif bench[action - 1] != "P":
-        situation = "drill_invalid"
-    else:
-        situation = "drill_early" if empty else "drill_ready"
-    return float(STATED_REWARD[label][situation])
-
 
 def _human_moves(bench: str, order: tuple[int, ...], epsilon: float, label: str):
     """``[(probability, bench after)]``: the stated online human after the robot's move.
@@ -400,7 +376,7 @@ def _exact_moments(robot, names, order, epsilon, label, horizon):
         m1 = m2 = 0.0
         x = index[bench]
         for pa, a in robot.choices(x, belief):
-            r = _stated_reward(bench, a, label)
+            r = stated_reward(bench, a, label)
             after = bench if a == 0 or bench[a - 1] != "P" else (
                 bench[: a - 1] + "D" + bench[a:])  # fmt: skip
             for ph, bench2 in _human_moves(after, order, epsilon, label):

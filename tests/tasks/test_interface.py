@@ -42,7 +42,10 @@ def test_default_features_are_one_hot_per_state_action_and_zero_when_terminal():
     assert phi.shape == (2, 3, 6)
     assert phi.sum(-1).tolist() == [[1.0, 1.0, 0.0], [1.0, 1.0, 0.0]]
     assert phi[1, 1, 4] == 1.0
-    assert len(Toggle().feature_names) == Toggle().features().shape[-1] == 4
+    assert len(Toggle().feature_names) == Toggle().features().shape[-1] == 5
+    # the default adds the shared wasted-move column: press in "on" changes nothing
+    assert Toggle().feature_names[-1] == "wasted_move"
+    assert Toggle().features()[..., -1].tolist() == [[0.0, 0.0], [0.0, 1.0]]
 
 
 def _bench_steps(symbols, n):
@@ -206,7 +209,7 @@ def test_check_task_names_the_bad_table():
     class BadNames(Toggle):
         feature_names = ("only_one",)
 
-    with pytest.raises(ModelError, match="expected 4 feature_names"):
+    with pytest.raises(ModelError, match="expected 5 feature_names"):
         check_task(BadNames())
     check_task(Toggle())
     check_task(PlaceAndDrillTask(3))
@@ -388,20 +391,19 @@ class _TwoParts(CollaborativeTask):
         return torch.tensor([s == "22" for s in self.state_names])
 
 
-class _TwoPartsWasted(_TwoParts):
-    """The same task with the wasted-move column added to the default features (the recipe
-    of docs/your_own_task.md, section 4)."""
+class _TwoPartsTabular(_TwoParts):
+    """The same task with the per-``(x, a_r)`` indicators alone (the default before the
+    wasted-move column joined it)."""
 
     @property
     def feature_names(self) -> tuple[str, ...]:
-        return (*super().feature_names, "wasted_move")
+        return super().feature_names[:-1]
 
     def features(self, *, dtype=torch.float64, device=None):  # type: ignore[no-untyped-def]
-        wasted = wasted_move_feature(self.robot_effect, self.terminal, dtype=dtype)
-        return torch.cat([super().features(dtype=dtype), wasted], -1).to(device)
+        return tabular_features(self.num_actions, self.num_states, self.terminal, dtype=dtype)
 
 
-@pytest.mark.parametrize("task", [_TwoParts(), _TwoPartsWasted()], ids=["tabular", "wasted"])
+@pytest.mark.parametrize("task", [_TwoPartsTabular(), _TwoParts()], ids=["tabular", "default"])
 def test_the_wasted_move_column_teaches_that_a_move_off_the_demonstrated_path_does_not_pay(
     task,
 ):  # type: ignore[no-untyped-def]
@@ -420,7 +422,7 @@ def test_the_wasted_move_column_teaches_that_a_move_off_the_demonstrated_path_do
     R = model.momdp.R[..., 0]  # (A, X)
     off = task.state_names.index("01")
     wasted_gap = float(R[1, off] - R[2, off])  # kit_A (useful) over kit_B (wasted) there
-    if isinstance(task, _TwoPartsWasted):
+    if not isinstance(task, _TwoPartsTabular):
         assert wasted_gap > 1.0
         assert float(R[0, off] - R[2, off]) > 1.0  # waiting beats the wasted move too
         assert float(model.weights[0, -1]) < 0.0  # the shared weight: a wasted move costs

@@ -17,7 +17,8 @@ A task is a :class:`CollaborativeTask`, tabulated (all tables are small tensors)
 ``initial_state``      ``x0`` (default 0)
 ``terminal``           ``(X,)`` bool absorbing, zero-reward states (default none)
 ``features()``         ``(A, X, F)`` reward features ``phi(x, a_r)`` (default one-hot of
-                       ``(x, a_r)``: :func:`tabular_features`)
+                       ``(x, a_r)``, :func:`tabular_features`, and one
+                       :func:`wasted_move_feature` column)
 ``observation(model)`` how the robot observes the human: ``None`` (the human's action is
                        seen through ``x'``, as in place-and-drill) or ``Z (A, X, Y, O)``
                        (a noisy signal, as the hand positions of hand-finishing)
@@ -45,7 +46,7 @@ Example:
     >>> task.step(torch.tensor(0), torch.tensor(0), torch.tensor(1)).item()  # press, flip
     0
     >>> task.features().shape
-    torch.Size([2, 2, 4])
+    torch.Size([2, 2, 5])
 """
 
 from __future__ import annotations
@@ -150,7 +151,8 @@ def tabular_features(
     *,
     dtype: torch.dtype = torch.float64,
 ) -> torch.Tensor:
-    """The default reward features: one indicator per ``(a_r, x)``, zero in terminal states.
+    """The default reward features' tabular part: one indicator per ``(a_r, x)``, zero in
+    terminal states (:meth:`CollaborativeTask.features` adds :func:`wasted_move_feature`).
 
     With these IRL can represent any reward ``R(x, a_r)``; a task with many states should
     supply a few meaningful features instead (fewer demonstrations needed).
@@ -188,10 +190,9 @@ def wasted_move_feature(
     (``benchmarks/heldout_tasks.py``): ``kit_C`` with ``C`` already mounted learned
     ``+1.44``, and the type-aware robot lost to the pooled one. One column shared by every
     state lets the ridge carry what the demonstrations show where partners were (they never
-    waste a move) to the states they never visited. Not in the default features: it helps
-    the held-out tasks but moves a suite task's bet (docs/your_own_task.md, section 4, has
-    the figures); add it to a task's :meth:`CollaborativeTask.features` as that section
-    shows.
+    waste a move) to the states they never visited. Part of the default
+    :meth:`CollaborativeTask.features` (docs/your_own_task.md, section 4, has the figures
+    that decided it).
 
     Args:
         robot_effect: ``(A, X)`` int64, ``x`` after robot action ``a``.
@@ -413,15 +414,22 @@ class CollaborativeTask:
 
     @property
     def feature_names(self) -> tuple[str, ...]:
-        """``(F,)`` names of :meth:`features` (default: ``"<action>@<state>"``)."""
-        return tuple(f"{a}@{x}" for a in self.robot_actions for x in self.state_names)
+        """``(F,)`` names of :meth:`features` (default: ``"<action>@<state>"``, then
+        ``"wasted_move"``)."""
+        tabular = (f"{a}@{x}" for a in self.robot_actions for x in self.state_names)
+        return (*tabular, "wasted_move")
 
     def features(
         self, *, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
     ) -> torch.Tensor:
-        """Reward features ``(A, X, F)``, ``phi_f(x, a_r)`` (default :func:`tabular_features`)."""
+        """Reward features ``(A, X, F)``, ``phi_f(x, a_r)``.
+
+        Default: :func:`tabular_features` (``A * X`` columns) and one
+        :func:`wasted_move_feature` column, ``F = A * X + 1``.
+        """
         phi = tabular_features(self.num_actions, self.num_states, self.terminal, dtype=dtype)
-        return phi.to(device)
+        wasted = wasted_move_feature(self.robot_effect, self.terminal, dtype=dtype)
+        return torch.cat([phi, wasted], -1).to(device)
 
     def observation(self, model: MOMDP) -> torch.Tensor | None:
         """How the robot observes the human, given the learned model without it.

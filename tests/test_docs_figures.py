@@ -78,6 +78,13 @@ def test_the_comparison_catches_a_changed_figure():
     assert _compare("d", "n", "1 2", "1 2 3")
 
 
+def test_an_inline_figure_ends_at_its_own_line():
+    """``--write`` replaces the marked line only: the blank line after it stays."""
+    text = "ahead (0.69 ± 0.21) <!-- figure: f -->\n\n**Next paragraph**\n"
+    m = figures.INLINE.search(text)
+    assert m["name"] == "f" and text[m.end():] == "\n\n**Next paragraph**\n"
+
+
 @pytest.mark.parametrize(
     "name",
     [

@@ -33,7 +33,7 @@ DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 BLOCK = re.compile(
     r"<!-- figures: (?P<name>[\w-]+) -->\n(?P<body>.*?)<!-- /figures: (?P=name) -->", re.S
 )
-INLINE = re.compile(r"^(?P<line>.*)<!-- figure: (?P<name>[\w-]+) -->\s*$", re.M)
+INLINE = re.compile(r"^(?P<line>.*)<!-- figure: (?P<name>[\w-]+) -->[ \t]*$", re.M)
 NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?")
 
 

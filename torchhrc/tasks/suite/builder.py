@@ -71,7 +71,7 @@ class TaskSpec:
             type's best actions by ``reward``).
         intent_accuracy: set for an observed task (see the module docstring).
         features: ``(s, a_r) -> {feature name: value}`` compact reward features (default:
-            one indicator per ``(a_r, x)``).
+            one indicator per ``(a_r, x)`` and the wasted-move column).
     """
 
     name: str
@@ -155,7 +155,8 @@ class SuiteTask(CollaborativeTask):
     def features(
         self, *, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
     ) -> torch.Tensor:
-        """``(A, X, F)`` the task's compact features, or one indicator per ``(a_r, x)``."""
+        """``(A, X, F)`` the task's compact features, or the default
+        (:meth:`CollaborativeTask.features`)."""
         if self._features is None:
             return super().features(dtype=dtype, device=device)
         return self._features.to(dtype=dtype, device=device)

@@ -82,7 +82,7 @@ def test_an_inline_figure_ends_at_its_own_line():
     """``--write`` replaces the marked line only: the blank line after it stays."""
     text = "ahead (0.69 ± 0.21) <!-- figure: f -->\n\n**Next paragraph**\n"
     m = figures.INLINE.search(text)
-    assert m["name"] == "f" and text[m.end():] == "\n\n**Next paragraph**\n"
+    assert m["name"] == "f" and text[m.end() :] == "\n\n**Next paragraph**\n"
 
 
 @pytest.mark.parametrize(

@@ -41,10 +41,10 @@ from typing import Protocol
 
 import torch
 
-from torchhrc.pomdp.belief import momdp_update
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP
+from torchhrc.pomdp.belief import momdp_update
 from torchhrc.tasks.place_and_drill.demos import placement_orders
 from torchhrc.tasks.place_and_drill.model import EMPTY, PLACED, PlaceAndDrillTask
 

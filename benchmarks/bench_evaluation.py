@@ -11,7 +11,14 @@ differ (the demonstrating partner's best action differs between types in a state
 people reach), and the belief's status per type after ``--belief-steps`` steps.
 
 Run: ``python benchmarks/bench_evaluation.py [--tasks a,b] [--episodes 200] [--json out.json]``
-(about a minute per task on one core). SARSOP stops on a wall-clock limit: on a loaded
+(about a minute per task on one core).
+
+``--seeds 0-9``: every task on every seed (its own demonstrations and people), printed as
+one row per task with two signs per seed: *told the type* against *type-agnostic* (does
+knowing the type pay?), then *type-aware* against *type-agnostic*, over the population and
+beyond the CIs (:func:`seeds_table`; the table of docs/your_own_task.md section 8, "Over
+ten seeds", at ``--solver-time 5 --episodes 100``; ``benchmarks/bench_heldout.py --goal 3
+--seeds`` runs it on the held-out tasks). SARSOP stops on a wall-clock limit: on a loaded
 machine a large task's policies can differ between runs; ``--json`` records the bounds' gaps.
 """
 
@@ -79,11 +86,53 @@ def evaluate_world(name: str, world, demos, *, episodes: int = 200, belief_steps
         f"{signs} | "
         f"{'yes' if differ else 'no'} | {status} |"
     )
+    pays = int(result.compare("told the type", "type-agnostic", overall=True))
     record = {**result.to_dict(), "best_responses_differ": differ,
+              "signs": "+=-"[1 - pays] + "+=-"[1 - overall], "summary": result.summary(),
               "k_found": aware.num_types, "human_model": used,
               "gap": [aware.upper - aware.lower, agnostic.upper - agnostic.lower],
               "seconds": time.perf_counter() - start}  # fmt: skip
     return row, record
+
+
+def seeds_table(names: list[str], seeds: list[int], make_world, *, subjects: int = 30,
+                per_subject: int = 4, noise: float = 0.05,
+                **options) -> dict[str, dict[int, dict]]:  # fmt: skip
+    """Every task of ``names`` (``make_world(name)``) on every seed: :func:`evaluate_world`
+    on the seed's demonstrations (``subjects`` x ``per_subject``, ``noise``), one line per
+    run as it ends, then a Markdown row per task of two signs per seed (told the type /
+    type-aware, each against the type-agnostic robot over the population) and the counts
+    where knowing the type pays and where it does not. ``options`` go to
+    :func:`evaluate_world`. Returns the records by task and seed."""
+    records: dict[str, dict[int, dict]] = {}
+    for name in names:
+        for seed in seeds:
+            world = make_world(name)
+            demos, _ = world.demonstrations(subjects=subjects, per_subject=per_subject,
+                                            noise=noise, seed=seed)  # fmt: skip
+            row, record = evaluate_world(name, world, demos, seed=seed, **options)
+            records.setdefault(name, {})[seed] = record
+            print(f"seed {seed}: {record['signs']} {row}", flush=True)
+    print(f"\n| task | seeds {' '.join(map(str, seeds))} |\n|---|---|")
+    counts = {"pays": {"+": 0, "=": 0, "-": 0}, "does not pay": {"+": 0, "=": 0, "-": 0}}
+    for name, by_seed in records.items():
+        signs = [by_seed[s]["signs"] for s in seeds]
+        print(f"| {name} | {' '.join(signs)} |")
+        for told, aware in signs:
+            counts["pays" if told == "+" else "does not pay"][aware] += 1
+    for case, c in counts.items():
+        print(f"knowing the type {case}: {sum(c.values())} runs, type-aware ahead on {c['+']}, "
+              f"level on {c['=']}, behind on {c['-']}")  # fmt: skip
+    return records
+
+
+def _seeds(text: str) -> list[int]:
+    """``"0-9"`` or ``"0,3,5"`` (or a mix) -> the seeds."""
+    out: list[int] = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        out.extend(range(int(lo), int(hi or lo) + 1))
+    return out
 
 
 def main() -> None:
@@ -95,10 +144,20 @@ def main() -> None:
     parser.add_argument("--belief-steps", type=int, default=5)
     parser.add_argument("--solver-time", type=float, default=10.0)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seeds", default=None, help="e.g. 0-9: every seed (seeds_table)")
     parser.add_argument("--human-model", default=None, help="learn()'s human_model (default)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.seeds is not None:
+        out = seeds_table(args.tasks.split(","), _seeds(args.seeds), make_task,
+                          subjects=args.subjects, per_subject=args.per_subject,
+                          episodes=args.episodes, belief_steps=args.belief_steps,
+                          solver_time=args.solver_time, human_model=args.human_model)  # fmt: skip
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(out, f, indent=1)
+        return
     rows, records = [], {}
     for name in args.tasks.split(","):
         world = make_task(name)

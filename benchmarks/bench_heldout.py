@@ -20,6 +20,7 @@ Usage::
     python benchmarks/bench_heldout.py --goal 2 --seeds 0-2 --subjects 300
     python benchmarks/bench_heldout.py --goal 2 --tasks suite --cluster strong_gain=0.02
     python benchmarks/bench_heldout.py --goal 3 --tasks twins,finish_late --json out.json
+    python benchmarks/bench_heldout.py --goal 3 --seeds 0-9 --solver-time 5 --episodes 100
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_evaluation import TABLE_HEADER, evaluate_world
+from bench_evaluation import TABLE_HEADER, _seeds, evaluate_world, seeds_table
 from heldout_tasks import HELDOUT
 
 from torchhrc.metrics import adjusted_rand_index
@@ -48,14 +49,6 @@ from torchhrc.tasks.suite import SUITE
 #: clustering settings (its documented defaults; ``ClusterConfig()`` adds none).
 LEARN_CLUSTER_OPTIONS: dict[str, Any] = {"k_min": 1, "k_max": 6, "restarts": 10,
                                          "parameters": "support", "initial": True}  # fmt: skip
-
-
-def _seeds(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        lo, _, hi = part.partition("-")
-        out.extend(range(int(lo), int(hi or lo) + 1))
-    return out
 
 
 def _world(name: str):
@@ -112,6 +105,11 @@ def goal2(tasks: list[str], seeds: list[int], args: argparse.Namespace) -> list[
 
 
 def goal3(tasks: list[str], args: argparse.Namespace) -> dict[str, Any]:
+    if args.seeds is not None:  # every seed: bench_evaluation's two-sign table
+        return seeds_table(tasks, _seeds(args.seeds), _world, subjects=args.subjects,
+                           per_subject=args.per_subject, noise=args.noise,
+                           episodes=args.episodes, belief_steps=args.belief_steps,
+                           solver_time=args.solver_time)  # fmt: skip
     rows, records = [], {}
     for name in tasks:
         world = _world(name)
@@ -141,7 +139,9 @@ def main(argv: list[str] | None = None) -> None:
         metavar="FIELD=VALUE",
         help="goal 2: a ClusterConfig field (repeatable), e.g. strong_gain=0.02",
     )
-    parser.add_argument("--seeds", default="0-9", help="goal 2: e.g. 0-9 or 0,3,5")
+    parser.add_argument("--seeds", default=None,
+                        help="e.g. 0-9 or 0,3,5 (goal 2's default: 0-9; goal 3: every seed "
+                             "as bench_evaluation --seeds, instead of --seed)")  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="goal 3's seed")
     parser.add_argument("--subjects", type=int, default=30)
     parser.add_argument("--per-subject", type=int, default=4)
@@ -156,7 +156,10 @@ def main(argv: list[str] | None = None) -> None:
     config = ClusterConfig(**{k: ast.literal_eval(v) for k, v in fields.items()})
     args.cluster = config if fields else None
     tasks = list(SUITE) if args.tasks == "suite" else args.tasks.split(",")
-    out: Any = goal2(tasks, _seeds(args.seeds), args) if args.goal == 2 else goal3(tasks, args)
+    if args.goal == 2:
+        out: Any = goal2(tasks, _seeds(args.seeds or "0-9"), args)
+    else:
+        out = goal3(tasks, args)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(out, f, indent=1)

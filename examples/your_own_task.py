@@ -108,6 +108,7 @@ def main(seed: int = 0, runs: int = 300) -> dict[str, tuple[float, float]]:
                            episodes=runs // len(TYPES), noise=0.1, belief_steps=(1, 2, 4),
                            seed=seed + 1)  # fmt: skip
     print(result.table())
+    print(result.summary())  # ahead/level/behind, and the types the belief did not find
     results = {}
     for r, name in enumerate(result.robots):
         mean, half = float(result.overall_mean[r]), float(result.overall_ci[r])

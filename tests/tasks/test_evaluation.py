@@ -172,3 +172,75 @@ def test_seeded_and_validated(fitted):
     # a robot without reset/act is named at once (it was "'object' object has no attribute")
     with pytest.raises(TypeError, match=r"robots\['lazy'\] \(object\) has no reset\(\) or act\(\)"):
         evaluate_task(world, None, robots={"lazy": object()})
+
+
+def test_summary_says_how_much_of_knowing_the_type_the_robot_keeps(fitted):
+    world, demos, aware, agnostic = fitted
+    eps = 0.2
+    result = evaluate_task(world, aware, demonstrations=demos, agnostic=agnostic, episodes=200,
+                           noise=eps, told_type=True, seed=6)  # fmt: skip
+    lines = result.summary().splitlines()
+    assert lines[0].startswith("type-aware ") and "ahead beyond the 95% intervals" in lines[0]
+    assert lines[1].startswith("knowing the type pays: told the type 0.81")
+    # by hand: told g^2, type-aware g^2 (1 - eps) (a slip to the other side misleads it),
+    # the pooled robot 0 over the population (one hand for everyone, or none): it keeps
+    # 1 - eps = 80% of the gain, within sampling error (4 standard errors, about 12 points)
+    kept = int(lines[1].rsplit("keeps ", 1)[1].split("%")[0])
+    assert abs(kept - 100 * (1 - eps)) <= 12, lines[1]
+    assert len(lines) == 2  # every true type identified: no third line
+
+
+def test_summary_when_knowing_the_type_does_not_pay():
+    # both types want the left hand: a robot told the type can do no better than the pooled
+    # one, and the summary says that level is the expected result
+    world = _world()
+    world.true_reward[2, 3] = torch.tensor([-1.0, -1.0], dtype=torch.float64)
+    world.true_reward[1, 3] = torch.tensor([1.0, 1.0], dtype=torch.float64)
+    demos, _ = world.demonstrations(subjects=12, per_subject=3, noise=0.05, seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        aware = torchhrc.learn(world.task, demos, k=2, solver_time=1.0, seed=0)
+        agnostic = torchhrc.learn(world.task, demos, k=1, solver_time=1.0, seed=0)
+    result = evaluate_task(world, aware, demonstrations=demos, agnostic=agnostic, episodes=100,
+                           told_type=True, seed=7)  # fmt: skip
+    lines = result.summary().splitlines()
+    assert "level within the 95% intervals" in lines[0], result.table()
+    assert lines[1].startswith("knowing the type does not pay: told the type"), lines[1]
+    assert "level with type-agnostic" in lines[1]
+
+
+def _by_hand(overall_mean, status=("identified", "identified"), robots=None):
+    from torchhrc.tasks.evaluation import TaskEvaluation
+
+    robots = robots or ("type-aware", "type-agnostic", "told the type")
+    R = len(robots)
+    return TaskEvaluation(
+        robots=robots, type_names=("a", "b"), returns=torch.zeros(R, 2, 2),
+        mean=torch.zeros(R, 2), ci=torch.zeros(R, 2),
+        overall_mean=torch.tensor(overall_mean, dtype=torch.float64),
+        overall_ci=torch.full((R,), 0.1, dtype=torch.float64), steps=torch.zeros(R, 2),
+        belief_steps=(3,), type_map=torch.tensor([0, 1]), map_source="assignments",
+        belief_accuracy=torch.ones(2, 1), belief_max=torch.ones(2, 1), belief_status=status,
+        split_threshold=0.8, episodes=2, noise=0.05, seed=0, discount=0.9, horizon=5,
+    )  # fmt: skip
+
+
+def test_summary_branches_worked_by_hand():
+    # behind beyond the intervals (1.0 + 0.1 < 1.5 - 0.1), and told behind the pooled robot
+    lines = _by_hand([1.0, 1.5, 1.2], ("merged", "wrong")).summary().splitlines()
+    assert lines[0] == ("type-aware 1.00 ± 0.10 against type-agnostic 1.50 ± 0.10: behind "
+                        "beyond the 95% intervals")  # fmt: skip
+    assert lines[1].startswith("knowing the type does not pay: told the type 1.20 ± 0.10, "
+                               "behind type-agnostic")  # fmt: skip
+    assert lines[2] == ("not identified after 3 steps: a (merged: the learning joined it with "
+                        "another type), b (wrong: the belief settles on another type)")  # fmt: skip
+    # intervals that touch are level (1.0 + 0.1 is not below 1.2 - 0.1)
+    assert "level within" in _by_hand([1.0, 1.2, 3.0]).summary().splitlines()[0]
+    # the gain kept: (1.5 - 1.0) / (3.0 - 1.0) = 25%
+    assert _by_hand([1.5, 1.0, 3.0]).summary().splitlines()[1].endswith("keeps 25% of that gain")
+    # without a told robot, one line; another pair of robots is compared as asked
+    two = _by_hand([1.0, 2.0], robots=("type-aware", "type-agnostic"))
+    assert two.summary().count("\n") == 0
+    assert _by_hand([1.0, 2.0, 3.0]).summary("told the type").startswith("told the type 3.00")
+    with pytest.raises(ValueError, match="expected robot in"):
+        two.summary("oracle")

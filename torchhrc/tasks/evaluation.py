@@ -146,6 +146,79 @@ class TaskEvaluation:
         lo_j, hi_j = mean[j] - ci[j], mean[j] + ci[j]
         return (lo_i > hi_j).long() - (hi_i < lo_j).long()
 
+    def summary(self, robot: str = "type-aware", other: str = "type-agnostic") -> str:
+        """The result in words, over the population (the types in equal shares).
+
+        One line per finding:
+
+        * ``robot`` against ``other``: ahead, level or behind beyond the 95% intervals
+          (:meth:`compare` with ``overall=True``);
+        * with ``"told the type"`` among the robots (``told_type=True``): whether knowing
+          the type pays (*told the type* against ``other``). Where it does not, ``robot``
+          level with ``other`` is the expected result: no robot gains from finding a type
+          that changes nothing (docs/your_own_task.md, section 8, "Over ten seeds"). Where
+          it does, the share of the gain that ``robot`` keeps,
+          ``(robot - other) / (told - other)``;
+        * the true types the belief did not identify after the last checkpoint, by status
+          (``split``: their actions do not tell them apart in ``n`` steps, a property of the
+          people; ``merged``: the learning joined them; ``wrong``), with ``robot`` the
+          type-aware one.
+
+        Example:
+            >>> import torch
+            >>> r = TaskEvaluation(
+            ...     robots=("type-aware", "type-agnostic", "told the type"),
+            ...     type_names=("a", "b"), returns=torch.zeros(3, 2, 2),
+            ...     mean=torch.zeros(3, 2), ci=torch.zeros(3, 2),
+            ...     overall_mean=torch.tensor([2.0, 1.0, 3.0]),
+            ...     overall_ci=torch.tensor([0.1, 0.1, 0.1]), steps=torch.zeros(3, 2),
+            ...     belief_steps=(5,), type_map=torch.tensor([0, 1]),
+            ...     map_source="assignments", belief_accuracy=torch.ones(2, 1),
+            ...     belief_max=torch.ones(2, 1), belief_status=("identified", "split"),
+            ...     split_threshold=0.8, episodes=2, noise=0.05, seed=0, discount=0.95,
+            ...     horizon=10)
+            >>> print(r.summary())  # doctest: +ELLIPSIS
+            type-aware 2.00 ± 0.10 against type-agnostic 1.00 ± 0.10: ahead beyond the 95% ...
+            knowing the type pays: told the type 3.00 ± 0.10, ahead of ...; type-aware keeps 50% ...
+            not identified after 5 steps: b (split: its actions do not tell it apart yet)
+        """
+        i, j = self.index(robot), self.index(other)
+        m, c = self.overall_mean, self.overall_ci
+
+        def value(k: int) -> str:
+            return f"{self.robots[k]} {float(m[k]):.2f} ± {float(c[k]):.2f}"
+
+        word = {1: "ahead beyond", 0: "level within", -1: "behind beyond"}
+        sign = int(self.compare(robot, other, overall=True))
+        lines = [f"{value(i)} against {value(j)}: {word[sign]} the 95% intervals"]
+        if "told the type" in self.robots and robot != "told the type":
+            t = self.index("told the type")
+            pays = int(self.compare("told the type", other, overall=True))
+            if pays > 0:
+                share = float((m[i] - m[j]) / (m[t] - m[j]))
+                lines.append(f"knowing the type pays: {value(t)}, ahead of {other}; {robot} "
+                             f"keeps {100 * share:.0f}% of that gain")  # fmt: skip
+            else:
+                lines.append(
+                    f"knowing the type does not pay: {value(t)}, "
+                    f"{'level with' if pays == 0 else 'behind'} {other}; no robot gains from "
+                    f"finding the type here, and {robot} level with {other} is the expected "
+                    f"result"
+                )
+        if robot == "type-aware" and self.belief_steps:
+            why = {
+                "split": "its actions do not tell it apart yet",
+                "merged": "the learning joined it with another type",
+                "wrong": "the belief settles on another type",
+            }
+            missed = [f"{name} ({status}: {why[status]})"
+                      for name, status in zip(self.type_names, self.belief_status)
+                      if status in why]  # fmt: skip
+            if missed:
+                lines.append(f"not identified after {self.belief_steps[-1]} steps: "
+                             + ", ".join(missed))  # fmt: skip
+        return "\n".join(lines)
+
     def table(self, *, digits: int = 2) -> str:
         """A Markdown table: one row per true type, ``mean ± ci`` per robot, then the
         belief's accuracy and largest posterior at the last checkpoint and its status."""

@@ -17,7 +17,7 @@ import torch
 import torchhrc
 from torchhrc.irl.maxent import maxent_irl
 from torchhrc.irl.trajectories import Trajectories
-from torchhrc.tasks.pipeline import IRLConfig, learn_type_weights
+from torchhrc.tasks.pipeline import MAXENT_L2, IRLConfig, learn_type_weights
 from torchhrc.tasks.suite import make_task
 
 
@@ -52,7 +52,8 @@ def test_default_rule_is_maxent_and_matches_the_reference_per_type(fitted):
     k = 1
     idx = torch.nonzero(model.assignments == k).flatten()
     ref = maxent_irl(Tx[:, :, k, :], phi, Trajectories(steps.states[idx], steps.actions[idx],
-                     steps.lengths[idx]), discount=task.discount, max_iterations=300)  # fmt: skip
+                     steps.lengths[idx]), discount=task.discount, l2=MAXENT_L2,
+                     max_iterations=300)  # fmt: skip
     torch.testing.assert_close(W[k], ref.weights, atol=1e-6, rtol=1e-5)
 
 

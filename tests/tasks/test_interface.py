@@ -422,9 +422,10 @@ def test_the_wasted_move_column_teaches_that_a_move_off_the_demonstrated_path_do
     R = model.momdp.R[..., 0]  # (A, X)
     off = task.state_names.index("01")
     wasted_gap = float(R[1, off] - R[2, off])  # kit_A (useful) over kit_B (wasted) there
+    # (the learned rewards here lie within about +-1.6 under learn()'s MaxEnt ridge)
     if not isinstance(task, _TwoPartsTabular):
-        assert wasted_gap > 1.0
-        assert float(R[0, off] - R[2, off]) > 1.0  # waiting beats the wasted move too
+        assert wasted_gap > 0.5
+        assert float(R[0, off] - R[2, off]) > 0.5  # waiting beats the wasted move too
         assert float(model.weights[0, -1]) < 0.0  # the shared weight: a wasted move costs
     else:
-        assert abs(wasted_gap) < 0.5  # unconstrained: nothing tells the two apart
+        assert abs(wasted_gap) < 0.1  # unconstrained: nothing tells the two apart

@@ -65,8 +65,15 @@ RewardRule = Literal["maxent", "dominant", "paper", "last"]
 #: The reward rules :func:`learn_type_weights` accepts.
 REWARD_RULES: tuple[str, ...] = ("maxent", "dominant", "paper", "last")
 
-#: The ridge penalty of the ``"maxent"`` rule (:func:`torchhrc.irl.maxent_irl`'s default).
-MAXENT_L2 = 1e-3
+#: The ridge penalty of the ``"maxent"`` rule (``IRLConfig.l2``'s default). Chosen on the task
+#: suite over 10 seeds (docs/your_own_task.md, section 8, "The MaxEnt ridge"): at
+#: :func:`torchhrc.irl.maxent_irl`'s 1e-3 the rewards of near-deterministic partners grow to
+#: +-20 (log-odds of their slips), every move a type's partner never made in a state the type
+#: visits costs as much as any other, and the type-aware robot steered into states no
+#: partner led to (behind the pooled robot on 3 of 90 suite runs); from 0.1 to 1 no run is
+#: behind, 0.1 the smallest. The held-out tasks, not used to choose: behind on none of 90
+#: (2 at 1e-3), ahead on 53 (40).
+MAXENT_L2 = 0.1
 
 #: The L-BFGS iteration cap of the ``"maxent"`` rule.
 MAXENT_ITERATIONS = 300
@@ -91,6 +98,8 @@ class IRLConfig:
         iterations: cap on the IRL iterations (policies) per type (default 10; the
             projection rules only; ``"maxent"`` runs up to :data:`MAXENT_ITERATIONS` L-BFGS
             iterations).
+        l2: the ridge of ``"maxent"`` on the reward weights (default :data:`MAXENT_L2`; the
+            other rules ignore it).
 
     Example:
         >>> IRLConfig(epsilon=0.01).rule
@@ -100,6 +109,7 @@ class IRLConfig:
     rule: RewardRule = "maxent"
     epsilon: float = 0.05
     iterations: int = 10
+    l2: float = MAXENT_L2
 
     def __post_init__(self) -> None:
         if self.rule not in REWARD_RULES:
@@ -113,6 +123,8 @@ class IRLConfig:
             or (self.iterations < 1)
         ):
             raise ValueError(f"expected iterations to be an int >= 1, got {self.iterations!r}")
+        if isinstance(self.l2, bool) or not isinstance(self.l2, (int, float)) or self.l2 < 0:
+            raise ValueError(f"expected l2 to be a number >= 0, got {self.l2!r}")
 
 
 @dataclass(frozen=True)
@@ -351,12 +363,13 @@ def learn_type_weights(
     epsilon: float = 0.05,
     max_iterations: int = 10,
     seed: int = 0,
+    l2: float = MAXENT_L2,
 ) -> torch.Tensor:
     """Reward weights per type by apprenticeship learning (Abbeel & Ng 2004; paper Sec. IRL).
 
     For type ``k`` the MDP is ``(X, A, Tx[:, :, k, :], phi, discount)`` and the expert's
     trajectories are the demonstrations of type ``k``. ``rule="maxent"``: maximum-entropy
-    IRL (:func:`torchhrc.irl.maxent_irl`, ridge :data:`MAXENT_L2`) instead of the projection
+    IRL (:func:`torchhrc.irl.maxent_irl`, ridge ``l2``) instead of the projection
     algorithm (``epsilon``, ``max_iterations`` unused; no warning). The projection
     algorithm's reward kept (``rule``):
     ``"dominant"`` (default): ``w^(i*)``, ``i* = argmax_{i >= 1} lambda_i``, the reward of
@@ -399,7 +412,7 @@ def learn_type_weights(
             continue
         demos = Trajectories(steps.states[idx], steps.actions[idx], lengths[idx])
         if rule == "maxent":
-            fit = maxent_irl(Tx[:, :, k, :], phi, demos, discount=task.discount, l2=MAXENT_L2,
+            fit = maxent_irl(Tx[:, :, k, :], phi, demos, discount=task.discount, l2=l2,
                              max_iterations=MAXENT_ITERATIONS)  # fmt: skip
             weights[k] = fit.weights
             continue
@@ -455,6 +468,7 @@ def build_model(
     irl_iterations: int = 10,
     seed: int = 0,
     info: dict[str, Any] | None = None,
+    irl_l2: float = MAXENT_L2,
     human_model: str | None = None,
 ) -> LearnedModel:
     """Build the learned MOMDP from given types (no solve).
@@ -467,7 +481,8 @@ def build_model(
         b0: ``(K,)`` initial type belief (uniform by default).
         noise: weight of a random legal human action in the behaviour (:class:`TypeEvidence`).
         pause: probability of a skipped human turn.
-        rule, irl_epsilon, irl_iterations, seed: IRL settings (:func:`learn_type_weights`).
+        rule, irl_epsilon, irl_iterations, irl_l2, seed: IRL settings
+            (:func:`learn_type_weights`'s ``rule``, ``epsilon``, ``max_iterations``, ``l2``).
         info: extra facts stored with the model.
         human_model: ``"chain"``, ``"state"`` or ``"auto"`` (:attr:`CollaborativeTask.human_model`
             of the default human policy); ``None``: the task's own ``human_model``. With
@@ -536,7 +551,7 @@ def build_model(
             )
         weights = learn_type_weights(task, Tx, steps, evidence.assignments, rule=rule,
                                      epsilon=irl_epsilon, max_iterations=irl_iterations,
-                                     seed=seed)  # fmt: skip
+                                     seed=seed, l2=irl_l2)  # fmt: skip
         phi = task.features(dtype=weights.dtype, device=weights.device)
         R = torch.einsum("axf,yf->axy", phi, weights)
     else:
@@ -739,6 +754,7 @@ def learn(
     pause: float = 0.01,
     irl_epsilon: float | None = None,
     irl_iterations: int | None = None,
+    irl_l2: float | None = None,
     solve: bool = True,
     solver_time: float = 5.0,
     solver_precision: float = 1e-3,
@@ -765,7 +781,7 @@ def learn(
             ``parameters="support"``, ``initial=True``: each type's first move is modelled)
             or :func:`~torchhrc.mixture.fit_mixture`'s (e.g.
             ``criterion``: held-out likelihood for the soft method, BIC for ``"paper"``).
-        irl: an :class:`IRLConfig` (rule, epsilon, iterations).
+        irl: an :class:`IRLConfig` (rule, epsilon, iterations, l2).
         solver: a :class:`~torchhrc.solvers.sarsop.SARSOPConfig`, used as given (its
             ``precision`` is absolute; without a ``lower_bound_init`` the typed lower bound
             of :func:`solve_model` is used).
@@ -783,6 +799,7 @@ def learn(
         pause: human-behaviour setting (:class:`~torchhrc.tasks.interface.TypeEvidence`).
         irl_epsilon: instead of ``irl``: its ``epsilon``.
         irl_iterations: instead of ``irl``: its ``iterations``.
+        irl_l2: instead of ``irl``: its ``l2`` (the MaxEnt ridge).
         solve: solve the MOMDP (SARSOP) too.
         solver_time: instead of ``solver``: :func:`solve_model`'s time limit (seconds).
         solver_precision: instead of ``solver``: :func:`solve_model`'s precision, relative
@@ -836,12 +853,13 @@ def learn(
         )
     if irl is None:
         irl = IRLConfig(epsilon=0.05 if irl_epsilon is None else irl_epsilon,
-                        iterations=10 if irl_iterations is None else irl_iterations)  # fmt: skip
+                        iterations=10 if irl_iterations is None else irl_iterations,
+                        l2=MAXENT_L2 if irl_l2 is None else irl_l2)  # fmt: skip
     elif not isinstance(irl, IRLConfig):
         raise TypeError(f"expected irl to be an IRLConfig, got {type(irl).__name__}")
-    elif irl_epsilon is not None or irl_iterations is not None:
-        raise ValueError("pass the IRL settings either in irl= or as irl_epsilon/irl_iterations, "
-                         "not both")  # fmt: skip
+    elif irl_epsilon is not None or irl_iterations is not None or irl_l2 is not None:
+        raise ValueError("pass the IRL settings either in irl= or as irl_epsilon/irl_iterations/"
+                         "irl_l2, not both")  # fmt: skip
     fit = fit_mixture(demonstrations, seed=seed, **options)
     info: dict[str, Any] = {
         "k": int(fit.k),
@@ -860,13 +878,18 @@ def learn(
                 **options,
             }
         ),
-        "irl": {"rule": irl.rule, "epsilon": irl.epsilon, "iterations": irl.iterations},
+        "irl": {
+            "rule": irl.rule,
+            "epsilon": irl.epsilon,
+            "iterations": irl.iterations,
+            "l2": irl.l2,
+        },
         "seed": seed,
     }
     chains = fit.transition_over(demonstrations)  # over the recorded symbols (fit.objects)
     model = build_model(task, demonstrations, chains, fit.assignments, noise=noise,
                         pause=pause, rule=irl.rule, irl_epsilon=irl.epsilon,
-                        irl_iterations=irl.iterations, seed=seed, info=info,
+                        irl_iterations=irl.iterations, irl_l2=irl.l2, seed=seed, info=info,
                         human_model=human_model)  # fmt: skip
     if solve:
         if solver is None:

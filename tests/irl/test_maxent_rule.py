@@ -89,3 +89,28 @@ def test_maxent_reward_finishes_the_task_where_the_people_go(fitted):
     assert seen.numel() >= 10
     assert stuck["maxent"] == 0, stuck
     assert stuck["dominant"] > 0, stuck  # the reason for the default: idle loops off-path
+
+
+def test_the_ridge_keeps_the_demonstrated_first_move_best_for_every_type():
+    # division_of_labour: every demonstrating partner waits at the start (the person starts;
+    # true reward +0.5 for waiting, -0.5 for any part). At maxent_irl's own ridge (1e-3)
+    # seed 5's learned rewards at the start were wait -11 to -21 and some parts up to +12
+    # (paid back later on each type's path), and under the uniform belief the robot did a
+    # part no partner ever did first, behind the pooled robot (docs/your_own_task.md
+    # section 8, "The MaxEnt ridge"). learn()'s ridge keeps the demonstrated move the
+    # best immediate reward there for every type, and the robot waits
+    world = make_task("division_of_labour")
+    demos, _ = world.demonstrations(subjects=30, per_subject=4, noise=0.05, seed=5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = torchhrc.learn(world.task, demos, solver_time=2.0, seed=5)
+    task = world.task
+    assert model.num_types == 3
+    x0, wait = task.initial_state, task.robot_actions.index("wait")
+    R = model.momdp.R[:, x0, :]  # (A, Y) at the start
+    others = torch.ones(task.num_actions, dtype=torch.bool)
+    others[wait] = False
+    assert bool((R[wait] > R[others].max(0).values + 0.5).all()), R
+    controller = torchhrc.Controller.from_model(model)
+    controller.reset()
+    assert task.robot_actions[int(controller.act(x0))] == "wait"

@@ -55,6 +55,10 @@ TABLE_HEADER = (
 )
 
 
+#: A comparison's sign (:meth:`torchhrc.tasks.evaluation.TaskEvaluation.compare`) as printed.
+_SIGN = {1: "+", 0: "=", -1: "-"}
+
+
 def evaluate_world(name: str, world, demos, *, episodes: int = 200, belief_steps: int = 5,
                    solver_time: float = 10.0, seed: int = 0,
                    human_model: str | None = None) -> tuple[str, dict]:  # fmt: skip
@@ -74,7 +78,7 @@ def evaluate_world(name: str, world, demos, *, episodes: int = 200, belief_steps
     per_type = result.compare("type-aware", "type-agnostic")
     overall = int(result.compare("type-aware", "type-agnostic", overall=True))
     differ = best_responses_differ(world)
-    signs = "".join({1: "+", 0: "=", -1: "-"}[int(c)] for c in per_type)
+    signs = "".join(_SIGN[int(c)] for c in per_type)
     status = ", ".join(f"{n}: {s}" for n, s in zip(result.type_names, result.belief_status))
     m, c = result.overall_mean, result.overall_ci
     used = aware.info.get("human_model", {})
@@ -82,13 +86,13 @@ def evaluate_world(name: str, world, demos, *, episodes: int = 200, belief_steps
     row = (
         f"| {name} | {world.num_types} | {aware.num_types} | {used} | "
         f"{m[0]:.2f} ± {c[0]:.2f} | "
-        f"{m[1]:.2f} ± {c[1]:.2f} | {m[2]:.2f} ± {c[2]:.2f} | {'+=-'[1 - overall]} | "
+        f"{m[1]:.2f} ± {c[1]:.2f} | {m[2]:.2f} ± {c[2]:.2f} | {_SIGN[overall]} | "
         f"{signs} | "
         f"{'yes' if differ else 'no'} | {status} |"
     )
     pays = int(result.compare("told the type", "type-agnostic", overall=True))
     record = {**result.to_dict(), "best_responses_differ": differ,
-              "signs": "+=-"[1 - pays] + "+=-"[1 - overall], "summary": result.summary(),
+              "signs": _SIGN[pays] + _SIGN[overall], "summary": result.summary(),
               "k_found": aware.num_types, "human_model": used,
               "gap": [aware.upper - aware.lower, agnostic.upper - agnostic.lower],
               "seconds": time.perf_counter() - start}  # fmt: skip
@@ -106,8 +110,8 @@ def seeds_table(names: list[str], seeds: list[int], make_world, *, subjects: int
     :func:`evaluate_world`. Returns the records by task and seed."""
     records: dict[str, dict[int, dict]] = {}
     for name in names:
+        world = make_world(name)
         for seed in seeds:
-            world = make_world(name)
             demos, _ = world.demonstrations(subjects=subjects, per_subject=per_subject,
                                             noise=noise, seed=seed)  # fmt: skip
             row, record = evaluate_world(name, world, demos, seed=seed, **options)

@@ -59,6 +59,9 @@ __all__ = ["Robot", "TaskEvaluation", "evaluate_task"]
 #: 97.5% quantile of the standard normal: the 95% confidence half-width is ``Z95 s / sqrt(E)``.
 Z95 = 1.959963984540054
 
+#: The name of the robot ``told_type=True`` adds: the type-aware controller told the type.
+TOLD = "told the type"
+
 
 class Robot(Protocol):
     """What :func:`evaluate_task` needs of a robot (a
@@ -191,9 +194,9 @@ class TaskEvaluation:
         word = {1: "ahead beyond", 0: "level within", -1: "behind beyond"}
         sign = int(self.compare(robot, other, overall=True))
         lines = [f"{value(i)} against {value(j)}: {word[sign]} the 95% intervals"]
-        if "told the type" in self.robots and robot != "told the type":
-            t = self.index("told the type")
-            pays = int(self.compare("told the type", other, overall=True))
+        if TOLD in self.robots and robot != TOLD:
+            t = self.index(TOLD)
+            pays = int(self.compare(TOLD, other, overall=True))
             if pays > 0:
                 share = float((m[i] - m[j]) / (m[t] - m[j]))
                 lines.append(f"knowing the type pays: {value(t)}, ahead of {other}; {robot} "
@@ -497,7 +500,7 @@ def evaluate_task(
                                      prior=prior.to(model.momdp.b0.dtype))  # fmt: skip
         returns[-1] = total.view(Y, episodes)
         steps[-1] = length.double().view(Y, episodes).mean(-1)
-        entries.append(("told the type", None))
+        entries.append((TOLD, None))
     mean = returns.mean(-1)
     ci = Z95 * returns.std(-1, correction=1) / math.sqrt(episodes)
     pooled = returns.view(R, -1)

@@ -851,13 +851,13 @@ def learn(
             f"expected {name} <= the number of demonstrations ({N}), got "
             f"{name} = {options['k_min']}: a type needs demonstrations of its own"
         )
+    irl_keywords = {"epsilon": irl_epsilon, "iterations": irl_iterations, "l2": irl_l2}
+    irl_given = {name: v for name, v in irl_keywords.items() if v is not None}
     if irl is None:
-        irl = IRLConfig(epsilon=0.05 if irl_epsilon is None else irl_epsilon,
-                        iterations=10 if irl_iterations is None else irl_iterations,
-                        l2=MAXENT_L2 if irl_l2 is None else irl_l2)  # fmt: skip
+        irl = IRLConfig(**irl_given)  # type: ignore[arg-type]  # its defaults for the rest
     elif not isinstance(irl, IRLConfig):
         raise TypeError(f"expected irl to be an IRLConfig, got {type(irl).__name__}")
-    elif irl_epsilon is not None or irl_iterations is not None or irl_l2 is not None:
+    elif irl_given:
         raise ValueError("pass the IRL settings either in irl= or as irl_epsilon/irl_iterations/"
                          "irl_l2, not both")  # fmt: skip
     fit = fit_mixture(demonstrations, seed=seed, **options)

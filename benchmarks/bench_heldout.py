@@ -48,7 +48,8 @@ from torchhrc.tasks.suite import SUITE
 #: The clustering options ``torchhrc.tasks.learn`` passes to ``fit_mixture`` when given no
 #: clustering settings (its documented defaults; ``ClusterConfig()`` adds none).
 LEARN_CLUSTER_OPTIONS: dict[str, Any] = {"k_min": 1, "k_max": 6, "restarts": 10,
-                                         "parameters": "support", "initial": True}  # fmt: skip
+                                         "parameters": "support", "initial": True,
+                                         "order": "auto"}  # fmt: skip
 
 
 def _world(name: str):

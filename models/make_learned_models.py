@@ -15,14 +15,17 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from torchhrc.mixture import ClusterConfig
 from torchhrc.tasks import learn
 from torchhrc.tasks.pipeline import IRLConfig
 from torchhrc.tasks.place_and_drill import PlaceAndDrillTask, simulate_study
 
 #: Settings of the shipped model (tests/test_resources.py rebuilds it with these). The IRL is
 #: the paper's (Abbeel & Ng's projection, rule "dominant", 10 iterations), stated here since
-#: ``learn()``'s default became maximum-entropy IRL (issue 31; docs/your_own_task.md).
-PLACE_AND_DRILL = dict(k_min=2, k_max=10, restarts=20,
+#: ``learn()``'s default became maximum-entropy IRL (issue 31; docs/your_own_task.md); so are
+#: the paper's first-order chains (``order=1``), since ``learn()``'s default became
+#: ``order="auto"`` (docs/clustering.md, "Second-order chains").
+PLACE_AND_DRILL = dict(cluster=ClusterConfig(k_min=2, k_max=10, restarts=20, order=1),
                        irl=IRLConfig(rule="dominant", epsilon=0.05, iterations=10),
                        solver_time=60.0, solver_precision=1e-4, seed=0)  # fmt: skip
 

@@ -279,3 +279,29 @@ def test_cluster_detects_exchangeable_objects_and_reports_the_choice(tmp_path, c
     assert relabelled["objects"] == "raw" and "human:place_1" in relabelled["symbols"]
     code, _, err = _run(capsys, *base, "--relabel-objects", "--objects", "exchangeable")
     assert code == 2 and "--relabel-objects" in err
+
+
+def test_cluster_order_option_finds_types_only_a_second_order_chain_sees(tmp_path, capsys):
+    """Two types with the same first-order counts (p1 q1 p2 q2 or p2 q2 p1 q1, a robot wait
+    before every step): --order 1 (the default) finds one type, --order auto two, and says
+    which order it kept; --order 2 with --loo is refused with the reason."""
+    wait = ("robot", "wait")
+    a = [wait, ("human", "p1"), wait, ("human", "q1"), wait, ("human", "p2"), wait, ("human", "q2")]
+    b = [wait, ("human", "p2"), wait, ("human", "q2"), wait, ("human", "p1"), wait, ("human", "q1")]
+    seqs = [a if s % 2 == 0 else b for s in range(12) for _ in range(3)]
+    subjects = [f"s{s}" for s in range(12) for _ in range(3)]
+    types = ["ab" if s % 2 == 0 else "ba" for s in range(12) for _ in range(3)]
+    path = tmp_path / "orders.csv"
+    Demonstrations.from_lists(seqs, subjects=subjects, types=types).write_csv(path)
+    base = ["cluster", str(path), "--k-min", "1", "--k-max", "3", "--restarts", "5", "--json"]
+    code, out, _ = _run(capsys, *base)
+    first = json.loads(out)
+    assert code == 0 and first["k"] == 1 and first["order"] == 1
+    assert "order_comparison" not in first
+    code, out, _ = _run(capsys, *base, "--order", "auto")
+    auto = json.loads(out)
+    assert code == 0 and auto["k"] == 2 and auto["order"] == 2
+    assert auto["adjusted_rand_index"] == pytest.approx(1.0)
+    assert {o: c["k"] for o, c in auto["order_comparison"].items()} == {"1": 1, "2": 2}
+    code, _, err = _run(capsys, *base, "--order", "2", "--loo")
+    assert code == 2 and "--order 1 with --loo" in err

@@ -357,6 +357,10 @@ def test_learn_passes_its_settings_through(monkeypatch):
     assert info["criterion"] == "bic" and sorted(scores) == [2, 3]
     assert info["k"] <= max(scores, key=lambda k: scores[k]["bic"])
     assert info["cluster"]["restarts"] == 2 and info["objects"] == "raw"
+    # learn()'s default order: both orders select a k, the fit with more types is kept
+    assert info["cluster"]["order"] == "auto" and info["order"] in (1, 2)
+    kept = info["order_comparison"][str(info["order"])]
+    assert set(info["order_comparison"]) == {"1", "2"} and kept["k"] == info["k"]
     assert seen == {"rule": "last", "epsilon": 0.2, "max_iterations": 3, "seed": 0, "l2": 0.5}
     assert info["irl"] == {"rule": "last", "epsilon": 0.2, "iterations": 3, "l2": 0.5}
     assert info["solver"]["max_iterations"] == 2 and info["solver"]["time_limit"] == 5.0
@@ -366,6 +370,9 @@ def test_learn_passes_its_settings_through(monkeypatch):
                   irl_epsilon=0.2, irl_iterations=3, irl_l2=0.5, solve=False)  # fmt: skip
     assert again.info["scores"] == info["scores"] and again.info["k"] == info["k"]
     assert again.info["irl"]["l2"] == 0.5
+    paper = learn(task, demos, cluster=ClusterConfig(method="paper", k_min=2, k_max=3,
+                  restarts=2), solve=False)  # fmt: skip
+    assert paper.info["order"] == 1 and paper.info["order_comparison"] is None
     with pytest.raises(ValueError, match="either in cluster= or as keywords"):
         learn(task, demos, cluster=ClusterConfig(k_max=3), k_min=2, solve=False)
     with pytest.raises(ValueError, match="either in irl="):

@@ -14,6 +14,8 @@ JSON keys: ``k``, ``bic``, ``icl``, ``log_likelihood``, ``method``, ``criterion`
 ``matched_accuracy``; with ``--loo`` also ``loo`` (accuracy, k per fold, predictions).
 ``objects``: the form the model is over (``"raw"`` or ``"exchangeable"``, ``--objects``), and
 ``object_comparison`` when ``--objects auto`` compared the two (k, BIC, exact ICL per form).
+``order``: first- or second-order chains (``--order``), and ``order_comparison`` when
+``--order auto`` compared the two (k, exact ICL, log-likelihood per order).
 Non-finite numbers are written as ``null``.
 
 Example:
@@ -134,6 +136,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "force one (see docs/clustering.md)",
     )
     parser.add_argument(
+        "--order",
+        choices=("1", "2", "auto"),
+        default="1",
+        help="1 (default): first-order chains, the paper's; 2: second-order chains, which "
+        "see a type's order across a step every type shares (a robot waiting between the "
+        "person's actions); auto: select k in both and keep the fit with more types "
+        "(docs/clustering.md, 'Second-order chains'); one file in memory only",
+    )
+    parser.add_argument(
         "--ray",
         metavar="local|HOST:PORT",
         default=None,
@@ -203,6 +214,7 @@ def cluster_report(
     min_gain: float | None = None,
     objects: str | None = None,
     min_consistency: float | None = None,
+    order: int | str = 1,
 ) -> dict[str, Any]:
     """Fit, score and summarise: the dict that ``--json`` prints.
 
@@ -212,7 +224,8 @@ def cluster_report(
     :meth:`~torchhrc.data.Demonstrations.relabel_objects` (symbols, counts and the model are
     then over the relabelled vocabulary, and fitted as they are: ``objects="raw"``).
     ``objects`` is passed to ``fit_mixture`` (``None``: its default, ``"auto"`` for the soft
-    method: the report's ``objects`` says which form was kept).
+    method: the report's ``objects`` says which form was kept), and so is ``order`` (1, 2
+    or ``"auto"``: the report's ``order`` says which was kept).
 
     Raises:
         ModelError: ``loo`` without types, or a ``k`` range or ``restarts`` out of range.
@@ -232,6 +245,12 @@ def cluster_report(
         )
     if loo and demos.types is None:
         raise ModelError("leave-one-out needs ground-truth types (a 'type' column in the file)")
+    if loo and order != 1:
+        raise ModelError(
+            f"leave-one-out scores each held-out subject under a model fitted without them; "
+            f"with --order {order} a step after a step no other subject made has no "
+            "probability: use --order 1 with --loo"
+        )
     if relabel_objects:
         if objects not in (None, "raw"):
             raise ModelError(
@@ -251,6 +270,7 @@ def cluster_report(
         min_gain=min_gain,
         min_consistency=min_consistency,
         objects=objects,  # type: ignore[arg-type]
+        order=order,  # type: ignore[arg-type]
     )
     if save_model is not None:
         fit.model.save(save_model)
@@ -265,6 +285,8 @@ def cluster_report(
         "per_k": _per_k(fit),
         "objects": fit.objects,
         **({"object_comparison": fit.object_comparison} if fit.object_comparison else {}),
+        "order": fit.order,
+        **({"order_comparison": fit.order_comparison} if fit.order_comparison else {}),
         "cluster_sizes": sizes,
         "assignments": dict(zip(demos.keys, assignments.tolist())),
     }
@@ -500,6 +522,7 @@ def run(args: argparse.Namespace) -> int:
         for flag, value in (
             ("--loo", args.loo),
             ("--relabel-objects", args.relabel_objects),
+            (f"--order {args.order}", args.order != "1"),
         ):
             if value:
                 raise ModelError(f"{flag} needs one demonstrations file, not a sharded corpus")
@@ -534,6 +557,7 @@ def run(args: argparse.Namespace) -> int:
         min_gain=args.min_gain,
         objects=args.objects,
         min_consistency=args.min_consistency,
+        order=args.order if args.order == "auto" else int(args.order),
     )
     _emit(report, paths[0], args.json)
     return 0

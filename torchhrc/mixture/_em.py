@@ -18,15 +18,19 @@ over memory blocks, not over sequences or runs).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
 __all__ = [
+    "OFF_SUPPORT",
     "EMResult",
+    "Smoothing",
     "column_blocks",
     "e_table",
     "m_step_transition",
     "onehot_sums",
+    "pseudo_parts",
     "run_groups",
 ]
 
@@ -132,8 +136,60 @@ def e_table(
     return out
 
 
+#: The pseudo-count of a transition outside a :class:`Smoothing`'s support, relative to
+#: ``alpha``: not 0, so that every log-probability stays finite (the soft E-step's tables),
+#: and negligible: the data never hold such a transition.
+OFF_SUPPORT = 1e-9
+
+
+@dataclass(frozen=True)
+class Smoothing:
+    """Dirichlet pseudo-counts on the transitions that can occur, for a chain whose symbols
+    cannot follow every symbol (the context symbols of :mod:`torchhrc.mixture.history`).
+
+    Passed where a float ``pseudo_count`` is accepted by the soft method's M-step.
+
+    Attributes:
+        transition: ``(A, A)`` pseudo-count of each transition.
+        initial: ``(A,)`` pseudo-count of each first symbol.
+
+    Example:
+        >>> s = Smoothing.on_support(0.1, torch.tensor([[True, False], [True, True]]),
+        ...                          torch.tensor([True, False]))
+        >>> s.transition[0].tolist()[0], bool(s.transition[0, 1] < 1e-9)
+        (0.1, True)
+    """
+
+    transition: torch.Tensor
+    initial: torch.Tensor
+
+    @classmethod
+    def on_support(
+        cls, alpha: float, transition_support: torch.Tensor, initial_support: torch.Tensor
+    ) -> Smoothing:
+        """``alpha`` on the support, ``alpha * OFF_SUPPORT`` elsewhere (float64)."""
+        on = torch.tensor(float(alpha), dtype=torch.float64)
+        off = on * OFF_SUPPORT
+        return cls(
+            torch.where(transition_support.cpu(), on, off),
+            torch.where(initial_support.cpu(), on, off),
+        )
+
+    @property
+    def alpha(self) -> float:
+        """The pseudo-count on the support."""
+        return float(self.transition.max())
+
+
+def pseudo_parts(pseudo_count: float | Smoothing) -> tuple[Any, Any]:
+    """``(transition, initial)`` pseudo-counts: the float twice, or a Smoothing's two tables."""
+    if isinstance(pseudo_count, Smoothing):
+        return pseudo_count.transition, pseudo_count.initial
+    return pseudo_count, pseudo_count
+
+
 def m_step_transition(
-    cluster_counts: torch.Tensor, previous: torch.Tensor, pseudo_count: float
+    cluster_counts: torch.Tensor, previous: torch.Tensor, pseudo_count: float | torch.Tensor
 ) -> torch.Tensor:
     """Normalised (smoothed) counts; a row without any count keeps its previous value.
 
@@ -143,11 +199,14 @@ def m_step_transition(
     Args:
         cluster_counts: ``(R, K, A, A)`` expected counts.
         previous: ``(R, K, A, A)`` log-probabilities kept where a row has no count.
-        pseudo_count: Dirichlet pseudo-count ``alpha >= 0`` added to every entry.
+        pseudo_count: Dirichlet pseudo-count ``alpha >= 0`` added to every entry, or an
+            ``(A, A)`` (``(A,)`` for first symbols) tensor of them (:class:`Smoothing`).
 
     Returns:
         ``(R, K, A, A)`` log-probabilities (``-inf`` for unseen transitions when ``alpha = 0``).
     """
+    if isinstance(pseudo_count, torch.Tensor):
+        pseudo_count = pseudo_count.to(cluster_counts)
     smoothed = cluster_counts + pseudo_count
     rows = smoothed.sum(-1, keepdim=True)
     fresh = smoothed.log() - rows.clamp_min(torch.finfo(smoothed.dtype).tiny).log()

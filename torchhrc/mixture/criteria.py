@@ -73,17 +73,22 @@ def bic(log_likelihood: torch.Tensor | float, num_parameters: Any, num_data: int
 EXACT_ICL_PRIOR = 0.5
 
 
-def _log_dirichlet_multinomial(counts: torch.Tensor, alpha: float) -> torch.Tensor:
+def _log_dirichlet_multinomial(
+    counts: torch.Tensor, alpha: float, outcomes: int | None = None
+) -> torch.Tensor:
     """``(...)`` log marginal probability of the ordered draws with counts ``(..., A)`` under
     a multinomial whose probabilities are integrated out over a symmetric Dirichlet(alpha):
     ``log B(n + alpha) - log B(alpha)``, ``B`` the multivariate Beta function (0 for a row
-    without counts)."""
+    without counts). ``outcomes``: the number ``m`` of categories the Dirichlet is over
+    (default ``A``); the entries of ``counts`` beyond the ``m`` possible ones must be 0 (a
+    category without draws adds ``lgamma(alpha) - lgamma(alpha) = 0``)."""
     A = counts.shape[-1]
+    m = A if outcomes is None else outcomes
     return (
         torch.lgamma(counts + alpha).sum(-1)
         - A * math.lgamma(alpha)
-        + math.lgamma(A * alpha)
-        - torch.lgamma(counts.sum(-1) + A * alpha)
+        + math.lgamma(m * alpha)
+        - torch.lgamma(counts.sum(-1) + m * alpha)
     )
 
 
@@ -94,6 +99,7 @@ def exact_icl(
     *,
     prior: float = EXACT_ICL_PRIOR,
     weight_prior: float = 1.0,
+    outcomes: int | None = None,
 ) -> torch.Tensor:
     """Exact integrated classification likelihood ``log p(D, z)`` of hard partitions.
 
@@ -118,6 +124,9 @@ def exact_icl(
         cluster_mask: ``(R, K)`` bool, the slots each run uses (``k_r`` = its row sum).
         prior: Dirichlet concentration of every transition row (default: Jeffreys, 1/2).
         weight_prior: Dirichlet concentration of the mixture weights.
+        outcomes: the number of successors each row's Dirichlet is over (default ``A``): for
+            the context symbols of :mod:`torchhrc.mixture.history`, the recorded symbols, so
+            that ``log p(D, z)`` of a second-order chain compares with a first-order one's.
 
     Returns:
         ``(R,)`` float64 (larger is better).
@@ -134,9 +143,9 @@ def exact_icl(
     R, K = cluster_mask.shape
     A = stats.num_symbols
     counts, first = partition_counts(stats, assignments, K, torch.float64)  # (R*K, A*A)
-    out = _log_dirichlet_multinomial(counts.view(R, K, A, A), prior).sum((-1, -2))  # (R,)
+    out = _log_dirichlet_multinomial(counts.view(R, K, A, A), prior, outcomes).sum((-1, -2))
     if first is not None:
-        out = out + _log_dirichlet_multinomial(first.view(R, K, A), prior).sum(-1)
+        out = out + _log_dirichlet_multinomial(first.view(R, K, A), prior, outcomes).sum(-1)
     sizes = partition_sizes(assignments, stats.multiplicity.double(), K)  # (R, K)
     k = cluster_mask.sum(-1).double()  # (R,)
     weights = (torch.lgamma(sizes + weight_prior) - math.lgamma(weight_prior)).masked_fill(

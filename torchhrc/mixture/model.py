@@ -37,6 +37,7 @@ import torch
 from torchhrc._atomic import atomic_write, atomic_write_text
 from torchhrc._checks import broadcast_shapes, check_shape, check_tensor, format_index
 from torchhrc.errors import ModelError, ParseError
+from torchhrc.mixture.history import second_order
 
 __all__ = ["MarkovChainMixture"]
 
@@ -89,6 +90,10 @@ class MarkovChainMixture:
             ``place_1, place_2, ...``). :meth:`prepare` puts new demonstrations in that form.
         object_separator: the separator between verb and object in action names
             (``relabel_objects``'s ``separator``).
+        order: ``1``, chains over the symbols (the paper), or ``2``, second-order chains:
+            ``vocabulary`` names context symbols ``(previous step, step)``
+            (:mod:`torchhrc.mixture.history`), and :meth:`prepare` renames new
+            demonstrations' steps to them.
 
     Raises:
         TypeError: a field is not a floating tensor.
@@ -109,6 +114,7 @@ class MarkovChainMixture:
     atol: float = dataclasses.field(default=1e-6, repr=False, compare=False)
     objects: str = "raw"
     object_separator: str = "_"
+    order: int = 1
 
     def __post_init__(self) -> None:
         self.validate()
@@ -154,12 +160,16 @@ class MarkovChainMixture:
             raise ModelError(
                 f"expected object_separator to be a non-empty str, got {self.object_separator!r}"
             )
+        if self.order not in (1, 2) or isinstance(self.order, bool):
+            raise ModelError(f"expected order 1 or 2, got {self.order!r}")
 
     def prepare(self, demonstrations: Any) -> Any:
         """New demonstrations in the form and symbol order the chains are over.
 
         ``objects="exchangeable"``: :meth:`~torchhrc.data.Demonstrations.relabel_objects`
-        first. Then, when the model has a vocabulary, the symbols are re-indexed to it
+        first; ``order=2``: then every step renamed to its context symbol
+        (:func:`~torchhrc.mixture.history.second_order`). Then, when the model has a
+        vocabulary, the symbols are re-indexed to it
         (:meth:`~torchhrc.data.Demonstrations.with_vocabulary`). Score or classify the result
         (:func:`~torchhrc.mixture.infer_type`, :func:`~torchhrc.mixture.sequence_log_likelihood`).
 
@@ -170,7 +180,8 @@ class MarkovChainMixture:
             The demonstrations to score (the same object when nothing changes).
 
         Raises:
-            ModelError: a symbol of the demonstrations is not in the model's vocabulary.
+            ModelError: a symbol of the demonstrations is not in the model's vocabulary (with
+                ``order=2``: a step after a step it never followed in the fitted data).
 
         Example:
             >>> from torchhrc.data import Demonstrations
@@ -183,6 +194,8 @@ class MarkovChainMixture:
         """
         if self.objects == "exchangeable":
             demonstrations = demonstrations.relabel_objects(separator=self.object_separator)
+        if self.order == 2:
+            demonstrations = second_order(demonstrations).data
         if self.vocabulary is not None:
             demonstrations = demonstrations.with_vocabulary(self.vocabulary)
         return demonstrations
@@ -278,6 +291,8 @@ class MarkovChainMixture:
         }
         if self.objects != "raw":  # files of raw models stay as before
             meta.update(objects=self.objects, object_separator=self.object_separator)
+        if self.order != 1:
+            meta.update(order=self.order)
         tensors = {"log_transition": self.log_transition, "log_weights": self.log_weights}
         if self.log_initial is not None:
             tensors["log_initial"] = self.log_initial
@@ -334,6 +349,7 @@ class MarkovChainMixture:
                 tensors[f"log_{key}"] = t.log().to(dtype)
             vocabulary = doc.get("vocabulary")
             objects = doc.get("objects", "raw"), doc.get("object_separator", "_")
+            order = doc.get("order", 1)
         elif suffix == ".safetensors":
             from safetensors import SafetensorError, safe_open
 
@@ -355,6 +371,7 @@ class MarkovChainMixture:
                     json.loads(metadata.get("objects", '"raw"')),
                     json.loads(metadata.get("object_separator", '"_"')),
                 )
+                order = json.loads(metadata.get("order", "1"))
             except json.JSONDecodeError as err:
                 raise ParseError(f"invalid metadata: {err.msg}", path=str(path)) from None
         else:
@@ -367,6 +384,7 @@ class MarkovChainMixture:
                 vocabulary=tuple(vocabulary) if vocabulary is not None else None,
                 objects=objects[0],
                 object_separator=objects[1],
+                order=order,
             )
         except (ModelError, TypeError) as err:
             raise ParseError(f"invalid model: {err}", path=str(path)) from None

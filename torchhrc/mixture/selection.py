@@ -61,7 +61,7 @@ import torch
 import torch.nn.functional as F
 
 from torchhrc.errors import ModelError
-from torchhrc.mixture._em import EMResult, e_table
+from torchhrc.mixture._em import EMResult, Smoothing, e_table
 from torchhrc.mixture.consistency import (
     DEFAULT_MIN_CONSISTENCY,
     _posteriors,
@@ -86,6 +86,7 @@ from torchhrc.mixture.criteria import (
     num_free_parameters,
     num_transitions,
 )
+from torchhrc.mixture.history import SecondOrder, second_order
 from torchhrc.mixture.model import MarkovChainMixture
 from torchhrc.mixture.runs import _em_all_k, _heldout_scores
 
@@ -97,6 +98,7 @@ __all__ = [
     "DEFAULT_STRONG_GAIN",
     "DEFAULT_WEIGHT_PSEUDO_COUNT",
     "EXACT_ICL_PRIOR",
+    "SECOND_ORDER_MIN_CONSISTENCY",
     "ClusterConfig",
     "MixtureFit",
     "bic",
@@ -105,6 +107,7 @@ __all__ = [
     "gains_per_transition",
     "num_free_parameters",
     "num_transitions",
+    "order_to_keep",
 ]
 
 Method = Literal["soft", "paper"]
@@ -114,6 +117,8 @@ CRITERIA: tuple[str, ...] = (
     "icl_or_gain", "heldout", "bic", "icl", "exact_icl", "bic_or_exact_icl",
 )  # fmt: skip
 Objects = Literal["auto", "raw", "exchangeable"]
+#: ``fit_mixture(order=...)``: first- or second-order chains, or both compared.
+Order = Literal[1, 2, "auto"]
 
 
 @dataclass(frozen=True)
@@ -161,6 +166,8 @@ class MixtureFit:
     num_distinct: int = field(repr=False)
     objects: str = "raw"
     object_comparison: dict[str, dict[str, float]] | None = field(default=None, repr=False)
+    order: int = 1
+    order_comparison: dict[str, dict[str, float]] | None = field(default=None, repr=False)
 
     def transition_over(
         self, demonstrations: Any, *, pseudo_count: float | None = None
@@ -190,7 +197,7 @@ class MixtureFit:
             >>> fit.transition_over(None).shape
             torch.Size([2, 2, 2])
         """
-        if self.objects == "raw":
+        if self.objects == "raw" and self.order == 1:
             return self.model.transition
         N = self.responsibilities.shape[0]
         if demonstrations.num_sequences != N:
@@ -248,6 +255,7 @@ class ClusterConfig:
     objects: Objects | None = None
     object_separator: str | None = None
     objects_sample: int | None = None
+    order: Order | None = None
 
     def options(self) -> dict[str, Any]:
         """The fields that are set, as keyword arguments of :func:`fit_mixture`."""
@@ -340,6 +348,7 @@ def fit_mixture(
     objects: Objects | None = None,
     object_separator: str = "_",
     objects_sample: int | None = None,
+    order: Order = 1,
     dtype: torch.dtype = torch.float64,
     progress: Callable[[int, int], None] | None = None,
     ray: bool | str | None = None,
@@ -463,6 +472,20 @@ def fit_mixture(
             most this many units (subjects, or sequences), else on a random sample of this
             many units (``seed``), and fits the whole corpus once, in the chosen form.
             ``None``: ``DEFAULT_OBJECTS_SAMPLE`` (3,000).
+        order: ``1``, first-order chains (the paper); ``2``, second-order chains
+            ``P(a_t | a_(t-2), a_(t-1))``, fitted as first-order chains over context symbols
+            (:mod:`torchhrc.mixture.history`; needs a ``Demonstrations``; the model's
+            ``order`` is 2 and :meth:`MixtureFit.transition_over` gives first-order chains
+            over the recorded symbols): they see a type's order across a step every type
+            shares (a robot that waits between every two of the person's actions);
+            ``"auto"``: select k in both orders (the objects' reading chosen in first order)
+            and keep the fit with more types, the larger exact ICL (``log p(D, z)`` of the
+            recorded data in both) on equal k (:func:`order_to_keep`): a type either order's
+            rule finds is kept (``docs/clustering.md``, "Second-order chains"). In second
+            order ``min_consistency`` defaults to ``SECOND_ORDER_MIN_CONSISTENCY`` (0.75),
+            and its ``per_k`` rows add ``exact_icl_recorded`` (the exact ICL with each
+            context's Dirichlet over the recorded symbols). The fit records ``order`` and
+            ``order_comparison``. ``"auto"`` on counts or shards is first order.
         dtype: float dtype of the computation (float32 halves time and memory on big data).
         progress: ``progress(iteration, runs_still_running)`` after every EM iteration.
         ray: run every soft-EM E-step on a Ray cluster (:class:`torchhrc.mixture.RayEStep`,
@@ -511,6 +534,82 @@ def fit_mixture(
         min_consistency=min_consistency, folds=folds, se_factor=se_factor, dtype=dtype,
         progress=progress, ray=ray,
     )  # fmt: skip
+    if order not in (1, 2, "auto") or isinstance(order, bool):
+        raise ValueError(f"expected order 1, 2 or 'auto', got {order!r}")
+    lowerable = callable(getattr(data, "with_vocabulary", None)) and not isinstance(data, tuple)
+    if order == 2 and not lowerable:
+        raise TypeError(
+            "order=2 renames each step to its context (previous step, step) and needs a "
+            f"Demonstrations, got {type(data).__name__}"
+        )
+    if order != "auto" or not lowerable:  # "auto" on counts or shards: first order only
+        return _fit_objects(data, objects, object_separator, objects_sample, 1 if order ==
+                            "auto" else order, options, seed, generator)  # fmt: skip
+    start = generator.get_state() if generator is not None else None
+    fits: dict[int, MixtureFit] = {}
+    caught: dict[int, list[warnings.WarningMessage]] = {}
+    for form in (1, 2):
+        if start is not None:  # each order from the generator's state at the call, as a seed
+            generator.set_state(start)  # type: ignore[union-attr]
+        # the objects' reading is chosen once, in first order; the second order reads them so
+        read = objects if form == 1 else fits[1].objects
+        fits[form], caught[form] = _caught(
+            lambda form=form, read=read: _fit_objects(
+                data, read, object_separator, objects_sample, form, options, seed, generator
+            )
+        )
+    comparison = {
+        str(form): {"k": float(f.k), "exact_icl": _recorded_icl(f),
+                    "log_likelihood": f.log_likelihood}
+        for form, f in fits.items()
+    }  # fmt: skip
+    best = order_to_keep(comparison)
+    _rewarn(caught[best])
+    return dataclasses.replace(fits[best], order_comparison=comparison)
+
+
+def _recorded_icl(fit: MixtureFit) -> float:
+    """The exact ICL of ``fit``'s selected partition as ``log p(D, z)`` of the recorded
+    symbols (for context symbols, the Dirichlet over the recorded symbols)."""
+    row = fit.per_k[fit.k]
+    return row.get("exact_icl_recorded", row["exact_icl"])
+
+
+def order_to_keep(comparison: dict[str, dict[str, float]]) -> int:
+    """``fit_mixture(order="auto")``'s choice from each order's selected fit: a type that
+    either order's rule finds is kept, so the order with the larger ``k``; on equal ``k`` the
+    larger exact ICL (``log p(D, z)`` of the recorded data); on equal both, the first order.
+
+    Why not the exact ICL alone: a second-order chain predicts the many steps fixed by the
+    task (a robot that answers each action) far better, so its ``log p(D, z)`` is the larger
+    on nearly every task whatever the partition, and with five types it often selects one
+    type fewer (two merged) than the first order does (``docs/clustering.md``, "Second-order
+    chains").
+
+    Args:
+        comparison: ``{"1": {"k": ..., "exact_icl": ...}, "2": {...}}``.
+
+    Example:
+        >>> order_to_keep({"1": {"k": 5, "exact_icl": -2400.0},
+        ...                "2": {"k": 4, "exact_icl": -1950.0}})
+        1
+        >>> order_to_keep({"1": {"k": 2, "exact_icl": -735.0}, "2": {"k": 2, "exact_icl": -637.0}})
+        2
+    """
+    return max((1, 2), key=lambda o: (comparison[str(o)]["k"], comparison[str(o)]["exact_icl"], -o))
+
+
+def _fit_objects(
+    data: Any,
+    objects: str,
+    object_separator: str,
+    objects_sample: int,
+    order: int,
+    options: dict[str, Any],
+    seed: int | None,
+    generator: torch.Generator | None,
+) -> MixtureFit:
+    """:func:`fit_mixture` in one order: the objects as given, or both forms compared."""
     has_objects = callable(getattr(data, "relabel_objects", None)) and not isinstance(data, tuple)
     if objects == "exchangeable" and not has_objects:
         raise TypeError(
@@ -521,14 +620,14 @@ def fit_mixture(
         objects = "raw"  # nothing to exchange
     if objects != "auto":
         fit, caught = _caught(
-            lambda: _select_form(data, objects, object_separator, options, seed, generator)
+            lambda: _select_form(data, objects, object_separator, options, seed, generator, order)
         )
-        _rewarn(caught)
+        _rewarn(caught, stacklevel=4)
         return fit
 
     # "auto": compare the two forms (on a sample of units for a large corpus)
     start = generator.get_state() if generator is not None else None
-    groups = _groups(data, unit, method)
+    groups = _groups(data, options["unit"], options["method"])
     units = data.num_sequences if groups is None else int(groups.max()) + 1
     sample = data
     if units > objects_sample:
@@ -542,13 +641,15 @@ def fit_mixture(
         if start is not None:  # each form from the generator's state at the call, as a seed
             generator.set_state(start)  # type: ignore[union-attr]
         fits[form], caught[form] = _caught(
-            lambda form=form: _select_form(sample, form, object_separator, options, seed, generator)
+            lambda form=form: _select_form(
+                sample, form, object_separator, options, seed, generator, order
+            )
         )
     comparison = {
         form: {
             "k": float(f.k),
             "bic": f.bic,
-            "exact_icl": f.per_k[f.k]["exact_icl"],
+            "exact_icl": _recorded_icl(f),
             "log_likelihood": f.log_likelihood,
             "units": float(min(units, objects_sample)),
         }
@@ -561,14 +662,14 @@ def fit_mixture(
     best = "exchangeable" if score["exchangeable"] > score["raw"] else "raw"
     if sample is data:
         fit = fits[best]
-        _rewarn(caught[best])
+        _rewarn(caught[best], stacklevel=4)
     else:
         if start is not None:
             generator.set_state(start)  # type: ignore[union-attr]
         fit, found = _caught(
-            lambda: _select_form(data, best, object_separator, options, seed, generator)
+            lambda: _select_form(data, best, object_separator, options, seed, generator, order)
         )
-        _rewarn(found)
+        _rewarn(found, stacklevel=4)
     return dataclasses.replace(fit, object_comparison=comparison)
 
 
@@ -587,10 +688,11 @@ def _caught(run: Callable[[], MixtureFit]) -> tuple[MixtureFit, list[warnings.Wa
     return fit, list(caught)
 
 
-def _rewarn(caught: list[warnings.WarningMessage]) -> None:
-    """Show warnings caught by :func:`_caught` as fit_mixture's own."""
+def _rewarn(caught: list[warnings.WarningMessage], stacklevel: int = 3) -> None:
+    """Show warnings caught by :func:`_caught` as fit_mixture's own (``stacklevel``: from
+    here to fit_mixture's caller)."""
     for w in caught:
-        warnings.warn(w.message, w.category, stacklevel=3)
+        warnings.warn(w.message, w.category, stacklevel=stacklevel)
 
 
 def _select_form(
@@ -600,14 +702,16 @@ def _select_form(
     options: dict[str, Any],
     seed: int | None,
     generator: torch.Generator | None,
+    order: int = 1,
 ) -> MixtureFit:
-    """Select-Best-Model on ``data`` read as ``objects`` (``"raw"`` or ``"exchangeable"``)."""
+    """Select-Best-Model on ``data`` read as ``objects`` (``"raw"`` or ``"exchangeable"``),
+    in ``order`` 1 or 2 (:mod:`torchhrc.mixture.history`)."""
     if objects == "raw":
-        return _select(data, seed=seed, generator=generator, **options)
+        return _select_order(data, order, seed, generator, options)
     # every symbol the recorded vocabulary can relabel to, so that a new subject's
     # demonstrations (over the same recorded vocabulary) can be scored
     relabelled = data.relabel_objects(separator=separator, keep_unused=True)
-    fit = _select(relabelled, seed=seed, generator=generator, **options)
+    fit = _select_order(relabelled, order, seed, generator, options)
     # the likelihood of the recorded demonstrations: each is its relabelled form times one
     # of M!/(M-m)! equally likely injections of its objects (the first step's given, unless
     # the first symbol is modelled)
@@ -616,7 +720,8 @@ def _select_form(
     )
     per_k = {
         k: {
-            name: (value - shift if name in ("bic", "icl", "exact_icl", "log_likelihood")
+            name: (value - shift if name in ("bic", "icl", "exact_icl", "exact_icl_recorded",
+                                             "log_likelihood")
                    else value)
             for name, value in row.items()
         }
@@ -632,6 +737,33 @@ def _select_form(
         per_k=per_k,
         objects="exchangeable",
     )
+
+
+#: The soft method's ``min_consistency`` for second-order chains when none is given (first
+#: order: ``DEFAULT_MIN_CONSISTENCY``, 0.5). A second-order chain also fits habits that some
+#: of a type's people share: on the task suite at 30 x 4 its spurious extra clusters had
+#: subject consistencies 0.69-0.70 (``lead_or_follow`` seed 1, ``lead_and_pace`` seed 0),
+#: the true types 0.75-1.0 (``docs/clustering.md``, "Second-order chains").
+SECOND_ORDER_MIN_CONSISTENCY = 0.75
+
+
+def _select_order(
+    data: Any,
+    order: int,
+    seed: int | None,
+    generator: torch.Generator | None,
+    options: dict[str, Any],
+) -> MixtureFit:
+    """Select-Best-Model on ``data`` as recorded (``order`` 1) or renamed to its context
+    symbols (``order`` 2, :func:`~torchhrc.mixture.history.second_order`)."""
+    if order == 1:
+        return _select(data, seed=seed, generator=generator, **options)
+    lowered = second_order(data)
+    options = dict(options)
+    if options.get("min_consistency") is None and options["method"] == "soft":
+        options["min_consistency"] = SECOND_ORDER_MIN_CONSISTENCY
+    fit = _select(lowered.data, seed=seed, generator=generator, support=lowered, **options)
+    return dataclasses.replace(fit, model=dataclasses.replace(fit.model, order=2), order=2)
 
 
 def _select(
@@ -662,8 +794,11 @@ def _select(
     dtype: torch.dtype,
     progress: Callable[[int, int], None] | None,
     ray: bool | str | None,
+    support: SecondOrder | None = None,
 ) -> MixtureFit:
-    """:func:`fit_mixture` for one form of the data (its options, ``objects`` aside)."""
+    """:func:`fit_mixture` for one form of the data (its options, ``objects`` aside);
+    ``support``: the data are context symbols whose successors it restricts (the soft
+    method's smoothing and the exact ICL's Dirichlet, :mod:`torchhrc.mixture.history`)."""
     # a ShardedCorpus (or its merged CorpusStatistics): statistics computed shard by shard
     sharded = callable(getattr(data, "statistics", None))
     if not sharded:
@@ -717,6 +852,11 @@ def _select(
         raise TypeError(f"expected split_merge to be a bool, got {split_merge!r}")
     if pseudo_count is None:
         pseudo_count = DEFAULT_PSEUDO_COUNT
+    smoothing: float | Smoothing = pseudo_count
+    if support is not None:
+        smoothing = Smoothing.on_support(
+            pseudo_count, support.transition_support, support.initial_support
+        )
     if weight_pseudo_count is None:
         weight_pseudo_count = DEFAULT_WEIGHT_PSEUDO_COUNT
     if min_gain is None:
@@ -751,7 +891,7 @@ def _select(
     device = stats.counts.device
     ks = torch.arange(k_min, k_max + 1, device=device)
     em: dict[str, Any] = dict(
-        method=method, restarts=restarts, pseudo_count=pseudo_count,
+        method=method, restarts=restarts, pseudo_count=smoothing,
         weight_pseudo_count=weight_pseudo_count, tol=tol, max_iterations=max_iterations,
         short_iterations=short_iterations, floor=floor, initial=initial, dtype=dtype,
         split_restarts=split_merge,
@@ -780,6 +920,13 @@ def _select(
     icls = bics - result.entropy
     # the partition of every run: the most responsible slot of every distinct row
     exact = exact_icl(stats, result.assignments, cluster_mask).to(bics.dtype)  # (R,)
+    # context symbols: the rule above selects with the Dirichlet over all P of them (the
+    # second-order rows cost more, which keeps the rule's calibration: docs/clustering.md,
+    # "Second-order chains"); log p(D, z) with it over the A recorded symbols is recorded
+    # too, to compare with the first order (order="auto")
+    recorded = None
+    if support is not None:
+        recorded = exact_icl(stats, result.assignments, cluster_mask, outcomes=support.outcomes)
     scores = {"bic": bics, "icl": icls, "exact_icl": exact}
     used = criterion
     if criterion == "heldout" and (len(ks) == 1 or stats.num_units < 3):
@@ -849,6 +996,7 @@ def _select(
             "bic": float(bics[best_run[i]]),
             "icl": float(icls[best_run[i]]),
             "exact_icl": float(exact[best_run[i]]),
+            **({} if recorded is None else {"exact_icl_recorded": float(recorded[best_run[i]])}),
             "log_likelihood": float(lls[i]),
             **({"gain": float(gains[i])} if i > 0 else {}),
             **heldout.get(int(ks[i]), {}),

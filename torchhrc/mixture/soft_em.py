@@ -31,7 +31,14 @@ from dataclasses import dataclass
 import torch
 
 from torchhrc.errors import ModelError
-from torchhrc.mixture._em import EMResult, column_blocks, m_step_transition, run_groups
+from torchhrc.mixture._em import (
+    EMResult,
+    Smoothing,
+    column_blocks,
+    m_step_transition,
+    pseudo_parts,
+    run_groups,
+)
 from torchhrc.mixture.counts import SufficientStatistics
 
 __all__ = ["EStep", "SoftStatistics", "m_step", "soft_em", "soft_pass", "sum_statistics"]
@@ -232,14 +239,15 @@ def m_step(
     log_transition: torch.Tensor,
     log_initial: torch.Tensor | None,
     cluster_mask: torch.Tensor,
-    pseudo_count: float,
+    pseudo_count: float | Smoothing,
     weight_pseudo_count: float,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
     """MAP parameters from expected counts: ``(R, K, A, A)``, ``(R, K)``, ``(R, K, A) | None``."""
-    lt = m_step_transition(expected.counts, log_transition, pseudo_count)
+    on_transitions, on_first = pseudo_parts(pseudo_count)
+    lt = m_step_transition(expected.counts, log_transition, on_transitions)
     li = None
     if log_initial is not None and expected.initial_counts is not None:
-        li = m_step_transition(expected.initial_counts, log_initial, pseudo_count)
+        li = m_step_transition(expected.initial_counts, log_initial, on_first)
     sizes = (expected.sizes + weight_pseudo_count).masked_fill(~cluster_mask, 0.0)
     log_weights = sizes.log() - sizes.sum(-1, keepdim=True).log()
     return lt, log_weights, li
@@ -252,7 +260,7 @@ def soft_em(
     cluster_mask: torch.Tensor,
     *,
     log_initial: torch.Tensor | None = None,
-    pseudo_count: float = 0.1,
+    pseudo_count: float | Smoothing = 0.1,
     weight_pseudo_count: float = 1.0,
     tol: float = 1e-6,
     max_iterations: int = 200,
@@ -268,7 +276,9 @@ def soft_em(
         log_weights: ``(R, K)`` initial log mixture weights.
         cluster_mask: ``(R, K)`` bool, the clusters each run uses.
         log_initial: ``(R, K, A)`` initial first-symbol log-probabilities, or None.
-        pseudo_count: Dirichlet pseudo-count ``alpha > 0`` added to every transition count.
+        pseudo_count: Dirichlet pseudo-count ``alpha > 0`` added to every transition count,
+            or a :class:`~torchhrc.mixture._em.Smoothing` (``alpha`` on the transitions that
+            can occur only: the context symbols of :mod:`torchhrc.mixture.history`).
         weight_pseudo_count: pseudo-count ``beta >= 0`` added to every cluster size.
         tol: relative change of the log-likelihood below which a run has converged.
         max_iterations: cap on iterations.
@@ -299,8 +309,9 @@ def soft_em(
             f"expected cluster_mask and log_weights to have shape (R={R}, K={K}), actual "
             f"shapes = {tuple(cluster_mask.shape)}, {tuple(log_weights.shape)}"
         )
-    if not pseudo_count > 0:
-        raise ValueError(f"expected pseudo_count > 0, got {pseudo_count}")
+    alpha = pseudo_count.alpha if isinstance(pseudo_count, Smoothing) else pseudo_count
+    if not alpha > 0:
+        raise ValueError(f"expected pseudo_count > 0, got {alpha}")
     if weight_pseudo_count < 0:
         raise ValueError(f"expected weight_pseudo_count >= 0, got {weight_pseudo_count}")
     if max_iterations < 1:

@@ -778,9 +778,11 @@ def learn(
             demonstrations).
         cluster: a :class:`~torchhrc.mixture.ClusterConfig`; its unset fields take
             ``learn``'s defaults (``k_min=1``, ``k_max=6``, ``restarts=10``,
-            ``parameters="support"``, ``initial=True``: each type's first move is modelled)
-            or :func:`~torchhrc.mixture.fit_mixture`'s (e.g.
-            ``criterion``: held-out likelihood for the soft method, BIC for ``"paper"``).
+            ``parameters="support"``, ``initial=True``: each type's first move is modelled;
+            ``order="auto"`` with the soft method: first- and second-order chains both
+            select a k, and the larger is kept, ``docs/clustering.md``, "Second-order
+            chains") or :func:`~torchhrc.mixture.fit_mixture`'s (e.g. ``criterion``:
+            ``"icl_or_gain"`` for the soft method, BIC for ``"paper"``).
         irl: an :class:`IRLConfig` (rule, epsilon, iterations, l2).
         solver: a :class:`~torchhrc.solvers.sarsop.SARSOPConfig`, used as given (its
             ``precision`` is absolute; without a ``lower_bound_init`` the typed lower bound
@@ -811,7 +813,9 @@ def learn(
         :class:`LearnedModel` (uniform ``b0``) whose ``info`` records what decided it
         (JSON, saved with the model): ``k``, ``criterion``, ``scores`` (every k's scores
         under every criterion: ``bic``, ``exact_icl``, ``log_likelihood``, ``gain``,
-        ``heldout`` and ``heldout_se``), ``objects``, ``cluster`` (the settings used),
+        ``heldout`` and ``heldout_se``; with ``order="auto"``, of the order kept),
+        ``objects``, ``order`` and ``order_comparison`` (each order's k, exact ICL and
+        log-likelihood), ``cluster`` (the settings used),
         ``irl``, ``solver``, ``human_model`` (requested, used, held-out likelihoods) and
         ``seed``.
 
@@ -842,6 +846,7 @@ def learn(
                          f"not both (got {', '.join(sorted(given))})")  # fmt: skip
     options = {"k_min": 1, "k_max": 6, "restarts": 10, "parameters": "support",
                "initial": True, **cluster.options()}  # fmt: skip
+    options.setdefault("order", "auto" if options.get("method", "soft") == "soft" else 1)
     if k is not None:
         options["k_min"] = options["k_max"] = k
     N = demonstrations.num_sequences
@@ -868,6 +873,8 @@ def learn(
         "bic": float(fit.bic),
         "log_likelihood": float(fit.log_likelihood),
         "objects": fit.objects,
+        "order": fit.order,
+        "order_comparison": fit.order_comparison,
         "cluster": _jsonable(
             {
                 "method": fit.method,

@@ -1,0 +1,244 @@
+"""Second-order chains (torchhrc.mixture.history) and fit_mixture(order=...).
+
+References are independent of the code under test: context symbols and supports worked by
+hand, the second-order exact ICL recomputed from its definition with a loop over contexts,
+and a corpus whose two types have identical first-order counts."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections import Counter
+
+import pytest
+import torch
+
+from torchhrc.data import Demonstrations
+from torchhrc.errors import ModelError
+from torchhrc.metrics import adjusted_rand_index
+from torchhrc.mixture import MarkovChainMixture, fit_mixture
+from torchhrc.mixture.counts import sufficient_statistics
+from torchhrc.mixture.criteria import exact_icl
+from torchhrc.mixture.history import second_order
+from torchhrc.mixture.selection import SECOND_ORDER_MIN_CONSISTENCY, order_to_keep
+
+W = ("robot", "wait")
+
+
+def _order_types(subjects: int = 12, per_subject: int = 3) -> tuple[Demonstrations, list[int]]:
+    """Two types that do p1, q1, p2, q2 (type 0) or p2, q2, p1, q1 (type 1), a robot wait
+    before every step: each type's sequence has the same first-order counts (w -> p1,
+    w -> q1, w -> p2, w -> q2 once, each back to w), so only the order across a wait
+    tells them apart."""
+    a = [W, ("human", "p1"), W, ("human", "q1"), W, ("human", "p2"), W, ("human", "q2")]
+    b = [W, ("human", "p2"), W, ("human", "q2"), W, ("human", "p1"), W, ("human", "q1")]
+    seqs, subs, types = [], [], []
+    for s in range(subjects):
+        for _ in range(per_subject):
+            seqs.append(a if s % 2 == 0 else b)
+            subs.append(f"s{s}")
+            types.append(s % 2)
+    return Demonstrations.from_lists(seqs, subjects=subs), types
+
+
+def test_context_symbols_by_hand():
+    d = Demonstrations.from_lists(
+        [[W, ("human", "a"), W, ("human", "b")], [("human", "b"), W, ("human", "a")]]
+    )
+    low = second_order(d)
+    names = [f"{actor}|{action}" for actor, action in low.data.vocabulary]
+    got = [[names[i] for i in row[:n]] for row, n in zip(low.data.sequences.tolist(),
+                                                         low.data.lengths.tolist())]  # fmt: skip
+    assert got == [
+        ["robot|start > wait", "human|robot:wait > a", "robot|human:a > wait",
+         "human|robot:wait > b"],
+        ["human|start > b", "robot|human:b > wait", "human|robot:wait > a"],
+    ]  # fmt: skip
+    assert low.outcomes == 3
+    index = {n: i for i, n in enumerate(names)}
+    # "x > wait" can be followed only by "robot:wait > y"; "wait > y" by "human:y > wait"
+    for p, q in [("robot|human:a > wait", "human|robot:wait > b"),
+                 ("human|robot:wait > a", "robot|human:a > wait"),
+                 ("robot|start > wait", "human|robot:wait > a")]:  # fmt: skip
+        assert low.transition_support[index[p], index[q]]
+    assert not low.transition_support[index["human|robot:wait > a"], index["human|robot:wait > b"]]
+    assert not low.transition_support[index["robot|start > wait"], index["robot|human:a > wait"]]
+    assert [names[i] for i in torch.nonzero(low.initial_support).flatten().tolist()] == [
+        "human|start > b", "robot|start > wait"]  # fmt: skip
+
+
+def test_lowering_is_one_to_one_and_stays_on_the_support():
+    g = torch.Generator().manual_seed(3)
+    steps = [("human", f"h{i}") for i in range(3)] + [("robot", f"r{i}") for i in range(2)]
+    seqs = [[steps[int(j)] for j in torch.randint(0, 5, (int(n),), generator=g)]
+            for n in torch.randint(2, 9, (40,), generator=g)]  # fmt: skip
+    d = Demonstrations.from_lists(seqs)
+    low = second_order(d)
+    back = [[(actor, action.rsplit(" > ", 1)[1]) for actor, action in row] for row in
+            low.data.to_lists()]  # fmt: skip
+    assert back == seqs
+    counts = low.data.transition_counts()
+    assert counts[~low.transition_support].sum() == 0
+    firsts = low.data.sequences[:, 0]
+    assert bool(low.initial_support[firsts].all())
+
+
+def test_second_order_exact_icl_against_its_definition():
+    d, _ = _order_types(subjects=4, per_subject=2)
+    d = Demonstrations.from_lists([*d.to_lists()[:5], [W, ("human", "p1"), W, ("human", "p1")]])
+    low = second_order(d)
+    stats = sufficient_statistics(low.data.sequences, low.data.lengths, low.data.num_symbols,
+                                  initial=True)  # fmt: skip
+    z = torch.tensor([0, 0, 1, 1, 0, 1])
+    got = float(exact_icl(stats, _rows(stats, z), torch.ones(1, 2, dtype=torch.bool),
+                          outcomes=low.outcomes)[0])  # fmt: skip
+    # by the definition: every (cluster, context) row a Dirichlet(1/2) over the A = 3
+    # recorded symbols; the first symbols too; the weights a Dirichlet(1)
+    alpha, A = 0.5, low.outcomes
+    rows: dict[tuple[int, object], Counter] = {}
+    for n, seq in enumerate(d.to_lists()):
+        before: object = None  # (a_(t-2), a_(t-1)) of step t; the first step has its own row
+        for t, step in enumerate(seq):
+            key = (int(z[n]), "first" if t == 0 else before)
+            rows.setdefault(key, Counter())[step] += 1
+            before = ("start" if t == 0 else before[1], step)  # type: ignore[index]
+    want = 0.0
+    for counter in rows.values():
+        total = sum(counter.values())
+        want += sum(math.lgamma(c + alpha) - math.lgamma(alpha) for c in counter.values())
+        want += math.lgamma(A * alpha) - math.lgamma(total + A * alpha)
+    sizes = [int((z == k).sum()) for k in (0, 1)]
+    want += sum(math.lgamma(m + 1.0) for m in sizes) + math.lgamma(2.0) - math.lgamma(6 + 2.0)
+    assert got == pytest.approx(want, rel=1e-12)
+
+
+def _rows(stats, z: torch.Tensor) -> torch.Tensor:
+    """``(U, 1)`` the cluster of each distinct row (all sequences of a row share it here)."""
+    out = torch.zeros(stats.num_distinct, dtype=torch.long)
+    out[stats.inverse] = z
+    return out[:, None]
+
+
+def test_second_order_finds_types_first_order_counts_cannot_tell_apart():
+    d, types = _order_types()
+    options = dict(k_min=1, k_max=4, restarts=5, seed=0, initial=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        first = fit_mixture(d, order=1, **options)
+        second = fit_mixture(d, order=2, **options)
+        auto = fit_mixture(d, order="auto", **options)
+    assert first.k == 1  # identical transition counts: nothing to separate
+    assert second.k == 2 and second.order == 2 and second.model.order == 2
+    assert adjusted_rand_index(types, second.assignments.tolist()) == pytest.approx(1.0)
+    assert auto.order == 2 and auto.k == 2
+    assert set(auto.order_comparison) == {"1", "2"}
+    assert auto.order_comparison["1"]["k"] == 1 and auto.order_comparison["2"]["k"] == 2
+    # smoothing only where a context can go: no mass on impossible successors
+    support = second_order(d).transition_support
+    assert float(second.model.transition[:, ~support].max()) < 1e-6
+    rows = second.model.transition.sum(-1)
+    assert torch.allclose(rows, torch.ones_like(rows))
+    # first-order chains over the recorded symbols, for the task pipeline
+    chains = second.transition_over(d)
+    assert chains.shape == (2, d.num_symbols, d.num_symbols)
+    p1, q1, wait = d.symbol("human", "p1"), d.symbol("human", "q1"), d.symbol(*W)
+    assert float(chains[:, wait, p1].min()) > 0.2 and float(chains[:, p1, wait].min()) > 0.9
+    assert int(q1) != int(p1)
+
+
+def test_auto_keeps_first_order_where_second_finds_no_more_types():
+    # two first-order chains: a second order adds parameters and no prediction, so on equal
+    # k the first order's log p(D, z) is the larger and it is kept
+    chains = torch.tensor([[[0.8, 0.1, 0.1], [0.1, 0.8, 0.1], [0.1, 0.1, 0.8]],
+                           [[0.1, 0.8, 0.1], [0.1, 0.1, 0.8], [0.8, 0.1, 0.1]]])  # fmt: skip
+    g = torch.Generator().manual_seed(0)
+    steps = [("human", "a"), ("human", "b"), ("robot", "c")]
+    seqs, subjects, types = [], [], []
+    for s in range(20):
+        for _ in range(2):
+            x, seq = 0, []
+            for _ in range(15):
+                seq.append(steps[x])
+                x = int(torch.multinomial(chains[s % 2, x], 1, generator=g))
+            seqs.append(seq)
+            subjects.append(f"s{s}")
+            types.append(s % 2)
+    d = Demonstrations.from_lists(seqs, subjects=subjects)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_mixture(d, order="auto", k_min=1, k_max=3, restarts=3, seed=0, initial=True)
+    cmp = fit.order_comparison
+    assert cmp["1"]["k"] == cmp["2"]["k"] == fit.k == 2
+    assert cmp["1"]["exact_icl"] > cmp["2"]["exact_icl"]
+    assert fit.order == 1 and fit.model.order == 1
+    assert adjusted_rand_index(types, fit.assignments.tolist()) == pytest.approx(1.0)
+
+
+def test_order_two_model_scores_new_demonstrations_and_round_trips(tmp_path):
+    d, _ = _order_types(subjects=8, per_subject=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_mixture(d, order=2, k_min=2, k_max=2, restarts=3, seed=0, initial=True)
+    new = d.subset([0, 2])  # one of each type
+    scored = fit.model.prepare(new)
+    assert scored.vocabulary == fit.model.vocabulary
+    for suffix in (".json", ".safetensors"):
+        fit.model.save(tmp_path / f"m{suffix}")
+        back = MarkovChainMixture.load(tmp_path / f"m{suffix}")
+        assert back.order == 2
+        assert torch.equal(back.prepare(new).sequences, scored.sequences)
+    unseen = Demonstrations.from_lists([[W, ("human", "p1"), ("human", "q2")]])
+    with pytest.raises(ModelError, match="not in the vocabulary"):
+        fit.model.prepare(unseen)
+
+
+def test_bad_order_is_refused():
+    d, _ = _order_types(subjects=2, per_subject=2)
+    with pytest.raises(ValueError, match="order 1, 2 or 'auto'"):
+        fit_mixture(d, order=3)
+    seqs = torch.tensor([[0, 1, 0, 1]] * 4)
+    with pytest.raises(TypeError, match="needs a Demonstrations"):
+        fit_mixture((seqs, torch.full((4,), 4), 2), order=2)
+    with pytest.raises(ModelError, match="order 1 or 2"):
+        MarkovChainMixture(torch.zeros(1, 1, 1, dtype=torch.float64),
+                           torch.zeros(1, dtype=torch.float64), order=3)  # fmt: skip
+
+
+def test_the_order_kept_is_the_one_with_more_types_then_the_larger_exact_icl():
+    # five_parts seed 3 (docs/clustering.md): the first order finds the 5 types, the second
+    # merges two and still has the far larger log p(D, z): the types are kept
+    assert order_to_keep({"1": {"k": 5, "exact_icl": -2472.1},
+                          "2": {"k": 4, "exact_icl": -2149.1}}) == 1  # fmt: skip
+    assert order_to_keep({"1": {"k": 3, "exact_icl": -1029.8},
+                          "2": {"k": 4, "exact_icl": -824.2}}) == 2  # fmt: skip
+    assert order_to_keep({"1": {"k": 2, "exact_icl": -700.0},
+                          "2": {"k": 2, "exact_icl": -710.0}}) == 1  # fmt: skip
+    assert order_to_keep({"1": {"k": 2, "exact_icl": -700.0},
+                          "2": {"k": 2, "exact_icl": -690.0}}) == 2  # fmt: skip
+    assert order_to_keep({"1": {"k": 2, "exact_icl": -700.0},
+                          "2": {"k": 2, "exact_icl": -700.0}}) == 1  # fmt: skip
+
+
+def test_second_order_needs_types_that_belong_to_people_more_firmly():
+    # one type whose people each prefer one of two orders (8 in 10 of their demonstrations):
+    # a second-order chain can split the orders, a split people share only partly (subject
+    # consistency about 0.7): the first order's threshold 0.5 would take it, the second
+    # order's own (SECOND_ORDER_MIN_CONSISTENCY, 0.75) does not
+    a = [W, ("human", "p1"), W, ("human", "q1"), W, ("human", "p2"), W, ("human", "q2")]
+    b = [W, ("human", "p2"), W, ("human", "q2"), W, ("human", "p1"), W, ("human", "q1")]
+    g = torch.Generator().manual_seed(0)
+    seqs, subjects = [], []
+    for s in range(30):
+        prefers_a = 0.8 if s % 2 == 0 else 0.2
+        for _ in range(4):
+            seqs.append(a if float(torch.rand((), generator=g)) < prefers_a else b)
+            subjects.append(f"s{s}")
+    d = Demonstrations.from_lists(seqs, subjects=subjects)
+    options = dict(order=2, k_min=1, k_max=3, restarts=5, seed=0, initial=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        default = fit_mixture(d, **options)
+        lenient = fit_mixture(d, min_consistency=0.5, **options)
+    assert SECOND_ORDER_MIN_CONSISTENCY == 0.75
+    assert 0.5 < lenient.per_k[2]["consistency"] < 0.75
+    assert lenient.k == 2 and default.k == 1

@@ -242,3 +242,14 @@ def test_second_order_needs_types_that_belong_to_people_more_firmly():
     assert SECOND_ORDER_MIN_CONSISTENCY == 0.75
     assert 0.5 < lenient.per_k[2]["consistency"] < 0.75
     assert lenient.k == 2 and default.k == 1
+
+
+def test_auto_keeps_to_first_order_where_second_order_counts_would_not_fit(monkeypatch):
+    import torchhrc.mixture.selection as selection
+
+    d, _ = _order_types()
+    P = second_order(d).data.num_symbols
+    monkeypatch.setattr(selection, "SECOND_ORDER_MAX_ELEMENTS", d.num_sequences * P * P - 1)
+    with pytest.warns(RuntimeWarning, match="fitted first-order chains only"):
+        fit = fit_mixture(d, order="auto", k_min=1, k_max=3, restarts=3, seed=0, initial=True)
+    assert fit.order == 1 and fit.order_comparison is None and fit.k == 1

@@ -149,6 +149,11 @@ class MixtureFit:
             selected fits, ``form -> {"k", "bic", "exact_icl", "log_likelihood", "units"}``
             (on the recorded demonstrations; ``units``: the units compared, a sample of a
             large corpus); else ``None``.
+        order: ``1`` or ``2``, the chains' order (``fit_mixture(order=...)``; also
+            ``model.order``); with 2, ``model.vocabulary`` names context symbols.
+        order_comparison: with ``order="auto"``, each order's selected fit,
+            ``"1"/"2" -> {"k", "exact_icl", "log_likelihood"}`` (``exact_icl``: of the
+            recorded demonstrations in both, :func:`order_to_keep`); else ``None``.
     """
 
     model: MarkovChainMixture
@@ -542,6 +547,18 @@ def fit_mixture(
             "order=2 renames each step to its context (previous step, step) and needs a "
             f"Demonstrations, got {type(data).__name__}"
         )
+    if order == "auto" and lowerable:
+        P = second_order(data).data.num_symbols
+        if data.num_sequences * P * P > SECOND_ORDER_MAX_ELEMENTS:
+            warnings.warn(
+                f"fit_mixture(order='auto') fitted first-order chains only: the second-order "
+                f"counts would hold up to {data.num_sequences} x {P}^2 elements (N sequences x "
+                f"context symbols squared, more than {SECOND_ORDER_MAX_ELEMENTS}); pass "
+                "order=2 to fit them anyway",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+            lowerable = False
     if order != "auto" or not lowerable:  # "auto" on counts or shards: first order only
         return _fit_objects(data, objects, object_separator, objects_sample, 1 if order ==
                             "auto" else order, options, seed, generator)  # fmt: skip
@@ -566,6 +583,12 @@ def fit_mixture(
     best = order_to_keep(comparison)
     _rewarn(caught[best])
     return dataclasses.replace(fits[best], order_comparison=comparison)
+
+
+#: ``fit_mixture(order="auto")`` fits second-order chains only while ``N P^2`` (sequences x
+#: context symbols squared, the dense counts' size before identical sequences merge) is at most
+#: this (2^27: 1 GiB in float64); above it first order alone, with a warning.
+SECOND_ORDER_MAX_ELEMENTS = 1 << 27
 
 
 def _recorded_icl(fit: MixtureFit) -> float:

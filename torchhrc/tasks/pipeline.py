@@ -779,9 +779,9 @@ def learn(
         cluster: a :class:`~torchhrc.mixture.ClusterConfig`; its unset fields take
             ``learn``'s defaults (``k_min=1``, ``k_max=6``, ``restarts=10``,
             ``parameters="support"``, ``initial=True``: each type's first move is modelled;
-            ``order="auto"`` with the soft method: first- and second-order chains both
-            select a k, and the larger is kept, ``docs/clustering.md``, "Second-order
-            chains") or :func:`~torchhrc.mixture.fit_mixture`'s (e.g. ``criterion``:
+            ``order="auto"`` with the soft method and ``k`` not forced to 1: first- and
+            second-order chains both select a k, and the larger is kept,
+            ``docs/clustering.md``, "Second-order chains") or :func:`~torchhrc.mixture.fit_mixture`'s (e.g. ``criterion``:
             ``"icl_or_gain"`` for the soft method, BIC for ``"paper"``).
         irl: an :class:`IRLConfig` (rule, epsilon, iterations, l2).
         solver: a :class:`~torchhrc.solvers.sarsop.SARSOPConfig`, used as given (its
@@ -846,7 +846,9 @@ def learn(
                          f"not both (got {', '.join(sorted(given))})")  # fmt: skip
     options = {"k_min": 1, "k_max": 6, "restarts": 10, "parameters": "support",
                "initial": True, **cluster.options()}  # fmt: skip
-    options.setdefault("order", "auto" if options.get("method", "soft") == "soft" else 1)
+    # second-order chains are compared with the soft method, where there are types to find
+    pooled = k == 1 or options.get("method", "soft") != "soft"
+    options.setdefault("order", 1 if pooled else "auto")
     if k is not None:
         options["k_min"] = options["k_max"] = k
     N = demonstrations.num_sequences

@@ -373,6 +373,8 @@ def test_learn_passes_its_settings_through(monkeypatch):
     paper = learn(task, demos, cluster=ClusterConfig(method="paper", k_min=2, k_max=3,
                   restarts=2), solve=False)  # fmt: skip
     assert paper.info["order"] == 1 and paper.info["order_comparison"] is None
+    second = learn(task, demos, k_min=2, k_max=3, restarts=2, order=2, solve=False)
+    assert second.info["order"] == 2 and second.info["cluster"]["order"] == 2
     with pytest.raises(ValueError, match="either in cluster= or as keywords"):
         learn(task, demos, cluster=ClusterConfig(k_max=3), k_min=2, solve=False)
     with pytest.raises(ValueError, match="either in irl="):

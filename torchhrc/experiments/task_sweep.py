@@ -63,6 +63,10 @@ TASK_PARAMETERS: dict[str, SweepParameter] = {
     "objects": SweepParameter(
         str, None, None, "learn(objects=)", choices=("auto", "raw", "exchangeable")
     ),
+    "order": SweepParameter(
+        str, None, None, "learn(order=): first- or second-order chains, or both ('auto')",
+        choices=("1", "2", "auto"),
+    ),
     "mixture_method": SweepParameter(
         str, None, None, "learn(mixture_method=)", choices=("soft", "paper")
     ),
@@ -86,8 +90,8 @@ QUICK: dict[str, Any] = {"restarts": 3, "solver_time": 1.0, "episodes": 50}
 
 _DEFAULT_K_MAX = 6  # learn()'s
 _DEMONSTRATIONS = ("subjects", "per_subject", "noise")
-_CLUSTERING = ("k", "k_min", "k_max", "restarts", "criterion", "objects", "mixture_method",
-               "min_gain")  # fmt: skip
+_CLUSTERING = ("k", "k_min", "k_max", "restarts", "criterion", "objects", "order",
+               "mixture_method", "min_gain")  # fmt: skip
 _MODEL = ("human_model", "irl_iterations", "irl_epsilon", "irl_l2", "solver_time",
           "solver_iterations")  # fmt: skip
 
@@ -150,6 +154,8 @@ def task_metrics(
     demo_options = {n: options[n] for n in _DEMONSTRATIONS if n in options}
     model_options = {n: options[n] for n in _MODEL if n in options}
     cluster_options = {n: options[n] for n in _CLUSTERING if n in options}
+    if cluster_options.get("order") in ("1", "2"):  # a sweep's value is a string
+        cluster_options["order"] = int(cluster_options["order"])
     steps = tuple(n for n in (1, 3, 5) if n <= world.horizon)
     # a sweep runs many jobs: their warnings become counts in the row, not lines on stderr
     with warnings.catch_warnings(record=True) as caught:

@@ -750,6 +750,7 @@ def learn(
     criterion: str | None = None,
     objects: str | None = None,
     min_gain: float | None = None,
+    order: int | str | None = None,
     noise: float = 0.05,
     pause: float = 0.01,
     irl_epsilon: float | None = None,
@@ -781,8 +782,9 @@ def learn(
             ``parameters="support"``, ``initial=True``: each type's first move is modelled;
             ``order="auto"`` with the soft method and ``k`` not forced to 1: first- and
             second-order chains both select a k, and the larger is kept,
-            ``docs/clustering.md``, "Second-order chains") or :func:`~torchhrc.mixture.fit_mixture`'s (e.g. ``criterion``:
-            ``"icl_or_gain"`` for the soft method, BIC for ``"paper"``).
+            ``docs/clustering.md``, "Second-order chains") or
+            :func:`~torchhrc.mixture.fit_mixture`'s (e.g. ``criterion``: ``"icl_or_gain"``
+            for the soft method, BIC for ``"paper"``).
         irl: an :class:`IRLConfig` (rule, epsilon, iterations, l2).
         solver: a :class:`~torchhrc.solvers.sarsop.SARSOPConfig`, used as given (its
             ``precision`` is absolute; without a ``lower_bound_init`` the typed lower bound
@@ -797,6 +799,7 @@ def learn(
         criterion: instead of ``cluster``: ``fit_mixture``'s ``criterion``.
         objects: instead of ``cluster``: ``fit_mixture``'s ``objects``.
         min_gain: instead of ``cluster``: ``fit_mixture``'s ``min_gain``.
+        order: instead of ``cluster``: ``fit_mixture``'s ``order`` (1, 2 or ``"auto"``).
         noise: human-behaviour setting (:class:`~torchhrc.tasks.interface.TypeEvidence`).
         pause: human-behaviour setting (:class:`~torchhrc.tasks.interface.TypeEvidence`).
         irl_epsilon: instead of ``irl``: its ``epsilon``.
@@ -835,7 +838,7 @@ def learn(
     check_task(task)
     keywords = dict(k_min=k_min, k_max=k_max, restarts=restarts, method=mixture_method,
                     parameters=bic_parameters, criterion=criterion, objects=objects,
-                    min_gain=min_gain)  # fmt: skip
+                    min_gain=min_gain, order=order)  # fmt: skip
     given = {name: v for name, v in keywords.items() if v is not None}
     if cluster is None:
         cluster = ClusterConfig(**given)  # type: ignore[arg-type]

@@ -194,6 +194,10 @@ def test_order_two_model_scores_new_demonstrations_and_round_trips(tmp_path):
 
 def test_bad_order_is_refused():
     d, _ = _order_types(subjects=2, per_subject=2)
+    with pytest.raises(ValueError, match="at least one step"):
+        second_order(d.subset([]))
+    with pytest.raises(TypeError, match="Demonstrations"):
+        second_order((torch.zeros(1, 2, dtype=torch.long), torch.tensor([2]), 1))
     with pytest.raises(ValueError, match="order 1, 2 or 'auto'"):
         fit_mixture(d, order=3)
     seqs = torch.tensor([[0, 1, 0, 1]] * 4)

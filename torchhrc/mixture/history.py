@@ -78,6 +78,7 @@ def second_order(demonstrations: Any) -> SecondOrder:
 
     Raises:
         TypeError: ``demonstrations`` is not a Demonstrations.
+        ValueError: it holds no step.
     """
     if not callable(getattr(demonstrations, "with_vocabulary", None)):
         raise TypeError(
@@ -89,6 +90,8 @@ def second_order(demonstrations: Any) -> SecondOrder:
     previous = torch.cat([seqs.new_full((seqs.shape[0], 1), A), seqs[:, :-1]], 1)  # A = start
     codes = previous * A + seqs  # (N, L), in [0, (A + 1) A)
     used = torch.unique(codes[mask])  # (P,) sorted
+    if used.numel() == 0:
+        raise ValueError("expected demonstrations with at least one step, got none")
     index = torch.searchsorted(used, codes.clamp_max(int(used[-1]))).clamp_max(len(used) - 1)
     steps = demonstrations.vocabulary
     names = [f"{a}:{b}" for a, b in steps] + [START]

@@ -64,7 +64,10 @@ TASK_PARAMETERS: dict[str, SweepParameter] = {
         str, None, None, "learn(objects=)", choices=("auto", "raw", "exchangeable")
     ),
     "order": SweepParameter(
-        str, None, None, "learn(order=): first- or second-order chains, or both ('auto')",
+        str,
+        None,
+        None,
+        "learn(order=): first- or second-order chains, or both ('auto')",
         choices=("1", "2", "auto"),
     ),
     "mixture_method": SweepParameter(

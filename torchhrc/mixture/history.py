@@ -36,7 +36,7 @@ from typing import Any
 
 import torch
 
-__all__ = ["CONTEXT_SEPARATOR", "START", "SecondOrder", "second_order"]
+__all__ = ["CONTEXT_SEPARATOR", "START", "SecondOrder", "num_contexts", "second_order"]
 
 #: The name of the context before a sequence's first step.
 START = "start"
@@ -65,6 +65,40 @@ class SecondOrder:
     outcomes: int
 
 
+def num_contexts(demonstrations: Any) -> int:
+    """``P``, the number of context symbols :func:`second_order` would give (without
+    building them: a size check before a fit).
+
+    Raises:
+        TypeError, ValueError: as :func:`second_order`.
+
+    Example:
+        >>> from torchhrc.data import Demonstrations
+        >>> d = Demonstrations.from_lists([[("robot", "w"), ("human", "a"), ("robot", "w")]])
+        >>> num_contexts(d), second_order(d).data.num_symbols
+        (3, 3)
+    """
+    return int(_context_codes(demonstrations)[1].numel())
+
+
+def _context_codes(demonstrations: Any) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(codes (N, L), used (P,))``: each step's context code ``previous * A + step``
+    (``previous = A`` before the first step) and the sorted codes that occur."""
+    if not callable(getattr(demonstrations, "with_vocabulary", None)):
+        raise TypeError(
+            "expected demonstrations to be a torchhrc.data.Demonstrations, got "
+            f"{type(demonstrations).__name__}"
+        )
+    seqs, mask = demonstrations.sequences, demonstrations.mask  # (N, L)
+    A = demonstrations.num_symbols
+    previous = torch.cat([seqs.new_full((seqs.shape[0], 1), A), seqs[:, :-1]], 1)  # A = start
+    codes = previous * A + seqs  # (N, L), in [0, (A + 1) A)
+    used = torch.unique(codes[mask])  # (P,) sorted
+    if used.numel() == 0:
+        raise ValueError("expected demonstrations with at least one step, got none")
+    return codes, used
+
+
 def second_order(demonstrations: Any) -> SecondOrder:
     """Lower :class:`~torchhrc.data.Demonstrations` to context symbols (see the module).
 
@@ -80,18 +114,8 @@ def second_order(demonstrations: Any) -> SecondOrder:
         TypeError: ``demonstrations`` is not a Demonstrations.
         ValueError: it holds no step.
     """
-    if not callable(getattr(demonstrations, "with_vocabulary", None)):
-        raise TypeError(
-            "expected demonstrations to be a torchhrc.data.Demonstrations, got "
-            f"{type(demonstrations).__name__}"
-        )
-    seqs, mask = demonstrations.sequences, demonstrations.mask  # (N, L)
-    A = demonstrations.num_symbols
-    previous = torch.cat([seqs.new_full((seqs.shape[0], 1), A), seqs[:, :-1]], 1)  # A = start
-    codes = previous * A + seqs  # (N, L), in [0, (A + 1) A)
-    used = torch.unique(codes[mask])  # (P,) sorted
-    if used.numel() == 0:
-        raise ValueError("expected demonstrations with at least one step, got none")
+    codes, used = _context_codes(demonstrations)
+    mask, A = demonstrations.mask, demonstrations.num_symbols
     index = torch.searchsorted(used, codes.clamp_max(int(used[-1]))).clamp_max(len(used) - 1)
     steps = demonstrations.vocabulary
     names = [f"{a}:{b}" for a, b in steps] + [START]

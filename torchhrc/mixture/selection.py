@@ -86,7 +86,7 @@ from torchhrc.mixture.criteria import (
     num_free_parameters,
     num_transitions,
 )
-from torchhrc.mixture.history import SecondOrder, second_order
+from torchhrc.mixture.history import SecondOrder, num_contexts, second_order
 from torchhrc.mixture.model import MarkovChainMixture
 from torchhrc.mixture.runs import _em_all_k, _heldout_scores
 
@@ -548,7 +548,7 @@ def fit_mixture(
             f"Demonstrations, got {type(data).__name__}"
         )
     if order == "auto" and lowerable:
-        P = second_order(data).data.num_symbols
+        P = num_contexts(data)
         if data.num_sequences * P * P > SECOND_ORDER_MAX_ELEMENTS:
             warnings.warn(
                 f"fit_mixture(order='auto') fitted first-order chains only: the second-order "

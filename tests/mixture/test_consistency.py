@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import warnings
 from pathlib import Path
 
@@ -158,3 +159,91 @@ def test_cli_min_consistency_option(lead_or_follow_large, tmp_path: Path, capsys
         ks[value] = report["k"]
         assert report["per_k"]["3"]["consistency"] < 0.5
     assert ks == {"0": 3, "0.5": 2}
+
+
+def _held_out_reference(per_seq, sequences, subjects, model, alpha, weight_alpha):
+    """Each sequence's posterior under chains refitted without its subject, by loops: the
+    subject responsibilities from the model, then for every subject an M-step over the
+    others' expected counts (the definition, written independently of the batched code)."""
+    lt, li, lw = model.log_transition, model.log_initial, model.log_weights
+    A = lt.shape[-1]
+    S = int(subjects.max()) + 1
+    counts = torch.zeros(S, A, A, dtype=torch.float64)
+    first = torch.zeros(S, A, dtype=torch.float64)
+    for seq, s in zip(sequences, subjects.tolist()):
+        first[s, seq[0]] += 1
+        for x, y in itertools.pairwise(seq):
+            counts[s, x, y] += 1
+    joint = torch.einsum("sab,kab->sk", counts, lt) + first @ li.T + lw
+    r = (joint - joint.logsumexp(-1, keepdim=True)).exp()
+    out = []
+    for seq, s in zip(sequences, subjects.tolist()):
+        keep = torch.arange(S) != s
+        n = torch.einsum("sk,sab->kab", r[keep], counts[keep]) + alpha
+        f = r[keep].T @ first[keep] + alpha
+        w = r[keep].sum(0) + weight_alpha
+        score = (w / w.sum()).log() + (f / f.sum(-1, keepdim=True)).log()[:, seq[0]]
+        theta = (n / n.sum(-1, keepdim=True)).log()
+        for x, y in itertools.pairwise(seq):
+            score = score + theta[:, x, y]
+        out.append((score - score.logsumexp(-1)).exp())
+    return torch.stack(out)
+
+
+def test_held_out_posteriors_match_their_definition() -> None:
+    from torchhrc.mixture import sufficient_statistics
+    from torchhrc.mixture.consistency import held_out_posteriors
+
+    demos, _ = make_task("pace").demonstrations(subjects=8, per_subject=3, seed=1)
+    # two subjects with the same demonstrations: one row of multiplicity 2, one left out
+    lists = demos.to_lists()
+    lists[3:6] = lists[0:3]
+    from torchhrc.data import Demonstrations
+
+    demos = Demonstrations.from_lists(lists, subjects=[s for s in demos.subjects],
+                                      vocabulary=demos.vocabulary)  # fmt: skip
+    fit = fit_mixture(demos, k_min=3, k_max=3, restarts=2, initial=True, seed=0)
+    args = (demos.sequences, demos.lengths, demos.num_symbols)
+    per_seq = sufficient_statistics(*args, initial=True, dtype=torch.float64)
+    by_subject = sufficient_statistics(*args, groups=demos.subject_index, initial=True,
+                                       dtype=torch.float64)  # fmt: skip
+    assert by_subject.num_distinct < by_subject.num_units  # the pooled pair is there
+    m = fit.model
+    got = held_out_posteriors(per_seq, by_subject, m.log_transition, m.log_initial,
+                              m.log_weights, pseudo_transition=0.1, pseudo_initial=0.1,
+                              weight_pseudo_count=1.0)  # fmt: skip
+    sequences = [demos.sequences[n, : demos.lengths[n]].tolist() for n in range(len(lists))]
+    want = _held_out_reference(per_seq, sequences, demos.subject_index, m, 0.1, 1.0)
+    torch.testing.assert_close(got, want, rtol=1e-9, atol=1e-12)
+
+
+def test_a_cluster_fitted_to_few_people_is_judged_without_them() -> None:
+    """``lead_or_follow`` (2 types) at 30 x 4, seed 1, second-order chains: the 3-cluster
+    fit's third cluster holds 2 followers (what their slips share). Fitted to them, it predicts
+    their sequences (in-sample ICC of every cluster above 0.5, the check before it read each
+    sequence held out); refitted without the subject, it does not (held-out ICC below 0.5), so
+    the selection keeps the 2 true types."""
+    demos, types = make_task("lead_or_follow").demonstrations(subjects=30, per_subject=4,
+                                                              noise=0.05, seed=1)  # fmt: skip
+    options = dict(order=2, k_min=1, k_max=3, restarts=10, initial=True, seed=1,
+                   parameters="support")  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        three = fit_mixture(demos, **{**options, "k_min": 3, "min_consistency": 0.0})
+        fit = fit_mixture(demos, **options)
+    m = three.model
+    data = m.prepare(demos)
+    A = m.log_transition.shape[-1]
+    counts = torch.zeros(data.num_sequences, A, A, dtype=torch.float64)
+    for n in range(data.num_sequences):
+        x = data.sequences[n, : data.lengths[n]].tolist()
+        for a, b in itertools.pairwise(x):
+            counts[n, a, b] += 1
+    firsts = torch.nn.functional.one_hot(data.sequences[:, 0], A).double()
+    joint = torch.einsum("nab,kab->nk", counts, m.log_transition) + firsts @ m.log_initial.T
+    joint = joint + m.log_weights
+    in_sample = intraclass_correlation((joint - joint.logsumexp(-1, keepdim=True)).exp(),
+                                       demos.subject_index)  # fmt: skip
+    assert float(in_sample.min()) > 0.5
+    assert float(cluster_consistency(m, demos).min()) < 0.5
+    assert fit.k == 2 and adjusted_rand_index(types.tolist(), fit.assignments.tolist()) == 1.0

@@ -20,7 +20,7 @@ from torchhrc.mixture import MarkovChainMixture, fit_mixture
 from torchhrc.mixture.counts import sufficient_statistics
 from torchhrc.mixture.criteria import exact_icl
 from torchhrc.mixture.history import second_order
-from torchhrc.mixture.selection import SECOND_ORDER_MIN_CONSISTENCY, order_to_keep
+from torchhrc.mixture.selection import order_to_keep
 
 W = ("robot", "wait")
 
@@ -223,29 +223,30 @@ def test_the_order_kept_is_the_one_with_more_types_then_the_larger_exact_icl():
                           "2": {"k": 2, "exact_icl": -700.0}}) == 1  # fmt: skip
 
 
-def test_second_order_needs_types_that_belong_to_people_more_firmly():
-    # one type whose people each prefer one of two orders (8 in 10 of their demonstrations):
-    # a second-order chain can split the orders, a split people share only partly (subject
-    # consistency about 0.7): the first order's threshold 0.5 would take it, the second
-    # order's own (SECOND_ORDER_MIN_CONSISTENCY, 0.75) does not
+def test_second_order_finds_people_who_each_prefer_an_order():
+    # people who each prefer one of two orders (in 19 of 20 of their demonstrations) with a
+    # robot that waits between every two of their actions: a first-order chain cannot see
+    # the order; the second order's split is a split of people (held-out consistency above
+    # the one threshold, 0.5, that both orders share): 2 types, by preference
     a = [W, ("human", "p1"), W, ("human", "q1"), W, ("human", "p2"), W, ("human", "q2")]
     b = [W, ("human", "p2"), W, ("human", "q2"), W, ("human", "p1"), W, ("human", "q1")]
     g = torch.Generator().manual_seed(0)
-    seqs, subjects = [], []
+    seqs, subjects, prefers = [], [], []
     for s in range(30):
-        prefers_a = 0.8 if s % 2 == 0 else 0.2
+        prefers_a = 0.95 if s % 2 == 0 else 0.05
         for _ in range(4):
             seqs.append(a if float(torch.rand((), generator=g)) < prefers_a else b)
             subjects.append(f"s{s}")
+            prefers.append(s % 2)
     d = Demonstrations.from_lists(seqs, subjects=subjects)
-    options = dict(order=2, k_min=1, k_max=3, restarts=5, seed=0, initial=True)
+    options = dict(k_min=1, k_max=3, restarts=5, seed=0, initial=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        default = fit_mixture(d, **options)
-        lenient = fit_mixture(d, min_consistency=0.5, **options)
-    assert SECOND_ORDER_MIN_CONSISTENCY == 0.75
-    assert 0.5 < lenient.per_k[2]["consistency"] < 0.75
-    assert lenient.k == 2 and default.k == 1
+        first = fit_mixture(d, order=1, **options)
+        second = fit_mixture(d, order=2, **options)
+    assert first.k == 1
+    assert second.k == 2 and adjusted_rand_index(prefers, second.assignments.tolist()) == 1.0
+    assert second.per_k[2]["consistency"] > 0.5
 
 
 def test_auto_keeps_to_first_order_where_second_order_counts_would_not_fit(monkeypatch):

@@ -23,6 +23,8 @@ from typing import Any
 import torch
 
 __all__ = [
+    "DEFAULT_PSEUDO_COUNT",
+    "DEFAULT_WEIGHT_PSEUDO_COUNT",
     "OFF_SUPPORT",
     "EMResult",
     "Smoothing",
@@ -135,6 +137,12 @@ def e_table(
         out = out + (first_counts @ log_initial.reshape(R * K, A).transpose(0, 1)).view(-1, R, K)
     return out
 
+
+#: The soft method's default Dirichlet pseudo-count on every transition (``alpha``).
+DEFAULT_PSEUDO_COUNT = 0.1
+
+#: The soft method's default pseudo-count on every cluster size (``beta``).
+DEFAULT_WEIGHT_PSEUDO_COUNT = 1.0
 
 #: The pseudo-count of a transition outside a :class:`Smoothing`'s support, relative to
 #: ``alpha``: not 0, so that every log-probability stays finite (the soft E-step's tables),

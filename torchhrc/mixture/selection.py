@@ -61,10 +61,17 @@ import torch
 import torch.nn.functional as F
 
 from torchhrc.errors import ModelError
-from torchhrc.mixture._em import EMResult, Smoothing, e_table
+from torchhrc.mixture._em import (
+    DEFAULT_PSEUDO_COUNT,
+    DEFAULT_WEIGHT_PSEUDO_COUNT,
+    EMResult,
+    Smoothing,
+    e_table,
+    pseudo_parts,
+)
 from torchhrc.mixture.consistency import (
     DEFAULT_MIN_CONSISTENCY,
-    _posteriors,
+    held_out_posteriors,
     intraclass_correlation,
     split_consistency,
 )
@@ -98,7 +105,6 @@ __all__ = [
     "DEFAULT_STRONG_GAIN",
     "DEFAULT_WEIGHT_PSEUDO_COUNT",
     "EXACT_ICL_PRIOR",
-    "SECOND_ORDER_MIN_CONSISTENCY",
     "ClusterConfig",
     "MixtureFit",
     "bic",
@@ -318,13 +324,6 @@ def _groups(data: Any, unit: str, method: str) -> torch.Tensor | None:
     return torch.tensor([index.setdefault(s, len(index)) for s in subjects], dtype=torch.long)
 
 
-#: The soft method's default Dirichlet pseudo-count on every transition (``alpha``).
-DEFAULT_PSEUDO_COUNT = 0.1
-
-#: The soft method's default pseudo-count on every cluster size (``beta``).
-DEFAULT_WEIGHT_PSEUDO_COUNT = 1.0
-
-
 def fit_mixture(
     data: Any,
     *,
@@ -437,11 +436,12 @@ def fit_mixture(
         min_consistency: a type belongs to a person: with subjects as units (``unit``), the
             chosen k is lowered while one of its clusters has a subject consistency below
             this (the intraclass correlation of the sequences' own cluster posteriors with
-            subjects as groups, :mod:`torchhrc.mixture.consistency`: the share of their
-            variance that lies between subjects). It removes the clusters of sequences, not
+            subjects as groups, each sequence read under the chains refitted without its
+            subject, :mod:`torchhrc.mixture.consistency`: the share of their variance that
+            lies between subjects). It removes the clusters of sequences, not
             of people, that every likelihood criterion keeps on large corpora when the chains
             are misspecified (``docs/clustering.md``, "A type belongs to a person"). ``None``:
-            ``DEFAULT_MIN_CONSISTENCY`` (0.5) for ``"soft"``, 0 (off) for ``"paper"``.
+            ``DEFAULT_MIN_CONSISTENCY`` (0.5, both orders) for ``"soft"``, 0 (off) for ``"paper"``.
             Recorded as ``per_k[k]["consistency"]`` (the smallest of the k clusters) whenever
             subjects with several sequences are the units, also when the check is off (0).
             The k is also lowered while the step to it from k - 1 splits no one's people:
@@ -487,8 +487,7 @@ def fit_mixture(
             and keep the fit with more types, the larger exact ICL (``log p(D, z)`` of the
             recorded data in both) on equal k (:func:`order_to_keep`): a type either order's
             rule finds is kept (``docs/clustering.md``, "Second-order chains"). In second
-            order ``min_consistency`` defaults to ``SECOND_ORDER_MIN_CONSISTENCY`` (0.75),
-            and its ``per_k`` rows add ``exact_icl_recorded`` (the exact ICL with each
+            order the ``per_k`` rows add ``exact_icl_recorded`` (the exact ICL with each
             context's Dirichlet over the recorded symbols). The fit records ``order`` and
             ``order_comparison``. ``"auto"`` on counts or shards is first order.
         dtype: float dtype of the computation (float32 halves time and memory on big data).
@@ -762,14 +761,6 @@ def _select_form(
     )
 
 
-#: The soft method's ``min_consistency`` for second-order chains when none is given (first
-#: order: ``DEFAULT_MIN_CONSISTENCY``, 0.5). A second-order chain also fits habits that some
-#: of a type's people share: on the task suite at 30 x 4 its spurious extra clusters had
-#: subject consistencies 0.69-0.70 (``lead_or_follow`` seed 1, ``lead_and_pace`` seed 0),
-#: the true types 0.75-1.0 (``docs/clustering.md``, "Second-order chains").
-SECOND_ORDER_MIN_CONSISTENCY = 0.75
-
-
 def _select_order(
     data: Any,
     order: int,
@@ -782,9 +773,6 @@ def _select_order(
     if order == 1:
         return _select(data, seed=seed, generator=generator, **options)
     lowered = second_order(data)
-    options = dict(options)
-    if options.get("min_consistency") is None and options["method"] == "soft":
-        options["min_consistency"] = SECOND_ORDER_MIN_CONSISTENCY
     fit = _select(lowered.data, seed=seed, generator=generator, support=lowered, **options)
     return dataclasses.replace(fit, model=dataclasses.replace(fit.model, order=2), order=2)
 
@@ -968,6 +956,8 @@ def _select(
         both = _consistency_per_k(
             data, sharded, stats, result, best_run, run_k,
             initial=initial, dtype=dtype, ray=ray, floor=floor,
+            smoothing=smoothing if method == "soft" else 0.0,
+            weight_pseudo_count=weight_pseudo_count if method == "soft" else 0.0,
         )  # fmt: skip
         consistency, split = (None, None) if both is None else both
     exempt = None  # the steps the min_gain cut spares
@@ -1063,6 +1053,8 @@ def _consistency_per_k(
     dtype: torch.dtype,
     ray: bool | str | None,
     floor: float,
+    smoothing: float | Smoothing,
+    weight_pseudo_count: float,
 ) -> tuple[torch.Tensor, torch.Tensor] | None:
     """``(num_k,)`` the smallest subject consistency (ICC) over the clusters of every k's
     best run (``nan`` where undefined: one sequence per subject, k = 1), and ``(num_k,)``
@@ -1073,7 +1065,9 @@ def _consistency_per_k(
 
     The subjects are the unit rows of ``stats`` (``stats.inverse (N,)``: subjects with equal
     summed counts share a row, the same grouping in memory and in shards); the sequences'
-    own counts come from a second reduction by sequence."""
+    own counts come from a second reduction by sequence, and each is read under the chains
+    refitted without its subject (:func:`~torchhrc.mixture.consistency.held_out_posteriors`,
+    with the fit's ``smoothing`` and ``weight_pseudo_count``)."""
     if sharded:
         try:
             per_sequence = data.statistics(unit="sequence", initial=initial, dtype=dtype,
@@ -1090,15 +1084,18 @@ def _consistency_per_k(
         sequences, lengths, A, _ = _unpack(data)
         per_sequence = sufficient_statistics(sequences, lengths, A, initial=initial, dtype=dtype)
     groups = stats.inverse.to(per_sequence.inverse.device)
+    pseudo_transition, pseudo_initial = pseudo_parts(smoothing)
     out, splits = [], []
     previous = None
     for run in best_run.tolist():
         k = int(run_k[run])
         lw = result.log_weights[run, :k]
         li = result.log_initial[run, :k] if result.log_initial is not None else None
-        rows = _posteriors(per_sequence.counts, per_sequence.first_counts,
-                           result.log_transition[run, :k], li,
-                           lw - torch.logsumexp(lw, -1), floor)[per_sequence.inverse]  # fmt: skip
+        rows = held_out_posteriors(
+            per_sequence, stats, result.log_transition[run, :k], li,
+            lw - torch.logsumexp(lw, -1), pseudo_transition=pseudo_transition,
+            pseudo_initial=pseudo_initial, weight_pseudo_count=weight_pseudo_count, floor=floor,
+        )  # fmt: skip
         icc = intraclass_correlation(rows, groups)
         defined = icc[~icc.isnan()]
         out.append(float(defined.min()) if k > 1 and defined.numel() else math.nan)

@@ -67,6 +67,7 @@ from torchhrc.mixture._em import (
     EMResult,
     Smoothing,
     e_table,
+    m_step_transition,
     pseudo_parts,
 )
 from torchhrc.mixture.consistency import (
@@ -95,6 +96,7 @@ from torchhrc.mixture.criteria import (
 )
 from torchhrc.mixture.history import SecondOrder, num_contexts, second_order
 from torchhrc.mixture.model import MarkovChainMixture
+from torchhrc.mixture.refine import refine_partition
 from torchhrc.mixture.runs import _em_all_k, _heldout_scores
 
 __all__ = [
@@ -369,7 +371,12 @@ def fit_mixture(
         k_min, k_max: the range of k (``1 <= k_min <= k_max``).
         restarts: EM runs per k (the paper's numOfIterations, 20).
         method: ``"soft"`` (k-means++ + smoothed soft EM, the default) or ``"paper"``
-            (random init + hard EM, exactly the paper's algorithm).
+            (random init + hard EM, exactly the paper's algorithm). The soft method then
+            refines the chosen k's partition by single-unit moves that raise its exact ICL
+            (:func:`~torchhrc.mixture.refine.refine_partition`), where the refined
+            partition's exact ICL is above the previous k's (recorded as
+            ``per_k[k]["refined_moves"]`` and ``"exact_icl_refined"``; the chains are
+            re-estimated from it by one smoothed M-step).
         criterion: how the k is chosen among the best run of every k: ``"icl_or_gain"``
             (the soft method's default): the exact ICL's k (:func:`exact_icl`, Jeffreys'
             prior, no parameter count), or a larger k when every step up to it raises the
@@ -1027,18 +1034,86 @@ def _select(
         for i in range(len(ks))
     }
     _warn_at_edge(stats, int(ks[index]), k_min, k_max, per_k, float(min_gain))
-    return _finish(
-        stats,
-        result,
-        chosen,
-        int(run_k[chosen]),
-        bics,
-        icls,
-        per_k,
-        method,
-        used,
-        vocabulary,
+    k = int(run_k[chosen])
+    if method == "soft" and index > 0 and k >= 2:
+        # the k-partition with the larger log p(D, z), where log p(D, z) itself prefers k
+        # clusters to the k - 1 of the previous k's best run (docs/clustering.md, "Read
+        # without the subject")
+        ref = exact if recorded is None else recorded
+        refined = _refine_run(stats, result, chosen, k, smoothing, weight_pseudo_count,
+                              outcomes=None if support is None else support.outcomes,
+                              floor_icl=float(ref[best_run[index - 1]]))  # fmt: skip
+        if refined is not None:
+            result, moved, icl = refined
+            chosen = 0
+            n_params_run = n_params[best_run[index]].reshape(1)
+            bics = bic(result.log_likelihood, n_params_run, n)
+            icls = bics - result.entropy
+            per_k[int(ks[index])].update({"refined_moves": float(moved),
+                                          "exact_icl_refined": icl})  # fmt: skip
+    return _finish(stats, result, chosen, k, bics, icls, per_k, method, used, vocabulary)
+
+
+def _refine_run(
+    stats: SufficientStatistics,
+    result: EMResult,
+    run: int,
+    k: int,
+    smoothing: float | Smoothing,
+    weight_pseudo_count: float,
+    *,
+    outcomes: int | None,
+    floor_icl: float,
+) -> tuple[EMResult, int, float] | None:
+    """Run ``run``'s partition refined by exact-ICL moves
+    (:func:`~torchhrc.mixture.refine.refine_partition`) and its chains re-estimated from it
+    (one smoothed M-step), as a one-run EMResult with the number of units moved and the
+    refined partition's exact ICL; None when no unit moves or when the refined partition's
+    exact ICL is not above ``floor_icl`` (the exact ICL then prefers fewer clusters, and its
+    moves drift towards them)."""
+    z0 = result.assignments[:, run]
+    if int(z0.max()) >= k:  # not a partition into the run's k slots
+        return None
+    z = refine_partition(stats, z0, k, prior=EXACT_ICL_PRIOR, outcomes=outcomes)
+    moved = int((z != z0).sum())
+    mask = torch.ones(1, k, dtype=torch.bool, device=z.device)
+    icl = float(exact_icl(stats, z[:, None], mask, outcomes=outcomes)[0])
+    if moved == 0 or not icl > floor_icl:
+        return None
+    m = stats.multiplicity.to(torch.float64)
+    onehot = F.one_hot(z, k).to(torch.float64) * m[:, None]  # (U, k)
+    A = stats.num_symbols
+    pt, pi = pseudo_parts(smoothing)
+    counts = (onehot.T @ stats.counts.to(torch.float64)).view(1, k, A, A)
+    dtype = result.log_transition.dtype
+    previous = result.log_transition[run : run + 1, :k].to(torch.float64)
+    lt = m_step_transition(counts, previous, pt)
+    li = None
+    if result.log_initial is not None and stats.first_counts is not None:
+        first = (onehot.T @ stats.first_counts.to(torch.float64))[None]  # (1, k, A)
+        pi_t = torch.as_tensor(pi, dtype=torch.float64)
+        smoothed = first + pi_t
+        li = smoothed.log() - smoothed.sum(-1, keepdim=True).clamp_min(1e-300).log()
+    sizes = onehot.sum(0) + weight_pseudo_count
+    lw = (sizes / sizes.sum()).log()[None]  # (1, k)
+    low = math.log(1e-300)
+    joint = e_table(stats.counts.to(torch.float64), None if li is None else
+                    stats.first_counts.to(torch.float64), lt.clamp_min(low),
+                    None if li is None else li.clamp_min(low))[:, 0] + lw  # fmt: skip
+    total = torch.logsumexp(joint, -1)  # (U,)
+    r = (joint - total[:, None]).exp()
+    entropy = -(m[:, None] * r * (r.clamp_min(1e-300)).log()).sum()
+    one = EMResult(
+        log_transition=lt.to(dtype),
+        log_weights=lw.to(dtype),
+        log_initial=None if li is None else li.to(dtype),
+        assignments=z[:, None],
+        log_likelihood=(m * total).sum().reshape(1).to(dtype),
+        entropy=entropy.reshape(1).to(dtype),
+        iterations=result.iterations[run : run + 1],
+        converged=result.converged[run : run + 1],
     )
+    return one, moved, icl
 
 
 def _consistency_per_k(

@@ -38,6 +38,7 @@ from torchhrc.mixture.likelihood import (
 )
 from torchhrc.mixture.model import MarkovChainMixture
 from torchhrc.mixture.ray_estep import RayEStep
+from torchhrc.mixture.refine import refine_partition
 from torchhrc.mixture.selection import (
     ClusterConfig,
     MixtureFit,
@@ -74,6 +75,7 @@ __all__ = [
     "mixture_log_likelihood",
     "num_free_parameters",
     "random_init",
+    "refine_partition",
     "sequence_log_likelihood",
     "shard_statistics",
     "soft_em",

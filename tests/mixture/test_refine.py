@@ -126,3 +126,16 @@ def test_no_refinement_where_the_exact_icl_prefers_fewer_clusters() -> None:
                           min_consistency=0.0)  # fmt: skip
     for row in fit.per_k.values():
         assert "refined_moves" not in row
+
+
+def test_the_order_comparison_reads_the_refined_partition() -> None:
+    """``order="auto"`` compares the kept partitions' log p(D, z): the refined one's."""
+    demos, _ = _lingering(300, seed=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_mixture(demos, order="auto", k_min=1, k_max=3, restarts=5, initial=True,
+                          seed=0)  # fmt: skip
+    assert fit.order == 2 and "exact_icl_refined" in fit.per_k[2]
+    assert fit.order_comparison["2"]["exact_icl"] == pytest.approx(
+        fit.per_k[2]["exact_icl_refined"], abs=1e-6
+    )

@@ -599,9 +599,10 @@ SECOND_ORDER_MAX_ELEMENTS = 1 << 27
 
 def _recorded_icl(fit: MixtureFit) -> float:
     """The exact ICL of ``fit``'s selected partition as ``log p(D, z)`` of the recorded
-    symbols (for context symbols, the Dirichlet over the recorded symbols)."""
+    symbols (for context symbols, the Dirichlet over the recorded symbols; for a refined
+    partition, the refined one's, which is computed so)."""
     row = fit.per_k[fit.k]
-    return row.get("exact_icl_recorded", row["exact_icl"])
+    return row.get("exact_icl_refined", row.get("exact_icl_recorded", row["exact_icl"]))
 
 
 def order_to_keep(comparison: dict[str, dict[str, float]]) -> int:
@@ -750,7 +751,7 @@ def _select_form(
     per_k = {
         k: {
             name: (value - shift if name in ("bic", "icl", "exact_icl", "exact_icl_recorded",
-                                             "log_likelihood")
+                                             "exact_icl_refined", "log_likelihood")
                    else value)
             for name, value in row.items()
         }
@@ -1037,8 +1038,8 @@ def _select(
     k = int(run_k[chosen])
     if method == "soft" and index > 0 and k >= 2:
         # the k-partition with the larger log p(D, z), where log p(D, z) itself prefers k
-        # clusters to the k - 1 of the previous k's best run (docs/clustering.md, "Read
-        # without the subject")
+        # clusters to the k - 1 of the previous k's best run (docs/clustering.md, "Refining
+        # the partition by its exact ICL")
         ref = exact if recorded is None else recorded
         refined = _refine_run(stats, result, chosen, k, smoothing, weight_pseudo_count,
                               outcomes=None if support is None else support.outcomes,

@@ -42,6 +42,7 @@ def _row_gains(
     weighted: torch.Tensor,
     z: torch.Tensor,
     totals: torch.Tensor,
+    row_totals: torch.Tensor,
     row_of: torch.Tensor,
     prior: float,
     outcomes: int,
@@ -50,7 +51,8 @@ def _row_gains(
     the exact ICL) when unit ``u``, taken out of its cluster, is added to cluster ``k``.
 
     ``weighted (U, D)``: the units' counts times their multiplicities; ``z (U,)`` their
-    clusters; ``totals (K, D)``: the clusters' counts; ``row_of (D,)``: each outcome's row."""
+    clusters; ``totals (K, D)`` and ``row_totals (K, rows)``: the clusters' counts by outcome
+    and by row; ``row_of (D,)``: each outcome's row. Only the units' nonzero counts are read."""
     lg = torch.lgamma
     K, U = totals.shape[0], weighted.shape[0]
     own = torch.nn.functional.one_hot(z, K).to(totals)  # (U, K)
@@ -58,18 +60,19 @@ def _row_gains(
     v = weighted[u, d][:, None]  # (E, 1)
     base = totals[:, d].T - own[u] * v  # (E, K): the cluster's counts without the unit
     gains = totals.new_zeros(U, K).index_add_(0, u, lg(base + v + prior) - lg(base + prior))
-    rows = int(row_of.max()) + 1
-    row_totals = totals.new_zeros(K, rows).index_add_(1, row_of, totals)
-    unit_rows = weighted.new_zeros(U, rows).index_add_(1, row_of, weighted)
-    ru, rr = unit_rows.nonzero(as_tuple=True)
-    rv = unit_rows[ru, rr][:, None]
+    rows = row_of[d]  # the row of every nonzero count
+    key = u * row_totals.shape[1] + rows
+    keys, at = torch.unique(key, return_inverse=True)
+    rv = weighted.new_zeros(len(keys)).index_add_(0, at, v[:, 0])[:, None]  # a unit's row sum
+    ru, rr = keys // row_totals.shape[1], keys % row_totals.shape[1]
     rbase = row_totals[:, rr].T - own[ru] * rv
     mass = outcomes * prior
     return gains.index_add_(0, ru, -(lg(rbase + rv + mass) - lg(rbase + mass)))
 
 
 class _Partition:
-    """A hard partition's cluster totals, kept up to date move by move."""
+    """A hard partition's cluster totals (by outcome and by row), kept up to date move by
+    move."""
 
     def __init__(self, stats: SufficientStatistics, z: torch.Tensor, k: int) -> None:
         A = stats.num_symbols
@@ -81,14 +84,19 @@ class _Partition:
             first = stats.first_counts.to(torch.float64) * self.m[:, None]
             self.parts.append((first, torch.zeros(A, dtype=torch.long, device=z.device)))
         self.totals = [w.new_zeros(k, w.shape[1]).index_add_(0, z, w) for w, _ in self.parts]
+        self.row_totals = [
+            t.new_zeros(k, int(rows.max()) + 1).index_add_(1, rows, t)
+            for (_, rows), t in zip(self.parts, self.totals)
+        ]
         self.sizes = self.m.new_zeros(k).index_add_(0, z, self.m)
 
     def gains(self, units: torch.Tensor, prior: float, weight_prior: float,
               outcomes: int) -> torch.Tensor:  # fmt: skip
         """``(len(units), k)`` exact-ICL change of moving each unit into each cluster."""
         z, m = self.z[units], self.m[units]
-        out = sum(_row_gains(w[units], z, t, rows, prior, outcomes)
-                  for (w, rows), t in zip(self.parts, self.totals))  # fmt: skip
+        tables = zip(self.parts, self.totals, self.row_totals)
+        out = sum(_row_gains(w[units], z, t, rt, rows, prior, outcomes)
+                  for (w, rows), t, rt in tables)  # fmt: skip
         base = self.sizes[None] - torch.nn.functional.one_hot(z, self.k).to(m) * m[:, None]
         return (
             out + torch.lgamma(base + m[:, None] + weight_prior) - torch.lgamma(base + weight_prior)
@@ -96,9 +104,12 @@ class _Partition:
 
     def move(self, u: int, to: int) -> None:
         own = int(self.z[u])
-        for (w, _), t in zip(self.parts, self.totals):
-            t[own] -= w[u]
-            t[to] += w[u]
+        for (w, rows), t, rt in zip(self.parts, self.totals, self.row_totals):
+            d = w[u].nonzero().squeeze(-1)
+            t[own, d] -= w[u, d]
+            t[to, d] += w[u, d]
+            rt[own].index_add_(0, rows[d], -w[u, d])
+            rt[to].index_add_(0, rows[d], w[u, d])
         self.sizes[own] -= self.m[u]
         self.sizes[to] += self.m[u]
         self.z[u] = to

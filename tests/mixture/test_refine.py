@@ -139,3 +139,14 @@ def test_the_order_comparison_reads_the_refined_partition() -> None:
     assert fit.order_comparison["2"]["exact_icl"] == pytest.approx(
         fit.per_k[2]["exact_icl_refined"], abs=1e-6
     )
+
+
+def test_k_min_2_refines_against_one_cluster() -> None:
+    """``fit_mixture``'s own default range starts at k = 2: its k = 2 partition is refined
+    against the one-cluster partition, as with k_min = 1."""
+    demos, types = _lingering(300, seed=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_mixture(demos, order=2, k_min=2, k_max=3, restarts=5, initial=True, seed=0)
+    assert fit.k == 2 and fit.per_k[2]["refined_moves"] >= 1
+    assert adjusted_rand_index(types, fit.assignments.tolist()) >= 0.9

@@ -374,7 +374,8 @@ def fit_mixture(
             (random init + hard EM, exactly the paper's algorithm). The soft method then
             refines the chosen k's partition by single-unit moves that raise its exact ICL
             (:func:`~torchhrc.mixture.refine.refine_partition`), where the refined
-            partition's exact ICL is above the previous k's (recorded as
+            partition's exact ICL is above the previous k's best run's (k = 2: above the one
+            cluster's; a k whose k - 1 was not searched is not refined) (recorded as
             ``per_k[k]["refined_moves"]`` and ``"exact_icl_refined"``; the chains are
             re-estimated from it by one smoothed M-step).
         criterion: how the k is chosen among the best run of every k: ``"icl_or_gain"``
@@ -1036,14 +1037,19 @@ def _select(
     }
     _warn_at_edge(stats, int(ks[index]), k_min, k_max, per_k, float(min_gain))
     k = int(run_k[chosen])
-    if method == "soft" and index > 0 and k >= 2:
+    outcomes = None if support is None else support.outcomes
+    floor_icl = None  # log p(D, z) of the best partition into k - 1 clusters
+    if index > 0:
+        floor_icl = float((exact if recorded is None else recorded)[best_run[index - 1]])
+    elif k == 2:  # one cluster: its partition needs no fit
+        one = torch.zeros(stats.counts.shape[0], 1, dtype=torch.long, device=stats.counts.device)
+        mask = torch.ones(1, 1, dtype=torch.bool, device=one.device)
+        floor_icl = float(exact_icl(stats, one, mask, outcomes=outcomes)[0])
+    if method == "soft" and k >= 2 and floor_icl is not None:
         # the k-partition with the larger log p(D, z), where log p(D, z) itself prefers k
-        # clusters to the k - 1 of the previous k's best run (docs/clustering.md, "Refining
-        # the partition by its exact ICL")
-        ref = exact if recorded is None else recorded
+        # clusters to k - 1 (docs/clustering.md, "Refining the partition by its exact ICL")
         refined = _refine_run(stats, result, chosen, k, smoothing, weight_pseudo_count,
-                              outcomes=None if support is None else support.outcomes,
-                              floor_icl=float(ref[best_run[index - 1]]))  # fmt: skip
+                              outcomes=outcomes, floor_icl=floor_icl)  # fmt: skip
         if refined is not None:
             result, moved, icl = refined
             chosen = 0

@@ -1,10 +1,17 @@
-"""Split and merge restarts (:func:`torchhrc.mixture.runs._split_merge_restarts`)."""
+"""Split and merge restarts (:func:`torchhrc.mixture.runs._split_merge_restarts`), and the
+split restarts of a k whose fit is below k - 1's (``_split_where_worse``)."""
+
+import dataclasses
 
 import torch
 
 from torchhrc.metrics import adjusted_rand_index
 from torchhrc.mixture.counts import sufficient_statistics
-from torchhrc.mixture.runs import _soft_initial_parameters, _split_merge_restarts
+from torchhrc.mixture.runs import (
+    _soft_initial_parameters,
+    _split_merge_restarts,
+    _split_where_worse,
+)
 from torchhrc.mixture.soft_em import soft_em
 
 # three types of cycles over 4 symbols; 12 sequences each, with 5 % random symbols
@@ -75,3 +82,24 @@ def test_a_k_fit_is_restarted_from_the_merge_of_two_clusters_of_k_plus_1():
     assert _ari(stats, types, out, 0) == 1.0
     assert float(out.log_likelihood[0]) > float(result.log_likelihood[0]) + 10.0
     assert float(out.log_likelihood[1]) >= float(result.log_likelihood[1]) - 1e-9
+
+
+def test_a_k_fit_below_the_fit_of_k_minus_1_is_restarted_from_its_split():
+    """A mixture of k chains holds every mixture of k - 1, so a k fit below the k - 1 fit is a
+    failed search: it is restarted from the k - 1 fit with a cluster split, and reaches the
+    true types; a k - 1 fit, or a k fit that is not below, is left as it was. (The k = 3 fit
+    here is the bad local optimum above, its log-likelihood recorded below the k = 2 fit's.)"""
+    stats, types, row_type = _data()
+    k2 = torch.where(row_type == 2, 1, 0)  # types 0 + 1 | 2
+    first = stats.counts.view(-1, 4, 4).sum(-1).argmax(-1)
+    k3 = torch.where(row_type == 0, (first % 2) * 2, 1)
+    fitted, mask = _fits(stats, [k2, k3])
+    assert _split_where_worse(stats, fitted, mask, _em()) is fitted  # k = 3 above k = 2
+    below = fitted.log_likelihood.clone()
+    below[1] = below[0] - 1.0
+    result = dataclasses.replace(fitted, log_likelihood=below)
+    out = _split_where_worse(stats, result, mask, _em())
+    assert _ari(stats, types, out, 1) == 1.0
+    assert float(out.log_likelihood[1]) > float(fitted.log_likelihood[1]) + 10.0
+    assert torch.equal(out.log_transition[0], fitted.log_transition[0])
+    assert float(out.log_likelihood[0]) == float(fitted.log_likelihood[0])

@@ -25,6 +25,7 @@ import math
 import pytest
 import torch
 
+import torchhrc.mixture.runs as runs
 import torchhrc.mixture.selection as selection
 from torchhrc.mixture import fit_mixture, kmeans_pp_init, sufficient_statistics
 from torchhrc.mixture.soft_em import soft_em
@@ -242,6 +243,8 @@ def _compare(demos, seed, ks=(2, 3, 4), restarts=3, **options):
     options.setdefault("split_merge", False)  # not in the reference: tests/mixture/test_runs.py
     with pytest.MonkeyPatch.context() as patch:  # nor the exact-ICL refinement: test_refine.py
         patch.setattr(selection, "refine_partition", lambda stats, z, k, **kw: z)
+        # nor the split restarts of a k fitted below k - 1: test_runs.py
+        patch.setattr(runs, "_split_where_worse", lambda stats, result, mask, em: result)
         fit = fit_mixture(demos, k_min=ks[0], k_max=ks[-1], restarts=restarts, seed=seed,
                           **options)  # fmt: skip
     assert fit.k == ref["k"]

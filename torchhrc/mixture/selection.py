@@ -421,6 +421,10 @@ def fit_mixture(
             ``docs/clustering.md``). Off by default: it multiplies a default selection's
             time by about 4 (the paper-size fits of ``tests/mixture/test_objects.py``:
             63 -> 280 CPU-s), measured 2026-12-04 at commit 72e9ac6.
+            Without it, a k whose best run ends below the best run of k - 1 in
+            log-likelihood (a failed search: k chains hold every mixture of k - 1) is still
+            restarted from the splits of the k - 1 fit (``docs/clustering.md``, "A k fitted
+            below k - 1").
         tol: relative log-likelihood change that stops soft EM.
         floor: probability that stands for 0 in the paper's E-step (see :mod:`.hard_em`).
         initial: also model each cluster's first-symbol distribution (a type's opening

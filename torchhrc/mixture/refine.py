@@ -2,15 +2,15 @@
 
 Soft EM maximises the mixture's likelihood; with a type whose sign shows in only some of a
 person's demonstrations (``slow_sanding``'s careful person lingers in about 2 of 3), the
-maximum can sit at a partition that moves the people who showed the sign once into the
-other cluster, whose chain then allows a rare sign (``docs/clustering.md``, "Read without
-the subject"). The exact integrated classification likelihood of Biernacki, Celeux and
-Govaert (2010) (:func:`~torchhrc.mixture.criteria.exact_icl`: the chains integrated out
-under Jeffreys' prior) charges such a cluster for the sign it must allow. The refinement
-moves one unit (a distinct row: a subject, or identical subjects together) at a time to the
-cluster that raises ``log p(D, z)`` most, while any move raises it, never emptying a cluster
-(the greedy ICL search of Côme & Latouche 2015 and Bertoletti, Friel & Rastelli 2015, at
-fixed k). Every move raises a bounded objective, so it stops.
+maximum can sit at a partition that moves the people who showed the sign once into the other
+cluster, whose chain then allows a rare sign (``docs/clustering.md``, "Refining the
+partition by its exact ICL"). The exact integrated classification likelihood of Biernacki,
+Celeux and Govaert (2010) (:func:`~torchhrc.mixture.criteria.exact_icl`: the chains
+integrated out under Jeffreys' prior) charges such a cluster for the sign it must allow. The
+refinement moves one unit (a distinct row: a subject, or identical subjects together) at a
+time to the cluster that raises ``log p(D, z)`` most, while any move raises it, never
+emptying a cluster (the greedy ICL search of Côme & Latouche 2015 and Bertoletti, Friel &
+Rastelli 2015, at fixed k). Every move raises a bounded objective, so it stops.
 
 The changes of every unit's move are computed in one batched pass over the nonzero counts;
 only the units that gain are then moved, one by one, each rechecked against the counts of

@@ -15,7 +15,7 @@ from typing import Any
 
 import torch
 
-from torchhrc.mixture._em import EMResult, e_table
+from torchhrc.mixture._em import EMResult, Smoothing, e_table
 from torchhrc.mixture.counts import SufficientStatistics
 from torchhrc.mixture.criteria import _first_best
 from torchhrc.mixture.hard_em import hard_em, partition_counts, partition_sizes
@@ -27,7 +27,7 @@ def _soft_initial_parameters(
     stats: SufficientStatistics,
     z: torch.Tensor,
     cluster_mask: torch.Tensor,
-    pseudo_count: float,
+    pseudo_count: float | Smoothing,
     weight_pseudo_count: float,
     dtype: torch.dtype,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:

@@ -67,7 +67,6 @@ from torchhrc.mixture._em import (
     EMResult,
     Smoothing,
     e_table,
-    m_step_transition,
     pseudo_parts,
 )
 from torchhrc.mixture.consistency import (
@@ -97,7 +96,8 @@ from torchhrc.mixture.criteria import (
 from torchhrc.mixture.history import SecondOrder, num_contexts, second_order
 from torchhrc.mixture.model import MarkovChainMixture
 from torchhrc.mixture.refine import refine_partition
-from torchhrc.mixture.runs import _em_all_k, _heldout_scores
+from torchhrc.mixture.runs import _em_all_k, _heldout_scores, _soft_initial_parameters
+from torchhrc.mixture.soft_em import soft_pass
 
 __all__ = [
     "CRITERIA",
@@ -1091,36 +1091,17 @@ def _refine_run(
     icl = float(exact_icl(stats, z[:, None], mask, outcomes=outcomes)[0])
     if moved == 0 or not icl > floor_icl:
         return None
-    m = stats.multiplicity.to(torch.float64)
-    onehot = F.one_hot(z, k).to(torch.float64) * m[:, None]  # (U, k)
-    A = stats.num_symbols
-    pt, pi = pseudo_parts(smoothing)
-    counts = (onehot.T @ stats.counts.to(torch.float64)).view(1, k, A, A)
     dtype = result.log_transition.dtype
-    previous = result.log_transition[run : run + 1, :k].to(torch.float64)
-    lt = m_step_transition(counts, previous, pt)
-    li = None
-    if result.log_initial is not None and stats.first_counts is not None:
-        first = (onehot.T @ stats.first_counts.to(torch.float64))[None]  # (1, k, A)
-        pi_t = torch.as_tensor(pi, dtype=torch.float64)
-        smoothed = first + pi_t
-        li = smoothed.log() - smoothed.sum(-1, keepdim=True).clamp_min(1e-300).log()
-    sizes = onehot.sum(0) + weight_pseudo_count
-    lw = (sizes / sizes.sum()).log()[None]  # (1, k)
-    low = math.log(1e-300)
-    joint = e_table(stats.counts.to(torch.float64), None if li is None else
-                    stats.first_counts.to(torch.float64), lt.clamp_min(low),
-                    None if li is None else li.clamp_min(low))[:, 0] + lw  # fmt: skip
-    total = torch.logsumexp(joint, -1)  # (U,)
-    r = (joint - total[:, None]).exp()
-    entropy = -(m[:, None] * r * (r.clamp_min(1e-300)).log()).sum()
+    lt, lw, li = _soft_initial_parameters(stats, z[:, None], mask, smoothing,
+                                          weight_pseudo_count, dtype)  # fmt: skip
+    scored = soft_pass(stats, lt, lw, li, mask)  # its log-likelihood and entropy
     one = EMResult(
-        log_transition=lt.to(dtype),
-        log_weights=lw.to(dtype),
-        log_initial=None if li is None else li.to(dtype),
+        log_transition=lt,
+        log_weights=lw,
+        log_initial=li,
         assignments=z[:, None],
-        log_likelihood=(m * total).sum().reshape(1).to(dtype),
-        entropy=entropy.reshape(1).to(dtype),
+        log_likelihood=scored.log_likelihood,
+        entropy=scored.entropy,
         iterations=result.iterations[run : run + 1],
         converged=result.converged[run : run + 1],
     )

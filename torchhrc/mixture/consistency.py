@@ -337,7 +337,9 @@ def cluster_consistency(
         )
     alpha = DEFAULT_PSEUDO_COUNT if pseudo_count is None else float(pseudo_count)
     smoothing: float | Smoothing = alpha
-    if getattr(model, "order", 1) == 2:
+    if getattr(model, "order", 1) != 2:
+        data = model.prepare(demonstrations)
+    else:  # prepare's lowering, with the support it knows (data in the model's symbols)
         source = demonstrations
         if model.objects == "exchangeable":
             source = source.relabel_objects(separator=model.object_separator)
@@ -349,7 +351,7 @@ def cluster_consistency(
             )
         smoothing = Smoothing.on_support(alpha, lowered.transition_support,
                                          lowered.initial_support)  # fmt: skip
-    data = model.prepare(demonstrations)
+        data = lowered.data
     initial = model.log_initial is not None
     args = (data.sequences, data.lengths, data.num_symbols)
     per_sequence = sufficient_statistics(*args, initial=initial, dtype=torch.float64)

@@ -574,18 +574,16 @@ def fit_mixture(
         return _fit_objects(data, objects, object_separator, objects_sample, 1 if order ==
                             "auto" else order, options, seed, generator)  # fmt: skip
     start = generator.get_state() if generator is not None else None
-    fits: dict[int, MixtureFit] = {}
-    caught: dict[int, list[warnings.WarningMessage]] = {}
-    for form in (1, 2):
-        if start is not None:  # each order from the generator's state at the call, as a seed
-            generator.set_state(start)  # type: ignore[union-attr]
+    fits, caught = _each_from(
+        start,
+        generator,
+        (1, 2),
         # the objects' reading is chosen once, in first order; the second order reads them so
-        read = objects if form == 1 else fits[1].objects
-        fits[form], caught[form] = _caught(
-            lambda form=form, read=read: _fit_objects(
-                data, read, object_separator, objects_sample, form, options, seed, generator
-            )
-        )
+        lambda form, done: _fit_objects(
+            data, objects if form == 1 else done[1].objects, object_separator,
+            objects_sample, form, options, seed, generator,
+        ),
+    )  # fmt: skip
     comparison = {
         str(form): {"k": float(f.k), "exact_icl": _recorded_icl(f),
                     "log_likelihood": f.log_likelihood}
@@ -671,15 +669,13 @@ def _fit_objects(
         keep = torch.zeros(units, dtype=torch.bool)
         keep[chosen_units] = True
         sample = data.subset(keep if groups is None else keep[groups])
-    fits, caught = {}, {}
-    for form in ("raw", "exchangeable"):
-        if start is not None:  # each form from the generator's state at the call, as a seed
-            generator.set_state(start)  # type: ignore[union-attr]
-        fits[form], caught[form] = _caught(
-            lambda form=form: _select_form(
-                sample, form, object_separator, options, seed, generator, order
-            )
-        )
+    fits, caught = _each_from(
+        start,
+        generator,
+        ("raw", "exchangeable"),
+        lambda form, _: _select_form(sample, form, object_separator, options, seed, generator,
+                                     order),
+    )  # fmt: skip
     comparison = {
         form: {
             "k": float(f.k),
@@ -713,6 +709,23 @@ def _fit_objects(
 #: corpus once, in the chosen form). At 3,000 units (9,000 sequences of the issue-12 study)
 #: the exact-ICL margin is thousands of nats either way (``docs/clustering.md``).
 DEFAULT_OBJECTS_SAMPLE = 3000
+
+
+def _each_from(
+    start: torch.Tensor | None,
+    generator: torch.Generator | None,
+    forms: tuple[Any, ...],
+    fit: Callable[[Any, dict[Any, MixtureFit]], MixtureFit],
+) -> tuple[dict[Any, MixtureFit], dict[Any, list[warnings.WarningMessage]]]:
+    """``fit(form, fits so far)`` for every form, each from the generator's state ``start``
+    (as a seed would give it), and the warnings each raised (not shown)."""
+    fits: dict[Any, MixtureFit] = {}
+    caught: dict[Any, list[warnings.WarningMessage]] = {}
+    for form in forms:
+        if start is not None:
+            generator.set_state(start)  # type: ignore[union-attr]
+        fits[form], caught[form] = _caught(lambda form=form: fit(form, fits))
+    return fits, caught
 
 
 def _caught(run: Callable[[], MixtureFit]) -> tuple[MixtureFit, list[warnings.WarningMessage]]:

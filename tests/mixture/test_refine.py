@@ -114,6 +114,11 @@ def test_the_selection_keeps_the_refined_partition_where_the_exact_icl_prefers_k
     assert fit.per_k[2]["refined_moves"] >= 1
     assert fit.per_k[2]["exact_icl_refined"] > fit.per_k[2]["exact_icl_recorded"]
     assert refined_ari > plain_ari and refined_ari >= 0.9
+    # the kept model's figures are recorded beside the EM run's, and they are the fit's
+    assert fit.per_k[2]["log_likelihood_refined"] == pytest.approx(fit.log_likelihood, abs=1e-9)
+    assert fit.per_k[2]["bic_refined"] == pytest.approx(fit.bic, abs=1e-9)
+    assert fit.per_k[2]["log_likelihood"] == pytest.approx(plain.per_k[2]["log_likelihood"])
+    assert fit.per_k[2]["log_likelihood_refined"] != pytest.approx(fit.per_k[2]["log_likelihood"])
 
 
 def test_no_refinement_where_the_exact_icl_prefers_fewer_clusters() -> None:

@@ -377,7 +377,9 @@ def fit_mixture(
             partition's exact ICL is above the previous k's best run's (k = 2: above the one
             cluster's; a k whose k - 1 was not searched is not refined) (recorded as
             ``per_k[k]["refined_moves"]`` and ``"exact_icl_refined"``; the chains are
-            re-estimated from it by one smoothed M-step).
+            re-estimated from it by one smoothed M-step, whose ``"log_likelihood_refined"``
+            and ``"bic_refined"`` are the fit's ``log_likelihood`` and ``bic``, while
+            ``"log_likelihood"`` and ``"bic"`` stay the EM run's).
         criterion: how the k is chosen among the best run of every k: ``"icl_or_gain"``
             (the soft method's default): the exact ICL's k (:func:`exact_icl`, Jeffreys'
             prior, no parameter count), or a larger k when every step up to it raises the
@@ -769,7 +771,8 @@ def _select_form(
     per_k = {
         k: {
             name: (value - shift if name in ("bic", "icl", "exact_icl", "exact_icl_recorded",
-                                             "exact_icl_refined", "log_likelihood")
+                                             "exact_icl_refined", "log_likelihood",
+                                             "log_likelihood_refined", "bic_refined")
                    else value)
             for name, value in row.items()
         }
@@ -1073,8 +1076,12 @@ def _select(
             n_params_run = n_params[best_run[index]].reshape(1)
             bics = bic(result.log_likelihood, n_params_run, n)
             icls = bics - result.entropy
-            per_k[int(ks[index])].update({"refined_moves": float(moved),
-                                          "exact_icl_refined": icl})  # fmt: skip
+            per_k[int(ks[index])].update({
+                "refined_moves": float(moved), "exact_icl_refined": icl,
+                # the kept model's figures beside the EM run's (log_likelihood, bic)
+                "log_likelihood_refined": float(result.log_likelihood[0]),
+                "bic_refined": float(bics[0]),
+            })  # fmt: skip
     return _finish(stats, result, chosen, k, bics, icls, per_k, method, used, vocabulary)
 
 

@@ -71,7 +71,7 @@ def cluster_row(name: str, seed: int, *, subjects: int, per_subject: int, noise:
     ari = adjusted_rand_index(types.tolist(), fit.assignments.tolist())
     return dict(task=name, states=world.task.num_states, seed=seed, true_k=world.num_types,
                 k=int(fit.k), ari=float(ari), hit=int(fit.k) == world.num_types and ari >= 0.9,
-                seconds=time.perf_counter() - start,
+                order=int(fit.order), seconds=time.perf_counter() - start,
                 per_k={int(k): dict(v) for k, v in fit.per_k.items()})  # fmt: skip
 
 

@@ -284,7 +284,8 @@ def test_cluster_detects_exchangeable_objects_and_reports_the_choice(tmp_path, c
 def test_cluster_order_option_finds_types_only_a_second_order_chain_sees(tmp_path, capsys):
     """Two types with the same first-order counts (p1 q1 p2 q2 or p2 q2 p1 q1, a robot wait
     before every step): --order 1 (the default) finds one type, --order auto two, and says
-    which order it kept; --order 2 with --loo is refused with the reason."""
+    which order it kept (the second: the third finds the same two types, with a smaller
+    exact ICL); --order 3 finds them too; --order 2 with --loo is refused with the reason."""
     wait = ("robot", "wait")
     a = [wait, ("human", "p1"), wait, ("human", "q1"), wait, ("human", "p2"), wait, ("human", "q2")]
     b = [wait, ("human", "p2"), wait, ("human", "q2"), wait, ("human", "p1"), wait, ("human", "q1")]
@@ -302,6 +303,10 @@ def test_cluster_order_option_finds_types_only_a_second_order_chain_sees(tmp_pat
     auto = json.loads(out)
     assert code == 0 and auto["k"] == 2 and auto["order"] == 2
     assert auto["adjusted_rand_index"] == pytest.approx(1.0)
-    assert {o: c["k"] for o, c in auto["order_comparison"].items()} == {"1": 1, "2": 2}
+    assert {o: c["k"] for o, c in auto["order_comparison"].items()} == {"1": 1, "2": 2, "3": 2}
+    code, out, _ = _run(capsys, *base, "--order", "3")
+    third = json.loads(out)
+    assert code == 0 and third["k"] == 2 and third["order"] == 3
+    assert third["adjusted_rand_index"] == pytest.approx(1.0)
     code, _, err = _run(capsys, *base, "--order", "2", "--loo")
     assert code == 2 and "--order 1 with --loo" in err

@@ -149,7 +149,7 @@ def test_a_users_factory_from_a_file_sweeps(tmp_path: Path) -> None:
         ({"noise": [1.5]}, r"--param noise values in \[0.0, 1.0\]"),
         ({"criterion": ["aic"]}, "--param criterion values in {icl_or_gain, "),
         ({"human_model": ["markov"]}, "--param human_model values in {auto, chain, state}"),
-        ({"order": ["3"]}, "--param order values in {1, 2, auto}"),
+        ({"order": ["4"]}, "--param order values in {1, 2, 3, auto}"),
         ({"episodes": [1]}, "--param episodes values in"),
         ({"k": [0]}, "--param k values in"),
         ({"k_min": [2, 4], "k_max": [3]}, "k_min <= k_max in every cell, got k_min = 4, k_max = 3"),

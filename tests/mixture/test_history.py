@@ -1,8 +1,10 @@
-"""Second-order chains (torchhrc.mixture.history) and fit_mixture(order=...).
+"""Higher-order chains (torchhrc.mixture.history) and fit_mixture(order=...).
 
 References are independent of the code under test: context symbols and supports worked by
-hand, the second-order exact ICL recomputed from its definition with a loop over contexts,
-and a corpus whose two types have identical first-order counts."""
+hand or rebuilt from the symbols' names with loops, the second-order exact ICL recomputed
+from its definition with a loop over contexts, a corpus whose two types have identical
+first-order counts, and one whose two types have the same first- and second-order
+statistics (a rhythm against a fair coin)."""
 
 from __future__ import annotations
 
@@ -19,7 +21,8 @@ from torchhrc.metrics import adjusted_rand_index
 from torchhrc.mixture import MarkovChainMixture, fit_mixture
 from torchhrc.mixture.counts import sufficient_statistics
 from torchhrc.mixture.criteria import exact_icl
-from torchhrc.mixture.history import second_order
+from torchhrc.mixture.history import context_symbols, second_order
+from torchhrc.mixture.likelihood import sequence_log_likelihood
 from torchhrc.mixture.selection import order_to_keep
 
 W = ("robot", "wait")
@@ -67,13 +70,28 @@ def test_context_symbols_by_hand():
         "human|start > b", "robot|start > wait"]  # fmt: skip
 
 
-def test_lowering_is_one_to_one_and_stays_on_the_support():
+def test_third_order_context_symbols_by_hand():
+    d = Demonstrations.from_lists([[W, ("human", "a"), W, ("human", "b")]])
+    low = context_symbols(d, 3)
+    names = [f"{actor}|{action}" for actor, action in low.data.vocabulary]
+    got = [names[i] for i in low.data.sequences[0].tolist()]
+    assert got == ["robot|start > start > wait", "human|start > robot:wait > a",
+                   "robot|robot:wait > human:a > wait", "human|human:a > robot:wait > b"]
+    assert low.outcomes == 3
+    assert [names[i] for i in torch.nonzero(low.initial_support).flatten().tolist()] == [
+        "robot|start > start > wait"]
+    follows = {(names[p], names[q]) for p, q in torch.nonzero(low.transition_support).tolist()}
+    assert follows == {(got[0], got[1]), (got[1], got[2]), (got[2], got[3])}
+
+
+@pytest.mark.parametrize("order", [2, 3])
+def test_lowering_is_one_to_one_and_stays_on_the_support(order: int):
     g = torch.Generator().manual_seed(3)
     steps = [("human", f"h{i}") for i in range(3)] + [("robot", f"r{i}") for i in range(2)]
     seqs = [[steps[int(j)] for j in torch.randint(0, 5, (int(n),), generator=g)]
             for n in torch.randint(2, 9, (40,), generator=g)]  # fmt: skip
     d = Demonstrations.from_lists(seqs)
-    low = second_order(d)
+    low = context_symbols(d, order)
     back = [[(actor, action.rsplit(" > ", 1)[1]) for actor, action in row] for row in
             low.data.to_lists()]  # fmt: skip
     assert back == seqs
@@ -81,6 +99,12 @@ def test_lowering_is_one_to_one_and_stays_on_the_support():
     assert counts[~low.transition_support].sum() == 0
     firsts = low.data.sequences[:, 0]
     assert bool(low.initial_support[firsts].all())
+    # the support from the names: q's previous steps are p's last order - 1 steps
+    parts = [(*action.split(" > ")[:-1], f"{actor}:{action.rsplit(' > ', 1)[1]}")
+             for actor, action in low.data.vocabulary]  # fmt: skip
+    want = torch.tensor([[q[: order - 1] == p[1:] for q in parts] for p in parts])
+    assert torch.equal(low.transition_support, want)
+    assert low.initial_support.tolist() == [set(p[:-1]) == {"start"} for p in parts]
 
 
 def test_second_order_exact_icl_against_its_definition():
@@ -131,7 +155,7 @@ def test_second_order_finds_types_first_order_counts_cannot_tell_apart():
     assert second.k == 2 and second.order == 2 and second.model.order == 2
     assert adjusted_rand_index(types, second.assignments.tolist()) == pytest.approx(1.0)
     assert auto.order == 2 and auto.k == 2
-    assert set(auto.order_comparison) == {"1", "2"}
+    assert set(auto.order_comparison) == {"1", "2", "3"}
     assert auto.order_comparison["1"]["k"] == 1 and auto.order_comparison["2"]["k"] == 2
     # smoothing only where a context can go: no mass on impossible successors
     support = second_order(d).transition_support
@@ -198,14 +222,17 @@ def test_bad_order_is_refused():
         second_order(d.subset([]))
     with pytest.raises(TypeError, match="Demonstrations"):
         second_order((torch.zeros(1, 2, dtype=torch.long), torch.tensor([2]), 1))
-    with pytest.raises(ValueError, match="order 1, 2 or 'auto'"):
-        fit_mixture(d, order=3)
+    with pytest.raises(ValueError, match="order 1, 2, 3 or 'auto'"):
+        fit_mixture(d, order=4)
+    with pytest.raises(ValueError, match=r"order to be an int in \[2, 3\]"):
+        context_symbols(d, 4)
     seqs = torch.tensor([[0, 1, 0, 1]] * 4)
-    with pytest.raises(TypeError, match="needs a Demonstrations"):
-        fit_mixture((seqs, torch.full((4,), 4), 2), order=2)
-    with pytest.raises(ModelError, match="order 1 or 2"):
+    for order in (2, 3):
+        with pytest.raises(TypeError, match="needs a Demonstrations"):
+            fit_mixture((seqs, torch.full((4,), 4), 2), order=order)
+    with pytest.raises(ModelError, match=r"order an int in \[1, 3\]"):
         MarkovChainMixture(torch.zeros(1, 1, 1, dtype=torch.float64),
-                           torch.zeros(1, dtype=torch.float64), order=3)  # fmt: skip
+                           torch.zeros(1, dtype=torch.float64), order=4)  # fmt: skip
 
 
 def test_the_order_kept_is_the_one_with_more_types_then_the_larger_exact_icl():
@@ -254,7 +281,72 @@ def test_auto_keeps_to_first_order_where_second_order_counts_would_not_fit(monke
 
     d, _ = _order_types()
     P = second_order(d).data.num_symbols
-    monkeypatch.setattr(selection, "SECOND_ORDER_MAX_ELEMENTS", d.num_sequences * P * P - 1)
-    with pytest.warns(RuntimeWarning, match="fitted first-order chains only"):
+    monkeypatch.setattr(selection, "HIGHER_ORDER_MAX_ELEMENTS", d.num_sequences * P * P - 1)
+    with pytest.warns(RuntimeWarning, match=r"compared orders \[1\] only"):
         fit = fit_mixture(d, order="auto", k_min=1, k_max=3, restarts=3, seed=0, initial=True)
     assert fit.order == 1 and fit.order_comparison is None and fit.k == 1
+
+
+def _rhythm_types(subjects: int = 16, per_subject: int = 3, length: int = 16):
+    """Two types over the person's actions x and y: "rhythm" repeats the de Bruijn cycle
+    x, x, x, y, x, y, y, y (from a random phase), "coin" tosses a fair coin. In the cycle each
+    pair of symbols is followed once by x and once by y, so chains that see two symbols back
+    (second order) find the two types alike, as first-order ones do; three symbols back,
+    "rhythm" is deterministic."""
+    g = torch.Generator().manual_seed(11)
+    steps = (("human", "x"), ("human", "y"))
+    cycle = (0, 0, 0, 1, 0, 1, 1, 1)
+    seqs, subjects_, types = [], [], []
+    for s in range(subjects):
+        for _ in range(per_subject):
+            if s % 2 == 0:
+                phase = int(torch.randint(8, (), generator=g))
+                seq = [steps[cycle[(t + phase) % 8]] for t in range(length)]
+            else:
+                seq = [steps[int(j)] for j in torch.randint(2, (length,), generator=g)]
+            seqs.append(seq)
+            subjects_.append(f"s{s}")
+            types.append(s % 2)
+    return Demonstrations.from_lists(seqs, subjects=subjects_), types
+
+
+def test_third_order_finds_a_rhythm_lower_orders_cannot_see(tmp_path):
+    d, types = _rhythm_types()
+    options = dict(k_min=1, k_max=3, restarts=5, seed=0, initial=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        auto = fit_mixture(d, order="auto", **options)
+    comparison = auto.order_comparison
+    assert comparison["1"]["k"] == 1 and comparison["2"]["k"] == 1
+    assert auto.order == 3 and auto.model.order == 3 and auto.k == 2
+    assert adjusted_rand_index(types, auto.assignments.tolist()) == pytest.approx(1.0)
+    # a new person of each type is read by the fitted third-order chains
+    new, new_types = _rhythm_types(subjects=2, per_subject=1, length=16)
+    prepared = auto.model.prepare(new)
+    ll = sequence_log_likelihood(auto.model, prepared.sequences, prepared.lengths)  # (2, k)
+    pairs = int(auto.assignments[types.index(0)])
+    assert int(ll[new_types.index(0)].argmax()) == pairs
+    assert int(ll[new_types.index(1)].argmax()) != pairs
+    auto.model.save(tmp_path / "m.json")
+    back = MarkovChainMixture.load(tmp_path / "m.json")
+    assert back.order == 3
+    assert torch.equal(back.prepare(new).sequences, auto.model.prepare(new).sequences)
+
+
+def test_auto_leaves_out_a_third_order_with_too_many_contexts(monkeypatch):
+    """Its cost grows with the square of its context symbols: above the cap "auto" compares
+    orders 1 and 2 only, without a warning (a default, not a failure)."""
+    import torchhrc.mixture.selection as selection
+
+    d, _ = _rhythm_types(subjects=8, per_subject=2)
+    P = context_symbols(d, 3).data.num_symbols
+    monkeypatch.setattr(selection, "THIRD_ORDER_MAX_CONTEXTS", P - 1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        fit = fit_mixture(d, order="auto", k_min=1, k_max=2, restarts=2, seed=0, initial=True)
+    assert set(fit.order_comparison) == {"1", "2"} and fit.order in (1, 2)
+    monkeypatch.setattr(selection, "THIRD_ORDER_MAX_CONTEXTS", P)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_mixture(d, order="auto", k_min=1, k_max=2, restarts=2, seed=0, initial=True)
+    assert set(fit.order_comparison) == {"1", "2", "3"}

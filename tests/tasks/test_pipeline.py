@@ -357,10 +357,11 @@ def test_learn_passes_its_settings_through(monkeypatch):
     assert info["criterion"] == "bic" and sorted(scores) == [2, 3]
     assert info["k"] <= max(scores, key=lambda k: scores[k]["bic"])
     assert info["cluster"]["restarts"] == 2 and info["objects"] == "raw"
-    # learn()'s default order: both orders select a k, the fit with more types is kept
-    assert info["cluster"]["order"] == "auto" and info["order"] in (1, 2)
+    # learn()'s default order: each order selects a k, the fit with the most types is kept
+    assert info["cluster"]["order"] == "auto" and info["order"] in (1, 2, 3)
     kept = info["order_comparison"][str(info["order"])]
-    assert set(info["order_comparison"]) == {"1", "2"} and kept["k"] == info["k"]
+    assert set(info["order_comparison"]) == {"1", "2", "3"} and kept["k"] == info["k"]
+    assert kept["k"] == max(row["k"] for row in info["order_comparison"].values())
     assert seen == {"rule": "last", "epsilon": 0.2, "max_iterations": 3, "seed": 0, "l2": 0.5}
     assert info["irl"] == {"rule": "last", "epsilon": 0.2, "iterations": 3, "l2": 0.5}
     assert info["solver"]["max_iterations"] == 2 and info["solver"]["time_limit"] == 5.0

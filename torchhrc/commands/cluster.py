@@ -14,8 +14,8 @@ JSON keys: ``k``, ``bic``, ``icl``, ``log_likelihood``, ``method``, ``criterion`
 ``matched_accuracy``; with ``--loo`` also ``loo`` (accuracy, k per fold, predictions).
 ``objects``: the form the model is over (``"raw"`` or ``"exchangeable"``, ``--objects``), and
 ``object_comparison`` when ``--objects auto`` compared the two (k, BIC, exact ICL per form).
-``order``: first- or second-order chains (``--order``), and ``order_comparison`` when
-``--order auto`` compared the two (k, exact ICL, log-likelihood per order).
+``order``: chains of order 1, 2 or 3 (``--order``), and ``order_comparison`` when
+``--order auto`` compared them (k, exact ICL, log-likelihood per order).
 Non-finite numbers are written as ``null``.
 
 Example:
@@ -137,12 +137,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--order",
-        choices=("1", "2", "auto"),
+        choices=("1", "2", "3", "auto"),
         default="1",
         help="1 (default): first-order chains, the paper's; 2: second-order chains, which "
         "see a type's order across a step every type shares (a robot waiting between the "
-        "person's actions); auto: select k in both and keep the fit with more types "
-        "(docs/clustering.md, 'Second-order chains'); one file in memory only",
+        "person's actions); 3: third-order chains, which see the person's previous action "
+        "across the robot's answer; auto: select k in all three and keep the fit with the "
+        "most types (docs/clustering.md, 'Second-order chains', 'Third-order chains'); one "
+        "file in memory only",
     )
     parser.add_argument(
         "--ray",
@@ -224,8 +226,8 @@ def cluster_report(
     :meth:`~torchhrc.data.Demonstrations.relabel_objects` (symbols, counts and the model are
     then over the relabelled vocabulary, and fitted as they are: ``objects="raw"``).
     ``objects`` is passed to ``fit_mixture`` (``None``: its default, ``"auto"`` for the soft
-    method: the report's ``objects`` says which form was kept), and so is ``order`` (1, 2
-    or ``"auto"``: the report's ``order`` says which was kept).
+    method: the report's ``objects`` says which form was kept), and so is ``order`` (1, 2,
+    3 or ``"auto"``: the report's ``order`` says which was kept).
 
     Raises:
         ModelError: ``loo`` without types, or a ``k`` range or ``restarts`` out of range.

@@ -67,8 +67,8 @@ TASK_PARAMETERS: dict[str, SweepParameter] = {
         str,
         None,
         None,
-        "learn(order=): first- or second-order chains, or both ('auto')",
-        choices=("1", "2", "auto"),
+        "learn(order=): chains of order 1, 2 or 3, or the three compared ('auto')",
+        choices=("1", "2", "3", "auto"),
     ),
     "mixture_method": SweepParameter(
         str, None, None, "learn(mixture_method=)", choices=("soft", "paper")

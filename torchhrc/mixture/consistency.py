@@ -48,7 +48,7 @@ __all__ = [
 ]
 
 #: The least subject consistency (ICC) each cluster of the chosen k must have (soft method,
-#: subjects known; first- and second-order chains alike): a type is a property of a person,
+#: subjects known; chains of every order alike): a type is a property of a person,
 #: most of the variance between people. With each sequence read held out (since 2026-12-05)
 #: on the task suite (``docs/clustering.md``, "Read without the subject"): the true types
 #: 0.67-1.0 at 30 subjects x 4 demonstrations and 0.90-1.0 at 300; the k + 1 fits the
@@ -300,7 +300,7 @@ def cluster_consistency(
         demonstrations: the :class:`~torchhrc.data.Demonstrations` it was fitted to (with
             subject ids; read in the model's form through ``model.prepare``).
         pseudo_count, weight_pseudo_count: the fit's (``None``: ``fit_mixture``'s defaults,
-            0.1 and 1; for a second-order model on the context symbols' support only).
+            0.1 and 1; for a higher-order model on the context symbols' support only).
         floor: probability floor of unseen transitions.
 
     Returns:
@@ -309,7 +309,7 @@ def cluster_consistency(
         (subjects with equal summed counts pooled into one group).
 
     Raises:
-        ModelError: data without subject ids, or a second-order model and demonstrations
+        ModelError: data without subject ids, or a higher-order model and demonstrations
             other than the ones it was fitted to.
 
     Example:
@@ -327,7 +327,7 @@ def cluster_consistency(
         pseudo_parts,
     )
     from torchhrc.mixture.counts import sufficient_statistics
-    from torchhrc.mixture.history import second_order
+    from torchhrc.mixture.history import context_symbols
 
     subjects = getattr(demonstrations, "subject_index", None)
     if subjects is None or isinstance(demonstrations, tuple):
@@ -337,16 +337,17 @@ def cluster_consistency(
         )
     alpha = DEFAULT_PSEUDO_COUNT if pseudo_count is None else float(pseudo_count)
     smoothing: float | Smoothing = alpha
-    if getattr(model, "order", 1) != 2:
+    order = getattr(model, "order", 1)
+    if order == 1:
         data = model.prepare(demonstrations)
     else:  # prepare's lowering, with the support it knows (data in the model's symbols)
         source = demonstrations
         if model.objects == "exchangeable":
             source = source.relabel_objects(separator=model.object_separator)
-        lowered = second_order(source)
+        lowered = context_symbols(source, order)
         if lowered.data.vocabulary != model.vocabulary:
             raise ModelError(
-                "cluster_consistency of a second-order model needs the demonstrations it "
+                "cluster_consistency of a higher-order model needs the demonstrations it "
                 "was fitted to (their context symbols differ from the model's)"
             )
         smoothing = Smoothing.on_support(alpha, lowered.transition_support,

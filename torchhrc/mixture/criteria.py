@@ -126,7 +126,7 @@ def exact_icl(
         weight_prior: Dirichlet concentration of the mixture weights.
         outcomes: the number of successors each row's Dirichlet is over (default ``A``): for
             the context symbols of :mod:`torchhrc.mixture.history`, the recorded symbols, so
-            that ``log p(D, z)`` of a second-order chain compares with a first-order one's.
+            that ``log p(D, z)`` of a higher-order chain compares with a first-order one's.
 
     Returns:
         ``(R,)`` float64 (larger is better).

@@ -52,7 +52,7 @@ def infer_type(
         sequences: ``(M, L)`` int64, the subject's ``M >= 1`` sequences, encoded in the
             model's form and symbol order: pass recorded demonstrations through
             :meth:`~torchhrc.mixture.model.MarkovChainMixture.prepare` first (a model fitted with
-            exchangeable objects is over relabelled symbols, one of ``order=2`` over context
+            exchangeable objects is over relabelled symbols, one of ``order`` 2 or 3 over context
             symbols; tensors carry no vocabulary, so this function cannot tell); lengths:
             ``(M,)``.
         method: ``"posterior"`` (Bayesian, default) or ``"vote"`` (the paper's weighted vote).

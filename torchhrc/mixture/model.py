@@ -37,7 +37,7 @@ import torch
 from torchhrc._atomic import atomic_write, atomic_write_text
 from torchhrc._checks import broadcast_shapes, check_shape, check_tensor, format_index
 from torchhrc.errors import ModelError, ParseError
-from torchhrc.mixture.history import second_order
+from torchhrc.mixture.history import MAX_ORDER, context_symbols
 
 __all__ = ["MarkovChainMixture"]
 
@@ -90,10 +90,10 @@ class MarkovChainMixture:
             ``place_1, place_2, ...``). :meth:`prepare` puts new demonstrations in that form.
         object_separator: the separator between verb and object in action names
             (``relabel_objects``'s ``separator``).
-        order: ``1``, chains over the symbols (the paper), or ``2``, second-order chains:
-            ``vocabulary`` names context symbols ``(previous step, step)``
-            (:mod:`torchhrc.mixture.history`), and :meth:`prepare` renames new
-            demonstrations' steps to them.
+        order: ``1``, chains over the symbols (the paper), or ``2`` or ``3``, chains of
+            that order: ``vocabulary`` names context symbols ``(previous step, step)`` or
+            ``(the two previous steps, step)`` (:mod:`torchhrc.mixture.history`), and
+            :meth:`prepare` renames new demonstrations' steps to them.
 
     Raises:
         TypeError: a field is not a floating tensor.
@@ -160,15 +160,15 @@ class MarkovChainMixture:
             raise ModelError(
                 f"expected object_separator to be a non-empty str, got {self.object_separator!r}"
             )
-        if self.order not in (1, 2) or isinstance(self.order, bool):
-            raise ModelError(f"expected order 1 or 2, got {self.order!r}")
+        if isinstance(self.order, bool) or self.order not in range(1, MAX_ORDER + 1):
+            raise ModelError(f"expected order an int in [1, {MAX_ORDER}], got {self.order!r}")
 
     def prepare(self, demonstrations: Any) -> Any:
         """New demonstrations in the form and symbol order the chains are over.
 
         ``objects="exchangeable"``: :meth:`~torchhrc.data.Demonstrations.relabel_objects`
-        first; ``order=2``: then every step renamed to its context symbol
-        (:func:`~torchhrc.mixture.history.second_order`). Then, when the model has a
+        first; ``order`` 2 or 3: then every step renamed to its context symbol
+        (:func:`~torchhrc.mixture.history.context_symbols`). Then, when the model has a
         vocabulary, the symbols are re-indexed to it
         (:meth:`~torchhrc.data.Demonstrations.with_vocabulary`). Score or classify the result
         (:func:`~torchhrc.mixture.infer_type`, :func:`~torchhrc.mixture.sequence_log_likelihood`).
@@ -181,7 +181,7 @@ class MarkovChainMixture:
 
         Raises:
             ModelError: a symbol of the demonstrations is not in the model's vocabulary (with
-                ``order=2``: a step after a step it never followed in the fitted data).
+                ``order`` 2 or 3: a step after steps it never followed in the fitted data).
 
         Example:
             >>> from torchhrc.data import Demonstrations
@@ -194,8 +194,8 @@ class MarkovChainMixture:
         """
         if self.objects == "exchangeable":
             demonstrations = demonstrations.relabel_objects(separator=self.object_separator)
-        if self.order == 2:
-            demonstrations = second_order(demonstrations).data
+        if self.order > 1:
+            demonstrations = context_symbols(demonstrations, self.order).data
         if self.vocabulary is not None:
             demonstrations = demonstrations.with_vocabulary(self.vocabulary)
         return demonstrations

@@ -93,7 +93,7 @@ from torchhrc.mixture.criteria import (
     num_free_parameters,
     num_transitions,
 )
-from torchhrc.mixture.history import SecondOrder, num_contexts, second_order
+from torchhrc.mixture.history import MAX_ORDER, SecondOrder, context_symbols, num_contexts
 from torchhrc.mixture.model import MarkovChainMixture
 from torchhrc.mixture.refine import refine_partition
 from torchhrc.mixture.runs import _em_all_k, _heldout_scores, _soft_initial_parameters
@@ -125,8 +125,8 @@ CRITERIA: tuple[str, ...] = (
     "icl_or_gain", "heldout", "bic", "icl", "exact_icl", "bic_or_exact_icl",
 )  # fmt: skip
 Objects = Literal["auto", "raw", "exchangeable"]
-#: ``fit_mixture(order=...)``: first- or second-order chains, or both compared.
-Order = Literal[1, 2, "auto"]
+#: ``fit_mixture(order=...)``: chains of order 1, 2 or 3, or the three compared.
+Order = Literal[1, 2, 3, "auto"]
 
 
 @dataclass(frozen=True)
@@ -157,11 +157,11 @@ class MixtureFit:
             selected fits, ``form -> {"k", "bic", "exact_icl", "log_likelihood", "units"}``
             (on the recorded demonstrations; ``units``: the units compared, a sample of a
             large corpus); else ``None``.
-        order: ``1`` or ``2``, the chains' order (``fit_mixture(order=...)``; also
-            ``model.order``); with 2, ``model.vocabulary`` names context symbols.
+        order: ``1``, ``2`` or ``3``, the chains' order (``fit_mixture(order=...)``; also
+            ``model.order``); above 1, ``model.vocabulary`` names context symbols.
         order_comparison: with ``order="auto"``, each order's selected fit,
-            ``"1"/"2" -> {"k", "exact_icl", "log_likelihood"}`` (``exact_icl``: of the
-            recorded demonstrations in both, :func:`order_to_keep`); else ``None``.
+            ``"1"/"2"/"3" -> {"k", "exact_icl", "log_likelihood"}`` (``exact_icl``: of the
+            recorded demonstrations in all, :func:`order_to_keep`); else ``None``.
     """
 
     model: MarkovChainMixture
@@ -496,14 +496,21 @@ def fit_mixture(
             (:mod:`torchhrc.mixture.history`; needs a ``Demonstrations``; the model's
             ``order`` is 2 and :meth:`MixtureFit.transition_over` gives first-order chains
             over the recorded symbols): they see a type's order across a step every type
-            shares (a robot that waits between every two of the person's actions);
-            ``"auto"``: select k in both orders (the objects' reading chosen in first order)
-            and keep the fit with more types, the larger exact ICL (``log p(D, z)`` of the
-            recorded data in both) on equal k (:func:`order_to_keep`): a type either order's
-            rule finds is kept (``docs/clustering.md``, "Second-order chains"). In second
-            order the ``per_k`` rows add ``exact_icl_recorded`` (the exact ICL with each
+            shares (a robot that waits between every two of the person's actions); ``3``,
+            third-order chains ``P(a_t | a_(t-3), a_(t-2), a_(t-1))``, the same way: they see
+            the person's previous action across the robot's answer to it (a rhythm that the
+            robot's move does not show); ``"auto"``: select k in the three orders (the
+            objects' reading chosen in first order) and keep the fit with the most types, the
+            larger exact ICL (``log p(D, z)`` of the recorded data in all) on equal k
+            (:func:`order_to_keep`): a type any order's rule finds is kept
+            (``docs/clustering.md``, "Second-order chains" and "Third-order chains"). Above
+            first order the ``per_k`` rows add ``exact_icl_recorded`` (the exact ICL with each
             context's Dirichlet over the recorded symbols). The fit records ``order`` and
-            ``order_comparison``. ``"auto"`` on counts or shards is first order.
+            ``order_comparison``. ``"auto"`` on counts or shards is first order; an order
+            whose counts would not fit (:data:`HIGHER_ORDER_MAX_ELEMENTS`) is left out of
+            the comparison, with a warning, and the third order where it has more than
+            :data:`THIRD_ORDER_MAX_CONTEXTS` context symbols (its cost grows with their
+            square), without one.
         dtype: float dtype of the computation (float32 halves time and memory on big data).
         progress: ``progress(iteration, runs_still_running)`` after every EM iteration.
         ray: run every soft-EM E-step on a Ray cluster (:class:`torchhrc.mixture.RayEStep`,
@@ -552,35 +559,40 @@ def fit_mixture(
         min_consistency=min_consistency, folds=folds, se_factor=se_factor, dtype=dtype,
         progress=progress, ray=ray,
     )  # fmt: skip
-    if order not in (1, 2, "auto") or isinstance(order, bool):
-        raise ValueError(f"expected order 1, 2 or 'auto', got {order!r}")
+    if isinstance(order, bool) or order not in (*range(1, MAX_ORDER + 1), "auto"):
+        raise ValueError(f"expected order 1, 2, 3 or 'auto', got {order!r}")
     lowerable = callable(getattr(data, "with_vocabulary", None)) and not isinstance(data, tuple)
-    if order == 2 and not lowerable:
+    if order != "auto" and order > 1 and not lowerable:
         raise TypeError(
-            "order=2 renames each step to its context (previous step, step) and needs a "
-            f"Demonstrations, got {type(data).__name__}"
+            f"order={order} renames each step to its context (the previous steps, step) and "
+            f"needs a Demonstrations, got {type(data).__name__}"
         )
-    if order == "auto" and lowerable:
-        P = num_contexts(data)
-        if data.num_sequences * P * P > SECOND_ORDER_MAX_ELEMENTS:
+    orders = [1]  # "auto": the orders whose counts fit (on counts or shards: first order)
+    while order == "auto" and lowerable and orders[-1] < MAX_ORDER:
+        m = orders[-1] + 1
+        P = num_contexts(data, m)
+        if m == 3 and P > THIRD_ORDER_MAX_CONTEXTS:  # its cost, not a failure: no warning
+            break
+        if data.num_sequences * P * P > HIGHER_ORDER_MAX_ELEMENTS:
             warnings.warn(
-                f"fit_mixture(order='auto') fitted first-order chains only: the second-order "
-                f"counts would hold up to {data.num_sequences} x {P}^2 elements (N sequences x "
-                f"context symbols squared, more than {SECOND_ORDER_MAX_ELEMENTS}); pass "
-                "order=2 to fit them anyway",
+                f"fit_mixture(order='auto') compared orders {orders} only: order {m}'s counts "
+                f"would hold up to {data.num_sequences} x {P}^2 elements (N sequences x "
+                f"context symbols squared, more than {HIGHER_ORDER_MAX_ELEMENTS}); pass "
+                f"order={m} to fit them anyway",
                 RuntimeWarning,
                 stacklevel=2,
             )
-            lowerable = False
-    if order != "auto" or not lowerable:  # "auto" on counts or shards: first order only
+            break
+        orders.append(m)
+    if order != "auto" or len(orders) == 1:
         return _fit_objects(data, objects, object_separator, objects_sample, 1 if order ==
                             "auto" else order, options, seed, generator)  # fmt: skip
     start = generator.get_state() if generator is not None else None
     fits, caught = _each_from(
         start,
         generator,
-        (1, 2),
-        # the objects' reading is chosen once, in first order; the second order reads them so
+        tuple(orders),
+        # the objects' reading is chosen once, in first order; the others read them so
         lambda form, done: _fit_objects(
             data, objects if form == 1 else done[1].objects, object_separator,
             objects_sample, form, options, seed, generator,
@@ -596,10 +608,18 @@ def fit_mixture(
     return dataclasses.replace(fits[best], order_comparison=comparison)
 
 
-#: ``fit_mixture(order="auto")`` fits second-order chains only while ``N P^2`` (sequences x
-#: context symbols squared, the dense counts' size before identical sequences merge) is at most
-#: this (2^27: 1 GiB in float64); above it first order alone, with a warning.
-SECOND_ORDER_MAX_ELEMENTS = 1 << 27
+#: ``fit_mixture(order="auto")`` fits chains of order ``m > 1`` only while ``N P_m^2``
+#: (sequences x order-``m`` context symbols squared, the dense counts' size before identical
+#: sequences merge) is at most this (2^27: 1 GiB in float64); above it the lower orders alone,
+#: with a warning.
+HIGHER_ORDER_MAX_ELEMENTS = 1 << 27
+#: ``fit_mixture(order="auto")`` compares third-order chains only where they have at most
+#: this many context symbols: its tables hold ``P^2`` entries a cluster, so a selection in
+#: third order costs about ``(P_3 / P_1)^2`` times a first-order one (``five_parts`` at
+#: 300 x 4, ``P_3 = 510``: 274 CPU-s for the third order alone). Above it, orders 1
+#: and 2 are compared (``order_comparison`` lists the orders compared); ``order=3`` fits it
+#: whatever its size (``docs/clustering.md``, "Third-order chains").
+THIRD_ORDER_MAX_CONTEXTS = 128
 
 
 def _recorded_icl(fit: MixtureFit) -> float:
@@ -612,8 +632,8 @@ def _recorded_icl(fit: MixtureFit) -> float:
 
 def order_to_keep(comparison: dict[str, dict[str, float]]) -> int:
     """``fit_mixture(order="auto")``'s choice from each order's selected fit: a type that
-    either order's rule finds is kept, so the order with the larger ``k``; on equal ``k`` the
-    larger exact ICL (``log p(D, z)`` of the recorded data); on equal both, the first order.
+    any order's rule finds is kept, so the order with the largest ``k``; on equal ``k`` the
+    larger exact ICL (``log p(D, z)`` of the recorded data); on equal both, the lower order.
 
     Why not the exact ICL alone: a second-order chain predicts the many steps fixed by the
     task (a robot that answers each action) far better, so its ``log p(D, z)`` is the larger
@@ -622,7 +642,8 @@ def order_to_keep(comparison: dict[str, dict[str, float]]) -> int:
     chains").
 
     Args:
-        comparison: ``{"1": {"k": ..., "exact_icl": ...}, "2": {...}}``.
+        comparison: ``{"1": {"k": ..., "exact_icl": ...}, "2": {...}, ...}`` (the orders
+            compared).
 
     Example:
         >>> order_to_keep({"1": {"k": 5, "exact_icl": -2400.0},
@@ -631,7 +652,8 @@ def order_to_keep(comparison: dict[str, dict[str, float]]) -> int:
         >>> order_to_keep({"1": {"k": 2, "exact_icl": -735.0}, "2": {"k": 2, "exact_icl": -637.0}})
         2
     """
-    return max((1, 2), key=lambda o: (comparison[str(o)]["k"], comparison[str(o)]["exact_icl"], -o))
+    orders = sorted(int(o) for o in comparison)
+    return max(orders, key=lambda o: (comparison[str(o)]["k"], comparison[str(o)]["exact_icl"], -o))
 
 
 def _fit_objects(
@@ -755,7 +777,7 @@ def _select_form(
     order: int = 1,
 ) -> MixtureFit:
     """Select-Best-Model on ``data`` read as ``objects`` (``"raw"`` or ``"exchangeable"``),
-    in ``order`` 1 or 2 (:mod:`torchhrc.mixture.history`)."""
+    in ``order`` 1, 2 or 3 (:mod:`torchhrc.mixture.history`)."""
     if objects == "raw":
         return _select_order(data, order, seed, generator, options)
     # every symbol the recorded vocabulary can relabel to, so that a new subject's
@@ -798,12 +820,13 @@ def _select_order(
     options: dict[str, Any],
 ) -> MixtureFit:
     """Select-Best-Model on ``data`` as recorded (``order`` 1) or renamed to its context
-    symbols (``order`` 2, :func:`~torchhrc.mixture.history.second_order`)."""
+    symbols (``order`` 2 or 3, :func:`~torchhrc.mixture.history.context_symbols`)."""
     if order == 1:
         return _select(data, seed=seed, generator=generator, **options)
-    lowered = second_order(data)
+    lowered = context_symbols(data, order)
     fit = _select(lowered.data, seed=seed, generator=generator, support=lowered, **options)
-    return dataclasses.replace(fit, model=dataclasses.replace(fit.model, order=2), order=2)
+    return dataclasses.replace(fit, model=dataclasses.replace(fit.model, order=order),
+                               order=order)  # fmt: skip
 
 
 def _select(

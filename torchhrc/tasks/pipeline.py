@@ -780,9 +780,9 @@ def learn(
         cluster: a :class:`~torchhrc.mixture.ClusterConfig`; its unset fields take
             ``learn``'s defaults (``k_min=1``, ``k_max=6``, ``restarts=10``,
             ``parameters="support"``, ``initial=True``: each type's first move is modelled;
-            ``order="auto"`` with the soft method and ``k`` not forced to 1: first- and
-            second-order chains both select a k, and the larger is kept,
-            ``docs/clustering.md``, "Second-order chains") or
+            ``order="auto"`` with the soft method and ``k`` not forced to 1: chains of
+            order 1, 2 and 3 each select a k, and the largest is kept,
+            ``docs/clustering.md``, "Second-order chains", "Third-order chains") or
             :func:`~torchhrc.mixture.fit_mixture`'s (e.g. ``criterion``: ``"icl_or_gain"``
             for the soft method, BIC for ``"paper"``).
         irl: an :class:`IRLConfig` (rule, epsilon, iterations, l2).
@@ -799,7 +799,7 @@ def learn(
         criterion: instead of ``cluster``: ``fit_mixture``'s ``criterion``.
         objects: instead of ``cluster``: ``fit_mixture``'s ``objects``.
         min_gain: instead of ``cluster``: ``fit_mixture``'s ``min_gain``.
-        order: instead of ``cluster``: ``fit_mixture``'s ``order`` (1, 2 or ``"auto"``).
+        order: instead of ``cluster``: ``fit_mixture``'s ``order`` (1, 2, 3 or ``"auto"``).
         noise: human-behaviour setting (:class:`~torchhrc.tasks.interface.TypeEvidence`).
         pause: human-behaviour setting (:class:`~torchhrc.tasks.interface.TypeEvidence`).
         irl_epsilon: instead of ``irl``: its ``epsilon``.
@@ -849,7 +849,7 @@ def learn(
                          f"not both (got {', '.join(sorted(given))})")  # fmt: skip
     options = {"k_min": 1, "k_max": 6, "restarts": 10, "parameters": "support",
                "initial": True, **cluster.options()}  # fmt: skip
-    # second-order chains are compared with the soft method, where there are types to find
+    # higher-order chains are compared with the soft method, where there are types to find
     pooled = k == 1 or options.get("method", "soft") != "soft"
     options.setdefault("order", 1 if pooled else "auto")
     if k is not None:

@@ -244,3 +244,46 @@ def test_summary_branches_worked_by_hand():
     assert _by_hand([1.0, 2.0, 3.0]).summary("told the type").startswith("told the type 3.00")
     with pytest.raises(ValueError, match="expected robot in"):
         two.summary("oracle")
+
+
+def test_the_told_robot_acts_optimally_for_the_type_it_is_told():
+    """``told_type_controller``: at every state and for every learned type, its first action
+    from a one-hot belief is optimal in that type's MDP, by value iteration written here
+    (a plain loop over the learned model's tensors), even where the model's own policy, from
+    a solve of one iteration started from the blind lower bound, is not."""
+    from torchhrc.solvers import blind_policy
+    from torchhrc.solvers.sarsop import SARSOPConfig
+    from torchhrc.tasks.evaluation import told_type_controller
+    from torchhrc.tasks.suite import make_task
+
+    world = make_task("fetch_order")
+    demos, _ = world.demonstrations(subjects=12, per_subject=2, seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = torchhrc.learn(world.task, demos, k=3, seed=0,
+                               solver=SARSOPConfig(time_limit=5.0, max_iterations=1,
+                                                   lower_bound_init=blind_policy))  # fmt: skip
+    m = model.momdp
+    Tx, R, g = m.Tx.double(), m.R.double(), float(m.discount)  # (A, X, Y, X), (A, X, Y)
+    A, X, Y = R.shape
+    V = torch.zeros(Y, X, dtype=torch.float64)
+    for _ in range(2000):
+        Q = torch.stack([R[a].T + g * torch.stack([Tx[a, :, y] @ V[y] for y in range(Y)])
+                         for a in range(A)], -1)  # (Y, X, A)
+        new = Q.max(-1).values
+        if float((new - V).abs().max()) < 1e-10:
+            break
+        V = new
+    told, plain = told_type_controller(model), torchhrc.Controller.from_model(model)
+    worse = 0
+    for y in range(Y):
+        prior = torch.nn.functional.one_hot(torch.tensor(y), Y).double()
+        for x in range(X):
+            if bool(world.task.terminal[x]):
+                continue
+            told.reset(prior)
+            a = int(told.act(x))
+            assert float(Q[y, x, a]) >= float(Q[y, x].max()) - 1e-6, (y, x, a)
+            plain.reset(prior)
+            worse += int(float(Q[y, x, int(plain.act(x))]) < float(Q[y, x].max()) - 1e-6)
+    assert worse > 0  # the one-iteration policy is not optimal at every corner: a real check

@@ -8,7 +8,7 @@ Example:
 """
 
 from torchhrc.tasks.controller import Controller
-from torchhrc.tasks.evaluation import TaskEvaluation, evaluate_task
+from torchhrc.tasks.evaluation import TaskEvaluation, evaluate_task, told_type_controller
 from torchhrc.tasks.interface import (
     CollaborativeTask,
     TaskSteps,
@@ -38,6 +38,7 @@ __all__ = [
     "chain_preferences",
     "check_task",
     "evaluate_task",
+    "told_type_controller",
     "learn",
     "make_task",
     "reachable_states",

@@ -51,15 +51,17 @@ from torchhrc.errors import ModelError
 
 if TYPE_CHECKING:
     from torchhrc.data import Demonstrations
+    from torchhrc.tasks.controller import Controller
     from torchhrc.tasks.people import TaskWithPeople
     from torchhrc.tasks.pipeline import LearnedModel
 
-__all__ = ["Robot", "TaskEvaluation", "evaluate_task"]
+__all__ = ["Robot", "TaskEvaluation", "evaluate_task", "told_type_controller"]
 
 #: 97.5% quantile of the standard normal: the 95% confidence half-width is ``Z95 s / sqrt(E)``.
 Z95 = 1.959963984540054
 
-#: The name of the robot ``told_type=True`` adds: the type-aware controller told the type.
+#: The name of the robot ``told_type=True`` adds: the learned model's optimal robot for the
+#: person's type, told it (:func:`told_type_controller`).
 TOLD = "told the type"
 
 
@@ -358,6 +360,46 @@ def _type_map(
     return belief.view(Y, episodes, K).mean(1).argmax(-1), "posterior"
 
 
+def told_type_controller(model: LearnedModel) -> Controller:
+    """The robot of ``evaluate_task(told_type=True)``: the learned model's controller whose
+    policy is optimal once the type is known (start it with all its belief on one type:
+    ``reset(prior)``).
+
+    With the type known and static (``momdp.Ty`` is None, as ``learn()`` builds it) and the
+    task state observed, the MOMDP is one MDP per type, whose optimal action values are
+    QMDP's vectors ``Q(x, y, a)`` (Littman, Cassandra and Kaelbling 1995): at a one-hot
+    belief QMDP's action is the MDP's optimal one, and the belief stays on that type. The
+    model's own policy is not used: solved from the initial belief ``b0`` (uniform over the
+    types), its search need not reach a one-hot belief, and there its vectors can act far
+    from optimally (``lead_follow_phase``, benchmarks/heldout_tasks.py, seed 1: 3.01 against
+    5.22 over the population). Where the type may change (``Ty`` given), the model's own
+    policy.
+
+    Raises:
+        ModelError: the model has no policy (not solved).
+
+    Example:
+        >>> import warnings, torchhrc
+        >>> from torchhrc.tasks.suite import make_task
+        >>> world = make_task("pace")
+        >>> demos, _ = world.demonstrations(subjects=6, per_subject=2, seed=0)
+        >>> with warnings.catch_warnings():
+        ...     warnings.simplefilter("ignore")
+        ...     model = torchhrc.learn(world.task, demos, k=2, solver_time=1.0)
+        >>> robot = told_type_controller(model)
+        >>> robot.reset(torch.tensor([1.0, 0.0], dtype=torch.float64))
+        >>> robot.act(world.task.initial_state) in range(world.task.num_actions)
+        True
+    """
+    from torchhrc.solvers import qmdp
+    from torchhrc.tasks.controller import Controller
+
+    momdp = model.momdp
+    if momdp.Ty is not None:
+        return Controller.from_model(model)
+    return Controller.from_momdp(momdp, qmdp(momdp).policy)
+
+
 def evaluate_task(
     world: TaskWithPeople,
     model: LearnedModel | None,
@@ -393,11 +435,12 @@ def evaluate_task(
             default 0.05, the demonstrations' default).
         belief_steps: the ``n`` (belief updates) at which the type-aware belief is checked.
         split_threshold: a type whose mean largest posterior stays below this is ``"split"``.
-        told_type: add the robot ``"told the type"``: the type-aware controller started
-            with all its belief on the learned type the person's true type maps to. It
-            separates the two ways a type-aware robot can fail: if it also loses, the
-            learned behaviour or reward of the type is wrong; if only the type-aware one
-            loses, the belief does not find the type in time.
+        told_type: add the robot ``"told the type"``: a robot that knows from the start
+            which learned type the person's true type maps to, and acts optimally for it
+            under the learned model (:func:`told_type_controller`). It separates the two
+            ways a type-aware robot can fail: if it also loses, the learned behaviour or
+            reward of the type is wrong; if only the type-aware one loses, the belief does
+            not find the type in time.
         horizon: steps per episode (default ``world.horizon``).
         seed: the seed of the people's generator (the same for every robot).
 
@@ -494,7 +537,7 @@ def evaluate_task(
     if told_type:
         assert model is not None
         prior = torch.nn.functional.one_hot(type_map[types], model.num_types)
-        total, length, _ = _simulate(world, Controller.from_model(model), types,
+        total, length, _ = _simulate(world, told_type_controller(model), types,
                                      noise=float(noise), seed=seed, horizon=T,
                                      record_belief=False,
                                      prior=prior.to(model.momdp.b0.dtype))  # fmt: skip

@@ -350,3 +350,10 @@ def test_auto_leaves_out_a_third_order_with_too_many_contexts(monkeypatch):
         warnings.simplefilter("ignore")
         fit = fit_mixture(d, order="auto", k_min=1, k_max=2, restarts=2, seed=0, initial=True)
     assert set(fit.order_comparison) == {"1", "2", "3"}
+    # nor where its counts would not fit (the second order's would: it is compared)
+    P2 = context_symbols(d, 2).data.num_symbols
+    monkeypatch.setattr(selection, "HIGHER_ORDER_MAX_ELEMENTS", d.num_sequences * P2 * P2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        fit = fit_mixture(d, order="auto", k_min=1, k_max=2, restarts=2, seed=0, initial=True)
+    assert set(fit.order_comparison) == {"1", "2"}

@@ -508,9 +508,10 @@ def fit_mixture(
             context's Dirichlet over the recorded symbols). The fit records ``order`` and
             ``order_comparison``. ``"auto"`` on counts or shards is first order; an order
             whose counts would not fit (:data:`HIGHER_ORDER_MAX_ELEMENTS`) is left out of
-            the comparison, with a warning, and the third order where it has more than
+            the comparison, with a warning for the second order; the third order is left
+            out without one there and where it has more than
             :data:`THIRD_ORDER_MAX_CONTEXTS` context symbols (its cost grows with their
-            square), without one.
+            square; ``order_comparison`` lists the orders compared).
         dtype: float dtype of the computation (float32 halves time and memory on big data).
         progress: ``progress(iteration, runs_still_running)`` after every EM iteration.
         ray: run every soft-EM E-step on a Ray cluster (:class:`torchhrc.mixture.RayEStep`,
@@ -571,9 +572,10 @@ def fit_mixture(
     while order == "auto" and lowerable and orders[-1] < MAX_ORDER:
         m = orders[-1] + 1
         P = num_contexts(data, m)
-        if m == 3 and P > THIRD_ORDER_MAX_CONTEXTS:  # its cost, not a failure: no warning
-            break
-        if data.num_sequences * P * P > HIGHER_ORDER_MAX_ELEMENTS:
+        too_large = data.num_sequences * P * P > HIGHER_ORDER_MAX_ELEMENTS
+        if m == 3 and (too_large or P > THIRD_ORDER_MAX_CONTEXTS):
+            break  # the third order is an extra, bounded by its cost: no warning
+        if too_large:
             warnings.warn(
                 f"fit_mixture(order='auto') compared orders {orders} only: order {m}'s counts "
                 f"would hold up to {data.num_sequences} x {P}^2 elements (N sequences x "
@@ -610,8 +612,8 @@ def fit_mixture(
 
 #: ``fit_mixture(order="auto")`` fits chains of order ``m > 1`` only while ``N P_m^2``
 #: (sequences x order-``m`` context symbols squared, the dense counts' size before identical
-#: sequences merge) is at most this (2^27: 1 GiB in float64); above it the lower orders alone,
-#: with a warning.
+#: sequences merge) is at most this (2^27: 1 GiB in float64); above it the lower orders alone
+#: (with a warning where the second order is left out).
 HIGHER_ORDER_MAX_ELEMENTS = 1 << 27
 #: ``fit_mixture(order="auto")`` compares third-order chains only where they have at most
 #: this many context symbols: its tables hold ``P^2`` entries a cluster, so a selection in

@@ -385,7 +385,10 @@ def fit_mixture(
             prior, no parameter count), or a larger k when every step up to it raises the
             log-likelihood by at least ``strong_gain`` nats per transition (an effect the
             exact ICL's prior cost hides on small studies: three types of the kitting study
-            of issue 31); ``"heldout"``: the smallest k whose held-out log-likelihood by unit
+            of issue 31), each step confirmed on held-out units (``folds``-fold
+            cross-validation of the k from the exact ICL's to that larger one, recorded as
+            ``per_k[k]["heldout"]`` for those k); ``"heldout"``: the smallest k whose
+            held-out log-likelihood by unit
             (``folds``-fold cross-validation over subjects) is within ``se_factor`` standard
             errors of the best k's; ``"bic"`` (the paper's; the default of ``"paper"``);
             ``"icl"`` (BIC minus the entropy of the responsibilities); ``"exact_icl"``;
@@ -1028,10 +1031,13 @@ def _select(
         )
         strong = _largest_strong(steps, by_score, float(strong_gain))
         if strong > by_score and stats.num_units >= 3:  # confirmed on held-out units
-            values, weights = _heldout_scores(stats, ks, gen, folds, em)
-            total = (values * weights[:, None]).sum(0)  # (num_k,)
+            # only the k the steps to confirm go through are cross-validated (the others
+            # cost as much and decide nothing)
+            lo = by_score
+            values, weights = _heldout_scores(stats, ks[lo : strong + 1], gen, folds, em)
+            total = (values * weights[:, None]).sum(0)  # (strong + 1 - lo,)
             while by_score < strong:  # the step gains enough, beyond its own noise
-                step = values[:, by_score + 1] - values[:, by_score]  # (P,) per held-out unit
+                step = values[:, by_score + 1 - lo] - values[:, by_score - lo]  # (P,) per unit
                 n = float(weights.sum())
                 mean = float((step * weights).sum()) / n
                 se = math.sqrt(n * float(((step - mean) ** 2 * weights).sum()) / max(n - 1, 1))
@@ -1039,7 +1045,7 @@ def _select(
                 if not mean * n >= need:
                     break
                 by_score += 1
-            heldout = {int(ks[i]): {"heldout": float(total[i])} for i in range(len(ks))}
+            heldout = {int(ks[lo + i]): {"heldout": float(t)} for i, t in enumerate(total)}
     if used == "heldout":  # held-out likelihood by unit, the smallest k within se_factor SEs
         values, weights = _heldout_scores(stats, ks, gen, folds, em)
         by_score, total, se = _one_standard_error(values, weights, se_factor)

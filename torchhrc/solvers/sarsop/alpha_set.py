@@ -97,11 +97,12 @@ class _AlphaSet:
             cand = kept[obs[kept] == x]
             if not cand.size or rows.size * cand.size * Y > 2e8:
                 continue
-            C = V[cand]  # (c, Y)
             # a few probe entries first (a candidate dominates only if it does there; most
             # pairs fail), the full rows for the survivors; the first dominating candidate
-            # wins, as an argmax over the full comparison would pick
-            Cp = C[:, probe]  # (c, k)
+            # wins, as an argmax over the full comparison would pick. The candidates' rows
+            # are read where needed, never copied all at once (V[cand] was a transient copy
+            # of every kept vector: 480 MB of a 20,000-state solve's peak, docs/benchmarks.md)
+            Cp = V[np.ix_(cand, probe)]  # (c, k)
             # (step, c, k) booleans at once: 4 MB (16 MB raised Hallway2's peak memory)
             step = max(1, (1 << 22) // (cand.size * probe.size))
             for start in range(0, rows.size, step):
@@ -114,7 +115,7 @@ class _AlphaSet:
                 block = max(1, (1 << 18) // Y)
                 for b0 in range(0, ii.size, block):
                     sl = slice(b0, b0 + block)
-                    ok[sl] = (C[jj[sl]] >= Vn[ii[sl]]).all(-1)
+                    ok[sl] = (V[cand[jj[sl]]] >= Vn[ii[sl]]).all(-1)
                 ii, jj = ii[ok], jj[ok]
                 first, at = np.unique(ii, return_index=True)  # ii is sorted, jj rising
                 out[chunk[first]] = cand[jj[at]]

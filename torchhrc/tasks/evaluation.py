@@ -376,7 +376,8 @@ def told_type_controller(model: LearnedModel) -> Controller:
     policy.
 
     Raises:
-        ModelError: the model has no policy (not solved).
+        ModelError: a model whose type may change and that has no policy (not solved); a
+            static-type model needs none.
 
     Example:
         >>> import warnings, torchhrc

@@ -120,3 +120,42 @@ def test_a_corner_change_refreshes_the_gains_of_its_observed_value_only():
     assert ub._gain[:2].tolist() == [3.0 - (0.5 * 2 + 0.5 * 4), -1.0]
     b = np.array([[0.5, 0.5, 0.0], [0.0, 0.25, 0.75]])
     assert ub.value_np(b, np.array([0, 1])).tolist() == [3.0, 1.0]
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_pruning_makes_a_few_beliefs_dense_at_a_time(compiled, monkeypatch):
+    """The pruning disables 256 points at a time and evaluates them against the others; their
+    beliefs are made dense a few rows at a time (at most ``_DENSE_ENTRIES`` entries: 256 rows
+    of a 100,000-state model were 205 MB, and their corner product as much again), and it
+    keeps exactly the points it keeps with all 256 rows dense at once."""
+    rng = np.random.default_rng(7)
+    Y = 2000
+    corner = np.full(Y, 10.0)
+    pts = _random_points(rng, Y, [int(w) for w in rng.integers(2, 7, 300)])
+    # 100 copies a little higher, in the next block of 256: the originals bound them there
+    pts = pts + [(b, v + 0.01) for b, v in pts[:100]]
+    n = len(pts)
+
+    def pruned(entries: int) -> tuple[list, list]:
+        monkeypatch.setattr(upper_bound_module, "_DENSE_ENTRIES", entries)
+        ub = SawtoothUpperBound(torch.from_numpy(corner[None].copy()), capacity=2)
+        if not compiled:
+            monkeypatch.setattr(ub, "_group_kernel", None, raising=False)
+        for b, v in pts:
+            ub.add_np(b, 0, v)
+        dense = ub._dense
+        rows: list = []
+
+        def watched(ids):
+            rows.append(int(ids.shape[0]))
+            return dense(ids)
+
+        monkeypatch.setattr(ub, "_dense", watched)
+        ub.prune()
+        monkeypatch.setattr(ub, "_dense", dense)
+        return ub.points[2].tolist(), rows
+
+    kept_all, rows_all = pruned(256 * Y)  # one dense block of 256 rows, as before
+    kept, rows = pruned(50 * Y)
+    assert max(rows_all) == 256 and max(rows) <= 50 and sum(rows) == sum(rows_all) == n
+    assert kept == kept_all and len(kept) < n  # the same points kept, and some pruned

@@ -58,6 +58,11 @@ _ROWS = np.arange(1024)  # row indices 0..B-1 of a query, sliced (read only)
 _ROWS.flags.writeable = False
 
 
+#: At most this many dense belief entries at a time in :meth:`SawtoothUpperBound.prune`
+#: (2^22 floats: 32 MB), whatever the block of points it disables together.
+_DENSE_ENTRIES = 1 << 22
+
+
 class SawtoothUpperBound:
     """A sawtooth upper bound with corner values and sparse points, per observed ``x``.
 
@@ -564,6 +569,10 @@ class SawtoothUpperBound:
         saved = self._gain[:n].clone()
         keep = useful.clone()
         block = max(1, min(n, 256))
+        # the block's beliefs are made dense some rows at a time: 256 rows of a 100,000-state
+        # model are 205 MB, and the corner product as much again (a transient of a solve's
+        # peak); each belief's value is its own, so the values are the same
+        dense_rows = max(1, _DENSE_ENTRIES // max(1, self.num_hidden))
         for start in range(0, n, block):
             stop = min(n, start + block)
             rows = torch.arange(start, stop, device=x.device)
@@ -571,11 +580,15 @@ class SawtoothUpperBound:
             # exact; disabling the whole block is conservative: it only keeps more points).
             self._gain[start:stop] = 0.0
             self._sorted = [None] * self.num_observed  # the key order follows the gains
-            beliefs = self._dense(rows)  # (block, Y), a block at a time
-            if self._np is not None:
-                others = torch.from_numpy(self.value_np(beliefs.numpy(), x[rows].numpy()))
-            else:
-                others = self.value(beliefs, x[rows])
+            parts = []
+            for part in rows.split(dense_rows):
+                beliefs = self._dense(part)  # (rows, Y)
+                if self._np is not None:
+                    parts.append(torch.from_numpy(self.value_np(beliefs.numpy(),
+                                                                x[part].numpy())))  # fmt: skip
+                else:
+                    parts.append(self.value(beliefs, x[part]))
+            others = torch.cat(parts)
             self._gain[start:stop] = saved[start:stop]
             self._sorted = [None] * self.num_observed
             keep[start:stop] &= v[rows] < others - 1e-12 * others.abs().clamp(min=1.0)

@@ -165,10 +165,17 @@ def test_fib_corner_values_sparse_equal_dense(build) -> None:
     torch.testing.assert_close(sparse, dense, atol=1e-6, rtol=0)
 
 
-def test_fib_step_over_pairs_equals_the_product_over_every_observation() -> None:
+@pytest.mark.parametrize("pairs", [None, 5])
+def test_fib_step_over_pairs_equals_the_product_over_every_observation(pairs, monkeypatch) -> None:
     """One FIB step of the sparse path (over the pairs of a nonzero of T and a nonzero of Z)
     against the formula on dense tensors, on a model where most observations are impossible
-    after most states (Z keeps one or two outcomes a row), and on RockSample."""
+    after most states (Z keeps one or two outcomes a row), and on RockSample; also with the
+    products formed a few pairs at a time (``pairs=5``: runs of whole groups), bit for bit
+    the same as all at once."""
+    from torchhrc.solvers import sparse_model
+
+    if pairs is not None:
+        monkeypatch.setattr(sparse_model, "_FIB_PAIRS", pairs)
     g = torch.Generator().manual_seed(7)
     m = _sparse_random(S=15, A=3, O=6, seed=7)
     mask = torch.rand(m.Z.shape, generator=g, dtype=torch.float64) < 0.25
@@ -184,6 +191,11 @@ def test_fib_step_over_pairs_equals_the_product_over_every_observation() -> None
         by_hand = np.einsum("ast,ato,bt->asob", T, Zd, alpha).max(-1).sum(-1)
         want = model.R.numpy() + model.discount * by_hand
         np.testing.assert_allclose(form.fib_np(alpha), want, rtol=0, atol=1e-12)
+        if pairs is not None:  # the same floats as the products formed all at once
+            chunked = form.fib_np(alpha)
+            monkeypatch.setattr(sparse_model, "_FIB_PAIRS", 1 << 40)
+            assert np.array_equal(chunked, form.fib_np(alpha))
+            monkeypatch.setattr(sparse_model, "_FIB_PAIRS", pairs)
 
 
 def test_sawtooth_on_columns_equals_full_rows() -> None:

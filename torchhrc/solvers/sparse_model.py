@@ -54,6 +54,10 @@ from torchhrc.solvers.policy import AlphaVectorPolicy
 
 __all__ = ["SparseFlatModel", "sparse_blind_policy", "sparse_blind_vectors"]
 
+#: Pairs of a FIB step's products formed at a time (:meth:`SparseFlatModel.fib_np`; whole
+#: ``(a, s, o)`` groups, about this many pairs: 2^20 x A2 floats).
+_FIB_PAIRS = 1 << 20
+
 
 def _csr(
     indptr: np.ndarray, indices: np.ndarray, values: np.ndarray, shape: tuple[int, int]
@@ -260,11 +264,22 @@ class SparseFlatModel:
         # the products as (Z alpha) T, summed in T's order, and the sum over o of a dense
         # (A, S, O), as the product over every observation did: the same floats but where
         # numpy's reduceat adds a group's terms in another order (three of them against four
-        # with a zero: the last bit, on Tag)
-        contrib = (zval[:, None] * alpha.T[col]) * tval[:, None]  # (P, A2)
-        sums = np.add.reduceat(contrib, starts, axis=0)  # (U, A2): per (a, s, o)
-        best = np.zeros(A * S * O, dtype=contrib.dtype)
-        best[cells] = sums.max(1)
+        # with a zero: the last bit, on Tag). The (P, A2) products are formed a run of whole
+        # groups at a time (about 2^20 pairs), in place, and each run's maxima go straight
+        # into the (A, S, O) table: a step's temporaries on a 100,000-state model 168 -> 88 MB
+        U, P = starts.size, zval.size
+        best = np.zeros(A * S * O, dtype=np.result_type(alpha, zval))
+        i0 = 0
+        while i0 < U:
+            p0 = int(starts[i0])
+            i1 = max(i0 + 1, int(np.searchsorted(starts, p0 + _FIB_PAIRS, side="left")))
+            p1 = int(starts[i1]) if i1 < U else P
+            contrib = alpha.T[col[p0:p1]]  # (p, A2), then (Z alpha) T in place
+            np.multiply(zval[p0:p1, None], contrib, out=contrib)
+            np.multiply(contrib, tval[p0:p1, None], out=contrib)
+            # per (a, s, o): the sum over its pairs, the max over a2
+            best[cells[i0:i1]] = np.add.reduceat(contrib, starts[i0:i1] - p0, axis=0).max(1)
+            i0 = i1
         return self.R.numpy() + self.discount * best.reshape(A, S, O).sum(-1)
 
     def _fib_pairs(self) -> tuple[np.ndarray, ...]:

@@ -1036,13 +1036,14 @@ def _select(
             lo = by_score
             values, weights = _heldout_scores(stats, ks[lo : strong + 1], gen, folds, em)
             total = (values * weights[:, None]).sum(0)  # (strong + 1 - lo,)
+            held = float(weights.sum())  # the units held out (not ``n`` above: BIC's below)
             while by_score < strong:  # the step gains enough, beyond its own noise
                 step = values[:, by_score + 1 - lo] - values[:, by_score - lo]  # (P,) per unit
-                n = float(weights.sum())
-                mean = float((step * weights).sum()) / n
-                se = math.sqrt(n * float(((step - mean) ** 2 * weights).sum()) / max(n - 1, 1))
+                mean = float((step * weights).sum()) / held
+                se = math.sqrt(held * float(((step - mean) ** 2 * weights).sum())
+                               / max(held - 1, 1))  # fmt: skip
                 need = max(DEFAULT_HELDOUT_GAIN * max(transitions, 1.0), se_factor * se)
-                if not mean * n >= need:
+                if not mean * held >= need:
                     break
                 by_score += 1
             heldout = {int(ks[lo + i]): {"heldout": float(t)} for i, t in enumerate(total)}

@@ -141,8 +141,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default="1",
         help="1 (default): first-order chains, the paper's; 2: second-order chains, which "
         "see a type's order across a step every type shares (a robot waiting between the "
-        "person's actions); 3: third-order chains, which see the person's previous action "
-        "across the robot's answer; auto: select k in all three and keep the fit with the "
+        "person's actions); 3: third-order chains, which see the person's last two actions "
+        "across the robot's moves; auto: select k in all three and keep the fit with the "
         "most types (docs/clustering.md, 'Second-order chains', 'Third-order chains'); one "
         "file in memory only",
     )

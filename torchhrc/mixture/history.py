@@ -5,9 +5,9 @@ every two of a person's actions, that step is always the wait, and a type's orde
 then 2, then 3, or the reverse) is invisible to it: ``wait -> prime_i`` and
 ``prime_i -> wait`` occur in both orders alike. A second-order chain,
 ``P(a_t | a_(t-2), a_(t-1))``, sees across one step; a third-order chain,
-``P(a_t | a_(t-3), a_(t-2), a_(t-1))``, sees the person's previous action across the robot's
-answer to it (a rhythm of tools, drill, drill, saw, saw, that the tool the robot lays out
-does not show).
+``P(a_t | a_(t-3), a_(t-2), a_(t-1))``, sees the person's last two actions across the
+robot's moves (a rhythm of tools, drill, drill, saw, saw, in which the last action alone
+does not say what comes next).
 
 They are fitted by the same code as the first-order one: step ``t`` is renamed to the
 *context symbol* ``(a_(t-m+1), ..., a_(t-1), a_t)`` of an order-``m`` chain (``a_(-1)``,

@@ -500,9 +500,9 @@ def fit_mixture(
             ``order`` is 2 and :meth:`MixtureFit.transition_over` gives first-order chains
             over the recorded symbols): they see a type's order across a step every type
             shares (a robot that waits between every two of the person's actions); ``3``,
-            third-order chains ``P(a_t | a_(t-3), a_(t-2), a_(t-1))``, the same way: they see
-            the person's previous action across the robot's answer to it (a rhythm that the
-            robot's move does not show); ``"auto"``: select k in the three orders (the
+            third-order chains ``P(a_t | a_(t-3), a_(t-2), a_(t-1))``, the same way: across a
+            robot's move they see the person's last two actions (a rhythm, such as drill,
+            drill, saw, saw, that one step back does not show); ``"auto"``: select k in the three orders (the
             objects' reading chosen in first order) and keep the fit with the most types, the
             larger exact ICL (``log p(D, z)`` of the recorded data in all) on equal k
             (:func:`order_to_keep`): a type any order's rule finds is kept

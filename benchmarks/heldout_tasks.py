@@ -35,6 +35,16 @@ name                   X    types  depends on    what is unusual
 ``pace_split``         189  4      state         2 x 2 types, who does which parts x pace (the
                                                  careful ones linger and want the robot still);
                                                  shares 40 / 30 / 20 / 10 %
+``side_reactive``      40   3      robot's move  reactive types: one mirrors the robot's move of
+                                                 the turn (side L or R; waits when it waits),
+                                                 one takes the other side, one ignores it
+``inspect_last``       256  2      state         observed (a 75 % glance at what the person
+                                                 reaches for); 4 parts x place, fix, check; the
+                                                 types differ only in who fixes the last part
+``parcel_hands``       112  5      history       one-slot hand-over tray; 3 orders x handed,
+                                                 hands-off, and a type alternating hands from a
+                                                 random first hand (not in the state); shares
+                                                 35 / 25 / 20 / 12 / 8 %
 =====================  ===  =====  ============  ===============================================
 
 ``slow_sanding`` and ``paint_crews`` were added after the selection rule of 6701614 and
@@ -46,7 +56,10 @@ demonstrated path, where the learned reward is flat); keep it out of tuning too.
 ``station_glance``, ``lead_follow_phase`` and ``pace_split`` were written by the audit of
 2026-12-05 (session 23) from the docs alone, to cover what the others lack (a noisy
 observation of the human; leading against following; a larger crossed task with a rare
-type), and kept out of tuning.
+type), and kept out of tuning. ``side_reactive``, ``inspect_last`` and ``parcel_hands`` were
+written by the audit of session 24 from the docs alone (reactive types; a large observed task
+whose types differ late; five unequal types, one history-dependent),
+and are kept out of tuning.
 
 ``HELDOUT[name]() -> HeldoutWorld``, a TaskWithPeople whose ``demonstrations`` split the
 subjects between the types by its ``shares`` (None: balanced).
@@ -810,6 +823,195 @@ def pace_split() -> HeldoutWorld:
     )  # fmt: skip
 
 
+# ------------------------------------------------------------------------------ side_reactive
+# a fixture with a left and a right side, three parts each; the robot or the person mounts
+# the next part of a side; the fixture stays turned to the side the robot last worked on
+# (jig: 0 none yet, 1 L, 2 R). The types react to the robot's move of the turn: "mirror"
+# mounts on the side the robot just worked on (and waits when the robot waits), wanting the
+# robot to lead the left side, then the right; "complement" mounts on the other side (when
+# the robot waits: the side opposite the jig; waits at the start), wanting the robot to
+# start left and stay on its side; "ignorer" mounts L, L, L, R, R, R whatever the robot does,
+# wanting the robot on the other side (and to wait when only hers is left).
+# State: (left mounted, right mounted, jig): 48 combinations, 40 reachable. (Audit of session 24.)
+def side_reactive() -> HeldoutWorld:
+    types, n = ("mirror", "complement", "ignorer"), 3
+
+    def robot_step(s, a):
+        if a == 0 or s[a - 1] == n:
+            return s
+        return (*(c + (i == a - 1) for i, c in enumerate(s[:2])), a)
+
+    def human_step(s, h):
+        return None if s[h] == n else (*(c + (i == h) for i, c in enumerate(s[:2])), s[2])
+
+    def side_or_other(s, side):
+        if s[side] < n:
+            return {side: 1.0}
+        return {1 - side: 1.0} if s[1 - side] < n else {-1: 1.0}
+
+    def behaviour(y, m, s, a):
+        if y == 0:
+            return {-1: 1.0} if a == 0 else side_or_other(s, a - 1)
+        if y == 1:
+            if a == 0:
+                return {-1: 1.0} if s[2] == 0 else side_or_other(s, 2 - s[2])
+            return side_or_other(s, 2 - a)
+        return side_or_other(s, 0)
+
+    def reward(y, s, a):
+        if a > 0 and s[a - 1] == n:
+            return -1.0  # a side that is full: a wasted move
+        if y == 0:
+            return _pick(1 if s[0] < n else 2, a, idle=-0.5, bad=-0.5)
+        if y == 1:
+            jig = s[2]
+            best = 1 if jig == 0 else (jig if s[jig - 1] < n else 3 - jig)
+            return _pick(best, a, idle=-0.3, bad=-1.0)
+        other = 1 if s[0] < n else 0  # the side she is not on
+        if s[other] < n:
+            return _pick(1 + other, a, idle=-0.3, bad=-1.0)
+        return _pick(0, a, good=0.3, bad=-1.0)
+
+    return tabulate(
+        "side_reactive", initial=(0, 0, 0), robot_actions=("wait", "mount_L", "mount_R"),
+        human_actions=("mount_L", "mount_R"), robot_step=robot_step, human_step=human_step,
+        terminal=lambda s: s[:2] == (n, n), type_names=types, behaviour=behaviour,
+        reward=reward, horizon=10,
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ inspect_last
+# four parts, each placed by the person, fixed (by the robot or the person) and then checked
+# by the person, one part at a time in the order 1-4 (any order is possible: 4^4 = 256
+# states). Both types place, wait for the robot to fix and check parts 1-3 alike;
+# "robot_fixes" does part 4 the same way, "self_last" fixes part 4 herself and wants the
+# robot to keep still for it. After each step the robot glances at what the person reaches
+# for next (parts tray, driver, gauge, nothing), right 75 % of the time.
+# State: per part 0 loose, 1 placed, 2 fixed, 3 checked. (Audit of session 24.)
+def inspect_last() -> HeldoutWorld:
+    types, n = ("robot_fixes", "self_last"), 4
+
+    def robot_step(s, a):
+        return s if a == 0 or s[a - 1] != 1 else (*s[: a - 1], 2, *s[a:])
+
+    def human_step(s, h):
+        i, op = h % n, h // n  # op 0 place, 1 fix, 2 check
+        return (*s[:i], op + 1, *s[i + 1 :]) if s[i] == op else None
+
+    def current(s):
+        return next(i for i in range(n) if s[i] != 3)
+
+    def behaviour(y, m, s, a):
+        i = current(s)
+        if s[i] == 0:
+            return {i: 1.0}
+        if s[i] == 1:
+            return {n + i: 1.0} if (y == 1 and i == n - 1) else {-1: 1.0}
+        return {2 * n + i: 1.0}
+
+    def reward(y, s, a):
+        i = current(s)
+        if y == 1 and i == n - 1:
+            return _pick(0, a, good=0.3, bad=-1.0)
+        if s[i] == 1:
+            return _pick(1 + i, a, idle=-0.3, bad=-0.5)
+        return _pick(0, a, good=0.2, bad=-0.5)
+
+    world = tabulate(
+        "inspect_last", initial=(0,) * n,
+        robot_actions=("wait", *(f"fix_{i + 1}" for i in range(n))),
+        human_actions=(*(f"place_{i + 1}" for i in range(n)), *(f"fix_{i + 1}" for i in range(n)),
+                       *(f"check_{i + 1}" for i in range(n))),
+        robot_step=robot_step, human_step=human_step, terminal=lambda s: s == (3,) * n,
+        type_names=types, behaviour=behaviour, reward=reward, horizon=14,
+    )  # fmt: skip
+    t = world.task
+    task = GlanceTask(t.name, t.state_names, t.robot_actions, t.human_actions, t.robot_effect,
+                      t.human_effect, t.human_legal, t.terminal)  # fmt: skip
+    zones = torch.zeros(3 * n + 1, 4, dtype=torch.float64)
+    for h in range(3 * n):
+        zones[h, h // n] = 1.0
+    zones[3 * n, 3] = 1.0
+    task.zones, task.accuracy = zones, 0.75
+    intent = world.people.policy[:, 0, :, 0, :].permute(1, 0, 2)  # (X, Y, H + 1), robot waits
+    return dataclasses.replace(world, task=task, observed=True,
+                               true_observation=task.glance(intent, t.num_actions))  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ parcel_hands
+# five items A-E packed into a box; the robot can put one item on the hand-over tray (one at
+# a time); the person packs an item from the tray or fetches it from the shelf (one move).
+# "in_order" (35 %) packs A-E, "reverse" (25 %) E-A and "heavy_first" (12 %) C, E, A, D, B,
+# each wanting their next item handed (they take it from the tray; when it is not there,
+# they fetch it half the time and wait for it otherwise); "hands_off" (20 %) packs A-E from
+# the shelf whatever the robot does and wants the robot to wait; "two_hands" (8 %) alternates
+# hands, which the state does not show: the right hand takes whatever lies on the tray
+# (waiting for it when the tray is empty), the left one fetches the first unpacked item in
+# A-E order; the first hand is random per episode. She wants the robot to hand from the back
+# (the last unpacked item), so the hands do not collide. State: (packed mask, item on the
+# tray or -1), 112 states. (Audit of session 24.)
+def parcel_hands() -> HeldoutWorld:
+    types = ("in_order", "reverse", "hands_off", "heavy_first", "two_hands")
+    orders = ((0, 1, 2, 3, 4), (4, 3, 2, 1, 0), (0, 1, 2, 3, 4), (2, 4, 0, 3, 1), None)
+    n = 5
+
+    def left(mask):
+        return [i for i in range(n) if not mask >> i & 1]
+
+    def robot_step(s, a):
+        mask, tray = s
+        return s if a == 0 or tray >= 0 or mask >> (a - 1) & 1 else (mask, a - 1)
+
+    def human_step(s, h):
+        mask, tray = s
+        return None if mask >> h & 1 else (mask | 1 << h, -1 if tray == h else tray)
+
+    def nxt(y, mask):
+        return next(i for i in orders[y] if not mask >> i & 1)
+
+    def behaviour(y, m, s, a):
+        mask, tray = s
+        if y == 4:
+            if m == 0:  # right hand: the tray
+                return {tray: 1.0} if tray >= 0 else {-1: 1.0}
+            return {next(i for i in left(mask) if i != tray): 1.0} if left(mask) != [tray] \
+                else {tray: 1.0}  # fmt: skip
+        i = nxt(y, mask)
+        if y == 2 or tray == i:
+            return {i: 1.0}
+        return {i: 0.5, -1: 0.5}
+
+    def memory_update(y, m, s, a, h):
+        return m if (y != 4 or h < 0) else 1 - m
+
+    def reward(y, s, a):
+        mask, tray = s
+        if a > 0 and (tray >= 0 or mask >> (a - 1) & 1):
+            return -0.5  # the tray is taken or the item packed: a wasted move
+        if y == 2:
+            return _pick(0, a, good=0.3, bad=-0.5)
+        if y == 4:
+            return _pick(1 + left(mask)[-1], a, idle=-0.2, bad=0.1) if tray < 0 else \
+                _pick(0, a, good=0.2)  # fmt: skip
+        want = nxt(y, mask)
+        if tray == want:
+            return _pick(0, a, good=0.2)
+        return _pick(1 + want, a, idle=-0.3, bad=-0.5)
+
+    world = tabulate(
+        "parcel_hands", initial=(0, -1),
+        robot_actions=("wait", *(f"hand_{c}" for c in "ABCDE")),
+        human_actions=tuple(f"pack_{c}" for c in "ABCDE"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s[0] == 2**n - 1, type_names=types,
+        behaviour=behaviour, reward=reward, horizon=12, memory=2,
+        memory_update=memory_update, shares=(0.35, 0.25, 0.20, 0.12, 0.08),
+    )  # fmt: skip
+    p = world.people
+    initial = torch.tensor([[1.0, 0.0]] * 4 + [[0.5, 0.5]], dtype=torch.float64)
+    people = TabularPeople(p.type_names, p.policy, p.legal, update=p.update, initial=initial)
+    return dataclasses.replace(world, people=people)
+
+
 #: Every held-out task by name: ``HELDOUT[name]() -> HeldoutWorld``.
 HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "finish_late": finish_late,
@@ -824,4 +1026,7 @@ HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "station_glance": station_glance,
     "lead_follow_phase": lead_follow_phase,
     "pace_split": pace_split,
+    "side_reactive": side_reactive,
+    "inspect_last": inspect_last,
+    "parcel_hands": parcel_hands,
 }

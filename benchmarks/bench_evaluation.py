@@ -63,7 +63,8 @@ def evaluate_world(name: str, world, demos, *, episodes: int = 200, belief_steps
                    solver_time: float = 10.0, seed: int = 0,
                    human_model: str | None = None) -> tuple[str, dict]:  # fmt: skip
     """One task: learn() type-aware and with k=1 from ``demos``, evaluate_task against the
-    world's people; returns the Markdown row and the JSON record."""
+    world's people (over the population of the world's ``shares``); returns the Markdown row
+    and the JSON record."""
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

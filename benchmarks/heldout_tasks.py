@@ -61,21 +61,19 @@ written by the audit of session 24 from the docs alone (reactive types; a large 
 whose types differ late; five unequal types, one history-dependent),
 and are kept out of tuning.
 
-``HELDOUT[name]() -> HeldoutWorld``, a TaskWithPeople whose ``demonstrations`` split the
-subjects between the types by its ``shares`` (None: balanced).
+``HELDOUT[name]() -> HeldoutWorld`` (a ``TaskWithPeople``), whose ``shares`` (None:
+balanced) split the demonstrating subjects between the types and weigh them over the
+population in ``evaluate_task``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable, Hashable, Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import torch
 
-from torchhrc import Demonstrations
 from torchhrc.tasks import CollaborativeTask, TabularPeople, TaskWithPeople
 
 __all__ = ["HELDOUT", "HeldoutWorld", "tabulate"]
@@ -171,55 +169,10 @@ def tabulate(
     return HeldoutWorld(task, people, true_reward, horizon=horizon, observed=False, shares=shares)
 
 
-@dataclass(frozen=True, eq=False)
-class HeldoutWorld(TaskWithPeople):
-    """A TaskWithPeople whose subjects may split unevenly between the types.
-
-    Attributes:
-        shares: ``(Y_true,)`` share of each type among the subjects (None: balanced, as
-            ``TaskWithPeople.demonstrations``).
-    """
-
-    shares: tuple[float, ...] | None = None
-
-    def demonstrations(
-        self, *, subjects: int = 30, per_subject: int = 4, noise: float = 0.05, seed: int = 0
-    ) -> tuple[Demonstrations, torch.Tensor]:
-        """As ``TaskWithPeople.demonstrations``, the subjects split by ``shares`` (largest
-        remainders, every type at least one subject, subjects of one type in a row)."""
-        if self.shares is None:
-            return super().demonstrations(subjects=subjects, per_subject=per_subject,
-                                          noise=noise, seed=seed)  # fmt: skip
-        raw = [subjects * s / sum(self.shares) for s in self.shares]
-        counts = [max(1, math.floor(r)) for r in raw]
-        order = sorted(range(len(raw)), key=lambda y: raw[y] - math.floor(raw[y]), reverse=True)
-        for y in order:
-            if sum(counts) < subjects:
-                counts[y] += 1
-        subject_types = torch.tensor([y for y, c in enumerate(counts) for _ in range(c)])
-        types = subject_types.repeat_interleave(per_subject)
-        generator = torch.Generator().manual_seed(int(seed))
-        _, robot, human = self.rollout(types, noise=noise, generator=generator)
-        r_names, h_names = self.task.robot_actions, self.task.human_actions
-        seqs = []
-        for r_row, h_row in zip(robot.tolist(), human.tolist()):
-            seq = []
-            for a, h in zip(r_row, h_row):
-                if a == -2:
-                    break
-                seq.append(("robot", r_names[a]))
-                if h >= 0:
-                    seq.append(("human", h_names[h]))
-            seqs.append(seq)
-        n = len(subject_types)
-        demos = Demonstrations.from_lists(
-            seqs,
-            subjects=[f"s{s:03d}" for s in range(n) for _ in range(per_subject)],
-            sequence_ids=[str(i) for _ in range(n) for i in range(per_subject)],
-            types=[self.type_names[int(y)] for y in types],
-            vocabulary=sorted([("human", h) for h in h_names] + [("robot", a) for a in r_names]),
-        )
-        return demos, types
+#: What every held-out task returns: a TaskWithPeople, its ``shares`` (None: balanced) splitting
+#: the demonstrating subjects between the types (``TaskWithPeople.demonstrations``) and
+#: weighing them in ``evaluate_task``. (Until session 24 a subclass here held the shares.)
+HeldoutWorld = TaskWithPeople
 
 
 def _pick(best: int, a: int, good: float = 1.0, idle: float = 0.0, bad: float = -1.0) -> float:

@@ -24,10 +24,12 @@ from torchhrc.tasks.place_and_drill import PlaceAndDrillTask, simulate_study
 #: the paper's (Abbeel & Ng's projection, rule "dominant", 10 iterations), stated here since
 #: ``learn()``'s default became maximum-entropy IRL (issue 31; docs/your_own_task.md); so are
 #: the paper's first-order chains (``order=1``), since ``learn()``'s default became
-#: ``order="auto"`` (docs/clustering.md, "Second-order chains").
+#: ``order="auto"`` (docs/clustering.md, "Second-order chains"); and the uniform prior over the
+#: types, since ``learn()``'s default became the types' shares of the demonstrations.
 PLACE_AND_DRILL = dict(cluster=ClusterConfig(k_min=2, k_max=10, restarts=20, order=1),
                        irl=IRLConfig(rule="dominant", epsilon=0.05, iterations=10),
-                       solver_time=60.0, solver_precision=1e-4, seed=0)  # fmt: skip
+                       solver_time=60.0, solver_precision=1e-4, prior="uniform",
+                       seed=0)  # fmt: skip
 
 
 def place_and_drill_learned():

@@ -11,6 +11,7 @@ always hands left gets ``+g^2`` from "left" and ``-g^2`` from "right".
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 import warnings
@@ -129,10 +130,17 @@ def test_belief_accuracy_and_split(fitted):
                            noise=eps, belief_steps=(0, 1), seed=2)  # fmt: skip
     assert result.map_source == "assignments"
     assert sorted(result.type_map.tolist()) == [0, 1]  # the two true types on two learned ones
-    # before any step the belief is the uniform prior: split, half credit for the tie
-    torch.testing.assert_close(result.belief_accuracy[:, 0], torch.full((2,), 0.5,
-                               dtype=torch.float64))  # fmt: skip
-    torch.testing.assert_close(result.belief_max[:, 0], torch.full((2,), 0.5, dtype=torch.float64))
+    # before any step the belief is the prior b0 (learn(): the types' shares of the
+    # demonstrations): its largest entry, credited to the type it names (half each on a tie)
+    b0 = aware.momdp.b0
+    top = b0 >= b0.max() - 1e-12
+    want = top[result.type_map].double() / top.sum()
+    torch.testing.assert_close(result.belief_accuracy[:, 0], want)
+    torch.testing.assert_close(result.belief_max[:, 0], b0.max().expand(2))
+    torch.testing.assert_close(b0.sum(), torch.ones((), dtype=b0.dtype))
+    assert aware.info["prior"]["rule"] == "shares"
+    counts = torch.bincount(aware.assignments, minlength=2).double()
+    torch.testing.assert_close(b0, counts / counts.sum())
     # after one step the first move tells the type, except on a slip to the other side
     # (probability eps / 2): accuracy 0.9 within sampling error
     acc = result.belief_accuracy[:, 1]
@@ -172,6 +180,49 @@ def test_seeded_and_validated(fitted):
     # a robot without reset/act is named at once (it was "'object' object has no attribute")
     with pytest.raises(TypeError, match=r"robots\['lazy'\] \(object\) has no reset\(\) or act\(\)"):
         evaluate_task(world, None, robots={"lazy": object()})
+
+
+def test_population_shares_weigh_the_overall_figures(fitted):
+    """A population of 3 "left" people to 1 "right": the always-left robot's return is
+    ``+g^2`` or ``-g^2`` exactly, so its population mean is ``(3 g^2 - g^2) / 4 = g^2 / 2`` and
+    the spread about it, worked by hand, ``3/4 (g^2/2)^2 + 1/4 (3 g^2/2)^2 = 3/4 g^4``; with
+    equal shares the plain mean (0) and standard error of all ``N`` returns."""
+    world, _, _, _ = fitted
+    E = 50
+    N = 2 * E
+    even = evaluate_task(world, None, robots={"left": AlwaysLeft()}, episodes=E, seed=2)
+    skew = evaluate_task(world, None, robots={"left": AlwaysLeft()}, episodes=E, seed=2,
+                         shares=[3.0, 1.0])  # fmt: skip
+    g2 = G**2
+    torch.testing.assert_close(skew.mean, even.mean)  # per type: the shares change nothing
+    torch.testing.assert_close(skew.overall_mean, torch.tensor([g2 / 2], dtype=torch.float64))
+    want = 1.959963984540054 * math.sqrt(0.75 * g2**2 / (N - 1))
+    torch.testing.assert_close(skew.overall_ci, torch.tensor([want], dtype=torch.float64))
+    torch.testing.assert_close(skew.shares, torch.tensor([0.75, 0.25], dtype=torch.float64))
+    assert skew.to_dict()["shares"] == [0.75, 0.25]
+    # equal shares, given or not: the mean and standard error of all N returns
+    pooled = even.returns.view(1, -1)
+    torch.testing.assert_close(even.overall_mean, pooled.mean(-1))
+    torch.testing.assert_close(even.overall_ci, 1.959963984540054 * pooled.std(-1) / math.sqrt(N))
+    assert even.shares is None
+    given = evaluate_task(world, None, robots={"left": AlwaysLeft()}, episodes=E, seed=2,
+                          shares=torch.tensor([2.0, 2.0]))  # fmt: skip
+    torch.testing.assert_close(given.overall_mean, even.overall_mean)
+    torch.testing.assert_close(given.overall_ci, even.overall_ci)
+    # a world that declares its population is weighed by it unless told otherwise
+    own = evaluate_task(dataclasses.replace(world, shares=(3.0, 1.0)), None,
+                        robots={"left": AlwaysLeft()}, episodes=E, seed=2)  # fmt: skip
+    torch.testing.assert_close(own.overall_mean, skew.overall_mean)
+    torch.testing.assert_close(own.overall_ci, skew.overall_ci)
+    robots = {"left": AlwaysLeft()}
+    with pytest.raises(ValueError, match=r"shares of shape \(Y=2,\)"):
+        evaluate_task(world, None, robots=robots, episodes=5, shares=[1.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match="shares to be finite, non-negative"):
+        evaluate_task(world, None, robots=robots, episodes=5, shares=[1.0, -0.5])
+    with pytest.raises(ValueError, match="not all zero"):
+        evaluate_task(world, None, robots=robots, episodes=5, shares=[0.0, 0.0])
+    with pytest.raises(TypeError, match="shares to be a sequence of 2 numbers"):
+        evaluate_task(world, None, robots=robots, episodes=5, shares=["a", "b"])
 
 
 def test_summary_says_how_much_of_knowing_the_type_the_robot_keeps(fitted):
@@ -268,8 +319,9 @@ def test_the_told_robot_acts_optimally_for_the_type_it_is_told():
     A, X, Y = R.shape
     V = torch.zeros(Y, X, dtype=torch.float64)
     for _ in range(2000):
-        Q = torch.stack([R[a].T + g * torch.stack([Tx[a, :, y] @ V[y] for y in range(Y)])
-                         for a in range(A)], -1)  # (Y, X, A)
+        Q = torch.stack(
+            [R[a].T + g * torch.stack([Tx[a, :, y] @ V[y] for y in range(Y)]) for a in range(A)], -1
+        )  # (Y, X, A)
         new = Q.max(-1).values
         if float((new - V).abs().max()) < 1e-10:
             break

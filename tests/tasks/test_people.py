@@ -168,6 +168,40 @@ def test_task_with_people_validation():
         build(_toggle_spec(behaviour=lambda y, m, s, a: {0: 1.0}))  # flips when already on
 
 
+def test_shares_split_the_subjects_by_largest_remainders():
+    """30 subjects at 35/25/20/12/8 %: floors 10, 7, 6, 3, 2 (remainders .5, .5, 0, .6, .4),
+    one more each to the two largest remainders (.6: the 4th type; .5: the first of the tied
+    two) until 30: 11, 7, 6, 4, 2, the subjects of one type in a row."""
+    from torchhrc.tasks.people import _split
+
+    assert _split(30, (0.35, 0.25, 0.20, 0.12, 0.08)) == [11, 7, 6, 4, 2]
+    assert _split(30, (7, 2, 1)) == [21, 6, 3]  # any positive sum
+    assert _split(4, (1, 0, 1)) == [2, 0, 2]  # a type of share 0 gets no subject
+    assert _split(3, (0.9, 0.05, 0.05)) == [1, 1, 1]  # one each, then no more than asked
+    twp = build(_toggle_spec())
+    skew = TaskWithPeople(twp.task, twp.people, twp.true_reward, 4, False, shares=(3, 1))
+    demos, types = skew.demonstrations(subjects=8, per_subject=2, noise=0.0, seed=0)
+    assert types.tolist() == [0] * 12 + [1] * 4  # 6 subjects to 2, in a row
+    assert demos.subjects[:2] == ("s000", "s000") and len(demos.unique_subjects) == 8
+    # a type's demonstrations are its people's whatever the split: the same sequences as the
+    # balanced split's for that type (the people are deterministic at noise 0)
+    even, even_types = twp.demonstrations(subjects=8, per_subject=2, noise=0.0, seed=0)
+    assert even_types.tolist()[:4] == [0, 0, 1, 1]  # balanced: s mod Y, as before
+    lists, even_lists = demos.to_lists(), even.to_lists()
+    assert lists[0] == even_lists[0] and lists[-1] == even_lists[2]
+    assert skew.shares == (3.0, 1.0) and twp.shares is None
+    with pytest.raises(ValueError, match=r"subjects >= 2"):
+        skew.demonstrations(subjects=1)
+    for bad, match in (
+        ((1.0,), "expected 2 shares"),
+        ((1.0, -1.0), "non-negative"),
+        ((0.0, 0.0), "not all zero"),
+        (("a", "b"), "expected shares to be 2"),
+    ):
+        with pytest.raises(ModelError, match=match):
+            TaskWithPeople(twp.task, twp.people, twp.true_reward, 4, False, shares=bad)
+
+
 def test_initial_memory_is_drawn_per_type():
     policy = torch.zeros(2, 2, 3, 2, 3, dtype=torch.float64)
     policy[..., 2] = 1.0

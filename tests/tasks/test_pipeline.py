@@ -162,6 +162,30 @@ def test_learn_save_load_roundtrip_and_controller(tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
+def test_the_prior_is_the_types_share_of_the_demonstrations():
+    """learn()'s ``b0``: each learned type's share of the demonstrations (a new person is a
+    draw from the population the demonstrators came from); ``prior="uniform"``: 1 / k."""
+    demos = simulate_study(n_subjects=8, n_demos=3, seed=2)
+    types = list(demos.types)
+    first = types[0]
+    # every demonstration of the first type, a third of the other's: about 3 to 1
+    keep = [i for i, t in enumerate(types) if t == first]
+    keep += [i for i, t in enumerate(types) if t != first][::3]
+    demos = demos.subset(keep)
+    settings = dict(k=2, restarts=2, irl_iterations=2, solve=False, seed=0)
+    shares = learn(PlaceAndDrillTask(3), demos, **settings)
+    counts = torch.bincount(shares.assignments, minlength=2).double()
+    torch.testing.assert_close(shares.momdp.b0, counts / counts.sum())
+    assert float(shares.momdp.b0.max()) >= 0.7  # the majority type, about 3/4
+    assert shares.info["prior"] == {"rule": "shares", "b0": shares.momdp.b0.tolist()}
+    uniform = learn(PlaceAndDrillTask(3), demos, prior="uniform", **settings)
+    assert torch.equal(uniform.assignments, shares.assignments)
+    torch.testing.assert_close(uniform.momdp.b0, torch.full((2,), 0.5, dtype=torch.float64))
+    assert uniform.info["prior"] == {"rule": "uniform", "b0": [0.5, 0.5]}
+    with pytest.raises(ValueError, match="expected prior 'shares' or 'uniform', got 'even'"):
+        learn(PlaceAndDrillTask(3), demos, prior="even", **settings)
+
+
 def test_load_reports_the_bad_file(tmp_path):
     with pytest.raises(ModelError, match=r"model\.json: no such file"):
         LearnedModel.load(tmp_path)

@@ -77,6 +77,13 @@ TASK_PARAMETERS: dict[str, SweepParameter] = {
     "human_model": SweepParameter(
         str, None, None, "learn(human_model=)", choices=("auto", "chain", "state")
     ),
+    "prior": SweepParameter(
+        str,
+        None,
+        None,
+        "learn(prior=): the robot's first belief over the types",
+        choices=("shares", "uniform"),
+    ),
     "irl_iterations": SweepParameter(int, 1, None, "learn(irl_iterations=)"),
     "irl_epsilon": SweepParameter(float, 0.0, None, "learn(irl_epsilon=)"),
     "irl_l2": SweepParameter(float, 0.0, None, "learn(irl_l2=): the MaxEnt ridge"),
@@ -95,7 +102,7 @@ _DEFAULT_K_MAX = 6  # learn()'s
 _DEMONSTRATIONS = ("subjects", "per_subject", "noise")
 _CLUSTERING = ("k", "k_min", "k_max", "restarts", "criterion", "objects", "order",
                "mixture_method", "min_gain")  # fmt: skip
-_MODEL = ("human_model", "irl_iterations", "irl_epsilon", "irl_l2", "solver_time",
+_MODEL = ("human_model", "prior", "irl_iterations", "irl_epsilon", "irl_l2", "solver_time",
           "solver_iterations")  # fmt: skip
 
 

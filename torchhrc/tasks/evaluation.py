@@ -90,9 +90,12 @@ class TaskEvaluation:
             reward of its person's type.
         mean: ``(R, Y)`` mean return.
         ci: ``(R, Y)`` 95% confidence half-width of the mean (``1.96 s / sqrt(E)``).
-        overall_mean: ``(R,)`` mean return over all ``Y * E`` episodes (the types in equal
-            shares: a population of people).
-        overall_ci: ``(R,)`` its 95% confidence half-width.
+        overall_mean: ``(R,)`` mean return over a population of people: the per-type means
+            weighted by ``shares`` (equal shares: the mean of all ``Y * E`` episodes).
+        overall_ci: ``(R,)`` its 95% confidence half-width, treating the episodes as people
+            drawn from that population (the spread between the types counts:
+            ``1.96 sqrt(N / (N - 1) sum_y w_y mean_e (r - m)^2 / N)``, ``N = Y E``; with
+            equal shares the plain standard error of the ``N`` returns).
         steps: ``(R, Y)`` mean episode length (steps until a terminal state or the horizon).
         belief_steps: ``(S,)`` the ``n`` at which the type-aware belief is checked.
         type_map: ``(Y,)`` the learned type each true type maps to.
@@ -108,6 +111,8 @@ class TaskEvaluation:
             type: the learning did not separate them), or ``"wrong"``.
         split_threshold: the threshold of ``"split"``.
         episodes, noise, seed, discount, horizon: the settings.
+        shares: ``(Y,)`` the population's share of each true type, summing to 1, that the
+            overall figures weigh by (``None``: equal shares).
     """
 
     robots: tuple[str, ...]
@@ -130,6 +135,7 @@ class TaskEvaluation:
     seed: int
     discount: float
     horizon: int
+    shares: torch.Tensor | None = None
 
     def index(self, robot: str) -> int:
         """The row of ``robot`` (raises ``ValueError`` naming the robots)."""
@@ -152,7 +158,7 @@ class TaskEvaluation:
         return (lo_i > hi_j).long() - (hi_i < lo_j).long()
 
     def summary(self, robot: str = "type-aware", other: str = "type-agnostic") -> str:
-        """The result in words, over the population (the types in equal shares).
+        """The result in words, over the population (the types in :attr:`shares`).
 
         One line per finding:
 
@@ -268,7 +274,39 @@ class TaskEvaluation:
             "episodes": self.episodes,
             "noise": self.noise,
             "seed": self.seed,
+            "shares": None if self.shares is None else self.shares.tolist(),
         }
+
+
+def _shares(shares: Sequence[float] | torch.Tensor | None, Y: int) -> torch.Tensor:
+    """``(Y,)`` float64 population weights summing to 1 (equal when ``shares`` is None)."""
+    if shares is None:
+        return torch.full((Y,), 1.0 / Y, dtype=torch.float64)
+    try:
+        w = torch.as_tensor(shares, dtype=torch.float64).detach().cpu()
+    except (TypeError, ValueError) as err:
+        raise TypeError(f"expected shares to be a sequence of {Y} numbers, got {shares!r}") from err
+    if tuple(w.shape) != (Y,):
+        raise ValueError(f"expected shares of shape (Y={Y},) (one per true type), "
+                         f"got shape {tuple(w.shape)}")  # fmt: skip
+    if not bool(torch.isfinite(w).all()) or bool((w < 0).any()) or float(w.sum()) <= 0:
+        raise ValueError(f"expected shares to be finite, non-negative and not all zero, "
+                         f"got {w.tolist()}")  # fmt: skip
+    return w / w.sum()
+
+
+def _population(returns: torch.Tensor, weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(R,)`` the population's mean return and its 95% half-width from ``returns
+    (R, Y, E)`` and type weights ``(Y,)``: the per-type means weighted, and the standard
+    error of ``N = Y E`` people drawn from the population (the weighted second moment about
+    the mean, with ``N / (N - 1)``); with equal weights, the plain mean and standard error
+    of the ``N`` returns."""
+    R, Y, E = returns.shape
+    N = Y * E
+    mean = (returns.mean(-1) * weights).sum(-1)  # (R,)
+    second = (((returns - mean.view(R, 1, 1)) ** 2).mean(-1) * weights).sum(-1)  # (R,)
+    ci = Z95 * torch.sqrt(second * N / (N - 1) / N)
+    return mean, ci
 
 
 def _simulate(
@@ -415,6 +453,7 @@ def evaluate_task(
     told_type: bool = False,
     horizon: int | None = None,
     seed: int = 0,
+    shares: Sequence[float] | torch.Tensor | None = None,
 ) -> TaskEvaluation:
     """Compare robots against a task's simulated people under the people's true rewards.
 
@@ -444,6 +483,13 @@ def evaluate_task(
             not find the type in time.
         horizon: steps per episode (default ``world.horizon``).
         seed: the seed of the people's generator (the same for every robot).
+        shares: ``(Y,)`` the share of each true type in the population the overall figures
+            describe (non-negative, any positive sum; normalised). ``None``: the world's
+            :attr:`~torchhrc.tasks.people.TaskWithPeople.shares`, equal shares where it has
+            none. Where your types are not equally common, give the shares (here or on the
+            world): a robot that serves the common types at the cost of a rare one is then
+            judged as your people would meet it. Every type is still simulated ``episodes``
+            times, and the per-type figures do not depend on it.
 
     Returns:
         :class:`TaskEvaluation`.
@@ -480,6 +526,9 @@ def evaluate_task(
     if any(n < 0 or n > T for n in checks):
         raise ValueError(f"expected belief_steps in [0, horizon={T}], got {belief_steps!r}")
     Y = world.num_types
+    if shares is None:
+        shares = world.shares
+    weights = _shares(shares, Y)
     A, X = world.task.num_actions, world.task.num_states
     entries: list[tuple[str, Any]] = []
     if model is not None:
@@ -547,9 +596,7 @@ def evaluate_task(
         entries.append((TOLD, None))
     mean = returns.mean(-1)
     ci = Z95 * returns.std(-1, correction=1) / math.sqrt(episodes)
-    pooled = returns.view(R, -1)
-    overall_mean = pooled.mean(-1)
-    overall_ci = Z95 * pooled.std(-1, correction=1) / math.sqrt(pooled.shape[-1])
+    overall_mean, overall_ci = _population(returns, weights)
 
     S = len(checks) if beliefs else 0
     accuracy = torch.zeros(Y, S, dtype=torch.float64)
@@ -598,4 +645,5 @@ def evaluate_task(
         seed=int(seed),
         discount=float(world.task.discount),
         horizon=T,
+        shares=None if shares is None else weights,
     )

@@ -29,6 +29,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
@@ -239,6 +240,33 @@ class TabularPeople:
         return human, new_m.unsqueeze(-1)
 
 
+def _split(subjects: int, shares: Sequence[float]) -> list[int]:
+    """Subjects per type in proportion to ``shares``: the floors of ``subjects * share``
+    (at least one for a positive share), then one more to the largest remainders until
+    there are ``subjects`` (or, where the ones given to small shares made too many, one less
+    from the largest counts).
+
+    Example:
+        >>> _split(30, (0.35, 0.25, 0.20, 0.12, 0.08))
+        [11, 7, 6, 4, 2]
+        >>> _split(3, (0.9, 0.05, 0.05))
+        [1, 1, 1]
+    """
+    positive = sum(1 for s in shares if s > 0)
+    if subjects < positive:
+        raise ValueError(f"expected subjects >= {positive} (one per type with a positive "
+                         f"share), got {subjects}")  # fmt: skip
+    raw = [subjects * s / sum(shares) for s in shares]
+    counts = [max(1, math.floor(r)) if s > 0 else 0 for r, s in zip(raw, shares)]
+    order = sorted(range(len(raw)), key=lambda y: raw[y] - math.floor(raw[y]), reverse=True)
+    for y in order:
+        if sum(counts) < subjects and shares[y] > 0:
+            counts[y] += 1
+    while sum(counts) > subjects:
+        counts[max(range(len(counts)), key=lambda y: counts[y])] -= 1
+    return counts
+
+
 @dataclass(frozen=True, eq=False)
 class TaskWithPeople:
     """A task with simulated people of known types: what a suite entry returns (a user can
@@ -259,6 +287,10 @@ class TaskWithPeople:
         true_observation: ``(A, X, Y_true, O)`` ``P(o | x', y, a_r)`` of the true people when
             ``observed`` (the signal the robot receives after the step), else None.
         description: one line on what distinguishes the types.
+        shares: ``(Y_true,)`` how common each true type is among the people (non-negative,
+            any positive sum; ``None``: equally common). :meth:`demonstrations` splits its
+            subjects by them, and :func:`~torchhrc.tasks.evaluate_task` weighs the types by
+            them over the population.
 
     Example:
         >>> from torchhrc.tasks.suite import make_task
@@ -276,6 +308,7 @@ class TaskWithPeople:
     demo_robot: torch.Tensor | None = None
     true_observation: torch.Tensor | None = None
     description: str = ""
+    shares: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         A, X, Y = self.task.num_actions, self.task.num_states, self.people.num_types
@@ -303,6 +336,17 @@ class TaskWithPeople:
             object.__setattr__(self, "true_observation", z)
         if self.observed and self.true_observation is None:
             raise ModelError("an observed task needs true_observation (A, X, Y_true, O)")
+        if self.shares is not None:
+            try:
+                shares = tuple(float(v) for v in self.shares)
+            except (TypeError, ValueError) as err:
+                raise ModelError(f"expected shares to be {Y} numbers, got {self.shares!r}") from err
+            if len(shares) != Y:
+                raise ModelError(f"expected {Y} shares (one per true type), got {len(shares)}")
+            if not all(math.isfinite(v) and v >= 0 for v in shares) or sum(shares) <= 0:
+                raise ModelError(f"expected shares finite, non-negative and not all zero, "
+                                 f"got {shares}")  # fmt: skip
+            object.__setattr__(self, "shares", shares)
 
     @property
     def num_types(self) -> int:
@@ -381,8 +425,11 @@ class TaskWithPeople:
     ) -> tuple[Demonstrations, torch.Tensor]:
         """Demonstrations of ``subjects x per_subject`` sequences and their true types.
 
-        Subject ``s`` (named ``"s000"``, ...) has true type ``s mod Y_true`` (types balanced);
-        its sequences are named ``"0"``, ``"1"``, .... Each sequence alternates the robot's
+        Subject ``s`` (named ``"s000"``, ...) has true type ``s mod Y_true`` (types balanced).
+        With :attr:`shares`, type ``y`` has about ``subjects * shares[y]`` subjects (largest
+        remainders; at least one for every type with a positive share), the subjects of one
+        type in a row. A subject's sequences are named ``"0"``, ``"1"``, .... Each sequence
+        alternates the robot's
         action and the human's response (none when the person lets the turn pass) until a
         terminal state or ``horizon`` steps. Deterministic under ``seed``.
 
@@ -395,6 +442,10 @@ class TaskWithPeople:
         Returns:
             ``(demonstrations, types (N,) int64)``; ``demonstrations.types`` holds the true
             type names.
+
+        Raises:
+            ValueError: a bad size or noise, or fewer subjects than types with a positive
+                share.
         """
         from torchhrc.data import Demonstrations
 
@@ -404,7 +455,11 @@ class TaskWithPeople:
             raise ValueError(f"expected noise in [0, 1], got {noise}")
         generator = torch.Generator().manual_seed(int(seed))
         Y = self.num_types
-        subject_types = torch.arange(subjects) % Y
+        if self.shares is None:
+            subject_types = torch.arange(subjects) % Y
+        else:
+            counts = _split(subjects, self.shares)
+            subject_types = torch.tensor([y for y, c in enumerate(counts) for _ in range(c)])
         types = subject_types.repeat_interleave(per_subject)  # (N,)
         _, robot, human = self.rollout(types, noise=noise, generator=generator)
         robot_names, human_names = list(self.task.robot_actions), list(self.task.human_actions)

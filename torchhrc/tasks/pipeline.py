@@ -760,6 +760,7 @@ def learn(
     solver_time: float = 5.0,
     solver_precision: float = 1e-3,
     solver_iterations: int | None = None,
+    prior: str = "shares",
     seed: int = 0,
 ) -> LearnedModel:
     """Turn a task and its demonstrations into a learned, solved model (one call).
@@ -810,17 +811,24 @@ def learn(
         solver_precision: instead of ``solver``: :func:`solve_model`'s precision, relative
             to the reward span.
         solver_iterations: instead of ``solver``: :func:`solve_model`'s iteration cap.
+        prior: the robot's initial belief over the learned types, ``b0``: ``"shares"``
+            (default) each type's share of the demonstrations, the estimate of how common
+            it is among the people the robot will meet (a new person is a draw from the
+            population the demonstrators came from); ``"uniform"``: every type alike, as if
+            each were equally common (the paper's studies, whose types are balanced).
+            ``model.with_belief(b0)`` swaps it afterwards, keeping the policy solved for
+            this one.
         seed: the seed of everything.
 
     Returns:
-        :class:`LearnedModel` (uniform ``b0``) whose ``info`` records what decided it
+        :class:`LearnedModel` (``b0`` by ``prior``) whose ``info`` records what decided it
         (JSON, saved with the model): ``k``, ``criterion``, ``scores`` (every k's scores
         under every criterion: ``bic``, ``exact_icl``, ``log_likelihood``, ``gain``,
         ``heldout`` and ``heldout_se``; with ``order="auto"``, of the order kept),
         ``objects``, ``order`` and ``order_comparison`` (each order's k, exact ICL and
         log-likelihood), ``cluster`` (the settings used),
-        ``irl``, ``solver``, ``human_model`` (requested, used, held-out likelihoods) and
-        ``seed``.
+        ``irl``, ``solver``, ``human_model`` (requested, used, held-out likelihoods),
+        ``prior`` (the rule and ``b0``) and ``seed``.
 
     Example:
         >>> from torchhrc.mixture import ClusterConfig
@@ -836,6 +844,8 @@ def learn(
     from torchhrc.mixture.selection import DEFAULT_MIN_GAIN, DEFAULT_STRONG_GAIN, ClusterConfig
 
     check_task(task)
+    if prior not in ("shares", "uniform"):
+        raise ValueError(f"expected prior 'shares' or 'uniform', got {prior!r}")
     keywords = dict(k_min=k_min, k_max=k_max, restarts=restarts, method=mixture_method,
                     parameters=bic_parameters, criterion=criterion, objects=objects,
                     min_gain=min_gain, order=order)  # fmt: skip
@@ -899,7 +909,15 @@ def learn(
         "seed": seed,
     }
     chains = fit.transition_over(demonstrations)  # over the recorded symbols (fit.objects)
-    model = build_model(task, demonstrations, chains, fit.assignments, noise=noise,
+    b0 = None  # build_model's uniform belief
+    if prior == "shares":
+        counts = torch.bincount(fit.assignments.reshape(-1).long(), minlength=int(fit.k))
+        b0 = counts.to(torch.float64) / counts.sum()
+    info["prior"] = {
+        "rule": prior,
+        "b0": [1.0 / int(fit.k)] * int(fit.k) if b0 is None else b0.tolist(),
+    }
+    model = build_model(task, demonstrations, chains, fit.assignments, b0=b0, noise=noise,
                         pause=pause, rule=irl.rule, irl_epsilon=irl.epsilon,
                         irl_iterations=irl.iterations, irl_l2=irl.l2, seed=seed, info=info,
                         human_model=human_model)  # fmt: skip

@@ -429,9 +429,9 @@ class TaskWithPeople:
         With :attr:`shares`, type ``y`` has about ``subjects * shares[y]`` subjects (largest
         remainders; at least one for every type with a positive share), the subjects of one
         type in a row. A subject's sequences are named ``"0"``, ``"1"``, .... Each sequence
-        alternates the robot's
-        action and the human's response (none when the person lets the turn pass) until a
-        terminal state or ``horizon`` steps. Deterministic under ``seed``.
+        alternates the robot's action and the human's response (none when the person lets
+        the turn pass) until a terminal state or ``horizon`` steps. Deterministic under
+        ``seed``.
 
         Args:
             subjects: number of subjects (>= 1).

@@ -175,6 +175,11 @@ def tabulate(
 HeldoutWorld = TaskWithPeople
 
 
+def _set(s: tuple, i: int, v: Any) -> tuple:
+    """The tuple ``s`` with entry ``i`` replaced by ``v`` (a state of the tabulated tasks)."""
+    return (*s[:i], v, *s[i + 1 :])
+
+
 def _pick(best: int, a: int, good: float = 1.0, idle: float = 0.0, bad: float = -1.0) -> float:
     """+good for the wanted action, idle for waiting (action 0), bad for anything else."""
     return good if a == best else (idle if a == 0 else bad)
@@ -413,15 +418,12 @@ def five_parts() -> HeldoutWorld:
     types = ("all_then_fasten", "fasten_each", "self", "reverse", "split")
     n = 5
 
-    def set_(s, i, v):
-        return (*s[:i], v, *s[i + 1 :])
-
     def robot_step(s, a):
-        return set_(s, a - 1, 2) if a > 0 and s[a - 1] == 1 else s
+        return _set(s, a - 1, 2) if a > 0 and s[a - 1] == 1 else s
 
     def human_step(s, h):
         i, op = h % n, h // n  # op 0 mount, 1 fasten
-        return set_(s, i, 1 + op) if s[i] == op else None
+        return _set(s, i, 1 + op) if s[i] == op else None
 
     def plan(y, s):
         """(the person's next action or -1, the robot action the type wants)."""
@@ -496,15 +498,12 @@ def paint_crews() -> HeldoutWorld:
     types = ("up_robot", "up_self", "down_robot", "down_self")
     n = 3
 
-    def set_(s, i, v):
-        return (*s[:i], v, *s[i + 1 :])
-
     def robot_step(s, a):
-        return set_(s, a - 1, 1) if a > 0 and s[a - 1] == 0 else s
+        return _set(s, a - 1, 1) if a > 0 and s[a - 1] == 0 else s
 
     def human_step(s, h):
         i, op = h % n, h // n  # op 0 prime, 1 paint
-        return set_(s, i, 1 + op) if s[i] == op else None
+        return _set(s, i, 1 + op) if s[i] == op else None
 
     def board(y, s):
         order = range(n) if y < 2 else range(n - 1, -1, -1)
@@ -544,23 +543,20 @@ def shelf_kitting() -> HeldoutWorld:
     orders = ((0, 1, 2, 3), (3, 2, 1, 0), (0, 1, 2, 3))
     n = 4
 
-    def set_(parts, i, v):
-        return (*parts[:i], v, *parts[i + 1 :])
-
     def robot_step(s, a):
         parts, tool = s
         if 1 <= a <= n and parts[a - 1] == 0:
-            return (set_(parts, a - 1, 1), tool)
+            return (_set(parts, a - 1, 1), tool)
         return (parts, 1) if a == n + 1 else s
 
     def human_step(s, h):
         parts, tool = s
         if h < n:
-            return (set_(parts, h, 1), tool) if parts[h] == 0 else None
+            return (_set(parts, h, 1), tool) if parts[h] == 0 else None
         if h == n:
             return None if tool else (parts, 1)
         i = h - n - 1
-        return (set_(parts, i, 2), tool) if parts[i] == 1 and tool else None
+        return (_set(parts, i, 2), tool) if parts[i] == 1 and tool else None
 
     def behaviour(y, m, s, a):
         parts, tool = s
@@ -738,16 +734,13 @@ def pace_split() -> HeldoutWorld:
     types = ("left_brisk", "right_brisk", "left_careful", "right_careful")
     n = 4
 
-    def set_(s, i, v):
-        return (*s[:i], v, *s[i + 1 :])
-
     def robot_step(s, a):
-        return set_(s, a - 1, 3) if a > 0 and s[a - 1] == 0 else s
+        return _set(s, a - 1, 3) if a > 0 and s[a - 1] == 0 else s
 
     def human_step(s, h):
         if h < n:
-            return set_(s, h, 1) if s[h] == 0 and 1 not in s else None
-        return set_(s, h - n, 2) if s[h - n] == 1 else None
+            return _set(s, h, 1) if s[h] == 0 and 1 not in s else None
+        return _set(s, h - n, 2) if s[h - n] == 1 else None
 
     def own(y):
         return (0, 1) if y % 2 == 0 else (2, 3)

@@ -4,8 +4,9 @@ For each task of :data:`torchhrc.tasks.suite.SUITE`: demonstrations (``--subject
 ``--per-subject``, noise 0.05), ``torchhrc.learn`` with its defaults (type-aware) and with
 ``k=1`` (type-agnostic), then :func:`torchhrc.evaluate_task` against the task's simulated
 people (``--episodes`` per true type, people's noise 0.05) under their true rewards. Prints a
-Markdown table: per task the population's mean return ± 95% CI of both robots and of the
-type-aware robot told the person's type (``told_type=True``), the per-type
+Markdown table: per task the population's mean return ± 95% CI of both robots, of a robot
+planning on the world's true model and finding the type online (``true_model=True``), and of
+the type-aware robot told the person's type (``told_type=True``), the per-type
 comparison (+ better beyond the CIs, = within, - worse), whether the types' best responses
 differ (the demonstrating partner's best action differs between types in a state the
 people reach), and the belief's status per type after ``--belief-steps`` steps.
@@ -14,9 +15,10 @@ Run: ``python benchmarks/bench_evaluation.py [--tasks a,b] [--episodes 200] [--j
 (about a minute per task on one core).
 
 ``--seeds 0-9``: every task on every seed (its own demonstrations and people), printed as
-one row per task with two signs per seed: *told the type* against *type-agnostic* (does
-knowing the type pay?), then *type-aware* against *type-agnostic*, over the population and
-beyond the CIs (:func:`seeds_table`; the table of docs/your_own_task.md section 8, "Over
+one row per task with three signs per seed: *told the type* against *type-agnostic* (does
+knowing the type pay?), *true model* against *type-agnostic* (can finding it online pay?),
+then *type-aware* against *type-agnostic*, over the population and beyond the CIs
+(:func:`seeds_table`; the table of docs/your_own_task.md section 8, "Over
 ten seeds", at ``--solver-time 5 --episodes 100``; ``benchmarks/bench_heldout.py --goal 3
 --seeds`` runs it on the held-out tasks). SARSOP stops on a wall-clock limit: on a loaded
 machine a large task's policies can differ between runs; ``--json`` records the bounds' gaps.
@@ -50,8 +52,8 @@ def best_responses_differ(world) -> bool:
 #: The Markdown header of :func:`evaluate_world`'s rows (``.format(steps=belief_steps)``).
 TABLE_HEADER = (
     "| task | true k | k found | human model | type-aware (all) | type-agnostic (all) | "
-    "told the type (all) | overall | per type | best responses differ | belief after "
-    "{steps} steps |\n|---|---|---|---|---|---|---|---|---|---|---|"
+    "true model (all) | told the type (all) | overall | per type | best responses differ | "
+    "belief after {steps} steps |\n|---|---|---|---|---|---|---|---|---|---|---|---|"
 )
 
 
@@ -75,7 +77,7 @@ def evaluate_world(name: str, world, demos, *, episodes: int = 200, belief_steps
     result = torchhrc.evaluate_task(world, aware, demonstrations=demos, agnostic=agnostic,
                                     episodes=episodes, noise=0.05,
                                     belief_steps=belief_steps, told_type=True,
-                                    seed=seed)  # fmt: skip
+                                    true_model=True, seed=seed)  # fmt: skip
     per_type = result.compare("type-aware", "type-agnostic")
     overall = int(result.compare("type-aware", "type-agnostic", overall=True))
     differ = best_responses_differ(world)
@@ -87,13 +89,15 @@ def evaluate_world(name: str, world, demos, *, episodes: int = 200, belief_steps
     row = (
         f"| {name} | {world.num_types} | {aware.num_types} | {used} | "
         f"{m[0]:.2f} ± {c[0]:.2f} | "
-        f"{m[1]:.2f} ± {c[1]:.2f} | {m[2]:.2f} ± {c[2]:.2f} | {_SIGN[overall]} | "
+        f"{m[1]:.2f} ± {c[1]:.2f} | {m[2]:.2f} ± {c[2]:.2f} | {m[3]:.2f} ± {c[3]:.2f} | "
+        f"{_SIGN[overall]} | "
         f"{signs} | "
         f"{'yes' if differ else 'no'} | {status} |"
     )
     pays = int(result.compare("told the type", "type-agnostic", overall=True))
+    online = int(result.compare("true model", "type-agnostic", overall=True))
     record = {**result.to_dict(), "best_responses_differ": differ,
-              "signs": _SIGN[pays] + _SIGN[overall], "summary": result.summary(),
+              "signs": _SIGN[pays] + _SIGN[online] + _SIGN[overall], "summary": result.summary(),
               "k_found": aware.num_types, "human_model": used,
               "gap": [aware.upper - aware.lower, agnostic.upper - agnostic.lower],
               "seconds": time.perf_counter() - start}  # fmt: skip
@@ -105,9 +109,10 @@ def seeds_table(names: list[str], seeds: list[int], make_world, *, subjects: int
                 **options) -> dict[str, dict[int, dict]]:  # fmt: skip
     """Every task of ``names`` (``make_world(name)``) on every seed: :func:`evaluate_world`
     on the seed's demonstrations (``subjects`` x ``per_subject``, ``noise``), one line per
-    run as it ends, then a Markdown row per task of two signs per seed (told the type /
-    type-aware, each against the type-agnostic robot over the population) and the counts
-    where knowing the type pays and where it does not. ``options`` go to
+    run as it ends, then a Markdown row per task of three signs per seed (told the type /
+    true model / type-aware, each against the type-agnostic robot over the population) and
+    the counts where finding the type online pays (the true model ahead), where only being
+    told it pays, and where neither does. ``options`` go to
     :func:`evaluate_world`. Returns the records by task and seed."""
     records: dict[str, dict[int, dict]] = {}
     for name in names:
@@ -119,14 +124,16 @@ def seeds_table(names: list[str], seeds: list[int], make_world, *, subjects: int
             records.setdefault(name, {})[seed] = record
             print(f"seed {seed}: {record['signs']} {row}", flush=True)
     print(f"\n| task | seeds {' '.join(map(str, seeds))} |\n|---|---|")
-    counts = {"pays": {"+": 0, "=": 0, "-": 0}, "does not pay": {"+": 0, "=": 0, "-": 0}}
+    cases = ("finding it online pays", "only being told it pays", "knowing it does not pay")
+    counts = {case: {"+": 0, "=": 0, "-": 0} for case in cases}
     for name, by_seed in records.items():
         signs = [by_seed[s]["signs"] for s in seeds]
         print(f"| {name} | {' '.join(signs)} |")
-        for told, aware in signs:
-            counts["pays" if told == "+" else "does not pay"][aware] += 1
+        for told, online, aware in signs:
+            case = cases[0] if online == "+" else cases[1] if told == "+" else cases[2]
+            counts[case][aware] += 1
     for case, c in counts.items():
-        print(f"knowing the type {case}: {sum(c.values())} runs, type-aware ahead on {c['+']}, "
+        print(f"{case}: {sum(c.values())} runs, type-aware ahead on {c['+']}, "
               f"level on {c['=']}, behind on {c['-']}")  # fmt: skip
     return records
 

@@ -132,7 +132,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--goal", type=int, choices=(2, 3), default=2)
     parser.add_argument("--tasks", default=",".join(HELDOUT),
-                        help="held-out or suite task names; 'suite': the suite's")  # fmt: skip
+                        help="held-out or suite task names, comma-separated; 'suite': the suite's")  # fmt: skip
     parser.add_argument(
         "--cluster",
         action="append",
@@ -156,7 +156,8 @@ def main(argv: list[str] | None = None) -> None:
     fields = dict(item.partition("=")[::2] for item in args.cluster)
     config = ClusterConfig(**{k: ast.literal_eval(v) for k, v in fields.items()})
     args.cluster = config if fields else None
-    tasks = list(SUITE) if args.tasks == "suite" else args.tasks.split(",")
+    tasks = [t for item in args.tasks.split(",")
+             for t in (list(SUITE) if item == "suite" else [item])]  # fmt: skip
     if args.goal == 2:
         out: Any = goal2(tasks, _seeds(args.seeds or "0-9"), args)
     else:

@@ -1,9 +1,9 @@
 """evaluate_task: robots against simulated people under their true rewards.
 
-The hand-built task: the person first walks to side "a" (type "left") or "b" (type "right"),
-then to the middle; there the robot hands over left or right (+1 for the type that wants it,
--1 for the other) and the task ends. In the middle the state no longer shows the type: only
-a robot that kept a belief hands over the right side. Values worked by hand (discount g,
+The hand-built task (tests/_sides.py): the person first walks to side "a" (type "left") or "b"
+(type "right"), then to the middle; there the robot hands over left or right (+1 for the type
+that wants it, -1 for the other) and the task ends. In the middle the state no longer shows the
+type: only a robot that kept a belief hands over the right side. Values worked by hand (discount g,
 people's noise eps, a random legal action at the start with probability eps, the wrong one
 half of the time): the type-aware robot gets ``g^2 (1 - eps)`` from either type; a robot that
 always hands left gets ``+g^2`` from "left" and ``-g^2`` from "right".
@@ -18,41 +18,12 @@ import warnings
 
 import pytest
 import torch
+from _sides import G
+from _sides import by_hand as _by_hand
+from _sides import world as _world
 
 import torchhrc
-from torchhrc.tasks import CollaborativeTask
 from torchhrc.tasks.evaluation import evaluate_task
-from torchhrc.tasks.people import TabularPeople, TaskWithPeople
-
-G = 0.9  # discount
-
-
-class Sides(CollaborativeTask):
-    state_names = ("start", "a", "b", "middle", "end")
-    robot_actions = ("wait", "hand_left", "hand_right")
-    human_actions = ("go_a", "go_b", "to_middle")
-    robot_effect = torch.tensor([[0, 1, 2, 3, 4], [0, 1, 2, 4, 4], [0, 1, 2, 4, 4]])
-    human_effect = torch.tensor([[1, 2, 0], [1, 1, 3], [2, 2, 3], [3, 3, 3], [4, 4, 4]])
-    discount = G
-
-    @property
-    def terminal(self) -> torch.Tensor:
-        return torch.tensor([False, False, False, False, True])
-
-
-def _world() -> TaskWithPeople:
-    task = Sides()
-    Y, X, A, H = 2, 5, 3, 3
-    policy = torch.zeros(Y, 1, X, A, H + 1, dtype=torch.float64)
-    policy[..., H] = 1.0  # no action where nothing is legal (middle, end)
-    for y, first in ((0, 0), (1, 1)):
-        policy[y, 0, 0, :, :] = torch.nn.functional.one_hot(torch.tensor(first), H + 1)
-        policy[y, 0, 1:3, :, :] = torch.nn.functional.one_hot(torch.tensor(2), H + 1)
-    people = TabularPeople(("left", "right"), policy, task.human_legal)
-    reward = torch.zeros(A, X, Y, dtype=torch.float64)
-    reward[1, 3] = torch.tensor([1.0, -1.0])
-    reward[2, 3] = torch.tensor([-1.0, 1.0])
-    return TaskWithPeople(task, people, reward, horizon=6, observed=False)
 
 
 @pytest.fixture(scope="module")
@@ -258,22 +229,6 @@ def test_summary_when_knowing_the_type_does_not_pay():
     assert "level within the 95% intervals" in lines[0], result.table()
     assert lines[1].startswith("knowing the type does not pay: told the type"), lines[1]
     assert "level with type-agnostic" in lines[1]
-
-
-def _by_hand(overall_mean, status=("identified", "identified"), robots=None):
-    from torchhrc.tasks.evaluation import TaskEvaluation
-
-    robots = robots or ("type-aware", "type-agnostic", "told the type")
-    R = len(robots)
-    return TaskEvaluation(
-        robots=robots, type_names=("a", "b"), returns=torch.zeros(R, 2, 2),
-        mean=torch.zeros(R, 2), ci=torch.zeros(R, 2),
-        overall_mean=torch.tensor(overall_mean, dtype=torch.float64),
-        overall_ci=torch.full((R,), 0.1, dtype=torch.float64), steps=torch.zeros(R, 2),
-        belief_steps=(3,), type_map=torch.tensor([0, 1]), map_source="assignments",
-        belief_accuracy=torch.ones(2, 1), belief_max=torch.ones(2, 1), belief_status=status,
-        split_threshold=0.8, episodes=2, noise=0.05, seed=0, discount=0.9, horizon=5,
-    )  # fmt: skip
 
 
 def test_summary_branches_worked_by_hand():

@@ -22,6 +22,7 @@ from torchhrc.tasks.interface import (
 from torchhrc.tasks.people import SimulatedPeople, TabularPeople, TaskWithPeople
 from torchhrc.tasks.pipeline import IRLConfig, LearnedModel, build_model, learn, solve_model
 from torchhrc.tasks.suite import make_task, suite_tasks
+from torchhrc.tasks.true_model import true_model_controller, true_momdp
 
 __all__ = [
     "CollaborativeTask",
@@ -38,12 +39,14 @@ __all__ = [
     "chain_preferences",
     "check_task",
     "evaluate_task",
-    "told_type_controller",
     "learn",
     "make_task",
     "reachable_states",
     "solve_model",
     "suite_tasks",
     "tabular_features",
+    "told_type_controller",
+    "true_model_controller",
+    "true_momdp",
     "wasted_move_feature",
 ]

@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING, Any, Literal, Protocol
 import torch
 
 from torchhrc.errors import ModelError
+from torchhrc.tasks.people import population_shares
 
 if TYPE_CHECKING:
     from torchhrc.data import Demonstrations
@@ -63,6 +64,11 @@ Z95 = 1.959963984540054
 #: The name of the robot ``told_type=True`` adds: the learned model's optimal robot for the
 #: person's type, told it (:func:`told_type_controller`).
 TOLD = "told the type"
+
+#: The name of the robot ``true_model=True`` adds: a robot planning on the world's true
+#: people, rewards and shares, finding the type online
+#: (:func:`~torchhrc.tasks.true_model.true_model_controller`).
+TRUE_MODEL = "true model"
 
 
 class Robot(Protocol):
@@ -170,6 +176,13 @@ class TaskEvaluation:
           that changes nothing (docs/your_own_task.md, section 8, "Over ten seeds"). Where
           it does, the share of the gain that ``robot`` keeps,
           ``(robot - other) / (told - other)``;
+        * with ``"true model"`` among the robots (``true_model=True``): whether finding the
+          type online pays (*true model* against ``other``): a robot with the people's true
+          behaviour, rewards and shares, not told the type. Where it does not, the types
+          cannot be told apart before the robot has to act, and ``robot`` level with
+          ``other`` is the expected result. Where it does, the share of that gain that
+          ``robot`` keeps, ``(robot - other) / (true model - other)``: what is missing was
+          lost to learning (the clustering, the human model or the rewards);
         * the true types the belief did not identify after the last checkpoint, by status
           (``split``: their actions do not tell them apart in ``n`` steps, a property of the
           people; ``merged``: the learning joined them; ``wrong``), with ``robot`` the
@@ -215,6 +228,21 @@ class TaskEvaluation:
                     f"{'level with' if pays == 0 else 'behind'} {other}; no robot gains from "
                     f"finding the type here, and {robot} level with {other} is the expected "
                     f"result"
+                )
+        if TRUE_MODEL in self.robots and robot != TRUE_MODEL:
+            t = self.index(TRUE_MODEL)
+            online = int(self.compare(TRUE_MODEL, other, overall=True))
+            if online > 0:
+                share = float((m[i] - m[j]) / (m[t] - m[j]))
+                lines.append(f"finding the type online pays: {value(t)}, ahead of {other}; "
+                             f"{robot} keeps {100 * share:.0f}% of that gain")  # fmt: skip
+            else:
+                lines.append(
+                    f"finding the type online does not pay: {value(t)}, "
+                    f"{'level with' if online == 0 else 'behind'} {other}; even with the "
+                    f"people's true behaviour and rewards a robot that must find the type "
+                    f"from their actions gains nothing here, and {robot} level with {other} "
+                    f"is the expected result"
                 )
         if robot == "type-aware" and self.belief_steps:
             why = {
@@ -276,23 +304,6 @@ class TaskEvaluation:
             "seed": self.seed,
             "shares": None if self.shares is None else self.shares.tolist(),
         }
-
-
-def _shares(shares: Sequence[float] | torch.Tensor | None, Y: int) -> torch.Tensor:
-    """``(Y,)`` float64 population weights summing to 1 (equal when ``shares`` is None)."""
-    if shares is None:
-        return torch.full((Y,), 1.0 / Y, dtype=torch.float64)
-    try:
-        w = torch.as_tensor(shares, dtype=torch.float64).detach().cpu()
-    except (TypeError, ValueError) as err:
-        raise TypeError(f"expected shares to be a sequence of {Y} numbers, got {shares!r}") from err
-    if tuple(w.shape) != (Y,):
-        raise ValueError(f"expected shares of shape (Y={Y},) (one per true type), "
-                         f"got shape {tuple(w.shape)}")  # fmt: skip
-    if not bool(torch.isfinite(w).all()) or bool((w < 0).any()) or float(w.sum()) <= 0:
-        raise ValueError(f"expected shares to be finite, non-negative and not all zero, "
-                         f"got {w.tolist()}")  # fmt: skip
-    return w / w.sum()
 
 
 def _population(returns: torch.Tensor, weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -451,6 +462,7 @@ def evaluate_task(
     belief_steps: int | Sequence[int] = (1, 3, 5),
     split_threshold: float = 0.8,
     told_type: bool = False,
+    true_model: bool = False,
     horizon: int | None = None,
     seed: int = 0,
     shares: Sequence[float] | torch.Tensor | None = None,
@@ -481,6 +493,14 @@ def evaluate_task(
             ways a type-aware robot can fail: if it also loses, the learned behaviour or
             reward of the type is wrong; if only the type-aware one loses, the belief does
             not find the type in time.
+        true_model: add the robot ``"true model"``: a robot that plans on the world's own
+            people, true rewards and ``shares`` (its prior), and finds the person's type
+            from their actions as the type-aware robot does
+            (:func:`~torchhrc.tasks.true_model.true_model_controller`, solved for the
+            model's solver time limit, else 5 s). Against the type-agnostic robot it says
+            what finding the type online can gain at all; the gap between it and the
+            type-aware robot is what learning lost. Needs people that give their tables
+            (:class:`~torchhrc.tasks.people.TabularPeople`).
         horizon: steps per episode (default ``world.horizon``).
         seed: the seed of the people's generator (the same for every robot).
         shares: ``(Y,)`` the share of each true type in the population the overall figures
@@ -528,7 +548,7 @@ def evaluate_task(
     Y = world.num_types
     if shares is None:
         shares = world.shares
-    weights = _shares(shares, Y)
+    weights = population_shares(shares, Y)
     A, X = world.task.num_actions, world.task.num_states
     entries: list[tuple[str, Any]] = []
     if model is not None:
@@ -561,6 +581,16 @@ def evaluate_task(
                             f"{' or '.join(f'{m}()' for m in missing)}: a robot needs "
                             "reset(*, batch=B) and act(x) -> (B,) actions")  # fmt: skip
         entries.append((str(name), robot))
+    if true_model:
+        from torchhrc.tasks.true_model import true_model_controller
+
+        if TRUE_MODEL in dict(entries):
+            raise ValueError(f"robot name {TRUE_MODEL!r} is taken by robots=; rename it or "
+                             "leave out true_model=True")  # fmt: skip
+        solver = dict(model.info.get("solver", {})) if model is not None else {}
+        entries.append((TRUE_MODEL, true_model_controller(
+            world, noise=float(noise), shares=weights,
+            time_limit=float(solver.get("time_limit", 5.0) or 5.0), seed=seed)))  # fmt: skip
     if not entries:
         raise ValueError("nothing to evaluate: give a model or robots")
 

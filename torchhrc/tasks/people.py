@@ -51,6 +51,10 @@ class SimulatedPeople(Protocol):
     episodes.
 
     Behaviour may depend on the state and on history: per-episode memory is an int64 tensor.
+    People that can also give their turn as tables (``turn_tables(noise)``, as
+    :class:`TabularPeople`) can be written down as a MOMDP
+    (:func:`~torchhrc.tasks.true_model.true_momdp`), the reference of
+    ``evaluate_task(true_model=True)``.
 
     Attributes:
         num_types: ``Y_true``.
@@ -208,6 +212,31 @@ class TabularPeople:
         """``M``, memory states."""
         return int(self.policy.shape[1])
 
+    def turn_tables(self, noise: float = 0.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The people's turn as tables, with their ``noise`` mixed in: what
+        :func:`~torchhrc.tasks.true_model.true_momdp` reads.
+
+        Returns:
+            ``(probs, update, initial)``: ``probs (Y, M, X, A, H + 1)`` the probability of
+            each turn (last column: no action), ``(1 - noise) policy + noise u``, ``u``
+            uniform over the human actions legal in ``x_mid`` (no action where none is
+            legal), as :meth:`act` draws; ``update`` and ``initial`` as given.
+
+        Example:
+            >>> legal = torch.tensor([[True, False]])
+            >>> people = TabularPeople(("idle",), torch.tensor([[[[[0.0, 0.0, 1.0]]]]]), legal)
+            >>> people.turn_tables(0.1)[0][0, 0, 0, 0].tolist()
+            [0.1, 0.0, 0.9]
+        """
+        if not 0.0 <= noise <= 1.0:
+            raise ValueError(f"expected noise in [0, 1], got {noise}")
+        rows = self.legal.to(torch.float64)  # (X, H)
+        none = (rows.sum(-1, keepdim=True) == 0).to(rows.dtype)
+        uniform = torch.cat([rows, none], -1)
+        uniform = uniform / uniform.sum(-1, keepdim=True)  # (X, H + 1)
+        probs = (1.0 - noise) * self.policy + noise * uniform.view(1, 1, *uniform.shape[:1], 1, -1)
+        return probs, self.update, self.initial
+
     def initial_memory(self, types: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         """``(B, 1)`` int64 memory drawn from ``initial[types]`` (one draw per episode)."""
         rows = self.initial[types.to(torch.long)]  # (B, M)
@@ -238,6 +267,34 @@ class TabularPeople:
         column = torch.where(human < 0, H, human)
         new_m = self.update[types, m, x_mid, robot_action, column]
         return human, new_m.unsqueeze(-1)
+
+
+def population_shares(shares: Sequence[float] | torch.Tensor | None, Y: int) -> torch.Tensor:
+    """``(Y,)`` float64 population weights summing to 1 (equal when ``shares`` is None): how
+    :func:`~torchhrc.tasks.evaluate_task` and :func:`~torchhrc.tasks.true_model.true_momdp`
+    read a ``shares`` argument.
+
+    Raises:
+        TypeError: ``shares`` not numbers.
+        ValueError: not ``Y`` of them, or negative, not finite or all zero.
+
+    Example:
+        >>> population_shares([3, 1], 2).tolist()
+        [0.75, 0.25]
+    """
+    if shares is None:
+        return torch.full((Y,), 1.0 / Y, dtype=torch.float64)
+    try:
+        w = torch.as_tensor(shares, dtype=torch.float64).detach().cpu()
+    except (TypeError, ValueError) as err:
+        raise TypeError(f"expected shares to be a sequence of {Y} numbers, got {shares!r}") from err
+    if tuple(w.shape) != (Y,):
+        raise ValueError(f"expected shares of shape (Y={Y},) (one per true type), "
+                         f"got shape {tuple(w.shape)}")  # fmt: skip
+    if not bool(torch.isfinite(w).all()) or bool((w < 0).any()) or float(w.sum()) <= 0:
+        raise ValueError(f"expected shares to be finite, non-negative and not all zero, "
+                         f"got {w.tolist()}")  # fmt: skip
+    return w / w.sum()
 
 
 def _split(subjects: int, shares: Sequence[float]) -> list[int]:

@@ -6,7 +6,9 @@ For each task of :data:`torchhrc.tasks.suite.SUITE`: demonstrations (``--subject
 people (``--episodes`` per true type, people's noise 0.05) under their true rewards. Prints a
 Markdown table: per task the population's mean return ± 95% CI of both robots, of a robot
 planning on the world's true model and finding the type online (``true_model=True``), and of
-the type-aware robot told the person's type (``told_type=True``), the per-type
+the type-aware robot told the person's type (``told_type=True``; the JSON records also
+have the learned model with its true behaviour and with its true rewards, ``true_parts=True``,
+and the summary's verdict on which part learning lost), the per-type
 comparison (+ better beyond the CIs, = within, - worse), whether the types' best responses
 differ (the demonstrating partner's best action differs between types in a state the
 people reach), and the belief's status per type after ``--belief-steps`` steps.
@@ -77,7 +79,7 @@ def evaluate_world(name: str, world, demos, *, episodes: int = 200, belief_steps
     result = torchhrc.evaluate_task(world, aware, demonstrations=demos, agnostic=agnostic,
                                     episodes=episodes, noise=0.05,
                                     belief_steps=belief_steps, told_type=True,
-                                    true_model=True, seed=seed)  # fmt: skip
+                                    true_model=True, true_parts=True, seed=seed)  # fmt: skip
     per_type = result.compare("type-aware", "type-agnostic")
     overall = int(result.compare("type-aware", "type-agnostic", overall=True))
     differ = best_responses_differ(world)

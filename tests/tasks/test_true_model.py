@@ -7,6 +7,7 @@ people's own simulator (TabularPeople.act and the task's effects) sampled step b
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import pytest
@@ -17,10 +18,15 @@ from _sides import world as _world
 
 import torchhrc
 from torchhrc.errors import ModelError
-from torchhrc.tasks.evaluation import TRUE_MODEL, evaluate_task
+from torchhrc.tasks.evaluation import TRUE_BEHAVIOUR, TRUE_MODEL, TRUE_REWARDS, evaluate_task
 from torchhrc.tasks.people import TabularPeople, TaskWithPeople
 from torchhrc.tasks.suite import make_task
-from torchhrc.tasks.true_model import true_model_controller, true_momdp
+from torchhrc.tasks.true_model import (
+    true_behaviour_controller,
+    true_model_controller,
+    true_momdp,
+    true_reward_controller,
+)
 
 START, A_SIDE, B_SIDE, MIDDLE, END = range(5)
 
@@ -184,3 +190,97 @@ def test_people_without_tables_and_bad_settings_get_clear_errors():
         true_momdp(world, noise=1.5)
     with pytest.raises(ValueError, match="shares of shape"):
         true_momdp(world, shares=(1.0, 2.0, 3.0))
+
+
+def _learned(world, eps):
+    demos, _ = world.demonstrations(subjects=12, per_subject=3, noise=eps, seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return demos, torchhrc.learn(world.task, demos, k=2, solver_time=1.0, seed=0)
+
+
+def _spoiled(model, demos, **fields):
+    """The model with some MOMDP fields replaced, its two learned types ordered so that true
+    "left" is learned type 1 (the maps between learned and true types are not the
+    identity), solved again."""
+    from torchhrc.tasks.pipeline import solve_model
+
+    m = dataclasses.replace(model.momdp, **fields)
+    assignments = model.assignments
+    left = torch.tensor([t == "left" for t in demos.types])
+    if int(assignments[left].mode().values) == 0:  # put left on learned type 1
+        m = dataclasses.replace(m, Tx=m.Tx.flip(2), R=m.R.flip(-1), b0=m.b0.flip(-1),
+                                Z=m.Z.flip(2))  # fmt: skip
+        assignments = 1 - assignments
+    relabelled = dataclasses.replace(model, momdp=m, policy=None, assignments=assignments)
+    return solve_model(relabelled, time_limit=1.0)
+
+
+def _parts(world, model, demos, eps):
+    result = evaluate_task(world, model, demonstrations=demos, episodes=300, noise=eps,
+                           true_model=True, true_parts=True, seed=5)  # fmt: skip
+    assert result.robots == ("type-aware", "type-agnostic", TRUE_MODEL, TRUE_BEHAVIOUR,
+                             TRUE_REWARDS)  # fmt: skip
+    return result, {name: float(v) for name, v in zip(result.robots, result.overall_mean)}
+
+
+def test_true_rewards_win_back_what_wrong_rewards_lost():
+    # the learned model with each type's hand-over rewards swapped: it hands every person the
+    # wrong side (-g^2 (1 - eps)); given the true rewards it hands the right one again, and
+    # given the true behaviour (with the wrong rewards) it still hands the wrong one
+    eps = 0.2
+    world = _world()
+    demos, model = _learned(world, eps)
+    wrong = _spoiled(model, demos, R=model.momdp.R.flip(-1))
+    result, m = _parts(world, wrong, demos, eps)
+    want = G**2 * (1 - eps)
+    se = float(result.overall_ci.max()) / 1.96
+    assert abs(m["type-aware"] + want) < 4 * se, result.table()
+    assert abs(m[TRUE_REWARDS] - want) < 4 * se and abs(m[TRUE_MODEL] - want) < 4 * se
+    assert abs(m[TRUE_BEHAVIOUR] + want) < 4 * se
+    line = next(x for x in result.summary().splitlines() if x.startswith("learning lost"))
+    assert line.startswith("learning lost 1.3") and line.endswith(
+        "the rewards (their features) matter most"), line
+
+
+def test_the_true_behaviour_wins_back_what_a_wrong_behaviour_lost():
+    # the learned model with the two types' behaviours swapped: at side "a" it believes the
+    # person is "right" and hands right; the true behaviour puts it right, the true rewards
+    # (with the swapped behaviour) do not
+    eps = 0.2
+    world = _world()
+    demos, model = _learned(world, eps)
+    wrong = _spoiled(model, demos, Tx=model.momdp.Tx.flip(2))
+    result, m = _parts(world, wrong, demos, eps)
+    want = G**2 * (1 - eps)
+    se = float(result.overall_ci.max()) / 1.96
+    assert abs(m["type-aware"] + want) < 4 * se, result.table()
+    assert abs(m[TRUE_BEHAVIOUR] - want) < 4 * se and abs(m[TRUE_REWARDS] + want) < 4 * se
+    line = next(x for x in result.summary().splitlines() if x.startswith("learning lost"))
+    assert line.endswith("the behaviour (the human model) matters most"), line
+
+
+def test_summary_of_the_parts_worked_by_hand():
+    robots = ("type-aware", "type-agnostic", TRUE_MODEL, TRUE_BEHAVIOUR, TRUE_REWARDS)
+    # lost 3.0 - 1.0 = 2.0: the behaviour wins back (2.0 - 1.0) / 2 = 50%, the rewards 75%
+    line = _by_hand([1.0, 0.5, 3.0, 2.0, 2.5], robots=robots).summary().splitlines()[2]
+    assert line == ("learning lost 2.00 (type-aware against true model): true behaviour "
+                    "2.00 ± 0.10 wins back 50% of it, true rewards 2.50 ± 0.10 75%; either "
+                    "part alone wins back half or more")  # fmt: skip
+    line = _by_hand([1.0, 0.5, 3.0, 1.4, 1.6], robots=robots).summary().splitlines()[2]
+    assert line.endswith("neither part alone wins back half: both are off")
+    # the true model within the intervals of the type-aware robot: nothing lost
+    line = _by_hand([1.0, 0.5, 1.1, 1.0, 1.0], robots=robots).summary().splitlines()[2]
+    assert line.startswith("learning lost nothing beyond the 95% intervals: true model 1.10")
+
+
+def test_the_maps_are_checked():
+    world = _world()
+    _, model = _learned(world, 0.05)
+    with pytest.raises(ValueError, match=r"type_map of shape \(2,\)"):
+        true_behaviour_controller(world, model, torch.tensor([0, 2]))
+    with pytest.raises(ValueError, match=r"truth_of of shape \(2,\)"):
+        true_reward_controller(world, model, torch.tensor([0]))
+    with pytest.raises(ValueError, match="true_parts=True needs a model"):
+        evaluate_task(world, None, robots={"x": true_model_controller(world, time_limit=0.5)},
+                      true_parts=True, episodes=2)

@@ -22,7 +22,12 @@ from torchhrc.tasks.interface import (
 from torchhrc.tasks.people import SimulatedPeople, TabularPeople, TaskWithPeople
 from torchhrc.tasks.pipeline import IRLConfig, LearnedModel, build_model, learn, solve_model
 from torchhrc.tasks.suite import make_task, suite_tasks
-from torchhrc.tasks.true_model import true_model_controller, true_momdp
+from torchhrc.tasks.true_model import (
+    true_behaviour_controller,
+    true_model_controller,
+    true_momdp,
+    true_reward_controller,
+)
 
 __all__ = [
     "CollaborativeTask",
@@ -46,7 +51,9 @@ __all__ = [
     "suite_tasks",
     "tabular_features",
     "told_type_controller",
+    "true_behaviour_controller",
     "true_model_controller",
     "true_momdp",
+    "true_reward_controller",
     "wasted_move_feature",
 ]

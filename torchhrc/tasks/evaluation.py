@@ -70,6 +70,11 @@ TOLD = "told the type"
 #: (:func:`~torchhrc.tasks.true_model.true_model_controller`).
 TRUE_MODEL = "true model"
 
+#: The names of the robots ``true_parts=True`` adds: the learned model with the people's true
+#: behaviour (:func:`~torchhrc.tasks.true_model.true_behaviour_controller`), and with the
+#: true rewards (:func:`~torchhrc.tasks.true_model.true_reward_controller`).
+TRUE_BEHAVIOUR, TRUE_REWARDS = "true behaviour", "true rewards"
+
 
 class Robot(Protocol):
     """What :func:`evaluate_task` needs of a robot (a
@@ -183,6 +188,10 @@ class TaskEvaluation:
           ``other`` is the expected result. Where it does, the share of that gain that
           ``robot`` keeps, ``(robot - other) / (true model - other)``: what is missing was
           lost to learning (the clustering, the human model or the rewards);
+        * with ``"true model"``, ``"true behaviour"`` and ``"true rewards"`` among the robots
+          (``true_model=True, true_parts=True``): what learning lost (*true model* against
+          ``robot``, where beyond the intervals) and the share of it that each part, given
+          its true value, wins back: ``(part - robot) / (true model - robot)``;
         * the true types the belief did not identify after the last checkpoint, by status
           (``split``: their actions do not tell them apart in ``n`` steps, a property of the
           people; ``merged``: the learning joined them; ``wrong``), with ``robot`` the
@@ -244,6 +253,24 @@ class TaskEvaluation:
                     f"from their actions gains nothing here, and {robot} level with {other} "
                     f"is the expected result"
                 )
+        parts = (TRUE_MODEL, TRUE_BEHAVIOUR, TRUE_REWARDS)
+        if all(p in self.robots for p in parts) and robot not in parts:
+            t, b, r = (self.index(p) for p in parts)
+            if int(self.compare(TRUE_MODEL, robot, overall=True)) > 0:
+                lost = float(m[t] - m[i])
+                back = [float(m[k] - m[i]) / lost for k in (b, r)]
+                verdict = (
+                    "the behaviour (the human model) matters most" if back[0] >= 0.5 > back[1]
+                    else "the rewards (their features) matter most" if back[1] >= 0.5 > back[0]
+                    else "either part alone wins back half or more" if min(back) >= 0.5
+                    else "neither part alone wins back half: both are off"
+                )  # fmt: skip
+                lines.append(f"learning lost {lost:.2f} ({robot} against {TRUE_MODEL}): "
+                             f"{value(b)} wins back {100 * back[0]:.0f}% of it, {value(r)} "
+                             f"{100 * back[1]:.0f}%; {verdict}")  # fmt: skip
+            else:
+                lines.append(f"learning lost nothing beyond the 95% intervals: {value(t)} is "
+                             f"not ahead of {robot}")  # fmt: skip
         if robot == "type-aware" and self.belief_steps:
             why = {
                 "split": "its actions do not tell it apart yet",
@@ -398,15 +425,18 @@ def _type_map(
     episodes: int,
 ) -> tuple[torch.Tensor, str]:
     """``(Y,)`` the learned type of each true type: the majority of its training
-    demonstrations' assignments, or the largest mean posterior of ``belief (B, K)``."""
+    demonstrations' assignments, or the largest mean posterior of ``belief (B, K)``; and
+    ``(K,)`` the true type of each learned type, read the other way from the same table (the
+    true type with most of its demonstrations, or of its posterior mass)."""
     K = model.num_types
     truth = None if demonstrations is None else _true_type_ids(world, demonstrations)
     if truth is not None and truth.shape[0] == model.assignments.shape[0]:
         counts = torch.zeros(Y, K, dtype=torch.long)
         counts.index_put_((truth, model.assignments.long().cpu()), torch.ones_like(truth),
                           accumulate=True)  # fmt: skip
-        return counts.argmax(-1), "assignments"
-    return belief.view(Y, episodes, K).mean(1).argmax(-1), "posterior"
+        return counts.argmax(-1), "assignments", counts.argmax(0)
+    mass = belief.view(Y, episodes, K).mean(1)  # (Y, K)
+    return mass.argmax(-1), "posterior", mass.argmax(0)
 
 
 def told_type_controller(model: LearnedModel) -> Controller:
@@ -463,6 +493,7 @@ def evaluate_task(
     split_threshold: float = 0.8,
     told_type: bool = False,
     true_model: bool = False,
+    true_parts: bool = False,
     horizon: int | None = None,
     seed: int = 0,
     shares: Sequence[float] | torch.Tensor | None = None,
@@ -501,6 +532,16 @@ def evaluate_task(
             what finding the type online can gain at all; the gap between it and the
             type-aware robot is what learning lost. Needs people that give their tables
             (:class:`~torchhrc.tasks.people.TabularPeople`).
+        true_parts: add the robots ``"true behaviour"`` and ``"true rewards"``: the learned
+            model with one part replaced by the truth, through the type map. *true
+            behaviour* plans on the people's true behaviour (the true model) for the
+            learned rewards, each true type wanting what its learned type learned
+            (:func:`~torchhrc.tasks.true_model.true_behaviour_controller`); *true rewards*
+            keeps the learned behaviour and gives each learned type the true reward of the
+            true type it maps to (:func:`~torchhrc.tasks.true_model.true_reward_controller`).
+            With ``true_model=True``, :meth:`TaskEvaluation.summary` says how much of what
+            learning lost each recovers: which part to work on (the human model, or the
+            features of the rewards). Needs a model and people that give their tables.
         horizon: steps per episode (default ``world.horizon``).
         seed: the seed of the people's generator (the same for every robot).
         shares: ``(Y,)`` the share of each true type in the population the overall figures
@@ -597,11 +638,14 @@ def evaluate_task(
     types = torch.arange(Y).repeat_interleave(episodes)  # (B,) episodes grouped by type
     if told_type and model is None:
         raise ValueError("told_type=True needs a model")
-    R = len(entries) + int(told_type)
+    if true_parts and model is None:
+        raise ValueError("true_parts=True needs a model")
+    R = len(entries) + int(told_type) + 2 * int(true_parts)
     returns = torch.zeros(R, Y, episodes, dtype=torch.float64)
     steps = torch.zeros(R, Y, dtype=torch.float64)
     beliefs: list[torch.Tensor] = []
     type_map = torch.full((Y,), -1, dtype=torch.long)
+    truth_of = torch.zeros(0, dtype=torch.long)
     source = "none"
     for r, (_name, robot) in enumerate(entries):
         aware = model is not None and r == 0
@@ -613,7 +657,8 @@ def evaluate_task(
             assert model is not None
             beliefs = seen
             at = checks[-1] if checks else T
-            type_map, source = _type_map(world, model, demonstrations, seen[at], Y, episodes)
+            type_map, source, truth_of = _type_map(world, model, demonstrations, seen[at], Y,
+                                                   episodes)  # fmt: skip
     if told_type:
         assert model is not None
         prior = torch.nn.functional.one_hot(type_map[types], model.num_types)
@@ -621,9 +666,27 @@ def evaluate_task(
                                      noise=float(noise), seed=seed, horizon=T,
                                      record_belief=False,
                                      prior=prior.to(model.momdp.b0.dtype))  # fmt: skip
-        returns[-1] = total.view(Y, episodes)
-        steps[-1] = length.double().view(Y, episodes).mean(-1)
+        returns[len(entries)] = total.view(Y, episodes)
+        steps[len(entries)] = length.double().view(Y, episodes).mean(-1)
         entries.append((TOLD, None))
+    if true_parts:
+        from torchhrc.tasks.true_model import true_behaviour_controller, true_reward_controller
+
+        assert model is not None
+        time_limit = float(dict(model.info.get("solver", {})).get("time_limit", 5.0) or 5.0)
+        parts = (
+            (TRUE_BEHAVIOUR, true_behaviour_controller(world, model, type_map, noise=float(noise),
+                                                       shares=weights, time_limit=time_limit,
+                                                       seed=seed)),
+            (TRUE_REWARDS, true_reward_controller(world, model, truth_of, time_limit=time_limit,
+                                                  seed=seed)),
+        )  # fmt: skip
+        for name, robot in parts:
+            total, length, _ = _simulate(world, robot, types, noise=float(noise), seed=seed,
+                                         horizon=T, record_belief=False)  # fmt: skip
+            returns[len(entries)] = total.view(Y, episodes)
+            steps[len(entries)] = length.double().view(Y, episodes).mean(-1)
+            entries.append((name, None))
     mean = returns.mean(-1)
     ci = Z95 * returns.std(-1, correction=1) / math.sqrt(episodes)
     overall_mean, overall_ci = _population(returns, weights)

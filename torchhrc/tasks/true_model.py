@@ -39,6 +39,7 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -51,8 +52,14 @@ if TYPE_CHECKING:
     from torchhrc.pomdp import MOMDP
     from torchhrc.tasks.controller import Controller
     from torchhrc.tasks.people import TaskWithPeople
+    from torchhrc.tasks.pipeline import LearnedModel
 
-__all__ = ["true_model_controller", "true_momdp"]
+__all__ = [
+    "true_behaviour_controller",
+    "true_model_controller",
+    "true_momdp",
+    "true_reward_controller",
+]
 
 
 def true_momdp(
@@ -60,6 +67,7 @@ def true_momdp(
     *,
     noise: float = 0.05,
     shares: Sequence[float] | torch.Tensor | None = None,
+    reward: torch.Tensor | None = None,
 ) -> MOMDP:
     """The MOMDP of a world's simulated people, true rewards and population (module doc).
 
@@ -69,6 +77,9 @@ def true_momdp(
             :class:`~torchhrc.tasks.people.TabularPeople` does).
         noise: the people's epsilon (as :func:`~torchhrc.tasks.evaluate_task`'s).
         shares: ``(Y,)`` how common each true type is (``None``: the world's, else equal).
+        reward: ``(A, X, Y)`` a reward per true type to plan for instead of the world's
+            ``true_reward`` (the people's true behaviour with other rewards:
+            :func:`true_behaviour_controller`).
 
     Returns:
         A float64 :class:`~torchhrc.pomdp.MOMDP` with ``X`` the task's states and
@@ -120,7 +131,13 @@ def true_momdp(
         Ty = torch.where(reached.unsqueeze(-1),
                          joint / torch.where(reached, Tx, torch.ones_like(Tx)).unsqueeze(-1),
                          keep)  # fmt: skip
-    R = world.true_reward.repeat_interleave(M, -1).clone()  # (A, X, N)
+    if reward is None:
+        reward = world.true_reward
+    reward = torch.as_tensor(reward, dtype=torch.float64)
+    if tuple(reward.shape) != (A, X, Y):
+        raise ValueError(f"expected reward of shape (A={A}, X={X}, Y={Y}), got "
+                         f"{tuple(reward.shape)}")  # fmt: skip
+    R = reward.repeat_interleave(M, -1).clone()  # (A, X, N)
     R[:, terminal, :] = 0.0
     if world.observed and world.true_observation is not None:
         Z = world.true_observation.repeat_interleave(M, -2)  # (A, X, N, O)
@@ -166,11 +183,109 @@ def true_model_controller(
         >>> robot.act(world.task.initial_state) in range(world.task.num_actions)
         True
     """
+    return _solved(true_momdp(world, noise=noise, shares=shares), time_limit, seed)
+
+
+def true_behaviour_controller(
+    world: TaskWithPeople,
+    model: LearnedModel,
+    type_map: torch.Tensor,
+    *,
+    noise: float = 0.05,
+    shares: Sequence[float] | torch.Tensor | None = None,
+    time_limit: float = 5.0,
+    seed: int = 0,
+) -> Controller:
+    """The learned model with its behaviour replaced by the people's true one: the true
+    model (:func:`true_momdp`) planning for the learned rewards, true type ``y`` wanting what
+    its learned type ``type_map[y]`` learned (``R[a, x, y] = model R[a, x, type_map[y]]``).
+
+    Against the type-aware robot it says how much of what learning lost was the behaviour
+    (``evaluate_task(true_parts=True)``).
+
+    Args:
+        world, noise, shares: as :func:`true_momdp`.
+        model: the learned model.
+        type_map: ``(Y,)`` the learned type of each true type.
+        time_limit, seed: as :func:`true_model_controller`.
+
+    Example:
+        >>> import warnings, torchhrc
+        >>> from torchhrc.tasks.suite import make_task
+        >>> world = make_task("pace")
+        >>> demos, _ = world.demonstrations(subjects=6, per_subject=2, seed=0)
+        >>> with warnings.catch_warnings():
+        ...     warnings.simplefilter("ignore")
+        ...     model = torchhrc.learn(world.task, demos, k=3, solve=False)
+        >>> robot = true_behaviour_controller(world, model, torch.tensor([0, 1, 2]),
+        ...                                   time_limit=0.5)
+        >>> robot.act(world.task.initial_state) in range(world.task.num_actions)
+        True
+    """
+    index = _map("type_map", type_map, world.num_types, model.num_types)
+    reward = model.momdp.R.to(torch.float64)[..., index]  # (A, X, Y)
+    return _solved(true_momdp(world, noise=noise, shares=shares, reward=reward), time_limit,
+                   seed)  # fmt: skip
+
+
+def true_reward_controller(
+    world: TaskWithPeople,
+    model: LearnedModel,
+    truth_of: torch.Tensor,
+    *,
+    time_limit: float = 5.0,
+    seed: int = 0,
+) -> Controller:
+    """The learned model with its rewards replaced by the true ones: learned type ``k`` gets
+    the true reward of the true type ``truth_of[k]`` (0 in terminal states), its learned
+    behaviour and first belief kept.
+
+    Against the type-aware robot it says how much of what learning lost was the rewards
+    (``evaluate_task(true_parts=True)``).
+
+    Args:
+        world: the task with its people and true rewards.
+        model: the learned model.
+        truth_of: ``(K,)`` the true type of each learned type.
+        time_limit, seed: as :func:`true_model_controller`.
+
+    Example:
+        >>> import warnings, torchhrc
+        >>> from torchhrc.tasks.suite import make_task
+        >>> world = make_task("pace")
+        >>> demos, _ = world.demonstrations(subjects=6, per_subject=2, seed=0)
+        >>> with warnings.catch_warnings():
+        ...     warnings.simplefilter("ignore")
+        ...     model = torchhrc.learn(world.task, demos, k=3, solve=False)
+        >>> robot = true_reward_controller(world, model, torch.tensor([0, 1, 2]),
+        ...                                time_limit=0.5)
+        >>> robot.act(world.task.initial_state) in range(world.task.num_actions)
+        True
+    """
+    index = _map("truth_of", truth_of, model.num_types, world.num_types)
+    R = world.true_reward.to(model.momdp.R.dtype)[..., index].clone()  # (A, X, K)
+    R[:, torch.as_tensor(world.task.terminal).to(torch.bool), :] = 0.0
+    return _solved(dataclasses.replace(model.momdp, R=R), time_limit, seed)
+
+
+def _map(name: str, value: torch.Tensor, size: int, into: int) -> torch.Tensor:
+    """``value`` as a ``(size,)`` int64 index into ``[0, into)``, or a ValueError naming it."""
+    index = torch.as_tensor(value)
+    if index.is_floating_point() or tuple(index.shape) != (size,) or bool(
+        ((index < 0) | (index >= into)).any()
+    ):
+        raise ValueError(f"expected {name} of shape ({size},), integers in [0, {into}), got "
+                         f"{index.tolist()}")  # fmt: skip
+    return index.to(torch.long)
+
+
+def _solved(momdp: MOMDP, time_limit: float, seed: int) -> Controller:
+    """SARSOP on ``momdp`` with solve_model's settings (the per-type lower bound where the
+    hidden value is static, SARSOP's own where it changes), as a controller."""
     from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
     from torchhrc.tasks.controller import Controller
     from torchhrc.tasks.pipeline import solve_momdp
 
-    momdp = true_momdp(world, noise=noise, shares=shares)
     if momdp.Ty is None:
         solution = solve_momdp(momdp, time_limit=float(time_limit), seed=seed)
     else:  # the hidden value changes: SARSOP's own (blind-policy) lower bound

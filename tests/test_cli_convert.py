@@ -76,6 +76,28 @@ def test_momdp_pomdpx_becomes_its_flat_pomdp(capsys, tmp_path):
     _same(read_pomdpx(tmp_path / "flat.pomdpx"), flat, names=False)
 
 
+def _read_sparse(monkeypatch):
+    """``read_pomdp(sparse="auto")`` (what ``convert`` reads with) reads every model sparse."""
+    import torchhrc.io.cassandra as cassandra
+
+    monkeypatch.setattr(cassandra, "AUTO_SPARSE_ENTRIES", 0)
+    monkeypatch.setattr(cassandra, "AUTO_DENSE_FRACTION", 2.0)
+
+
+def test_a_model_read_sparse_is_written_one_entry_a_nonzero(capsys, tmp_path, monkeypatch):
+    # a .pomdp read as a SparsePOMDP (as one too large to hold densely is: the thresholds
+    # set so that any is); its .pomdpx holds one entry per nonzero and reads back the same
+    _read_sparse(monkeypatch)
+    model = random_pomdp(7, 3, 4, discount=0.9, seed=4, sparsity=0.5)
+    src = write_pomdp(model, tmp_path / "big.pomdp")
+    code, out, err = _run(capsys, "convert", src, "--json")
+    assert code == 0, err
+    assert json.loads(out)["model"] == "SparsePOMDP"
+    text = (tmp_path / "big.pomdpx").read_text(encoding="iso-8859-1")
+    assert "<Instance>- - -</Instance>" not in text  # no full table of T
+    _same(read_pomdpx(tmp_path / "big.pomdpx", sparse=False), read_pomdp(src), names=False)
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [
@@ -110,11 +132,15 @@ def _appl(name: str) -> str:
     return found
 
 
-@pytest.mark.parametrize("direction", ["pomdpx", "pomdp"])
-def test_appl_solves_what_convert_writes(capsys, tmp_path, direction):
-    """pomdpsol reads the converted file and finds Tiger's optimum (19.37 at discount 0.95)."""
+@pytest.mark.parametrize("direction", ["pomdpx", "pomdp", "sparse pomdpx"])
+def test_appl_solves_what_convert_writes(capsys, tmp_path, direction, monkeypatch):
+    """pomdpsol reads the converted file and finds Tiger's optimum (19.37 at discount 0.95);
+    ``sparse pomdpx``: Tiger read as a SparsePOMDP, written one entry a nonzero."""
     binary = _appl("pomdpsol")
     src = write_pomdp(tiger(), tmp_path / "t.pomdp")
+    if direction == "sparse pomdpx":
+        _read_sparse(monkeypatch)
+        direction = "pomdpx"
     if direction == "pomdp":  # .pomdpx -> .pomdp
         code, _, _ = _run(capsys, "convert", src, tmp_path / "t.pomdpx")
         src = tmp_path / "t.pomdpx"

@@ -3,6 +3,7 @@ hand-worked models, a brute-force reference, round trips and corruptions."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import xml.etree.ElementTree as ET
 
@@ -97,8 +98,48 @@ def test_names_become_value_enums_and_bad_inputs_raise():
     assert tuple(actions) == m.actions
     with pytest.raises(ValueError, match="one problem at a time"):
         format_pomdpx(random_momdp(2, 2, 1, 1, batch_shape=(2,), seed=0))
-    with pytest.raises(TypeError, match="MOMDP or POMDP"):
+    with pytest.raises(TypeError, match="MOMDP, POMDP or SparsePOMDP"):
         format_pomdpx(m.Tx)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match=r"write its to_sparse_pomdp\(\)"):
+        format_pomdpx(SparseMOMDP.from_dense(m))
+
+
+def _split_in_two(m: POMDP) -> SparsePOMDP:
+    """``m`` as a SparsePOMDP whose every nonzero of T and Z is given as two entries of
+    half its value, in reverse order (a coordinate list sums repeats)."""
+
+    def halves(t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        index = torch.nonzero(t)
+        value = t[tuple(index.t())] / 2
+        return torch.cat([index, index]).flip(0), torch.cat([value, value]).flip(0)
+
+    def numbers(names, n):  # a numbered model's names: not identifiers, so <NumValues>
+        return names if names is not None else tuple(str(i) for i in range(n))
+
+    return SparsePOMDP(transitions=halves(m.T), observations_=halves(m.Z), R=m.R.expand(
+        m.num_actions, m.num_states), b0=m.b0, discount=m.discount,
+        states=numbers(m.states, m.num_states), actions=numbers(m.actions, m.num_actions),
+        observations=numbers(m.observations, m.num_observations))  # fmt: skip
+
+
+@pytest.mark.parametrize("names", [False, True])
+def test_a_sparse_pomdp_is_written_one_entry_a_nonzero(names):
+    m = random_pomdp(6, 3, 4, seed=5, sparsity=0.6)
+    if names:
+        m = dataclasses.replace(m, states=tuple(f"s_{i}" for i in range(6)),
+                                actions=("go", "stay", "look"),
+                                observations=tuple(f"o{i}x" for i in range(4)))  # fmt: skip
+    sp = _split_in_two(m)
+    text = format_pomdpx(sp)
+    back = read_pomdpx(text, sparse=False)
+    for name in ("T", "Z", "R", "b0"):
+        torch.testing.assert_close(getattr(back, name), getattr(m, name).expand_as(
+            getattr(back, name)), msg=name)  # fmt: skip
+    assert back.actions == (m.actions if names else None)  # <NumValues>: unnamed
+    torch.testing.assert_close(read_pomdpx(text, sparse=True).to_dense().T, m.T)
+    # the file grows with the nonzeros: one entry each (repeats summed) and none for zeros
+    nonzeros = int((m.T != 0).sum() + (m.Z != 0).sum() + (m.R.expand(3, 6) != 0).sum())
+    assert text.count("<Entry>") == nonzeros + 1  # + the initial belief's one table
 
 
 # ============================================================================= reader

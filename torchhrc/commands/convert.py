@@ -5,9 +5,11 @@ Reads the input by its suffix (:func:`torchhrc.io.cassandra.read_pomdp` or
 (:func:`torchhrc.io.pomdpx.write_pomdpx` or :func:`torchhrc.io.cassandra.write_pomdp`),
 atomically. A ``.pomdpx`` MOMDP (observed state variables) written as ``.pomdp`` becomes the
 flat POMDP over the joint states ``(x, y)``; a ``.pomdp`` written as ``.pomdpx`` has one
-hidden state variable. Without ``OUT`` the output is the input with the other suffix
-(``Hallway.pomdp`` -> ``Hallway.pomdpx``, as ``pomdpconvert`` names it). An existing output
-is kept unless ``--force``.
+hidden state variable, its functions full tables, or one ``<Entry>`` per nonzero where the
+model is read sparse (too large to hold densely; APPL's ``pomdpsol`` reads either). Without
+``OUT`` the output is the input with the other suffix (``Hallway.pomdp`` ->
+``Hallway.pomdpx``, as ``pomdpconvert`` names it). An existing output is kept unless
+``--force``.
 
 Example:
     >>> import argparse
@@ -37,7 +39,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Convert a model between Cassandra's .pomdp format and APPL's .pomdpx format "
             "(chosen by the suffixes); a .pomdpx MOMDP becomes the flat POMDP over its "
-            "joint states."
+            "joint states. A model too large to hold densely is written with one entry per "
+            "nonzero."
         ),
     )
     parser.add_argument(
@@ -71,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
     from torchhrc.io.cassandra import write_pomdp
     from torchhrc.io.pomdpx import write_pomdpx
     from torchhrc.pomdp import MOMDP, POMDP
+    from torchhrc.pomdp.sparse import SparsePOMDP
 
     source = Path(args.input)
     output = args.output
@@ -82,12 +86,10 @@ def run(args: argparse.Namespace) -> int:
     check_new_file(output, force=args.force)
     model = read_model(args.input)
     if Path(output).suffix.lower() == ".pomdpx":
-        if not isinstance(model, (POMDP, MOMDP)):
-            raise ModelError(
-                f"{args.input} is read as a sparse {type(model).__name__} (too large to hold "
-                "densely); the .pomdpx writer needs a dense model"
-            )
-        written = write_pomdpx(model, output, description=f"converted from {source.name}")
+        # a dense model as full tables, a sparse one as one entry per nonzero (a sparse
+        # MOMDP as its flat sparse POMDP)
+        kept = model if isinstance(model, (POMDP, MOMDP, SparsePOMDP)) else _flat(model)
+        written = write_pomdpx(kept, output, description=f"converted from {source.name}")
     else:
         written = write_pomdp(_flat(model), output, comment=f"converted from {source.name}")
     summary = {

@@ -1,6 +1,6 @@
-"""Writing a :class:`~torchhrc.pomdp.MOMDP` or :class:`~torchhrc.pomdp.POMDP` as ``.pomdpx``
-XML (:func:`format_pomdpx`, :func:`write_pomdpx`); the layout is in
-:mod:`torchhrc.io.pomdpx`."""
+"""Writing a :class:`~torchhrc.pomdp.MOMDP`, :class:`~torchhrc.pomdp.POMDP` or
+:class:`~torchhrc.pomdp.sparse.SparsePOMDP` as ``.pomdpx`` XML (:func:`format_pomdpx`,
+:func:`write_pomdpx`); the layout is in :mod:`torchhrc.io.pomdpx`."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ import torch
 from torchhrc._atomic import atomic_write_bytes
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP, split_initial
+from torchhrc.pomdp.sparse import SparsePOMDP, coalesce
 
 __all__ = ["format_pomdpx", "write_pomdpx"]
 
@@ -85,12 +86,94 @@ def _format_pomdp(model: POMDP, description: str) -> str:
     return "\n".join(lines + _reward("action state_0", "- -", model.R.expand(A, S))) + "\n"
 
 
-def format_pomdpx(model: MOMDP | POMDP, *, description: str = "written by torchhrc") -> str:
+def _names(names: tuple[str, ...] | None, count: int, prefix: str) -> list[str]:
+    """The value names an ``<Instance>`` uses: the ``<ValueEnum>`` names :func:`_enum` wrote,
+    else APPL's ``s0 s1 ...`` (``a``, ``o``) of ``<NumValues>``."""
+    if names is not None and all(n.isidentifier() for n in names):
+        return list(names)
+    return [f"{prefix}{i}" for i in range(count)]
+
+
+def _entries(names: list[list[str]], index: torch.Tensor, values: torch.Tensor,
+             tag: str) -> str:  # fmt: skip
+    """One ``<Entry>`` per nonzero: ``index (M, k)`` into the ``k`` variables' ``names``."""
+    columns = [[axis[i] for i in col] for axis, col in zip(names, index.t().tolist())]
+    text = _values(values).split(" ")
+    return "".join(
+        f"<Entry><Instance>{' '.join(parts)}</Instance><{tag}>{v}</{tag}></Entry>"
+        for *parts, v in zip(*columns, text)
+    )
+
+
+def _coalesced(coo: tuple[torch.Tensor, torch.Tensor],
+               sizes: tuple[int, int, int]) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+    """A coordinate list with one entry per cell (repeats summed, zeros dropped, sorted): in a
+    ``.pomdpx`` table a later entry of the same instance replaces an earlier one."""
+    index, values = coo
+    _, n1, n2 = sizes
+    keys = ((index[:, 0] * n1 + index[:, 1]) * n2 + index[:, 2]).numpy()
+    cells, summed = coalesce(keys, values.detach().double().cpu().numpy())
+    cells_t = torch.from_numpy(cells)
+    index = torch.stack([cells_t // (n1 * n2), cells_t // n2 % n1, cells_t % n2], 1)
+    return index, torch.from_numpy(summed)
+
+
+def _sparse_table(var: str, parents: str, entries: str) -> str:
+    return (f'<CondProb><Var>{var}</Var><Parent>{parents}</Parent><Parameter type="TBL">'
+            f"{entries}</Parameter></CondProb>")  # fmt: skip
+
+
+def _format_sparse_pomdp(model: SparsePOMDP, description: str) -> str:
+    """A flat :class:`SparsePOMDP`: the functions as one ``<Entry>`` per nonzero (APPL reads
+    an instance of value names), so that the file grows with the nonzeros, not ``A S^2``."""
+    A, S, O = model.num_actions, model.num_states, model.num_observations
+    states = _names(model.states, S, "s")
+    actions = _names(model.actions, A, "a")
+    observations = _names(model.observations, O, "o")
+    T_index, T_prob = _coalesced(model.transitions, (A, S, S))
+    Z_index, Z_prob = _coalesced(model.observations_, (A, S, O))
+    R = model.R.expand(A, S)
+    r_index = torch.nonzero(R)
+    lines = [
+        *_header(model.discount, description),
+        "<Variable>",
+        '<StateVar vnamePrev="state_0" vnameCurr="state_1" fullyObs="false">'
+        f"{_enum(model.states, S)}</StateVar>",
+        f'<ObsVar vname="obs">{_enum(model.observations, O)}</ObsVar>',
+        f'<ActionVar vname="action">{_enum(model.actions, A)}</ActionVar>',
+        '<RewardVar vname="reward"/>',
+        "</Variable>",
+        "<InitialStateBelief>",
+        _cond_prob("state_0", "null", "-", _values(model.b0)),
+        "</InitialStateBelief>",
+        "<StateTransitionFunction>",
+        _sparse_table("state_1", "action state_0",
+                      _entries([actions, states, states], T_index, T_prob, "ProbTable")),
+        "</StateTransitionFunction>",
+        "<ObsFunction>",
+        _sparse_table("obs", "action state_1",
+                      _entries([actions, states, observations], Z_index, Z_prob, "ProbTable")),
+        "</ObsFunction>",
+        "<RewardFunction>",
+        '<Func><Var>reward</Var><Parent>action state_0</Parent><Parameter type="TBL">'
+        + _entries([actions, states], r_index, R[r_index[:, 0], r_index[:, 1]], "ValueTable")
+        + "</Parameter></Func>",
+        "</RewardFunction>",
+        "</pomdpx>",
+    ]  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def format_pomdpx(model: MOMDP | POMDP | SparsePOMDP, *,
+                  description: str = "written by torchhrc") -> str:  # fmt: skip
     """The ``.pomdpx`` text of an unbatched :class:`MOMDP` or :class:`POMDP`.
 
     Args:
         model: the MOMDP (observed ``x_0/x_1`` and hidden ``y_0/y_1``) or flat POMDP (one
-            hidden ``state_0/state_1``), no batch dims.
+            hidden ``state_0/state_1``), no batch dims; or a flat
+            :class:`~torchhrc.pomdp.sparse.SparsePOMDP`, written as one ``<Entry>`` per
+            nonzero of ``T``, ``Z`` and ``R`` (a sparse MOMDP: write its
+            ``to_sparse_pomdp()``).
         description: the ``<Description>`` text.
 
     Returns:
@@ -104,8 +187,13 @@ def format_pomdpx(model: MOMDP | POMDP, *, description: str = "written by torchh
         >>> format_pomdpx(random_momdp(2, 2, 1, 1, seed=0)).count("<CondProb>")
         5
     """
+    if isinstance(model, SparsePOMDP):
+        return _format_sparse_pomdp(model, description)
     if not isinstance(model, (MOMDP, POMDP)):
-        raise TypeError(f"expected a MOMDP or POMDP, got {type(model).__name__}")
+        hint = " (a sparse MOMDP: write its to_sparse_pomdp())" if hasattr(
+            model, "to_sparse_pomdp") else ""  # fmt: skip
+        raise TypeError(f"expected a MOMDP, POMDP or SparsePOMDP, got "
+                        f"{type(model).__name__}{hint}")  # fmt: skip
     if len(model.batch_shape):
         raise ModelError(f"write one problem at a time: got batch shape {tuple(model.batch_shape)}")
     if isinstance(model, POMDP):
@@ -159,7 +247,10 @@ def format_pomdpx(model: MOMDP | POMDP, *, description: str = "written by torchh
 
 
 def write_pomdpx(
-    model: MOMDP | POMDP, path: str | os.PathLike[str], *, description: str = "written by torchhrc"
+    model: MOMDP | POMDP | SparsePOMDP,
+    path: str | os.PathLike[str],
+    *,
+    description: str = "written by torchhrc",
 ) -> Path:
     """Write ``model`` as ``.pomdpx`` XML, atomically. See :func:`format_pomdpx`.
 

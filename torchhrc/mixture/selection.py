@@ -502,8 +502,9 @@ def fit_mixture(
             shares (a robot that waits between every two of the person's actions); ``3``,
             third-order chains ``P(a_t | a_(t-3), a_(t-2), a_(t-1))``, the same way: across a
             robot's move they see the person's last two actions (a rhythm, such as drill,
-            drill, saw, saw, that one step back does not show); ``"auto"``: select k in the three orders (the
-            objects' reading chosen in first order) and keep the fit with the most types, the
+            drill, saw, saw, that one step back does not show); ``"auto"``: select k in the
+            three orders (the objects' reading chosen in first order) and keep the fit with
+            the most types, the
             larger exact ICL (``log p(D, z)`` of the recorded data in all) on equal k
             (:func:`order_to_keep`): a type any order's rule finds is kept
             (``docs/clustering.md``, "Second-order chains" and "Third-order chains"). Above

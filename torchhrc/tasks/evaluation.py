@@ -224,35 +224,25 @@ class TaskEvaluation:
         word = {1: "ahead beyond", 0: "level within", -1: "behind beyond"}
         sign = int(self.compare(robot, other, overall=True))
         lines = [f"{value(i)} against {value(j)}: {word[sign]} the 95% intervals"]
-        if TOLD in self.robots and robot != TOLD:
-            t = self.index(TOLD)
-            pays = int(self.compare(TOLD, other, overall=True))
+        references = (
+            (TOLD, "knowing the type", "no robot gains from finding the type here"),
+            (TRUE_MODEL, "finding the type online", "even with the people's true behaviour "
+             "and rewards a robot that must find the type from their actions gains nothing "
+             "here"),
+        )  # fmt: skip
+        for name, what, none in references:
+            if name not in self.robots or robot == name:
+                continue
+            t = self.index(name)
+            pays = int(self.compare(name, other, overall=True))
             if pays > 0:
                 share = float((m[i] - m[j]) / (m[t] - m[j]))
-                lines.append(f"knowing the type pays: {value(t)}, ahead of {other}; {robot} "
-                             f"keeps {100 * share:.0f}% of that gain")  # fmt: skip
+                lines.append(f"{what} pays: {value(t)}, ahead of {other}; {robot} keeps "
+                             f"{100 * share:.0f}% of that gain")  # fmt: skip
             else:
-                lines.append(
-                    f"knowing the type does not pay: {value(t)}, "
-                    f"{'level with' if pays == 0 else 'behind'} {other}; no robot gains from "
-                    f"finding the type here, and {robot} level with {other} is the expected "
-                    f"result"
-                )
-        if TRUE_MODEL in self.robots and robot != TRUE_MODEL:
-            t = self.index(TRUE_MODEL)
-            online = int(self.compare(TRUE_MODEL, other, overall=True))
-            if online > 0:
-                share = float((m[i] - m[j]) / (m[t] - m[j]))
-                lines.append(f"finding the type online pays: {value(t)}, ahead of {other}; "
-                             f"{robot} keeps {100 * share:.0f}% of that gain")  # fmt: skip
-            else:
-                lines.append(
-                    f"finding the type online does not pay: {value(t)}, "
-                    f"{'level with' if online == 0 else 'behind'} {other}; even with the "
-                    f"people's true behaviour and rewards a robot that must find the type "
-                    f"from their actions gains nothing here, and {robot} level with {other} "
-                    f"is the expected result"
-                )
+                lines.append(f"{what} does not pay: {value(t)}, "
+                             f"{'level with' if pays == 0 else 'behind'} {other}; {none}, and "
+                             f"{robot} level with {other} is the expected result")  # fmt: skip
         parts = (TRUE_MODEL, TRUE_BEHAVIOUR, TRUE_REWARDS)
         if all(p in self.robots for p in parts) and robot not in parts:
             t, b, r = (self.index(p) for p in parts)

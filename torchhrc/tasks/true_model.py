@@ -9,7 +9,10 @@ sees can tell them apart in time. :func:`true_momdp` writes the simulated people
 their true rewards and how common each type is, but not which type the person in front of it
 is. It is a reference, not a learner: its return is what finding the type online can gain
 (up to the solver's gap), so a type-aware robot level with the type-agnostic one where this
-robot is level too has lost nothing to learning.
+robot is level too has lost nothing to learning. Where it loses,
+:func:`true_behaviour_controller` and :func:`true_reward_controller` give the learned model one
+part of the truth each (the people's behaviour, or their rewards), to say which part lost it
+(``evaluate_task(true_parts=True)``).
 
 The hidden value is ``h = y * M + m``: the person's true type ``y`` (static) and the people's
 memory ``m`` (``M`` memory states, :class:`~torchhrc.tasks.people.TabularPeople`; ``M = 1``

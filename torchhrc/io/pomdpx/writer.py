@@ -62,9 +62,11 @@ def _reward(parents: str, instance: str, R: torch.Tensor) -> list[str]:
     ]
 
 
-def _format_pomdp(model: POMDP, description: str) -> str:
+def _flat_head(model: POMDP | SparsePOMDP, description: str) -> list[str]:
+    """A flat model's lines up to its functions: the header, one hidden state variable, the
+    observation, action and reward variables, and the initial belief as one table."""
     A, S, O = model.num_actions, model.num_states, model.num_observations
-    lines = [
+    return [
         *_header(model.discount, description),
         "<Variable>",
         '<StateVar vnamePrev="state_0" vnameCurr="state_1" fullyObs="false">'
@@ -76,6 +78,13 @@ def _format_pomdp(model: POMDP, description: str) -> str:
         "<InitialStateBelief>",
         _cond_prob("state_0", "null", "-", _values(model.b0)),
         "</InitialStateBelief>",
+    ]
+
+
+def _format_pomdp(model: POMDP, description: str) -> str:
+    A, S = model.num_actions, model.num_states
+    lines = [
+        *_flat_head(model, description),
         "<StateTransitionFunction>",
         _cond_prob("state_1", "action state_0", "- - -", _values(model.T)),
         "</StateTransitionFunction>",
@@ -135,17 +144,7 @@ def _format_sparse_pomdp(model: SparsePOMDP, description: str) -> str:
     R = model.R.expand(A, S)
     r_index = torch.nonzero(R)
     lines = [
-        *_header(model.discount, description),
-        "<Variable>",
-        '<StateVar vnamePrev="state_0" vnameCurr="state_1" fullyObs="false">'
-        f"{_enum(model.states, S)}</StateVar>",
-        f'<ObsVar vname="obs">{_enum(model.observations, O)}</ObsVar>',
-        f'<ActionVar vname="action">{_enum(model.actions, A)}</ActionVar>',
-        '<RewardVar vname="reward"/>',
-        "</Variable>",
-        "<InitialStateBelief>",
-        _cond_prob("state_0", "null", "-", _values(model.b0)),
-        "</InitialStateBelief>",
+        *_flat_head(model, description),
         "<StateTransitionFunction>",
         _sparse_table("state_1", "action state_0",
                       _entries([actions, states, states], T_index, T_prob, "ProbTable")),

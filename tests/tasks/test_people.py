@@ -193,10 +193,11 @@ def test_shares_split_the_subjects_by_largest_remainders():
     with pytest.raises(ValueError, match=r"subjects >= 2"):
         skew.demonstrations(subjects=1)
     for bad, match in (
-        ((1.0,), "expected 2 shares"),
+        ((1.0,), r"shares of shape \(Y=2,\)"),
         ((1.0, -1.0), "non-negative"),
         ((0.0, 0.0), "not all zero"),
-        (("a", "b"), "expected shares to be 2"),
+        ((float("nan"), 1.0), "finite"),
+        (("a", "b"), "shares to be a sequence of 2 numbers"),
     ):
         with pytest.raises(ModelError, match=match):
             TaskWithPeople(twp.task, twp.people, twp.true_reward, 4, False, shares=bad)

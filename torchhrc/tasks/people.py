@@ -394,16 +394,11 @@ class TaskWithPeople:
         if self.observed and self.true_observation is None:
             raise ModelError("an observed task needs true_observation (A, X, Y_true, O)")
         if self.shares is not None:
-            try:
-                shares = tuple(float(v) for v in self.shares)
+            try:  # the check evaluate_task makes, as this container's ModelError
+                population_shares(self.shares, Y)
             except (TypeError, ValueError) as err:
-                raise ModelError(f"expected shares to be {Y} numbers, got {self.shares!r}") from err
-            if len(shares) != Y:
-                raise ModelError(f"expected {Y} shares (one per true type), got {len(shares)}")
-            if not all(math.isfinite(v) and v >= 0 for v in shares) or sum(shares) <= 0:
-                raise ModelError(f"expected shares finite, non-negative and not all zero, "
-                                 f"got {shares}")  # fmt: skip
-            object.__setattr__(self, "shares", shares)
+                raise ModelError(str(err)) from err
+            object.__setattr__(self, "shares", tuple(float(v) for v in self.shares))
 
     @property
     def num_types(self) -> int:

@@ -161,6 +161,12 @@ def your_own_task_agnostic() -> str:
     return _your_own_task("type-agnostic")
 
 
+def your_own_task_true_model() -> str:
+    """Mean reward ± 95% CI of the robot on the cooks' true model
+    (``examples/your_own_task.py``, ``evaluate_task(true_model=True)``)."""
+    return _your_own_task("true model")
+
+
 @functools.cache
 def _report(command: str) -> str:
     """``report.md`` of ``torchhrc reproduce COMMAND`` (default settings, seed 0), run in a
@@ -242,6 +248,7 @@ FIGURES: dict[str, Callable[[], str]] = {
     "online-cross-training-by-type": online_cross_training_by_type,
     "your-own-task-aware": your_own_task_aware,
     "your-own-task-agnostic": your_own_task_agnostic,
+    "your-own-task-true-model": your_own_task_true_model,
     "hand-finishing-summary": hand_finishing_summary,
     "hand-finishing-noise-table": hand_finishing_noise_table,
     "place-and-drill-offline-table": place_and_drill_offline_table,
@@ -254,6 +261,7 @@ CHEAP: dict[str, bool] = {
     "online-cross-training-by-type": True,
     "your-own-task-aware": True,  # the example: a few seconds
     "your-own-task-agnostic": True,
+    "your-own-task-true-model": True,
     "hand-finishing-summary": False,  # the default run: 60-200 s
     "hand-finishing-noise-table": False,
     "place-and-drill-offline-table": False,  # the default run: 45-70 s

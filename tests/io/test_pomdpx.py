@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import re
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -140,6 +141,51 @@ def test_a_sparse_pomdp_is_written_one_entry_a_nonzero(names):
     # the file grows with the nonzeros: one entry each (repeats summed) and none for zeros
     nonzeros = int((m.T != 0).sum() + (m.Z != 0).sum() + (m.R.expand(3, 6) != 0).sum())
     assert text.count("<Entry>") == nonzeros + 1  # + the initial belief's one table
+
+
+def _small_dense_limit(monkeypatch, cells: int) -> None:
+    """Tables of more than ``cells`` cells are read as their nonzeros (as those of more than
+    2e8 are: a flat model of more than about 7,000 states)."""
+    import torchhrc.io.pomdpx.reader as reader
+
+    monkeypatch.setattr(reader, "MAX_DENSE_ENTRIES", cells)
+
+
+def test_a_table_too_large_to_hold_is_read_as_its_nonzeros(monkeypatch):
+    m = random_pomdp(6, 3, 4, seed=5, sparsity=0.6)
+    text = format_pomdpx(_split_in_two(m))
+    _small_dense_limit(monkeypatch, 50)  # T (108 cells) and Z (72) as nonzeros; R, b0 dense
+    back = read_pomdpx(text, sparse=True)
+    assert isinstance(back, SparsePOMDP)
+    dense = back.to_dense()
+    for name in ("T", "Z", "R", "b0"):
+        torch.testing.assert_close(getattr(dense, name), getattr(m, name).expand_as(
+            getattr(dense, name)), msg=name)  # fmt: skip
+    # a later entry of a cell replaces an earlier one, as APPL reads them: a wrong first
+    # value, then the right one, reads as the model
+    first = text.index("<Entry><Instance>", text.index("<StateTransitionFunction>"))
+    end = text.index("</Entry>", first) + len("</Entry>")
+    right = text[first:end]
+    wrong = re.sub(r"<ProbTable>[^<]*</ProbTable>", "<ProbTable>0.999</ProbTable>", right)
+    again = text[:first] + wrong + text[first:]
+    torch.testing.assert_close(read_pomdpx(again, sparse=True).to_dense().T, m.T)
+
+
+def test_entries_of_a_table_read_as_nonzeros_name_every_value(monkeypatch):
+    m = random_pomdp(6, 3, 4, seed=5, sparsity=0.6)
+    text = format_pomdpx(_split_in_two(m))
+    _small_dense_limit(monkeypatch, 50)
+    start = text.index("<Entry><Instance>", text.index("<StateTransitionFunction>"))
+    inst = text[start + len("<Entry><Instance>"): text.index("</Instance>", start)]
+    spanned = text.replace(f"<Instance>{inst}</Instance>",
+                           f"<Instance>{' '.join(inst.split()[:2])} *</Instance>", 1)
+    with pytest.raises(ParseError, match=r"read as its entries, each naming one value of "
+                                         r"every variable; '\*' spans 'state_1'"):
+        read_pomdpx(spanned, sparse=True)
+    end = text.index("</Entry>", start) + len("</Entry>")
+    with pytest.raises(ParseError, match=r"<CondProb> of 'state_1': the probabilities for "
+                                         r"'a0 s0' sum to 0\.28"):
+        read_pomdpx(text[:start] + text[end:], sparse=True)  # a row without one entry
 
 
 # ============================================================================= reader

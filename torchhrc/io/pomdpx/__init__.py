@@ -67,7 +67,10 @@ A :class:`~torchhrc.pomdp.sparse.SparsePOMDP` is written with the same variables
 function as one ``<Entry>`` per nonzero (its instance the value names, repeated coordinates
 summed: in a table a later entry of one instance replaces an earlier one), so that the file
 grows with the nonzeros: the 100,000-state random model of ``make_suite --check-set scale``
-is 209 MB. ``pomdpsol`` solves Tiger written so to the same trace as its ``.pomdp``.
+is 209 MB. ``pomdpsol`` solves Tiger written so to the same trace as its ``.pomdp``. The
+reader takes a transition or observation table too large to hold densely (more than
+:data:`~torchhrc.pomdp.sparse.MAX_DENSE_ENTRIES` cells) as its entries, one value of every
+variable each (the later of two for one cell wins), into the sparse form.
 
 Example:
     >>> from torchhrc.testing import random_momdp

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from torchhrc.errors import ModelError
 from torchhrc.io.pomdpx.reader import _Reader, _Table
 from torchhrc.io.pomdpx.variables import PomdpxVariable, PomdpxVariables
 from torchhrc.pomdp import MOMDP, POMDP
@@ -58,7 +59,7 @@ class _Builder:
         observed_prev = set(self.xp)
         deterministic = all(
             all(a in self.act or a in observed_prev for a in t.axes[:-1])
-            and bool((np.count_nonzero(t.values, axis=-1) == 1).all())
+            and bool((t.row_counts() == 1).all())
             for t in (self.r.transition[n] for n in self.xc)
         )
         self.reveal = not (one_x and deterministic)
@@ -74,6 +75,9 @@ class _Builder:
         """``table.values`` transposed and reshaped to broadcast against ``layout``."""
         axes = list(table.axes)
         perm = sorted(range(len(axes)), key=lambda i: layout.index(axes[i]))
+        if table.values is None:
+            raise ModelError(f"the table of {table.var!r} is held as its nonzeros (too large to "
+                             "hold densely): the model can be read in the sparse form only")
         values = table.values.transpose(perm)
         return values.reshape([self.size(n) if n in axes else 1 for n in layout])
 
@@ -137,6 +141,10 @@ class _Builder:
         """``(M,)`` the reward of ``t`` per transition entry, expected over observations;
         ``value(name)`` gives a variable's value per entry."""
         obs = [a for a in t.axes if self.r.kind[a] == "obs"]
+        if t.values is None or any(self.r.observation[o].values is None for o in obs):
+            raise ModelError("a reward that depends on the next state or observation through "
+                             "a table held as its nonzeros (too large to hold densely) is not "
+                             "supported")  # fmt: skip
         if not obs:
             return t.values[tuple(value(a) for a in t.axes)]
         out = None
@@ -181,7 +189,7 @@ class _Builder:
 
         p = np.ones(len(rows))
         for t in tables:
-            n = t.values.shape[-1]
+            n = t.width
             config_strides = {}
             c = 1
             for a in reversed(t.axes[:-1]):
@@ -202,10 +210,9 @@ class _Builder:
             for a in t.axes[:-1]:
                 if a in new:
                     config = config + new[a] * config_strides[a]
-            flat = t.values.reshape(-1, n)
-            nz_rows, nz_cols = np.nonzero(flat)
-            indptr = np.zeros(flat.shape[0] + 1, dtype=np.int64)
-            np.cumsum(np.bincount(nz_rows, minlength=flat.shape[0]), out=indptr[1:])
+            nz_rows, nz_cols, nz_vals = t.nonzeros()
+            indptr = np.zeros(t.rows + 1, dtype=np.int64)
+            np.cumsum(np.bincount(nz_rows, minlength=t.rows), out=indptr[1:])
             start = indptr[config]
             count = indptr[config + 1] - start
             del config
@@ -221,7 +228,7 @@ class _Builder:
                 new = {name: v[keep] for name, v in new.items()}
                 p = p[keep]
             new[t.var] = nz_cols[pos]
-            p = p * flat[nz_rows[pos], nz_cols[pos]]
+            p = p * nz_vals[pos]
         return rows, new, p, value
 
     def transitions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, Any]:
@@ -253,8 +260,7 @@ class _Builder:
         the same count, as a model's usually have)."""
         n = float(self.A * self.S)
         for t in tables:
-            k = t.values.shape[-1]
-            n *= np.count_nonzero(t.values) / max(t.values.size // max(k, 1), 1)
+            n *= t.nonzeros()[0].size / max(t.rows, 1)
         return n
 
     def form_bytes(self, form: str, static: bool = True) -> tuple[float, str]:
@@ -302,6 +308,8 @@ class _Builder:
             return False
         k = t.axes.index(prev)
         n = self.size(t.var)
+        if t.values is None:  # held as its nonzeros: read as changing (the sparse forms hold
+            return False  # either; only a dense MOMDP's Ty = None needs to know)
         shape = [1] * len(t.axes)
         shape[k] = shape[-1] = n
         eye = np.eye(n).reshape(shape)

@@ -279,14 +279,16 @@ class _Reader:
         axes = parents if kind == "reward" else [*parents, var]
         dims = [self.size(a) for a in axes]
         entries = math.prod(dims)
-        if entries > MAX_DENSE_ENTRIES:
+        coordinates = entries > MAX_DENSE_ENTRIES and kind in ("transition", "observation")
+        if entries > MAX_DENSE_ENTRIES and not coordinates:
             raise self.error(
                 f"the table of {var!r} would have {entries:.3g} entries (more than "
                 f"{MAX_DENSE_ENTRIES:.3g})",
                 node,
             )
-        self._charge(8 * entries, f"the table of {var!r} ({' x '.join(map(str, dims))}: "
-                     f"{entries:.3g} cells)", node)  # fmt: skip
+        if not coordinates:
+            self._charge(8 * entries, f"the table of {var!r} ({' x '.join(map(str, dims))}: "
+                         f"{entries:.3g} cells)", node)  # fmt: skip
         param = node.find("Parameter")
         if param is None:
             raise self.error(f"<{node.tag}> has no <Parameter>", node)
@@ -299,8 +301,10 @@ class _Reader:
             )
         if ptype != "TBL":
             raise self.error(f'<Parameter type="{ptype}"> is not supported (expected TBL)', param)
-        table = np.zeros(dims, dtype=np.float64)
         value_tag = "ValueTable" if kind == "reward" else "ProbTable"
+        if coordinates:
+            return self._coordinate_table(node, param, axes, var, value_tag)
+        table = np.zeros(dims, dtype=np.float64)
         if not self._entries_batched(param, table, axes, kind, value_tag):
             for entry in param:
                 if entry.tag != "Entry":
@@ -309,6 +313,89 @@ class _Reader:
         if kind != "reward":
             self._normalise(table, axes, var, node)
         return _Table(var=var, axes=tuple(axes), values=table, line=_line(node))
+
+    def _coordinate_table(self, node: _Node, param: _Node, axes: list[str], var: str,
+                          value_tag: str) -> _Table:  # fmt: skip
+        """A CondProb too large to hold densely (a flat model of many states, as
+        :func:`~torchhrc.io.pomdpx.write_pomdpx` writes a SparsePOMDP), read as its nonzeros:
+        every ``<Entry>`` must name one value of each variable and give one probability.
+        Where two entries name the same cell the later one wins (as APPL reads them); every
+        parents' configuration must sum to 1 (renormalised within the tolerance)."""
+        dims = [self.size(a) for a in axes]
+        total = math.prod(dims)
+        strides = [1] * len(axes)
+        for k in range(len(axes) - 2, -1, -1):
+            strides[k] = strides[k + 1] * dims[k + 1]
+        lookups = [self.lookup[a] for a in axes]
+        cells: list[int] = []
+        chunks: list[np.ndarray] = []
+        pending: list[str] = []
+        for entry in param:
+            if entry.tag != "Entry":
+                raise self.error(f"<Parameter>: expected <Entry>, got <{entry.tag}>", entry)
+            inst, value = entry.find("Instance"), entry.find(value_tag)
+            if inst is None or value is None:
+                missing = "Instance" if inst is None else value_tag
+                raise self.error(f"<Entry> has no <{missing}>", entry)
+            tokens = _text(inst).split()
+            if len(tokens) != len(axes):
+                raise self.error(f"<Instance>: expected {len(axes)} values ({' '.join(axes)}), "
+                                 f"got {len(tokens)}", inst)  # fmt: skip
+            cell = 0
+            for tok, axis, lookup, stride, size in zip(tokens, axes, lookups, strides, dims):
+                i = lookup.get(tok)
+                if i is None and _is_index(tok) and int(tok) < size:
+                    i = int(tok)
+                if i is None:
+                    if tok in ("*", "-"):
+                        raise self.error(
+                            f"the table of {var!r} has {total:.3g} cells (more than "
+                            f"{MAX_DENSE_ENTRIES:.3g}), so it is read as its entries, each "
+                            f"naming one value of every variable; {tok!r} spans {axis!r}", inst)
+                    raise self.error(f"<Instance>: {tok!r} is not a value of {axis!r}", inst)
+                cell += i * stride
+            numbers = _text(value).split()
+            if len(numbers) != 1:
+                raise self.error(f"<{value_tag}>: expected one probability for one cell, got "
+                                 f"{len(numbers)} numbers", value)  # fmt: skip
+            cells.append(cell)
+            pending.append(numbers[0])
+            if len(pending) >= _NUMBER_BLOCK and not _convert(pending, chunks):
+                raise self.error(f"<{value_tag}>: a number that is not a number", node)
+        if not _convert(pending, chunks):
+            raise self.error(f"<{value_tag}>: a number that is not a number", node)
+        vals = np.concatenate(chunks) if chunks else np.zeros(0)
+        cell_arr = np.asarray(cells, dtype=np.int64)
+        del cells, chunks
+        if not np.isfinite(vals).all() or ((vals < 0) | (vals > 1 + _ROW_TOL)).any():
+            raise self.error(f"<CondProb> of {var!r}: a probability outside [0, 1]", node)
+        # the last entry of a cell wins: a stable sort by cell keeps the entries in order
+        order = np.argsort(cell_arr, kind="stable")
+        cell_arr, vals = cell_arr[order], vals[order]
+        last = np.ones(cell_arr.size, dtype=bool)
+        last[:-1] = cell_arr[1:] != cell_arr[:-1]
+        keep = last & (vals != 0)
+        cell_arr, vals = cell_arr[keep], vals[keep]
+        width, rows_total = dims[-1], total // dims[-1]
+        rows, cols = cell_arr // width, cell_arr % width
+        del cell_arr
+        self._charge(24 * rows.size, f"the nonzeros of {var!r} ({rows.size:.3g})", node)
+        sums = np.bincount(rows, weights=vals, minlength=rows_total)
+        bad = np.abs(sums - 1) > _ROW_TOL
+        if bad.any():
+            where = np.unravel_index(int(np.flatnonzero(bad)[0]), tuple(dims[:-1]))
+            inst_text = " ".join(self.var[a].values[i] for a, i in zip(axes[:-1], where))
+            got = float(sums[np.flatnonzero(bad)[0]])
+            raise self.error(
+                f"<CondProb> of {var!r}: the probabilities for {inst_text or 'the variable'!r} "
+                f"sum to {got:.6g}, expected 1" + (" (no <Entry> covers them)" if got == 0 else ""),
+                node,
+            )
+        drift = np.abs(sums - 1) > 1e-12  # renormalise drifts, keep exact rows bit for bit
+        if drift.any():
+            vals = np.where(drift[rows], vals / sums[rows], vals)
+        return _Table(var=var, axes=tuple(axes), values=None, line=_line(node),
+                      coo=(rows, cols, vals), shape=tuple(dims))  # fmt: skip
 
     def _entries_batched(
         self, param: Any, table: np.ndarray, axes: list[str], kind: str, value_tag: str
@@ -599,9 +686,41 @@ def _is_float(word: str) -> bool:
 
 @dataclass
 class _Table:
-    """A parsed function: ``values`` over ``axes`` (parents, then the variable for a CondProb)."""
+    """A parsed function: ``values`` over ``axes`` (parents, then the variable for a CondProb),
+    or, for a CondProb too large to hold densely, its nonzeros ``coo = (rows, cols, probs)``
+    (``rows`` the parents' configurations row-major, sorted; ``cols`` the variable's values)
+    and ``values`` None."""
 
     var: str
     axes: tuple[str, ...]
-    values: np.ndarray
+    values: np.ndarray | None
     line: int
+    coo: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    shape: tuple[int, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.values is not None:
+            self.shape = tuple(self.values.shape)
+
+    @property
+    def width(self) -> int:
+        """The variable's number of values (the last axis)."""
+        return int(self.shape[-1])
+
+    @property
+    def rows(self) -> int:
+        """The parents' configurations (every axis but the last)."""
+        return int(math.prod(self.shape[:-1]))
+
+    def nonzeros(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(rows, cols, values)`` of the nonzero cells, sorted by row then column."""
+        if self.coo is not None:
+            return self.coo
+        assert self.values is not None
+        flat = self.values.reshape(-1, self.width)
+        rows, cols = np.nonzero(flat)
+        return rows, cols, flat[rows, cols]
+
+    def row_counts(self) -> np.ndarray:
+        """``(rows,)`` the nonzeros of each parents' configuration."""
+        return np.bincount(self.nonzeros()[0], minlength=self.rows)

@@ -172,12 +172,10 @@ def format_pomdpx(model: MOMDP | POMDP | SparsePOMDP, *,
             hidden ``state_0/state_1``), no batch dims; or a flat
             :class:`~torchhrc.pomdp.sparse.SparsePOMDP`, written as one ``<Entry>`` per
             nonzero of ``T``, ``Z`` and ``R`` (a sparse MOMDP: write its
-            ``to_sparse_pomdp()``). APPL's ``pomdpsol`` reads it at any size;
-            :func:`~torchhrc.io.pomdpx.read_pomdpx` holds each table densely while it reads,
-            so it reads such a file back up to
-            :data:`~torchhrc.pomdp.sparse.MAX_DENSE_ENTRIES` cells a table (``A S^2``: about
-            7,000 states with 4 actions); keep a larger flat model as ``.pomdp`` for
-            torchhrc.
+            ``to_sparse_pomdp()``). APPL's ``pomdpsol`` and
+            :func:`~torchhrc.io.pomdpx.read_pomdpx` read it at any size (a table of more
+            than :data:`~torchhrc.pomdp.sparse.MAX_DENSE_ENTRIES` cells is read as its
+            entries).
         description: the ``<Description>`` text.
 
     Returns:

@@ -381,17 +381,7 @@ class _Reader:
         del cell_arr
         self._charge(24 * rows.size, f"the nonzeros of {var!r} ({rows.size:.3g})", node)
         sums = np.bincount(rows, weights=vals, minlength=rows_total)
-        bad = np.abs(sums - 1) > _ROW_TOL
-        if bad.any():
-            where = np.unravel_index(int(np.flatnonzero(bad)[0]), tuple(dims[:-1]))
-            inst_text = " ".join(self.var[a].values[i] for a, i in zip(axes[:-1], where))
-            got = float(sums[np.flatnonzero(bad)[0]])
-            raise self.error(
-                f"<CondProb> of {var!r}: the probabilities for {inst_text or 'the variable'!r} "
-                f"sum to {got:.6g}, expected 1" + (" (no <Entry> covers them)" if got == 0 else ""),
-                node,
-            )
-        drift = np.abs(sums - 1) > 1e-12  # renormalise drifts, keep exact rows bit for bit
+        drift = self._check_rows(sums.reshape(dims[:-1]), axes, var, node).reshape(-1)
         if drift.any():
             vals = np.where(drift[rows], vals / sums[rows], vals)
         return _Table(var=var, axes=tuple(axes), values=None, line=_line(node),
@@ -604,6 +594,14 @@ class _Reader:
 
     def _normalise(self, table: np.ndarray, axes: list[str], var: str, node: _Node) -> None:
         sums = table.sum(-1)
+        drift = self._check_rows(sums, axes, var, node)
+        if drift.any():
+            table[drift] /= sums[drift][:, None]
+
+    def _check_rows(self, sums: np.ndarray, axes: list[str], var: str, node: _Node) -> np.ndarray:
+        """Raise unless every parents' configuration of a CondProb sums to 1 within the
+        tolerance (``sums`` shaped as the parents' axes); return where a row drifts from 1
+        and is to be renormalised (exact rows are kept bit for bit)."""
         bad = np.abs(sums - 1) > _ROW_TOL
         if bad.any():
             where = np.unravel_index(int(np.flatnonzero(bad)[0]), sums.shape)
@@ -614,9 +612,7 @@ class _Reader:
                 f"to {total:.6g}, expected 1" + (" (no <Entry> covers them)" if total == 0 else ""),
                 node,
             )
-        drift = np.abs(sums - 1) > 1e-12  # renormalise drifts, keep exact rows bit for bit
-        if drift.any():
-            table[drift] /= sums[drift][:, None]
+        return np.abs(sums - 1) > 1e-12
 
     def _check_coverage(self, sections: dict[str, list[_Node]]) -> None:
         names = {

@@ -652,10 +652,12 @@ def task_momdp(
 def _sarsop_config(m: MOMDP, time_limit: float, precision: float, max_iterations: int | None,
                    seed: int, config: Any) -> Any:  # fmt: skip
     """The SARSOP settings of :func:`solve_model` (a config without ``lower_bound_init``
-    gets the typed lower bound; ``precision`` relative to the reward span without one)."""
+    gets the typed lower bound where the type is static, ``Ty`` None, and keeps SARSOP's own
+    where it changes; ``precision`` relative to the reward span without one)."""
     from torchhrc.solvers.sarsop import SARSOPConfig
     from torchhrc.solvers.type_policies import type_policy_lower_bound
 
+    typed = type_policy_lower_bound if m.Ty is None else None
     if config is None:
         span = float(m.R.max() - m.R.min()) or 1.0
         config = SARSOPConfig(
@@ -663,12 +665,12 @@ def _sarsop_config(m: MOMDP, time_limit: float, precision: float, max_iterations
             precision=precision * span,
             max_iterations=max_iterations,
             seed=seed,
-            lower_bound_init=type_policy_lower_bound,
+            lower_bound_init=typed,
         )
     elif not isinstance(config, SARSOPConfig):
         raise TypeError(f"expected config to be a SARSOPConfig, got {type(config).__name__}")
-    elif config.lower_bound_init is None:
-        config = replace(config, lower_bound_init=type_policy_lower_bound)
+    elif config.lower_bound_init is None and typed is not None:
+        config = replace(config, lower_bound_init=typed)
     return config
 
 
@@ -688,7 +690,8 @@ def solve_momdp(
         momdp: the MOMDP.
         time_limit, precision, max_iterations, seed, config: as :func:`solve_model`'s
             (``precision`` relative to the reward span; a ``config`` as given, with the typed
-            lower bound when it has no ``lower_bound_init``).
+            lower bound when it has no ``lower_bound_init`` and the type is static, ``Ty``
+            None; a type that changes keeps SARSOP's own lower bound).
 
     Returns:
         The :class:`~torchhrc.solvers.solution.Solution`.

@@ -168,7 +168,7 @@ def true_model_controller(
     """A robot that plans on the world's true model (:func:`true_momdp`) and finds the
     person's type online: SARSOP on it, with :func:`~torchhrc.tasks.pipeline.solve_model`'s
     settings (precision 1e-3 of the reward span; the per-type lower bound where the hidden
-    value is the static type).
+    value is the static type, SARSOP's own where the people's memory changes it).
 
     Args:
         world, noise, shares: as :func:`true_momdp`.
@@ -283,16 +283,9 @@ def _map(name: str, value: torch.Tensor, size: int, into: int) -> torch.Tensor:
 
 
 def _solved(momdp: MOMDP, time_limit: float, seed: int) -> Controller:
-    """SARSOP on ``momdp`` with solve_model's settings (the per-type lower bound where the
-    hidden value is static, SARSOP's own where it changes), as a controller."""
-    from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
+    """SARSOP on ``momdp`` with solve_model's settings, as a controller."""
     from torchhrc.tasks.controller import Controller
     from torchhrc.tasks.pipeline import solve_momdp
 
-    if momdp.Ty is None:
-        solution = solve_momdp(momdp, time_limit=float(time_limit), seed=seed)
-    else:  # the hidden value changes: SARSOP's own (blind-policy) lower bound
-        span = float(momdp.R.max() - momdp.R.min()) or 1.0
-        config = SARSOPConfig(time_limit=float(time_limit), precision=1e-3 * span, seed=seed)
-        solution = sarsop(momdp, config)
+    solution = solve_momdp(momdp, time_limit=float(time_limit), seed=seed)
     return Controller.from_momdp(momdp, solution.policy)

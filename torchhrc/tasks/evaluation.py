@@ -581,6 +581,13 @@ def evaluate_task(
         shares = world.shares
     weights = population_shares(shares, Y)
     A, X = world.task.num_actions, world.task.num_states
+    if told_type and model is None:
+        raise ValueError("told_type=True needs a model")
+    if true_parts and model is None:
+        raise ValueError("true_parts=True needs a model")
+    # every robot this call solves gets the model's solver time (5 s without a model)
+    solver = dict(model.info.get("solver", {})) if model is not None else {}
+    time_limit = float(solver.get("time_limit", 5.0) or 5.0)
     entries: list[tuple[str, Any]] = []
     if model is not None:
         if model.momdp.num_actions != A or model.momdp.num_observed != X:
@@ -598,8 +605,6 @@ def evaluate_task(
     if agnostic is None and demonstrations is not None and model is not None:
         from torchhrc.tasks.pipeline import learn
 
-        solver = dict(model.info.get("solver", {}))
-        time_limit = float(solver.get("time_limit", 5.0) or 5.0)
         agnostic = learn(world.task, demonstrations, k=1, seed=seed, solver_time=time_limit)
     if agnostic is not None and agnostic is not False:
         entries.append(("type-agnostic", Controller.from_model(agnostic)))
@@ -618,18 +623,13 @@ def evaluate_task(
         if TRUE_MODEL in dict(entries):
             raise ValueError(f"robot name {TRUE_MODEL!r} is taken by robots=; rename it or "
                              "leave out true_model=True")  # fmt: skip
-        solver = dict(model.info.get("solver", {})) if model is not None else {}
         entries.append((TRUE_MODEL, true_model_controller(
-            world, noise=float(noise), shares=weights,
-            time_limit=float(solver.get("time_limit", 5.0) or 5.0), seed=seed)))  # fmt: skip
+            world, noise=float(noise), shares=weights, time_limit=time_limit,
+            seed=seed)))  # fmt: skip
     if not entries:
         raise ValueError("nothing to evaluate: give a model or robots")
 
     types = torch.arange(Y).repeat_interleave(episodes)  # (B,) episodes grouped by type
-    if told_type and model is None:
-        raise ValueError("told_type=True needs a model")
-    if true_parts and model is None:
-        raise ValueError("true_parts=True needs a model")
     R = len(entries) + int(told_type) + 2 * int(true_parts)
     returns = torch.zeros(R, Y, episodes, dtype=torch.float64)
     steps = torch.zeros(R, Y, dtype=torch.float64)
@@ -663,7 +663,6 @@ def evaluate_task(
         from torchhrc.tasks.true_model import true_behaviour_controller, true_reward_controller
 
         assert model is not None
-        time_limit = float(dict(model.info.get("solver", {})).get("time_limit", 5.0) or 5.0)
         parts = (
             (TRUE_BEHAVIOUR, true_behaviour_controller(world, model, type_map, noise=float(noise),
                                                        shares=weights, time_limit=time_limit,

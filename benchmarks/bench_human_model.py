@@ -8,7 +8,8 @@ it (noise 0.05, pause 0.01, the fold split's seed = the seed). Prints the table 
 seed, the held-out log-likelihood per human turn of both models on the first seed (the
 score that chooses, then the score with the demonstrated partner moves everywhere), the
 share of turns in states where the partner's move depends on the type (scored under the
-pooled partner), and the seeds picking that model.
+pooled partner), the seeds picking that model, and the state model's smoothing chosen on
+each seed (``habit_weight/prior_strength``, ``docs/your_own_task.md`` section 4).
 
 Usage::
 
@@ -46,10 +47,11 @@ def main(argv: list[str] | None = None) -> None:
     makers = HELDOUT if args.heldout else SUITE
     print("| task | types | auto picks | chain (nats/turn) | state (nats/turn) | "
           "demonstrated moves: chain / state | confounded turns | "
-          f"seeds 0-{args.seeds - 1} picking it |\n|---|---|---|---|---|---|---|---|")  # fmt: skip
+          f"seeds 0-{args.seeds - 1} picking it | state smoothing per seed |\n"
+          "|---|---|---|---|---|---|---|---|---|")  # fmt: skip
     for name, make in makers.items():
         world = make()
-        picks, first = [], None
+        picks, first, smoothing = [], None, []
         for seed in range(args.seeds):
             demos, _ = world.demonstrations(subjects=args.subjects, per_subject=args.per_subject,
                                             noise=0.05, seed=seed)  # fmt: skip
@@ -59,6 +61,8 @@ def main(argv: list[str] | None = None) -> None:
             record = compare_human_models(world.task, demos, fit.assignments, noise=0.05,
                                           pause=0.01, seed=seed)  # fmt: skip
             picks.append(record["used"])
+            chosen = record["state_smoothing"]
+            smoothing.append(f"{chosen['habit_weight']:g}/{chosen['prior_strength']:g}")
             first = first or record
         per = first["per_step"]
         chain = f"{per['chain']:.3f}" if "chain" in per else "-"
@@ -67,7 +71,8 @@ def main(argv: list[str] | None = None) -> None:
         shown = " / ".join(f"{shown[m]:.3f}" for m in ("chain", "state")) if shown else "-"
         conf = f"{first['confounded']:.2f}" if "confounded" in first else "-"
         print(f"| {name} | {world.num_types} | {first['used']} | {chain} | {state} | {shown} | "
-              f"{conf} | {picks.count(first['used'])}/{len(picks)} |", flush=True)  # fmt: skip
+              f"{conf} | {picks.count(first['used'])}/{len(picks)} | {' '.join(smoothing)} |",
+              flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -169,7 +169,7 @@ def test_state_behaviour_counts_the_demonstrated_choices():
     # (_state_counts) and n counts n_h in a state: the type's habit (counts before the
     # robot's move: the same states, the robot only waits) h = (n_h + chain) / (n + 1), the
     # population's (one type) q = (n_h + h) / (n + 1), the prior 3/4 h + 1/4 q
-    # (STATE_HABIT_WEIGHT), and p = (n_h + prior) / (n + 1)
+    # (TypeEvidence.habit_weight, default 0.75), and p = (n_h + prior) / (n + 1)
     def smoothed(n_h: list[float], chain: list[float]) -> torch.Tensor:
         n_h_, chain_ = torch.tensor(n_h), torch.tensor(chain)
         n = float(n_h_.sum())
@@ -331,7 +331,7 @@ def test_state_behaviour_an_unseen_reaction_carries_little_evidence():
     seen = behaviour[:, 1, 0, 1]  # (Y,) P(no action | s0, poke, y)
     posterior = seen / seen.sum()
     # patient: 4 turns passed and 1 go in s0x per demonstration, ~0.77 with the back-off;
-    # shy, never seen in s0x: 3/4 its habit in s0 (go, STATE_HABIT_WEIGHT), 1/4 what the
+    # shy, never seen in s0x: 3/4 its habit in s0 (go, habit_weight 0.75), 1/4 what the
     # population does in s0x (the patient's ~0.8), so ~0.2: an unseen situation moves the
     # belief at most 4:1 (posterior 0.8), it does not jump to "patient" (before: shy's chain
     # back-off left 0.06 to "no action", the belief 0.92 on "patient")

@@ -267,13 +267,15 @@ def test_auto_human_model_picks_the_model_the_human_follows(respond, expected):
     task = _Turns()
     demos = _turn_demos(respond)
     types = torch.zeros(demos.num_sequences, dtype=torch.long)
-    record = compare_human_models(task, demos, types, noise=0.05, pause=0.01, seed=0)
+    record = compare_human_models(task, demos, types, noise=0.05, pause=0.01, seed=0,
+                                  state_smoothing=(0.75, 1.0))  # fmt: skip
     assert record["used"] == expected and record["folds"] == 5 and record["subjects"] == 8
     other = "chain" if expected == "state" else "state"
     # the followed model predicts each held-out turn almost surely: (1 - pause) *
     # ((1 - noise) * q + noise / 2), half the noise landing on the right action, with q = 1
-    # for the chain (log 0.965 = -0.036 nats a turn); the state model backs off by one
-    # pseudo-step (interface.STATE_PRIOR_STRENGTH) from ~38.4 training turns per phase, all
+    # for the chain (log 0.965 = -0.036 nats a turn); the state model (smoothing given:
+    # habit weight 0.75, strength 1) backs off by one pseudo-step from ~38.4 training turns
+    # per phase, all
     # the same answer, toward 3/4 the type's habit before the robot's move (the same
     # phase: h = 38.9 / 39.4 of the chain's even split smoothed in) and 1/4 the
     # population's (one type: (38.4 + h) / 39.4): q = (38.4 + prior) / 39.4 = 0.9997
@@ -292,7 +294,9 @@ def test_auto_human_model_picks_the_model_the_human_follows(respond, expected):
     depends_on_x = not torch.allclose(b[:, 0], b[:, 1])
     assert depends_on_x == (expected == "state")
     forced = learn(task, demos, k=1, solve=False, irl_iterations=2, human_model=other)
-    assert forced.info["human_model"] == {"requested": other, "used": other}
+    record = forced.info["human_model"]
+    assert record["requested"] == other and record["used"] == other
+    assert set(record["state_smoothing"]) == {"habit_weight", "prior_strength"}
 
 
 def test_auto_human_model_scores_without_a_move_that_carries_the_type():
@@ -315,8 +319,9 @@ def test_auto_human_model_scores_without_a_move_that_carries_the_type():
             who.append(f"s{s}")
             types.append(y)
     demos = Demonstrations.from_lists(seqs, subjects=who)
+    # (the default smoothing: the property is the scoring's, not the smoothing's choice)
     record = compare_human_models(_Turns(), demos, torch.tensor(types), noise=0.05,
-                                  pause=0.01, seed=0)  # fmt: skip
+                                  pause=0.01, seed=0, state_smoothing=(0.75, 1.0))  # fmt: skip
     assert record["confounded"] == 1.0
     demonstrated = record["per_step_demonstrated"]
     assert demonstrated["chain"] > demonstrated["state"]  # the old rule would pick chain

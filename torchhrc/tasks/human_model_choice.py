@@ -1,5 +1,6 @@
 """Which human model a learned task uses: :func:`compare_human_models` scores the ``chain``
-and ``state`` human models on held-out demonstrations of each type (issue 31 goal 4).
+and ``state`` human models on held-out demonstrations of each type (issue 31 goal 4), and
+chooses the state model's smoothing the same way.
 
 ``learn(human_model="auto")`` (:mod:`torchhrc.tasks.pipeline`) calls it and keeps the better
 model; its record goes into the learned model's diagnosis.
@@ -11,7 +12,12 @@ from typing import Any
 
 import torch
 
-from torchhrc.tasks.interface import CollaborativeTask, TaskSteps, TypeEvidence
+from torchhrc.tasks.interface import (
+    CollaborativeTask,
+    TaskSteps,
+    TypeEvidence,
+    check_state_smoothing,
+)
 
 #: The human models :func:`compare_human_models` chooses from.
 HUMAN_MODELS: tuple[str, ...] = ("chain", "state")
@@ -20,6 +26,19 @@ HUMAN_MODELS: tuple[str, ...] = ("chain", "state")
 #: :func:`compare_human_models` scores the person there without the move (the move carries
 #: the type).
 PARTNER_CONFOUNDED: float = 0.5
+
+#: The state model's smoothings ``(habit_weight, prior_strength)`` that
+#: :func:`compare_human_models` scores on held-out subjects (:class:`TypeEvidence`;
+#: ``torchhrc.tasks.interface._state_counts``): the habit's weight ``w`` bounds at
+#: ``1 / (1 - w)`` the evidence a turn in a situation the type was never seen in can carry
+#: (4 at the default 0.75, 50 at 0.98), and the strength ``c`` is how many demonstration
+#: steps the prior weighs as in a state. The first entry is the default.
+STATE_SMOOTHING_GRID: tuple[tuple[float, float], ...] = ((0.75, 1.0),) + tuple(
+    (w, c)
+    for w in (0.5, 0.75, 0.9, 0.95, 0.98)
+    for c in (1.0, 4.0, 16.0, 64.0)
+    if (w, c) != (0.75, 1.0)
+)
 
 
 def _subset_steps(steps: TaskSteps, index: torch.Tensor) -> TaskSteps:
@@ -46,21 +65,27 @@ def compare_human_models(
     pause: float = 0.01,
     folds: int = 5,
     seed: int = 0,
+    models: tuple[str, ...] = HUMAN_MODELS,
+    state_smoothing: tuple[float, float] | None = None,
 ) -> dict[str, Any]:
-    """Held-out likelihood of the human's actions under each human model, by subject.
+    """Held-out likelihood of the human's actions under each human model, by subject; for
+    the ``state`` model also the smoothing ``(habit_weight, prior_strength)`` it scores best
+    with.
 
     The subjects are dealt at random into ``F = min(folds, subjects)`` folds. For each fold
-    and each model in :data:`HUMAN_MODELS` (``task.human_model`` set to it through
-    ``TypeEvidence.human_model``), the behaviour ``P(a_h | x, a_r, y)`` of every type is
-    learned by ``task.human_policy`` from the other folds' demonstrations (their types
-    ``assignments``; chains re-estimated on them), and each held-out demonstration ``n``
-    scores the complete-data likelihood under its own type ``y_n = assignments[n]``,
-    ``log w_{y_n} + sum_t log q_t(y_n)`` (``w_y``: the training share of type ``y``, plus
-    one). This is the marginal likelihood ``log sum_y w_y prod_t q_t(y)`` plus
-    ``log P(y_n | the demonstration's actions)``: a model must both predict the human's
-    actions and tell the types apart from them, as the robot's belief filter must online
-    (a model that predicts the actions equally well for every type scores ``log w_{y_n}``
-    below one that identifies them; with one type the two scores agree).
+    and each candidate (``"chain"``; ``"state"`` with each smoothing of
+    :data:`STATE_SMOOTHING_GRID`, or only ``state_smoothing`` when given) the behaviour
+    ``P(a_h | x, a_r, y)`` of every type is learned by ``task.human_policy`` from the other
+    folds' demonstrations (their types ``assignments``; chains re-estimated on them;
+    :class:`~torchhrc.tasks.interface.TypeEvidence` carries the model and the smoothing), and
+    each held-out demonstration ``n`` scores the complete-data likelihood under its own type
+    ``y_n = assignments[n]``, ``log w_{y_n} + sum_t log q_t(y_n)`` (``w_y``: the training
+    share of type ``y``, plus one). This is the marginal likelihood
+    ``log sum_y w_y prod_t q_t(y)`` plus ``log P(y_n | the demonstration's actions)``: a model
+    must both predict the human's actions and tell the types apart from them, as the robot's
+    belief filter must online (a model that predicts the actions equally well for every type
+    scores ``log w_{y_n}`` below one that identifies them; with one type the two scores
+    agree).
 
     ``q_t(y) = P(a_h,t | x_t, a_r,t, y)``, except in a state where the demonstrating
     partner's move depends on the type (:data:`PARTNER_CONFOUNDED`: the training partners
@@ -71,9 +96,21 @@ def compare_human_models(
     that explains the person by a move that only served their type ("sort what was
     presented", when each type's partner presented that type's next item) then loses to
     one that knows what the type does whatever the move; the score with the
-    demonstrated moves everywhere is recorded too (``"per_step_demonstrated"``).
+    demonstrated moves everywhere is recorded too (``"per_step_demonstrated"``). The same
+    score chooses the state model's smoothing: the held-out turns after partner moves that
+    the person's own type's partners rarely made, and the confounded turns scored under the
+    other types' partners' moves, are where the smoothing decides the prediction. The
+    confounded turns read the person's action as their answer to any move, so where many
+    turns are confounded they favour a larger habit weight (on the suite 0.95-0.98 on most
+    tasks, ``docs/your_own_task.md`` section 4); in states where the partners of every type
+    moved alike the held-out turns alone decide (a person who answers a rare move in their
+    own way gets a small habit weight, ``tests/tasks/test_state_smoothing.py``).
 
-    The model with the larger total is ``"used"``; ties go to ``"chain"`` (the paper's).
+    The ``state`` model's score is that of its best smoothing (ties: the earlier in the
+    grid, whose first entry is :class:`TypeEvidence`'s default); the model with the larger
+    total is ``"used"``; ties go to ``"chain"`` (the paper's). Taking the best of the
+    grid's 20 smoothings favours ``state`` by at most ``log 20`` nats, far below the gaps
+    between the two models on the suite (tens to hundreds of nats).
 
     Args:
         task: a task whose :meth:`~CollaborativeTask.human_policy` reads
@@ -83,51 +120,83 @@ def compare_human_models(
         noise, pause: the behaviour's settings (:class:`TypeEvidence`).
         folds: the number of folds over subjects.
         seed: the fold split's seed.
+        models: the human models to score, a non-empty subset of :data:`HUMAN_MODELS`
+            (``("state",)``: only choose the state model's smoothing).
+        state_smoothing: score the state model with this ``(habit_weight, prior_strength)``
+            only, instead of the grid.
 
     Returns:
         ``{"used", "heldout": {model: nats}, "per_step": {model: nats per human turn},
         "per_step_demonstrated": {model: nats per turn with the demonstrated moves},
         "confounded": the fraction of turns in confounded states, "folds", "subjects",
-        "steps"}``; ``"used"`` is ``"same"`` (and nothing is held out)
-        when ``task.human_policy`` gives the same behaviour for every model (a task with its
-        own human policy, or one whose human has one legal action wherever it acts), and
-        ``"chain"`` when the task reads no steps or has one subject.
+        "steps", "state_smoothing": {"habit_weight", "prior_strength"}, "state_grid": [{
+        "habit_weight", "prior_strength", "heldout", "heldout_demonstrated"}, ...]}``; ``"used"`` is ``"same"`` (and
+        nothing is held out) when ``task.human_policy`` gives the same behaviour for every
+        model (a task with its own human policy, or one whose human has one legal action
+        wherever it acts), and ``"chain"`` (or ``models[0]`` without ``"chain"``) when the
+        task reads no steps or has one subject; the smoothing is then the default (or the
+        one given).
+
+    Raises:
+        ValueError: ``models`` empty or naming an unknown model, or a ``state_smoothing``
+            out of range (:func:`~torchhrc.tasks.interface.check_state_smoothing`).
 
     Example:
         >>> from torchhrc.tasks.suite import make_task
         >>> twp = make_task("fetch_order")
         >>> demos, types = twp.demonstrations(subjects=6, per_subject=2, seed=0)
-        >>> compare_human_models(twp.task, demos, types)["used"] in HUMAN_MODELS
-        True
+        >>> record = compare_human_models(twp.task, demos, types)
+        >>> record["used"] in HUMAN_MODELS, sorted(record["state_smoothing"])
+        (True, ['habit_weight', 'prior_strength'])
     """
+    models = tuple(models)
+    if not models or any(m not in HUMAN_MODELS for m in models):
+        raise ValueError(f"expected models a non-empty subset of {HUMAN_MODELS}, got {models}")
+    if state_smoothing is None:
+        grid = STATE_SMOOTHING_GRID
+    else:
+        if len(tuple(state_smoothing)) != 2:
+            raise ValueError("expected state_smoothing a pair (habit_weight, prior_strength), "
+                             f"got {state_smoothing!r}")  # fmt: skip
+        check_state_smoothing(*state_smoothing)
+        grid = (tuple(float(v) for v in state_smoothing),)  # type: ignore[assignment]
     steps = task.read_steps(demonstrations)
     N = demonstrations.num_sequences
     assignments = assignments.long().cpu()
     K = int(assignments.max()) + 1 if N else 1
     counts = demonstrations.transition_counts(per_sequence=True).double().cpu()  # (N, V, V)
     vocabulary = tuple(tuple(v) for v in demonstrations.vocabulary)
+    # the candidates: (model, habit_weight, prior_strength); the chain ignores the smoothing
+    candidates = [(m, *grid[0]) for m in models if m == "chain"] + [
+        ("state", w, c) for w, c in grid if "state" in models
+    ]
 
-    def behaviour(index: torch.Tensor, model: str) -> torch.Tensor:
+    def behaviour(index: torch.Tensor, model: str, w: float, c: float) -> torch.Tensor:
         evidence = TypeEvidence(
             chains=_type_chains(counts[index], assignments[index], K),
             vocabulary=vocabulary,  # type: ignore[arg-type]
             assignments=assignments[index],
             steps=None if steps is None else _subset_steps(steps, index.to(steps.mask.device)),
-            noise=noise, pause=pause, human_model=model,
+            noise=noise, pause=pause, human_model=model, habit_weight=w, prior_strength=c,
         )  # fmt: skip
         return task.human_policy(evidence).detach().double().cpu()  # (K, A, X, H + 1)
+
+    def smoothing(w: float, c: float) -> dict[str, float]:
+        return {"habit_weight": w, "prior_strength": c}
 
     every = torch.arange(N)
     names = list(demonstrations.subjects)
     index: dict[str, int] = {}
     subject = torch.tensor([index.setdefault(n, len(index)) for n in names], dtype=torch.long)
     S = len(index)
-    record: dict[str, Any] = {"folds": 0, "subjects": S, "heldout": {}, "per_step": {}}
+    record: dict[str, Any] = {"folds": 0, "subjects": S, "heldout": {}, "per_step": {},
+                              "state_smoothing": smoothing(*grid[0])}  # fmt: skip
     if steps is None or S < 2:
-        return {**record, "used": "chain"}
-    full = [behaviour(every, m) for m in HUMAN_MODELS]
-    if all(torch.equal(full[0], b) for b in full[1:]):
-        return {**record, "used": "same"}
+        return {**record, "used": "chain" if "chain" in models else models[0]}
+    if len(models) > 1:
+        full = [behaviour(every, m, *grid[0]) for m in models]
+        if all(torch.equal(full[0], b) for b in full[1:]):
+            return {**record, "used": "same"}
     F_ = min(int(folds), S)
     fold_of = torch.empty(S, dtype=torch.long)
     fold_of[torch.randperm(S, generator=torch.Generator().manual_seed(int(seed)))] = (
@@ -139,8 +208,8 @@ def compare_human_models(
     h = steps.human.cpu()
     H = task.num_human_actions
     column = torch.where(h < 0, H, h)  # (N, L), "no action" is the last column
-    totals = {m: 0.0 for m in HUMAN_MODELS}
-    plain = {m: 0.0 for m in HUMAN_MODELS}
+    totals = [0.0] * len(candidates)
+    plain = [0.0] * len(candidates)
     A, X = task.num_actions, task.num_states
     confounded_turns = 0
     for f in range(F_):
@@ -165,8 +234,8 @@ def compare_human_models(
         xs, cs = x[held], column[held]  # (n, L)
         blind = confounded[xs]  # (n, L)
         confounded_turns += int((blind & mask[held]).sum())
-        for m in HUMAN_MODELS:
-            b = behaviour(train, m)  # (K, A, X, H + 1)
+        for i, candidate in enumerate(candidates):
+            b = behaviour(train, *candidate)  # (K, A, X, H + 1)
             log_b = b.clamp_min(1e-300).log()
             per = log_b[:, a[held], xs, cs]  # (K, n, L)
             # without the move: sum_a P_pool(a | x) P(a_h | x, a, y)
@@ -174,10 +243,22 @@ def compare_human_models(
             score = torch.where(blind, q.clamp_min(1e-300).log(), per)
             for store, value in ((totals, score), (plain, per)):
                 value = (value * mask[held]).sum(-1)  # (K, n)
-                store[m] += float((value.gather(0, own.view(1, -1)) + log_w[own]).sum())
+                store[i] += float((value.gather(0, own.view(1, -1)) + log_w[own]).sum())
     turns = max(int(mask.sum()), 1)
-    used = max(HUMAN_MODELS, key=lambda m: (totals[m], m == "chain"))
-    return {**record, "used": used, "folds": F_, "steps": turns, "heldout": totals,
-            "per_step": {m: totals[m] / turns for m in HUMAN_MODELS},
-            "per_step_demonstrated": {m: plain[m] / turns for m in HUMAN_MODELS},
-            "confounded": confounded_turns / turns}  # fmt: skip
+    # each model's best candidate (the first of equal ones)
+    best: dict[str, int] = {}
+    for i, (m, _, _) in enumerate(candidates):
+        if m not in best or totals[i] > totals[best[m]]:
+            best[m] = i
+    used = max(models, key=lambda m: (totals[best[m]], m == "chain"))
+    out = {**record, "used": used, "folds": F_, "steps": turns,
+           "heldout": {m: totals[i] for m, i in best.items()},
+           "per_step": {m: totals[i] / turns for m, i in best.items()},
+           "per_step_demonstrated": {m: plain[i] / turns for m, i in best.items()},
+           "confounded": confounded_turns / turns}  # fmt: skip
+    if "state" in best:
+        out["state_smoothing"] = smoothing(*candidates[best["state"]][1:])
+        out["state_grid"] = [{**smoothing(w, c), "heldout": totals[i],
+                              "heldout_demonstrated": plain[i]}
+                             for i, (m, w, c) in enumerate(candidates) if m == "state"]  # fmt: skip
+    return out

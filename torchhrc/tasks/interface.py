@@ -70,6 +70,7 @@ __all__ = [
     "TypeEvidence",
     "behaviour_from_preferences",
     "chain_preferences",
+    "check_state_smoothing",
     "check_task",
     "reachable_states",
     "tabular_features",
@@ -128,6 +129,11 @@ class TypeEvidence:
             task's :attr:`CollaborativeTask.human_model`, or ``"auto"`` resolved on held-out
             data), which the default :meth:`~CollaborativeTask.human_policy` follows;
             ``None``: the task's own setting (``"auto"`` then reads as ``"chain"``).
+        habit_weight: the state model's weight ``w`` of the type's own habit in its prior
+            (:func:`_state_counts`), in ``[0, 1]``; the pipeline chooses it on held-out
+            subjects (:func:`~torchhrc.tasks.human_model_choice.compare_human_models`).
+        prior_strength: the state model's Dirichlet strength ``c > 0``: how many
+            demonstration steps the prior weighs as in each state (:func:`_state_counts`).
     """
 
     chains: torch.Tensor
@@ -137,6 +143,11 @@ class TypeEvidence:
     noise: float = 0.05
     pause: float = 0.0
     human_model: str | None = None
+    habit_weight: float = 0.75
+    prior_strength: float = 1.0
+
+    def __post_init__(self) -> None:
+        check_state_smoothing(self.habit_weight, self.prior_strength)
 
     @property
     def num_types(self) -> int:
@@ -635,18 +646,26 @@ class CollaborativeTask:
         return tuple(f"type_{k}" for k in range(evidence.num_types))
 
 
-#: Dirichlet strength ``c`` of the state model's back-off (:func:`_state_counts`): the
-#: type's behaviour elsewhere weighs as ``c`` demonstration steps in each state.
-STATE_PRIOR_STRENGTH: float = 1.0
+#: Dirichlet strength of the type's habit toward its chain preference
+#: (:func:`_state_counts`): the chain weighs as one demonstration step in each state.
+HABIT_CHAIN_STRENGTH: float = 1.0
 
-#: Weight ``w`` of the type's own habit in the state model's prior (:func:`_state_counts`);
-#: ``1 - w`` goes to what the population does in the state. Where a type was never seen, a
-#: surprising action then costs it at most a factor ``1 / (1 - w)`` (4) against a type seen
-#: there (when that type alone was seen): an unseen situation carries bounded evidence.
-#: Chosen on the whole suite (benchmarks/bench_evaluation.py, docs/your_own_task.md section
-#: 8): 0.5 and 0.75 tie on fetch_order and workshop_five; at 0.5 the belief cannot use a
-#: reaction seen in one type's demonstrations only (screws_hands_off 1.26 against 2.11).
-STATE_HABIT_WEIGHT: float = 0.75
+
+def check_state_smoothing(habit_weight: float, prior_strength: float) -> None:
+    """Raise a ValueError unless ``habit_weight`` is in ``[0, 1]`` and ``prior_strength``
+    is a finite number above 0 (the state model's smoothing, :class:`TypeEvidence`).
+
+    Example:
+        >>> check_state_smoothing(0.75, 1.0)
+        >>> check_state_smoothing(1.5, 1.0)
+        Traceback (most recent call last):
+        ...
+        ValueError: expected habit_weight in [0, 1], got 1.5
+    """
+    if not 0.0 <= float(habit_weight) <= 1.0:
+        raise ValueError(f"expected habit_weight in [0, 1], got {habit_weight}")
+    if not 0.0 < float(prior_strength) < float("inf"):
+        raise ValueError(f"expected prior_strength a finite number above 0, got {prior_strength}")
 
 
 def _state_counts(
@@ -661,14 +680,19 @@ def _state_counts(
     recording ended before the human's turn, which is no evidence of waiting.
 
     Hierarchical Dirichlet smoothing: the posterior mean of ``P(h | x, a_r, y)`` under a
-    Dirichlet prior of strength ``c`` (:data:`STATE_PRIOR_STRENGTH`),
+    Dirichlet prior of strength ``c`` (``evidence.prior_strength``),
     ``counts[y, x, h] + c * prior[y, a_r, x, h]``, whose centre mixes two parents with
-    weight ``w`` (:data:`STATE_HABIT_WEIGHT`):
+    weight ``w`` (``evidence.habit_weight``):
     ``prior = w * habit[y, a_r, x_before] + (1 - w) * population[a_r, x_before]``.
+    The pipeline chooses ``(w, c)`` per task on held-out subjects
+    (:func:`~torchhrc.tasks.human_model_choice.compare_human_models`): how far a type's
+    habit carries into situations its demonstrations rarely show is a property of the
+    people, which the held-out subjects' turns after unusual partner moves measure.
 
     * ``habit``: what the type did in the state *before* the robot's move, whatever the move
       (counts by ``x_before``, restricted to what is possible after this move), itself
-      smoothed (strength ``c``) toward the type's chain preference ``P(a_h | a_r = a)``
+      smoothed (strength :data:`HABIT_CHAIN_STRENGTH`) toward the type's chain preference
+      ``P(a_h | a_r = a)``
       (:func:`chain_preferences`) restricted to the actions legal after the move and
       renormalised (uniform where it has no mass), scaled by ``1 - r_y``, with
       ``r_y = (waits_y + 0.5) / (choices_y + 1)`` on "no action".
@@ -688,7 +712,12 @@ def _state_counts(
     (``screws_hands_off``: ``hands_off`` pulls back after an early drill) costs that type at
     most about a factor ``1 / (1 - w)`` against a type seen there, instead of sending the
     belief to the wrong type with near-certainty. Where the type was seen often its counts
-    dominate (``c`` = one step's worth).
+    dominate. The defaults ``w = 0.75``, ``c = 1`` (one step's worth) bound that factor at
+    4; where the held-out subjects show that people keep their habit after moves their
+    partners rarely made (``fetch_order``: each person assembles the next part of their own
+    order whatever was fetched), the pipeline's choice trusts the habit more (a larger
+    ``w`` and ``c``), so that one odd turn in a rare situation does not outweigh the type's
+    habit and a first move the partners never made still tells the types apart.
     """
     steps = evidence.steps
     assert steps is not None
@@ -717,7 +746,7 @@ def _state_counts(
     waits = counts[..., H].sum(-1)  # (K,)
     rate = ((waits + 0.5) / (counts.sum((-1, -2)) + 1.0)).view(K, 1, 1, 1)  # (K, 1, 1, 1)
     chain = torch.cat([(1.0 - rate) * pref, rate.expand(*pref.shape[:-1], 1)], -1)
-    c = STATE_PRIOR_STRENGTH
+    c = evidence.prior_strength
     # the type's habit: what it did in the same state before the robot's move, whatever
     # the move (counts by x_before), restricted to what is possible after this move, with
     # the chain preference as its own prior
@@ -725,7 +754,7 @@ def _state_counts(
     flat = (y * X + steps.states[keep]) * (H + 1) + column[keep]
     before.view(-1).index_add_(0, flat, torch.ones_like(flat, dtype=dtype))
     possible = torch.cat([legal_f, legal_f.amax(-1, keepdim=True)], -1)  # (A, X, H + 1)
-    habit = before.unsqueeze(1) * possible + c * chain  # (K, A, X, H + 1)
+    habit = before.unsqueeze(1) * possible + HABIT_CHAIN_STRENGTH * chain  # (K, A, X, H + 1)
     habit = habit / habit.sum(-1, keepdim=True).clamp_min(1e-300)
     # the population: every type's counts in the state after the move, with the types'
     # habits (weighted by their sizes) as its prior
@@ -733,7 +762,7 @@ def _state_counts(
     size = (size / size.sum().clamp_min(1.0)).view(K, 1, 1, 1)
     population = counts.sum(0)[effect] + c * (size * habit).sum(0)  # (A, X, H + 1)
     population = population / population.sum(-1, keepdim=True).clamp_min(1e-300)
-    w = STATE_HABIT_WEIGHT
+    w = evidence.habit_weight
     prior = w * habit + (1.0 - w) * population  # (K, A, X, H + 1)
     return (counts[:, effect] + c * prior).to(device)  # (K, A, X, H + 1)
 

@@ -40,9 +40,16 @@ from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP
 from torchhrc.tasks.human_model_choice import (
     HUMAN_MODELS,
+    STATE_SMOOTHING_GRID,
     compare_human_models,
 )
-from torchhrc.tasks.interface import CollaborativeTask, TaskSteps, TypeEvidence, check_task
+from torchhrc.tasks.interface import (
+    CollaborativeTask,
+    TaskSteps,
+    TypeEvidence,
+    check_state_smoothing,
+    check_task,
+)
 
 __all__ = [
     "IRLConfig",
@@ -454,6 +461,22 @@ def learn_type_weights(
     return weights
 
 
+def _state_smoothing(value: tuple[float, float] | str) -> tuple[float, float] | None:
+    """``state_smoothing`` checked: ``None`` for ``"auto"``, else the pair as floats."""
+    if isinstance(value, str):
+        if value != "auto":
+            raise ValueError(f"expected state_smoothing 'auto' or a pair (habit_weight, "
+                             f"prior_strength), got {value!r}")  # fmt: skip
+        return None
+    try:
+        w, c = (float(v) for v in value)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"expected state_smoothing 'auto' or a pair (habit_weight, "
+                        f"prior_strength), got {value!r}") from exc  # fmt: skip
+    check_state_smoothing(w, c)
+    return w, c
+
+
 def build_model(
     task: CollaborativeTask,
     demonstrations: Any,
@@ -470,6 +493,7 @@ def build_model(
     info: dict[str, Any] | None = None,
     irl_l2: float = MAXENT_L2,
     human_model: str | None = None,
+    state_smoothing: tuple[float, float] | str = "auto",
 ) -> LearnedModel:
     """Build the learned MOMDP from given types (no solve).
 
@@ -489,6 +513,11 @@ def build_model(
             ``"auto"`` the better of the two on held-out likelihood by subject is used
             (:func:`compare_human_models`); ``info["human_model"]`` records the choice and
             the held-out likelihoods.
+        state_smoothing: the state model's ``(habit_weight, prior_strength)``
+            (:class:`~torchhrc.tasks.interface.TypeEvidence`), or ``"auto"``: the best of
+            :data:`~torchhrc.tasks.human_model_choice.STATE_SMOOTHING_GRID` on held-out
+            subjects, chosen with the human model (or alone when ``"state"`` is asked for);
+            recorded in ``info["human_model"]["state_smoothing"]``.
 
     Returns:
         :class:`LearnedModel` with ``policy=None``.
@@ -514,14 +543,21 @@ def build_model(
     if requested not in (None, "auto", *HUMAN_MODELS):
         raise ValueError(f"expected human_model 'auto', 'chain' or 'state' (or None), "
                          f"got {requested!r}")  # fmt: skip
+    given = _state_smoothing(state_smoothing)
     chosen: dict[str, Any] = {"requested": requested}
-    if requested == "auto":
+    if requested == "auto" or (requested == "state" and given is None):
+        scored = HUMAN_MODELS if requested == "auto" else ("state",)
         chosen.update(compare_human_models(task, demonstrations, assignments, noise=noise,
-                                           pause=pause, seed=seed))  # fmt: skip
+                                           pause=pause, seed=seed, models=scored,
+                                           state_smoothing=given))  # fmt: skip
         model_name = chosen["used"] if chosen["used"] in HUMAN_MODELS else None
     else:
         chosen["used"] = requested
         model_name = requested
+    smoothing = chosen.get("state_smoothing")
+    if smoothing is None:
+        w, c = given if given is not None else STATE_SMOOTHING_GRID[0]
+        smoothing = chosen["state_smoothing"] = {"habit_weight": w, "prior_strength": c}
     steps = task.read_steps(demonstrations)
     evidence = TypeEvidence(
         chains=chains,
@@ -531,6 +567,7 @@ def build_model(
         noise=noise,
         pause=pause,
         human_model=model_name,
+        **smoothing,
     )
     behaviour = _check_types("human_policy()", task.human_policy(evidence), 0, K,
                              f"(Y={K}, A={A}, X={X}, H+1={H + 1})")  # fmt: skip
@@ -745,6 +782,7 @@ def learn(
     irl: IRLConfig | None = None,
     solver: Any = None,
     human_model: str | None = None,
+    state_smoothing: tuple[float, float] | str = "auto",
     k_min: int | None = None,
     k_max: int | None = None,
     restarts: int | None = None,
@@ -795,6 +833,8 @@ def learn(
             of :func:`solve_model` is used).
         human_model: ``"auto"``, ``"chain"`` or ``"state"`` (:func:`build_model`); ``None``:
             the task's ``human_model`` (default ``"auto"``).
+        state_smoothing: the state model's ``(habit_weight, prior_strength)``, or
+            ``"auto"``: chosen on held-out subjects (:func:`build_model`).
         k_min: instead of ``cluster``: :func:`~torchhrc.mixture.fit_mixture`'s ``k_min``.
         k_max: instead of ``cluster``: ``fit_mixture``'s ``k_max``.
         restarts: instead of ``cluster``: ``fit_mixture``'s ``restarts``.
@@ -849,6 +889,7 @@ def learn(
     check_task(task)
     if prior not in ("shares", "uniform"):
         raise ValueError(f"expected prior 'shares' or 'uniform', got {prior!r}")
+    _state_smoothing(state_smoothing)  # checked before the clustering
     keywords = dict(k_min=k_min, k_max=k_max, restarts=restarts, method=mixture_method,
                     parameters=bic_parameters, criterion=criterion, objects=objects,
                     min_gain=min_gain, order=order)  # fmt: skip
@@ -923,7 +964,7 @@ def learn(
     model = build_model(task, demonstrations, chains, fit.assignments, b0=b0, noise=noise,
                         pause=pause, rule=irl.rule, irl_epsilon=irl.epsilon,
                         irl_iterations=irl.iterations, irl_l2=irl.l2, seed=seed, info=info,
-                        human_model=human_model)  # fmt: skip
+                        human_model=human_model, state_smoothing=state_smoothing)  # fmt: skip
     if solve:
         if solver is None:
             model = solve_model(model, time_limit=solver_time, precision=solver_precision,

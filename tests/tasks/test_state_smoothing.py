@@ -1,0 +1,138 @@
+"""The state model's smoothing chosen on held-out subjects (compare_human_models,
+build_model(state_smoothing="auto")): it trusts a type's habit after moves its partners
+rarely made exactly where the people keep their habit there."""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+import torch
+
+from torchhrc.data import Demonstrations
+from torchhrc.tasks.human_model_choice import STATE_SMOOTHING_GRID, compare_human_models
+from torchhrc.tasks.interface import CollaborativeTask, TypeEvidence
+from torchhrc.tasks.pipeline import build_model, learn
+
+
+class _Fetch(CollaborativeTask):
+    """Four phases; the robot fetches a left or a right part (or waits), the person works
+    left or right, which moves on to the next phase and clears the fetched part.
+    State ``3 * phase + fetched`` (fetched: 0 none, 1 left, 2 right)."""
+
+    state_names = tuple(f"p{p}{f}" for p in range(4) for f in ".LR")
+    robot_actions = ("wait", "fetch_left", "fetch_right")
+    human_actions = ("left", "right")
+    robot_effect = torch.tensor(
+        [[3 * (x // 3) + (x % 3 if a == 0 else a) for x in range(12)] for a in range(3)]
+    )
+    human_effect = torch.tensor([[3 * ((x // 3 + 1) % 4)] * 2 for x in range(12)])
+    human_model = "state"
+
+
+def _demos(reactive: bool, subjects: int = 16, per_subject: int = 3, seed: int = 0):
+    """Type 0 works left, type 1 right. Every partner waits, and one move in 10 fetches a
+    part (left or right, even odds), whatever the type (so no state is confounded: the
+    partners' moves do not carry the type). ``reactive``: after a fetch the person works the
+    side fetched; otherwise they keep their own side whatever was fetched."""
+    rng = random.Random(seed)
+    seqs, who, types = [], [], []
+    for s in range(subjects):
+        y = s % 2
+        for _ in range(per_subject):
+            seq = []
+            for _ in range(8):
+                u = rng.random()
+                a = 0 if u >= 0.1 else (1 if u < 0.05 else 2)
+                side = a - 1 if reactive and a > 0 else y
+                seq += [("robot", _Fetch.robot_actions[a]), ("human", ("left", "right")[side])]
+            seqs.append(seq)
+            who.append(f"s{s}")
+            types.append(y)
+    return Demonstrations.from_lists(seqs, subjects=who), torch.tensor(types)
+
+
+def _rare_turn(task, demos, types, smoothing) -> float:
+    """P(own side | the other part fetched) for type 0 under ``smoothing``: after
+    ``fetch_right`` at phase 0 (nothing fetched), which type 0's partners made once in 20."""
+    evidence = TypeEvidence(torch.full((2, 5, 5), 0.2, dtype=torch.float64),
+                            tuple(tuple(v) for v in demos.vocabulary), types,
+                            task.read_steps(demos), noise=0.05, pause=0.01,
+                            human_model="state", habit_weight=smoothing[0],
+                            prior_strength=smoothing[1])  # fmt: skip
+    b = task.human_policy(evidence)  # (Y, A, X, H + 1)
+    return float(b[0, 2, 0, 0])  # type 0, fetch_right at phase 0 (nothing fetched)
+
+
+@pytest.mark.numeric
+@pytest.mark.parametrize("reactive", [False, True])
+def test_the_chosen_smoothing_predicts_rare_turns_as_the_people_make_them(reactive):
+    task = _Fetch()
+    demos, types = _demos(reactive)
+    record = compare_human_models(task, demos, types, noise=0.05, pause=0.01, seed=0,
+                                  models=("state",))  # fmt: skip
+    chosen = record["state_smoothing"]
+    w, c = chosen["habit_weight"], chosen["prior_strength"]
+    scores = {(g["habit_weight"], g["prior_strength"]): g["heldout"] for g in record["state_grid"]}
+    assert set(scores) == set(STATE_SMOOTHING_GRID)
+    assert scores[(w, c)] == max(scores.values()) == record["heldout"]["state"]
+    default = STATE_SMOOTHING_GRID[0]
+    own = _rare_turn(task, demos, types, (w, c))
+    own_default = _rare_turn(task, demos, types, default)
+    assert record["confounded"] == 0.0
+    if reactive:
+        # the person works the side fetched: the habit (own side) misleads after a fetch and
+        # what the others did there (the side fetched) predicts it: the smallest habit
+        # weight of the grid, and less of the own side than the default predicts
+        assert w == 0.5
+        assert own < own_default - 0.02
+    else:
+        # the person keeps their side: the habit carries (the largest weight of the grid),
+        # and the chosen smoothing predicts the own side after the rare move more surely,
+        # close to the most the learner's noise and pause allow, 0.99 * (0.95 + 0.025)
+        assert w == 0.98
+        assert own > own_default + 0.02
+        assert own > 0.95
+
+
+@pytest.mark.filterwarnings("ignore::torchhrc.irl.projection.IRLConvergenceWarning")
+def test_build_model_uses_and_records_the_smoothing():
+    task = _Fetch()
+    demos, types = _demos(reactive=False)
+    chains = torch.full((2, 5, 5), 0.2, dtype=torch.float64)
+    auto = build_model(task, demos, chains, types, irl_iterations=1)
+    chosen = auto.info["human_model"]["state_smoothing"]
+    assert auto.info["human_model"]["used"] == "state" and chosen["habit_weight"] == 0.98
+    given = build_model(task, demos, chains, types, irl_iterations=1,
+                        state_smoothing=(0.5, 16.0))  # fmt: skip
+    assert given.info["human_model"]["state_smoothing"] == {"habit_weight": 0.5,
+                                                             "prior_strength": 16.0}  # fmt: skip
+    # the behaviour built is the recorded smoothing's
+    want = _rare_turn(task, demos, types, (chosen["habit_weight"], chosen["prior_strength"]))
+    got = float(auto.behaviour[0, 2, 0, 0])
+    assert got == pytest.approx(want, abs=1e-9)
+    # both numbers of the pair reach the behaviour (a strength of 1 would give another)
+    assert float(given.behaviour[0, 2, 0, 0]) == pytest.approx(
+        _rare_turn(task, demos, types, (0.5, 16.0)), abs=1e-9
+    )
+    assert abs(_rare_turn(task, demos, types, (0.5, 16.0))
+               - _rare_turn(task, demos, types, (0.5, 1.0))) > 0.01  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "value, error, match",
+    [
+        ((1.5, 1.0), ValueError, "habit_weight in \\[0, 1\\], got 1.5"),
+        ((0.5, 0.0), ValueError, "prior_strength a finite number above 0, got 0.0"),
+        ("best", ValueError, "state_smoothing 'auto' or a pair"),
+        ((0.5,), TypeError, "state_smoothing 'auto' or a pair"),
+    ],
+)
+def test_bad_smoothing_is_refused_before_any_work(value, error, match):
+    task = _Fetch()
+    demos, _ = _demos(reactive=False, subjects=2, per_subject=1)
+    with pytest.raises(error, match=match):
+        learn(task, demos, k=1, solve=False, state_smoothing=value)
+    with pytest.raises(ValueError, match="habit_weight"):
+        TypeEvidence(torch.zeros(1, 1, 1), (("robot", "wait"),), torch.zeros(1), None,
+                     habit_weight=-0.1)  # fmt: skip

@@ -55,7 +55,8 @@ def test_counts_no_action_and_backs_off_to_the_type_habit_and_the_population():
     # rate. "go" changes nothing, so the state before the robot's move is the state after:
     # the habit is (counts + chain prior) / (n + 1) (one pseudo-step). The population: all
     # counts + the habits weighted by the types' shares (1/2, 1/2, 0), normalised. The prior:
-    # 3/4 habit + 1/4 population (TypeEvidence.habit_weight, default 0.75); p = (counts + prior) / (n + 1).
+    # 3/4 habit + 1/4 population (TypeEvidence.habit_weight, default 0.75);
+    # p = (counts + prior) / (n + 1).
     habit = {
         (0, 0): [47 / 64, 5 / 64, 12 / 64],  # (1, 0, 0) + (5/8 * (.75, .25), 3/8), over 2
         (0, 1): [0.0, 13 / 24, 11 / 24],  # "a", only do_b legal: (0, 1, 1) + (0, 5/8, 3/8)

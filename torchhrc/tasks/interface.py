@@ -692,9 +692,8 @@ def _state_counts(
     * ``habit``: what the type did in the state *before* the robot's move, whatever the move
       (counts by ``x_before``, restricted to what is possible after this move), itself
       smoothed (strength :data:`HABIT_CHAIN_STRENGTH`) toward the type's chain preference
-      ``P(a_h | a_r = a)``
-      (:func:`chain_preferences`) restricted to the actions legal after the move and
-      renormalised (uniform where it has no mass), scaled by ``1 - r_y``, with
+      ``P(a_h | a_r = a)`` (:func:`chain_preferences`) restricted to the actions legal after
+      the move and renormalised (uniform where it has no mass), scaled by ``1 - r_y``, with
       ``r_y = (waits_y + 0.5) / (choices_y + 1)`` on "no action".
     * ``population``: every type's counts in ``x`` (after the move), smoothed (strength
       ``c``) toward the types' habits weighted by their shares of the demonstrations.

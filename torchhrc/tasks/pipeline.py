@@ -42,14 +42,9 @@ from torchhrc.tasks.human_model_choice import (
     HUMAN_MODELS,
     STATE_SMOOTHING_GRID,
     compare_human_models,
+    state_smoothing_pair,
 )
-from torchhrc.tasks.interface import (
-    CollaborativeTask,
-    TaskSteps,
-    TypeEvidence,
-    check_state_smoothing,
-    check_task,
-)
+from torchhrc.tasks.interface import CollaborativeTask, TaskSteps, TypeEvidence, check_task
 
 __all__ = [
     "IRLConfig",
@@ -461,22 +456,6 @@ def learn_type_weights(
     return weights
 
 
-def _state_smoothing(value: tuple[float, float] | str) -> tuple[float, float] | None:
-    """``state_smoothing`` checked: ``None`` for ``"auto"``, else the pair as floats."""
-    if isinstance(value, str):
-        if value != "auto":
-            raise ValueError(f"expected state_smoothing 'auto' or a pair (habit_weight, "
-                             f"prior_strength), got {value!r}")  # fmt: skip
-        return None
-    try:
-        w, c = (float(v) for v in value)
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"expected state_smoothing 'auto' or a pair (habit_weight, "
-                        f"prior_strength), got {value!r}") from exc  # fmt: skip
-    check_state_smoothing(w, c)
-    return w, c
-
-
 def build_model(
     task: CollaborativeTask,
     demonstrations: Any,
@@ -543,7 +522,7 @@ def build_model(
     if requested not in (None, "auto", *HUMAN_MODELS):
         raise ValueError(f"expected human_model 'auto', 'chain' or 'state' (or None), "
                          f"got {requested!r}")  # fmt: skip
-    given = _state_smoothing(state_smoothing)
+    given = state_smoothing_pair(state_smoothing)
     chosen: dict[str, Any] = {"requested": requested}
     if requested == "auto" or (requested == "state" and given is None):
         scored = HUMAN_MODELS if requested == "auto" else ("state",)
@@ -889,7 +868,7 @@ def learn(
     check_task(task)
     if prior not in ("shares", "uniform"):
         raise ValueError(f"expected prior 'shares' or 'uniform', got {prior!r}")
-    _state_smoothing(state_smoothing)  # checked before the clustering
+    state_smoothing_pair(state_smoothing)  # checked before the clustering
     keywords = dict(k_min=k_min, k_max=k_max, restarts=restarts, method=mixture_method,
                     parameters=bic_parameters, criterion=criterion, objects=objects,
                     min_gain=min_gain, order=order)  # fmt: skip

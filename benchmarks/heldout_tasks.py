@@ -45,6 +45,16 @@ name                   X    types  depends on    what is unusual
                                                  hands-off, and a type alternating hands from a
                                                  random first hand (not in the state); shares
                                                  35 / 25 / 20 / 12 / 8 %
+``arm_clearance``      25   3      state         observed, and sharper with the arm near her
+                                                 (90 %, 60 % from home); hand over, set down
+                                                 or keep clear of her side; 40 / 35 / 25 %
+``glue_cure``          81   3      history       glue sets for two robot moves: one type joins
+                                                 only joints the robot's last two moves did not
+                                                 glue (memory); 40 / 35 / 25 %
+``handover_timing``    37   4      history       when to hand over: as soon as ready, on cue
+                                                 (she asks by pausing once: memory) or never;
+                                                 a rare type turns from on cue to early for
+                                                 the last two parts; 40 / 30 / 20 / 10 %
 =====================  ===  =====  ============  ===============================================
 
 ``slow_sanding`` and ``paint_crews`` were added after the selection rule of 6701614 and
@@ -59,7 +69,10 @@ observation of the human; leading against following; a larger crossed task with 
 type), and kept out of tuning. ``side_reactive``, ``inspect_last`` and ``parcel_hands`` were
 written by the audit of session 24 from the docs alone (reactive types; a large observed task
 whose types differ late; five unequal types, one history-dependent),
-and are kept out of tuning.
+and are kept out of tuning. ``arm_clearance``, ``glue_cure`` and ``handover_timing`` were
+written by the audit of session 26 from the docs alone (a comfort zone, with a glance whose
+accuracy depends on the state; the robot's previous move in the person's memory; the timing
+of hand-overs, with a rare type that differs late), and are kept out of tuning too.
 
 ``HELDOUT[name]() -> HeldoutWorld`` (a ``TaskWithPeople``), whose ``shares`` (None:
 balanced) split the demonstrating subjects between the types and weigh them over the
@@ -958,6 +971,222 @@ def parcel_hands() -> HeldoutWorld:
     return dataclasses.replace(world, people=people)
 
 
+# ------------------------------------------------------------------------------ arm_clearance
+# a shared bench: the person assembles six parts, each from the robot or from her own bin.
+# The robot can hand a part into her hand (its arm comes near and stays there), set one down
+# on the bench from its home position, or retreat home. "hand_to_hand" (40 %) wants each
+# part handed and does not mind the arm near; "keep_clear" (35 %) fetches from her bin and
+# stops working whenever the arm is near her (she wants it home and still); "set_down"
+# (25 %) wants her parts set down from a distance (from the arm near her she takes one
+# half the time, and does nothing else while it is there).
+# When waiting for a part, hand_to_hand and set_down fetch their own a quarter of the time.
+# After each step the robot glances at where the person reaches next (bench, bin, nothing):
+# right 90 % of the time with the arm near her, 60 % from home (the wrist camera), so the
+# sharp view costs keep_clear and set_down their comfort.
+# State: (parts done, arm 0 home / 1 near, a part handed or set down and not yet used),
+# 25 states. (Audit of session 26.)
+class ReachGlanceTask(GlanceTask):
+    """A GlanceTask whose glance is right with a probability that depends on the state
+    ``x'`` after the step: ``accuracy (X,)``."""
+
+    def glance(self, intent: torch.Tensor, num_actions: int) -> torch.Tensor:
+        p = intent @ self.zones.to(intent)
+        p = p / p.sum(-1, keepdim=True).clamp_min(1e-300)
+        acc = torch.as_tensor(self.accuracy).to(intent).view(-1, 1, 1)  # (X, 1, 1)
+        z = acc * p + (1.0 - acc) / p.shape[-1]
+        return z.unsqueeze(0).expand(num_actions, *z.shape).contiguous()
+
+
+def arm_clearance() -> HeldoutWorld:
+    types, n = ("hand_to_hand", "keep_clear", "set_down"), 6
+
+    def robot_step(s, a):
+        done, _, bench = s
+        if a == 3:
+            return (done, 0, bench)  # retreat
+        if a in (1, 2) and not bench and done < n:
+            return (done, int(a == 1), 1)  # hand (arm near) or set down (arm home)
+        return s
+
+    def human_step(s, h):
+        done, arm, bench = s
+        if done == n or bench != (h == 0):  # assemble needs a part on the bench, a fetch none
+            return None
+        return (done + 1, arm, 0)
+
+    def behaviour(y, m, s, a):
+        _, arm, bench = s
+        if y == 0:
+            if bench:
+                return {0: 1.0} if arm else {0: 0.5, -1: 0.5}  # reaches over, slower
+            return {-1: 1.0} if arm else {1: 0.25, -1: 0.75}
+        if arm:  # keep_clear stops while the arm is near; set_down takes a part held out
+            return {0: 0.5, -1: 0.5} if (y == 2 and bench) else {-1: 1.0}  # half the time
+        if bench:
+            return {0: 1.0}
+        return {1: 1.0} if y == 1 else {1: 0.25, -1: 0.75}
+
+    def reward(y, s, a):
+        _, arm, bench = s
+        if (a == 3 and not arm) or (a in (1, 2) and bench):
+            return -0.5  # retreating from home, or a part when one lies there: wasted
+        if y == 0:
+            if bench:
+                return _pick(0, a, good=0.2, bad=-0.5)
+            return {0: -0.3, 1: 1.0, 2: 0.0, 3: -0.5}[a]
+        if arm:
+            return {0: -0.5, 1: -1.0, 2: 1.0 if y == 2 else -0.5, 3: 0.5}[a]  # set_down: home
+        if y == 1:
+            return _pick(0, a, good=0.3, bad=-1.0)
+        return _pick(2 if not bench else 0, a, good=1.0 if not bench else 0.2, idle=-0.3,
+                     bad=-1.0)  # fmt: skip
+
+    world = tabulate(
+        "arm_clearance", initial=(0, 0, 0),
+        robot_actions=("wait", "hand", "set_down", "retreat"),
+        human_actions=("assemble", "fetch_assemble"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s[0] == n, type_names=types,
+        behaviour=behaviour, reward=reward, horizon=12, shares=(0.4, 0.35, 0.25),
+    )  # fmt: skip
+    t = world.task
+    task = ReachGlanceTask(t.name, t.state_names, t.robot_actions, t.human_actions,
+                           t.robot_effect, t.human_effect, t.human_legal, t.terminal)  # fmt: skip
+    task.zones = torch.tensor([[1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=torch.float64)
+    near = torch.tensor([name.split(", ")[1] == "1" for name in t.state_names])
+    task.accuracy = torch.where(near, 0.9, 0.6).to(torch.float64)
+    intent = world.people.policy[:, 0, :, 0, :].permute(1, 0, 2)  # (X, Y, H + 1), robot waits
+    return dataclasses.replace(world, task=task, observed=True,
+                               true_observation=task.glance(intent, t.num_actions))  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ glue_cure
+# four joints, each open (0), glued by the robot (1) or joined by the person (2); the robot
+# glues any open joint (a fresh coat on a glued one wets it again). "quick" (40 %) joins the
+# glued joint at once (7 times in 10; else the next turn) and wants one joint glued at a
+# time (glue ahead skins over: the robot should wait while one is waiting); "patient" (35 %)
+# joins a glued joint only once the glue has set, when neither the robot's move of this
+# turn nor that of the turn before glued it (memory: the robot's previous move), and wants
+# the robot to glue ahead, A-D; "pairs" (25 %) joins the joints of a pair (A-B, C-D) only
+# once both are glued, and wants the pair glued, then the robot still while she joins.
+# State: per joint 0 open, 1 glued, 2 joined (81 states). (Audit of session 26.)
+def glue_cure() -> HeldoutWorld:
+    types, n = ("quick", "patient", "pairs"), 4
+
+    def robot_step(s, a):
+        return _set(s, a - 1, 1) if a > 0 and s[a - 1] == 0 else s
+
+    def human_step(s, h):
+        return _set(s, h, 2) if s[h] == 1 else None
+
+    def behaviour(y, m, s, a):
+        glued = [j for j in range(n) if s[j] == 1]
+        if y == 0:
+            return {glued[0]: 0.7, -1: 0.3} if glued else {-1: 1.0}
+        if y == 1:
+            wet = {a - 1, m - 1}  # glued by this turn's move or by the previous one
+            ready = [j for j in glued if j not in wet]
+        else:
+            ready = [j for j in glued if s[j ^ 1] != 0]  # the pair's other joint not open
+        return {ready[0]: 1.0} if ready else {-1: 1.0}
+
+    def memory_update(y, m, s, a, h):
+        return a if a > 0 and s[a - 1] == 1 else 0  # the joint this move glued, 1-4, or 0
+
+    def reward(y, s, a):
+        open_ = [j for j in range(n) if s[j] == 0]
+        glued = [j for j in range(n) if s[j] == 1]
+        if a > 0 and s[a - 1] != 0:
+            return -0.5  # a joint already glued or joined: wasted (and wet again)
+        if y == 1:
+            return _pick(1 + open_[0], a, idle=-0.3, bad=-0.5) if open_ else \
+                _pick(0, a, good=0.2)  # fmt: skip
+        if y == 2:
+            pending = [j for j in glued if s[j ^ 1] == 0]
+            if pending:
+                return _pick(1 + (pending[0] ^ 1), a, idle=-0.3, bad=-0.5)
+        if glued:
+            return _pick(0, a, good=0.2, bad=-0.5)
+        return _pick(1 + open_[0], a, idle=-0.3, bad=-0.5)
+
+    return tabulate(
+        "glue_cure", initial=(0,) * n,
+        robot_actions=("wait", *(f"glue_{c}" for c in "ABCD")),
+        human_actions=tuple(f"join_{c}" for c in "ABCD"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s == (2,) * n, type_names=types,
+        behaviour=behaviour, reward=reward, horizon=12, memory=n + 1,
+        memory_update=memory_update, shares=(0.4, 0.35, 0.25),
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ handover_timing
+# four parts: the robot machines each (one move; it then lies ready in the robot's fixture)
+# and may hand it over (into the person's tray); the person preps the base in two moves,
+# then mounts the part from her tray, or fetches it from the fixture and mounts it (one
+# move). The types differ in when they want the hand-over: "early" (40 %) as soon as the
+# part is ready (she waits for it, fetching it a fifth of the time); "on_cue" (30 %) only
+# once her base is prepped (a part handed sooner is in her way: she preps at half speed),
+# and she asks by pausing once (memory), then fetches it herself; "self_fetch" (20 %) fetches
+# every part herself (a hand-over is in her way too); "cue_then_early" (10 %) is on_cue for
+# parts 1-2 and early for parts 3-4 (she differs from on_cue only late).
+# State: (parts mounted, part 0 not machined / 1 ready / 2 handed, base prepped 0-2), 37
+# states. (Audit of session 26.)
+def handover_timing() -> HeldoutWorld:
+    types, n = ("early", "on_cue", "self_fetch", "cue_then_early"), 4
+
+    def robot_step(s, a):
+        k, part, base = s
+        if (a == 1 and part == 0) or (a == 2 and part == 1):
+            return (k, part + 1, base)
+        return s
+
+    def human_step(s, h):
+        k, part, base = s
+        if k == n:
+            return None
+        if h == 0:
+            return (k, part, base + 1) if base < 2 else None
+        return (k + 1, 0, 0) if base == 2 and part == 3 - h else None  # mount 2, fetch 1
+
+    def mode(y, k):  # 0 early, 1 on_cue, 2 self_fetch
+        return (1 if k < 2 else 0) if y == 3 else y
+
+    def behaviour(y, m, s, a):
+        k, part, base = s
+        md = mode(y, k)
+        if base < 2:
+            return {0: 0.5, -1: 0.5} if part == 2 and md else {0: 1.0}
+        if part == 2:
+            return {1: 1.0}
+        if part == 0:
+            return {-1: 1.0}
+        if md == 0:
+            return {2: 0.2, -1: 0.8}
+        return {2: 1.0} if md == 2 or m == 1 else {-1: 1.0}  # on_cue: pauses once first
+
+    def memory_update(y, m, s, a, h):
+        k, part, base = s
+        return int(mode(y, k) == 1 and part == 1 and base == 2 and h < 0)
+
+    def reward(y, s, a):
+        k, part, base = s
+        md = mode(y, k)
+        if (a == 1 and part != 0) or (a == 2 and part != 1):
+            return -0.5  # machining a part already machined, handing none: wasted
+        if part == 0:
+            return _pick(1, a, idle=-0.3)
+        if part == 2 or md == 2 or (md == 1 and base < 2):
+            return _pick(0, a, good=0.3 if part == 1 else 0.2, bad=-0.5)
+        return _pick(2, a, idle=-0.3)
+
+    return tabulate(
+        "handover_timing", initial=(0, 0, 0), robot_actions=("wait", "machine", "hand"),
+        human_actions=("prep_base", "mount", "fetch_mount"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s[0] == n, type_names=types,
+        behaviour=behaviour, reward=reward, horizon=16, memory=2,
+        memory_update=memory_update, shares=(0.4, 0.3, 0.2, 0.1),
+    )  # fmt: skip
+
+
 #: Every held-out task by name: ``HELDOUT[name]() -> HeldoutWorld``.
 HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "finish_late": finish_late,
@@ -975,4 +1204,7 @@ HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "side_reactive": side_reactive,
     "inspect_last": inspect_last,
     "parcel_hands": parcel_hands,
+    "arm_clearance": arm_clearance,
+    "glue_cure": glue_cure,
+    "handover_timing": handover_timing,
 }

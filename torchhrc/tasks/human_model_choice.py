@@ -136,12 +136,12 @@ def compare_human_models(
     moved alike the held-out turns alone decide (a person who answers a rare move in their
     own way gets a small habit weight, ``tests/tasks/test_state_smoothing.py``).
 
-    The ``state`` model's score is that of its best smoothing (ties: the earlier in the
-    grid, whose first entry is :class:`TypeEvidence`'s default); the model with the larger
-    total is ``"used"``; ties go to ``"chain"`` (the paper's). The best of 20 smoothings'
-    held-out scores is a little optimistic for ``state``; on the suite the two models' gaps
-    are tens to hundreds of nats, and the model picked is the same as with the default
-    smoothing on every task (``docs/your_own_task.md`` section 8).
+    The ``state`` model's score is that of its best smoothing (ties, to 1e-9 relative: the
+    earlier in the grid, whose first entry is :class:`TypeEvidence`'s default); the model
+    with the larger total is ``"used"``; ties go to ``"chain"`` (the paper's). The best of
+    20 smoothings' held-out scores is a little optimistic for ``state``; on the suite the
+    two models' gaps are tens to hundreds of nats, and the model picked is the same as with
+    the default smoothing on every task (``docs/your_own_task.md`` section 8).
 
     Args:
         task: a task whose :meth:`~CollaborativeTask.human_policy` reads
@@ -164,9 +164,9 @@ def compare_human_models(
         [{"habit_weight", "prior_strength", "heldout", "heldout_demonstrated"}, ...]}``;
         ``"used"`` is ``"same"`` (and nothing is held out) when ``task.human_policy`` gives
         the same behaviour for every model (a task with its own human policy, or one whose
-        human has one legal action wherever it acts), and ``"chain"`` (or ``models[0]`` without ``"chain"``) when the
-        task reads no steps or has one subject; the smoothing is then the default (or the
-        one given).
+        human has one legal action wherever it acts), and ``"chain"`` (or ``models[0]``
+        without ``"chain"``) when the task reads no steps or has one subject; the smoothing
+        is then the default (or the one given).
 
     Raises:
         ValueError, TypeError: ``models`` empty or naming an unknown model, or a bad
@@ -270,10 +270,11 @@ def compare_human_models(
                 value = (value * mask[held]).sum(-1)  # (K, n)
                 store[i] += float((value.gather(0, own.view(1, -1)) + log_w[own]).sum())
     turns = max(int(mask.sum()), 1)
-    # each model's best candidate (the first of equal ones)
+    # each model's best candidate: a later one only where it gains beyond rounding (1e-9
+    # relative), so that another machine's last bits cannot change the smoothing chosen
     best: dict[str, int] = {}
     for i, (m, _, _) in enumerate(candidates):
-        if m not in best or totals[i] > totals[best[m]]:
+        if m not in best or totals[i] > totals[best[m]] + 1e-9 * max(1.0, abs(totals[best[m]])):
             best[m] = i
     used = max(models, key=lambda m: (totals[best[m]], m == "chain"))
     out = {**record, "used": used, "folds": F_, "steps": turns,

@@ -136,3 +136,21 @@ def test_bad_smoothing_is_refused_before_any_work(value, error, match):
     with pytest.raises(ValueError, match="habit_weight"):
         TypeEvidence(torch.zeros(1, 1, 1), (("robot", "wait"),), torch.zeros(1), None,
                      habit_weight=-0.1)  # fmt: skip
+
+
+@pytest.mark.numeric
+def test_a_gain_within_one_standard_error_keeps_the_default_smoothing():
+    # 6 subjects, 2 demonstrations each, people who answer the rare fetch: another pair
+    # scores best by 0.5 nats, less than one standard error of the 6 subjects' differences
+    # (with the full 16 x 3 above the gain is tens of nats, and the pair moves)
+    task = _Fetch()
+    demos, types = _demos(reactive=True, subjects=6, per_subject=2, seed=1)
+    record = compare_human_models(task, demos, types, noise=0.05, pause=0.01, seed=0,
+                                  models=("state",))  # fmt: skip
+    grid = record["state_grid"]
+    top = max(grid, key=lambda g: g["heldout"])
+    assert (top["habit_weight"], top["prior_strength"]) != STATE_SMOOTHING_GRID[0]
+    assert 0.0 < top["heldout"] - grid[0]["heldout"] < 1.0
+    chosen = record["state_smoothing"]
+    assert (chosen["habit_weight"], chosen["prior_strength"]) == STATE_SMOOTHING_GRID[0]
+    assert record["heldout"]["state"] == grid[0]["heldout"]

@@ -8,6 +8,7 @@ model; its record goes into the learned model's diagnosis.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import torch
@@ -137,7 +138,10 @@ def compare_human_models(
     own way gets a small habit weight, ``tests/tasks/test_state_smoothing.py``).
 
     The ``state`` model's score is that of its best smoothing (ties, to 1e-9 relative: the
-    earlier in the grid, whose first entry is :class:`TypeEvidence`'s default); the model
+    earlier in the grid, whose first entry is :class:`TypeEvidence`'s default), and it
+    leaves the default only for a gain beyond one standard error of the subjects' score
+    differences (``sqrt(S)`` times their standard deviation), so that a few subjects cannot
+    move it by chance (the clustering's held-out confirmation asks the same); the model
     with the larger total is ``"used"``; ties go to ``"chain"`` (the paper's). The best of
     20 smoothings' held-out scores is a little optimistic for ``state``; on the suite the
     two models' gaps are tens to hundreds of nats, and the model picked is the same as with
@@ -235,6 +239,8 @@ def compare_human_models(
     column = torch.where(h < 0, H, h)  # (N, L), "no action" is the last column
     totals = [0.0] * len(candidates)
     plain = [0.0] * len(candidates)
+    # each candidate's score per held-out subject, for the smoothing's standard error
+    by_subject = torch.zeros(len(candidates), S, dtype=torch.float64)
     A, X = task.num_actions, task.num_states
     confounded_turns = 0
     for f in range(F_):
@@ -268,7 +274,10 @@ def compare_human_models(
             score = torch.where(blind, q.clamp_min(1e-300).log(), per)
             for store, value in ((totals, score), (plain, per)):
                 value = (value * mask[held]).sum(-1)  # (K, n)
-                store[i] += float((value.gather(0, own.view(1, -1)) + log_w[own]).sum())
+                own_score = value.gather(0, own.view(1, -1)).squeeze(0) + log_w[own]  # (n,)
+                store[i] += float(own_score.sum())
+                if store is totals:
+                    by_subject[i].index_add_(0, subject[held], own_score)
     turns = max(int(mask.sum()), 1)
     # each model's best candidate: a later one only where it gains beyond rounding (1e-9
     # relative), so that another machine's last bits cannot change the smoothing chosen
@@ -276,6 +285,14 @@ def compare_human_models(
     for i, (m, _, _) in enumerate(candidates):
         if m not in best or totals[i] > totals[best[m]] + 1e-9 * max(1.0, abs(totals[best[m]])):
             best[m] = i
+    # the state model leaves the grid's first smoothing (the default) only for a gain beyond
+    # one standard error of the subjects' differences (a few subjects cannot move it)
+    first = next((i for i, (m, _, _) in enumerate(candidates) if m == "state"), None)
+    if first is not None and best["state"] != first:
+        gain = by_subject[best["state"]] - by_subject[first]  # (S,)
+        error = float(gain.std() * S**0.5) if S > 1 else math.inf
+        if not float(gain.sum()) > error:
+            best["state"] = first
     used = max(models, key=lambda m: (totals[best[m]], m == "chain"))
     out = {**record, "used": used, "folds": F_, "steps": turns,
            "heldout": {m: totals[i] for m, i in best.items()},

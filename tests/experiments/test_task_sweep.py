@@ -23,6 +23,7 @@ from torchhrc.experiments.sweep import (
     read_results,
 )
 from torchhrc.experiments.task_sweep import QUICK, task_metrics
+from torchhrc.tasks.human_model_choice import STATE_SMOOTHING_GRID
 from torchhrc.tasks.suite import make_task
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning", "ignore::RuntimeWarning")
@@ -48,6 +49,10 @@ def _check_row(row: dict, world: torchhrc.tasks.people.TaskWithPeople) -> None:
     assert 1 <= row["k"] <= 6 and row["k_correct"] == int(row["k"] == row["true_k"])
     assert -1.0 <= row["ari"] <= 1.0
     assert row["human_model.chain"] + row["human_model.state"] <= 1
+    # the state model's smoothing, one of the grid learn() chooses from
+    assert (row["human_model.habit_weight"], row["human_model.prior_strength"]) in (
+        STATE_SMOOTHING_GRID
+    )
     for robot in ("type-aware", "type-agnostic"):
         per_type = [row[f"return.{robot}.by_type.{n}"] for n in names]
         # the types in equal shares: the overall mean is the mean of the per-type means

@@ -122,7 +122,8 @@ def task_metrics(
         A nested mapping of numbers (a sweep flattens it into ``a.b`` columns): ``k`` (found),
         ``true_k``, ``k_correct`` (1 or 0), ``ari`` (learned types against the true types of
         the demonstrations), ``human_model.<name>`` (1 for the model ``learn`` used: ``chain``
-        or ``state``; both 0 when the task's behaviour is the same under both),
+        or ``state``; both 0 when the task's behaviour is the same under both;
+        ``human_model.habit_weight`` and ``.prior_strength``: the state model's smoothing),
         ``return.<robot>.mean`` / ``.ci95`` (over every episode) and ``.by_type.<type>`` /
         ``.by_type_ci95.<type>`` for ``type-aware`` and ``type-agnostic``, ``gain.mean`` (type-
         aware minus type-agnostic overall), ``gain.by_type.<type>``, ``gain.beyond_ci`` (+1,
@@ -182,7 +183,9 @@ def task_metrics(
 
     names = world.type_names
     k, true_k = int(model.num_types), int(world.num_types)
-    used = dict(model.info.get("human_model", {})).get("used")
+    human_model = dict(model.info.get("human_model", {}))
+    used = human_model.get("used")
+    smoothing = dict(human_model.get("state_smoothing") or {})
     returns: dict[str, Any] = {}
     for r, robot in enumerate(evaluation.robots):
         returns[robot] = {
@@ -199,7 +202,11 @@ def task_metrics(
         "true_k": true_k,
         "k_correct": int(k == true_k),
         "ari": adjusted_rand_index(truth.tolist(), model.assignments.tolist()),
-        "human_model": {name: int(used == name) for name in ("chain", "state")},
+        "human_model": {
+            **{name: int(used == name) for name in ("chain", "state")},
+            **{key: float(smoothing[key]) for key in ("habit_weight", "prior_strength")
+               if key in smoothing},
+        },
         "return": returns,
         "gain": {
             "mean": float(evaluation.overall_mean[aware] - evaluation.overall_mean[other]),

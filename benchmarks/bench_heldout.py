@@ -132,7 +132,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--goal", type=int, choices=(2, 3), default=2)
     parser.add_argument("--tasks", default=",".join(HELDOUT),
-                        help="held-out or suite task names, comma-separated; 'suite': the suite's")  # fmt: skip
+                        help="held-out or suite task names, comma-separated; "
+                             "'suite': the suite's")  # fmt: skip
     parser.add_argument(
         "--cluster",
         action="append",

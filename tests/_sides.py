@@ -57,5 +57,3 @@ def by_hand(overall_mean, status=("identified", "identified"), robots=None):
         belief_accuracy=torch.ones(2, 1), belief_max=torch.ones(2, 1), belief_status=status,
         split_threshold=0.8, episodes=2, noise=0.05, seed=0, discount=0.9, horizon=5,
     )  # fmt: skip
-
-

@@ -176,15 +176,22 @@ def test_entries_of_a_table_read_as_nonzeros_name_every_value(monkeypatch):
     text = format_pomdpx(_split_in_two(m))
     _small_dense_limit(monkeypatch, 50)
     start = text.index("<Entry><Instance>", text.index("<StateTransitionFunction>"))
-    inst = text[start + len("<Entry><Instance>"): text.index("</Instance>", start)]
-    spanned = text.replace(f"<Instance>{inst}</Instance>",
-                           f"<Instance>{' '.join(inst.split()[:2])} *</Instance>", 1)
-    with pytest.raises(ParseError, match=r"read as its entries, each naming one value of "
-                                         r"every variable; '\*' spans 'state_1'"):
+    inst = text[start + len("<Entry><Instance>") : text.index("</Instance>", start)]
+    spanned = text.replace(
+        f"<Instance>{inst}</Instance>", f"<Instance>{' '.join(inst.split()[:2])} *</Instance>", 1
+    )
+    with pytest.raises(
+        ParseError,
+        match=r"read as its entries, each naming one value of "
+        r"every variable; '\*' spans 'state_1'",
+    ):
         read_pomdpx(spanned, sparse=True)
     end = text.index("</Entry>", start) + len("</Entry>")
-    with pytest.raises(ParseError, match=r"<CondProb> of 'state_1': the probabilities for "
-                                         r"'a0 s0' sum to 0\.28"):
+    with pytest.raises(
+        ParseError,
+        match=r"<CondProb> of 'state_1': the probabilities for "
+        r"'a0 s0' sum to 0\.28",
+    ):
         read_pomdpx(text[:start] + text[end:], sparse=True)  # a row without one entry
 
 

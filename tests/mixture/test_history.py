@@ -75,11 +75,16 @@ def test_third_order_context_symbols_by_hand():
     low = context_symbols(d, 3)
     names = [f"{actor}|{action}" for actor, action in low.data.vocabulary]
     got = [names[i] for i in low.data.sequences[0].tolist()]
-    assert got == ["robot|start > start > wait", "human|start > robot:wait > a",
-                   "robot|robot:wait > human:a > wait", "human|human:a > robot:wait > b"]
+    assert got == [
+        "robot|start > start > wait",
+        "human|start > robot:wait > a",
+        "robot|robot:wait > human:a > wait",
+        "human|human:a > robot:wait > b",
+    ]
     assert low.outcomes == 3
     assert [names[i] for i in torch.nonzero(low.initial_support).flatten().tolist()] == [
-        "robot|start > start > wait"]
+        "robot|start > start > wait"
+    ]
     follows = {(names[p], names[q]) for p, q in torch.nonzero(low.transition_support).tolist()}
     assert follows == {(got[0], got[1]), (got[1], got[2]), (got[2], got[3])}
 

@@ -240,7 +240,8 @@ def test_true_rewards_win_back_what_wrong_rewards_lost():
     assert abs(m[TRUE_BEHAVIOUR] + want) < 4 * se
     line = next(x for x in result.summary().splitlines() if x.startswith("learning lost"))
     assert line.startswith("learning lost 1.3") and line.endswith(
-        "the rewards (their features) matter most"), line
+        "the rewards (their features) matter most"
+    ), line
 
 
 def test_the_true_behaviour_wins_back_what_a_wrong_behaviour_lost():
@@ -282,5 +283,10 @@ def test_the_maps_are_checked():
     with pytest.raises(ValueError, match=r"truth_of of shape \(2,\)"):
         true_reward_controller(world, model, torch.tensor([0]))
     with pytest.raises(ValueError, match="true_parts=True needs a model"):
-        evaluate_task(world, None, robots={"x": true_model_controller(world, time_limit=0.5)},
-                      true_parts=True, episodes=2)
+        evaluate_task(
+            world,
+            None,
+            robots={"x": true_model_controller(world, time_limit=0.5)},
+            true_parts=True,
+            episodes=2,
+        )

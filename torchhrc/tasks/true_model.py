@@ -274,8 +274,10 @@ def true_reward_controller(
 def _map(name: str, value: torch.Tensor, size: int, into: int) -> torch.Tensor:
     """``value`` as a ``(size,)`` int64 index into ``[0, into)``, or a ValueError naming it."""
     index = torch.as_tensor(value)
-    if index.is_floating_point() or tuple(index.shape) != (size,) or bool(
-        ((index < 0) | (index >= into)).any()
+    if (
+        index.is_floating_point()
+        or tuple(index.shape) != (size,)
+        or bool(((index < 0) | (index >= into)).any())
     ):
         raise ValueError(f"expected {name} of shape ({size},), integers in [0, {into}), got "
                          f"{index.tolist()}")  # fmt: skip

@@ -76,8 +76,10 @@ class _Builder:
         axes = list(table.axes)
         perm = sorted(range(len(axes)), key=lambda i: layout.index(axes[i]))
         if table.values is None:
-            raise ModelError(f"the table of {table.var!r} is held as its nonzeros (too large to "
-                             "hold densely): the model can be read in the sparse form only")
+            raise ModelError(
+                f"the table of {table.var!r} is held as its nonzeros (too large to "
+                "hold densely): the model can be read in the sparse form only"
+            )
         values = table.values.transpose(perm)
         return values.reshape([self.size(n) if n in axes else 1 for n in layout])
 

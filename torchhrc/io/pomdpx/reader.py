@@ -351,7 +351,9 @@ class _Reader:
                         raise self.error(
                             f"the table of {var!r} has {total:.3g} cells (more than "
                             f"{MAX_DENSE_ENTRIES:.3g}), so it is read as its entries, each "
-                            f"naming one value of every variable; {tok!r} spans {axis!r}", inst)
+                            f"naming one value of every variable; {tok!r} spans {axis!r}",
+                            inst,
+                        )
                     raise self.error(f"<Instance>: {tok!r} is not a value of {axis!r}", inst)
                 cell += i * stride
             numbers = _text(value).split()

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import sys
 from pathlib import Path
 
 import pytest
@@ -144,6 +145,28 @@ def test_a_users_factory_from_a_file_sweeps(tmp_path: Path) -> None:
     assert _untimed(itself.rows) == _untimed(by_name.rows)
     # a suite task's factory given itself is recorded by its name
     assert canonical_task(torchhrc.tasks.suite.SUITE["pace"]) == "pace"
+
+
+def test_a_module_next_to_the_caller_is_found_as_its_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # `torchhrc sweep my_world:make` from the folder of my_world.py: a console script does
+    # not put that folder on sys.path, so the name resolves to the file (the same task
+    # string as `./my_world.py:make`, so both spellings resume the same sweep)
+    (tmp_path / "my_world_26.py").write_text(
+        "from torchhrc.tasks.suite import make_task\n\n\ndef make():\n"
+        "    return make_task('pace')\n"
+    )
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("sys.path", [p for p in sys.path if p not in ("", ".", str(tmp_path))])
+    by_module = canonical_task("my_world_26:make")
+    assert by_module == canonical_task("./my_world_26.py:make")
+    assert by_module == f"{(tmp_path / 'my_world_26.py').resolve()}:make"
+    assert load_callable(by_module)().task.name == "pace"
+    # a module the interpreter can import keeps its module form (relative imports work)
+    assert canonical_task("torchhrc.tasks.suite:make_task") == "torchhrc.tasks.suite:make_task"
+    with pytest.raises(ModelError, match="name the file, 'path/to/nowhere_26.py:make'"):
+        load_callable("nowhere_26:make")
 
 
 @pytest.mark.parametrize(

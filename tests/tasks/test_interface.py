@@ -220,6 +220,15 @@ def test_step_takes_ints_and_returns_an_int():
     assert task.step(0, 0, 1) == 0 and isinstance(task.step(0, 0, 1), int)  # press, flip
     assert task.step(0, -1, 1) == 1  # press, no human action
     assert task.step(torch.tensor([0, 1]), 0, 0).tolist() == [1, 0]  # tensors broadcast
+    # bad arguments are named, with the valid indices and the actions' names
+    with pytest.raises(TypeError, match=r"expected robot_action to be an int .*1: press"):
+        task.step(0, 0, "press")
+    with pytest.raises(ValueError, match=r"expected robot_action in \[0, 2\)"):
+        task.step(0, 0, 2)
+    with pytest.raises(ValueError, match=r"expected human_action in \[-1, 1\)"):
+        task.step(0, 1, 0)
+    with pytest.raises(ValueError, match=r"expected x in \[0, 2\), got tensor"):
+        task.step(torch.tensor([0, 5]), 0, 0)
 
 
 class Chores(CollaborativeTask):

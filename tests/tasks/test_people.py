@@ -110,6 +110,10 @@ def test_tabular_people_validation_names_the_problem():
         TabularPeople(("p", "q"), policy, LEGAL)
     with pytest.raises(ModelError, match="update entries"):
         TabularPeople(("p",), policy, LEGAL, update=torch.ones(1, 1, 3, 2, 3, dtype=torch.long))
+    # a policy without the "no action" column is named as such, not blamed on legal
+    with pytest.raises(ModelError, match=r"\(\.\.\., 3\) for legal's H = 2 .*'no action'"):
+        TabularPeople(("p",), policy[..., :2] / policy[..., :2].sum(-1, keepdim=True).clamp_min(1),
+                      LEGAL)  # fmt: skip
 
 
 def _toggle_spec(**kw) -> TaskSpec:
@@ -158,6 +162,9 @@ def test_demonstrations_are_deterministic_under_the_seed():
 
 def test_task_with_people_validation():
     twp = build(_toggle_spec())
+    # fewer subjects than types: a type would have no demonstrations
+    with pytest.raises(ValueError, match=r"expected subjects >= 2 \(one per type"):
+        twp.demonstrations(subjects=1, per_subject=2, seed=0)
     with pytest.raises(ModelError, match="true_reward"):
         TaskWithPeople(twp.task, twp.people, torch.zeros(2, 4, 3), 4, False)
     with pytest.raises(ModelError, match="horizon"):

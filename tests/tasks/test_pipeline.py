@@ -198,6 +198,12 @@ def test_load_reports_the_bad_file(tmp_path):
         LearnedModel.load(tmp_path)
 
 
+def test_learn_names_the_demonstrations_container():
+    task = _Turns()
+    with pytest.raises(TypeError, match=r"got list; build one .*Demonstrations.from_lists"):
+        learn(task, [[("robot", "a"), ("human", "left")]] * 4, k=1, solve=False)
+
+
 def test_controller_needs_a_solved_model(study):
     demos, fit = study
     model = build_model(PlaceAndDrillTask(3), demos, fit.model.transition, fit.assignments,

@@ -241,7 +241,22 @@ def canonical_task(task: Any) -> str:
         )
     if where.endswith(".py"):
         return f"{Path(where).resolve()}:{name}"
+    local = Path(where.replace(".", "/") + ".py")
+    if local.is_file() and not _importable(where):
+        # a module next to the caller that the console script cannot import (its folder is
+        # not on sys.path): the file itself, as python would find it from this folder
+        return f"{local.resolve()}:{name}"
     return task
+
+
+def _importable(module: str) -> bool:
+    """Whether ``import module`` would find it (without importing it)."""
+    import importlib.util
+
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
 
 
 def load_callable(task: str) -> Callable[..., Any]:
@@ -281,7 +296,10 @@ def load_callable(task: str) -> Callable[..., Any]:
         else:
             module = importlib.import_module(where)
     except ImportError as error:
-        raise ModelError(f"cannot import the sweep task {task!r}: {error}") from None
+        raise ModelError(
+            f"cannot import the sweep task {task!r}: {error} (name the file, "
+            f"'path/to/{where.replace('.', '/')}.py:{name}', or put its folder on PYTHONPATH)"
+        ) from None
     function = getattr(module, name, None)
     if not callable(function):
         raise ModelError(f"the sweep task {task!r}: {where} has no function {name!r}")

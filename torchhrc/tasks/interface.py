@@ -51,6 +51,7 @@ Example:
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
@@ -462,10 +463,18 @@ class CollaborativeTask:
         """``x'`` after robot action ``a_r`` then human action ``a_h`` (``-1``: none), batched.
 
         Args:
-            x, human_action, robot_action: int64 tensors that broadcast together, or ints.
+            x, human_action, robot_action: int64 tensors that broadcast together, or ints
+                (indices into :attr:`state_names`, :attr:`human_actions` (or ``-1``) and
+                :attr:`robot_actions`).
 
         Returns:
             ``(...)`` int64 next states; an int when all three are ints.
+
+        Raises:
+            TypeError: an argument that is not an int or an integer tensor (an action's name:
+                use its index, ``task.robot_actions.index(name)``).
+            ValueError: an index out of range (the message names the argument and lists the
+                actions).
 
         Example:
             >>> from torchhrc.tasks.suite import make_task
@@ -477,9 +486,11 @@ class CollaborativeTask:
         scalar = not any(isinstance(v, torch.Tensor) for v in (x, human_action, robot_action))
         effect = torch.as_tensor(self.robot_effect)
         human = torch.as_tensor(self.human_effect)
-        xt = torch.as_tensor(x, dtype=torch.long, device=effect.device)
-        ht = torch.as_tensor(human_action, dtype=torch.long, device=effect.device)
-        at = torch.as_tensor(robot_action, dtype=torch.long, device=effect.device)
+        xt = _index_argument("x", x, 0, self.num_states, None, effect.device)
+        ht = _index_argument("human_action", human_action, -1, self.num_human_actions,
+                             self.human_actions, effect.device)  # fmt: skip
+        at = _index_argument("robot_action", robot_action, 0, self.num_actions,
+                             self.robot_actions, effect.device)  # fmt: skip
         mid = effect[at, xt]
         after = human[mid, ht.clamp_min(0)]
         out = torch.where(ht >= 0, after, mid)
@@ -764,6 +775,29 @@ def _state_counts(
     w = evidence.habit_weight
     prior = w * habit + (1.0 - w) * population  # (K, A, X, H + 1)
     return (counts[:, effect] + c * prior).to(device)  # (K, A, X, H + 1)
+
+
+def _index_argument(name: str, value: Any, low: int, high: int, names: Sequence[str] | None,
+                    device: torch.device) -> torch.Tensor:  # fmt: skip
+    """``value`` (an int or an integer tensor) as an int64 tensor of indices in
+    ``[low, high)``, or a TypeError / ValueError naming ``name`` and, where given, the
+    ``names`` of the indices."""
+    listed = "" if names is None else " (" + ", ".join(f"{i}: {n}" for i, n in enumerate(names))
+    listed += "" if names is None else ")"
+    if isinstance(value, torch.Tensor):
+        ok = not (value.is_floating_point() or value.is_complex() or value.dtype == torch.bool)
+    else:
+        try:
+            ok = not isinstance(value, bool) and operator.index(value) is not None
+        except TypeError:
+            ok = False
+    if not ok:
+        raise TypeError(f"expected {name} to be an int or an integer tensor of indices"
+                        f"{listed}, got {value!r}")  # fmt: skip
+    t = torch.as_tensor(value, dtype=torch.long, device=device)
+    if t.numel() and (int(t.min()) < low or int(t.max()) >= high):
+        raise ValueError(f"expected {name} in [{low}, {high}){listed}, got {value!r}")
+    return t
 
 
 def _table(name: str, value: Any, shape: tuple[int, ...], kind: str) -> torch.Tensor:

@@ -166,6 +166,12 @@ class TabularPeople:
         names = tuple(str(n) for n in type_names)
         if len(names) != Y:
             raise ModelError(f"expected {Y} type_names (Y of policy), got {len(names)}")
+        if legal.dim() == 2 and tuple(legal.shape) == (X, H1):
+            raise ModelError(
+                f"expected policy of shape (Y, M, X, A, H + 1) = (..., {H1 + 1}) for legal's "
+                f"H = {H1} human actions: the last column is 'no action'; got "
+                f"{tuple(policy.shape)}"
+            )
         if legal.dtype != torch.bool or tuple(legal.shape) != (X, H1 - 1):
             raise ModelError(
                 f"expected legal of shape (X={X}, H={H1 - 1}) bool, got "
@@ -496,8 +502,8 @@ class TaskWithPeople:
             type names.
 
         Raises:
-            ValueError: a bad size or noise, or fewer subjects than types with a positive
-                share.
+            ValueError: a bad size or noise, or fewer subjects than types (than types with
+                a positive share, where the world has ``shares``).
         """
         from torchhrc.data import Demonstrations
 
@@ -508,6 +514,9 @@ class TaskWithPeople:
         generator = torch.Generator().manual_seed(int(seed))
         Y = self.num_types
         if self.shares is None:
+            if subjects < Y:
+                raise ValueError(f"expected subjects >= {Y} (one per type, or a type has no "
+                                 f"demonstrations), got {subjects}")  # fmt: skip
             subject_types = torch.arange(subjects) % Y
         else:
             counts = _split(subjects, self.shares)

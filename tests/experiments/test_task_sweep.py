@@ -165,7 +165,7 @@ def test_a_module_next_to_the_caller_is_found_as_its_file(
     assert load_callable(by_module)().task.name == "pace"
     # a module the interpreter can import keeps its module form (relative imports work)
     assert canonical_task("torchhrc.tasks.suite:make_task") == "torchhrc.tasks.suite:make_task"
-    with pytest.raises(ModelError, match="name the file, 'path/to/nowhere_26.py:make'"):
+    with pytest.raises(ModelError, match=r"name the file, 'path/to/nowhere_26\.py:make'"):
         load_callable("nowhere_26:make")
 
 

@@ -250,6 +250,13 @@ def test_summary_branches_worked_by_hand():
     assert _by_hand([1.0, 2.0, 3.0]).summary("told the type").startswith("told the type 3.00")
     with pytest.raises(ValueError, match="expected robot in"):
         two.summary("oracle")
+    # evaluated without demonstrations or a pooled robot: the type-aware robot alone, said so
+    alone = _by_hand([1.0], ("split", "identified"), robots=("type-aware",)).summary()
+    assert alone.splitlines() == [
+        "type-aware 1.00 ± 0.10; no type-agnostic robot to compare with (evaluate_task learns "
+        "one from demonstrations=, or takes agnostic=)",
+        "not identified after 3 steps: a (split: its actions do not tell it apart yet)",
+    ]
 
 
 def test_the_told_robot_acts_optimally_for_the_type_it_is_told():

@@ -198,6 +198,41 @@ def test_load_reports_the_bad_file(tmp_path):
         LearnedModel.load(tmp_path)
 
 
+class _Sides(CollaborativeTask):
+    """The robot holds a part left or right (or waits); the person takes from a side."""
+
+    state_names = ("none", "took_left", "took_right")
+    robot_actions = ("wait", "hold_left", "hold_right")
+    human_actions = ("take_left", "take_right")
+    robot_effect = torch.tensor([[0, 1, 2]] * 3)
+    human_effect = torch.tensor([[1, 2]] * 3)
+    human_model = "state"
+
+    @property
+    def human_legal(self) -> torch.Tensor:
+        return torch.ones(3, 2, dtype=torch.bool)
+
+
+def test_learn_records_both_readings_of_the_objects_and_raw_keeps_sides_apart():
+    # docs/your_own_task.md section 2, "Action names carry objects": left- and right-handed
+    # people who otherwise act alike, 10 subjects x 3; the exchangeable reading (the sides as
+    # interchangeable objects) makes them one type, and objects="raw" keeps them apart
+    seqs, who = [], []
+    for s in range(10):
+        side = ("left", "right")[s % 2]
+        seqs += [[("robot", f"hold_{side}"), ("human", f"take_{side}")] * 4] * 3
+        who += [f"s{s}"] * 3
+    demos = Demonstrations.from_lists(seqs, subjects=who)
+    auto = learn(_Sides(), demos, solve=False, irl_iterations=1)
+    readings = auto.info["object_comparison"]
+    assert set(readings) == {"raw", "exchangeable"}
+    kept = max(readings, key=lambda r: readings[r]["exact_icl"])
+    assert auto.info["objects"] == kept and auto.num_types == int(readings[kept]["k"])
+    assert readings["raw"]["k"] == 2 and readings["exchangeable"]["k"] == 1
+    raw = learn(_Sides(), demos, solve=False, irl_iterations=1, objects="raw")
+    assert raw.info["objects"] == "raw" and raw.num_types == 2
+
+
 def test_learn_names_the_demonstrations_container():
     task = _Turns()
     with pytest.raises(TypeError, match=r"got list; build one .*Demonstrations.from_lists"):

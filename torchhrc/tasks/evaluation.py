@@ -215,12 +215,18 @@ class TaskEvaluation:
             knowing the type pays: told the type 3.00 ± 0.10, ahead of ...; type-aware keeps 50% ...
             not identified after 5 steps: b (split: its actions do not tell it apart yet)
         """
-        i, j = self.index(robot), self.index(other)
+        i = self.index(robot)
         m, c = self.overall_mean, self.overall_ci
 
         def value(k: int) -> str:
             return f"{self.robots[k]} {float(m[k]):.2f} ± {float(c[k]):.2f}"
 
+        if other == "type-agnostic" and other not in self.robots:
+            # evaluated without demonstrations= or agnostic=: nothing to compare with
+            lines = [f"{value(i)}; no type-agnostic robot to compare with (evaluate_task "
+                     "learns one from demonstrations=, or takes agnostic=)"]  # fmt: skip
+            return "\n".join(lines + self._belief_lines())
+        j = self.index(other)
         word = {1: "ahead beyond", 0: "level within", -1: "behind beyond"}
         sign = int(self.compare(robot, other, overall=True))
         lines = [f"{value(i)} against {value(j)}: {word[sign]} the 95% intervals"]
@@ -261,19 +267,25 @@ class TaskEvaluation:
             else:
                 lines.append(f"learning lost nothing beyond the 95% intervals: {value(t)} is "
                              f"not ahead of {robot}")  # fmt: skip
-        if robot == "type-aware" and self.belief_steps:
-            why = {
-                "split": "its actions do not tell it apart yet",
-                "merged": "the learning joined it with another type",
-                "wrong": "the belief settles on another type",
-            }
-            missed = [f"{name} ({status}: {why[status]})"
-                      for name, status in zip(self.type_names, self.belief_status)
-                      if status in why]  # fmt: skip
-            if missed:
-                lines.append(f"not identified after {self.belief_steps[-1]} steps: "
-                             + ", ".join(missed))  # fmt: skip
+        if robot == "type-aware":
+            lines += self._belief_lines()
         return "\n".join(lines)
+
+    def _belief_lines(self) -> list[str]:
+        """The true types the type-aware robot's belief did not identify, as summary lines."""
+        if not self.belief_steps:
+            return []
+        why = {
+            "split": "its actions do not tell it apart yet",
+            "merged": "the learning joined it with another type",
+            "wrong": "the belief settles on another type",
+        }
+        missed = [f"{name} ({status}: {why[status]})"
+                  for name, status in zip(self.type_names, self.belief_status)
+                  if status in why]  # fmt: skip
+        if not missed:
+            return []
+        return [f"not identified after {self.belief_steps[-1]} steps: " + ", ".join(missed)]
 
     def table(self, *, digits: int = 2) -> str:
         """A Markdown table: one row per true type, ``mean ± ci`` per robot, then the

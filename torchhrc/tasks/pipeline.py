@@ -927,6 +927,7 @@ def learn(
         "bic": float(fit.bic),
         "log_likelihood": float(fit.log_likelihood),
         "objects": fit.objects,
+        "object_comparison": fit.object_comparison,
         "order": fit.order,
         "order_comparison": fit.order_comparison,
         "cluster": _jsonable(

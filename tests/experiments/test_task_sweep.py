@@ -260,3 +260,11 @@ def test_text_parameters_are_plotted_at_their_grid_positions(tmp_path: Path) -> 
     summary = (tmp_path / "s" / "summary.md").read_text()
     assert "## long_label" in summary and "| bb | 3 | 2 |" in summary
     assert (tmp_path / "s" / "long_label.png").stat().st_size > 1000
+
+
+def test_the_sweep_docstring_names_every_task_parameter() -> None:
+    # help(torchhrc.sweep) is where a user looks first: it lists what a cell can set
+    from torchhrc.experiments.task_sweep import TASK_PARAMETERS
+
+    missing = [name for name in TASK_PARAMETERS if f"``{name}``" not in torchhrc.sweep.__doc__]
+    assert not missing, f"torchhrc.sweep's docstring does not name {missing}"

@@ -276,8 +276,9 @@ def sweep(
     ``n`` steps (:func:`~torchhrc.experiments.task_sweep.task_metrics`). Its parameters are
     :data:`~torchhrc.experiments.task_sweep.TASK_PARAMETERS`: ``subjects``, ``per_subject``,
     ``noise``; ``learn()``'s ``k``, ``k_min``, ``k_max``, ``restarts``, ``criterion``,
-    ``objects``, ``mixture_method``, ``min_gain``, ``human_model``, ``irl_iterations``,
-    ``irl_epsilon``, ``solver_time``, ``solver_iterations``; and ``episodes``.
+    ``objects``, ``order``, ``mixture_method``, ``min_gain``, ``human_model``, ``prior``,
+    ``irl_iterations``, ``irl_epsilon``, ``irl_l2``, ``solver_time``, ``solver_iterations``;
+    and ``episodes``.
 
     A function (one that takes a ``seed`` keyword argument) is called as
     ``task(seed=seed, **cell)`` and returns a mapping of metrics (numbers, nested mappings or

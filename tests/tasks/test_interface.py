@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import warnings
 
+import numpy as np
 import pytest
 import torch
 
@@ -220,6 +221,7 @@ def test_step_takes_ints_and_returns_an_int():
     assert task.step(0, 0, 1) == 0 and isinstance(task.step(0, 0, 1), int)  # press, flip
     assert task.step(0, -1, 1) == 1  # press, no human action
     assert task.step(torch.tensor([0, 1]), 0, 0).tolist() == [1, 0]  # tensors broadcast
+    assert task.step(np.array([0, 1]), 0, np.int64(0)).tolist() == [1, 0]  # numpy too
     # bad arguments are named, with the valid indices and the actions' names
     with pytest.raises(TypeError, match=r"expected robot_action to be an int .*1: press"):
         task.step(0, 0, "press")

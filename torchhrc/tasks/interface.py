@@ -51,7 +51,6 @@ Example:
 
 from __future__ import annotations
 
-import operator
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
@@ -494,7 +493,7 @@ class CollaborativeTask:
         mid = effect[at, xt]
         after = human[mid, ht.clamp_min(0)]
         out = torch.where(ht >= 0, after, mid)
-        return int(out) if scalar else out
+        return int(out) if scalar and out.dim() == 0 else out
 
     # ------------------------------------------------------------------ demonstrations
     def read_steps(self, demonstrations: Demonstrations) -> TaskSteps | None:
@@ -784,17 +783,20 @@ def _index_argument(name: str, value: Any, low: int, high: int, names: Sequence[
     ``names`` of the indices."""
     listed = "" if names is None else " (" + ", ".join(f"{i}: {n}" for i, n in enumerate(names))
     listed += "" if names is None else ")"
-    if isinstance(value, torch.Tensor):
-        ok = not (value.is_floating_point() or value.is_complex() or value.dtype == torch.bool)
-    else:
-        try:
-            ok = not isinstance(value, bool) and operator.index(value) is not None
-        except TypeError:
-            ok = False
-    if not ok:
+    try:
+        t = value if isinstance(value, torch.Tensor) else torch.as_tensor(value)
+    except (TypeError, ValueError, RuntimeError):
+        t = None
+    if (
+        t is None
+        or isinstance(value, bool)
+        or t.is_floating_point()
+        or t.is_complex()
+        or (t.dtype == torch.bool)
+    ):
         raise TypeError(f"expected {name} to be an int or an integer tensor of indices"
                         f"{listed}, got {value!r}")  # fmt: skip
-    t = torch.as_tensor(value, dtype=torch.long, device=device)
+    t = t.to(dtype=torch.long, device=device)
     if t.numel() and (int(t.min()) < low or int(t.max()) >= high):
         raise ValueError(f"expected {name} in [{low}, {high}){listed}, got {value!r}")
     return t

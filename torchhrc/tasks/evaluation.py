@@ -225,7 +225,7 @@ class TaskEvaluation:
             # evaluated without demonstrations= or agnostic=: nothing to compare with
             lines = [f"{value(i)}; no type-agnostic robot to compare with (evaluate_task "
                      "learns one from demonstrations=, or takes agnostic=)"]  # fmt: skip
-            return "\n".join(lines + self._belief_lines())
+            return "\n".join(lines + (self._belief_lines() if robot == "type-aware" else []))
         j = self.index(other)
         word = {1: "ahead beyond", 0: "level within", -1: "behind beyond"}
         sign = int(self.compare(robot, other, overall=True))

@@ -20,7 +20,7 @@ Run: ``python benchmarks/bench_evaluation.py [--tasks a,b] [--episodes 200] [--j
 one row per task with three signs per seed: *told the type* against *type-agnostic* (does
 knowing the type pay?), *true model* against *type-agnostic* (can finding it online pay?),
 then *type-aware* against *type-agnostic*, over the population and beyond the CIs
-(:func:`seeds_table`; the table of docs/your_own_task.md section 8, "Over
+(:func:`seeds_table`; the tables of docs/evaluation_history.md, "Over
 ten seeds", at ``--solver-time 5 --episodes 100``; ``benchmarks/bench_heldout.py --goal 3
 --seeds`` runs it on the held-out tasks). SARSOP stops on a wall-clock limit: on a loaded
 machine a large task's policies can differ between runs; ``--json`` records the bounds' gaps.

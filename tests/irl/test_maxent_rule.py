@@ -1,7 +1,7 @@
 """learn_type_weights(rule="maxent"): the per-type reward that learn() uses by default.
 
-The property that made it the default (docs/your_own_task.md section 8): with indicator
-features and a dozen demonstrations per type, the robot that is greedy in a type's learned
+The property that made it the default (docs/evaluation_history.md, "The MaxEnt ridge"): with
+indicator features and a dozen demonstrations per type, the robot that is greedy in a type's learned
 reward, under the type's learned behaviour, finishes the task from every state the people
 reach. Abbeel-Ng's "dominant" reward leaves the pairs off a type's demonstrated path near 0,
 so an idle loop there is worth as much as the work left, and the greedy robot idles.
@@ -96,8 +96,8 @@ def test_the_ridge_keeps_the_demonstrated_first_move_best_for_every_type():
     # true reward +0.5 for waiting, -0.5 for any part). At maxent_irl's own ridge (1e-3)
     # seed 5's learned rewards at the start were wait -11 to -21 and some parts up to +12
     # (paid back later on each type's path), and under the uniform belief the robot did a
-    # part no partner ever did first, behind the pooled robot (docs/your_own_task.md
-    # section 8, "The MaxEnt ridge"). learn()'s ridge keeps the demonstrated move the
+    # part no partner ever did first, behind the pooled robot (docs/evaluation_history.md,
+    # "The MaxEnt ridge"). learn()'s ridge keeps the demonstrated move the
     # best immediate reward there for every type, and the robot waits
     world = make_task("division_of_labour")
     demos, _ = world.demonstrations(subjects=30, per_subject=4, noise=0.05, seed=5)

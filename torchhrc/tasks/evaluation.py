@@ -178,7 +178,7 @@ class TaskEvaluation:
         * with ``"told the type"`` among the robots (``told_type=True``): whether knowing
           the type pays (*told the type* against ``other``). Where it does not, ``robot``
           level with ``other`` is the expected result: no robot gains from finding a type
-          that changes nothing (docs/your_own_task.md, section 8, "Over ten seeds"). Where
+          that changes nothing (docs/evaluation_history.md, "Over ten seeds"). Where
           it does, the share of the gain that ``robot`` keeps,
           ``(robot - other) / (told - other)``;
         * with ``"true model"`` among the robots (``true_model=True``): whether finding the

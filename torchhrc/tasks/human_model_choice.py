@@ -145,7 +145,7 @@ def compare_human_models(
     with the larger total is ``"used"``; ties go to ``"chain"`` (the paper's). The best of
     20 smoothings' held-out scores is a little optimistic for ``state``; on the suite the
     two models' gaps are tens to hundreds of nats, and the model picked is the same as with
-    the default smoothing on every task (``docs/your_own_task.md`` section 8).
+    the default smoothing on every task (``docs/evaluation_history.md``).
 
     Args:
         task: a task whose :meth:`~CollaborativeTask.human_policy` reads

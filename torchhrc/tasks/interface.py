@@ -202,8 +202,8 @@ def wasted_move_feature(
     ``+1.44``, and the type-aware robot lost to the pooled one. One column shared by every
     state lets the ridge carry what the demonstrations show where partners were (they never
     waste a move) to the states they never visited. Part of the default
-    :meth:`CollaborativeTask.features` (docs/your_own_task.md, section 4, has the figures
-    that decided it).
+    :meth:`CollaborativeTask.features` (docs/evaluation_history.md, "The wasted-move
+    column", has the figures that decided it).
 
     Args:
         robot_effect: ``(A, X)`` int64, ``x`` after robot action ``a``.

@@ -68,7 +68,7 @@ RewardRule = Literal["maxent", "dominant", "paper", "last"]
 REWARD_RULES: tuple[str, ...] = ("maxent", "dominant", "paper", "last")
 
 #: The ridge penalty of the ``"maxent"`` rule (``IRLConfig.l2``'s default). Chosen on the task
-#: suite over 10 seeds (docs/your_own_task.md, section 8, "The MaxEnt ridge"): at
+#: suite over 10 seeds (docs/evaluation_history.md, "The MaxEnt ridge"): at
 #: :func:`torchhrc.irl.maxent_irl`'s 1e-3 the rewards of near-deterministic partners grow to
 #: +-20 (log-odds of their slips), every move a type's partner never made in a state the type
 #: visits costs as much as any other, and the type-aware robot steered into states no
@@ -94,7 +94,7 @@ class IRLConfig:
             (an idle loop in a state off their path is worth as much as finishing the task,
             and an action the type's partner never took is not penalised), whereas MaxEnt's
             gradient lowers the reward of every pair its soft policy takes and the expert
-            does not (``docs/your_own_task.md`` section 8).
+            does not (``docs/evaluation_history.md``, "The MaxEnt ridge").
         epsilon: the projection algorithm's stopping margin on the feature expectations
             (default 0.05; the projection rules only).
         iterations: cap on the IRL iterations (policies) per type (default 10; the

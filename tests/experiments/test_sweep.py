@@ -291,8 +291,12 @@ def test_a_users_function_sweeps_like_a_study(
     assert _comparable(_csv_rows(tmp_path / "cli" / "results.csv")) == _comparable(
         _csv_rows(tmp_path / "api" / "results.csv")
     )
+    before = (tmp_path / "cli" / "summary.md").stat().st_mtime_ns
     assert main([*argv, "--resume"]) == 0
-    assert json.loads(capsys.readouterr().out)["skipped"] == 12
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["skipped"] == 12 and printed["ran"] == 0 and printed["finished"] == 12
+    # nothing left to run: the summary and its plots are kept as they are
+    assert (tmp_path / "cli" / "summary.md").stat().st_mtime_ns == before
 
 
 def test_a_users_function_parameters_are_checked_against_its_signature(tmp_path: Path) -> None:

@@ -77,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
         "out": str(result.out_dir),
         "jobs": len(spec.jobs()),
         "finished": len(result.rows),
+        "ran": len(result.rows) - result.skipped,
         "skipped": result.skipped,
         "failed": sorted(result.failed),
     }))  # fmt: skip

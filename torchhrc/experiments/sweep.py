@@ -242,7 +242,8 @@ def run_sweep(
     rows = ordered()
     if rows:
         write_text_atomic(path / "results.csv", _csv_text(rows, first))
-    if summary and rows:
+    if summary and rows and (todo or not (path / "summary.md").exists()):
+        # (a resume with nothing left to run keeps the summary and plots it already has)
         write_summary(path, spec, rows, failed=failed)
     return SweepResult(out_dir=path, rows=rows, skipped=len(earlier), failed=failed)
 

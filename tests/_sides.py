@@ -8,6 +8,9 @@ the task ends. In the middle the state no longer shows the type.
 
 from __future__ import annotations
 
+import functools
+import warnings
+
 import torch
 
 from torchhrc.tasks import CollaborativeTask
@@ -43,6 +46,22 @@ def world() -> TaskWithPeople:
     reward[1, 3] = torch.tensor([1.0, -1.0])
     reward[2, 3] = torch.tensor([-1.0, 1.0])
     return TaskWithPeople(task, people, reward, horizon=6, observed=False)
+
+
+@functools.cache
+def learned():
+    """``(world, demos, aware, agnostic)``: 12 subjects x 3 demonstrations of :func:`world`
+    (noise 0.05, seed 0), the type-aware model (k = 2) and the type-agnostic one (k = 1), both
+    solved for 1 s; learned once per test process."""
+    import torchhrc
+
+    task_world = world()
+    demos, _ = task_world.demonstrations(subjects=12, per_subject=3, noise=0.05, seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        aware = torchhrc.learn(task_world.task, demos, k=2, solver_time=1.0, seed=0)
+        agnostic = torchhrc.learn(task_world.task, demos, k=1, solver_time=1.0, seed=0)
+    return task_world, demos, aware, agnostic
 
 
 def by_hand(overall_mean, status=("identified", "identified"), robots=None):

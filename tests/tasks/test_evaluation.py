@@ -18,7 +18,7 @@ import warnings
 
 import pytest
 import torch
-from _sides import G
+from _sides import G, learned
 from _sides import by_hand as _by_hand
 from _sides import world as _world
 
@@ -28,13 +28,7 @@ from torchhrc.tasks.evaluation import evaluate_task
 
 @pytest.fixture(scope="module")
 def fitted():
-    world = _world()
-    demos, _ = world.demonstrations(subjects=12, per_subject=3, noise=0.05, seed=0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        aware = torchhrc.learn(world.task, demos, k=2, solver_time=1.0, seed=0)
-        agnostic = torchhrc.learn(world.task, demos, k=1, solver_time=1.0, seed=0)
-    return world, demos, aware, agnostic
+    return learned()
 
 
 class AlwaysLeft:

@@ -12,7 +12,7 @@ import warnings
 
 import pytest
 import torch
-from _sides import G
+from _sides import G, learned
 from _sides import by_hand as _by_hand
 from _sides import world as _world
 
@@ -140,12 +140,7 @@ def test_memory_makes_the_hidden_value_change():
 
 
 def test_evaluate_task_adds_the_robot_and_the_summary_says_whether_it_pays():
-    world = _world()
-    demos, _ = world.demonstrations(subjects=12, per_subject=3, noise=0.05, seed=0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        aware = torchhrc.learn(world.task, demos, k=2, solver_time=1.0, seed=0)
-        agnostic = torchhrc.learn(world.task, demos, k=1, solver_time=1.0, seed=0)
+    world, demos, aware, agnostic = learned()
     result = evaluate_task(world, aware, demonstrations=demos, agnostic=agnostic, episodes=200,
                            noise=0.2, told_type=True, true_model=True, seed=6)  # fmt: skip
     assert result.robots == ("type-aware", "type-agnostic", TRUE_MODEL, "told the type")

@@ -68,14 +68,16 @@ def check_index(
     *,
     device: torch.device | str | None = None,
     what: str = "",
+    low: int = 0,
 ) -> torch.Tensor:
-    """``value`` as an int64 index tensor, checked to be integer and in ``[0, size)``.
+    """``value`` as an int64 index tensor, checked to be integer and in ``[low, size)``
+    (``low = -1`` where ``-1`` means "none").
 
     Accepted: a Python ``int``, a NumPy integer, or an integer tensor / NumPy array / list
     (any shape, e.g. a batch). Refused with ``TypeError``: ``bool``, floats (``3.0`` too: an
     index is not a measurement), anything else. Out of range: ``ModelError`` naming the
-    first bad value; ``size=None`` skips the range check. ``what`` is added to the range
-    message (e.g. ``"the model's states"``).
+    first bad value; ``size=None`` skips the range check. ``what`` is added to both messages
+    (e.g. ``"the model's states"``).
 
     Example:
         >>> import numpy as np
@@ -86,22 +88,23 @@ def check_index(
         ...
         torchhrc.errors.ModelError: expected x in [0, 3), got 3
     """
+    hint = f" ({what})" if what else ""
     if isinstance(value, torch.Tensor):
         t = value
     elif isinstance(value, bool) or not isinstance(
         value, (int, np.integer, np.ndarray, list, tuple)
     ):
         raise TypeError(f"expected {name} to be an integer index (an int, or an integer "
-                        f"tensor or array), got {type(value).__name__} {value!r}")  # fmt: skip
+                        f"tensor or array){hint}, got {type(value).__name__} "
+                        f"{value!r}")  # fmt: skip
     else:
         t = torch.as_tensor(value)
     if t.is_floating_point() or t.is_complex() or t.dtype == torch.bool:
         raise TypeError(f"expected {name} to be an integer index (an int, or an integer "
-                        f"tensor or array), got {t.dtype} {value!r}")  # fmt: skip
-    if size is not None and t.numel() and bool(((t < 0) | (t >= size)).any()):
-        bad = int(t[(t < 0) | (t >= size)].reshape(-1)[0])
-        hint = f" ({what})" if what else ""
-        raise ModelError(f"expected {name} in [0, {size}){hint}, got {bad}")
+                        f"tensor or array){hint}, got {t.dtype} {value!r}")  # fmt: skip
+    if size is not None and t.numel() and bool(((t < low) | (t >= size)).any()):
+        bad = int(t[(t < low) | (t >= size)].reshape(-1)[0])
+        raise ModelError(f"expected {name} in [{low}, {size}){hint}, got {bad}")
     return t.to(device=device if device is not None else t.device, dtype=torch.long)
 
 

@@ -57,6 +57,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import torch
 
+from torchhrc._checks import check_index
 from torchhrc.errors import ModelError
 
 if TYPE_CHECKING:
@@ -470,9 +471,9 @@ class CollaborativeTask:
             ``(...)`` int64 next states; an int when all three are ints.
 
         Raises:
-            TypeError: an argument that is not an int or an integer tensor (an action's name:
-                use its index, ``task.robot_actions.index(name)``).
-            ValueError: an index out of range (the message names the argument and lists the
+            TypeError: an argument that is not an int or an integer tensor or array (an
+                action's name: use its index, ``task.robot_actions.index(name)``).
+            ModelError: an index out of range (the message names the argument and lists the
                 actions).
 
         Example:
@@ -485,11 +486,11 @@ class CollaborativeTask:
         scalar = not any(isinstance(v, torch.Tensor) for v in (x, human_action, robot_action))
         effect = torch.as_tensor(self.robot_effect)
         human = torch.as_tensor(self.human_effect)
-        xt = _index_argument("x", x, 0, self.num_states, None, effect.device)
-        ht = _index_argument("human_action", human_action, -1, self.num_human_actions,
-                             self.human_actions, effect.device)  # fmt: skip
-        at = _index_argument("robot_action", robot_action, 0, self.num_actions,
-                             self.robot_actions, effect.device)  # fmt: skip
+        xt = check_index("x", x, self.num_states, device=effect.device)
+        ht = check_index("human_action", human_action, self.num_human_actions, low=-1,
+                         device=effect.device, what=_listed(self.human_actions))  # fmt: skip
+        at = check_index("robot_action", robot_action, self.num_actions,
+                         device=effect.device, what=_listed(self.robot_actions))  # fmt: skip
         mid = effect[at, xt]
         after = human[mid, ht.clamp_min(0)]
         out = torch.where(ht >= 0, after, mid)
@@ -776,30 +777,9 @@ def _state_counts(
     return (counts[:, effect] + c * prior).to(device)  # (K, A, X, H + 1)
 
 
-def _index_argument(name: str, value: Any, low: int, high: int, names: Sequence[str] | None,
-                    device: torch.device) -> torch.Tensor:  # fmt: skip
-    """``value`` (an int or an integer tensor) as an int64 tensor of indices in
-    ``[low, high)``, or a TypeError / ValueError naming ``name`` and, where given, the
-    ``names`` of the indices."""
-    listed = "" if names is None else " (" + ", ".join(f"{i}: {n}" for i, n in enumerate(names))
-    listed += "" if names is None else ")"
-    try:
-        t = value if isinstance(value, torch.Tensor) else torch.as_tensor(value)
-    except (TypeError, ValueError, RuntimeError):
-        t = None
-    if (
-        t is None
-        or isinstance(value, bool)
-        or t.is_floating_point()
-        or t.is_complex()
-        or (t.dtype == torch.bool)
-    ):
-        raise TypeError(f"expected {name} to be an int or an integer tensor of indices"
-                        f"{listed}, got {value!r}")  # fmt: skip
-    t = t.to(dtype=torch.long, device=device)
-    if t.numel() and (int(t.min()) < low or int(t.max()) >= high):
-        raise ValueError(f"expected {name} in [{low}, {high}){listed}, got {value!r}")
-    return t
+def _listed(names: Sequence[str]) -> str:
+    """``"0: wait, 1: fetch_A, ..."``: the indices of an action list, for an error."""
+    return ", ".join(f"{i}: {n}" for i, n in enumerate(names))
 
 
 def _table(name: str, value: Any, shape: tuple[int, ...], kind: str) -> torch.Tensor:

@@ -215,6 +215,26 @@ class Demonstrations:
 
     # ------------------------------------------------------------------ construction
     @classmethod
+    def check(cls, value: object, name: str = "demonstrations") -> Demonstrations:
+        """``value`` itself if it is a :class:`Demonstrations`, else a TypeError naming
+        ``name`` and the two ways to build one (:meth:`from_lists`, :meth:`read_csv`).
+
+        Example:
+            >>> Demonstrations.check([[("robot", "go"), ("human", "take")]])
+            Traceback (most recent call last):
+            ...
+            TypeError: expected demonstrations to be a torchhrc.Demonstrations, got list; ...
+        """
+        if not isinstance(value, cls):
+            raise TypeError(
+                f"expected {name} to be a torchhrc.Demonstrations, got {type(value).__name__}; "
+                "build one from lists of (actor, action) steps with "
+                "Demonstrations.from_lists(sequences, subjects=...), or read a CSV with "
+                "Demonstrations.read_csv(path)"
+            )
+        return value
+
+    @classmethod
     def from_lists(
         cls,
         sequences: Sequence[Sequence[Step]],

@@ -202,10 +202,7 @@ def leave_one_subject_out(
     """
     from torchhrc.mixture import fit_mixture, infer_type
 
-    if not isinstance(demonstrations, Demonstrations):
-        raise TypeError(
-            f"expected demonstrations to be a Demonstrations, got {type(demonstrations).__name__}"
-        )
+    Demonstrations.check(demonstrations)
     if inference not in ("vote", "posterior"):
         raise ValueError(f"expected inference 'vote' or 'posterior', got {inference!r}")
     if matching not in ("one_to_one", "majority"):

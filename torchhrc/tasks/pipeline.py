@@ -36,6 +36,7 @@ from typing import Any, Literal
 
 import torch
 
+from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP
 from torchhrc.tasks.human_model_choice import (
@@ -456,20 +457,6 @@ def learn_type_weights(
     return weights
 
 
-def _check_demonstrations(demonstrations: Any) -> None:
-    """A TypeError unless ``demonstrations`` is a :class:`~torchhrc.data.Demonstrations`
-    (recorded steps come in through ``Demonstrations.from_lists`` or ``read_csv``)."""
-    from torchhrc.data import Demonstrations
-
-    if not isinstance(demonstrations, Demonstrations):
-        raise TypeError(
-            "expected demonstrations to be a torchhrc.Demonstrations, got "
-            f"{type(demonstrations).__name__}; build one from lists of (actor, action) steps "
-            "with Demonstrations.from_lists(sequences, subjects=...), or read a CSV with "
-            "Demonstrations.read_csv(path)"
-        )
-
-
 def build_model(
     task: CollaborativeTask,
     demonstrations: Any,
@@ -521,7 +508,7 @@ def build_model(
             wrong number of types) or inputs of the wrong shape.
     """
     check_task(task)
-    _check_demonstrations(demonstrations)
+    Demonstrations.check(demonstrations)
     chains = chains.detach().to(torch.float64)
     if chains.dim() != 3 or chains.shape[1] != chains.shape[2]:
         raise ModelError(f"expected chains of shape (K, V, V), got {tuple(chains.shape)}")
@@ -881,7 +868,7 @@ def learn(
     from torchhrc.mixture.selection import DEFAULT_MIN_GAIN, DEFAULT_STRONG_GAIN, ClusterConfig
 
     check_task(task)
-    _check_demonstrations(demonstrations)
+    Demonstrations.check(demonstrations)
     if prior not in ("shares", "uniform"):
         raise ValueError(f"expected prior 'shares' or 'uniform', got {prior!r}")
     state_smoothing_pair(state_smoothing)  # checked before the clustering

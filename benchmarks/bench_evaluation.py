@@ -100,6 +100,9 @@ def evaluate_world(name: str, world, demos, *, episodes: int = 200, belief_steps
     online = int(result.compare("true model", "type-agnostic", overall=True))
     record = {**result.to_dict(), "best_responses_differ": differ,
               "signs": _SIGN[pays] + _SIGN[online] + _SIGN[overall], "summary": result.summary(),
+              "paired": {name: [float(v) for v in result.difference(name, "type-agnostic",
+                                                                    overall=True)]
+                         for name in ("type-aware", "told the type", "true model")},
               "k_found": aware.num_types, "human_model": used,
               "gap": [aware.upper - aware.lower, agnostic.upper - agnostic.lower],
               "seconds": time.perf_counter() - start}  # fmt: skip

@@ -65,10 +65,17 @@ def learned():
 
 
 def by_hand(overall_mean, status=("identified", "identified"), robots=None):
+    """A TaskEvaluation of 2 types x 2 episodes whose robot ``r`` returns
+    ``overall_mean[r] +- 0.1 r`` (episode 0 +, episode 1 -, in both types): the paired
+    difference of robots ``i`` and ``j`` is ``m_i - m_j +- 0.1 (i - j)``, whose overall 95%
+    half-width is ``1.96 * 0.1 |i - j| / sqrt(2)`` (0.139 for neighbours)."""
     robots = robots or ("type-aware", "type-agnostic", "told the type")
     R = len(robots)
+    sign = torch.tensor([1.0, -1.0], dtype=torch.float64)
+    returns = (torch.tensor(overall_mean, dtype=torch.float64).view(R, 1, 1)
+               + 0.1 * torch.arange(R, dtype=torch.float64).view(R, 1, 1) * sign)  # fmt: skip
     return TaskEvaluation(
-        robots=robots, type_names=("a", "b"), returns=torch.zeros(R, 2, 2),
+        robots=robots, type_names=("a", "b"), returns=returns.expand(R, 2, 2).clone(),
         mean=torch.zeros(R, 2), ci=torch.zeros(R, 2),
         overall_mean=torch.tensor(overall_mean, dtype=torch.float64),
         overall_ci=torch.full((R,), 0.1, dtype=torch.float64), steps=torch.zeros(R, 2),

@@ -196,7 +196,7 @@ def test_summary_says_how_much_of_knowing_the_type_the_robot_keeps(fitted):
     result = evaluate_task(world, aware, demonstrations=demos, agnostic=agnostic, episodes=200,
                            noise=eps, told_type=True, seed=6)  # fmt: skip
     lines = result.summary().splitlines()
-    assert lines[0].startswith("type-aware ") and "ahead beyond the 95% intervals" in lines[0]
+    assert lines[0].startswith("type-aware ") and "ahead by" in lines[0]
     assert lines[1].startswith("knowing the type pays: told the type 0.81")
     # by hand: told g^2, type-aware g^2 (1 - eps) (a slip to the other side misleads it),
     # the pooled robot 0 over the population (one hand for everyone, or none): it keeps
@@ -220,22 +220,24 @@ def test_summary_when_knowing_the_type_does_not_pay():
     result = evaluate_task(world, aware, demonstrations=demos, agnostic=agnostic, episodes=100,
                            told_type=True, seed=7)  # fmt: skip
     lines = result.summary().splitlines()
-    assert "level within the 95% intervals" in lines[0], result.table()
+    assert "level: " in lines[0], result.table()
     assert lines[1].startswith("knowing the type does not pay: told the type"), lines[1]
     assert "level with type-agnostic" in lines[1]
 
 
 def test_summary_branches_worked_by_hand():
-    # behind beyond the intervals (1.0 + 0.1 < 1.5 - 0.1), and told behind the pooled robot
+    # behind: the paired difference -0.5 +- 0.1 per episode, whose 95% half-width over the
+    # two types is 1.96 * 0.1 / sqrt(2) = 0.139; told (-0.3) behind the pooled robot too
     lines = _by_hand([1.0, 1.5, 1.2], ("merged", "wrong")).summary().splitlines()
-    assert lines[0] == ("type-aware 1.00 ± 0.10 against type-agnostic 1.50 ± 0.10: behind "
-                        "beyond the 95% intervals")  # fmt: skip
+    assert lines[0] == ("type-aware 1.00 ± 0.10 against type-agnostic 1.50 ± 0.10: behind by "
+                        "0.50 ± 0.14 (the paired difference, 95%)")  # fmt: skip
     assert lines[1].startswith("knowing the type does not pay: told the type 1.20 ± 0.10, "
                                "behind type-agnostic")  # fmt: skip
     assert lines[2] == ("not identified after 3 steps: a (merged: the learning joined it with "
                         "another type), b (wrong: the belief settles on another type)")  # fmt: skip
-    # intervals that touch are level (1.0 + 0.1 is not below 1.2 - 0.1)
-    assert "level within" in _by_hand([1.0, 1.2, 3.0]).summary().splitlines()[0]
+    # a difference within its half-width is level (0.13 < 0.139; 0.15 is not)
+    assert ": level: -0.13 ± 0.14" in _by_hand([1.0, 1.13, 3.0]).summary().splitlines()[0]
+    assert ": behind by 0.15 ± 0.14" in _by_hand([1.0, 1.15, 3.0]).summary().splitlines()[0]
     # the gain kept: (1.5 - 1.0) / (3.0 - 1.0) = 25%
     assert _by_hand([1.5, 1.0, 3.0]).summary().splitlines()[1].endswith("keeps 25% of that gain")
     # without a told robot, one line; another pair of robots is compared as asked
@@ -295,3 +297,80 @@ def test_the_told_robot_acts_optimally_for_the_type_it_is_told():
             plain.reset(prior)
             worse += int(float(Q[y, x, int(plain.act(x))]) < float(Q[y, x].max()) - 1e-6)
     assert worse > 0  # the one-iteration policy is not optimal at every corner: a real check
+
+
+def _two_robots(returns, shares=None):
+    """A TaskEvaluation of two robots "a", "b" from their returns ``(2, Y, E)``."""
+    returns = torch.as_tensor(returns, dtype=torch.float64)
+    _, Y, E = returns.shape
+    sd = returns.std(-1, correction=1)
+    return torchhrc.tasks.evaluation.TaskEvaluation(
+        robots=("a", "b"), type_names=tuple(f"t{y}" for y in range(Y)), returns=returns,
+        mean=returns.mean(-1), ci=1.96 * sd / math.sqrt(E),
+        overall_mean=returns.mean((-1, -2)),
+        overall_ci=1.96 * returns.view(2, -1).std(-1) / math.sqrt(Y * E),
+        steps=torch.zeros(2, Y), belief_steps=(), type_map=torch.arange(Y),
+        map_source="assignments", belief_accuracy=torch.zeros(Y, 0), belief_max=torch.zeros(Y, 0),
+        belief_status=(), split_threshold=0.8, episodes=E, noise=0.0, seed=0, discount=0.9,
+        horizon=5, shares=None if shares is None else torch.tensor(shares, dtype=torch.float64),
+    )  # fmt: skip
+
+
+def test_the_paired_difference_worked_by_hand():
+    # a - b per episode: type 0 [0.1, 0.3, 0.1, 0.3] (mean 0.2, variance 0.04 / 3), type 1
+    # [-1] * 4 (variance 0); shares 3/4, 1/4: overall mean 0.75 * 0.2 - 0.25 = -0.1, and
+    # half-width 1.96 sqrt(0.75^2 * 0.04 / 3 / 4) = 0.0849; per type 1.96 sqrt(0.04 / 12)
+    b = torch.tensor([[2.0, 5.0, -1.0, 0.5], [1.0, 1.0, 3.0, 3.0]], dtype=torch.float64)
+    d = torch.tensor([[0.1, 0.3, 0.1, 0.3], [-1.0, -1.0, -1.0, -1.0]], dtype=torch.float64)
+    result = _two_robots(torch.stack([b + d, b]), shares=[0.75, 0.25])
+    mean, half = result.difference("a", "b", overall=True)
+    assert abs(float(mean) + 0.1) < 1e-12
+    assert abs(float(half) - 1.959963984540054 * math.sqrt(0.5625 * 0.04 / 12)) < 1e-12
+    assert int(result.compare("a", "b", overall=True)) == -1
+    per_mean, per_half = result.difference("a", "b")
+    torch.testing.assert_close(per_mean, torch.tensor([0.2, -1.0], dtype=torch.float64))
+    assert abs(float(per_half[0]) - 1.959963984540054 * math.sqrt(0.04 / 12)) < 1e-12
+    assert result.compare("a", "b").tolist() == [1, -1]
+    # the other way round: the same interval, the opposite sign
+    back, back_half = result.difference("b", "a", overall=True)
+    assert float(back) == -float(mean) and float(back_half) == float(half)
+
+
+def test_pairing_removes_the_noise_the_robots_share():
+    # the people's draws move both robots' returns together (+-5); "a" gains 0.1 in every
+    # episode: the robots' own intervals overlap widely, their paired difference does not
+    noise = 5.0 * torch.tensor([1.0, -1.0] * 10, dtype=torch.float64).view(1, 20)
+    result = _two_robots(torch.stack([noise + 1.1, noise + 1.0]))
+    m, c = result.overall_mean, result.overall_ci
+    assert float(m[0] - c[0]) < float(m[1] + c[1])  # overlapping intervals: no verdict there
+    assert int(result.compare("a", "b", overall=True)) == 1
+    mean, half = result.difference("a", "b", overall=True)
+    assert abs(float(mean) - 0.1) < 1e-12 and float(half) < 1e-6
+
+
+def test_returns_equal_but_for_the_last_bits_are_level():
+    # deterministic episodes (no variance): a difference of round-off is no difference, a
+    # difference of 1e-6 is one
+    base = torch.full((2, 3), 3.215, dtype=torch.float64)
+    assert int(_two_robots(torch.stack([base + 1e-13, base])).compare("a", "b", overall=True)) == 0
+    assert int(_two_robots(torch.stack([base - 1e-6, base])).compare("a", "b", overall=True)) == -1
+
+
+def test_the_difference_on_an_evaluation(fitted):
+    # every robot against itself is level; the difference is antisymmetric and its
+    # half-width symmetric; a robot that serves one type beats the type-aware one there only
+    world, demos, aware, agnostic = fitted
+    result = evaluate_task(world, aware, demonstrations=demos, agnostic=agnostic, episodes=60,
+                           robots={"always left": AlwaysLeft()}, seed=3)  # fmt: skip
+    for name in result.robots:
+        assert int(result.compare(name, name, overall=True)) == 0
+        assert (result.compare(name, name) == 0).all()
+    m1, h1 = result.difference("type-aware", "always left")
+    m2, h2 = result.difference("always left", "type-aware")
+    torch.testing.assert_close(m1, -m2)
+    torch.testing.assert_close(h1, h2)
+    # by hand: the type-aware robot g^2 (1 - eps) from both types, "always left" +g^2 from
+    # "left", -g^2 from "right": level or behind on "left", ahead on "right" and overall
+    per = result.compare("type-aware", "always left")
+    assert int(per[1]) == 1 and int(per[0]) <= 0, result.table()
+    assert int(result.compare("type-aware", "always left", overall=True)) == 1

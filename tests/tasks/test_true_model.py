@@ -265,9 +265,12 @@ def test_summary_of_the_parts_worked_by_hand():
                     "part alone wins back half or more")  # fmt: skip
     line = _by_hand([1.0, 0.5, 3.0, 1.4, 1.6], robots=robots).summary().splitlines()[2]
     assert line.endswith("neither part alone wins back half: both are off")
-    # the true model within the intervals of the type-aware robot: nothing lost
+    # the true model 0.1 ahead of the type-aware robot, within the paired difference's
+    # half-width (1.96 * 0.2 / sqrt(2) = 0.28): nothing lost; 0.3 ahead is beyond it
     line = _by_hand([1.0, 0.5, 1.1, 1.0, 1.0], robots=robots).summary().splitlines()[2]
-    assert line.startswith("learning lost nothing beyond the 95% intervals: true model 1.10")
+    assert line.startswith("learning lost nothing beyond the 95% interval: true model 1.10")
+    line = _by_hand([1.0, 0.5, 1.3, 1.0, 1.0], robots=robots).summary().splitlines()[2]
+    assert line.startswith("learning lost 0.30 (type-aware against true model)")
 
 
 def test_the_maps_are_checked():

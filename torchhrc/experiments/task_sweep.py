@@ -126,8 +126,10 @@ def task_metrics(
         ``human_model.habit_weight`` and ``.prior_strength``: the state model's smoothing),
         ``return.<robot>.mean`` / ``.ci95`` (over every episode) and ``.by_type.<type>`` /
         ``.by_type_ci95.<type>`` for ``type-aware`` and ``type-agnostic``, ``gain.mean`` (type-
-        aware minus type-agnostic overall), ``gain.by_type.<type>``, ``gain.beyond_ci`` (+1,
-        0 or -1: better, overlapping or worse beyond the 95% intervals),
+        aware minus type-agnostic overall), ``gain.ci95`` (its paired 95% half-width),
+        ``gain.by_type.<type>``, ``gain.beyond_ci`` (+1,
+        0 or -1: ahead, level or behind beyond the 95% interval of the paired difference,
+        :meth:`~torchhrc.tasks.evaluation.TaskEvaluation.compare`),
         ``belief.accuracy.after_<n>`` (``n`` = 1, 3, 5 up to the horizon; mean over the true
         types), ``belief.max_posterior`` (the mean largest posterior after the last ``n``),
         ``belief.by_type.<type>`` (the accuracy after the last ``n``), the shares of true
@@ -214,6 +216,7 @@ def task_metrics(
                 n: float(evaluation.mean[aware, y] - evaluation.mean[other, y])
                 for y, n in enumerate(names)
             },
+            "ci95": float(evaluation.difference("type-aware", "type-agnostic", overall=True)[1]),
             "beyond_ci": int(evaluation.compare("type-aware", "type-agnostic", overall=True)),
         },
         "belief": {

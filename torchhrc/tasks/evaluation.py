@@ -24,7 +24,8 @@ instead of a low accuracy counted as a failure.
 
 Episodes are stepped together as tensors: ``E`` episodes per true type, ``B = E * Y_true``
 at once; the people draw from one seeded generator per robot (the same seed for every
-robot).
+robot), so that two robots are compared on the same people and draws: the paired difference
+of :meth:`TaskEvaluation.difference` and :meth:`TaskEvaluation.compare`.
 
 Example:
     >>> import torchhrc
@@ -154,27 +155,72 @@ class TaskEvaluation:
             raise ValueError(f"expected robot in {self.robots}, got {robot!r}")
         return self.robots.index(robot)
 
+    def difference(self, robot: str, other: str, *, overall: bool = False,
+                   ) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+        """The mean return of ``robot`` less that of ``other`` and its 95% half-width:
+        ``(Y,)`` each per true type, ``()`` each with ``overall`` (the population, the types
+        weighed by :attr:`shares`).
+
+        Paired: every robot meets the same people with the same random draws (one seed,
+        episode ``e`` of a type the same person for every robot), so the interval is that of
+        the episodes' differences, ``1.96 sd(r_robot - r_other) / sqrt(E)`` per type, and
+        over the population ``1.96 sqrt(sum_y w_y^2 var_y / E)``: the ``E`` episodes of each
+        type are fixed by the design (stratified), so the spread between the types' returns
+        is not sampling noise here (it is in :attr:`overall_ci`, which treats the episodes
+        as people drawn from the population). The half-width is at least ``1e-9`` times the
+        largest absolute return (at least 1), so that two robots whose returns differ only
+        in the last bits are level.
+
+        Example:
+            >>> import torch
+            >>> returns = torch.tensor([[[1.0, 3.0, 5.0]], [[0.9, 2.9, 4.9]]])  # (R, Y, E)
+            >>> r = TaskEvaluation(
+            ...     robots=("a", "b"), type_names=("t",), returns=returns,
+            ...     mean=returns.mean(-1), ci=torch.full((2, 1), 2.26),
+            ...     overall_mean=returns.mean((-1, -2)), overall_ci=torch.full((2,), 2.26),
+            ...     steps=torch.zeros(2, 1), belief_steps=(), type_map=torch.tensor([0]),
+            ...     map_source="assignments", belief_accuracy=torch.zeros(1, 0),
+            ...     belief_max=torch.zeros(1, 0), belief_status=(), split_threshold=0.8,
+            ...     episodes=3, noise=0.0, seed=0, discount=0.95, horizon=10)
+            >>> mean, half = r.difference("a", "b", overall=True)
+            >>> round(float(mean), 6), float(half) < 1e-6  # the same 0.1 in every episode
+            (0.1, True)
+            >>> int(r.compare("a", "b", overall=True))  # the intervals overlap; the pairs do not
+            1
+        """
+        i, j = self.index(robot), self.index(other)
+        d = (self.returns[i] - self.returns[j]).double()  # (Y, E)
+        Y, E = d.shape
+        mean = d.mean(-1)  # (Y,)
+        if E > 1:
+            var = d.var(-1, correction=1) / E  # (Y,) the variance of each type's mean
+        else:
+            var = torch.full_like(mean, math.inf)
+        floor = 1e-9 * max(1.0, float(self.returns[[i, j]].abs().max()))
+        if not overall:
+            return mean, (Z95 * var.sqrt()).clamp_min(floor)
+        w = (torch.full((Y,), 1.0 / Y, dtype=torch.float64) if self.shares is None
+             else self.shares.to(torch.float64))  # fmt: skip
+        return (w * mean).sum(), (Z95 * ((w**2) * var).sum().sqrt()).clamp_min(floor)
+
     def compare(self, robot: str, other: str, *, overall: bool = False) -> torch.Tensor:
         """``(Y,)`` int (``()`` with ``overall``): ``+1`` where ``robot`` beats ``other``
-        beyond the 95% intervals (``mean_r - ci_r > mean_o + ci_o``), ``-1`` where it is
-        worse beyond them, else 0.
+        beyond the 95% interval of their paired difference (:meth:`difference`: its mean
+        above its half-width), ``-1`` where it is worse beyond it, else 0.
 
         Per type, a robot that always serves one type can beat the type-aware robot on that
         type (it never pays for a misread person); ``overall`` compares the population."""
-        i, j = self.index(robot), self.index(other)
-        mean = self.overall_mean if overall else self.mean
-        ci = self.overall_ci if overall else self.ci
-        lo_i, hi_i = mean[i] - ci[i], mean[i] + ci[i]
-        lo_j, hi_j = mean[j] - ci[j], mean[j] + ci[j]
-        return (lo_i > hi_j).long() - (hi_i < lo_j).long()
+        mean, half = self.difference(robot, other, overall=overall)
+        return (mean > half).long() - (mean < -half).long()
 
     def summary(self, robot: str = "type-aware", other: str = "type-agnostic") -> str:
         """The result in words, over the population (the types in :attr:`shares`).
 
         One line per finding:
 
-        * ``robot`` against ``other``: ahead, level or behind beyond the 95% intervals
-          (:meth:`compare` with ``overall=True``);
+        * ``robot`` against ``other``: ahead, level or behind, by the 95% interval of
+          their paired difference over the population (:meth:`difference` and
+          :meth:`compare` with ``overall=True``);
         * with ``"told the type"`` among the robots (``told_type=True``): whether knowing
           the type pays (*told the type* against ``other``). Where it does not, ``robot``
           level with ``other`` is the expected result: no robot gains from finding a type
@@ -199,9 +245,10 @@ class TaskEvaluation:
 
         Example:
             >>> import torch
+            >>> returns = torch.tensor([2.0, 1.0, 3.0]).view(3, 1, 1).expand(3, 2, 2)
             >>> r = TaskEvaluation(
             ...     robots=("type-aware", "type-agnostic", "told the type"),
-            ...     type_names=("a", "b"), returns=torch.zeros(3, 2, 2),
+            ...     type_names=("a", "b"), returns=returns,
             ...     mean=torch.zeros(3, 2), ci=torch.zeros(3, 2),
             ...     overall_mean=torch.tensor([2.0, 1.0, 3.0]),
             ...     overall_ci=torch.tensor([0.1, 0.1, 0.1]), steps=torch.zeros(3, 2),
@@ -211,7 +258,7 @@ class TaskEvaluation:
             ...     split_threshold=0.8, episodes=2, noise=0.05, seed=0, discount=0.95,
             ...     horizon=10)
             >>> print(r.summary())  # doctest: +ELLIPSIS
-            type-aware 2.00 ± 0.10 against type-agnostic 1.00 ± 0.10: ahead beyond the 95% ...
+            type-aware 2.00 ± 0.10 against type-agnostic 1.00 ± 0.10: ahead by 1.00 ± 0.00 ...
             knowing the type pays: told the type 3.00 ± 0.10, ahead of ...; type-aware keeps 50% ...
             not identified after 5 steps: b (split: its actions do not tell it apart yet)
         """
@@ -227,9 +274,13 @@ class TaskEvaluation:
                      "learns one from demonstrations=, or takes agnostic=)"]  # fmt: skip
             return "\n".join(lines + (self._belief_lines() if robot == "type-aware" else []))
         j = self.index(other)
-        word = {1: "ahead beyond", 0: "level within", -1: "behind beyond"}
+        word = {1: "ahead by", 0: "level:", -1: "behind by"}
         sign = int(self.compare(robot, other, overall=True))
-        lines = [f"{value(i)} against {value(j)}: {word[sign]} the 95% intervals"]
+        gap, half = (float(v) for v in self.difference(robot, other, overall=True))
+        lines = [
+            f"{value(i)} against {value(j)}: {word[sign]} {abs(gap) if sign else gap:.2f} "
+            f"± {half:.2f} (the paired difference, 95%)"
+        ]
         references = (
             (TOLD, "knowing the type", "no robot gains from finding the type here"),
             (TRUE_MODEL, "finding the type online", "even with the people's true behaviour "
@@ -265,7 +316,7 @@ class TaskEvaluation:
                              f"{value(b)} wins back {100 * back[0]:.0f}% of it, {value(r)} "
                              f"{100 * back[1]:.0f}%; {verdict}")  # fmt: skip
             else:
-                lines.append(f"learning lost nothing beyond the 95% intervals: {value(t)} is "
+                lines.append(f"learning lost nothing beyond the 95% interval: {value(t)} is "
                              f"not ahead of {robot}")  # fmt: skip
         if robot == "type-aware":
             lines += self._belief_lines()

@@ -107,7 +107,9 @@ class TaskEvaluation:
         overall_ci: ``(R,)`` its 95% confidence half-width, treating the episodes as people
             drawn from that population (the spread between the types counts:
             ``1.96 sqrt(N / (N - 1) sum_y w_y mean_e (r - m)^2 / N)``, ``N = Y E``; with
-            equal shares the plain standard error of the ``N`` returns).
+            equal shares the plain standard error of the ``N`` returns). To compare two
+            robots use :meth:`difference` and :meth:`compare`: their interval is the paired
+            one, without the spread between the types or the draws the robots share.
         steps: ``(R, Y)`` mean episode length (steps until a terminal state or the horizon).
         belief_steps: ``(S,)`` the ``n`` at which the type-aware belief is checked.
         type_map: ``(Y,)`` the learned type each true type maps to.

@@ -120,6 +120,12 @@ def seeds_table(names: list[str], seeds: list[int], make_world, *, subjects: int
     told it pays, and where neither does. ``options`` go to
     :func:`evaluate_world`. Returns the records by task and seed."""
     records: dict[str, dict[int, dict]] = {}
+    steps = options.get("belief_steps", 5)
+    print(
+        "each run: seed N: three signs (told the type / true model / type-aware, against "
+        "the type-agnostic robot over the population), then the row of"
+    )
+    print(TABLE_HEADER.format(steps=steps), flush=True)
     for name in names:
         world = make_world(name)
         for seed in seeds:

@@ -55,6 +55,14 @@ name                   X    types  depends on    what is unusual
                                                  (she asks by pausing once: memory) or never;
                                                  a rare type turns from on cue to early for
                                                  the last two parts; 40 / 30 / 20 / 10 %
+``panel_wiring``       27   2      state         wire three terminals, then fasten each: one
+                                                 type wants the robot to fasten, one fastens
+                                                 her own wires right away
+``tool_slot``          48   4      state         one hand-over slot for the next tool; a type
+                                                 that returns any tool handed (20 %) and a
+                                                 rare one that cleans first; 40 / 30 / 20 / 10 %
+``heavy_lifts``        20   3      history       heavy and light boxes; a fatigued type never
+                                                 lifts two heavy ones in a row (memory)
 =====================  ===  =====  ============  ===============================================
 
 ``slow_sanding`` and ``paint_crews`` were added after the selection rule of 6701614 and
@@ -73,6 +81,11 @@ and are kept out of tuning. ``arm_clearance``, ``glue_cure`` and ``handover_timi
 written by the audit of session 26 from the docs alone (a comfort zone, with a glance whose
 accuracy depends on the state; the robot's previous move in the person's memory; the timing
 of hand-overs, with a rare type that differs late), and are kept out of tuning too.
+``panel_wiring``, ``tool_slot`` and ``heavy_lifts`` were written by the audit of session 27
+from the docs alone. ``tool_slot`` (the type-aware robot behind the pooled one on 4 seeds:
+the robot kept handing tools to the type that hands them back) led to the state model's
+reaction (``torchhrc.tasks.interface._reaction``), so it is no longer held out;
+``panel_wiring`` and ``heavy_lifts`` are.
 
 ``HELDOUT[name]() -> HeldoutWorld`` (a ``TaskWithPeople``), whose ``shares`` (None:
 balanced) split the demonstrating subjects between the types and weigh them over the
@@ -1187,6 +1200,216 @@ def handover_timing() -> HeldoutWorld:
     )  # fmt: skip
 
 
+# ====================================================================== the session-27 audit
+# panel_wiring, tool_slot and heavy_lifts: written by the audit of session 27 from the docs
+# alone (held out: run once as a final check, kept out of tuning).
+_NO_ACTION = -1  # "no human action" in a behaviour rule (heavy_lifts)
+
+
+# ------------------------------------------------------------------------------ panel_wiring
+# A technician wires three terminals (L, M, R) of a control panel, left to right; each wire
+# must then be fastened (screwed down), by the person or by the robot's screwdriver.
+# "delegator" wants the robot to fasten every loose wire while they keep wiring; "self_checker"
+# fastens each wire themselves right after placing it (they check the torque) and wants the
+# robot's screwdriver out of the panel.
+_TERMS = ("L", "M", "R")
+_EMPTY, _LOOSE, _FAST = 0, 1, 2
+
+
+def panel_wiring() -> HeldoutWorld:
+    robot_actions = ("wait", "fasten_L", "fasten_M", "fasten_R")
+    human_actions = ("wire_L", "wire_M", "wire_R", "screw_L", "screw_M", "screw_R")
+    types = ("delegator", "self_checker")
+
+    def robot_step(s, a):
+        if a == 0:
+            return s
+        i = a - 1
+        if s[i] != _LOOSE:
+            return s  # nothing to fasten there: a wasted move
+        return tuple(_FAST if j == i else v for j, v in enumerate(s))
+
+    def human_step(s, h):
+        if terminal(s):
+            return None
+        i, kind = h % 3, h // 3  # 0: wire, 1: screw
+        need, to = (_EMPTY, _LOOSE) if kind == 0 else (_LOOSE, _FAST)
+        if s[i] != need:
+            return None
+        return tuple(to if j == i else v for j, v in enumerate(s))
+
+    def terminal(s):
+        return all(v == _FAST for v in s)
+
+    def first(s, v):
+        return next((i for i, w in enumerate(s) if w == v), None)
+
+    def behaviour(y, m, s, a):
+        empty, loose = first(s, _EMPTY), first(s, _LOOSE)
+        if types[y] == "delegator":  # keeps wiring; fastens only when nothing is left to wire
+            if empty is not None:
+                return {empty: 1.0}
+            return {3 + loose: 1.0}
+        if loose is not None:  # self_checker: fasten what is loose first, then wire the next
+            return {3 + loose: 1.0}
+        return {empty: 1.0}
+
+    def reward(y, s, a):
+        loose = [i for i, v in enumerate(s) if v == _LOOSE]
+        if a == 0:  # an idle robot while wires wait costs the delegator time, nobody else
+            return -0.3 if (types[y] == "delegator" and loose) else 0.0
+        if s[a - 1] != _LOOSE:
+            return -0.5  # the screwdriver into the panel for nothing
+        # fastening a loose wire: saves the delegator a screwing turn; the self_checker
+        # has to undo and re-torque it, with the robot's tool in their hands' way
+        return 1.0 if types[y] == "delegator" else -1.0
+
+    return tabulate(
+        "panel_wiring", initial=(_EMPTY, _EMPTY, _EMPTY), robot_actions=robot_actions,
+        human_actions=human_actions, robot_step=robot_step, human_step=human_step,
+        terminal=terminal, type_names=types, behaviour=behaviour, reward=reward, horizon=8,
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ tool_slot
+# A gearbox is assembled in steps (clean the housing - optional, press the bearing, place the
+# gear, screw the cover; the cover needs bearing and gear, cleaning is only possible before the
+# bearing); the robot can put one tool into a shared hand-over slot (brush, press, tweezers,
+# driver). Types: "standard" (40 %, bearing-gear-cover, wants the next tool handed),
+# "gear_first" (30 %, gear-bearing-cover, wants the next tool handed), "own_tools" (20 %,
+# bearing-gear-cover, fetches their own tools and spends a turn putting any handed tool back)
+# and the rare "cleaner" (10 %, cleans the housing first, wants the brush and then each tool).
+_STEPS = ("clean", "bearing", "gear", "cover")  # tool of step i is tool i + 1
+_TOOLS = ("none", "brush", "press", "tweezers", "driver")
+
+
+def tool_slot() -> HeldoutWorld:
+    robot_actions = ("wait", "hand_brush", "hand_press", "hand_tweezers", "hand_driver")
+    human_actions = ("do_clean", "do_bearing", "do_gear", "do_cover", "return_tool")
+    types = ("standard", "gear_first", "own_tools", "cleaner")
+    orders = {"standard": (1, 2, 3), "gear_first": (2, 1, 3), "own_tools": (1, 2, 3),
+              "cleaner": (0, 1, 2, 3)}  # fmt: skip
+
+    def terminal(s):
+        return s[0][3] == 1
+
+    def can_do(s, i):
+        done = s[0]
+        if done[i]:
+            return False
+        if i == 0:
+            return not done[1]  # the housing can be cleaned only before the bearing is in
+        if i == 3:
+            return bool(done[1] and done[2])
+        return True
+
+    def robot_step(s, a):
+        return s if a == 0 else (s[0], a)  # the robot's tool replaces the slot's content
+
+    def human_step(s, h):
+        if terminal(s):
+            return None
+        done, slot = s
+        if h == 4:  # put the slot's tool back on the rack
+            return (done, 0) if slot else None
+        if not can_do(s, h):
+            return None
+        done = tuple(1 if j == h else v for j, v in enumerate(done))
+        return (done, 0 if slot == h + 1 else slot)  # the matching tool is used and racked
+
+    def next_step(y, s):
+        return next(i for i in orders[types[y]] if can_do(s, i))
+
+    def behaviour(y, m, s, a):
+        if types[y] == "own_tools" and s[1]:
+            return {4: 1.0}
+        return {next_step(y, s): 1.0}
+
+    def reward(y, s, a):
+        slot = s[1]
+        if types[y] == "own_tools":  # every handed tool costs them a turn to put back
+            return 0.0 if a == 0 else (-0.5 if a == slot else -1.0)
+        if a == 0:
+            return 0.0
+        if a == slot:
+            return -0.2  # re-placing the tool already there: pointless motion
+        need = next_step(y, s) + 1
+        return 1.0 if a == need else -0.5  # saves a walk to the rack / clutters the slot
+
+    return tabulate(
+        "tool_slot", initial=((0, 0, 0, 0), 0), robot_actions=robot_actions,
+        human_actions=human_actions, robot_step=robot_step, human_step=human_step,
+        terminal=terminal, type_names=types, behaviour=behaviour, reward=reward, horizon=8,
+        shares=(0.4, 0.3, 0.2, 0.1),
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ heavy_lifts
+# A person and a robot move 4 heavy and 3 light boxes from a cart onto a pallet, one box each
+# per turn at most. "strong" lifts the heavy boxes, then the light ones, and wants the robot on
+# the light pile (two at the heavy pile crowd each other); "fatigued" never lifts two heavy
+# boxes in a row (memory of their own last lift: after a heavy one they take a light one or
+# rest) and wants the robot to take heavy boxes; "light_only" (a back problem) lifts only light
+# boxes and wants the robot to take the heavy ones and leave the light ones to them.
+def heavy_lifts() -> HeldoutWorld:
+    robot_actions = ("wait", "lift_heavy", "lift_light")
+    human_actions = ("lift_heavy", "lift_light")
+    types = ("strong", "fatigued", "light_only")
+
+    def take(s, k):  # k = 0: heavy, 1: light
+        if s[k] == 0:
+            return None
+        return (s[0] - 1, s[1]) if k == 0 else (s[0], s[1] - 1)
+
+    def robot_step(s, a):
+        return s if a == 0 else (take(s, a - 1) or s)
+
+    def human_step(s, h):
+        return None if terminal(s) else take(s, h)
+
+    def terminal(s):
+        return s == (0, 0)
+
+    def behaviour(y, m, s, a):
+        heavy, light = s
+        kind = types[y]
+        if kind == "strong":
+            return {0: 1.0} if heavy else {1: 1.0}
+        if kind == "fatigued":
+            if m == 0 and heavy:
+                return {0: 1.0}
+            # just lifted a heavy one: light or rest
+            return {1: 1.0} if light else {_NO_ACTION: 1.0}
+        return {1: 1.0} if light else {_NO_ACTION: 1.0}  # light_only
+
+    def memory_update(y, m, s, a, h):
+        return 1 if (types[y] == "fatigued" and h == 0) else 0
+
+    def reward(y, s, a):
+        heavy, light = s
+        if a == 0:
+            return 0.0
+        if s[a - 1] == 0:
+            return -0.3  # reaching into an empty pile
+        robot_heavy = a == 1
+        if types[y] == "strong":
+            if robot_heavy:  # crowds them at the heavy pile, unless only heavy ones are left
+                return 0.5 if light == 0 else -0.5
+            return 1.0
+        if robot_heavy:  # fatigued and light_only: the robot takes the strain off them
+            return 1.0
+        if heavy == 0:
+            return 0.5  # only light boxes left: finishing sooner helps
+        return -0.5 if types[y] == "fatigued" else -1.0  # takes their (only) light work
+
+    return tabulate(
+        "heavy_lifts", initial=(4, 3), robot_actions=robot_actions,
+        human_actions=human_actions, robot_step=robot_step, human_step=human_step,
+        terminal=terminal, type_names=types, behaviour=behaviour, reward=reward, horizon=10,
+        memory=2, memory_update=memory_update,
+    )  # fmt: skip
+
+
 #: Every held-out task by name: ``HELDOUT[name]() -> HeldoutWorld``.
 HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "finish_late": finish_late,
@@ -1207,4 +1430,7 @@ HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "arm_clearance": arm_clearance,
     "glue_cure": glue_cure,
     "handover_timing": handover_timing,
+    "panel_wiring": panel_wiring,
+    "tool_slot": tool_slot,
+    "heavy_lifts": heavy_lifts,
 }

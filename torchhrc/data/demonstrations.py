@@ -8,8 +8,9 @@ import csv
 import dataclasses
 import io
 import json
+import operator
 import os
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -189,6 +190,38 @@ class Demonstrations:
 
     def __len__(self) -> int:
         return self.num_sequences
+
+    def __getitem__(self, index: int | slice) -> list[Step] | Demonstrations:
+        """``d[i]``: demonstration ``i`` as a list of ``(actor, action)`` steps (its subject:
+        ``d.subjects[i]``); ``d[a:b]``: those demonstrations as a :class:`Demonstrations`
+        (:meth:`subset`; for a list of indices or a mask, call :meth:`subset`).
+
+        Example:
+            >>> d = Demonstrations.from_lists([[("human", "a"), ("robot", "b")],
+            ...                                [("robot", "b"), ("human", "a"), ("robot", "b")]])
+            >>> d[0], len(d[1:]), [len(steps) for steps in d]
+            ([('human', 'a'), ('robot', 'b')], 1, [2, 3])
+        """
+        n = self.num_sequences
+        if isinstance(index, slice):
+            return self.subset(list(range(n))[index])
+        try:
+            if isinstance(index, bool):
+                raise TypeError
+            i = operator.index(index)
+        except TypeError:
+            what = type(index).__name__
+            raise TypeError(f"expected an integer index or a slice, got {what} (for a list of "
+                            "indices or a bool mask, use .subset)") from None  # fmt: skip
+        if not -n <= i < n:
+            raise IndexError(f"index {i} out of range for {n} demonstrations")
+        i %= n
+        row = self.sequences[i, : int(self.lengths[i])].cpu().tolist()
+        return [self.vocabulary[a] for a in row]
+
+    def __iter__(self) -> Iterator[list[Step]]:
+        """The demonstrations, each a list of ``(actor, action)`` steps (:meth:`to_lists`)."""
+        return iter(self.to_lists())
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Demonstrations):

@@ -680,7 +680,12 @@ def check_state_smoothing(habit_weight: float, prior_strength: float) -> None:
 
 
 def _state_counts(
-    task: CollaborativeTask, evidence: TypeEvidence, dtype: torch.dtype, device: torch.device
+    task: CollaborativeTask,
+    evidence: TypeEvidence,
+    dtype: torch.dtype,
+    device: torch.device,
+    *,
+    want_reaction: bool = False,
 ) -> torch.Tensor:
     """The state model's smoothed counts ``(K, A, X, H + 1)``, the last column "no action".
 
@@ -706,6 +711,10 @@ def _state_counts(
       ``P(a_h | a_r = a)`` (:func:`chain_preferences`) restricted to the actions legal after
       the move and renormalised (uniform where it has no mass), scaled by ``1 - r_y``, with
       ``r_y = (waits_y + 0.5) / (choices_y + 1)`` on "no action".
+      Mixed, per type, with the type's reaction to the robot's move: what it did after the
+      same move in any state, with the weight ``rho_y`` that predicts the type's own steps
+      best, each left out (:func:`_reaction`; 0 unless the type's turns after moves its
+      partners rarely made follow the move rather than its habit).
     * ``population``: every type's counts in ``x`` (after the move), smoothed (strength
       ``c``) toward the types' habits weighted by their shares of the demonstrations.
 
@@ -727,7 +736,14 @@ def _state_counts(
     partners rarely made (``fetch_order``: each person assembles the next part of their own
     order whatever was fetched), the pipeline's choice trusts the habit more (a larger
     ``w`` and ``c``), so that one odd turn in a rare situation does not outweigh the type's
-    habit and a first move the partners never made still tells the types apart.
+    habit and a first move the partners never made still tells the types apart. But a habit
+    is the wrong guess for a person who answers the robot's move: a follower who does
+    nothing while the robot waits (``lead_follow_phase``), a person who hands back a tool
+    she did not ask for. Her few turns after such moves (the partners' slips) show it in
+    every state where they happened, and the reaction carries them to the states where
+    they did not (``rho_y``).
+
+    ``want_reaction``: return ``rho (K,)`` instead (:func:`reaction_weights`).
     """
     steps = evidence.steps
     assert steps is not None
@@ -766,6 +782,12 @@ def _state_counts(
     possible = torch.cat([legal_f, legal_f.amax(-1, keepdim=True)], -1)  # (A, X, H + 1)
     habit = before.unsqueeze(1) * possible + HABIT_CHAIN_STRENGTH * chain  # (K, A, X, H + 1)
     habit = habit / habit.sum(-1, keepdim=True).clamp_min(1e-300)
+    # ... mixed, per type, with what the type did after the same robot move anywhere
+    rho, react, unusual = _reaction(before, chain, possible, effect, steps, keep, y, column)
+    if want_reaction:
+        return rho
+    mixed = rho.view(K, 1, 1, 1) * unusual.unsqueeze(-1)  # (K, A, X, 1)
+    habit = (1.0 - mixed) * habit + mixed * react
     # the population: every type's counts in the state after the move, with the types'
     # habits (weighted by their sizes) as its prior
     size = torch.bincount(evidence.assignments.to(sdev), minlength=K).to(dtype)
@@ -775,6 +797,95 @@ def _state_counts(
     w = evidence.habit_weight
     prior = w * habit + (1.0 - w) * population  # (K, A, X, H + 1)
     return (counts[:, effect] + c * prior).to(device)  # (K, A, X, H + 1)
+
+
+#: The grid of a type's weight on its reaction to the robot's move (:func:`_reaction`).
+REACTION_GRID: tuple[float, ...] = tuple(i / 20 for i in range(21))
+
+
+def _reaction(before: torch.Tensor, chain: torch.Tensor, possible: torch.Tensor,
+              effect: torch.Tensor, steps: TaskSteps, keep: torch.Tensor, y: torch.Tensor,
+              column: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:  # fmt: skip
+    """Each type's reaction to the robot's move and the weight its own steps give it.
+
+    ``react[y, a, x]``: what type ``y`` did after robot move ``a``, in any state (counts by
+    ``(y, a)`` with one pseudo-count spread over the actions possible after the move,
+    restricted to them). ``rho_y``: the weight on the grid :data:`REACTION_GRID` of
+    ``u rho react + (1 - u rho) habit`` that predicts type ``y``'s own steps best, each
+    step left out of the counts, under a Beta(1, 2) prior (the habit unless the steps say
+    otherwise). ``u[y, a, x]`` is how unusual move ``a`` was for type ``y``'s partners in
+    ``x``: one less the share of their moves there that were ``a`` (1 where they never came):
+    the habit is what the type did after its partners' usual move, and the reaction is
+    what it did after the same move elsewhere, so only the steps after a move its partners
+    rarely made can tell them apart, and only there does the reaction enter. A person who
+    keeps to her own next step after such a move (``fetch_order``: she assembles her next
+    part whatever was fetched) keeps ``rho`` at 0; one who answers it (hands back a tool she
+    did not want, does nothing while the robot waits) raises it.
+
+    Args:
+        before: ``(K, X, H + 1)`` the types' counts by the state before the robot's move.
+        chain: ``(K, A, X, H + 1)`` the habit's prior (:func:`_state_counts`).
+        possible: ``(A, X, H + 1)`` the actions possible after each move (the last column:
+            "no action", possible where any action is).
+        effect: ``(A, X)`` the robot's effect; steps, keep, y, column: the kept steps, their
+            types and their human actions' columns (:func:`_state_counts`).
+
+    Returns:
+        ``rho (K,)``, ``react (K, A, X, H + 1)`` (rows over the possible actions, each
+        summing to 1; all zero where no action is possible) and ``u (K, A, X)``.
+    """
+    dtype, dev = before.dtype, before.device
+    K, _, H1 = before.shape
+    A = effect.shape[0]
+    a_k, s_k, h_k = steps.actions[keep], steps.states[keep], column[keep]  # (n,) each
+    counts = torch.zeros(K, A, H1, dtype=dtype, device=dev)
+    counts.view(-1).index_add_(0, (y * A + a_k) * H1 + h_k, torch.ones_like(h_k, dtype=dtype))
+    poss = possible[a_k, s_k]  # (n, H + 1)
+    one = torch.nn.functional.one_hot(h_k, H1).to(dtype)  # (n, H + 1) the step itself
+    spread = poss / poss.sum(-1, keepdim=True).clamp_min(1.0)
+    # each step under each part, left out of its counts
+    r = (counts[y, a_k] - one) * poss + spread
+    p_react = (r * one).sum(-1) / r.sum(-1).clamp_min(1e-300)
+    b = (before[y, s_k] - one) * poss + HABIT_CHAIN_STRENGTH * chain[y, a_k, s_k]
+    p_habit = (b * one).sum(-1) / b.sum(-1).clamp_min(1e-300)
+    grid = torch.tensor(REACTION_GRID, dtype=dtype, device=dev)
+    # how unusual each step's move was for its type's partners in its state, left out
+    X = effect.shape[1]
+    moves = torch.zeros(K, X, A, dtype=dtype, device=dev)
+    moves.view(-1).index_add_(0, (y * X + s_k) * A + a_k, torch.ones_like(a_k, dtype=dtype))
+    visits = moves.sum(-1)  # (K, X)
+    rest = (visits[y, s_k] - 1.0).clamp_min(0.0)
+    u_k = torch.where(rest > 0, 1.0 - (moves[y, s_k, a_k] - 1.0) / rest.clamp_min(1.0), 1.0)
+    mix = (grid.view(-1, 1) * u_k) * p_react + (1.0 - grid.view(-1, 1) * u_k) * p_habit
+    score = torch.zeros(grid.numel(), K, dtype=dtype, device=dev)
+    score.index_add_(1, y, mix.clamp_min(1e-300).log())
+    score = score + (1.0 - grid).clamp_min(1e-300).log().view(-1, 1)  # the Beta(1, 2) prior
+    rho = grid[score.argmax(0)]  # (K,): the first best, the smallest weight on ties
+    react = counts[:, :, None, :] * possible + possible / possible.sum(-1, keepdim=True).clamp_min(
+        1.0
+    )
+    react = react / react.sum(-1, keepdim=True).clamp_min(1e-300)
+    unusual = torch.where(
+        visits.unsqueeze(1) > 0,
+        1.0 - moves.transpose(1, 2) / visits.unsqueeze(1).clamp_min(1.0),
+        torch.ones((), dtype=dtype, device=dev),
+    )  # fmt: skip  (K, A, X)
+    return rho, react, unusual
+
+
+def reaction_weights(task: CollaborativeTask, evidence: TypeEvidence) -> torch.Tensor:
+    """``(K,)`` each type's weight on its reaction to the robot's move in the state model's
+    back-off (:func:`_reaction`; ``info["human_model"]["reaction"]`` records it).
+
+    Args:
+        task: the task; evidence: its :class:`TypeEvidence` with ``steps``.
+
+    Returns:
+        ``(K,)`` float64 weights in ``[0, 1]``, from :data:`REACTION_GRID`.
+    """
+    if evidence.steps is None:
+        raise ValueError("expected evidence.steps (the demonstrations as task steps), got None")
+    return _state_counts(task, evidence, torch.float64, torch.device("cpu"), want_reaction=True)
 
 
 def _listed(names: Sequence[str]) -> str:

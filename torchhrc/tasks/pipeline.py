@@ -45,7 +45,13 @@ from torchhrc.tasks.human_model_choice import (
     compare_human_models,
     state_smoothing_pair,
 )
-from torchhrc.tasks.interface import CollaborativeTask, TaskSteps, TypeEvidence, check_task
+from torchhrc.tasks.interface import (
+    CollaborativeTask,
+    TaskSteps,
+    TypeEvidence,
+    check_task,
+    reaction_weights,
+)
 
 __all__ = [
     "IRLConfig",
@@ -550,6 +556,8 @@ def build_model(
         human_model=model_name,
         **smoothing,
     )
+    if model_name == "state" and steps is not None:
+        chosen["reaction"] = reaction_weights(task, evidence).tolist()
     behaviour = _check_types("human_policy()", task.human_policy(evidence), 0, K,
                              f"(Y={K}, A={A}, X={X}, H+1={H + 1})")  # fmt: skip
     if tuple(behaviour.shape) != (K, A, X, H + 1):

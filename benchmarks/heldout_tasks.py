@@ -147,7 +147,9 @@ def tabulate(
 ) -> HeldoutWorld:
     """Rules over Python states -> a TaskWithPeople. ``robot_actions[0]`` is "wait";
     ``human_step(s, h)`` is None where ``h`` cannot happen; ``behaviour(y, m, s_mid, a_r)``
-    gives ``{a_h: p}`` (``-1``: no action); ``reward(y, s, a_r)`` the true reward."""
+    gives ``{a_h: p}`` (``-1``: no action); ``reward(y, s, a_r)`` the true reward of robot
+    action ``a_r`` in state ``s``, the state *before* the robot's move (as
+    ``TaskWithPeople.true_reward[a_r, x, y]``)."""
     states, i = [initial], 0
     seen = {initial}
     while i < len(states):  # the states reachable from the initial one

@@ -250,3 +250,24 @@ def test_relabel_objects_can_keep_every_symbol_the_vocabulary_allows():
         "robot:drill_1", "robot:drill_2", "robot:drill_3",
     )  # fmt: skip
     assert full.to_lists() == used.to_lists()
+
+
+def test_indexing_and_iteration_give_the_steps():
+    import numpy as np
+
+    seqs = [[("human", "a"), ("robot", "b")], [("robot", "b"), ("human", "a"), ("robot", "c")],
+            [("human", "a"), ("human", "a")]]  # fmt: skip
+    d = Demonstrations.from_lists(seqs, subjects=["x", "y", "y"])
+    assert list(d) == seqs == d.to_lists()
+    assert d[1] == seqs[1] and d[-1] == seqs[2] and d[np.int64(0)] == seqs[0]
+    assert d[torch.tensor(2)] == seqs[2]
+    tail = d[1:]
+    assert isinstance(tail, Demonstrations) and tail.subjects == ("y", "y")
+    assert tail.to_lists() == seqs[1:] and d[::2].to_lists() == [seqs[0], seqs[2]]
+    with pytest.raises(IndexError, match="index 3 out of range for 3 demonstrations"):
+        d[3]
+    with pytest.raises(IndexError, match="index -4 out of range"):
+        d[-4]
+    for bad in (1.0, True, "0", [0, 1]):
+        with pytest.raises(TypeError, match=r"an integer index or a slice.*use \.subset"):
+            d[bad]

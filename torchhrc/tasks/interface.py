@@ -786,6 +786,7 @@ def _state_counts(
     rho, react, unusual = _reaction(before, chain, possible, effect, steps, keep, y, column)
     if want_reaction:
         return rho
+    react = torch.where(react.sum(-1, keepdim=True) > 0, react, habit)  # (none possible)
     mixed = rho.view(K, 1, 1, 1) * unusual.unsqueeze(-1)  # (K, A, X, 1)
     habit = (1.0 - mixed) * habit + mixed * react
     # the population: every type's counts in the state after the move, with the types'
@@ -861,15 +862,11 @@ def _reaction(before: torch.Tensor, chain: torch.Tensor, possible: torch.Tensor,
     score.index_add_(1, y, mix.clamp_min(1e-300).log())
     score = score + (1.0 - grid).clamp_min(1e-300).log().view(-1, 1)  # the Beta(1, 2) prior
     rho = grid[score.argmax(0)]  # (K,): the first best, the smallest weight on ties
-    react = counts[:, :, None, :] * possible + possible / possible.sum(-1, keepdim=True).clamp_min(
-        1.0
-    )
+    spread_all = possible / possible.sum(-1, keepdim=True).clamp_min(1.0)  # (A, X, H + 1)
+    react = counts[:, :, None, :] * possible + spread_all  # (K, A, X, H + 1)
     react = react / react.sum(-1, keepdim=True).clamp_min(1e-300)
-    unusual = torch.where(
-        visits.unsqueeze(1) > 0,
-        1.0 - moves.transpose(1, 2) / visits.unsqueeze(1).clamp_min(1.0),
-        torch.ones((), dtype=dtype, device=dev),
-    )  # fmt: skip  (K, A, X)
+    share = moves.transpose(1, 2) / visits.unsqueeze(1).clamp_min(1.0)  # (K, A, X)
+    unusual = torch.where(visits.unsqueeze(1) > 0, 1.0 - share, torch.ones_like(share))
     return rho, react, unusual
 
 

@@ -63,6 +63,13 @@ name                   X    types  depends on    what is unusual
                                                  rare one that cleans first; 40 / 30 / 20 / 10 %
 ``heavy_lifts``        20   3      history       heavy and light boxes; a fatigued type never
                                                  lifts two heavy ones in a row (memory)
+``kit_batch``          81   3      state         parts fed one at a time or the whole kit at
+                                                 once; two types differ only in how they take
+                                                 the whole kit (one freezes a turn)
+``check_timing``       244  3      state         when the robot should inspect the person's
+                                                 work: after each part, at the end, or never
+``fixture_height``     21   2      state         a fixture the robot raises or lowers; 85 % tall,
+                                                 15 % short; each undoes a wrong adjustment
 =====================  ===  =====  ============  ===============================================
 
 ``slow_sanding`` and ``paint_crews`` were added after the selection rule of 6701614 and
@@ -85,7 +92,9 @@ of hand-overs, with a rare type that differs late), and are kept out of tuning t
 from the docs alone. ``tool_slot`` (the type-aware robot behind the pooled one on 4 seeds:
 the robot kept handing tools to the type that hands them back) led to the state model's
 reaction (``torchhrc.tasks.interface._reaction``), so it is no longer held out;
-``panel_wiring`` and ``heavy_lifts`` are.
+``panel_wiring`` and ``heavy_lifts`` are. ``kit_batch``, ``check_timing`` and
+``fixture_height`` were written by a second audit of session 27 from the docs alone, after
+that change, and are kept out of tuning.
 
 ``HELDOUT[name]() -> HeldoutWorld`` (a ``TaskWithPeople``), whose ``shares`` (None:
 balanced) split the demonstrating subjects between the types and weigh them over the
@@ -1412,6 +1421,208 @@ def heavy_lifts() -> HeldoutWorld:
     )  # fmt: skip
 
 
+# ====================================================================== the second session-27 audit
+# kit_batch, check_timing and fixture_height: written by a second audit of session 27 from the
+# docs alone, after the state model's reaction (held out: run once, kept out of tuning).
+# ------------------------------------------------------------------------------ kit_batch
+# The person fits four parts; the robot feeds parts into a tray one at a time or the whole
+# remaining kit at once. "kit_lover" and "startled" fit in the same order and want the same
+# single feeds; they differ only in the kit move: the kit lover loves it, the startled person
+# freezes for a turn and hates it. "reverse" fits in the opposite order.
+def kit_batch() -> HeldoutWorld:
+    P = 4
+    ALL = (1 << P) - 1
+    types = ("kit_lover", "startled", "reverse")
+    orders = {0: (0, 1, 2, 3), 1: (0, 1, 2, 3), 2: (3, 2, 1, 0)}
+    FEED_ALL = P + 1  # robot actions: wait, feed_0..feed_3, feed_all
+
+    def robot_step(s, a):
+        done, tray = s
+        if a == 0:
+            return s
+        if a == FEED_ALL:
+            return (done, ALL & ~done)
+        i = a - 1
+        if done >> i & 1 or tray >> i & 1:
+            return s  # a part already fitted or already in the tray: nothing changes
+        return (done, tray | 1 << i)
+
+    def human_step(s, h):
+        done, tray = s
+        if done >> h & 1:
+            return None
+        return (done | 1 << h, tray & ~(1 << h))
+
+    def terminal(s):
+        return s[0] == ALL
+
+    def nxt(y, done):
+        return next(i for i in orders[y] if not done >> i & 1)
+
+    def behaviour(y, m, s, a):
+        if y == 1 and a == FEED_ALL:
+            return {-1: 1.0}  # startled: freezes for the turn
+        return {nxt(y, s[0]): 1.0}
+
+    def reward(y, s, a):
+        done, tray = s
+        mid = robot_step(s, a)
+        if a == 0:
+            return 0.0
+        if mid == s:
+            return -0.5  # a wasted move (the robot reaches over for nothing)
+        n = nxt(y, done)
+        if a == FEED_ALL:
+            added = [i for i in range(P) if mid[1] >> i & 1 and not tray >> i & 1]
+            if y == 0:  # the kit lover: everything at hand, the next part most of all
+                return sum(1.0 if i == n else 0.8 for i in added)
+            return -2.0 if y == 1 else -1.0  # startled: a scare; reverse: a tray to sort
+        return 1.0 if a - 1 == n else -1.0  # the next part: a saved trip; another: clutter
+
+    return tabulate(
+        "kit_batch",
+        initial=(0, 0),
+        robot_actions=("wait", *(f"feed_{i}" for i in range(P)), "feed_all"),
+        human_actions=tuple(f"fit_{i}" for i in range(P)),
+        robot_step=robot_step,
+        human_step=human_step,
+        terminal=terminal,
+        type_names=types,
+        behaviour=behaviour,
+        reward=reward,
+        horizon=8,
+    )
+
+
+# ------------------------------------------------------------------------------ check_timing
+# The person fits five parts (lowest first) and then submits; the robot may inspect a fitted
+# part. "check_each" wants every part inspected right after it is fitted and waits until it
+# is; "check_at_end" wants no interruption while fitting, then every part inspected before
+# submitting; "no_check" never wants an inspection and submits as soon as all are fitted.
+def check_timing() -> HeldoutWorld:
+    P = 5
+    DONE = "submitted"
+    types = ("check_each", "check_at_end", "no_check")
+
+    def robot_step(s, a):
+        if s == DONE or a == 0:
+            return s
+        i = a - 1
+        return (*s[:i], 2, *s[i + 1 :]) if s[i] == 1 else s  # status 0 open, 1 fitted, 2 checked
+
+    def human_step(s, h):
+        if s == DONE:
+            return None
+        if h < P:
+            return (*s[:h], 1, *s[h + 1 :]) if s[h] == 0 else None
+        return DONE if all(v >= 1 for v in s) else None  # submit
+
+    def terminal(s):
+        return s == DONE
+
+    def behaviour(y, m, s, a):
+        open_ = [i for i in range(P) if s[i] == 0]
+        unchecked = any(v == 1 for v in s)
+        if y == 0 and unchecked:
+            return {-1: 1.0}  # waits for the inspection
+        if open_:
+            return {open_[0]: 1.0}
+        if y == 1 and unchecked:
+            return {-1: 1.0}
+        return {P: 1.0}  # submit
+
+    def reward(y, s, a):
+        open_ = any(v == 0 for v in s)
+        unchecked = any(v == 1 for v in s)
+        if a == 0:
+            if y == 0 and unchecked:
+                return -0.5  # the person stands waiting for the robot
+            if y == 1 and unchecked and not open_:
+                return -0.5
+            return 0.0
+        if robot_step(s, a) == s:
+            return -0.5  # inspecting nothing: a wasted move
+        if y == 0:
+            return 1.0
+        if y == 1:
+            return -1.0 if open_ else 1.0  # an interruption while fitting; wanted at the end
+        return -1.0  # no_check: micromanaged
+
+    return tabulate(
+        "check_timing",
+        initial=(0,) * P,
+        robot_actions=("wait", *(f"inspect_{i}" for i in range(P))),
+        human_actions=(*(f"fit_{i}" for i in range(P)), "submit"),
+        robot_step=robot_step,
+        human_step=human_step,
+        terminal=terminal,
+        type_names=types,
+        behaviour=behaviour,
+        reward=reward,
+        horizon=14,
+    )
+
+
+# ------------------------------------------------------------------------------ fixture_height
+# The person does six units of work at a fixture the robot can raise or lower (low, mid, high;
+# it starts at mid). 85 % are "tall" (comfortable high), 15 % "short" (comfortable low); both
+# work at mid, and each undoes a robot adjustment to the far end (adjusting it back themselves).
+def fixture_height() -> HeldoutWorld:
+    WORK = 6
+    types = ("tall", "short")
+    comfort = (2, 0)
+
+    def robot_step(s, a):
+        h, p = s
+        if a == 1:
+            return (min(h + 1, 2), p)
+        if a == 2:
+            return (max(h - 1, 0), p)
+        return s
+
+    def human_step(s, h_):
+        h, p = s
+        if h_ == 0:
+            return (h, p + 1) if p < WORK else None  # work
+        if h_ == 1:
+            return (h + 1, p) if h < 2 else None  # adjust_up
+        return (h - 1, p) if h > 0 else None  # adjust_down
+
+    def terminal(s):
+        return s[1] == WORK
+
+    def behaviour(y, m, s, a):
+        h = s[0]
+        if y == 0 and h == 0:
+            return {1: 1.0}  # tall, at low: puts it back up
+        if y == 1 and h == 2:
+            return {2: 1.0}  # short, at high: puts it back down
+        return {0: 1.0}
+
+    def reward(y, s, a):
+        c = comfort[y]
+        h2 = robot_step(s, a)[0]
+        r = (abs(s[0] - c) - abs(h2 - c)) - 0.3 * abs(h2 - c)  # the move's help, the strain left
+        if a != 0 and h2 == s[0]:
+            r -= 0.5  # a wasted move
+        return r
+
+    return tabulate(
+        "fixture_height",
+        initial=(1, 0),
+        robot_actions=("wait", "raise", "lower"),
+        human_actions=("work", "adjust_up", "adjust_down"),
+        robot_step=robot_step,
+        human_step=human_step,
+        terminal=terminal,
+        type_names=types,
+        behaviour=behaviour,
+        reward=reward,
+        horizon=10,
+        shares=(0.85, 0.15),
+    )
+
+
 #: Every held-out task by name: ``HELDOUT[name]() -> HeldoutWorld``.
 HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "finish_late": finish_late,
@@ -1435,4 +1646,7 @@ HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "panel_wiring": panel_wiring,
     "tool_slot": tool_slot,
     "heavy_lifts": heavy_lifts,
+    "kit_batch": kit_batch,
+    "check_timing": check_timing,
+    "fixture_height": fixture_height,
 }

@@ -345,8 +345,9 @@ class TaskWithPeople:
             (``task.observation`` is not None).
         demo_robot: ``(Y_true, X, A)`` probabilities of the robot's action in the
             demonstrations per true type (the partner demonstrates the type's preferred
-            complementary action); default: the type's best action by ``true_reward``
-            (the first one on ties).
+            complementary action); default: the type's best action by ``true_reward`` of
+            that step alone, ``argmax_a true_reward[a, x, y]`` (myopic; the first one on
+            ties).
         true_observation: ``(A, X, Y_true, O)`` ``P(o | x', y, a_r)`` of the true people when
             ``observed`` (the signal the robot receives after the step), else None.
         description: one line on what distinguishes the types.

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import random
 
+import pytest
 import torch
 
 from torchhrc.data import Demonstrations
@@ -60,6 +61,7 @@ def _evidence(task, demos, types, c: float = 64.0) -> TypeEvidence:
                         prior_strength=c)  # fmt: skip
 
 
+@pytest.mark.numeric
 def test_a_type_that_answers_the_robot_is_predicted_to_answer_it():
     task = _Bench()
     demos, types = _demos()
@@ -85,6 +87,7 @@ def test_a_type_that_answers_the_robot_is_predicted_to_answer_it():
         assert float(b[0, 0, 3 * phase, own]) > 0.9, (phase, b[0, 0, 3 * phase])
 
 
+@pytest.mark.numeric
 def test_without_an_unusual_move_the_habit_is_kept():
     # partners that always wait: no step can tell a reaction from the habit, and the prior
     # keeps the habit (no weight on the reaction for either type)

@@ -498,7 +498,9 @@ def build_model(
             of the default human policy); ``None``: the task's own ``human_model``. With
             ``"auto"`` the better of the two on held-out likelihood by subject is used
             (:func:`compare_human_models`); ``info["human_model"]`` records the choice and
-            the held-out likelihoods.
+            the held-out likelihoods, and with the state model each type's weight on its
+            reaction to the robot's move (``"reaction"``,
+            :func:`~torchhrc.tasks.interface.reaction_weights`).
         state_smoothing: the state model's ``(habit_weight, prior_strength)``
             (:class:`~torchhrc.tasks.interface.TypeEvidence`), or ``"auto"``: the best of
             :data:`~torchhrc.tasks.human_model_choice.STATE_SMOOTHING_GRID` on held-out

@@ -8,34 +8,19 @@ import random
 
 import pytest
 import torch
+from _fetch_phases import FetchPhases
 
 from torchhrc.data import Demonstrations
-from torchhrc.tasks.interface import CollaborativeTask, TypeEvidence, reaction_weights
-
-
-class _Bench(CollaborativeTask):
-    """Four phases; the robot waits or lays out a left or a right part, the person works
-    left or right, which moves on to the next phase and clears the part laid out.
-    State ``3 * phase + laid`` (laid: 0 none, 1 left, 2 right)."""
-
-    state_names = tuple(f"p{p}{f}" for p in range(4) for f in ".LR")
-    robot_actions = ("wait", "lay_left", "lay_right")
-    human_actions = ("left", "right")
-    robot_effect = torch.tensor(
-        [[3 * (x // 3) + (x % 3 if a == 0 else a) for x in range(12)] for a in range(3)]
-    )
-    human_effect = torch.tensor([[3 * ((x // 3 + 1) % 4)] * 2 for x in range(12)])
-    human_model = "state"
-
+from torchhrc.tasks.interface import TypeEvidence, reaction_weights
 
 #: the side each type works in phases 0-3 when the robot waits (both types alike)
 _OWN = (0, 0, 1, 1)
 
 
 def _demos(subjects: int = 16, per_subject: int = 3, seed: int = 0):
-    """Type 0 ("keeper") works its own side of the phase whatever is laid out; type 1
-    ("answerer") works the side laid out, and its own side when nothing is. Every partner
-    waits, and one move in 10 lays out a part (left or right, even odds)."""
+    """Type 0 ("keeper") works its own side of the phase whatever is fetched; type 1
+    ("answerer") works the side fetched, and its own side when nothing is. Every partner
+    waits, and one move in 10 fetches a part (left or right, even odds)."""
     rng = random.Random(seed)
     seqs, who, types = [], [], []
     for s in range(subjects):
@@ -46,7 +31,7 @@ def _demos(subjects: int = 16, per_subject: int = 3, seed: int = 0):
                 u = rng.random()
                 a = 0 if u >= 0.1 else (1 if u < 0.05 else 2)
                 side = a - 1 if y == 1 and a > 0 else _OWN[t % 4]
-                seq += [("robot", _Bench.robot_actions[a]), ("human", ("left", "right")[side])]
+                seq += [("robot", FetchPhases.robot_actions[a]), ("human", ("left", "right")[side])]
             seqs.append(seq)
             who.append(f"s{s}")
             types.append(y)
@@ -63,16 +48,16 @@ def _evidence(task, demos, types, c: float = 64.0) -> TypeEvidence:
 
 @pytest.mark.numeric
 def test_a_type_that_answers_the_robot_is_predicted_to_answer_it():
-    task = _Bench()
+    task = FetchPhases()
     demos, types = _demos()
     evidence = _evidence(task, demos, types)
     rho = reaction_weights(task, evidence)
-    # the keeper's turns after a part laid out follow her habit: no weight on the reaction;
+    # the keeper's turns after a part fetched follow her habit: no weight on the reaction;
     # the answerer's follow the part: most of the weight
     assert float(rho[0]) == 0.0
     assert float(rho[1]) >= 0.5, rho
     b = task.human_policy(evidence)  # (Y, A, X, H + 1)
-    # after a right part laid out in phase 0 (a move the partners made 1 time in 20 there,
+    # after a right part fetched in phase 0 (a move the partners made 1 time in 20 there,
     # whose cell holds a step or two), the answerer works right and the keeper left
     assert float(b[1, 2, 0, 1]) > 0.5, b[:, 2, 0]
     assert float(b[0, 2, 0, 0]) > 0.9, b[:, 2, 0]
@@ -91,7 +76,7 @@ def test_a_type_that_answers_the_robot_is_predicted_to_answer_it():
 def test_without_an_unusual_move_the_habit_is_kept():
     # partners that always wait: no step can tell a reaction from the habit, and the prior
     # keeps the habit (no weight on the reaction for either type)
-    task = _Bench()
+    task = FetchPhases()
     seq = [step for t in range(8)
            for step in (("robot", "wait"), ("human", ("left", "right")[_OWN[t % 4]]))]  # fmt: skip
     demos = Demonstrations.from_lists([seq] * 8, subjects=[f"s{i}" for i in range(8)])

@@ -8,26 +8,12 @@ import random
 
 import pytest
 import torch
+from _fetch_phases import FetchPhases
 
 from torchhrc.data import Demonstrations
 from torchhrc.tasks.human_model_choice import STATE_SMOOTHING_GRID, compare_human_models
-from torchhrc.tasks.interface import CollaborativeTask, TypeEvidence
+from torchhrc.tasks.interface import TypeEvidence
 from torchhrc.tasks.pipeline import build_model, learn
-
-
-class _Fetch(CollaborativeTask):
-    """Four phases; the robot fetches a left or a right part (or waits), the person works
-    left or right, which moves on to the next phase and clears the fetched part.
-    State ``3 * phase + fetched`` (fetched: 0 none, 1 left, 2 right)."""
-
-    state_names = tuple(f"p{p}{f}" for p in range(4) for f in ".LR")
-    robot_actions = ("wait", "fetch_left", "fetch_right")
-    human_actions = ("left", "right")
-    robot_effect = torch.tensor(
-        [[3 * (x // 3) + (x % 3 if a == 0 else a) for x in range(12)] for a in range(3)]
-    )
-    human_effect = torch.tensor([[3 * ((x // 3 + 1) % 4)] * 2 for x in range(12)])
-    human_model = "state"
 
 
 def _demos(reactive: bool, subjects: int = 16, per_subject: int = 3, seed: int = 0):
@@ -45,7 +31,7 @@ def _demos(reactive: bool, subjects: int = 16, per_subject: int = 3, seed: int =
                 u = rng.random()
                 a = 0 if u >= 0.1 else (1 if u < 0.05 else 2)
                 side = a - 1 if reactive and a > 0 else y
-                seq += [("robot", _Fetch.robot_actions[a]), ("human", ("left", "right")[side])]
+                seq += [("robot", FetchPhases.robot_actions[a]), ("human", ("left", "right")[side])]
             seqs.append(seq)
             who.append(f"s{s}")
             types.append(y)
@@ -67,7 +53,7 @@ def _rare_turn(task, demos, types, smoothing) -> float:
 @pytest.mark.numeric
 @pytest.mark.parametrize("reactive", [False, True])
 def test_the_chosen_smoothing_predicts_rare_turns_as_the_people_make_them(reactive):
-    task = _Fetch()
+    task = FetchPhases()
     demos, types = _demos(reactive)
     record = compare_human_models(task, demos, types, noise=0.05, pause=0.01, seed=0,
                                   models=("state",))  # fmt: skip
@@ -98,7 +84,7 @@ def test_the_chosen_smoothing_predicts_rare_turns_as_the_people_make_them(reacti
 
 @pytest.mark.filterwarnings("ignore::torchhrc.irl.projection.IRLConvergenceWarning")
 def test_build_model_uses_and_records_the_smoothing():
-    task = _Fetch()
+    task = FetchPhases()
     demos, types = _demos(reactive=False)
     chains = torch.full((2, 5, 5), 0.2, dtype=torch.float64)
     auto = build_model(task, demos, chains, types, irl_iterations=1)
@@ -135,7 +121,7 @@ def test_build_model_uses_and_records_the_smoothing():
     ],
 )
 def test_bad_smoothing_is_refused_before_any_work(value, error, match):
-    task = _Fetch()
+    task = FetchPhases()
     demos, _ = _demos(reactive=False, subjects=2, per_subject=1)
     with pytest.raises(error, match=match):
         learn(task, demos, k=1, solve=False, state_smoothing=value)
@@ -149,7 +135,7 @@ def test_a_gain_within_one_standard_error_keeps_the_default_smoothing():
     # 6 subjects, 2 demonstrations each, people who answer the rare fetch: another pair
     # scores best by 0.5 nats, less than one standard error of the 6 subjects' differences
     # (with the full 16 x 3 above the gain is tens of nats, and the pair moves)
-    task = _Fetch()
+    task = FetchPhases()
     demos, types = _demos(reactive=True, subjects=6, per_subject=2, seed=4)
     record = compare_human_models(task, demos, types, noise=0.05, pause=0.01, seed=0,
                                   models=("state",))  # fmt: skip

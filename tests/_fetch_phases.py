@@ -3,6 +3,8 @@ the state human model's back-off after partner moves that are rare in a state.""
 
 from __future__ import annotations
 
+import random
+
 import torch
 
 from torchhrc.tasks.interface import CollaborativeTask
@@ -21,3 +23,27 @@ class FetchPhases(CollaborativeTask):
     )
     human_effect = torch.tensor([[3 * ((x // 3 + 1) % 4)] * 2 for x in range(12)])
     human_model = "state"
+
+
+def fetch_demonstrations(side, subjects: int = 16, per_subject: int = 3, seed: int = 0):
+    """Demonstrations of the task, 8 turns each: subject ``s`` is of type ``s % 2``; every
+    partner waits, and one move in 10 fetches a part (left or right, even odds); the person
+    then works ``side(type, turn, move)`` (0 left, 1 right). Returns the demonstrations and
+    the ``(N,)`` types."""
+    from torchhrc.data import Demonstrations
+
+    rng = random.Random(seed)
+    seqs, who, types = [], [], []
+    for s in range(subjects):
+        y = s % 2
+        for _ in range(per_subject):
+            seq = []
+            for t in range(8):
+                u = rng.random()
+                a = 0 if u >= 0.1 else (1 if u < 0.05 else 2)
+                seq += [("robot", FetchPhases.robot_actions[a]),
+                        ("human", FetchPhases.human_actions[side(y, t, a)])]  # fmt: skip
+            seqs.append(seq)
+            who.append(f"s{s}")
+            types.append(y)
+    return Demonstrations.from_lists(seqs, subjects=who), torch.tensor(types)

@@ -4,11 +4,9 @@ into its back-off where its partners rarely made that move, with a weight its ow
 
 from __future__ import annotations
 
-import random
-
 import pytest
 import torch
-from _fetch_phases import FetchPhases
+from _fetch_phases import FetchPhases, fetch_demonstrations
 
 from torchhrc.data import Demonstrations
 from torchhrc.tasks.interface import TypeEvidence, reaction_weights
@@ -21,21 +19,8 @@ def _demos(subjects: int = 16, per_subject: int = 3, seed: int = 0):
     """Type 0 ("keeper") works its own side of the phase whatever is fetched; type 1
     ("answerer") works the side fetched, and its own side when nothing is. Every partner
     waits, and one move in 10 fetches a part (left or right, even odds)."""
-    rng = random.Random(seed)
-    seqs, who, types = [], [], []
-    for s in range(subjects):
-        y = s % 2
-        for _ in range(per_subject):
-            seq = []
-            for t in range(8):
-                u = rng.random()
-                a = 0 if u >= 0.1 else (1 if u < 0.05 else 2)
-                side = a - 1 if y == 1 and a > 0 else _OWN[t % 4]
-                seq += [("robot", FetchPhases.robot_actions[a]), ("human", ("left", "right")[side])]
-            seqs.append(seq)
-            who.append(f"s{s}")
-            types.append(y)
-    return Demonstrations.from_lists(seqs, subjects=who), torch.tensor(types)
+    return fetch_demonstrations(lambda y, t, a: a - 1 if y == 1 and a > 0 else _OWN[t % 4],
+                                subjects, per_subject, seed)  # fmt: skip
 
 
 def _evidence(task, demos, types, c: float = 64.0) -> TypeEvidence:

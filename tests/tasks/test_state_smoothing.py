@@ -4,13 +4,10 @@ rarely made exactly where the people keep their habit there."""
 
 from __future__ import annotations
 
-import random
-
 import pytest
 import torch
-from _fetch_phases import FetchPhases
+from _fetch_phases import FetchPhases, fetch_demonstrations
 
-from torchhrc.data import Demonstrations
 from torchhrc.tasks.human_model_choice import STATE_SMOOTHING_GRID, compare_human_models
 from torchhrc.tasks.interface import TypeEvidence
 from torchhrc.tasks.pipeline import build_model, learn
@@ -21,21 +18,8 @@ def _demos(reactive: bool, subjects: int = 16, per_subject: int = 3, seed: int =
     part (left or right, even odds), whatever the type (so no state is confounded: the
     partners' moves do not carry the type). ``reactive``: after a fetch the person works the
     side fetched; otherwise they keep their own side whatever was fetched."""
-    rng = random.Random(seed)
-    seqs, who, types = [], [], []
-    for s in range(subjects):
-        y = s % 2
-        for _ in range(per_subject):
-            seq = []
-            for _ in range(8):
-                u = rng.random()
-                a = 0 if u >= 0.1 else (1 if u < 0.05 else 2)
-                side = a - 1 if reactive and a > 0 else y
-                seq += [("robot", FetchPhases.robot_actions[a]), ("human", ("left", "right")[side])]
-            seqs.append(seq)
-            who.append(f"s{s}")
-            types.append(y)
-    return Demonstrations.from_lists(seqs, subjects=who), torch.tensor(types)
+    return fetch_demonstrations(lambda y, t, a: a - 1 if reactive and a > 0 else y,
+                                subjects, per_subject, seed)  # fmt: skip
 
 
 def _rare_turn(task, demos, types, smoothing) -> float:

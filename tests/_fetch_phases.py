@@ -7,6 +7,7 @@ import random
 
 import torch
 
+from torchhrc.data import Demonstrations
 from torchhrc.tasks.interface import CollaborativeTask
 
 
@@ -30,8 +31,6 @@ def fetch_demonstrations(side, subjects: int = 16, per_subject: int = 3, seed: i
     partner waits, and one move in 10 fetches a part (left or right, even odds); the person
     then works ``side(type, turn, move)`` (0 left, 1 right). Returns the demonstrations and
     the ``(N,)`` types."""
-    from torchhrc.data import Demonstrations
-
     rng = random.Random(seed)
     seqs, who, types = [], [], []
     for s in range(subjects):

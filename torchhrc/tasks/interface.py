@@ -854,7 +854,7 @@ def _reaction(before: torch.Tensor, chain: torch.Tensor, possible: torch.Tensor,
     X = effect.shape[1]
     moves = torch.zeros(K, X, A, dtype=dtype, device=dev)
     moves.view(-1).index_add_(0, (y * X + s_k) * A + a_k, torch.ones_like(a_k, dtype=dtype))
-    visits = moves.sum(-1)  # (K, X)
+    visits = before.sum(-1)  # (K, X) the same steps by their state before the move
     rest = (visits[y, s_k] - 1.0).clamp_min(0.0)
     u_k = torch.where(rest > 0, 1.0 - (moves[y, s_k, a_k] - 1.0) / rest.clamp_min(1.0), 1.0)
     mix = (grid.view(-1, 1) * u_k) * p_react + (1.0 - grid.view(-1, 1) * u_k) * p_habit

@@ -420,7 +420,7 @@ def test_learn_passes_its_settings_through(monkeypatch):
     monkeypatch.setattr(pipeline, "learn_type_weights", spy)
     model = learn(task, demos, cluster=ClusterConfig(criterion="bic", k_min=2, k_max=3,
                   restarts=2, objects="raw"), irl=IRLConfig(rule="last", epsilon=0.2,
-                  iterations=3, l2=0.5), solver=SARSOPConfig(time_limit=5.0,
+                  iterations=3, l2=0.5, pooling=0.3), solver=SARSOPConfig(time_limit=5.0,
                   max_iterations=2))  # fmt: skip
     info = model.info
     scores = {int(k): row for k, row in info["scores"].items()}
@@ -432,15 +432,18 @@ def test_learn_passes_its_settings_through(monkeypatch):
     kept = info["order_comparison"][str(info["order"])]
     assert set(info["order_comparison"]) == {"1", "2", "3"} and kept["k"] == info["k"]
     assert kept["k"] == max(row["k"] for row in info["order_comparison"].values())
-    assert seen == {"rule": "last", "epsilon": 0.2, "max_iterations": 3, "seed": 0, "l2": 0.5}
-    assert info["irl"] == {"rule": "last", "epsilon": 0.2, "iterations": 3, "l2": 0.5}
+    assert seen == {"rule": "last", "epsilon": 0.2, "max_iterations": 3, "seed": 0, "l2": 0.5,
+                    "pooling": 0.3}  # fmt: skip
+    assert info["irl"] == {"rule": "last", "epsilon": 0.2, "iterations": 3, "l2": 0.5,
+                           "pooling": 0.3}  # fmt: skip
     assert info["solver"]["max_iterations"] == 2 and info["solver"]["time_limit"] == 5.0
     assert info["solver"]["lower_bound_init"] == "type_policy_lower_bound"
     # the keywords reach the same settings
     again = learn(task, demos, criterion="bic", k_min=2, k_max=3, restarts=2, objects="raw",
-                  irl_epsilon=0.2, irl_iterations=3, irl_l2=0.5, solve=False)  # fmt: skip
+                  irl_epsilon=0.2, irl_iterations=3, irl_l2=0.5, irl_pooling=0.3,
+                  solve=False)  # fmt: skip
     assert again.info["scores"] == info["scores"] and again.info["k"] == info["k"]
-    assert again.info["irl"]["l2"] == 0.5
+    assert again.info["irl"]["l2"] == 0.5 and again.info["irl"]["pooling"] == 0.3
     paper = learn(task, demos, cluster=ClusterConfig(method="paper", k_min=2, k_max=3,
                   restarts=2), solve=False)  # fmt: skip
     assert paper.info["order"] == 1 and paper.info["order_comparison"] is None
@@ -454,6 +457,10 @@ def test_learn_passes_its_settings_through(monkeypatch):
         learn(task, demos, irl=IRLConfig(), irl_l2=0.1, solve=False)
     with pytest.raises(ValueError, match=r"expected l2 to be a number >= 0, got -1"):
         IRLConfig(l2=-1)
+    with pytest.raises(ValueError, match=r"expected pooling to be a number in \[0, 1\), got 1"):
+        IRLConfig(pooling=1)
+    with pytest.raises(ValueError, match=r"pooling > 0 needs a ridge"):
+        IRLConfig(l2=0, pooling=0.5)
     with pytest.raises(TypeError):
         ClusterConfig(k_maks=3)  # a typo is an error, not a silently ignored setting
     # more types than demonstrations: refused before any fit (it gave 43 empty types in silence)

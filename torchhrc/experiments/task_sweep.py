@@ -87,6 +87,9 @@ TASK_PARAMETERS: dict[str, SweepParameter] = {
     "irl_iterations": SweepParameter(int, 1, None, "learn(irl_iterations=)"),
     "irl_epsilon": SweepParameter(float, 0.0, None, "learn(irl_epsilon=)"),
     "irl_l2": SweepParameter(float, 0.0, None, "learn(irl_l2=): the MaxEnt ridge"),
+    "irl_pooling": SweepParameter(
+        float, 0.0, 0.999, "learn(irl_pooling=): the types' rewards' prior correlation"
+    ),
     "solver_time": SweepParameter(float, 0.01, None, "learn(solver_time=): SARSOP limit (s)"),
     "solver_iterations": SweepParameter(
         int, 1, None, "learn(solver_iterations=): SARSOP iteration cap (a deterministic stop)"
@@ -102,8 +105,8 @@ _DEFAULT_K_MAX = 6  # learn()'s
 _DEMONSTRATIONS = ("subjects", "per_subject", "noise")
 _CLUSTERING = ("k", "k_min", "k_max", "restarts", "criterion", "objects", "order",
                "mixture_method", "min_gain")  # fmt: skip
-_MODEL = ("human_model", "prior", "irl_iterations", "irl_epsilon", "irl_l2", "solver_time",
-          "solver_iterations")  # fmt: skip
+_MODEL = ("human_model", "prior", "irl_iterations", "irl_epsilon", "irl_l2", "irl_pooling",
+          "solver_time", "solver_iterations")  # fmt: skip
 
 
 def task_metrics(

@@ -2,7 +2,8 @@
 
 The paper learns a reward per human type from that cluster's demonstrations by Abbeel & Ng's
 apprenticeship learning (:func:`apprenticeship_learning`); :func:`maxent_irl` is the
-maximum-entropy alternative and :func:`learn_type_rewards` runs one problem per type and
+maximum-entropy alternative (:func:`maxent_irl_types`: several types at once, their rewards
+partly pooled) and :func:`learn_type_rewards` runs one problem per type and
 returns the MOMDP reward ``R (A, X, Y)``.
 
 Example:
@@ -27,6 +28,7 @@ from torchhrc.irl.maxent import (
     MaxEntResult,
     SoftSolution,
     maxent_irl,
+    maxent_irl_types,
     maxent_objective,
     soft_value_iteration,
 )
@@ -65,6 +67,7 @@ __all__ = [
     "indicator_features",
     "learn_type_rewards",
     "maxent_irl",
+    "maxent_irl_types",
     "maxent_objective",
     "monte_carlo_feature_expectations",
     "normalized_return",

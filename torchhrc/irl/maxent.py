@@ -48,6 +48,7 @@ __all__ = [
     "MaxEntResult",
     "SoftSolution",
     "maxent_irl",
+    "maxent_irl_types",
     "maxent_objective",
     "soft_value_iteration",
 ]
@@ -468,6 +469,155 @@ def maxent_irl(
     if not batched:
         weights, policy, mu = weights[0], policy[0], mu[0]
         objective, gradient_norm = objective[0], gradient_norm[0]
+    return MaxEntResult(
+        weights=weights,
+        policy=policy,
+        feature_expectations=mu,
+        expert_feature_expectations=mu_hat,
+        objective=objective,
+        gradient_norm=gradient_norm,
+        iterations=iterations,
+        converged=bool((gradient_norm <= tol).all()),
+    )
+
+
+def maxent_irl_types(
+    transition: torch.Tensor,
+    features: torch.Tensor,
+    demonstrations: list[Trajectories],
+    *,
+    discount: float,
+    l2: float = 1e-3,
+    pooling: float = 0.0,
+    tol: float = 1e-6,
+    max_iterations: int = 200,
+) -> MaxEntResult:
+    """MaxEnt IRL of K related experts at once, their rewards partly pooled.
+
+    Each expert ``k`` (a type of people) has its own MDP ``transition[k]`` and reward
+    ``theta_k = theta_0 + delta_k``: a part shared by all and a part of its own. The prior is
+    Gaussian, ``theta_0 ~ N(0, pooling / l2)`` and ``delta_k ~ N(0, (1 - pooling) / l2)``, so
+    each ``theta_k`` has the ridge :func:`maxent_irl` gives it alone (variance ``1 / l2``)
+    and two experts' rewards a prior correlation ``pooling``. The objective maximised is::
+
+        sum_k [ g_k(theta_0 + delta_k) - l2 / (1 - pooling) ||delta_k||^2 / 2 ]
+            - K l2 / pooling ||theta_0||^2 / 2
+
+    (``g_k`` the dual of :func:`maxent_objective` without its ridge, on expert ``k``'s own
+    demonstrations). ``pooling = 0`` is K separate :func:`maxent_irl` fits; towards 1, one
+    reward for all. What it is for: a pair ``(s, a)`` that expert ``k``'s demonstrations
+    never reach gets its reward from the experts whose demonstrations do, instead of 0.
+    This is the hierarchical prior of multi-task Bayesian IRL (Dimitrakakis and Rothkopf,
+    "Bayesian multitask inverse reinforcement learning", EWRL 2011), here at its MAP point.
+
+    Args:
+        transition: ``(K, A, S, S)`` one MDP per expert.
+        features: ``(S, F)`` or ``(S, A, F)``.
+        demonstrations: K trajectory sets, one per expert, each non-empty.
+        discount: in (0, 1).
+        l2: the ridge of each ``theta_k`` (its prior precision).
+        pooling: in [0, 1): the prior correlation of two experts' rewards.
+        tol: stop when the gradient norm is ``<= tol``.
+        max_iterations: L-BFGS iteration cap.
+
+    Returns:
+        :class:`MaxEntResult` with batch shape ``(K,)`` (``expert_feature_expectations``
+        ``(K, F)``; ``gradient_norm`` per expert, of its own objective's gradient).
+
+    Raises:
+        ValueError: ``pooling`` outside [0, 1), ``l2 <= 0`` with ``pooling > 0``, a count
+            of trajectory sets other than K.
+        ModelError: as :func:`maxent_irl`.
+
+    Example:
+        >>> from torchhrc.tasks.gridworld import Gridworld
+        >>> world = Gridworld(size=3, goal=(2, 2), slip=0.0)
+        >>> T = world.transition.expand(2, *world.transition.shape)
+        >>> demos = [world.demonstrations(5, 10, seed=s) for s in (0, 1)]
+        >>> fit = maxent_irl_types(T, world.features(), demos, discount=0.9, l2=0.1,
+        ...                        pooling=0.5)
+        >>> tuple(fit.weights.shape)                      # (K experts, F features)
+        (2, 3)
+    """
+    T = check_tensor("transition", transition)
+    check_shape("transition", T, (None, None, None, None), "(K, A, S, S)")
+    K, A, S = T.shape[0], T.shape[1], T.shape[-1]
+    check_probabilities("transition", T)
+    if not 0.0 < discount < 1.0:
+        raise ModelError(f"expected discount in (0, 1), got {discount}")
+    if not 0.0 <= pooling < 1.0:
+        raise ValueError(f"expected pooling in [0, 1), got {pooling!r}")
+    if l2 < 0 or (pooling > 0 and l2 <= 0) or tol <= 0 or max_iterations < 1:
+        raise ValueError(
+            f"expected l2 >= 0 (> 0 with pooling), tol > 0, max_iterations >= 1, got "
+            f"{l2}, {tol}, {max_iterations}"
+        )
+    if len(demonstrations) != K:
+        raise ValueError(
+            f"expected {K} trajectory sets (one per MDP of transition), got {len(demonstrations)}"
+        )
+    phi = check_features(features, S, A).to(T.dtype)
+    F = phi.shape[-1]
+    mu_hat = T.new_zeros(K, F)
+    d0 = T.new_zeros(K, S)
+    for k, demos in enumerate(demonstrations):  # K sets (a handful of types)
+        if not isinstance(demos, Trajectories):
+            raise TypeError(
+                f"expected demonstrations[{k}] to be Trajectories, got {type(demos).__name__}"
+            )
+        if demos.num_trajectories == 0:
+            raise ModelError(f"demonstrations[{k}] is empty: IRL needs a demonstration")
+        demos = demos.to(T.device)
+        check_trajectories(demos, T[k])
+        mu_hat[k] = empirical_feature_expectations(phi, demos, discount)
+        d0[k] = start_distribution(demos, S, dtype=T.dtype).to(T.device)
+    if pooling == 0.0 or K == 1:  # K separate problems, each solved alone (as maxent_irl);
+        # one expert: the split prior's MAP is theta's ridge l2 alone
+        parts = [
+            _maxent_batched(T[k : k + 1], phi, mu_hat[k : k + 1], d0[k : k + 1],
+                            T.new_zeros(1, F), discount=discount, l2=l2, tol=tol,
+                            max_iterations=max_iterations)
+            for k in range(K)
+        ]  # fmt: skip
+        weights, policy, mu, objective, gradient_norm = (
+            torch.cat([part[i] for part in parts]) for i in range(5)
+        )
+        iterations = max(part[5] for part in parts)
+    else:
+        l2_own, l2_shared = l2 / (1.0 - pooling), K * l2 / pooling
+        shared = T.new_zeros(F, requires_grad=True)
+        own = T.new_zeros(K, F, requires_grad=True)
+        optimizer = torch.optim.LBFGS(
+            [shared, own], lr=1.0, max_iter=max_iterations, tolerance_grad=tol * 1e-2,
+            tolerance_change=1e-14, history_size=20, line_search_fn="strong_wolfe",
+        )  # fmt: skip
+        warm: dict[str, torch.Tensor] = {}
+
+        def closure() -> torch.Tensor:
+            optimizer.zero_grad()
+            theta = shared + own
+            R = reward_from_weights(phi, theta, A)
+            solution = soft_value_iteration(T, R, discount, tol=1e-12,
+                                            initial_values=warm.get("V"))  # fmt: skip
+            warm["V"] = solution.values.detach()
+            g = (theta * mu_hat).sum(-1) - (solution.values * d0).sum(-1)
+            loss = -(g.sum() - 0.5 * l2_own * (own * own).sum()
+                     - 0.5 * l2_shared * (shared * shared).sum())  # fmt: skip
+            loss.backward()
+            return loss
+
+        optimizer.step(closure)
+        iterations = int(optimizer.state[shared].get("n_iter", 0))
+        with torch.no_grad():
+            delta = own.detach()
+            weights = shared.detach() + delta
+            R = reward_from_weights(phi, weights, A)
+            solution = soft_value_iteration(T, R, discount, tol=1e-12)
+            policy = solution.policy
+            mu = feature_expectations(T, policy, phi, discount, d0)
+            objective = (weights * mu_hat).sum(-1) - (solution.values * d0).sum(-1)
+            objective = objective - 0.5 * l2_own * (delta * delta).sum(-1)
+            gradient_norm = torch.linalg.vector_norm(mu_hat - mu - l2_own * delta, dim=-1)
     return MaxEntResult(
         weights=weights,
         policy=policy,

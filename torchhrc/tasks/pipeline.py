@@ -84,6 +84,14 @@ REWARD_RULES: tuple[str, ...] = ("maxent", "dominant", "paper", "last")
 #: (2 at 1e-3), ahead on 53 (40).
 MAXENT_L2 = 0.1
 
+#: The prior correlation of the types' rewards under the ``"maxent"`` rule (``IRLConfig.pooling``,
+#: :func:`torchhrc.irl.maxent_irl_types`): with ``p > 0`` each type's reward is a part shared
+#: by all types plus a part of its own, so that a state-action pair a type's demonstrations
+#: never reach gets its reward from the types that reach it. 0 (each type alone) by default:
+#: over the task suite and the held-out tasks pooling won some runs and lost as many
+#: (docs/evaluation_history.md, "Pooling the types' rewards").
+MAXENT_POOLING = 0.0
+
 #: The L-BFGS iteration cap of the ``"maxent"`` rule.
 MAXENT_ITERATIONS = 300
 
@@ -109,6 +117,9 @@ class IRLConfig:
             iterations).
         l2: the ridge of ``"maxent"`` on the reward weights (default :data:`MAXENT_L2`; the
             other rules ignore it).
+        pooling: in [0, 1), the prior correlation of the types' rewards under ``"maxent"``
+            (default :data:`MAXENT_POOLING`; 0: each type's reward learned from its own
+            demonstrations alone; :func:`torchhrc.irl.maxent_irl_types`).
 
     Example:
         >>> IRLConfig(epsilon=0.01).rule
@@ -119,6 +130,7 @@ class IRLConfig:
     epsilon: float = 0.05
     iterations: int = 10
     l2: float = MAXENT_L2
+    pooling: float = MAXENT_POOLING
 
     def __post_init__(self) -> None:
         if self.rule not in REWARD_RULES:
@@ -134,6 +146,13 @@ class IRLConfig:
             raise ValueError(f"expected iterations to be an int >= 1, got {self.iterations!r}")
         if isinstance(self.l2, bool) or not isinstance(self.l2, (int, float)) or self.l2 < 0:
             raise ValueError(f"expected l2 to be a number >= 0, got {self.l2!r}")
+        pooling = self.pooling
+        number = isinstance(pooling, (int, float)) and not isinstance(pooling, bool)
+        if not number or not 0 <= pooling < 1:
+            raise ValueError(f"expected pooling to be a number in [0, 1), got {pooling!r}")
+        if pooling > 0 and self.rule == "maxent" and self.l2 == 0:
+            raise ValueError("pooling > 0 needs a ridge: expected l2 > 0 with pooling "
+                             f"{pooling!r}, got l2 = 0")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -373,12 +392,14 @@ def learn_type_weights(
     max_iterations: int = 10,
     seed: int = 0,
     l2: float = MAXENT_L2,
+    pooling: float = MAXENT_POOLING,
 ) -> torch.Tensor:
     """Reward weights per type by apprenticeship learning (Abbeel & Ng 2004; paper Sec. IRL).
 
     For type ``k`` the MDP is ``(X, A, Tx[:, :, k, :], phi, discount)`` and the expert's
     trajectories are the demonstrations of type ``k``. ``rule="maxent"``: maximum-entropy
-    IRL (:func:`torchhrc.irl.maxent_irl`, ridge ``l2``) instead of the projection
+    IRL of all types at once (:func:`torchhrc.irl.maxent_irl_types`, ridge ``l2``, the
+    types' rewards with prior correlation ``pooling``) instead of the projection
     algorithm (``epsilon``, ``max_iterations`` unused; no warning). The projection
     algorithm's reward kept (``rule``):
     ``"dominant"`` (default): ``w^(i*)``, ``i* = argmax_{i >= 1} lambda_i``, the reward of
@@ -403,7 +424,7 @@ def learn_type_weights(
     """
     import warnings
 
-    from torchhrc.irl.maxent import maxent_irl
+    from torchhrc.irl.maxent import maxent_irl_types
     from torchhrc.irl.projection import IRLConvergenceWarning, apprenticeship_learning
     from torchhrc.irl.trajectories import Trajectories
 
@@ -415,16 +436,20 @@ def learn_type_weights(
     stuck: list[tuple[int, float, float, bool]] = []  # (type, margin, sampling error, falling)
     lengths = steps.lengths
     assignments = assignments.to(steps.states.device)
-    for k in range(K):  # one IRL problem per type (a handful)
+    per_type: dict[int, Trajectories] = {}
+    for k in range(K):  # a handful of types
         idx = torch.nonzero((assignments == k) & (lengths > 0)).flatten()
-        if idx.numel() == 0:
-            continue
-        demos = Trajectories(steps.states[idx], steps.actions[idx], lengths[idx])
-        if rule == "maxent":
-            fit = maxent_irl(Tx[:, :, k, :], phi, demos, discount=task.discount, l2=l2,
-                             max_iterations=MAXENT_ITERATIONS)  # fmt: skip
-            weights[k] = fit.weights
-            continue
+        if idx.numel():
+            per_type[k] = Trajectories(steps.states[idx], steps.actions[idx], lengths[idx])
+    if rule == "maxent":
+        if per_type:
+            ks = list(per_type)
+            fit = maxent_irl_types(Tx.permute(2, 0, 1, 3)[ks], phi, list(per_type.values()),
+                                   discount=task.discount, l2=l2, pooling=pooling,
+                                   max_iterations=MAXENT_ITERATIONS)  # fmt: skip
+            weights[ks] = fit.weights
+        return weights
+    for k, demos in per_type.items():
         result = apprenticeship_learning(
             Tx[:, :, k, :], phi, demos, discount=task.discount, epsilon=epsilon,
             max_iterations=max_iterations, seed=seed, rule=rule, warn=False,
@@ -479,6 +504,7 @@ def build_model(
     info: dict[str, Any] | None = None,
     irl_l2: float = MAXENT_L2,
     human_model: str | None = None,
+    irl_pooling: float = MAXENT_POOLING,
     state_smoothing: tuple[float, float] | str = "auto",
 ) -> LearnedModel:
     """Build the learned MOMDP from given types (no solve).
@@ -491,8 +517,9 @@ def build_model(
         b0: ``(K,)`` initial type belief (uniform by default).
         noise: weight of a random legal human action in the behaviour (:class:`TypeEvidence`).
         pause: probability of a skipped human turn.
-        rule, irl_epsilon, irl_iterations, irl_l2, seed: IRL settings
-            (:func:`learn_type_weights`'s ``rule``, ``epsilon``, ``max_iterations``, ``l2``).
+        rule, irl_epsilon, irl_iterations, irl_l2, irl_pooling, seed: IRL settings
+            (:func:`learn_type_weights`'s ``rule``, ``epsilon``, ``max_iterations``, ``l2``,
+            ``pooling``).
         info: extra facts stored with the model.
         human_model: ``"chain"``, ``"state"`` or ``"auto"`` (:attr:`CollaborativeTask.human_model`
             of the default human policy); ``None``: the task's own ``human_model``. With
@@ -579,7 +606,7 @@ def build_model(
             )
         weights = learn_type_weights(task, Tx, steps, evidence.assignments, rule=rule,
                                      epsilon=irl_epsilon, max_iterations=irl_iterations,
-                                     seed=seed, l2=irl_l2)  # fmt: skip
+                                     seed=seed, l2=irl_l2, pooling=irl_pooling)  # fmt: skip
         phi = task.features(dtype=weights.dtype, device=weights.device)
         R = torch.einsum("axf,yf->axy", phi, weights)
     else:
@@ -788,6 +815,7 @@ def learn(
     irl_epsilon: float | None = None,
     irl_iterations: int | None = None,
     irl_l2: float | None = None,
+    irl_pooling: float | None = None,
     solve: bool = True,
     solver_time: float = 5.0,
     solver_precision: float = 1e-3,
@@ -818,7 +846,7 @@ def learn(
             ``docs/clustering.md``, "Second-order chains", "Third-order chains") or
             :func:`~torchhrc.mixture.fit_mixture`'s (e.g. ``criterion``: ``"icl_or_gain"``
             for the soft method, BIC for ``"paper"``).
-        irl: an :class:`IRLConfig` (rule, epsilon, iterations, l2).
+        irl: an :class:`IRLConfig` (rule, epsilon, iterations, l2, pooling).
         solver: a :class:`~torchhrc.solvers.sarsop.SARSOPConfig`, used as given (its
             ``precision`` is absolute; without a ``lower_bound_init`` the typed lower bound
             of :func:`solve_model` is used).
@@ -840,6 +868,8 @@ def learn(
         irl_epsilon: instead of ``irl``: its ``epsilon``.
         irl_iterations: instead of ``irl``: its ``iterations``.
         irl_l2: instead of ``irl``: its ``l2`` (the MaxEnt ridge).
+        irl_pooling: instead of ``irl``: its ``pooling`` (the types' rewards' prior
+            correlation).
         solve: solve the MOMDP (SARSOP) too.
         solver_time: instead of ``solver``: :func:`solve_model`'s time limit (seconds).
         solver_precision: instead of ``solver``: :func:`solve_model`'s precision, relative
@@ -907,7 +937,8 @@ def learn(
             f"expected {name} <= the number of demonstrations ({N}), got "
             f"{name} = {options['k_min']}: a type needs demonstrations of its own"
         )
-    irl_keywords = {"epsilon": irl_epsilon, "iterations": irl_iterations, "l2": irl_l2}
+    irl_keywords = {"epsilon": irl_epsilon, "iterations": irl_iterations, "l2": irl_l2,
+                    "pooling": irl_pooling}  # fmt: skip
     irl_given = {name: v for name, v in irl_keywords.items() if v is not None}
     if irl is None:
         irl = IRLConfig(**irl_given)  # type: ignore[arg-type]  # its defaults for the rest
@@ -915,7 +946,7 @@ def learn(
         raise TypeError(f"expected irl to be an IRLConfig, got {type(irl).__name__}")
     elif irl_given:
         raise ValueError("pass the IRL settings either in irl= or as irl_epsilon/irl_iterations/"
-                         "irl_l2, not both")  # fmt: skip
+                         "irl_l2/irl_pooling, not both")  # fmt: skip
     fit = fit_mixture(demonstrations, seed=seed, **options)
     info: dict[str, Any] = {
         "k": int(fit.k),
@@ -942,6 +973,7 @@ def learn(
             "epsilon": irl.epsilon,
             "iterations": irl.iterations,
             "l2": irl.l2,
+            "pooling": irl.pooling,
         },
         "seed": seed,
     }
@@ -956,7 +988,8 @@ def learn(
     }
     model = build_model(task, demonstrations, chains, fit.assignments, b0=b0, noise=noise,
                         pause=pause, rule=irl.rule, irl_epsilon=irl.epsilon,
-                        irl_iterations=irl.iterations, irl_l2=irl.l2, seed=seed, info=info,
+                        irl_iterations=irl.iterations, irl_l2=irl.l2, irl_pooling=irl.pooling,
+                        seed=seed, info=info,
                         human_model=human_model, state_smoothing=state_smoothing)  # fmt: skip
     if solve:
         if solver is None:

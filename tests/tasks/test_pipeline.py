@@ -435,15 +435,16 @@ def test_learn_passes_its_settings_through(monkeypatch):
     assert seen == {"rule": "last", "epsilon": 0.2, "max_iterations": 3, "seed": 0, "l2": 0.5,
                     "pooling": 0.3}  # fmt: skip
     assert info["irl"] == {"rule": "last", "epsilon": 0.2, "iterations": 3, "l2": 0.5,
-                           "pooling": 0.3}  # fmt: skip
+                           "pooling": 0.3, "wrong_moves": "symmetric"}  # fmt: skip
     assert info["solver"]["max_iterations"] == 2 and info["solver"]["time_limit"] == 5.0
     assert info["solver"]["lower_bound_init"] == "type_policy_lower_bound"
     # the keywords reach the same settings
     again = learn(task, demos, criterion="bic", k_min=2, k_max=3, restarts=2, objects="raw",
                   irl_epsilon=0.2, irl_iterations=3, irl_l2=0.5, irl_pooling=0.3,
-                  solve=False)  # fmt: skip
+                  irl_wrong_moves="learned", solve=False)  # fmt: skip
     assert again.info["scores"] == info["scores"] and again.info["k"] == info["k"]
     assert again.info["irl"]["l2"] == 0.5 and again.info["irl"]["pooling"] == 0.3
+    assert again.info["irl"]["wrong_moves"] == again.info["wrong_moves"]["rule"] == "learned"
     paper = learn(task, demos, cluster=ClusterConfig(method="paper", k_min=2, k_max=3,
                   restarts=2), solve=False)  # fmt: skip
     assert paper.info["order"] == 1 and paper.info["order_comparison"] is None
@@ -461,6 +462,8 @@ def test_learn_passes_its_settings_through(monkeypatch):
         IRLConfig(pooling=1)
     with pytest.raises(ValueError, match=r"pooling > 0 needs a ridge"):
         IRLConfig(l2=0, pooling=0.5)
+    with pytest.raises(ValueError, match=r"expected wrong_moves 'symmetric' or 'learned'"):
+        IRLConfig(wrong_moves="free")
     with pytest.raises(TypeError):
         ClusterConfig(k_maks=3)  # a typo is an error, not a silently ignored setting
     # more types than demonstrations: refused before any fit (it gave 43 empty types in silence)

@@ -278,8 +278,8 @@ def sweep(
     :data:`~torchhrc.experiments.task_sweep.TASK_PARAMETERS`: ``subjects``, ``per_subject``,
     ``noise``; ``learn()``'s ``k``, ``k_min``, ``k_max``, ``restarts``, ``criterion``,
     ``objects``, ``order``, ``mixture_method``, ``min_gain``, ``human_model``, ``prior``,
-    ``irl_iterations``, ``irl_epsilon``, ``irl_l2``, ``irl_pooling``, ``solver_time``,
-    ``solver_iterations``; and ``episodes``.
+    ``irl_iterations``, ``irl_epsilon``, ``irl_l2``, ``irl_pooling``, ``irl_wrong_moves``,
+    ``solver_time``, ``solver_iterations``; and ``episodes``.
 
     A function (one that takes a ``seed`` keyword argument) is called as
     ``task(seed=seed, **cell)`` and returns a mapping of metrics (numbers, nested mappings or

@@ -90,6 +90,13 @@ TASK_PARAMETERS: dict[str, SweepParameter] = {
     "irl_pooling": SweepParameter(
         float, 0.0, 0.999, "learn(irl_pooling=): the types' rewards' prior correlation"
     ),
+    "irl_wrong_moves": SweepParameter(
+        str,
+        None,
+        None,
+        "learn(irl_wrong_moves=): the price of a move no partner of the type made",
+        choices=("symmetric", "learned"),
+    ),
     "solver_time": SweepParameter(float, 0.01, None, "learn(solver_time=): SARSOP limit (s)"),
     "solver_iterations": SweepParameter(
         int, 1, None, "learn(solver_iterations=): SARSOP iteration cap (a deterministic stop)"
@@ -106,7 +113,7 @@ _DEMONSTRATIONS = ("subjects", "per_subject", "noise")
 _CLUSTERING = ("k", "k_min", "k_max", "restarts", "criterion", "objects", "order",
                "mixture_method", "min_gain")  # fmt: skip
 _MODEL = ("human_model", "prior", "irl_iterations", "irl_epsilon", "irl_l2", "irl_pooling",
-          "solver_time", "solver_iterations")  # fmt: skip
+          "irl_wrong_moves", "solver_time", "solver_iterations")  # fmt: skip
 
 
 def task_metrics(

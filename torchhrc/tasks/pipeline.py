@@ -52,6 +52,7 @@ from torchhrc.tasks.interface import (
     check_task,
     reaction_weights,
 )
+from torchhrc.tasks.wrong_moves import price_wrong_moves
 
 __all__ = [
     "IRLConfig",
@@ -70,6 +71,10 @@ _FORMAT = "torchhrc.learned_task_model"
 _VERSION = 1
 
 RewardRule = Literal["maxent", "dominant", "paper", "last"]
+WrongMoves = Literal["symmetric", "learned"]
+
+#: The values of ``IRLConfig.wrong_moves``.
+WRONG_MOVES: tuple[str, ...] = ("symmetric", "learned")
 
 #: The reward rules :func:`learn_type_weights` accepts.
 REWARD_RULES: tuple[str, ...] = ("maxent", "dominant", "paper", "last")
@@ -120,6 +125,10 @@ class IRLConfig:
         pooling: in [0, 1), the prior correlation of the types' rewards under ``"maxent"``
             (default :data:`MAXENT_POOLING`; 0: each type's reward learned from its own
             demonstrations alone; :func:`torchhrc.irl.maxent_irl_types`).
+        wrong_moves: ``"symmetric"`` (default): where the types' partners made different
+            moves, a move a type's partners never made costs it as much below a wait as its
+            own move gains above it (:func:`~torchhrc.tasks.wrong_moves.price_wrong_moves`);
+            ``"learned"``: the rewards as IRL gives them.
 
     Example:
         >>> IRLConfig(epsilon=0.01).rule
@@ -131,6 +140,7 @@ class IRLConfig:
     iterations: int = 10
     l2: float = MAXENT_L2
     pooling: float = MAXENT_POOLING
+    wrong_moves: WrongMoves = "symmetric"
 
     def __post_init__(self) -> None:
         if self.rule not in REWARD_RULES:
@@ -150,6 +160,9 @@ class IRLConfig:
         number = isinstance(pooling, (int, float)) and not isinstance(pooling, bool)
         if not number or not 0 <= pooling < 1:
             raise ValueError(f"expected pooling to be a number in [0, 1), got {pooling!r}")
+        if self.wrong_moves not in WRONG_MOVES:
+            raise ValueError(f"expected wrong_moves 'symmetric' or 'learned', got "
+                             f"{self.wrong_moves!r}")  # fmt: skip
         if pooling > 0 and self.rule == "maxent" and self.l2 == 0:
             raise ValueError("pooling > 0 needs a ridge: expected l2 > 0 with pooling "
                              f"{pooling!r}, got l2 = 0")  # fmt: skip
@@ -506,6 +519,7 @@ def build_model(
     human_model: str | None = None,
     irl_pooling: float = MAXENT_POOLING,
     state_smoothing: tuple[float, float] | str = "auto",
+    wrong_moves: WrongMoves = "learned",
 ) -> LearnedModel:
     """Build the learned MOMDP from given types (no solve).
 
@@ -533,6 +547,11 @@ def build_model(
             :data:`~torchhrc.tasks.human_model_choice.STATE_SMOOTHING_GRID` on held-out
             subjects, chosen with the human model (or alone when ``"state"`` is asked for);
             recorded in ``info["human_model"]["state_smoothing"]``.
+        wrong_moves: ``"learned"`` (default here; the paper pipelines): the rewards as IRL
+            gives them; ``"symmetric"`` (``learn()``'s default): priced in the contested
+            states by :func:`~torchhrc.tasks.wrong_moves.price_wrong_moves`, the number of
+            rewards lowered recorded as ``info["wrong_moves"]``. Only for learned rewards
+            (a task's ``known_reward()`` is kept as given).
 
     Returns:
         :class:`LearnedModel` with ``policy=None``.
@@ -559,6 +578,9 @@ def build_model(
     if requested not in (None, "auto", *HUMAN_MODELS):
         raise ValueError(f"expected human_model 'auto', 'chain' or 'state' (or None), "
                          f"got {requested!r}")  # fmt: skip
+    if wrong_moves not in WRONG_MOVES:
+        raise ValueError(f"expected wrong_moves 'symmetric' or 'learned', got {wrong_moves!r}")
+    priced: dict[str, Any] = {"rule": "learned", "lowered": 0, "states": 0}
     given = state_smoothing_pair(state_smoothing)
     chosen: dict[str, Any] = {"requested": requested}
     if requested == "auto" or (requested == "state" and given is None):
@@ -609,6 +631,10 @@ def build_model(
                                      seed=seed, l2=irl_l2, pooling=irl_pooling)  # fmt: skip
         phi = task.features(dtype=weights.dtype, device=weights.device)
         R = torch.einsum("axf,yf->axy", phi, weights)
+        if wrong_moves == "symmetric":
+            R, capped = price_wrong_moves(R, steps, evidence.assignments, task.robot_effect)
+            priced = {"rule": wrong_moves, "lowered": int(capped.sum()),
+                      "states": int(capped.any(0).any(-1).sum())}  # fmt: skip
     else:
         R = _check_types("known_reward()", R, 2, K, f"(A={A}, X={X}, Y={K})").to(Tx.dtype)
         if tuple(R.shape) != (A, X, K):
@@ -631,7 +657,7 @@ def build_model(
         assignments=evidence.assignments,
         feature_names=tuple(task.feature_names) if R is not None and weights.numel() else (),
         human_actions=tuple(task.human_actions),
-        info={**dict(info or {}), "human_model": chosen},
+        info={**dict(info or {}), "human_model": chosen, "wrong_moves": priced},
     )
 
 
@@ -816,6 +842,7 @@ def learn(
     irl_iterations: int | None = None,
     irl_l2: float | None = None,
     irl_pooling: float | None = None,
+    irl_wrong_moves: str | None = None,
     solve: bool = True,
     solver_time: float = 5.0,
     solver_precision: float = 1e-3,
@@ -846,7 +873,7 @@ def learn(
             ``docs/clustering.md``, "Second-order chains", "Third-order chains") or
             :func:`~torchhrc.mixture.fit_mixture`'s (e.g. ``criterion``: ``"icl_or_gain"``
             for the soft method, BIC for ``"paper"``).
-        irl: an :class:`IRLConfig` (rule, epsilon, iterations, l2, pooling).
+        irl: an :class:`IRLConfig` (rule, epsilon, iterations, l2, pooling, wrong_moves).
         solver: a :class:`~torchhrc.solvers.sarsop.SARSOPConfig`, used as given (its
             ``precision`` is absolute; without a ``lower_bound_init`` the typed lower bound
             of :func:`solve_model` is used).
@@ -870,6 +897,8 @@ def learn(
         irl_l2: instead of ``irl``: its ``l2`` (the MaxEnt ridge).
         irl_pooling: instead of ``irl``: its ``pooling`` (the types' rewards' prior
             correlation).
+        irl_wrong_moves: instead of ``irl``: its ``wrong_moves`` (``"symmetric"`` or
+            ``"learned"``).
         solve: solve the MOMDP (SARSOP) too.
         solver_time: instead of ``solver``: :func:`solve_model`'s time limit (seconds).
         solver_precision: instead of ``solver``: :func:`solve_model`'s precision, relative
@@ -938,7 +967,7 @@ def learn(
             f"{name} = {options['k_min']}: a type needs demonstrations of its own"
         )
     irl_keywords = {"epsilon": irl_epsilon, "iterations": irl_iterations, "l2": irl_l2,
-                    "pooling": irl_pooling}  # fmt: skip
+                    "pooling": irl_pooling, "wrong_moves": irl_wrong_moves}  # fmt: skip
     irl_given = {name: v for name, v in irl_keywords.items() if v is not None}
     if irl is None:
         irl = IRLConfig(**irl_given)  # type: ignore[arg-type]  # its defaults for the rest
@@ -946,7 +975,7 @@ def learn(
         raise TypeError(f"expected irl to be an IRLConfig, got {type(irl).__name__}")
     elif irl_given:
         raise ValueError("pass the IRL settings either in irl= or as irl_epsilon/irl_iterations/"
-                         "irl_l2/irl_pooling, not both")  # fmt: skip
+                         "irl_l2/irl_pooling/irl_wrong_moves, not both")  # fmt: skip
     fit = fit_mixture(demonstrations, seed=seed, **options)
     info: dict[str, Any] = {
         "k": int(fit.k),
@@ -974,6 +1003,7 @@ def learn(
             "iterations": irl.iterations,
             "l2": irl.l2,
             "pooling": irl.pooling,
+            "wrong_moves": irl.wrong_moves,
         },
         "seed": seed,
     }
@@ -989,7 +1019,7 @@ def learn(
     model = build_model(task, demonstrations, chains, fit.assignments, b0=b0, noise=noise,
                         pause=pause, rule=irl.rule, irl_epsilon=irl.epsilon,
                         irl_iterations=irl.iterations, irl_l2=irl.l2, irl_pooling=irl.pooling,
-                        seed=seed, info=info,
+                        wrong_moves=irl.wrong_moves, seed=seed, info=info,
                         human_model=human_model, state_smoothing=state_smoothing)  # fmt: skip
     if solve:
         if solver is None:

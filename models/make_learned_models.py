@@ -25,9 +25,12 @@ from torchhrc.tasks.place_and_drill import PlaceAndDrillTask, simulate_study
 #: ``learn()``'s default became maximum-entropy IRL (issue 31; docs/your_own_task.md); so are
 #: the paper's first-order chains (``order=1``), since ``learn()``'s default became
 #: ``order="auto"`` (docs/clustering.md, "Second-order chains"); and the uniform prior over the
-#: types, since ``learn()``'s default became the types' shares of the demonstrations.
+#: types, since ``learn()``'s default became the types' shares of the demonstrations; and
+#: the rewards as IRL gives them (``wrong_moves="learned"``), since ``learn()``'s default
+#: became pricing a wrong move where the types' partners disagree (docs/your_own_task.md).
 PLACE_AND_DRILL = dict(cluster=ClusterConfig(k_min=2, k_max=10, restarts=20, order=1),
-                       irl=IRLConfig(rule="dominant", epsilon=0.05, iterations=10),
+                       irl=IRLConfig(rule="dominant", epsilon=0.05, iterations=10,
+                                     wrong_moves="learned"),
                        solver_time=60.0, solver_precision=1e-4, prior="uniform",
                        seed=0)  # fmt: skip
 

@@ -175,7 +175,8 @@ class LearnedModel:
     Attributes:
         momdp: the MOMDP over ``(x, type)`` (static type).
         weights: ``(Y, F)`` IRL reward weights per type (empty ``(Y, 0)`` when the task gave
-            its reward).
+            its reward). ``momdp``'s reward is ``phi . w``, lowered where the price of a
+            wrong move applies (``info["wrong_moves"]``).
         behaviour: ``(Y, A, X, H + 1)`` human behaviour ``P(a_h | x, a_r, y)`` (last column:
             no action).
         type_names: ``(Y,)`` names of the types.

@@ -29,6 +29,7 @@ Example:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -303,6 +304,73 @@ class MaxEntResult:
         return reward_from_weights(features, self.weights, num_actions)
 
 
+def _result(
+    weights: torch.Tensor,
+    policy: torch.Tensor,
+    mu: torch.Tensor,
+    mu_hat: torch.Tensor,
+    objective: torch.Tensor,
+    gradient_norm: torch.Tensor,
+    iterations: int,
+    tol: float,
+) -> MaxEntResult:
+    """A :class:`MaxEntResult`, converged where every gradient norm is ``<= tol``."""
+    return MaxEntResult(
+        weights=weights,
+        policy=policy,
+        feature_expectations=mu,
+        expert_feature_expectations=mu_hat,
+        objective=objective,
+        gradient_norm=gradient_norm,
+        iterations=iterations,
+        converged=bool((gradient_norm <= tol).all()),
+    )
+
+
+def _maximise_dual(
+    T: torch.Tensor,
+    phi: torch.Tensor,
+    mu_hat: torch.Tensor,
+    d0: torch.Tensor,
+    parameters: list[torch.Tensor],
+    theta: Callable[[], torch.Tensor],
+    penalty: Callable[[], torch.Tensor],
+    *,
+    discount: float,
+    tol: float,
+    max_iterations: int,
+) -> int:
+    """L-BFGS on ``sum_b [theta_b . mu_hat_b - d0_b . V_theta_b - penalty_b]`` over
+    ``parameters`` (updated in place): ``theta()`` gives the ``(B, F)`` weights from them,
+    ``penalty()`` the ``(B,)`` ridge terms. Returns the iterations taken."""
+    A = T.shape[-3]
+    optimizer = torch.optim.LBFGS(
+        parameters,
+        lr=1.0,
+        max_iter=max_iterations,
+        tolerance_grad=tol * 1e-2,
+        tolerance_change=1e-14,
+        history_size=20,
+        line_search_fn="strong_wolfe",
+    )
+    warm: dict[str, torch.Tensor] = {}
+
+    def closure() -> torch.Tensor:
+        optimizer.zero_grad()
+        weights = theta()
+        R = reward_from_weights(phi, weights, A)
+        solution = soft_value_iteration(T, R, discount, tol=1e-12, initial_values=warm.get("V"))
+        warm["V"] = solution.values.detach()
+        value = (solution.values * d0).sum(-1)
+        g = (weights * mu_hat).sum(-1) - value - penalty()
+        loss = -g.sum()
+        loss.backward()
+        return loss
+
+    optimizer.step(closure)
+    return int(optimizer.state[parameters[0]].get("n_iter", 0))
+
+
 def _maxent_batched(
     T: torch.Tensor,
     phi: torch.Tensor,
@@ -319,30 +387,11 @@ def _maxent_batched(
     ``d0 (B, S)``, ``theta0 (B, F)``. Returns weights, policy, mu, objective, grad norm, iters."""
     A = T.shape[-3]
     theta = theta0.clone().requires_grad_(True)
-    optimizer = torch.optim.LBFGS(
-        [theta],
-        lr=1.0,
-        max_iter=max_iterations,
-        tolerance_grad=tol * 1e-2,
-        tolerance_change=1e-14,
-        history_size=20,
-        line_search_fn="strong_wolfe",
-    )
-    warm: dict[str, torch.Tensor] = {}
-
-    def closure() -> torch.Tensor:
-        optimizer.zero_grad()
-        R = reward_from_weights(phi, theta, A)
-        solution = soft_value_iteration(T, R, discount, tol=1e-12, initial_values=warm.get("V"))
-        warm["V"] = solution.values.detach()
-        value = (solution.values * d0).sum(-1)
-        g = (theta * mu_hat).sum(-1) - value - 0.5 * l2 * (theta * theta).sum(-1)
-        loss = -g.sum()
-        loss.backward()
-        return loss
-
-    optimizer.step(closure)
-    iterations = int(optimizer.state[theta].get("n_iter", 0))
+    iterations = _maximise_dual(
+        T, phi, mu_hat, d0, [theta], lambda: theta,
+        lambda: 0.5 * l2 * (theta * theta).sum(-1),
+        discount=discount, tol=tol, max_iterations=max_iterations,
+    )  # fmt: skip
     with torch.no_grad():
         weights = theta.detach()
         R = reward_from_weights(phi, weights, A)
@@ -469,16 +518,7 @@ def maxent_irl(
     if not batched:
         weights, policy, mu = weights[0], policy[0], mu[0]
         objective, gradient_norm = objective[0], gradient_norm[0]
-    return MaxEntResult(
-        weights=weights,
-        policy=policy,
-        feature_expectations=mu,
-        expert_feature_expectations=mu_hat,
-        objective=objective,
-        gradient_norm=gradient_norm,
-        iterations=iterations,
-        converged=bool((gradient_norm <= tol).all()),
-    )
+    return _result(weights, policy, mu, mu_hat, objective, gradient_norm, iterations, tol)
 
 
 def maxent_irl_types(
@@ -587,27 +627,12 @@ def maxent_irl_types(
         l2_own, l2_shared = l2 / (1.0 - pooling), K * l2 / pooling
         shared = T.new_zeros(F, requires_grad=True)
         own = T.new_zeros(K, F, requires_grad=True)
-        optimizer = torch.optim.LBFGS(
-            [shared, own], lr=1.0, max_iter=max_iterations, tolerance_grad=tol * 1e-2,
-            tolerance_change=1e-14, history_size=20, line_search_fn="strong_wolfe",
+        iterations = _maximise_dual(
+            T, phi, mu_hat, d0, [shared, own], lambda: shared + own,
+            lambda: 0.5 * l2_own * (own * own).sum(-1)
+            + 0.5 * l2_shared / K * (shared * shared).sum(),
+            discount=discount, tol=tol, max_iterations=max_iterations,
         )  # fmt: skip
-        warm: dict[str, torch.Tensor] = {}
-
-        def closure() -> torch.Tensor:
-            optimizer.zero_grad()
-            theta = shared + own
-            R = reward_from_weights(phi, theta, A)
-            solution = soft_value_iteration(T, R, discount, tol=1e-12,
-                                            initial_values=warm.get("V"))  # fmt: skip
-            warm["V"] = solution.values.detach()
-            g = (theta * mu_hat).sum(-1) - (solution.values * d0).sum(-1)
-            loss = -(g.sum() - 0.5 * l2_own * (own * own).sum()
-                     - 0.5 * l2_shared * (shared * shared).sum())  # fmt: skip
-            loss.backward()
-            return loss
-
-        optimizer.step(closure)
-        iterations = int(optimizer.state[shared].get("n_iter", 0))
         with torch.no_grad():
             delta = own.detach()
             weights = shared.detach() + delta
@@ -618,13 +643,4 @@ def maxent_irl_types(
             objective = (weights * mu_hat).sum(-1) - (solution.values * d0).sum(-1)
             objective = objective - 0.5 * l2_own * (delta * delta).sum(-1)
             gradient_norm = torch.linalg.vector_norm(mu_hat - mu - l2_own * delta, dim=-1)
-    return MaxEntResult(
-        weights=weights,
-        policy=policy,
-        feature_expectations=mu,
-        expert_feature_expectations=mu_hat,
-        objective=objective,
-        gradient_norm=gradient_norm,
-        iterations=iterations,
-        converged=bool((gradient_norm <= tol).all()),
-    )
+    return _result(weights, policy, mu, mu_hat, objective, gradient_norm, iterations, tol)

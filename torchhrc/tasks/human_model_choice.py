@@ -249,12 +249,9 @@ def compare_human_models(
         log_w = (sizes / sizes.sum()).log()  # (K,)
         own = assignments[held]  # (n,)
         # the training partners' moves per type and state
-        on = mask[train]
-        moves = torch.zeros(K * X * A, dtype=torch.float64)
-        kind = assignments[train].view(-1, 1).expand_as(x[train])[on]
-        moves.index_add_(0, (kind * X + x[train][on]) * A + a[train][on],
-                         torch.ones(int(on.sum()), dtype=torch.float64))  # fmt: skip
-        moves = moves.view(K, X, A)
+        moves = _subset_steps(steps, train.to(steps.mask.device)).robot_moves(
+            assignments[train], K, X, A
+        ).cpu()  # fmt: skip
         seen = moves.sum(-1) > 0  # (K, X)
         share = moves / moves.sum(-1, keepdim=True).clamp_min(1.0)
         tv = 0.5 * (share.unsqueeze(0) - share.unsqueeze(1)).abs().sum(-1)  # (K, K, X)

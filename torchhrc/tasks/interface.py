@@ -110,6 +110,25 @@ class TaskSteps:
         """``(N,)`` real steps per sequence."""
         return self.mask.sum(-1)
 
+    def robot_moves(
+        self, assignments: torch.Tensor, num_types: int, num_states: int, num_actions: int
+    ) -> torch.Tensor:
+        """``(K, X, A)`` float64: how often the (demonstrating) robot took each action in each
+        state, per type, ``assignments (N,)`` giving each sequence's type.
+
+        Example:
+            >>> s = torch.tensor([[0, 1], [0, 0]])
+            >>> steps = TaskSteps(s, torch.tensor([[1, 0], [2, 0]]), -torch.ones_like(s), s,
+            ...                   torch.tensor([[True, True], [True, False]]))
+            >>> steps.robot_moves(torch.tensor([0, 1]), 2, 2, 3)[:, 0].tolist()  # in state 0
+            [[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+        """
+        K, X, A = num_types, num_states, num_actions
+        mask = self.mask
+        y = assignments.to(mask.device).long()[:, None].expand_as(mask)[mask]
+        index = (y * X + self.states[mask]) * A + self.actions[mask]
+        return torch.bincount(index, minlength=K * X * A).reshape(K, X, A).to(torch.float64)
+
 
 @dataclass(frozen=True)
 class TypeEvidence:

@@ -51,16 +51,6 @@ WRONG_MOVE_VISITS = 3
 WRONG_MOVE_RARE = 0.1
 
 
-def _move_counts(steps: TaskSteps, assignments: torch.Tensor, K: int, X: int, A: int
-                 ) -> torch.Tensor:  # fmt: skip
-    """``(K, X, A)`` how often the partners of each type took each robot action in each
-    state."""
-    mask = steps.mask
-    y = assignments.to(mask.device).long()[:, None].expand_as(mask)[mask]
-    index = (y * X + steps.states[mask]) * A + steps.actions[mask]
-    return torch.bincount(index, minlength=K * X * A).reshape(K, X, A).to(torch.float64)
-
-
 def _contest(counts: torch.Tensor, visits: int) -> tuple[torch.Tensor, ...]:
     """From ``counts (K, X, A)``: ``contested (X,)``, ``own (K, X)``, ``share (K, X, A)``,
     ``seen (K, X)`` (the type counts there)."""
@@ -108,7 +98,7 @@ def contested_states(
         >>> contested.tolist(), own.tolist()
         ([True], [[1], [2]])
     """
-    counts = _move_counts(steps, assignments, num_types, num_states, num_actions)
+    counts = steps.robot_moves(assignments, num_types, num_states, num_actions)
     contested, own, share, _ = _contest(counts, visits)
     return contested, own, share
 
@@ -156,7 +146,7 @@ def price_wrong_moves(
     if K < 2 or not bool(still.any()):
         return reward.clone(), capped
     wait = int(still.nonzero()[0])
-    counts = _move_counts(steps, assignments, K, X, A).to(reward.device)
+    counts = steps.robot_moves(assignments, K, X, A).to(reward.device)
     contested, own, share, seen = _contest(counts, visits)
     R = reward.permute(2, 1, 0)  # (K, X, A)
     own_value = R.gather(-1, own.unsqueeze(-1)).squeeze(-1)  # (K, X)

@@ -84,7 +84,7 @@ def kitchen_with_cooks(task: Kitchen) -> TaskWithPeople:
                 continue
             policy[y, 0, x, :, next_subtask(kind, done)] = 1.0
             reward[:, x, y] = torch.tensor([score(kind, x, a) for a in range(A)])
-    people = TabularPeople(TYPES, policy, task.human_legal)
+    people = TabularPeople(TYPES, policy, task.human_legal, task=task)
     return TaskWithPeople(task, people, reward, horizon=2 * S, observed=False)
 
 

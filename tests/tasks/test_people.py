@@ -104,6 +104,14 @@ def test_tabular_people_validation_names_the_problem():
     bad[0, 0, 1, 0] = torch.tensor([1.0, 0.0, 0.0])  # h = 0 illegal in x = 1
     with pytest.raises(ModelError, match=r"\(type 'p'\).*illegal in state 1.*after the robot's"):
         TabularPeople(("p",), bad, LEGAL)
+
+    class Names:  # the names a task gives the indices (the error reads only these)
+        state_names, robot_actions, human_actions = ("s0", "s1", "s2"), ("wait", "go"), ("u", "v")
+
+    with pytest.raises(
+        ModelError, match=r"human action 'u' in state 's1', after robot action 'wait'"
+    ):
+        TabularPeople(("p",), bad, LEGAL, task=Names())
     with pytest.raises(ModelError, match="summing to 1"):
         TabularPeople(("p",), policy * 0.5, LEGAL)
     with pytest.raises(ModelError, match="type_names"):

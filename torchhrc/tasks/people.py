@@ -135,6 +135,9 @@ class TabularPeople:
         legal: ``(X, H)`` bool, the task's ``human_legal``.
         update: ``(Y, M, X, A, H + 1)`` int64 next memory state (default: all 0).
         initial: ``(Y, M)`` probabilities of the first memory state (default: state 0).
+        task: the :class:`~torchhrc.tasks.CollaborativeTask` the tables belong to (optional):
+            its ``state_names``, ``robot_actions`` and ``human_actions`` name the entry in an
+            error (without it, the error gives indices).
 
     Raises:
         ModelError: shapes disagree, rows do not sum to 1, mass on an illegal action, or a
@@ -155,6 +158,7 @@ class TabularPeople:
         *,
         update: torch.Tensor | None = None,
         initial: torch.Tensor | None = None,
+        task: CollaborativeTask | None = None,
     ) -> None:
         policy = torch.as_tensor(policy, dtype=torch.float64)
         legal = torch.as_tensor(legal)
@@ -184,10 +188,16 @@ class TabularPeople:
         illegal = (policy[..., :-1] > 0) & ~legal.view(1, 1, X, 1, H1 - 1)
         if illegal.any():
             y, m, x, a, h = torch.nonzero(illegal)[0].tolist()
+            where = ""
+            if task is not None:  # the task's names for the indices
+                where = (f" (human action {task.human_actions[h]!r} in state "
+                         f"{task.state_names[x]!r}, after robot action "
+                         f"{task.robot_actions[a]!r})")  # fmt: skip
             raise ModelError(
                 f"policy[{y}, {m}, {x}, {a}, {h}] > 0 (type {names[y]!r}) but human action "
-                f"{h} is illegal in state {x} (legal[{x}, {h}] is False); policy's x is the "
-                "state after the robot's move, x_mid = robot_effect[a_r, x]"
+                f"{h} is illegal in state {x} (legal[{x}, {h}] is False){where}; policy's x "
+                "is the state after the robot's move, x_mid = robot_effect[a_r, x]: give that "
+                "action no mass there, or make it legal in the task's human_legal"
             )
         if update is None:
             update = torch.zeros(Y, M, X, A, H1, dtype=torch.long)

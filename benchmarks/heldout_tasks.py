@@ -70,6 +70,16 @@ name                   X    types  depends on    what is unusual
                                                  work: after each part, at the end, or never
 ``fixture_height``     21   2      state         a fixture the robot raises or lowers; 85 % tall,
                                                  15 % short; each undoes a wrong adjustment
+``harness_branch``     152  3      state         long (16+ robot turns, 8 stations): the types
+                                                 differ only at the 3 branch stations in the
+                                                 middle (tape, tie, or the robot holds it)
+``dish_rack``          95   4      state         two types want the same robot moves (one
+                                                 rinses each item first); a rare type hands
+                                                 back whatever is handed; 45 / 30 / 15 / 10 %
+``rivet_reach``        70   3      history       safety: one type wants the robot stopped while
+                                                 her hand is in the shared fixture (flinches
+                                                 out), one reaches in only when it pauses;
+                                                 brackets per reach in memory; 45 / 35 / 20 %
 =====================  ===  =====  ============  ===============================================
 
 ``slow_sanding`` and ``paint_crews`` were added after the selection rule of 6701614 and
@@ -94,7 +104,11 @@ the robot kept handing tools to the type that hands them back) led to the state 
 reaction (``torchhrc.tasks.interface._reaction``), so it is no longer held out;
 ``panel_wiring`` and ``heavy_lifts`` are. ``kit_batch``, ``check_timing`` and
 ``fixture_height`` were written by a second audit of session 27 from the docs alone, after
-that change, and are kept out of tuning.
+that change, and are kept out of tuning. ``harness_branch``, ``dish_rack`` and
+``rivet_reach`` were written by the audit of session 29 from the docs alone (a long task
+whose types differ only in the middle; two types with one best response beside a rare
+type that hands items back; a safety stop while the person reaches into the shared space),
+and are kept out of tuning.
 
 ``HELDOUT[name]() -> HeldoutWorld`` (a ``TaskWithPeople``), whose ``shares`` (None:
 balanced) split the demonstrating subjects between the types and weigh them over the
@@ -1623,6 +1637,206 @@ def fixture_height() -> HeldoutWorld:
     )
 
 
+# ====================================================================== the session-29 audit
+# harness_branch, dish_rack and rivet_reach: written by the audit of session 29 from the docs
+# alone (held out: run once, kept out of tuning).
+# ------------------------------------------------------------------------------ harness_branch
+# A technician builds a wiring harness on a board, eight stations in a fixed order: at each
+# she routes a wire (from a length the robot cut, or she cuts her own, slower), then secures
+# it. The trunk stations (0-2 and 6-7) are clipped by everyone; the three branch stations in
+# the middle (3-5) are where the types differ: "taper" tapes the branch, "tier" cable-ties
+# it, "holder" clips it but wants the robot to hold the branch while she does (and fumbles
+# without). The robot cuts the next wire, puts a clip, tape or a tie in the tray (one slot) or
+# holds the routed branch. State: (station, routed, wire cut, tray: 0 none, 1 clip, 2 tape,
+# 3 tie, 4 the robot holding the branch); 16+ robot turns.
+def harness_branch() -> HeldoutWorld:
+    K, BRANCH = 8, (3, 4, 5)
+    types = ("taper", "tier", "holder")
+    HOLD = 4
+
+    def secure(y, k):  # the person's securing action at station k: 1 clip, 2 tape, 3 tie
+        return 2 + y if (k in BRANCH and y < 2) else 1
+
+    def need(y, k):  # what the person wants from the robot once routed: an item or the hold
+        return HOLD if (k in BRANCH and y == 2) else secure(y, k)
+
+    def robot_step(s, a):
+        k, routed, wire, tray = s
+        if a == 1:  # cut_wire
+            return (k, routed, 1, tray) if wire == 0 else s
+        if 2 <= a <= 4:  # hand_clip, hand_tape, hand_tie (replaces what is in the tray)
+            return s if tray == a - 1 else (k, routed, wire, a - 1)
+        if a == 5:  # hold_branch: only a routed wire can be held
+            return (k, routed, wire, HOLD) if routed and tray != HOLD else s
+        return s
+
+    def human_step(s, h):
+        k, routed, wire, tray = s
+        if k == K:
+            return None
+        if h == 0:  # route: uses the cut wire, or she cuts her own
+            return (k, 1, 0, tray) if not routed else None
+        if not routed:
+            return None
+        return (k + 1, 0, wire, 0 if tray in (h, HOLD) else tray)  # clip, tape or tie
+
+    def behaviour(y, m, s, a):
+        k, routed, wire, tray = s
+        if not routed:
+            return {0: 1.0} if wire else {0: 0.5, -1: 0.5}
+        sec, want = secure(y, k), need(y, k)
+        return {sec: 1.0} if tray == want else {sec: 0.4 if want == HOLD else 0.6,
+                                                   -1: 0.6 if want == HOLD else 0.4}  # fmt: skip
+
+    def reward(y, s, a):
+        k, routed = s[:2]
+        if a == 0:
+            return 0.0
+        if robot_step(s, a) == s:
+            return -0.5  # a wasted move
+        if a == 1:  # a wire for this station, or pre-cut for the next one
+            return 1.0 if not routed else (0.3 if k < K - 1 else -0.5)
+        want = need(y, k)
+        if a == 5:
+            return 1.0 if want == HOLD else -1.0  # the arm in her way
+        return 1.0 if a - 1 == want else -1.0  # the item she needs next; another: clutter
+
+    return tabulate(
+        "harness_branch", initial=(0, 0, 0, 0),
+        robot_actions=("wait", "cut_wire", "hand_clip", "hand_tape", "hand_tie", "hold_branch"),
+        human_actions=("route", "clip", "tape", "tie"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s[0] == K, type_names=types,
+        behaviour=behaviour, reward=reward, horizon=26,
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ dish_rack
+# A person loads four kinds of dishes (plates, cups, cutlery, pots) into a dishwasher; the robot
+# can hand one from the sink into the rack's hand-over slot (handing another swaps it). The
+# person loads the handed one at once, else fetches hers from the sink (slower). "plates_first"
+# (45 %) and "rinser" (15 %) load in the same order and want the same thing from the robot (the
+# next kind handed) but the rinser rinses every item before loading it; "cups_first" (30 %) has
+# another order; "self_loader" (10 %) loads in the plates-first order by herself and hands back
+# anything handed to her. State: (loaded mask, slot: -1 or a kind, next item rinsed).
+def dish_rack() -> HeldoutWorld:
+    N, ALL = 4, 15
+    types = ("plates_first", "cups_first", "rinser", "self_loader")
+    orders = ((0, 1, 2, 3), (1, 0, 3, 2), (0, 1, 2, 3), (0, 1, 2, 3))
+
+    def robot_step(s, a):
+        mask, slot, rinsed = s
+        if a == 0 or mask >> (a - 1) & 1 or slot == a - 1:
+            return s
+        return (mask, a - 1, rinsed)
+
+    def human_step(s, h):
+        mask, slot, rinsed = s
+        if mask == ALL:
+            return None
+        if h < N:  # load_<kind>
+            return None if mask >> h & 1 else (mask | 1 << h, -1 if slot == h else slot, 0)
+        if h == N:  # rinse the next item
+            return (mask, slot, 1) if not rinsed else None
+        return (mask, -1, rinsed) if slot >= 0 else None  # decline: back into the sink
+
+    def nxt(y, mask):
+        return next(i for i in orders[y] if not mask >> i & 1)
+
+    def behaviour(y, m, s, a):
+        mask, slot, rinsed = s
+        i = nxt(y, mask)
+        if y == 3:
+            return {N + 1: 1.0} if slot >= 0 else {i: 1.0}
+        if y == 2 and not rinsed:
+            return {N: 1.0} if slot == i else {N: 0.7, -1: 0.3}
+        return {i: 1.0} if slot == i or y == 2 else {i: 0.7, -1: 0.3}
+
+    def reward(y, s, a):
+        mask, slot = s[:2]
+        if a != 0 and robot_step(s, a) == s:
+            return -0.5  # handing a loaded kind or the one in the slot: a wasted move
+        if y == 3:
+            return _pick(0, a, good=0.2)
+        want = nxt(y, mask)
+        if slot == want:
+            return _pick(0, a, good=0.2)
+        return _pick(1 + want, a)
+
+    return tabulate(
+        "dish_rack", initial=(0, -1, 0),
+        robot_actions=("wait", "hand_plates", "hand_cups", "hand_cutlery", "hand_pots"),
+        human_actions=("load_plates", "load_cups", "load_cutlery", "load_pots", "rinse",
+                       "decline"),
+        robot_step=robot_step, human_step=human_step, terminal=lambda s: s[0] == ALL,
+        type_names=types, behaviour=behaviour, reward=reward, horizon=16,
+        shares=(0.45, 0.30, 0.15, 0.10),
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ rivet_reach
+# A shared fixture: the robot sets six rivets, the person places four brackets into the same
+# fixture, reaching in (reach, place, withdraw). "steady" (45 %) places two brackets per reach
+# and wants the robot to keep riveting whatever she does; "stop_me" (35 %) places one per reach
+# and wants the robot stopped whenever her hand is in the fixture (a rivet then makes her
+# flinch out, bracket unplaced); "yielder" (20 %) reaches in only on a turn the robot pauses,
+# wants it to pause for her until her brackets are in, and flinches out like stop_me. How many
+# brackets she placed in this reach is her memory, not in the state. State: (brackets placed,
+# rivets set, hand in the fixture).
+def rivet_reach() -> HeldoutWorld:
+    P, R = 4, 6
+    types = ("steady", "stop_me", "yielder")
+
+    def robot_step(s, a):
+        p, r, hand = s
+        return (p, r + 1, hand) if a == 1 and r < R else s
+
+    def human_step(s, h):
+        p, r, hand = s
+        if h == 0:  # reach
+            return (p, r, 1) if not hand and p < P else None
+        if h == 1:  # place
+            return (p + 1, r, 1) if hand and p < P else None
+        return (p, r, 0) if hand else None  # withdraw
+
+    def terminal(s):
+        return s == (P, R, 0)
+
+    def behaviour(y, m, s, a):
+        p, r, hand = s
+        if not hand:
+            if p == P or (y == 2 and a == 1 and r < R):
+                return {-1: 1.0}  # done, or the yielder waits for the robot to pause
+            return {0: 1.0}
+        if y > 0 and a == 1:
+            return {2: 1.0}  # flinches out
+        per_reach = 2 if y == 0 else 1
+        return {1: 1.0} if (m < per_reach and p < P) else {2: 1.0}
+
+    def memory_update(y, m, s, a, h):
+        return min(m + 1, 2) if h == 1 else (m if h < 0 else 0)
+
+    def reward(y, s, a):
+        p, r, hand = s
+        if a == 1 and r == R:
+            return -0.5  # riveting with every rivet set: a wasted move
+        busy = -0.2 if r < R else 0.0  # the robot idle with work left
+        if y == 0:
+            return 1.0 if a == 1 else busy
+        if hand:
+            return (-2.0 if y == 1 else -1.5) if a == 1 else 0.3
+        if y == 2 and p < P:
+            return -0.3 if a == 1 else 0.5  # she wants the fixture to herself first
+        return 1.0 if a == 1 else busy
+
+    return tabulate(
+        "rivet_reach", initial=(0, 0, 0), robot_actions=("wait", "rivet"),
+        human_actions=("reach", "place", "withdraw"), robot_step=robot_step,
+        human_step=human_step, terminal=terminal, type_names=types, behaviour=behaviour,
+        reward=reward, horizon=22, memory=3, memory_update=memory_update,
+        shares=(0.45, 0.35, 0.20),
+    )  # fmt: skip
+
+
 #: Every held-out task by name: ``HELDOUT[name]() -> HeldoutWorld``.
 HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "finish_late": finish_late,
@@ -1649,4 +1863,7 @@ HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "kit_batch": kit_batch,
     "check_timing": check_timing,
     "fixture_height": fixture_height,
+    "harness_branch": harness_branch,
+    "dish_rack": dish_rack,
+    "rivet_reach": rivet_reach,
 }

@@ -1,5 +1,6 @@
-"""The sawtooth's inner loop: the C extension equals its Python reference and the exhaustive
-formula bit for bit, and rejects arrays that would make it read stray memory."""
+"""The sawtooth's inner loop: the C extension, its Python reference and the numpy fallback
+equal the exhaustive formula bit for bit, and the extension rejects arrays that would make
+it read stray memory."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import pytest
 from torchhrc.solvers import sawtooth_kernel
 from torchhrc.solvers.sawtooth_kernel import (
     _corrections,
+    _corrections_np,
     sawtooth_corrections,
     support_signatures,
 )
@@ -83,6 +85,14 @@ def test_early_stops_give_the_exhaustive_minimum(seed, mapped, monkeypatch):
     monkeypatch.setattr(sawtooth_kernel, "_KERNEL", _corrections)
     ref = sawtooth_corrections(beliefs, rows, order, *pts, key, local)
     np.testing.assert_array_equal(ref, want)  # bit for bit: the same products are kept
+    monkeypatch.setattr(sawtooth_kernel, "_KERNEL", _corrections_np)
+    np.testing.assert_array_equal(
+        sawtooth_corrections(beliefs, rows, order, *pts, key, local), want
+    )
+    monkeypatch.setattr(sawtooth_kernel, "_BLOCK", 7)  # blocks of one row (its entries > 7)
+    sub = rows[::3][::-1].copy()
+    part = sawtooth_corrections(beliefs, sub, order, *pts, key, local)
+    np.testing.assert_array_equal(part, want[sub])
     if compiled is not None:
         monkeypatch.setattr(sawtooth_kernel, "_KERNEL", compiled)
         got = sawtooth_corrections(beliefs, rows, order, *pts, key, local)
@@ -134,7 +144,7 @@ def test_extension_rejects_bad_arrays():
         compiled(*args[:10], np.zeros(3, dtype=np.int64), out)
 
 
-def test_without_the_extension_the_python_loop_runs_with_a_warning(monkeypatch):
+def test_without_the_extension_numpy_runs_with_a_warning(monkeypatch):
     beliefs, order, pts, key, _ = _problem(1, mapped=False)
     rows = np.arange(beliefs.shape[0], dtype=np.int64)
     want = _exhaustive(beliefs, order, pts, None)
@@ -144,12 +154,12 @@ def test_without_the_extension_the_python_loop_runs_with_a_warning(monkeypatch):
     with pytest.warns(RuntimeWarning, match="build_ext --inplace"):
         got = sawtooth_corrections(beliefs, rows, order, *pts, key)
     np.testing.assert_array_equal(got, want)
-    assert sawtooth_kernel._KERNEL is _corrections
+    assert sawtooth_kernel._KERNEL is _corrections_np
     monkeypatch.setattr(sawtooth_kernel, "_KERNEL", None)
     monkeypatch.setenv("TORCHHRC_NO_EXTENSION", "1")  # forced: no warning
     got = sawtooth_corrections(beliefs, rows, order, *pts, key)
     np.testing.assert_array_equal(got, want)
-    assert sawtooth_kernel._KERNEL is _corrections
+    assert sawtooth_kernel._KERNEL is _corrections_np
 
 
 def test_a_float32_bound_is_evaluated_in_float64():

@@ -45,13 +45,18 @@ def _reference(R, steps, assignments, effect, visits=3, rare=0.1):
         counting = [k for k in range(K) if counts[k, x].sum() >= visits]
         if len({int(counts[k, x].argmax()) for k in counting}) < 2:
             continue
+        owns = {k: int(counts[k, x].argmax()) for k in counting}
+        gains = {k: max(float(R[owns[k], x, k] - R[w, x, k]), 0.0) for k in counting}
         for k in counting:
-            own = int(counts[k, x].argmax())
-            cap = float(R[w, x, k]) - max(float(R[own, x, k] - R[w, x, k]), 0.0)
+            own = owns[k]
             for a in range(A):
                 if a in (w, own) or counts[k, x, a] / counts[k, x].sum() >= rare:
                     continue
-                out[a, x, k] = min(float(R[a, x, k]), cap)
+                if own == w:  # what the move gains the types whose own move it is
+                    gain = max([gains[z] for z in counting if owns[z] == a], default=0.0)
+                else:
+                    gain = gains[k]
+                out[a, x, k] = min(float(R[a, x, k]), float(R[w, x, k]) - gain)
     return out
 
 
@@ -71,6 +76,21 @@ def test_a_wrong_move_costs_what_the_right_one_gains_worked_by_hand():
     assert torch.equal(priced[:, 1], R[:, 1])  # state 1 was never demonstrated
     contested, own, _ = contested_states(_steps(rows), assignments, 2, 2, 3)
     assert contested.tolist() == [True, False] and own[:, 0].tolist() == [1, 2]
+
+
+def test_a_type_that_waits_pays_what_the_move_gains_the_others_worked_by_hand():
+    # state 0: type 0's partners wait (4 times), type 1's go left (4 times)
+    rows = [[(0, 0)]] * 4 + [[(0, 1)]] * 4
+    assignments = torch.tensor([0, 0, 0, 0, 1, 1, 1, 1])
+    R = torch.zeros(3, 2, 2, dtype=torch.float64)
+    R[:, 0, 0] = torch.tensor([0.3, 0.1, -0.2])  # type 0: wait, left, right
+    R[:, 0, 1] = torch.tensor([-0.2, 0.8, -0.1])  # type 1: left gains 1.0 over its wait
+    priced, lowered = price_wrong_moves(R, _steps(rows), assignments, EFFECT)
+    # type 0: left capped at 0.3 - 1.0; right, no counting type's own move, at its wait (0.3)
+    assert priced[:, 0, 0].tolist() == pytest.approx([0.3, -0.7, -0.2])
+    # type 1: right capped at -0.2 - (0.8 + 0.2) = -1.2, its wait not priced
+    assert priced[:, 0, 1].tolist() == pytest.approx([-0.2, 0.8, -1.2])
+    assert lowered.sum() == 2 and bool(lowered[1, 0, 0]) and bool(lowered[2, 0, 1])
 
 
 def test_where_the_types_agree_or_one_was_seldom_there_nothing_changes():

@@ -127,8 +127,10 @@ class IRLConfig:
             demonstrations alone; :func:`torchhrc.irl.maxent_irl_types`).
         wrong_moves: ``"symmetric"`` (default): where the types' partners made different
             moves, a move a type's partners never made costs it as much below a wait as its
-            own move gains above it (:func:`~torchhrc.tasks.wrong_moves.price_wrong_moves`);
-            ``"learned"``: the rewards as IRL gives them.
+            own move gains above it, or, for a type whose own move is the wait, as much as
+            the move gains the types whose own move it is
+            (:func:`~torchhrc.tasks.wrong_moves.price_wrong_moves`); ``"learned"``: the
+            rewards as IRL gives them.
 
     Example:
         >>> IRLConfig(epsilon=0.01).rule

@@ -12,7 +12,11 @@ guess always looks better than waiting (the task suite's ``fetch_order`` and the
 :func:`price_wrong_moves` puts the missing price in: in a contested state, a move a type's
 partners (almost) never made costs that type at least as much below the wait as the type's
 own move gains above it (``R(wrong) <= R(wait) - max(R(own) - R(wait), 0)``). The prior is
-symmetric about the wait: a wrong move loses what a right one wins. It changes nothing
+symmetric about the wait: a wrong move loses what a right one wins. Where a type's own move
+is the wait (its partners held back: a person who wants the robot still while she works),
+it gains nothing by its own move, and the scale comes from the other side: a move it never
+made costs it what that move gains the types whose own move it is (the largest such gain),
+``R(wrong) <= R(wait) - max_z (R_z(move) - R_z(wait))``. It changes nothing
 where the task has no wait (an action that changes no state), where one type's partners
 made several moves (each of them is that type's), or outside the contested states.
 
@@ -151,8 +155,14 @@ def price_wrong_moves(
     R = reward.permute(2, 1, 0)  # (K, X, A)
     own_value = R.gather(-1, own.unsqueeze(-1)).squeeze(-1)  # (K, X)
     wait_value = R[..., wait]
-    cap = (wait_value - (own_value - wait_value).clamp_min(0.0)).unsqueeze(-1)  # (K, X, 1)
+    gain = (own_value - wait_value).clamp_min(0.0)  # (K, X) what each type's own move gains
     actions = torch.arange(A, device=reward.device)
+    # a type whose own move is the wait: a move it never made costs it what the move gains
+    # the types whose own move it is (0 where no counting type made it: the wait's value)
+    made = (own.unsqueeze(-1) == actions) & seen.unsqueeze(-1)  # (K, X, A)
+    theirs = torch.where(made, gain.unsqueeze(-1), torch.zeros_like(R)).amax(0)  # (X, A)
+    cap = torch.where((own == wait).unsqueeze(-1), theirs, gain.unsqueeze(-1))  # (K, X, A)
+    cap = wait_value.unsqueeze(-1) - cap
     lower = (
         (contested & seen).unsqueeze(-1)  # (K, X, 1): a type that counts, a contested state
         & (actions != wait)
@@ -160,5 +170,5 @@ def price_wrong_moves(
         & (share < rare)
         & (R > cap)
     )
-    priced = torch.where(lower, cap.expand_as(R), R)
+    priced = torch.where(lower, cap, R)
     return priced.permute(2, 1, 0).contiguous(), lower.permute(2, 1, 0).contiguous()

@@ -80,6 +80,17 @@ name                   X    types  depends on    what is unusual
                                                  her hand is in the shared fixture (flinches
                                                  out), one reaches in only when it pauses;
                                                  brackets per reach in memory; 45 / 35 / 20 %
+``press_block``        91   3      state         the robot's own jobs take a shared press from
+                                                 her: one type waits for it, one works around
+                                                 (sands first), one always sands first;
+                                                 40 / 35 / 25 %
+``driver_pick``        21   3      state         two types differ only in which of two
+                                                 equivalent drivers they want handed; a third
+                                                 picks one at random and wants the robot to wait
+``cabinet_glue``       208  5      history       3 sub-assemblies in 3 orders; two settlers
+                                                 pause once (memory) while the frame's glue
+                                                 sets and want the robot still then; shares
+                                                 30 / 25 / 20 / 15 / 10 %
 =====================  ===  =====  ============  ===============================================
 
 ``slow_sanding`` and ``paint_crews`` were added after the selection rule of 6701614 and
@@ -109,6 +120,10 @@ that change, and are kept out of tuning. ``harness_branch``, ``dish_rack`` and
 whose types differ only in the middle; two types with one best response beside a rare
 type that hands items back; a safety stop while the person reaches into the shared space),
 and are kept out of tuning.
+``press_block``, ``driver_pick`` and ``cabinet_glue`` were written by the second audit of
+session 29 from the docs alone (a robot move that blocks the person's station; types that
+differ only in the object handed, beside an indecisive one; five unequal types with a
+memory-driven pause), and are kept out of tuning.
 
 ``HELDOUT[name]() -> HeldoutWorld`` (a ``TaskWithPeople``), whose ``shares`` (None:
 balanced) split the demonstrating subjects between the types and weigh them over the
@@ -1837,6 +1852,193 @@ def rivet_reach() -> HeldoutWorld:
     )  # fmt: skip
 
 
+# ------------------------------------------------------------------------------ press_block
+# A shared press: the person works four parts, each pressed and sanded (either order) at her
+# bench; the robot has three jobs of its own at the press (start: it takes the press; finish:
+# the job done, the press free again). While the robot holds the press she cannot press.
+# "waiter" (40 %) presses first and, finding the press taken, waits for it; "work_around"
+# (35 %) presses first but, finding it taken, sands first instead; "sand_first" (25 %) always
+# sands first. Everyone wants the robot's jobs done while she works on something else, never
+# while she needs the press. State: (parts finished, stage of the current part: 0 fresh,
+# 1 pressed, 2 sanded; robot jobs done, robot at the press).
+def press_block() -> HeldoutWorld:
+    P, J = 4, 3
+    types = ("waiter", "work_around", "sand_first")
+
+    def robot_step(s, a):
+        k, stage, j, b = s
+        if a == 1:  # start_job: take the press
+            return (k, stage, j, 1) if (b == 0 and j < J) else s
+        if a == 2:  # finish_job: the job done, the press free
+            return (k, stage, j + 1, 0) if b == 1 else s
+        return s
+
+    def human_step(s, h):
+        k, stage, j, b = s
+        if k == P:
+            return None
+        if h == 0:  # press
+            if b == 1 or stage == 1:
+                return None
+            return (k, 1, j, b) if stage == 0 else (k + 1, 0, j, b)
+        if stage == 2:  # sand
+            return None
+        return (k, 2, j, b) if stage == 0 else (k + 1, 0, j, b)
+
+    def intended(y, s):  # what she does in state s (after the robot's move); -1: waits
+        k, stage, _, b = s
+        if k == P:
+            return -1
+        if stage == 1:
+            return 1
+        if stage == 2:
+            return -1 if b else 0
+        if y == 2 or (y == 1 and b):
+            return 1  # sands first (always, or while the press is taken)
+        return -1 if b else 0
+
+    def behaviour(y, m, s, a):
+        return {intended(y, s): 1.0}
+
+    def reward(y, s, a):
+        k, b = s[0], s[3]
+        mid = robot_step(s, a)
+        if a == 0:
+            return -0.5 if b else 0.0  # holding the press and doing nothing
+        if mid == s:
+            return -0.5  # a wasted move
+        if a == 2:
+            return 0.5
+        if k == P:
+            return 0.2  # a job with nobody to work beside: progress, but nothing in parallel
+        return -1.0 if intended(y, mid) < 0 else 1.0  # she stands idle / works in parallel
+
+    return tabulate(
+        "press_block", initial=(0, 0, 0, 0),
+        robot_actions=("wait", "start_job", "finish_job"), human_actions=("press", "sand"),
+        robot_step=robot_step, human_step=human_step,
+        terminal=lambda s: s[0] == P and s[2] == J and s[3] == 0, type_names=types,
+        behaviour=behaviour, reward=reward, horizon=18, shares=(0.40, 0.35, 0.25),
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ driver_pick
+# The person drives six screws; for each the robot can hand her one of two equivalent drivers
+# with the screw loaded (a ratchet or a power driver), put in her hand-over slot (handing the
+# other swaps it). She drives with the handed one at once if it is hers, else fetches her own
+# (slower). "ratchet" and "power" differ only in which driver they use and want handed;
+# "chooser" picks one at random each time, uses whatever is handed but would rather choose
+# herself (she wants the robot to wait). State: (screws driven, slot: 0 empty, 1 ratchet,
+# 2 power).
+def driver_pick() -> HeldoutWorld:
+    N = 6
+    types = ("ratchet", "power", "chooser")
+
+    def robot_step(s, a):
+        n, slot = s
+        return s if (a == 0 or slot == a) else (n, a)
+
+    def human_step(s, h):
+        n, slot = s
+        if n == N:
+            return None
+        return (n + 1, 0 if slot == h + 1 else slot)  # drive_ratchet (h 0), drive_power (h 1)
+
+    def behaviour(y, m, s, a):
+        n, slot = s
+        if n == N:
+            return {-1: 1.0}
+        if y == 2:
+            return {slot - 1: 1.0} if slot else {0: 0.3, 1: 0.3, -1: 0.4}
+        return {y: 1.0} if slot == y + 1 else {y: 0.6, -1: 0.4}  # fetching her own: slower
+
+    def reward(y, s, a):
+        slot = s[1]
+        if a != 0 and robot_step(s, a) == s:
+            return -0.5  # handing the driver already in the slot
+        if y == 2:
+            return _pick(0, a, good=0.3, bad=-0.3)  # she would rather choose herself
+        if slot == y + 1:
+            return _pick(0, a, good=0.2)  # hers is there: leave it
+        return _pick(y + 1, a, idle=-0.2 if slot else 0.0)  # the wrong one there: swap it
+
+    return tabulate(
+        "driver_pick", initial=(0, 0), robot_actions=("wait", "hand_ratchet", "hand_power"),
+        human_actions=("drive_ratchet", "drive_power"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s[0] == N, type_names=types,
+        behaviour=behaviour, reward=reward, horizon=14,
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ cabinet_glue
+# A cabinet from three sub-assemblies (drawer, frame, top), three steps each; the robot can
+# put the next part of one sub-assembly in the hand-over tray (one slot; handing another swaps
+# it); she builds with the tray's part at once if it is the one she needs, else fetches hers
+# (slower). Five types: "drawer_first" (30 %) D, F, T; "frame_first" (25 %) F, D, T;
+# "alternator" (20 %) D, F, D, F, D, F, T; and two "settlers" who let the frame's glue set
+# before its last step: "drawer_settler" (15 %, D, F, T) and "frame_settler" (10 %, F, D, T)
+# pause one turn there (memory: whether she has paused) and want the robot to wait, not hand
+# anything, while the frame's last step is next. State: (drawer, frame, top steps done,
+# tray: -1 empty or a sub-assembly).
+def cabinet_glue() -> HeldoutWorld:
+    S = 3
+    types = ("drawer_first", "frame_first", "alternator", "drawer_settler", "frame_settler")
+    first = (0, 1, 0, 0, 1)  # the sub-assembly each type starts with
+
+    def robot_step(s, a):
+        *done, tray = s
+        i = a - 1
+        if a == 0 or done[i] == S or tray == i:
+            return s
+        return (*done, i)
+
+    def human_step(s, h):
+        *done, tray = s
+        if done[h] == S:
+            return None
+        return (*_set(tuple(done), h, done[h] + 1), -1 if tray == h else tray)
+
+    def nxt(y, s):
+        d, f = s[:2]
+        if y == 2:
+            return 0 if (d <= f and d < S) else (1 if f < S else 2)
+        one, two = (0, 1) if first[y] == 0 else (1, 0)
+        return one if s[one] < S else (two if s[two] < S else 2)
+
+    def glue_moment(y, s):  # a settler with the frame's last step next
+        return y >= 3 and s[1] == S - 1 and nxt(y, s) == 1
+
+    def behaviour(y, m, s, a):
+        if s[:3] == (S, S, S):
+            return {-1: 1.0}
+        if glue_moment(y, s) and m == 0:
+            return {-1: 1.0}  # lets the glue set
+        i = nxt(y, s)
+        return {i: 1.0} if s[3] == i else {i: 0.6, -1: 0.4}
+
+    def memory_update(y, m, s, a, h):
+        return 1 if (m == 1 or (glue_moment(y, s) and h < 0)) else 0
+
+    def reward(y, s, a):
+        if a != 0 and robot_step(s, a) == s:
+            return -0.5  # a wasted move
+        if glue_moment(y, s):
+            return _pick(0, a, good=0.3)  # hands off the frame while the glue sets
+        i = nxt(y, s)
+        if s[3] == i:
+            return _pick(0, a, good=0.2)  # her part is in the tray: leave it
+        return _pick(1 + i, a)
+
+    return tabulate(
+        "cabinet_glue", initial=(0, 0, 0, -1),
+        robot_actions=("wait", "hand_drawer", "hand_frame", "hand_top"),
+        human_actions=("build_drawer", "build_frame", "build_top"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s[:3] == (S, S, S), type_names=types,
+        behaviour=behaviour, reward=reward, horizon=22, memory=2, memory_update=memory_update,
+        shares=(0.30, 0.25, 0.20, 0.15, 0.10),
+    )  # fmt: skip
+
+
 #: Every held-out task by name: ``HELDOUT[name]() -> HeldoutWorld``.
 HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "finish_late": finish_late,
@@ -1866,4 +2068,7 @@ HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "harness_branch": harness_branch,
     "dish_rack": dish_rack,
     "rivet_reach": rivet_reach,
+    "press_block": press_block,
+    "driver_pick": driver_pick,
+    "cabinet_glue": cabinet_glue,
 }

@@ -43,13 +43,16 @@ from heldout_tasks import HELDOUT
 
 from torchhrc.metrics import adjusted_rand_index
 from torchhrc.mixture import ClusterConfig, fit_mixture
+from torchhrc.tasks.pipeline import LEARN_MIN_GAIN
 from torchhrc.tasks.suite import SUITE
 
 #: The clustering options ``torchhrc.tasks.learn`` passes to ``fit_mixture`` when given no
-#: clustering settings (its documented defaults; ``ClusterConfig()`` adds none).
+#: clustering settings (its documented defaults; ``ClusterConfig()`` adds none; a given
+#: ``min_gain`` is also the ``strong_gain``, as in ``learn``).
 LEARN_CLUSTER_OPTIONS: dict[str, Any] = {"k_min": 1, "k_max": 6, "restarts": 10,
                                          "parameters": "support", "initial": True,
-                                         "order": "auto"}  # fmt: skip
+                                         "order": "auto", "min_gain": LEARN_MIN_GAIN,
+                                         "strong_gain": LEARN_MIN_GAIN}  # fmt: skip
 
 
 def _world(name: str):
@@ -66,8 +69,10 @@ def cluster_row(name: str, seed: int, *, subjects: int, per_subject: int, noise:
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        options = {**LEARN_CLUSTER_OPTIONS, **(cluster or ClusterConfig()).options()}
-        fit = fit_mixture(demos, seed=seed, **options)
+        given = (cluster or ClusterConfig()).options()
+        if "min_gain" in given:  # learn(): strong_gain follows a given min_gain
+            given.setdefault("strong_gain", given["min_gain"])
+        fit = fit_mixture(demos, seed=seed, **{**LEARN_CLUSTER_OPTIONS, **given})
     ari = adjusted_rand_index(types.tolist(), fit.assignments.tolist())
     return dict(task=name, states=world.task.num_states, seed=seed, true_k=world.num_types,
                 k=int(fit.k), ari=float(ari), hit=int(fit.k) == world.num_types and ari >= 0.9,

@@ -406,7 +406,9 @@ def test_recorded_scores_pick_the_recorded_k(tmp_path):
 
 def test_learn_passes_its_settings_through(monkeypatch):
     from torchhrc.mixture import ClusterConfig
+    from torchhrc.mixture.selection import DEFAULT_MIN_GAIN
     from torchhrc.solvers.sarsop import SARSOPConfig
+    from torchhrc.tasks.pipeline import LEARN_MIN_GAIN
 
     demos = simulate_study(n_subjects=6, n_demos=3, seed=0)
     task = PlaceAndDrillTask(3)
@@ -427,6 +429,9 @@ def test_learn_passes_its_settings_through(monkeypatch):
     assert info["criterion"] == "bic" and sorted(scores) == [2, 3]
     assert info["k"] <= max(scores, key=lambda k: scores[k]["bic"])
     assert info["cluster"]["restarts"] == 2 and info["objects"] == "raw"
+    # learn()'s gain for the soft method, not fit_mixture's (0.015): one effect size
+    assert info["cluster"]["min_gain"] == info["cluster"]["strong_gain"] == LEARN_MIN_GAIN
+    assert LEARN_MIN_GAIN == 0.01 and DEFAULT_MIN_GAIN == 0.015
     # learn()'s default order: each order selects a k, the fit with the most types is kept
     assert info["cluster"]["order"] == "auto" and info["order"] in (1, 2, 3)
     kept = info["order_comparison"][str(info["order"])]
@@ -448,6 +453,9 @@ def test_learn_passes_its_settings_through(monkeypatch):
     paper = learn(task, demos, cluster=ClusterConfig(method="paper", k_min=2, k_max=3,
                   restarts=2), solve=False)  # fmt: skip
     assert paper.info["order"] == 1 and paper.info["order_comparison"] is None
+    assert paper.info["cluster"]["min_gain"] == 0.0  # the paper's hard EM: BIC alone
+    given = learn(task, demos, k_min=2, k_max=3, restarts=2, min_gain=0.03, solve=False)
+    assert given.info["cluster"]["min_gain"] == given.info["cluster"]["strong_gain"] == 0.03
     second = learn(task, demos, k_min=2, k_max=3, restarts=2, order=2, solve=False)
     assert second.info["order"] == 2 and second.info["cluster"]["order"] == 2
     with pytest.raises(ValueError, match="either in cluster= or as keywords"):

@@ -6,23 +6,10 @@ import warnings
 
 import pytest
 import torch
+from _task_steps import steps_from_rows as _steps
 
 import torchhrc
-from torchhrc.tasks.interface import TaskSteps
 from torchhrc.tasks.wrong_moves import contested_states, price_wrong_moves
-
-
-def _steps(rows: list[list[tuple[int, int]]]) -> TaskSteps:
-    """Task steps from sequences of ``(x, a_r)`` (the human and the next state unused)."""
-    L = max(len(r) for r in rows)
-    states = torch.zeros(len(rows), L, dtype=torch.long)
-    actions = torch.zeros(len(rows), L, dtype=torch.long)
-    mask = torch.zeros(len(rows), L, dtype=torch.bool)
-    for i, row in enumerate(rows):
-        for t, (x, a) in enumerate(row):
-            states[i, t], actions[i, t], mask[i, t] = x, a, True
-    return TaskSteps(states, actions, torch.full_like(states, -1), states, mask)
-
 
 # two states, actions 0 wait (changes nothing), 1 left, 2 right (each moves to state 1)
 EFFECT = torch.tensor([[0, 1], [1, 1], [1, 1]])

@@ -39,6 +39,7 @@ import torch
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP
+from torchhrc.tasks.divided_types import divided_states
 from torchhrc.tasks.human_model_choice import (
     HUMAN_MODELS,
     STATE_SMOOTHING_GRID,
@@ -660,6 +661,7 @@ def build_model(
     if len(names) != K:
         raise ModelError(f"the task's type_names() gave {len(names)} names for Y={K} types")
     momdp = task_momdp(task, Tx, R, b0, type_names=names)
+    divided = _divided(task, steps, evidence.assignments, demonstrations, names)
     return LearnedModel(
         momdp=momdp,
         weights=weights,
@@ -670,8 +672,34 @@ def build_model(
         assignments=evidence.assignments,
         feature_names=tuple(task.feature_names) if R is not None and weights.numel() else (),
         human_actions=tuple(task.human_actions),
-        info={**dict(info or {}), "human_model": chosen, "wrong_moves": priced},
+        info={
+            **dict(info or {}),
+            "human_model": chosen,
+            "wrong_moves": priced,
+            "divided": divided,
+        },
     )
+
+
+#: The most divided states ``info["divided"]["where"]`` lists (the count is of all).
+DIVIDED_LISTED = 10
+
+
+def _divided(task: CollaborativeTask, steps: TaskSteps | None, assignments: torch.Tensor,
+             demonstrations: Demonstrations, names: tuple[str, ...]) -> dict[str, Any]:  # fmt: skip
+    """``info["divided"]``: the states where a learned type's people had partners with
+    different own moves (:func:`~torchhrc.tasks.divided_types.divided_states`), the first
+    :data:`DIVIDED_LISTED` of them by type and state, with the subjects per own move."""
+    if steps is None:
+        return {"states": 0, "where": []}
+    divided, own = divided_states(steps, assignments, demonstrations.subject_index,
+                                  num_types=len(names), num_states=task.num_states,
+                                  num_actions=task.num_actions)  # fmt: skip
+    where = []
+    for y, x in divided.nonzero().tolist()[:DIVIDED_LISTED]:
+        moves = {task.robot_actions[a]: int(n) for a, n in enumerate(own[y, x].tolist()) if n}
+        where.append({"type": names[y], "state": task.state_names[x], "subjects": moves})
+    return {"states": int(divided.sum()), "where": where}
 
 
 def task_momdp(

@@ -1,0 +1,109 @@
+"""Divided types: a learned type whose people's partners made different moves in one state.
+
+Within one type, every demonstrating partner serves the same person's wants, so in a state
+the partners of all its people make the same move (up to slips). Where a learned type's
+people fall into groups whose partners made different moves there, the type holds people
+who want different things: most often two types the clustering merged (a small type
+that differs from another in one state of each demonstration, as the held-out task
+``cabinet_glue``'s 10 % and 15 % types at 30 subjects x 4: docs/your_own_task.md, section
+8). Its learned reward there is a compromise weighted by how often each group's
+demonstrations visit the state, and the type-aware robot may serve neither group.
+
+:func:`divided_states` finds such states from the demonstrations alone: each subject's
+partners' own move in the state (a strict majority of at least 2 of the subject's steps
+there), and a type divided where at least :data:`DIVIDED_MIN_SUBJECTS` of its subjects, and
+at least :data:`DIVIDED_MIN_SHARE` of those with an own move there, had a move other than
+the type's most common one. ``learn()`` records the result as ``info["divided"]``; it changes
+nothing else (a diagnosis: force ``k=`` one higher and compare with ``evaluate_task``).
+
+Example:
+    >>> import torch
+    >>> from torchhrc.tasks.interface import TaskSteps
+    >>> # one state; 6 subjects of one type, 2 steps each: 4 partners wait (0), 2 hand (1)
+    >>> states = torch.zeros(12, 1, dtype=torch.long)
+    >>> actions = torch.tensor([[0]] * 8 + [[1]] * 4)
+    >>> steps = TaskSteps(states, actions, -torch.ones_like(states), states,
+    ...                   torch.ones(12, 1, dtype=torch.bool))
+    >>> subjects = torch.arange(12) // 2
+    >>> divided, own = divided_states(steps, torch.zeros(12, dtype=torch.long), subjects,
+    ...                               num_types=1, num_states=1, num_actions=2)
+    >>> divided.tolist(), own[0, 0].tolist()  # subjects by their partners' own move
+    ([[True]], [4, 2])
+"""
+
+from __future__ import annotations
+
+import torch
+
+from torchhrc.tasks.interface import TaskSteps
+
+__all__ = ["DIVIDED_MIN_SHARE", "DIVIDED_MIN_SUBJECTS", "divided_states"]
+
+#: The fewest subjects of a type whose partners' own move in a state differs from the type's
+#: most common one, for the type to count as divided there.
+DIVIDED_MIN_SUBJECTS = 2
+
+#: The least share of a type's subjects with an own move in a state that must differ from the
+#: most common one (a quarter: one group of people in four).
+DIVIDED_MIN_SHARE = 0.25
+
+
+def divided_states(
+    steps: TaskSteps,
+    assignments: torch.Tensor,
+    subjects: torch.Tensor,
+    *,
+    num_types: int,
+    num_states: int,
+    num_actions: int,
+    min_subjects: int = DIVIDED_MIN_SUBJECTS,
+    min_share: float = DIVIDED_MIN_SHARE,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The states where a learned type's people had partners with different own moves.
+
+    Args:
+        steps: the demonstrations as task steps (``N`` sequences).
+        assignments: ``(N,)`` int64 the learned type of each demonstration.
+        subjects: ``(N,)`` int64 the subject of each demonstration (any ids; a subject whose
+            demonstrations have several types counts in each).
+        num_types, num_states, num_actions: ``K``, ``X``, ``A``.
+        min_subjects: at least this many subjects off the type's most common move.
+        min_share: and at least this share of the type's subjects with an own move there.
+
+    Returns:
+        ``divided (K, X)`` bool and ``own (K, X, A)`` int64: per type and state, how many of
+        its subjects had each move as their partners' own move there.
+
+    Raises:
+        ValueError: ``assignments`` or ``subjects`` not of shape ``(N,)``, ``min_subjects``
+            below 1 or ``min_share`` outside (0, 1].
+    """
+    N = steps.mask.shape[0]
+    for name, t in (("assignments", assignments), ("subjects", subjects)):
+        if tuple(t.shape) != (N,):
+            raise ValueError(f"expected {name} of shape (N,) = ({N},), one per demonstration, "
+                             f"got {tuple(t.shape)}")  # fmt: skip
+    if min_subjects < 1 or not 0.0 < min_share <= 1.0:
+        raise ValueError(f"expected min_subjects >= 1 and min_share in (0, 1], got "
+                         f"{min_subjects}, {min_share}")  # fmt: skip
+    K, X, A = num_types, num_states, num_actions
+    dev = steps.mask.device
+    mask = steps.mask
+    y = assignments.to(dev).long()[:, None].expand_as(mask)[mask]
+    s = subjects.to(dev).long()[:, None].expand_as(mask)[mask]
+    x, a = steps.states[mask], steps.actions[mask]
+    # each (type, subject, state) group's counts of the partners' moves
+    groups, slot = torch.unique(torch.stack([y, s, x]), dim=1, return_inverse=True)
+    counts = torch.zeros(groups.shape[1], A, dtype=torch.long, device=dev)
+    counts.view(-1).index_add_(0, slot * A + a, torch.ones_like(a))
+    top, best = counts.max(-1)
+    # a subject's own move: a strict majority of at least 2 of its steps there
+    own_move = (top >= 2) & (2 * top > counts.sum(-1))
+    own = torch.zeros(K * X * A, dtype=torch.long, device=dev)
+    key = (groups[0] * X + groups[2]) * A + best
+    own.index_add_(0, key[own_move], torch.ones_like(key[own_move]))
+    own = own.view(K, X, A)
+    total = own.sum(-1)
+    off = total - own.max(-1).values  # the subjects off the most common move
+    divided = (off >= min_subjects) & (off >= min_share * total)
+    return divided, own

@@ -5,8 +5,8 @@ issue's author runs. Per task:
 
 * ``--goal 2``: demonstrations (``--subjects`` x ``--per-subject``, noise ``--noise``) for
   every seed, clustered with :func:`torchhrc.mixture.fit_mixture` under the options
-  ``learn()`` passes it by default (:data:`LEARN_CLUSTER_OPTIONS` and an empty
-  ``ClusterConfig``; that is what decides k: the IRL and the solver come after); the k found,
+  ``learn()`` passes it (:func:`torchhrc.tasks.pipeline.cluster_options`, with ``--cluster``'s
+  fields; that is what decides k: the IRL and the solver come after); the k found,
   the true k, the ARI against the true types, and on a miss the record of every k (gain,
   exact ICL, BIC, held-out gain, subject consistency) that chose it. ``--subjects 300`` is 10
   times the data.
@@ -43,16 +43,12 @@ from heldout_tasks import HELDOUT
 
 from torchhrc.metrics import adjusted_rand_index
 from torchhrc.mixture import ClusterConfig, fit_mixture
-from torchhrc.tasks.pipeline import LEARN_MIN_GAIN
+from torchhrc.tasks.pipeline import cluster_options
 from torchhrc.tasks.suite import SUITE
 
 #: The clustering options ``torchhrc.tasks.learn`` passes to ``fit_mixture`` when given no
-#: clustering settings (its documented defaults; ``ClusterConfig()`` adds none; a given
-#: ``min_gain`` is also the ``strong_gain``, as in ``learn``).
-LEARN_CLUSTER_OPTIONS: dict[str, Any] = {"k_min": 1, "k_max": 6, "restarts": 10,
-                                         "parameters": "support", "initial": True,
-                                         "order": "auto", "min_gain": LEARN_MIN_GAIN,
-                                         "strong_gain": LEARN_MIN_GAIN}  # fmt: skip
+#: clustering settings.
+LEARN_CLUSTER_OPTIONS: dict[str, Any] = cluster_options()
 
 
 def _world(name: str):
@@ -69,10 +65,7 @@ def cluster_row(name: str, seed: int, *, subjects: int, per_subject: int, noise:
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        given = (cluster or ClusterConfig()).options()
-        if "min_gain" in given:  # learn(): strong_gain follows a given min_gain
-            given.setdefault("strong_gain", given["min_gain"])
-        fit = fit_mixture(demos, seed=seed, **{**LEARN_CLUSTER_OPTIONS, **given})
+        fit = fit_mixture(demos, seed=seed, **cluster_options(cluster))
     ari = adjusted_rand_index(types.tolist(), fit.assignments.tolist())
     return dict(task=name, states=world.task.num_states, seed=seed, true_k=world.num_types,
                 k=int(fit.k), ari=float(ari), hit=int(fit.k) == world.num_types and ari >= 0.9,

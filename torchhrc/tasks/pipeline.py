@@ -32,7 +32,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import torch
 
@@ -55,10 +55,14 @@ from torchhrc.tasks.interface import (
 )
 from torchhrc.tasks.wrong_moves import price_wrong_moves
 
+if TYPE_CHECKING:
+    from torchhrc.mixture.selection import ClusterConfig
+
 __all__ = [
     "IRLConfig",
     "LearnedModel",
     "build_model",
+    "cluster_options",
     "compare_human_models",
     "learn",
     "learn_type_weights",
@@ -858,6 +862,39 @@ def solve_model(
                    upper=float(solution.upper), info=info)  # fmt: skip
 
 
+def cluster_options(cluster: ClusterConfig | None = None, k: int | None = None) -> dict[str, Any]:
+    """The keyword arguments :func:`learn` passes to :func:`~torchhrc.mixture.fit_mixture`.
+
+    ``cluster``'s set fields over ``learn``'s defaults: ``k_min=1``, ``k_max=6``,
+    ``restarts=10``, ``parameters="support"``, ``initial=True``; with the soft method
+    ``min_gain`` :data:`LEARN_MIN_GAIN` and ``strong_gain`` equal to ``min_gain`` (one effect
+    size for every step), and ``order="auto"`` unless ``k == 1`` (1 otherwise); ``k`` forces
+    ``k_min = k_max = k``.
+
+    Example:
+        >>> from torchhrc.mixture import ClusterConfig
+        >>> options = cluster_options(ClusterConfig(min_gain=0.02))
+        >>> options["min_gain"], options["strong_gain"], options["order"]
+        (0.02, 0.02, 'auto')
+        >>> cluster_options(k=1)["order"], cluster_options(k=1)["k_max"]
+        (1, 1)
+    """
+    from torchhrc.mixture.selection import ClusterConfig
+
+    options = {"k_min": 1, "k_max": 6, "restarts": 10, "parameters": "support",
+               "initial": True, **(cluster or ClusterConfig()).options()}  # fmt: skip
+    soft = options.get("method", "soft") == "soft"
+    if soft:  # one effect size for every step: strong_gain follows a given min_gain
+        options.setdefault("min_gain", LEARN_MIN_GAIN)
+        options.setdefault("strong_gain", options["min_gain"])
+    # higher-order chains are compared with the soft method, where there are types to find
+    pooled = k == 1 or not soft
+    options.setdefault("order", 1 if pooled else "auto")
+    if k is not None:
+        options["k_min"] = options["k_max"] = k
+    return options
+
+
 def learn(
     task: CollaborativeTask,
     demonstrations: Any,
@@ -907,13 +944,10 @@ def learn(
         k: force the number of types (``k_min = k_max = k``; at most the number of
             demonstrations).
         cluster: a :class:`~torchhrc.mixture.ClusterConfig`; its unset fields take
-            ``learn``'s defaults (``k_min=1``, ``k_max=6``, ``restarts=10``,
-            ``parameters="support"``, ``initial=True``: each type's first move is modelled;
-            with the soft method ``min_gain`` :data:`LEARN_MIN_GAIN` and ``strong_gain``
-            equal to ``min_gain``;
-            ``order="auto"`` with the soft method and ``k`` not forced to 1: chains of
-            order 1, 2 and 3 each select a k, and the largest is kept,
-            ``docs/clustering.md``, "Second-order chains", "Third-order chains") or
+            ``learn``'s defaults (:func:`cluster_options`; ``initial=True``: each type's
+            first move is modelled; ``order="auto"``: chains of order 1, 2 and 3 each select
+            a k, and the largest is kept, ``docs/clustering.md``, "Second-order chains",
+            "Third-order chains") or
             :func:`~torchhrc.mixture.fit_mixture`'s (e.g. ``criterion``: ``"icl_or_gain"``
             for the soft method, BIC for ``"paper"``).
         irl: an :class:`IRLConfig` (rule, epsilon, iterations, l2, pooling, wrong_moves).
@@ -995,17 +1029,7 @@ def learn(
     elif given:
         raise ValueError(f"pass the clustering settings either in cluster= or as keywords, "
                          f"not both (got {', '.join(sorted(given))})")  # fmt: skip
-    options = {"k_min": 1, "k_max": 6, "restarts": 10, "parameters": "support",
-               "initial": True, **cluster.options()}  # fmt: skip
-    soft = options.get("method", "soft") == "soft"
-    if soft:  # one effect size for every step: strong_gain follows a given min_gain
-        options.setdefault("min_gain", LEARN_MIN_GAIN)
-        options.setdefault("strong_gain", options["min_gain"])
-    # higher-order chains are compared with the soft method, where there are types to find
-    pooled = k == 1 or not soft
-    options.setdefault("order", 1 if pooled else "auto")
-    if k is not None:
-        options["k_min"] = options["k_max"] = k
+    options = cluster_options(cluster, k)
     N = demonstrations.num_sequences
     if isinstance(options["k_min"], int) and options["k_min"] > N:
         name = "k" if k is not None else "k_min"

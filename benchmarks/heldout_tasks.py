@@ -91,6 +91,15 @@ name                   X    types  depends on    what is unusual
                                                  pause once (memory) while the frame's glue
                                                  sets and want the robot still then; shares
                                                  30 / 25 / 20 / 15 / 10 %
+``defect_rework``      26   2      state         a random defect (a quarter of the parts): the
+                                                 types differ only in handling a flagged part
+                                                 (hold it to repair, or scrap it); 87 / 13 %
+``shelf_build``        26   4      state         two types want the same robot moves and differ
+                                                 only in pace throughout; one wants the driver,
+                                                 one wants the robot still; 35 / 25 / 25 / 15 %
+``leaky_tubes``        31   3      history       a type changes gloves only after a tube that
+                                                 leaked (a pause, memory): same state, wants
+                                                 gloves or the tube by history; 40 / 35 / 25 %
 =====================  ===  =====  ============  ===============================================
 
 ``slow_sanding`` and ``paint_crews`` were added after the selection rule of 6701614 and
@@ -124,6 +133,10 @@ and are kept out of tuning.
 session 29 from the docs alone (a robot move that blocks the person's station; types that
 differ only in the object handed, beside an indecisive one; five unequal types with a
 memory-driven pause), and are kept out of tuning.
+``defect_rework``, ``shelf_build`` and ``leaky_tubes`` were written by the audit of session
+30 from the docs alone (types that differ only where a chance event leads, with a rare one;
+a pair that differs only in pace beside types with other wants; a want that depends on the
+person's hidden history), and are kept out of tuning.
 
 ``HELDOUT[name]() -> HeldoutWorld`` (a ``TaskWithPeople``), whose ``shares`` (None:
 balanced) split the demonstrating subjects between the types and weigh them over the
@@ -2039,6 +2052,237 @@ def cabinet_glue() -> HeldoutWorld:
     )  # fmt: skip
 
 
+# ====================================================================== the session-30 audit
+# defect_rework, shelf_build and leaky_tubes: written by the audit of session 30 from the docs
+# alone (held out: run once, kept out of tuning).
+# ------------------------------------------------------------------------------ defect_rework
+# An inspection bench: five parts, one at a time. The robot can feed the next part onto the
+# bench (else she fetches it herself, slower); she inspects it: it passes (75 %) or she flags
+# a defect (25 %, at random). A flagged part is either repaired (the robot can hold it steady
+# for her) and then passes, or scrapped (the robot can carry it to the scrap bin, or she
+# discards it herself). "repairer" (87 %) repairs flagged parts and wants them held (without
+# the hold she repairs slowly); "scrapper" (13 %) never repairs: she wants a flagged part
+# scrapped by the robot (a hold is in her way). Everywhere else both want the same: the next
+# part fed, the robot still while she inspects. The types differ only in the flagged-part
+# states, which a quarter of the parts reach. State: (parts finished, bench: 0 empty,
+# 1 unchecked part, 2 flagged, 3 flagged and held by the robot, 4 repaired), 26 states.
+def defect_rework() -> HeldoutWorld:
+    N = 5
+    types = ("repairer", "scrapper")
+
+    def robot_step(s, a):
+        k, b = s
+        if a == 1 and b == 0:
+            return (k, 1)  # feed the next part
+        if a == 2 and b == 2:
+            return (k, 3)  # hold the flagged part steady
+        if a == 3 and b in (2, 3):
+            return (k + 1, 0)  # carry it to the scrap bin
+        return s
+
+    def human_step(s, h):
+        k, b = s
+        if k == N:
+            return None
+        if h == 0:  # fetch a part herself
+            return (k, 1) if b == 0 else None
+        if h == 1:  # pass: the part is good (or repaired)
+            return (k + 1, 0) if b in (1, 4) else None
+        if h == 2:  # flag a defect
+            return (k, 2) if b == 1 else None
+        if h == 3:  # repair
+            return (k, 4) if b in (2, 3) else None
+        return (k + 1, 0) if b in (2, 3) else None  # discard
+
+    def behaviour(y, m, s, a):
+        k, b = s
+        if k == N:
+            return {-1: 1.0}
+        if b == 0:
+            return {0: 0.5, -1: 0.5}  # fetching her own part is slower
+        if b == 1:
+            return {1: 0.75, 2: 0.25}
+        if b == 4:
+            return {1: 1.0}
+        if y == 0:
+            return {3: 1.0} if b == 3 else {3: 0.4, -1: 0.6}  # repairs slowly unheld
+        return {4: 0.5, -1: 0.5}  # the scrapper discards it herself, held or not
+
+    def reward(y, s, a):
+        _k, b = s
+        if a != 0 and robot_step(s, a) == s:
+            return -0.5  # a move that changes nothing
+        if b == 0:
+            return _pick(1, a)
+        if b == 2:
+            if y == 0:
+                return _pick(2, a)  # scrapping a repairable part: -1
+            return 1.0 if a == 3 else (-0.5 if a == 2 else 0.0)
+        if b == 3:
+            if y == 0:
+                return _pick(0, a, good=0.2)  # keep holding; scrapping it: -1
+            return 1.0 if a == 3 else -0.2
+        return _pick(0, a, good=0.2)
+
+    return tabulate(
+        "defect_rework", initial=(0, 0), robot_actions=("wait", "feed", "hold", "scrap"),
+        human_actions=("fetch", "pass", "flag", "repair", "discard"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s[0] == N, type_names=types,
+        behaviour=behaviour, reward=reward, horizon=24, shares=(0.87, 0.13),
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ shelf_build
+# A bookshelf: four boards, each placed by the person, then screwed. The robot has one
+# gripper: it can put the next board in her hand-over slot, put the screwdriver there
+# (it stays there until the robot uses the gripper again) or hold the placed board level
+# (released once it is screwed). "holdme" (35 %) wants the board handed, then held while she
+# screws with her own driver; "holdme_slow" (25 %) wants exactly the same robot moves but
+# works at about half the pace (a first-time builder); "driver" (25 %) wants the board
+# handed, then the screwdriver handed (she holds the board herself); "solo" (15 %) fetches
+# her own boards and tools, wants the robot to wait and slows down while it holds a board.
+# Each helped step goes faster (fast types 90 % a turn with the help, 50 % without; the slow
+# one 50 % and 25 %). State: (boards done, stage 0 to place / 1 to screw, gripper: 0 free,
+# 1 board in the slot, 2 driver in the slot, 3 holding), 26 states.
+def shelf_build() -> HeldoutWorld:
+    N = 4
+    types = ("holdme", "holdme_slow", "driver", "solo")
+
+    def robot_step(s, a):
+        k, stage, out = s
+        if k == N or out == a:
+            return s
+        if a == 1:  # hand_board
+            return (k, stage, 1) if stage == 0 else s
+        if a == 2:  # hand_driver
+            return (k, stage, 2)
+        if a == 3:  # hold the placed board level
+            return (k, stage, 3) if stage == 1 else s
+        return s
+
+    def human_step(s, h):
+        k, stage, out = s
+        if k == N or stage != h:
+            return None
+        if h == 0:  # place the next board (the one in the slot, if any)
+            return (k, 1, 0 if out == 1 else out)
+        return (k + 1, 0, 0 if out == 3 else out)  # screw it (the hold released)
+
+    def helped(y, s):
+        stage, out = s[1:]
+        if stage == 0:
+            return out == 1
+        return out == (2 if y == 2 else 3)
+
+    def behaviour(y, m, s, a):
+        k, stage, out = s
+        if k == N:
+            return {-1: 1.0}
+        if y == 3:
+            p = 0.4 if out == 3 else 0.8
+        elif y == 1:
+            p = 0.5 if helped(y, s) else 0.25
+        else:
+            p = 0.9 if helped(y, s) else 0.5
+        return {stage: p, -1: 1.0 - p}
+
+    def reward(y, s, a):
+        _k, stage, out = s
+        if a != 0 and robot_step(s, a) == s:
+            return -0.5  # a move that changes nothing
+        if y == 3:
+            return _pick(0, a, good=0.3, bad=-0.3)
+        want = 1 if stage == 0 else (2 if y == 2 else 3)
+        if out == want:
+            return _pick(0, a, good=0.2)  # her help is there: leave it
+        return _pick(want, a)
+
+    return tabulate(
+        "shelf_build", initial=(0, 0, 0),
+        robot_actions=("wait", "hand_board", "hand_driver", "hold"),
+        human_actions=("place", "screw"), robot_step=robot_step, human_step=human_step,
+        terminal=lambda s: s[0] == N, type_names=types, behaviour=behaviour, reward=reward,
+        horizon=24, shares=(0.35, 0.25, 0.25, 0.15),
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ leaky_tubes
+# A lab bench: five sample tubes, each brought from the fridge by the robot into her tray
+# (she does not fetch them). She inspects each tube before processing it; a quarter of them
+# leak, which she notices with a pause (a turn without a move), and then processes it
+# anyway. Whether the last tube leaked is her memory, not in the state. The robot can bring
+# the next tube or hand fresh gloves (one tray: either replaces the other); she can change
+# gloves (from the tray, or her own box, slower). "careful" (40 %) changes gloves only after
+# processing a leaky tube: she wants gloves then, the next tube otherwise, so in the same
+# state (a sample just done, tray empty) her wanted move depends on what happened earlier
+# (scored by the true reward as the state's average over her memory, a quarter gloves);
+# "always_gloves" (35 %) changes gloves before every tube and wants them handed first;
+# "no_change" (25 %) never changes gloves and wants the tube. State: (samples done, tray:
+# 0 empty, 1 tube, 2 gloves; fresh gloves on since the last sample), 31 states.
+def leaky_tubes() -> HeldoutWorld:
+    N, LEAK = 5, 0.25
+    types = ("careful", "always_gloves", "no_change")
+
+    def robot_step(s, a):
+        k, tray, g = s
+        return s if (a == 0 or tray == a) else (k, a, g)
+
+    def human_step(s, h):
+        k, tray, g = s
+        if k == N:
+            return None
+        if h == 0:  # process the tube in the tray
+            return (k + 1, 0, 0) if tray == 1 else None
+        return (k, 0 if tray == 2 else tray, 1) if g == 0 else None  # change gloves
+
+    def change(tray):
+        return {1: 1.0} if tray == 2 else {1: 0.5, -1: 0.5}  # her own box: slower
+
+    def process(m):  # m 0: inspects (a leak: a pause); m 1: noticed the leak, processes
+        return {0: 1.0} if m == 1 else {0: 1.0 - LEAK, -1: LEAK}
+
+    def behaviour(y, m, s, a):
+        k, tray, g = s
+        if k == N:
+            return {-1: 1.0}
+        if g == 0 and (y == 1 or (y == 0 and m == 2)):
+            return change(tray)
+        return process(m) if tray == 1 else {-1: 1.0}
+
+    def memory_update(y, m, s, a, h):
+        tray = s[1]
+        if m == 0 and h < 0 and tray == 1 and not (y == 1 and s[2] == 0):
+            return 1  # paused over the tube: it leaks
+        if m == 1 and h == 0:
+            return 2 if y == 0 else 0  # processed the leaky tube (only careful minds)
+        if m == 2 and h == 1:
+            return 0  # fresh gloves
+        return m
+
+    def serve(want, tray, a):  # want 1: the tube, 2: gloves
+        return _pick(0, a, good=0.2) if tray == want else _pick(want, a)
+
+    def reward(y, s, a):
+        k, tray, g = s
+        if a != 0 and robot_step(s, a) == s:
+            return -0.5  # a move that changes nothing
+        if y == 2:
+            return serve(1, tray, a)
+        if y == 1:
+            return serve(2 if g == 0 else 1, tray, a)
+        if k > 0 and g == 0:  # she may have processed a leaky tube: the average over that
+            return LEAK * serve(2, tray, a) + (1 - LEAK) * serve(1, tray, a)
+        return serve(1, tray, a)
+
+    return tabulate(
+        "leaky_tubes", initial=(0, 0, 0), robot_actions=("wait", "bring_tube", "hand_gloves"),
+        human_actions=("process", "change_gloves"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s[0] == N, type_names=types,
+        behaviour=behaviour, reward=reward, horizon=20, memory=3, memory_update=memory_update,
+        shares=(0.40, 0.35, 0.25),
+    )  # fmt: skip
+
+
 #: Every held-out task by name: ``HELDOUT[name]() -> HeldoutWorld``.
 HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "finish_late": finish_late,
@@ -2071,4 +2315,7 @@ HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "press_block": press_block,
     "driver_pick": driver_pick,
     "cabinet_glue": cabinet_glue,
+    "defect_rework": defect_rework,
+    "shelf_build": shelf_build,
+    "leaky_tubes": leaky_tubes,
 }

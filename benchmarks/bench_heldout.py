@@ -6,7 +6,9 @@ issue's author runs. Per task:
 * ``--goal 2``: demonstrations (``--subjects`` x ``--per-subject``, noise ``--noise``) for
   every seed, clustered with :func:`torchhrc.mixture.fit_mixture` under the options
   ``learn()`` passes it (:func:`torchhrc.tasks.pipeline.cluster_options`, with ``--cluster``'s
-  fields; that is what decides k: the IRL and the solver come after); the k found,
+  fields; that is what decides k: the IRL and the solver come after), then learn()'s split
+  of divided types (:func:`torchhrc.tasks.pipeline.split_divided_types`; ``--no-split``:
+  the clustering alone); the k found,
   the true k, the ARI against the true types, and on a miss the record of every k (gain,
   exact ICL, BIC, held-out gain, subject consistency) that chose it. ``--subjects 300`` is 10
   times the data.
@@ -43,7 +45,7 @@ from heldout_tasks import HELDOUT
 
 from torchhrc.metrics import adjusted_rand_index
 from torchhrc.mixture import ClusterConfig, fit_mixture
-from torchhrc.tasks.pipeline import cluster_options
+from torchhrc.tasks.pipeline import cluster_options, split_divided_types
 from torchhrc.tasks.suite import SUITE
 
 #: The clustering options ``torchhrc.tasks.learn`` passes to ``fit_mixture`` when given no
@@ -56,20 +58,30 @@ def _world(name: str):
 
 
 def cluster_row(name: str, seed: int, *, subjects: int, per_subject: int, noise: float,
-                cluster: ClusterConfig | None = None) -> dict[str, Any]:  # fmt: skip
-    """One clustering of task ``name`` (held-out or suite) at ``seed``: k, true k, ARI, the
-    record of every k; ``cluster`` replaces learn()'s clustering defaults field by field."""
+                cluster: ClusterConfig | None = None,
+                split: bool = True) -> dict[str, Any]:  # fmt: skip
+    """One clustering of task ``name`` (held-out or suite) at ``seed`` as ``learn()`` does it
+    (``fit_mixture`` with learn()'s options, then ``split``: its split of divided types): k,
+    true k, ARI, the record of every k and the splits; ``cluster`` replaces learn()'s
+    clustering defaults field by field."""
     world = _world(name)
     demos, types = world.demonstrations(subjects=subjects, per_subject=per_subject, noise=noise,
                                         seed=seed)  # fmt: skip
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        fit = fit_mixture(demos, seed=seed, **cluster_options(cluster))
-    ari = adjusted_rand_index(types.tolist(), fit.assignments.tolist())
+        options = cluster_options(cluster)
+        fit = fit_mixture(demos, seed=seed, **options)
+    z, splits = fit.assignments, []
+    if split:
+        z, splits = split_divided_types(world.task, demos, z, max_types=options["k_max"],
+                                        num_types=int(fit.k))  # fmt: skip
+    k = int(fit.k) + len(splits)
+    ari = adjusted_rand_index(types.tolist(), z.tolist())
     return dict(task=name, states=world.task.num_states, seed=seed, true_k=world.num_types,
-                k=int(fit.k), ari=float(ari), hit=int(fit.k) == world.num_types and ari >= 0.9,
-                order=int(fit.order), seconds=time.perf_counter() - start,
+                k=k, k_clustered=int(fit.k), splits=splits, ari=float(ari),
+                hit=k == world.num_types and ari >= 0.9, order=int(fit.order),
+                seconds=time.perf_counter() - start,
                 per_k={int(k): dict(v) for k, v in fit.per_k.items()})  # fmt: skip
 
 
@@ -84,9 +96,12 @@ def goal2(tasks: list[str], seeds: list[int], args: argparse.Namespace) -> list[
     for name in tasks:
         for seed in seeds:
             row = cluster_row(name, seed, subjects=args.subjects, per_subject=args.per_subject,
-                              noise=args.noise, cluster=args.cluster)  # fmt: skip
+                              noise=args.noise, cluster=args.cluster,
+                              split=not args.no_split)  # fmt: skip
             rows.append(row)
             mark = "" if row["hit"] else "   MISS: " + _per_k_text(row["per_k"])
+            if row["splits"]:
+                mark += f"   (clustered k {row['k_clustered']}, split {row['splits']})"
             print(f"{name:16s} seed {seed:2d}  k {row['k']} (true {row['true_k']})  ARI "
                   f"{row['ari']:.3f}  {row['seconds']:.1f} s{mark}", flush=True)  # fmt: skip
     print(f"\n{args.subjects} subjects x {args.per_subject} demonstrations, noise {args.noise}, "
@@ -143,6 +158,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="e.g. 0-9 or 0,3,5 (goal 2's default: 0-9; goal 3: every seed "
                              "as bench_evaluation --seeds, instead of --seed)")  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="goal 3's seed")
+    parser.add_argument("--no-split", action="store_true",
+                        help="goal 2: the clustering alone, without learn()'s split of "
+                             "divided types")  # fmt: skip
     parser.add_argument("--subjects", type=int, default=30)
     parser.add_argument("--per-subject", type=int, default=4)
     parser.add_argument("--noise", type=float, default=0.05)

@@ -3,9 +3,15 @@ import math
 import pytest
 import torch
 
+from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.metrics import adjusted_rand_index
-from torchhrc.mixture import fit_mixture, num_free_parameters, sequence_log_likelihood
+from torchhrc.mixture import (
+    fit_mixture,
+    num_free_parameters,
+    partition_chains,
+    sequence_log_likelihood,
+)
 from torchhrc.tasks.place_and_drill import simulate_study
 
 
@@ -265,3 +271,21 @@ def test_a_step_the_exact_icl_takes_and_that_splits_people_is_not_cut_by_min_gai
     assert pk[2]["split_consistency"] > 0.6  # measured 0.76
     assert fit.k == 2 and adjusted_rand_index(types, fit.assignments.tolist()) == 1.0
     assert fit_mixture(demos, min_consistency=0.0, **common).k == 1  # cut by min_gain
+
+
+def test_partition_chains_of_a_hard_partition_counted_by_hand():
+    """One-hot weights: each cluster's chain is its sequences' transition counts plus the
+    pseudo-count, normalised; a row no sequence visits is ``alpha``-uniform."""
+    h = lambda a: ("human", a)  # noqa: E731
+    demos = Demonstrations.from_lists(
+        [[h("a"), h("b"), h("a")], [h("a"), h("a"), h("b")], [h("b"), h("b"), h("b")]]
+    )
+    z = torch.tensor([0, 0, 1])
+    chains = partition_chains(demos, torch.nn.functional.one_hot(z, 2).double(),
+                              pseudo_count=0.5)  # fmt: skip
+    # cluster 0: a->b twice, b->a once, a->a once; cluster 1: b->b twice
+    expected = torch.tensor([[[1.5 / 4, 2.5 / 4], [1.5 / 2, 0.5 / 2]],
+                             [[0.5, 0.5], [0.5 / 3, 2.5 / 3]]], dtype=torch.float64)  # fmt: skip
+    torch.testing.assert_close(chains, expected, atol=1e-12, rtol=0)
+    with pytest.raises(ModelError, match=r"weights of shape \(N, k\) for the N = 3"):
+        partition_chains(demos, torch.ones(2, 2))

@@ -10,7 +10,9 @@ import torch
 from _task_steps import steps_from_rows as _steps
 
 import torchhrc
-from torchhrc.tasks.divided_types import divided_states
+from torchhrc.metrics import adjusted_rand_index
+from torchhrc.tasks.divided_types import divided_states, split_divided
+from torchhrc.tasks.pipeline import split_divided_types
 from torchhrc.tasks.suite import make_task
 
 
@@ -77,6 +79,70 @@ def test_learn_records_the_divided_states():
     assert sum(first["subjects"].values()) <= 30 and len(first["subjects"]) >= 2
 
 
+def test_split_worked_by_hand():
+    # type 0 in state 0: s0-s2 partners wait twice (own: wait), s3, s4 hand twice (own: hand),
+    # s5 hands once (one step: counts by it), s6 waits once and hands once (a tie: stays);
+    rows = [[(0, 0), (0, 0)]] * 3 + [[(0, 1), (0, 1)]] * 2 + [[(0, 1)], [(0, 0), (0, 1)]]
+    # type 1 (s7, s8, and a sequence of s3's) hands in state 0 too, and is not touched
+    rows += [[(0, 1), (0, 1)]] * 3
+    z0 = torch.tensor([0] * 7 + [1, 1, 1])
+    subjects = torch.tensor([0, 1, 2, 3, 4, 5, 6, 7, 8, 3])
+    z, splits = split_divided(_steps(rows), z0, subjects, num_types=2, num_states=1,
+                              num_actions=2, max_types=6)  # fmt: skip
+    assert z.tolist() == [0, 0, 0, 2, 2, 2, 0, 1, 1, 1]
+    assert splits == [{"type": 0, "state": 0, "move": 1, "kept_move": 0, "subjects": 3}]
+    # max_types stops the split
+    z, splits = split_divided(_steps(rows), z0, subjects, num_types=2, num_states=1,
+                              num_actions=2, max_types=2)  # fmt: skip
+    assert splits == [] and z.tolist() == z0.tolist()
+    # fewer than min_subjects with the second move: no split
+    _, splits = split_divided(_steps(rows), z0, subjects, num_types=2, num_states=1,
+                              num_actions=2, max_types=6, min_subjects=3)  # fmt: skip
+    assert splits == []
+    # divided, but its two other own moves have one subject each: no group to split off
+    rows = [[(0, 0), (0, 0)]] * 3 + [[(0, 1), (0, 1)], [(0, 2), (0, 2)]]
+    steps = _steps(rows)
+    one = torch.zeros(5, dtype=torch.long)
+    shape = dict(num_types=1, num_states=1, num_actions=3)
+    assert divided_states(steps, one, torch.arange(5), **shape)[0].all()
+    assert split_divided(steps, one, torch.arange(5), max_types=6, **shape)[1] == []
+
+
+def test_split_restores_merged_types_and_leaves_true_ones():
+    """Joining two types whose partners serve them differently, then splitting, gives back
+    the true partition; the true partition is never split (suite tasks, 30 x 4)."""
+    for name in ("fetch_order", "tool_handover", "screws_hands_off"):
+        world = make_task(name)
+        demos, types = world.demonstrations(subjects=30, per_subject=4, seed=1)
+        z, splits = split_divided_types(world.task, demos, types, max_types=6)
+        assert splits == [] and z.tolist() == types.tolist(), name
+        small = torch.bincount(types, minlength=world.num_types).argsort()[:2].tolist()
+        merged = torch.where(types == small[0], small[1], types)
+        merged = torch.unique(merged, return_inverse=True)[1]  # types 0 .. K - 2
+        z, splits = split_divided_types(world.task, demos, merged, max_types=6)
+        assert len(splits) == 1, name
+        assert splits[0]["state"] in world.task.state_names
+        assert adjusted_rand_index(types.tolist(), z.tolist()) == pytest.approx(1.0), name
+
+
+def test_learn_splits_a_merged_type_unless_told_not_to():
+    world = make_task("tool_handover")  # 2 types whose partners differ
+    demos, types = world.demonstrations(subjects=20, per_subject=3, seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        # a clustering that cannot find the second type: one order, k at most 1 ... 2
+        options = dict(k_max=2, criterion="bic", min_gain=10.0, seed=0, solve=False)
+        split = torchhrc.learn(world.task, demos, **options)
+        kept = torchhrc.learn(world.task, demos, split_divided=False, **options)
+        forced = torchhrc.learn(world.task, demos, k=1, seed=0, solve=False)
+    assert kept.info["k"] == kept.info["k_clustered"] == 1 and kept.info["split"] == []
+    assert split.info["k_clustered"] == 1 and split.info["k"] == 2
+    assert len(split.info["split"]) == 1 and len(split.type_names) == 2
+    assert adjusted_rand_index(types.tolist(), split.assignments.tolist()) == pytest.approx(1.0)
+    assert split.info["divided"]["states"] == 0  # what the split mended
+    assert forced.info["k"] == 1 and forced.info["split"] == []  # a given k is kept
+
+
 def test_bad_arguments_are_named():
     steps = _steps([[(0, 0)]] * 2)
     with pytest.raises(ValueError, match=r"assignments of shape \(N,\) = \(2,\)"):
@@ -88,3 +154,6 @@ def test_bad_arguments_are_named():
     with pytest.raises(ValueError, match="min_share in"):
         divided_states(steps, torch.zeros(2, dtype=torch.long), torch.arange(2), num_types=1,
                        num_states=1, num_actions=1, min_share=0.0)  # fmt: skip
+    with pytest.raises(ValueError, match="max_types >= 1"):
+        split_divided(steps, torch.zeros(2, dtype=torch.long), torch.arange(2), num_types=1,
+                      num_states=1, num_actions=1, max_types=0)  # fmt: skip

@@ -277,7 +277,8 @@ def sweep(
     ``n`` steps (:func:`~torchhrc.experiments.task_sweep.task_metrics`). Its parameters are
     :data:`~torchhrc.experiments.task_sweep.TASK_PARAMETERS`: ``subjects``, ``per_subject``,
     ``noise``; ``learn()``'s ``k``, ``k_min``, ``k_max``, ``restarts``, ``criterion``,
-    ``objects``, ``order``, ``mixture_method``, ``min_gain``, ``human_model``, ``prior``,
+    ``objects``, ``order``, ``mixture_method``, ``min_gain``, ``split_divided``,
+    ``human_model``, ``prior``,
     ``irl_iterations``, ``irl_epsilon``, ``irl_l2``, ``irl_pooling``, ``irl_wrong_moves``,
     ``solver_time``, ``solver_iterations``; and ``episodes``.
 

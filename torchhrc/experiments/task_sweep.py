@@ -74,6 +74,9 @@ TASK_PARAMETERS: dict[str, SweepParameter] = {
         str, None, None, "learn(mixture_method=)", choices=("soft", "paper")
     ),
     "min_gain": SweepParameter(float, 0.0, None, "learn(min_gain=)"),
+    "split_divided": SweepParameter(
+        bool, None, None, "learn(split_divided=): split a type whose partners moved differently"
+    ),
     "human_model": SweepParameter(
         str, None, None, "learn(human_model=)", choices=("auto", "chain", "state")
     ),
@@ -111,7 +114,7 @@ QUICK: dict[str, Any] = {"restarts": 3, "solver_time": 1.0, "episodes": 50}
 _DEFAULT_K_MAX = 6  # learn()'s
 _DEMONSTRATIONS = ("subjects", "per_subject", "noise")
 _CLUSTERING = ("k", "k_min", "k_max", "restarts", "criterion", "objects", "order",
-               "mixture_method", "min_gain")  # fmt: skip
+               "mixture_method", "min_gain", "split_divided")  # fmt: skip
 _MODEL = ("human_model", "prior", "irl_iterations", "irl_epsilon", "irl_l2", "irl_pooling",
           "irl_wrong_moves", "solver_time", "solver_iterations")  # fmt: skip
 

@@ -45,6 +45,7 @@ from torchhrc.mixture.selection import (
     bic,
     fit_mixture,
     num_free_parameters,
+    partition_chains,
 )
 from torchhrc.mixture.sharded import (
     CorpusStatistics,
@@ -74,6 +75,7 @@ __all__ = [
     "kmeans_pp_init",
     "mixture_log_likelihood",
     "num_free_parameters",
+    "partition_chains",
     "random_init",
     "refine_partition",
     "sequence_log_likelihood",

@@ -116,6 +116,7 @@ __all__ = [
     "num_free_parameters",
     "num_transitions",
     "order_to_keep",
+    "partition_chains",
 ]
 
 Method = Literal["soft", "paper"]
@@ -199,7 +200,8 @@ class MixtureFit:
             pseudo_count: ``alpha`` (default ``DEFAULT_PSEUDO_COUNT``; unused for raw fits).
 
         Returns:
-            ``(k, A, A)`` transition probabilities over ``demonstrations.vocabulary``.
+            ``(k, A, A)`` transition probabilities over ``demonstrations.vocabulary``
+            (:func:`partition_chains` with the fit's responsibilities).
 
         Raises:
             ModelError: ``demonstrations`` has a different number of sequences.
@@ -217,18 +219,54 @@ class MixtureFit:
             raise ModelError(
                 f"expected the {N} fitted demonstrations, got {demonstrations.num_sequences}"
             )
-        alpha = DEFAULT_PSEUDO_COUNT if pseudo_count is None else float(pseudo_count)
-        A = demonstrations.num_symbols
-        chains = self.responsibilities.new_zeros(self.k, A, A, dtype=torch.float64)
-        for start in range(0, N, 65536):  # (chunk, A, A) counts at a time
-            part = demonstrations.subset(torch.arange(start, min(start + 65536, N)))
-            counts = part.transition_counts(per_sequence=True)  # (n, A, A)
-            r = self.responsibilities[start : start + 65536].to(counts)  # (n, k)
-            chains += torch.einsum("nk,nab->kab", r, counts)
-        chains = chains + alpha  # (k, A, A)
-        rows = chains.sum(-1, keepdim=True)
-        uniform = torch.full_like(chains, 1.0 / chains.shape[-1])
-        return torch.where(rows > 0, chains / rows.clamp_min(1e-300), uniform)
+        return partition_chains(demonstrations, self.responsibilities, pseudo_count=pseudo_count)
+
+
+def partition_chains(
+    demonstrations: Any, weights: torch.Tensor, *, pseudo_count: float | None = None
+) -> torch.Tensor:
+    """Each cluster's first-order chain over the demonstrations' recorded symbols, given
+    each sequence's cluster weights: ``theta_k(b | a) ∝ sum_n w_nk n_n(a, b) + alpha``,
+    ``n_n`` the transition counts of sequence ``n`` (the soft method's M-step; a row
+    without counts is uniform). With one-hot weights, the chains of a hard partition.
+
+    Args:
+        demonstrations: :class:`~torchhrc.data.Demonstrations` (``N`` sequences over ``A``
+            symbols).
+        weights: ``(N, k)`` each sequence's weight in each cluster (responsibilities, or
+            ``F.one_hot(assignments, k)``).
+        pseudo_count: ``alpha`` (default ``DEFAULT_PSEUDO_COUNT``).
+
+    Returns:
+        ``(k, A, A)`` float64 transition probabilities over ``demonstrations.vocabulary``.
+
+    Raises:
+        ModelError: ``weights`` not of shape ``(N, k)`` for the ``N`` demonstrations.
+
+    Example:
+        >>> from torchhrc.data import Demonstrations
+        >>> h, r = ("human", "a"), ("robot", "b")
+        >>> demos = Demonstrations.from_lists([[h, r, h], [h, h, h]])  # symbols: a, b
+        >>> chains = partition_chains(demos, torch.eye(2), pseudo_count=0.0)
+        >>> chains[0, 0].tolist(), chains[1, 0].tolist()  # after a: b in the first, a in the second
+        ([0.0, 1.0], [1.0, 0.0])
+    """
+    N = demonstrations.num_sequences
+    if weights.dim() != 2 or weights.shape[0] != N:
+        raise ModelError(f"expected weights of shape (N, k) for the N = {N} demonstrations, "
+                         f"got {tuple(weights.shape)}")  # fmt: skip
+    alpha = DEFAULT_PSEUDO_COUNT if pseudo_count is None else float(pseudo_count)
+    A = demonstrations.num_symbols
+    chains = weights.new_zeros(weights.shape[1], A, A, dtype=torch.float64)
+    for start in range(0, N, 65536):  # (chunk, A, A) counts at a time
+        part = demonstrations.subset(torch.arange(start, min(start + 65536, N)))
+        counts = part.transition_counts(per_sequence=True)  # (n, A, A)
+        w = weights[start : start + 65536].to(counts)  # (n, k)
+        chains += torch.einsum("nk,nab->kab", w, counts)
+    chains = chains + alpha  # (k, A, A)
+    rows = chains.sum(-1, keepdim=True)
+    uniform = torch.full_like(chains, 1.0 / chains.shape[-1])
+    return torch.where(rows > 0, chains / rows.clamp_min(1e-300), uniform)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -13,8 +13,15 @@ demonstrations visit the state, and the type-aware robot may serve neither group
 partners' own move in the state (a strict majority of at least 2 of the subject's steps
 there), and a type divided where at least :data:`DIVIDED_MIN_SUBJECTS` of its subjects, and
 at least :data:`DIVIDED_MIN_SHARE` of those with an own move there, had a move other than
-the type's most common one. ``learn()`` records the result as ``info["divided"]``; it changes
-nothing else (a diagnosis: force ``k=`` one higher and compare with ``evaluate_task``).
+the type's most common one. ``learn()`` records the result as ``info["divided"]``.
+
+:func:`split_divided` acts on it: it moves the people of a divided type whose partners' move
+in its most divided state was the second most common one into a type of their own, and
+repeats while a type is divided (``learn()`` does this after the clustering unless given
+``k`` or ``split_divided=False``; ``info["split"]`` records each split). The Markov-chain
+mixture charges a whole chain for a type that differs from another in one state, so its
+criteria keep such a type merged on small corpora; the partners' moves there are direct
+evidence of what the people want (docs/clustering.md, "Splitting divided types").
 
 Example:
     >>> import torch
@@ -37,7 +44,7 @@ import torch
 
 from torchhrc.tasks.interface import TaskSteps
 
-__all__ = ["DIVIDED_MIN_SHARE", "DIVIDED_MIN_SUBJECTS", "divided_states"]
+__all__ = ["DIVIDED_MIN_SHARE", "DIVIDED_MIN_SUBJECTS", "divided_states", "split_divided"]
 
 #: The fewest subjects of a type whose partners' own move in a state differs from the type's
 #: most common one, for the type to count as divided there.
@@ -107,3 +114,87 @@ def divided_states(
     off = total - own.max(-1).values  # the subjects off the most common move
     divided = (off >= min_subjects) & (off >= min_share * total)
     return divided, own
+
+
+def split_divided(
+    steps: TaskSteps,
+    assignments: torch.Tensor,
+    subjects: torch.Tensor,
+    *,
+    num_types: int,
+    num_states: int,
+    num_actions: int,
+    max_types: int,
+    min_subjects: int = DIVIDED_MIN_SUBJECTS,
+    min_share: float = DIVIDED_MIN_SHARE,
+) -> tuple[torch.Tensor, list[dict[str, int]]]:
+    """Split the divided types (:func:`divided_states`) by the partners' moves there.
+
+    While fewer than ``max_types`` types and some type ``y`` is divided in a state ``x``
+    where at least ``min_subjects`` of its subjects had the second most common own move
+    ``m``: take the ``(y, x)`` with the most such subjects (the first on a tie), and move to
+    a new type ``K`` the demonstrations of type ``y`` of every subject whose partners made
+    ``m`` in ``x`` more often than the type's most common own move (a subject seen there once
+    counts by that step). The other demonstrations stay.
+
+    Args:
+        steps: the demonstrations as task steps (``N`` sequences).
+        assignments: ``(N,)`` int64 the type of each demonstration, in ``[0, num_types)``.
+        subjects: ``(N,)`` int64 the subject of each demonstration.
+        num_types, num_states, num_actions: ``K``, ``X``, ``A``.
+        max_types: split no further than this many types.
+        min_subjects, min_share: :func:`divided_states`'s thresholds.
+
+    Returns:
+        ``(N,)`` int64 the new types (the new ones numbered ``K``, ``K + 1``, ... in order of
+        the splits) and one record per split: ``type``, ``state``, ``move`` (the partners'
+        move of the new type), ``kept_move`` (the type's most common own move) and
+        ``subjects`` (how many moved).
+
+    Raises:
+        ValueError: as :func:`divided_states`; ``max_types`` below 1.
+
+    Example:
+        >>> from torchhrc.tasks.interface import TaskSteps
+        >>> # one state; 6 subjects of one type, 2 steps each: 4 partners wait (0), 2 hand (1)
+        >>> states = torch.zeros(12, 1, dtype=torch.long)
+        >>> actions = torch.tensor([[0]] * 8 + [[1]] * 4)
+        >>> steps = TaskSteps(states, actions, -torch.ones_like(states), states,
+        ...                   torch.ones(12, 1, dtype=torch.bool))
+        >>> z, splits = split_divided(steps, torch.zeros(12, dtype=torch.long),
+        ...                           torch.arange(12) // 2, num_types=1, num_states=1,
+        ...                           num_actions=2, max_types=6)
+        >>> z.tolist(), splits[0]["subjects"]
+        ([0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1], 2)
+    """
+    if max_types < 1:
+        raise ValueError(f"expected max_types >= 1, got {max_types}")
+    z = assignments.to(steps.mask.device).long().clone()
+    _, subject = torch.unique(subjects.to(z.device).long(), return_inverse=True)
+    S = int(subject.max()) + 1 if subject.numel() else 0
+    mask = steps.mask
+    K, X, A = num_types, num_states, num_actions
+    splits: list[dict[str, int]] = []
+    while K < max_types:
+        divided, own = divided_states(steps, z, subject, num_types=K, num_states=X,
+                                      num_actions=A, min_subjects=min_subjects,
+                                      min_share=min_share)  # fmt: skip
+        kept = own.argmax(-1)  # (K, X) the most common own move (the first on a tie)
+        second = own.scatter(-1, kept[..., None], -1).max(-1)  # the next one
+        score = torch.where(divided & (second.values >= min_subjects), second.values, 0)
+        if not bool((score > 0).any()):
+            break
+        y, x = divmod(int(score.view(-1).argmax()), X)
+        move, main = int(second.indices[y, x]), int(kept[y, x])
+        at = mask & (z[:, None] == y) & (steps.states == x)  # (N, L) type y's steps in x
+        who = subject[:, None].expand_as(mask)[at]
+        made = steps.actions[at]
+        more = torch.bincount(who[made == move], minlength=S) > torch.bincount(
+            who[made == main], minlength=S
+        )  # (S,) subjects whose partners made ``move`` more often
+        moved = (z == y) & more[subject]
+        z[moved] = K
+        splits.append({"type": y, "state": x, "move": move, "kept_move": main,
+                       "subjects": int(more.sum())})  # fmt: skip
+        K += 1
+    return z, splits

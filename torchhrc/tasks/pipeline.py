@@ -35,11 +35,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 import torch
+import torch.nn.functional as F
 
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP
-from torchhrc.tasks.divided_types import divided_states
+from torchhrc.tasks.divided_types import divided_states, split_divided
 from torchhrc.tasks.human_model_choice import (
     HUMAN_MODELS,
     STATE_SMOOTHING_GRID,
@@ -68,6 +69,7 @@ __all__ = [
     "learn_type_weights",
     "solve_model",
     "solve_momdp",
+    "split_divided_types",
     "task_momdp",
     "transition_from_behaviour",
 ]
@@ -706,6 +708,52 @@ def _divided(task: CollaborativeTask, steps: TaskSteps | None, assignments: torc
     return {"states": int(divided.sum()), "where": where}
 
 
+def split_divided_types(
+    task: CollaborativeTask,
+    demonstrations: Demonstrations,
+    assignments: torch.Tensor,
+    *,
+    max_types: int,
+    num_types: int | None = None,
+) -> tuple[torch.Tensor, list[dict[str, Any]]]:
+    """A clustering's types, each divided type split by its partners' moves
+    (:func:`~torchhrc.tasks.divided_types.split_divided` over the task's steps), as
+    ``learn()`` does after its clustering.
+
+    Args:
+        task: the task.
+        demonstrations: the ``N`` demonstrations that were clustered.
+        assignments: ``(N,)`` the type of each (``fit_mixture``'s ``assignments``).
+        max_types: split no further than this many types.
+        num_types: the clustering's number of types (default: the largest assigned + 1).
+
+    Returns:
+        ``(N,)`` int64 the new types (the split ones numbered after the clustering's) and one
+        record per split, as ``split_divided``'s with the state and moves by name; no split
+        where the task reads no steps.
+
+    Example:
+        >>> from torchhrc.tasks.suite import make_task
+        >>> twp = make_task("tool_handover")
+        >>> demos, types = twp.demonstrations(subjects=12, per_subject=2, seed=0)
+        >>> merged = torch.zeros_like(types)  # every person in one type
+        >>> z, splits = split_divided_types(twp.task, demos, merged, max_types=6)
+        >>> len(splits), int(z.max()) + 1  # split back into the task's two types
+        (1, 2)
+    """
+    z = assignments.reshape(-1).long()
+    steps = task.read_steps(demonstrations)
+    if steps is None or z.numel() == 0:
+        return z, []
+    K = int(z.max()) + 1 if num_types is None else num_types
+    z, splits = split_divided(steps, z, demonstrations.subject_index, num_types=K,
+                              num_states=task.num_states,
+                              num_actions=task.num_actions, max_types=max_types)  # fmt: skip
+    named = [{**r, "state": task.state_names[r["state"]], "move": task.robot_actions[r["move"]],
+              "kept_move": task.robot_actions[r["kept_move"]]} for r in splits]  # fmt: skip
+    return z, named
+
+
 def task_momdp(
     task: CollaborativeTask,
     Tx: torch.Tensor,
@@ -926,6 +974,7 @@ def learn(
     solver_precision: float = 1e-3,
     solver_iterations: int | None = None,
     prior: str = "shares",
+    split_divided: bool = True,
     seed: int = 0,
 ) -> LearnedModel:
     """Turn a task and its demonstrations into a learned, solved model (one call).
@@ -988,11 +1037,18 @@ def learn(
             each were equally common (the paper's studies, whose types are balanced).
             ``model.with_belief(b0)`` swaps it afterwards, keeping the policy solved for
             this one.
+        split_divided: after the clustering (unless ``k`` is given), split each type whose
+            people's demonstrating partners made different moves in one state
+            (:func:`~torchhrc.tasks.divided_types.split_divided`, up to ``k_max`` types):
+            the mixture keeps such types merged on small corpora (``docs/clustering.md``,
+            "Splitting divided types").
         seed: the seed of everything.
 
     Returns:
         :class:`LearnedModel` (``b0`` by ``prior``) whose ``info`` records what decided it
-        (JSON, saved with the model): ``k``, ``criterion``, ``scores`` (every k's scores
+        (JSON, saved with the model): ``k`` (after the splits), ``k_clustered`` (the
+        clustering's), ``split`` (each split: the type, state, moves and subjects moved),
+        ``criterion``, ``scores`` (every k's scores
         under every criterion: ``bic``, ``exact_icl``, ``log_likelihood``, ``gain``,
         ``heldout`` and ``heldout_se``; with ``order="auto"``, of the order kept),
         ``objects``, ``order`` and ``order_comparison`` (each order's k, exact ICL and
@@ -1010,7 +1066,7 @@ def learn(
         >>> m.info["criterion"], m.info["k"] in (1, 2, 3)
         ('bic', True)
     """
-    from torchhrc.mixture import fit_mixture
+    from torchhrc.mixture import fit_mixture, partition_chains
     from torchhrc.mixture.selection import DEFAULT_STRONG_GAIN, ClusterConfig
 
     check_task(task)
@@ -1048,8 +1104,16 @@ def learn(
         raise ValueError("pass the IRL settings either in irl= or as irl_epsilon/irl_iterations/"
                          "irl_l2/irl_pooling/irl_wrong_moves, not both")  # fmt: skip
     fit = fit_mixture(demonstrations, seed=seed, **options)
+    assignments, splits = fit.assignments, []
+    if split_divided and k is None:
+        assignments, splits = split_divided_types(task, demonstrations, assignments,
+                                                  max_types=options["k_max"],
+                                                  num_types=int(fit.k))  # fmt: skip
+    K = int(fit.k) + len(splits)
     info: dict[str, Any] = {
-        "k": int(fit.k),
+        "k": K,
+        "k_clustered": int(fit.k),
+        "split": splits,
         "criterion": fit.criterion,
         "scores": {str(kk): dict(row) for kk, row in fit.per_k.items()},
         "bic": float(fit.bic),
@@ -1078,16 +1142,19 @@ def learn(
         },
         "seed": seed,
     }
-    chains = fit.transition_over(demonstrations)  # over the recorded symbols (fit.objects)
+    if splits:  # the chains of the split partition
+        chains = partition_chains(demonstrations, F.one_hot(assignments, K).to(torch.float64))
+    else:
+        chains = fit.transition_over(demonstrations)  # over the recorded symbols (fit.objects)
     b0 = None  # build_model's uniform belief
     if prior == "shares":
-        counts = torch.bincount(fit.assignments.reshape(-1).long(), minlength=int(fit.k))
+        counts = torch.bincount(assignments.reshape(-1).long(), minlength=K)
         b0 = counts.to(torch.float64) / counts.sum()
     info["prior"] = {
         "rule": prior,
-        "b0": [1.0 / int(fit.k)] * int(fit.k) if b0 is None else b0.tolist(),
+        "b0": [1.0 / K] * K if b0 is None else b0.tolist(),
     }
-    model = build_model(task, demonstrations, chains, fit.assignments, b0=b0, noise=noise,
+    model = build_model(task, demonstrations, chains, assignments, b0=b0, noise=noise,
                         pause=pause, rule=irl.rule, irl_epsilon=irl.epsilon,
                         irl_iterations=irl.iterations, irl_l2=irl.l2, irl_pooling=irl.pooling,
                         wrong_moves=irl.wrong_moves, seed=seed, info=info,

@@ -198,8 +198,10 @@ def tabulate(
 ) -> HeldoutWorld:
     """Rules over Python states -> a TaskWithPeople. ``robot_actions[0]`` is "wait";
     ``human_step(s, h)`` is None where ``h`` cannot happen; ``behaviour(y, m, s_mid, a_r)``
-    gives ``{a_h: p}`` (``-1``: no action); ``reward(y, s, a_r)`` the true reward of robot
-    action ``a_r`` in state ``s``, the state *before* the robot's move (as
+    gives ``{a_h: p}`` (``-1``: no action); ``memory_update(y, m, s_mid, a_r, h)`` the
+    person's memory after her action ``h`` (``-1``: none), read like ``behaviour`` in the
+    state after the robot's move; ``reward(y, s, a_r)`` the true reward of robot action
+    ``a_r`` in state ``s``, the state *before* the robot's move (as
     ``TaskWithPeople.true_reward[a_r, x, y]``)."""
     states, i = [initial], 0
     seen = {initial}

@@ -81,16 +81,18 @@ def test_learn_records_the_divided_states():
 
 def test_split_worked_by_hand():
     # type 0 in state 0: s0-s2 partners wait twice (own: wait), s3, s4 hand twice (own: hand),
-    # s5 hands once (one step: counts by it), s6 waits once and hands once (a tie: stays);
+    # s5 hands once (one step: counts by it), s6 waits once and hands once (a tie: stays,
+    # before the settling, test below);
     rows = [[(0, 0), (0, 0)]] * 3 + [[(0, 1), (0, 1)]] * 2 + [[(0, 1)], [(0, 0), (0, 1)]]
     # type 1 (s7, s8, and a sequence of s3's) hands in state 0 too, and is not touched
     rows += [[(0, 1), (0, 1)]] * 3
     z0 = torch.tensor([0] * 7 + [1, 1, 1])
     subjects = torch.tensor([0, 1, 2, 3, 4, 5, 6, 7, 8, 3])
     z, splits = split_divided(_steps(rows), z0, subjects, num_types=2, num_states=1,
-                              num_actions=2, max_types=6)  # fmt: skip
+                              num_actions=2, max_types=6, settle=False)  # fmt: skip
     assert z.tolist() == [0, 0, 0, 2, 2, 2, 0, 1, 1, 1]
-    assert splits == [{"type": 0, "state": 0, "move": 1, "kept_move": 0, "subjects": 3}]
+    assert splits == [{"type": 0, "state": 0, "move": 1, "kept_move": 0, "subjects": 3,
+                       "settled": 3}]  # fmt: skip
     # max_types stops the split
     z, splits = split_divided(_steps(rows), z0, subjects, num_types=2, num_states=1,
                               num_actions=2, max_types=2)  # fmt: skip
@@ -106,6 +108,26 @@ def test_split_worked_by_hand():
     shape = dict(num_types=1, num_states=1, num_actions=3)
     assert divided_states(steps, one, torch.arange(5), **shape)[0].all()
     assert split_divided(steps, one, torch.arange(5), max_types=6, **shape)[1] == []
+
+
+def test_split_settles_a_subject_by_its_partners_moves_elsewhere():
+    # state 0: s0-s3 partners wait twice, s4-s6 hand twice: the split's state; state 1: each
+    # of s0-s6 once (s0-s3 wait, s4-s6 hand), s7 hands twice and s8 waits twice, neither
+    # seen in state 0: s7 goes with the hands by state 1, s8 stays
+    rows = [[(0, 0), (0, 0), (1, 0)]] * 4 + [[(0, 1), (0, 1), (1, 1)]] * 3
+    rows += [[(1, 1), (1, 1)], [(1, 0), (1, 0)]]
+    z, splits = split_divided(_steps(rows), torch.zeros(9, dtype=torch.long), torch.arange(9),
+                              num_types=1, num_states=2, num_actions=2, max_types=6)  # fmt: skip
+    assert z.tolist() == [0, 0, 0, 0, 1, 1, 1, 1, 0]
+    assert splits[0]["state"] == 0 and splits[0]["subjects"] == 3 and splits[0]["settled"] == 4
+    # s7 is moved by one hand in state 0, but its partners waited 6 times in state 1, as the
+    # kept half's did: settled back (its own steps are left out of the half it is scored in)
+    rows = [[(0, 0), (0, 0), (1, 0)]] * 4 + [[(0, 1), (0, 1), (1, 1)]] * 3
+    rows += [[(0, 1)] + [(1, 0)] * 6]
+    z, splits = split_divided(_steps(rows), torch.zeros(8, dtype=torch.long), torch.arange(8),
+                              num_types=1, num_states=2, num_actions=2, max_types=6)  # fmt: skip
+    assert z.tolist() == [0, 0, 0, 0, 1, 1, 1, 0]
+    assert splits[0]["subjects"] == 4 and splits[0]["settled"] == 3
 
 
 def test_split_restores_merged_types_and_leaves_true_ones():

@@ -127,6 +127,7 @@ def split_divided(
     max_types: int,
     min_subjects: int = DIVIDED_MIN_SUBJECTS,
     min_share: float = DIVIDED_MIN_SHARE,
+    settle: bool = True,
 ) -> tuple[torch.Tensor, list[dict[str, int]]]:
     """Split the divided types (:func:`divided_states`) by the partners' moves there.
 
@@ -135,7 +136,9 @@ def split_divided(
     ``m``: take the ``(y, x)`` with the most such subjects (the first on a tie), and move to
     a new type ``K`` the demonstrations of type ``y`` of every subject whose partners made
     ``m`` in ``x`` more often than the type's most common own move (a subject seen there once
-    counts by that step). The other demonstrations stay.
+    counts by that step). Then, with ``settle``, the subjects of the two halves are settled
+    by all their partners' moves (a subject whose partners met ``x`` rarely or never goes to
+    the half whose partners moved as its own did elsewhere: :func:`_settle`).
 
     Args:
         steps: the demonstrations as task steps (``N`` sequences).
@@ -144,12 +147,15 @@ def split_divided(
         num_types, num_states, num_actions: ``K``, ``X``, ``A``.
         max_types: split no further than this many types.
         min_subjects, min_share: :func:`divided_states`'s thresholds.
+        settle: reassign the two halves' subjects by all their partners' moves after each
+            split.
 
     Returns:
         ``(N,)`` int64 the new types (the new ones numbered ``K``, ``K + 1``, ... in order of
         the splits) and one record per split: ``type``, ``state``, ``move`` (the partners'
-        move of the new type), ``kept_move`` (the type's most common own move) and
-        ``subjects`` (how many moved).
+        move of the new type), ``kept_move`` (the type's most common own move),
+        ``subjects`` (how many moved by ``x``) and ``settled`` (the new type's subjects after
+        the settling).
 
     Raises:
         ValueError: as :func:`divided_states`; ``max_types`` below 1.
@@ -194,7 +200,82 @@ def split_divided(
         )  # (S,) subjects whose partners made ``move`` more often
         moved = (z == y) & more[subject]
         z[moved] = K
+        if settle:
+            z = _settle(steps, z, subject, (y, K), num_states=X, num_actions=A)
         splits.append({"type": y, "state": x, "move": move, "kept_move": main,
-                       "subjects": int(more.sum())})  # fmt: skip
+                       "subjects": int(more.sum()),
+                       "settled": int(torch.unique(subject[z == K]).numel())})  # fmt: skip
         K += 1
     return z, splits
+
+
+#: The pseudo-count of :func:`_settle`'s partner-move tables (per state and move).
+SETTLE_PSEUDO_COUNT = 0.5
+
+#: The most reassignment rounds of :func:`_settle`.
+SETTLE_ROUNDS = 10
+
+
+def _settle(steps: TaskSteps, z: torch.Tensor, subject: torch.Tensor, pair: tuple[int, int], *,
+            num_states: int, num_actions: int) -> torch.Tensor:  # fmt: skip
+    """Reassign the subjects of the two types of a split by all their partners' moves.
+
+    The split reads one state; a subject whose partners never met it, or met it once, can sit
+    in the wrong half while its partners' moves elsewhere (the other states where the halves'
+    partners differ) say which half it belongs to. Each round scores every subject of the
+    pair under each half's table of partner moves, ``P_g(a | x)`` (the half's counts plus
+    :data:`SETTLE_PSEUDO_COUNT`, leaving the subject's own steps out of its half) and the
+    half's share of subjects (leave-one-out, plus one), and moves it to the better half
+    (a tie stays), until no subject moves, :data:`SETTLE_ROUNDS` rounds, or a half would
+    keep fewer than :data:`DIVIDED_MIN_SUBJECTS` subjects (then the last assignment stays).
+    States where the halves' partners move alike score both halves the same, up to the
+    counts' noise.
+    """
+    X, A = num_states, num_actions
+    mask = steps.mask
+    in_pair = (z == pair[0]) | (z == pair[1])
+    at = mask & in_pair[:, None]  # (N, L) the pair's steps
+    g_step = (z[:, None].expand_as(mask)[at] == pair[1]).long()  # 0 old half, 1 new half
+    s_step = subject[:, None].expand_as(mask)[at]
+    cell = steps.states[at] * A + steps.actions[at]  # (T,) (x, a) of each step
+    row = steps.states[at]
+    subs, s_local = torch.unique(s_step, return_inverse=True)  # the pair's subjects
+    n = subs.numel()
+    # each (subject, x, a) cell's count, and each (subject, x) row's, to leave out
+    _, key_sa_inv = torch.unique(s_local * (X * A) + cell, return_inverse=True)
+    own_sa = torch.bincount(key_sa_inv)[key_sa_inv].double()  # (T,)
+    _, key_sx_inv = torch.unique(s_local * X + row, return_inverse=True)
+    own_sx = torch.bincount(key_sx_inv)[key_sx_inv].double()  # (T,)
+    # a subject's half: its demonstrations in the pair are in one half (moved together)
+    half = torch.zeros(n, dtype=torch.long, device=z.device)
+    half[s_local] = g_step
+    alpha = SETTLE_PSEUDO_COUNT
+    for _ in range(SETTLE_ROUNDS):
+        g = half[s_local]  # (T,)
+        cells = torch.zeros(2, X * A, dtype=torch.float64, device=z.device)
+        cells.index_put_((g, cell), torch.ones_like(cell, dtype=torch.float64), accumulate=True)
+        rows = cells.view(2, X, A).sum(-1)  # (2, X)
+        sizes = torch.bincount(half, minlength=2).double()  # (2,)
+        score = torch.zeros(n, 2, dtype=torch.float64, device=z.device)
+        for h in (0, 1):
+            mine = (g == h).double()  # leave the subject's own steps out of its own half
+            num = cells[h, cell] - mine * own_sa + alpha
+            den = rows[h, row] - mine * own_sx + alpha * A
+            score[:, h].index_add_(0, s_local, torch.log(num) - torch.log(den))
+            score[:, h] += torch.log(sizes[h] - (half == h).double() + 1.0)
+        other = 1 - half
+        kept = score.gather(1, half[:, None]).squeeze(1)
+        better = score.gather(1, other[:, None]).squeeze(1) > kept
+        if not bool(better.any()):
+            break
+        new_half = torch.where(better, other, half)
+        if int(torch.bincount(new_half, minlength=2).min()) < DIVIDED_MIN_SUBJECTS:
+            break
+        half = new_half
+    # write back: each subject's demonstrations in the pair go to its half
+    out = z.clone()
+    lookup = torch.full((int(subject.max()) + 1,), -1, dtype=torch.long, device=z.device)
+    lookup[subs] = half
+    h_n = lookup[subject]
+    out[in_pair] = torch.where(h_n[in_pair] == 1, pair[1], pair[0])
+    return out

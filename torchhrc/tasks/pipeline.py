@@ -67,6 +67,7 @@ __all__ = [
     "compare_human_models",
     "learn",
     "learn_type_weights",
+    "partner_moves",
     "solve_model",
     "solve_momdp",
     "split_divided_types",
@@ -667,7 +668,7 @@ def build_model(
     if len(names) != K:
         raise ModelError(f"the task's type_names() gave {len(names)} names for Y={K} types")
     momdp = task_momdp(task, Tx, R, b0, type_names=names)
-    divided = _divided(task, steps, evidence.assignments, demonstrations, names)
+    divided = _divided(task, steps, evidence.assignments, demonstrations, names, info)
     return LearnedModel(
         momdp=momdp,
         weights=weights,
@@ -691,20 +692,70 @@ def build_model(
 DIVIDED_LISTED = 10
 
 
+def partner_moves(
+    task: CollaborativeTask, steps: TaskSteps, *, objects: str = "raw", separator: str = "_"
+) -> tuple[TaskSteps, tuple[str, ...]]:
+    """The robot's moves as a difference between types reads them.
+
+    With ``objects="raw"`` every robot action is its own move. With ``"exchangeable"`` (the
+    clustering's reading of the actions' objects as interchangeable names:
+    ``docs/your_own_task.md``, "Action names carry objects") a robot action
+    ``<verb><separator><object>`` is its verb: ``drill_A`` and ``drill_B`` are one move, as
+    the clustering read them. Partners who drilled different screws in one state then do not
+    divide a type: which screw follows the person's own placement order, her history, not
+    her type.
+
+    Args:
+        task: the task.
+        steps: its steps (:meth:`CollaborativeTask.read_steps`).
+        objects: ``"raw"`` or ``"exchangeable"`` (``MixtureFit.objects``).
+        separator: the separator between verb and object.
+
+    Returns:
+        The steps with ``actions`` as move ids and the moves' names (``(A',)``).
+
+    Example:
+        >>> from torchhrc.tasks.suite import make_task
+        >>> twp = make_task("screws_hands_off")  # robot actions: wait, drill_A, drill_B, drill_C
+        >>> demos, _ = twp.demonstrations(subjects=3, per_subject=1, seed=0)
+        >>> partner_moves(twp.task, twp.task.read_steps(demos), objects="exchangeable")[1]
+        ('wait', 'drill')
+    """
+    names = tuple(task.robot_actions)
+    if objects != "exchangeable":
+        return steps, names
+    verbs = [n.rsplit(separator, 1)[0] if separator in n else n for n in names]
+    moves = tuple(dict.fromkeys(verbs))
+    index = torch.tensor([moves.index(v) for v in verbs], device=steps.actions.device)
+    actions = torch.where(steps.mask, index[steps.actions.clamp(0, len(names) - 1)], 0)
+    return replace(steps, actions=actions), moves
+
+
+def _objects_reading(info: dict[str, Any] | None) -> tuple[str, str]:
+    """The clustering's reading of the objects and its separator, from learn()'s ``info``."""
+    info = info or {}
+    separator = (info.get("cluster") or {}).get("object_separator") or "_"
+    return str(info.get("objects") or "raw"), str(separator)
+
+
 def _divided(task: CollaborativeTask, steps: TaskSteps | None, assignments: torch.Tensor,
-             demonstrations: Demonstrations, names: tuple[str, ...]) -> dict[str, Any]:  # fmt: skip
+             demonstrations: Demonstrations, names: tuple[str, ...],
+             info: dict[str, Any] | None) -> dict[str, Any]:  # fmt: skip
     """``info["divided"]``: the states where a learned type's people had partners with
-    different own moves (:func:`~torchhrc.tasks.divided_types.divided_states`), the first
+    different own moves (:func:`~torchhrc.tasks.divided_types.divided_states`, the moves
+    read as the clustering read the objects: :func:`partner_moves`), the first
     :data:`DIVIDED_LISTED` of them by type and state, with the subjects per own move."""
     if steps is None:
         return {"states": 0, "where": []}
+    objects, separator = _objects_reading(info)
+    steps, moves = partner_moves(task, steps, objects=objects, separator=separator)
     divided, own = divided_states(steps, assignments, demonstrations.subject_index,
                                   num_types=len(names), num_states=task.num_states,
-                                  num_actions=task.num_actions)  # fmt: skip
+                                  num_actions=len(moves))  # fmt: skip
     where = []
     for y, x in divided.nonzero().tolist()[:DIVIDED_LISTED]:
-        moves = {task.robot_actions[a]: int(n) for a, n in enumerate(own[y, x].tolist()) if n}
-        where.append({"type": names[y], "state": task.state_names[x], "subjects": moves})
+        counts = {moves[a]: int(n) for a, n in enumerate(own[y, x].tolist()) if n}
+        where.append({"type": names[y], "state": task.state_names[x], "subjects": counts})
     return {"states": int(divided.sum()), "where": where}
 
 
@@ -715,10 +766,13 @@ def split_divided_types(
     *,
     max_types: int,
     num_types: int | None = None,
+    objects: str = "raw",
+    separator: str = "_",
 ) -> tuple[torch.Tensor, list[dict[str, Any]]]:
     """A clustering's types, each divided type split by its partners' moves
-    (:func:`~torchhrc.tasks.divided_types.split_divided` over the task's steps), as
-    ``learn()`` does after its clustering.
+    (:func:`~torchhrc.tasks.divided_types.split_divided` over the task's steps, the moves
+    read as the clustering read the objects: :func:`partner_moves`), as ``learn()`` does
+    after its clustering.
 
     Args:
         task: the task.
@@ -726,6 +780,9 @@ def split_divided_types(
         assignments: ``(N,)`` the type of each (``fit_mixture``'s ``assignments``).
         max_types: split no further than this many types.
         num_types: the clustering's number of types (default: the largest assigned + 1).
+        objects: the clustering's reading of the objects (``MixtureFit.objects``):
+            ``"exchangeable"`` compares the robot's moves by verb.
+        separator: the separator between verb and object.
 
     Returns:
         ``(N,)`` int64 the new types (the split ones numbered after the clustering's) and one
@@ -745,12 +802,13 @@ def split_divided_types(
     steps = task.read_steps(demonstrations)
     if steps is None or z.numel() == 0:
         return z, []
+    steps, moves = partner_moves(task, steps, objects=objects, separator=separator)
     K = int(z.max()) + 1 if num_types is None else num_types
     z, splits = split_divided(steps, z, demonstrations.subject_index, num_types=K,
-                              num_states=task.num_states,
-                              num_actions=task.num_actions, max_types=max_types)  # fmt: skip
-    named = [{**r, "state": task.state_names[r["state"]], "move": task.robot_actions[r["move"]],
-              "kept_move": task.robot_actions[r["kept_move"]]} for r in splits]  # fmt: skip
+                              num_states=task.num_states, num_actions=len(moves),
+                              max_types=max_types)  # fmt: skip
+    named = [{**r, "state": task.state_names[r["state"]], "move": moves[r["move"]],
+              "kept_move": moves[r["kept_move"]]} for r in splits]  # fmt: skip
     return z, named
 
 
@@ -1106,9 +1164,10 @@ def learn(
     fit = fit_mixture(demonstrations, seed=seed, **options)
     assignments, splits = fit.assignments, []
     if split_divided and k is None:
-        assignments, splits = split_divided_types(task, demonstrations, assignments,
-                                                  max_types=options["k_max"],
-                                                  num_types=int(fit.k))  # fmt: skip
+        assignments, splits = split_divided_types(
+            task, demonstrations, assignments, max_types=options["k_max"],
+            num_types=int(fit.k), objects=fit.objects,
+            separator=options.get("object_separator") or "_")  # fmt: skip
     K = int(fit.k) + len(splits)
     info: dict[str, Any] = {
         "k": K,

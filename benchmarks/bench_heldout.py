@@ -74,10 +74,9 @@ def cluster_row(name: str, seed: int, *, subjects: int, per_subject: int, noise:
         fit = fit_mixture(demos, seed=seed, **options)
     z, splits = fit.assignments, []
     if split:
-        separator = options.get("object_separator") or "_"
         z, splits = split_divided_types(world.task, demos, z, max_types=options["k_max"],
                                         num_types=int(fit.k), objects=fit.objects,
-                                        separator=separator)  # fmt: skip
+                                        separator=fit.model.object_separator)  # fmt: skip
     k = int(fit.k) + len(splits)
     ari = adjusted_rand_index(types.tolist(), z.tolist())
     return dict(task=name, states=world.task.num_states, seed=seed, true_k=world.num_types,

@@ -1167,7 +1167,7 @@ def learn(
         assignments, splits = split_divided_types(
             task, demonstrations, assignments, max_types=options["k_max"],
             num_types=int(fit.k), objects=fit.objects,
-            separator=options.get("object_separator") or "_")  # fmt: skip
+            separator=fit.model.object_separator)  # fmt: skip
     K = int(fit.k) + len(splits)
     info: dict[str, Any] = {
         "k": K,

@@ -20,7 +20,7 @@ from torchhrc.errors import ModelError
 from torchhrc.metrics import adjusted_rand_index
 from torchhrc.mixture import MarkovChainMixture, fit_mixture
 from torchhrc.mixture.counts import sufficient_statistics
-from torchhrc.mixture.criteria import exact_icl
+from torchhrc.mixture.criteria import exact_icl, partition_icl
 from torchhrc.mixture.history import context_symbols, second_order
 from torchhrc.mixture.likelihood import sequence_log_likelihood
 from torchhrc.mixture.selection import order_to_keep
@@ -141,6 +141,53 @@ def test_second_order_exact_icl_against_its_definition():
     assert got == pytest.approx(want, rel=1e-12)
 
 
+def _icl_by_definition(d: Demonstrations, z: list[int], order: int, units: list) -> float:
+    """``log p(D, z)`` by its definition, with loops: every (cluster, last ``order`` steps)
+    row and every cluster's first steps a Dirichlet(1/2) over the A recorded symbols, the
+    clusters' shares of the units a Dirichlet(1)."""
+    alpha, A = 0.5, d.num_symbols
+    rows: dict[tuple[int, object], Counter] = {}
+    for n, seq in enumerate(d.to_lists()):
+        before: tuple = ("start",) * order
+        for t, step in enumerate(seq):
+            rows.setdefault((z[n], "first" if t == 0 else before), Counter())[step] += 1
+            before = (*before[1:], step)
+    want = 0.0
+    for counter in rows.values():
+        total = sum(counter.values())
+        want += sum(math.lgamma(c + alpha) - math.lgamma(alpha) for c in counter.values())
+        want += math.lgamma(A * alpha) - math.lgamma(total + A * alpha)
+    cluster = dict(zip(units, z))
+    sizes = Counter(cluster.values())
+    k = len(sizes)
+    want += sum(math.lgamma(m + 1.0) for m in sizes.values())
+    return want + math.lgamma(k) - math.lgamma(len(cluster) + k)
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_partition_icl_against_its_definition(order: int):
+    d, _ = _order_types(subjects=4, per_subject=2)
+    lists = [*d.to_lists()[:5], [W, ("human", "p1"), W, ("human", "p1")]]
+    subjects = ["s0", "s0", "s1", "s1", "s2", "s3"]
+    d = Demonstrations.from_lists(lists, subjects=subjects)
+    groups = torch.tensor([0, 0, 1, 1, 2, 3])
+    by_sequence = [0, 1, 1, 0, 0, 1]
+    by_subject = [0, 0, 1, 1, 0, 1]
+    labels = torch.tensor([7, 7, 3, 3, 7, 3])  # any label values: the same partition
+    got = partition_icl(d, [torch.tensor(by_sequence), labels], order)
+    assert got[0] == pytest.approx(_icl_by_definition(d, by_sequence, order, list(range(6))),
+                                   rel=1e-12)  # fmt: skip
+    assert got[1] == pytest.approx(_icl_by_definition(d, by_subject, order, list(range(6))),
+                                   rel=1e-12)  # fmt: skip
+    # subjects as units: their sequences share a cluster, the weights count subjects
+    (grouped,) = partition_icl(d, [labels], order, groups=groups)
+    assert grouped == pytest.approx(_icl_by_definition(d, by_subject, order, subjects), rel=1e-12)
+    with pytest.raises(ValueError, match="two labels in one unit"):
+        partition_icl(d, [torch.tensor(by_sequence)], order, groups=groups)
+    with pytest.raises(ValueError, match=r"partitions\[0\] of shape \(6,\)"):
+        partition_icl(d, [torch.zeros(5, dtype=torch.long)], order)
+
+
 def _rows(stats, z: torch.Tensor) -> torch.Tensor:
     """``(U, 1)`` the cluster of each distinct row (all sequences of a row share it here)."""
     out = torch.zeros(stats.num_distinct, dtype=torch.long)
@@ -162,6 +209,14 @@ def test_second_order_finds_types_first_order_counts_cannot_tell_apart():
     assert auto.order == 2 and auto.k == 2
     assert set(auto.order_comparison) == {"1", "2", "3"}
     assert auto.order_comparison["1"]["k"] == 1 and auto.order_comparison["2"]["k"] == 2
+    # the tied orders' partitions scored under every order compared: under its own order a
+    # partition's score is the fit's own exact ICL (two code paths, one number)
+    for order in ("2", "3"):
+        row = auto.order_comparison[order]
+        assert {f"exact_icl_at_{o}" for o in "123"} <= set(row)
+        assert row[f"exact_icl_at_{order}"] == pytest.approx(row["exact_icl"], rel=1e-9)
+        assert row["partition"] == 2.0  # the second and third orders' partitions are one
+    assert "exact_icl_at_1" not in auto.order_comparison["1"]  # fewer types: not a candidate
     # smoothing only where a context can go: no mass on impossible successors
     support = second_order(d).transition_support
     assert float(second.model.transition[:, ~support].max()) < 1e-6
@@ -253,6 +308,38 @@ def test_the_order_kept_is_the_one_with_more_types_then_the_larger_exact_icl():
                           "2": {"k": 2, "exact_icl": -690.0}}) == 2  # fmt: skip
     assert order_to_keep({"1": {"k": 2, "exact_icl": -700.0},
                           "2": {"k": 2, "exact_icl": -700.0}}) == 1  # fmt: skip
+
+
+def test_on_equal_k_the_order_whose_partition_wins_under_every_order_is_kept():
+    # five_parts seed 9 (docs/clustering.md, "The partition on equal k"): both orders find
+    # 5 types; the second order's own exact ICL is the larger (-2032.2 against -2378.7), but
+    # the first order's partition (the true one) scores higher under both orders' chains
+    row = {"1": {"k": 5, "exact_icl": -2378.7, "exact_icl_at_1": -2378.7,
+                 "exact_icl_at_2": -1936.8, "exact_icl_at_3": -2128.4},
+           "2": {"k": 5, "exact_icl": -2032.2, "exact_icl_at_1": -2498.2,
+                 "exact_icl_at_2": -2032.2, "exact_icl_at_3": -2218.6},
+           "3": {"k": 4, "exact_icl": -2107.7}}  # fmt: skip
+    assert order_to_keep(row) == 1
+    # above the other under one order by no more than the margin (5 nats): each fit's own
+    # exact ICL decides, as without the scores
+    row["1"]["exact_icl_at_3"] = -2218.6 + 4.9
+    assert order_to_keep(row) == 2
+    row["1"]["exact_icl_at_3"] = -2218.6 + 5.1
+    assert order_to_keep(row) == 1
+    # the judges disagree: as without the scores
+    row["1"]["exact_icl_at_3"] = -2300.0
+    assert order_to_keep(row) == 2
+    # a fit with more types is kept whatever the scores of the tied ones
+    row["3"]["k"] = 6
+    assert order_to_keep(row) == 3
+    # three orders, two with one partition that wins: of those two, the larger own exact ICL
+    same = {"k": 3, "exact_icl_at_1": -100.0, "exact_icl_at_2": -90.0, "partition": 1}
+    other = {"k": 3, "exact_icl_at_1": -110.0, "exact_icl_at_2": -96.0, "partition": 3}
+    three = {"1": {**same, "exact_icl": -100.0}, "2": {**same, "exact_icl": -90.0},
+             "3": {**other, "exact_icl": -80.0}}  # fmt: skip
+    assert order_to_keep(three) == 2
+    three["3"]["exact_icl_at_2"] = -94.0  # within the margin under the second order
+    assert order_to_keep(three) == 3
 
 
 def test_second_order_finds_people_who_each_prefer_an_order():

@@ -18,7 +18,7 @@ from typing import Any, Literal
 
 import torch
 
-from torchhrc.mixture.counts import SufficientStatistics
+from torchhrc.mixture.counts import SufficientStatistics, sufficient_statistics
 from torchhrc.mixture.hard_em import partition_counts, partition_sizes
 
 Method = Literal["soft", "paper"]
@@ -33,6 +33,7 @@ __all__ = [
     "gains_per_transition",
     "num_free_parameters",
     "num_transitions",
+    "partition_icl",
 ]
 
 
@@ -155,6 +156,75 @@ def exact_icl(
     return (
         out + weights.sum(-1) + torch.lgamma(k * weight_prior) - torch.lgamma(n + k * weight_prior)
     )
+
+
+def partition_icl(
+    data: Any,
+    partitions: list[torch.Tensor],
+    order: int = 1,
+    *,
+    groups: torch.Tensor | None = None,
+    initial: bool = True,
+    prior: float = EXACT_ICL_PRIOR,
+) -> list[float]:
+    """The exact ICL ``log p(D, z)`` of given partitions of the same demonstrations, under
+    chains of one ``order`` (:func:`exact_icl`; orders 2 and 3 through
+    :func:`~torchhrc.mixture.history.context_symbols`, each context's Dirichlet over the
+    ``A`` recorded symbols, so that every order scores the same data).
+
+    Partitions found with chains of different orders are compared under one order with it
+    (``fit_mixture(order="auto")``, :func:`~torchhrc.mixture.selection.order_to_keep`): each
+    order's own exact ICL is of another model, larger at the higher order whatever the
+    partition.
+
+    Args:
+        data: a :class:`~torchhrc.data.Demonstrations` of ``N`` sequences over ``A`` symbols.
+        partitions: ``(N,)`` int64 labels, one tensor per partition (any label values; a
+            partition's number of clusters is its number of distinct labels).
+        order: the chains' order, 1 to :data:`~torchhrc.mixture.history.MAX_ORDER`.
+        groups: ``(N,)`` int64 unit of every sequence (all sequences of a unit share one
+            cluster, as ``fit_mixture(unit="subject")``), or None: every sequence alone.
+        initial: whether the first symbols are modelled (as ``fit_mixture(initial=)``).
+        prior: Dirichlet concentration of every row (default: Jeffreys, 1/2).
+
+    Returns:
+        One float per partition (larger is better).
+
+    Raises:
+        ValueError: a partition of the wrong shape, or with two labels in one unit.
+
+    Example:
+        >>> import torch
+        >>> from torchhrc.data import Demonstrations
+        >>> d = Demonstrations.from_lists([[("human", "a"), ("human", "b")] * 3] * 4
+        ...                               + [[("human", "a"), ("human", "a")] * 3] * 4)
+        >>> right, wrong = torch.tensor([0] * 4 + [1] * 4), torch.tensor([0, 1] * 4)
+        >>> one, two = partition_icl(d, [right, wrong])
+        >>> one > two
+        True
+    """
+    from torchhrc.mixture.history import context_symbols
+
+    lowered = data if order == 1 else context_symbols(data, order).data
+    N = lowered.sequences.shape[0]
+    stats = sufficient_statistics(lowered.sequences, lowered.lengths, lowered.num_symbols,
+                                  initial=initial, groups=groups, deduplicate=False)  # fmt: skip
+    out = []
+    for i, z in enumerate(partitions):
+        if z.shape != (N,):
+            raise ValueError(
+                f"expected partitions[{i}] of shape ({N},) (one label per sequence), got "
+                f"{tuple(z.shape)}"
+            )
+        labels, z = torch.unique(z, return_inverse=True)
+        rows = torch.zeros(stats.counts.shape[0], dtype=torch.long).index_copy_(0, stats.inverse, z)
+        if not torch.equal(rows[stats.inverse], z):
+            raise ValueError(f"expected partitions[{i}] to give all sequences of a unit one "
+                             "label (groups), got two labels in one unit")  # fmt: skip
+        mask = torch.ones(1, len(labels), dtype=torch.bool)
+        score = exact_icl(stats, rows[:, None], mask, prior=prior, outcomes=data.num_symbols)
+        out.append(float(score[0]))
+    return out
 
 
 def _support_parameters(stats: SufficientStatistics) -> int:

@@ -1110,9 +1110,9 @@ def learn(
         under every criterion: ``bic``, ``exact_icl``, ``log_likelihood``, ``gain``,
         ``heldout`` and ``heldout_se``; with ``order="auto"``, of the order kept),
         ``objects``, ``order`` and ``order_comparison`` (each order's k, exact ICL and
-        log-likelihood), ``cluster`` (the settings used),
-        ``irl``, ``solver``, ``human_model`` (requested, used, held-out likelihoods),
-        ``prior`` (the rule and ``b0``) and ``seed``.
+        log-likelihood; on equal k each partition's exact ICL under every order),
+        ``cluster`` (the settings used), ``irl``, ``solver``, ``human_model`` (requested,
+        used, held-out likelihoods), ``prior`` (the rule and ``b0``) and ``seed``.
 
     Example:
         >>> from torchhrc.mixture import ClusterConfig

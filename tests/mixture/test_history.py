@@ -209,11 +209,12 @@ def test_second_order_finds_types_first_order_counts_cannot_tell_apart():
     assert auto.order == 2 and auto.k == 2
     assert set(auto.order_comparison) == {"1", "2", "3"}
     assert auto.order_comparison["1"]["k"] == 1 and auto.order_comparison["2"]["k"] == 2
-    # the tied orders' partitions scored under every order compared: under its own order a
-    # partition's score is the fit's own exact ICL (two code paths, one number)
+    # the tied orders' partitions scored under each tied order's chains (not the first
+    # order's, which found fewer types): under its own order a partition's score is the
+    # fit's own exact ICL (two code paths, one number)
     for order in ("2", "3"):
         row = auto.order_comparison[order]
-        assert {f"exact_icl_at_{o}" for o in "123"} <= set(row)
+        assert {"exact_icl_at_2", "exact_icl_at_3"} <= set(row) and "exact_icl_at_1" not in row
         assert row[f"exact_icl_at_{order}"] == pytest.approx(row["exact_icl"], rel=1e-9)
         assert row["partition"] == 2.0  # the second and third orders' partitions are one
     assert "exact_icl_at_1" not in auto.order_comparison["1"]  # fewer types: not a candidate
@@ -310,27 +311,36 @@ def test_the_order_kept_is_the_one_with_more_types_then_the_larger_exact_icl():
                           "2": {"k": 2, "exact_icl": -700.0}}) == 1  # fmt: skip
 
 
-def test_on_equal_k_the_order_whose_partition_wins_under_every_order_is_kept():
+def test_on_equal_k_the_order_whose_partition_wins_under_every_tied_order_is_kept():
     # five_parts seed 9 (docs/clustering.md, "The partition on equal k"): both orders find
     # 5 types; the second order's own exact ICL is the larger (-2032.2 against -2378.7), but
     # the first order's partition (the true one) scores higher under both orders' chains
     row = {"1": {"k": 5, "exact_icl": -2378.7, "exact_icl_at_1": -2378.7,
-                 "exact_icl_at_2": -1936.8, "exact_icl_at_3": -2128.4},
+                 "exact_icl_at_2": -1936.8},
            "2": {"k": 5, "exact_icl": -2032.2, "exact_icl_at_1": -2498.2,
-                 "exact_icl_at_2": -2032.2, "exact_icl_at_3": -2218.6},
+                 "exact_icl_at_2": -2032.2},
            "3": {"k": 4, "exact_icl": -2107.7}}  # fmt: skip
     assert order_to_keep(row) == 1
     # above the other under one order by no more than the margin (5 nats): each fit's own
     # exact ICL decides, as without the scores
-    row["1"]["exact_icl_at_3"] = -2218.6 + 4.9
+    row["1"]["exact_icl_at_1"] = -2498.2 + 4.9
     assert order_to_keep(row) == 2
-    row["1"]["exact_icl_at_3"] = -2218.6 + 5.1
+    row["1"]["exact_icl_at_1"] = -2498.2 + 5.1
     assert order_to_keep(row) == 1
     # the judges disagree: as without the scores
-    row["1"]["exact_icl_at_3"] = -2300.0
+    row["1"]["exact_icl_at_1"] = -2600.0
     assert order_to_keep(row) == 2
     # a fit with more types is kept whatever the scores of the tied ones
     row["3"]["k"] = 6
+    assert order_to_keep(row) == 3
+    # paint_crews seed 5: the second and third orders find 4 types, the first 3; the third
+    # order's partition (the true one) is ahead under both tied orders' chains, and the
+    # first order's, which cannot see the fourth type, is no judge
+    row = {"1": {"k": 3, "exact_icl": -989.3},
+           "2": {"k": 4, "exact_icl": -831.1, "exact_icl_at_2": -831.1,
+                 "exact_icl_at_3": -910.7, "exact_icl_at_1": -1042.4},
+           "3": {"k": 4, "exact_icl": -863.0, "exact_icl_at_2": -795.5,
+                 "exact_icl_at_3": -863.0, "exact_icl_at_1": -1046.2}}  # fmt: skip
     assert order_to_keep(row) == 3
     # three orders, two with one partition that wins: of those two, the larger own exact ICL
     same = {"k": 3, "exact_icl_at_1": -100.0, "exact_icl_at_2": -90.0, "partition": 1}

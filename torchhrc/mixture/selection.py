@@ -164,10 +164,9 @@ class MixtureFit:
         order_comparison: with ``order="auto"``, each order's selected fit,
             ``"1"/"2"/"3" -> {"k", "exact_icl", "log_likelihood"}`` (``exact_icl``: of the
             recorded demonstrations in all, :func:`order_to_keep`), and where several
-            orders found the most types, each of those orders' partition scored under every
-            order's chains, ``"exact_icl_at_1"``, ``"exact_icl_at_2"``, ..., and
-            ``"partition"``, the lowest of those orders with the same partition; else
-            ``None``.
+            orders found the most types, each of those orders' partition scored under each
+            of those orders' chains, ``"exact_icl_at_<order>"``, and ``"partition"``, the
+            lowest of those orders with the same partition; else ``None``.
     """
 
     model: MarkovChainMixture
@@ -548,9 +547,10 @@ def fit_mixture(
             drill, saw, saw, that one step back does not show); ``"auto"``: select k in the
             three orders (the objects' reading chosen in first order) and keep the fit with
             the most types; on equal k the one whose partition has the larger exact ICL
-            (``log p(D, z)`` of the recorded data in all) under every order's chains
-            (:func:`~torchhrc.mixture.criteria.partition_icl`), else the larger exact ICL
-            under its own order (:func:`order_to_keep`): a type any order's rule finds is kept
+            (``log p(D, z)`` of the recorded data in all) under the chains of every order
+            that found as many (:func:`~torchhrc.mixture.criteria.partition_icl`), else the
+            larger exact ICL under its own order (:func:`order_to_keep`): a type any order's
+            rule finds is kept
             (``docs/clustering.md``, "Second-order chains" and "Third-order chains"). Above
             first order the ``per_k`` rows add ``exact_icl_recorded`` (the exact ICL with each
             context's Dirichlet over the recorded symbols). The fit records ``order`` and
@@ -655,7 +655,7 @@ def fit_mixture(
     }  # fmt: skip
     most = max(f.k for f in fits.values())
     tied = [form for form, f in fits.items() if f.k == most]
-    if len(tied) > 1:  # the tied orders' partitions, each scored under every order compared
+    if len(tied) > 1:  # the tied orders' partitions, each scored under each tied order
         read = data
         if fits[1].objects == "exchangeable":
             read = data.relabel_objects(separator=fits[1].model.object_separator, keep_unused=True)
@@ -664,7 +664,7 @@ def fit_mixture(
                                                               fits[form].assignments))
                 for form in tied}  # fmt: skip
         distinct = sorted(set(same.values()))
-        for judge in fits:
+        for judge in tied:  # an order that found fewer types cannot see what divides them
             scores = partition_icl(read, [fits[form].assignments for form in distinct], judge,
                                    groups=groups, initial=options["initial"])  # fmt: skip
             for form in tied:
@@ -699,25 +699,27 @@ def _recorded_icl(fit: MixtureFit) -> float:
 
 
 #: ``fit_mixture(order="auto")`` on equal k keeps the order whose partition's exact ICL is
-#: above every other partition's by more than this, in nats, under every order's chains (a
-#: Bayes factor above e^5 = 150, "very strong" evidence on Kass and Raftery's 1995 scale);
-#: below it each fit's own exact ICL decides, as before (:func:`order_to_keep`). Chosen over
-#: the whole goal-2 bench (``docs/clustering.md``, "The partition on equal k"): at 3 nats
-#: ("strong", e^3 = 20) a partition 3.6 nats ahead under every order was the worse one
-#: (``slow_sanding`` seed 6 at 300 x 4, ARI 0.896 against 0.922).
+#: above every other partition's by more than this, in nats, under the chains of every
+#: order that found as many types (a Bayes factor above e^5 = 150, "very strong" evidence on
+#: Kass and Raftery's 1995 scale); below it each fit's own exact ICL decides, as before
+#: (:func:`order_to_keep`). Chosen over the whole goal-2 bench (``docs/clustering.md``,
+#: "The partition on equal k"): at 3 nats ("strong", e^3 = 20) a partition 3.6 nats ahead
+#: under both orders was the worse one (``slow_sanding`` seed 6 at 300 x 4, ARI 0.896
+#: against 0.922).
 PARTITION_MARGIN = 5.0
 
 
 def order_to_keep(comparison: dict[str, dict[str, float]]) -> int:
     """``fit_mixture(order="auto")``'s choice from each order's selected fit: a type that
     any order's rule finds is kept, so the order with the largest ``k``. On equal ``k``, where
-    the partitions were scored under every order compared (``exact_icl_at_<order>``:
-    :func:`~torchhrc.mixture.criteria.partition_icl`, the same data and prior for all;
-    ``partition``: the lowest order with the same partition), the orders whose partition is
-    above every other partition by more than :data:`PARTITION_MARGIN` nats under every one
-    of them; among those (or all tied orders, where no partition wins so), the larger exact
-    ICL of each fit under its own order (``log p(D, z)`` of the recorded data); on equal
-    both, the lower order.
+    the tied orders' partitions were scored under each tied order's chains
+    (``exact_icl_at_<order>``: :func:`~torchhrc.mixture.criteria.partition_icl`, the same
+    data and prior for all; ``partition``: the lowest order with the same partition), the
+    orders whose partition is above every other partition by more than
+    :data:`PARTITION_MARGIN` nats under every one of them (an order that found fewer types
+    is no judge: its chains cannot see what divides them); among those (or all tied orders,
+    where no partition wins so), the larger exact ICL of each fit under its own order
+    (``log p(D, z)`` of the recorded data); on equal both, the lower order.
 
     Why score the partitions under one order: each order's own exact ICL is of a different
     model, and the higher order's is larger whatever the partition (below), so comparing them
@@ -748,7 +750,7 @@ def order_to_keep(comparison: dict[str, dict[str, float]]) -> int:
     orders = sorted(int(o) for o in comparison)
     most = max(comparison[str(o)]["k"] for o in orders)
     tied = [o for o in orders if comparison[str(o)]["k"] == most]
-    judges = [o for o in orders if all(f"exact_icl_at_{o}" in comparison[str(t)] for t in tied)]
+    judges = [o for o in tied if all(f"exact_icl_at_{o}" in comparison[str(t)] for t in tied)]
     if len(tied) > 1 and judges:
         part = {o: int(comparison[str(o)].get("partition", o)) for o in tied}
         distinct = sorted(set(part.values()))

@@ -1110,7 +1110,7 @@ def learn(
         under every criterion: ``bic``, ``exact_icl``, ``log_likelihood``, ``gain``,
         ``heldout`` and ``heldout_se``; with ``order="auto"``, of the order kept),
         ``objects``, ``order`` and ``order_comparison`` (each order's k, exact ICL and
-        log-likelihood; on equal k each partition's exact ICL under every order),
+        log-likelihood; on equal k each tied partition's exact ICL under each tied order),
         ``cluster`` (the settings used), ``irl``, ``solver``, ``human_model`` (requested,
         used, held-out likelihoods), ``prior`` (the rule and ``b0``) and ``seed``.
 

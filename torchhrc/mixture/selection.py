@@ -279,7 +279,7 @@ class ClusterConfig:
 
     Every field left ``None`` takes the default of the function that uses the config:
     :func:`fit_mixture`'s own, or those :func:`torchhrc.tasks.learn` documents (``k_min=1``,
-    ``k_max=6``, ``restarts=10``, ``parameters="support"``, ``initial=True``). A typo in a
+    ``k_max=6``, ``restarts=20``, ``parameters="support"``, ``initial=True``). A typo in a
     field is a ``TypeError``. See :func:`fit_mixture` for what each one means.
 
     Example:

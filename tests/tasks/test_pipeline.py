@@ -387,6 +387,7 @@ def test_recorded_scores_pick_the_recorded_k(tmp_path):
     assert sorted(scores) == [1, 2, 3, 4] and info["criterion"] == "icl_or_gain"
     settings = info["cluster"]
     assert settings["initial"] is True and settings["k_min"] == 1 and settings["k_max"] == 4
+    assert settings["object_separator"] == "_"  # the fit's, recorded for info["divided"]
     # the exact ICL's k, cut to the smallest k whose next k gains less than min_gain ...
     top = max(scores, key=lambda k: scores[k]["exact_icl"])
     gain = settings["min_gain"]

@@ -738,7 +738,9 @@ def partner_moves(
 
 
 def _objects_reading(info: dict[str, Any] | None) -> tuple[str, str]:
-    """The clustering's reading of the objects and its separator, from learn()'s ``info``."""
+    """The clustering's reading of the objects and its separator, from learn()'s ``info``
+    (which records the fit's separator; ``"_"``, ``fit_mixture``'s default, only for an
+    ``info`` written by hand without one)."""
     info = info or {}
     separator = (info.get("cluster") or {}).get("object_separator") or "_"
     return str(info.get("objects") or "raw"), str(separator)
@@ -1195,6 +1197,7 @@ def learn(
                 "se_factor": 1.0,
                 "folds": 5,
                 **options,
+                "object_separator": fit.model.object_separator,  # the one the fit used
             }
         ),
         "irl": {

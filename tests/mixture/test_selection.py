@@ -206,6 +206,19 @@ def test_icl_or_gain_is_the_exact_icl_raised_by_steps_confirmed_out_of_sample():
         assert pk[k]["gain"] >= 0.0
         assert pk[k]["heldout"] - pk[k - 1]["heldout"] >= DEFAULT_HELDOUT_GAIN * T
     assert always.k == 4 > icl.k  # two steps confirmed (measured 2026-12-04: icl 2, then 4)
+    # heldout_gain is the confirmation's threshold: no step passes an infinite one, and the
+    # same scores are recorded
+    steps = [(pk[k]["heldout"] - pk[k - 1]["heldout"]) / T for k in (icl.k + 1, icl.k + 2)]
+    refused = fit_mixture(demos, criterion="icl_or_gain", strong_gain=0.0,
+                          heldout_gain=math.inf, **common)  # fmt: skip
+    assert refused.k == never.k == icl.k
+    assert refused.per_k[icl.k + 1]["heldout"] == pytest.approx(pk[icl.k + 1]["heldout"])
+    assert steps[0] < steps[1]  # measured: 0.045 and 0.089 nats per transition
+    first = fit_mixture(demos, criterion="icl_or_gain", strong_gain=0.0,
+                        heldout_gain=(steps[0] + steps[1]) / 2, **common)  # fmt: skip
+    assert first.k == icl.k  # the first step fails, and the steps go one by one
+    with pytest.raises(ValueError, match="heldout_gain"):
+        fit_mixture(demos, heldout_gain=-0.1, **common)
     assert fit_mixture(demos, **common).criterion == "icl_or_gain"  # the soft default
     # people who lead or follow by their history: a 3rd cluster gains in the fit (0.035 nats
     # per transition) but not on held-out subjects (0.006): refused

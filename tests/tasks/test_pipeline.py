@@ -377,8 +377,6 @@ def test_auto_human_model_scores_without_a_move_that_carries_the_type():
 
 
 def test_recorded_scores_pick_the_recorded_k(tmp_path):
-    from torchhrc.mixture.selection import DEFAULT_HELDOUT_GAIN
-
     demos = simulate_study(n_subjects=8, n_demos=3, seed=2)
     model = learn(PlaceAndDrillTask(3), demos, k_max=4, restarts=3, solve=False,
                   irl_iterations=2)  # fmt: skip
@@ -397,7 +395,7 @@ def test_recorded_scores_pick_the_recorded_k(tmp_path):
     expected = k_icl
     while expected < 4 and scores[expected + 1]["gain"] >= settings["strong_gain"]:
         step = scores[expected + 1]["heldout"] - scores[expected]["heldout"]
-        if step < DEFAULT_HELDOUT_GAIN * T:
+        if step < settings["heldout_gain"] * T:
             break
         expected += 1
     if "heldout" not in scores[1]:  # no strong step was tried
@@ -411,7 +409,7 @@ def test_recorded_scores_pick_the_recorded_k(tmp_path):
 
 def test_learn_passes_its_settings_through(monkeypatch):
     from torchhrc.mixture import ClusterConfig
-    from torchhrc.mixture.selection import DEFAULT_MIN_GAIN
+    from torchhrc.mixture.selection import DEFAULT_HELDOUT_GAIN, DEFAULT_MIN_GAIN
     from torchhrc.solvers.sarsop import SARSOPConfig
     from torchhrc.tasks.pipeline import LEARN_MIN_GAIN
 
@@ -437,6 +435,9 @@ def test_learn_passes_its_settings_through(monkeypatch):
     # learn()'s gain for the soft method, not fit_mixture's (0.015): one effect size
     assert info["cluster"]["min_gain"] == info["cluster"]["strong_gain"] == LEARN_MIN_GAIN
     assert LEARN_MIN_GAIN == 0.01 and DEFAULT_MIN_GAIN == 0.015
+    # ... and half of it held out, not fit_mixture's 0.01
+    assert info["cluster"]["heldout_gain"] == pytest.approx(0.005)
+    assert DEFAULT_HELDOUT_GAIN == 0.01
     # learn()'s default order: each order selects a k, the fit with the most types is kept
     assert info["cluster"]["order"] == "auto" and info["order"] in (1, 2, 3)
     kept = info["order_comparison"][str(info["order"])]
@@ -461,6 +462,7 @@ def test_learn_passes_its_settings_through(monkeypatch):
     assert paper.info["cluster"]["min_gain"] == 0.0  # the paper's hard EM: BIC alone
     given = learn(task, demos, k_min=2, k_max=3, restarts=2, min_gain=0.03, solve=False)
     assert given.info["cluster"]["min_gain"] == given.info["cluster"]["strong_gain"] == 0.03
+    assert given.info["cluster"]["heldout_gain"] == pytest.approx(0.015)
     second = learn(task, demos, k_min=2, k_max=3, restarts=2, order=2, solve=False)
     assert second.info["order"] == 2 and second.info["cluster"]["order"] == 2
     with pytest.raises(ValueError, match="either in cluster= or as keywords"):

@@ -292,7 +292,9 @@ DEFAULT_STRONG_GAIN = DEFAULT_MIN_GAIN
 
 #: ``criterion="icl_or_gain"`` keeps a strong step only if it also gains this much on units
 #: held out of the fit (nats per transition, 5-fold cross-validation): on small studies an
-#: extra cluster's in-sample gain is partly overfitting (``docs/clustering.md``).
+#: extra cluster's in-sample gain is partly overfitting (``docs/clustering.md``). The default
+#: of ``fit_mixture``'s ``heldout_gain``; ``torchhrc.tasks.learn`` passes half its
+#: ``strong_gain`` (0.005, ``docs/clustering.md``, "The held-out gain").
 DEFAULT_HELDOUT_GAIN = 0.01
 
 

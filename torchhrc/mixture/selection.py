@@ -304,6 +304,7 @@ class ClusterConfig:
     initial: bool | None = None
     min_gain: float | None = None
     strong_gain: float | None = None
+    heldout_gain: float | None = None
     min_consistency: float | None = None
     folds: int | None = None
     se_factor: float | None = None
@@ -390,6 +391,7 @@ def fit_mixture(
     initial: bool = False,
     min_gain: float | None = None,
     strong_gain: float | None = None,
+    heldout_gain: float | None = None,
     min_consistency: float | None = None,
     folds: int = 5,
     se_factor: float = 1.0,
@@ -492,6 +494,13 @@ def fit_mixture(
             little of the data (a rhythm, a held-out task: 0.005-0.014 nats per transition).
         strong_gain: ``criterion="icl_or_gain"``'s effect size, nats per transition
             (``None``: ``DEFAULT_STRONG_GAIN``, 0.015, the ``min_gain`` default).
+        heldout_gain: ``criterion="icl_or_gain"``'s confirmation of a strong step: its gain
+            on held-out units, nats per transition of the data, must be at least this and
+            beyond ``se_factor`` standard errors of its per-unit differences (``None``:
+            ``DEFAULT_HELDOUT_GAIN``, 0.01; :func:`torchhrc.tasks.learn` passes half its
+            ``strong_gain``: near that effect size a real type's held-out gain is a median
+            three quarters of its in-sample gain, a spurious cluster's a fifth,
+            ``docs/clustering.md``, "The held-out gain").
         min_consistency: a type belongs to a person: with subjects as units (``unit``), the
             chosen k is lowered while one of its clusters has a subject consistency below
             this (the intraclass correlation of the sequences' own cluster posteriors with
@@ -509,8 +518,9 @@ def fit_mixture(
             (:func:`~torchhrc.mixture.consistency.split_consistency`), below this. A
             cluster that takes part of each person's sequences of one type has a plain ICC up
             to about 0.6 from the other types' subjects alone, and one near 0 within them.
-        folds, se_factor: ``criterion="heldout"``'s number of folds over units and its
-            one-standard-error rule's factor.
+        folds, se_factor: the number of folds over units of the held-out scores
+            (``criterion="heldout"`` and ``"icl_or_gain"``) and the factor of their
+            standard-error rules.
         objects: how object names in the actions are read (``docs/clustering.md``,
             "Exchangeable objects"): ``"raw"``, the symbols as recorded (the paper);
             ``"exchangeable"``, every demonstration's objects renamed in order of first use
@@ -604,7 +614,7 @@ def fit_mixture(
         unit=unit, parameters=parameters, pseudo_count=pseudo_count,
         weight_pseudo_count=weight_pseudo_count, max_iterations=max_iterations,
         short_iterations=short_iterations, split_merge=split_merge, tol=tol, floor=floor,
-        initial=initial, min_gain=min_gain, strong_gain=strong_gain,
+        initial=initial, min_gain=min_gain, strong_gain=strong_gain, heldout_gain=heldout_gain,
         min_consistency=min_consistency, folds=folds, se_factor=se_factor, dtype=dtype,
         progress=progress, ray=ray,
     )  # fmt: skip
@@ -946,6 +956,13 @@ def _select_order(
                                order=order)  # fmt: skip
 
 
+def _check_gain(name: str, value: Any) -> None:
+    """A ValueError naming ``name`` unless ``value`` is a real number >= 0 (a gain in nats
+    per transition)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+        raise ValueError(f"expected {name} to be a float >= 0 (nats per transition), got {value!r}")
+
+
 def _select(
     data: Any,
     *,
@@ -968,6 +985,7 @@ def _select(
     initial: bool,
     min_gain: float | None,
     strong_gain: float | None,
+    heldout_gain: float | None,
     min_consistency: float | None,
     folds: int,
     se_factor: float,
@@ -1008,12 +1026,10 @@ def _select(
         )
     if strong_gain is None:
         strong_gain = DEFAULT_STRONG_GAIN
-    if (
-        isinstance(strong_gain, bool)
-        or not isinstance(strong_gain, (int, float))
-        or not (strong_gain >= 0)
-    ):
-        raise ValueError(f"expected strong_gain to be a float >= 0, got {strong_gain!r}")
+    if heldout_gain is None:
+        heldout_gain = DEFAULT_HELDOUT_GAIN
+    _check_gain("strong_gain", strong_gain)
+    _check_gain("heldout_gain", heldout_gain)
     if isinstance(folds, bool) or not isinstance(folds, int) or folds < 2:
         raise ValueError(f"expected folds to be an int >= 2, got {folds!r}")
     if isinstance(se_factor, bool) or not isinstance(se_factor, (int, float)) or not se_factor >= 0:
@@ -1041,10 +1057,7 @@ def _select(
         weight_pseudo_count = DEFAULT_WEIGHT_PSEUDO_COUNT
     if min_gain is None:
         min_gain = DEFAULT_MIN_GAIN if method == "soft" else 0.0
-    if isinstance(min_gain, bool) or not isinstance(min_gain, (int, float)) or not min_gain >= 0:
-        raise ValueError(
-            f"expected min_gain to be a float >= 0 (nats per transition), got {min_gain!r}"
-        )
+    _check_gain("min_gain", min_gain)
     if min_consistency is None:
         min_consistency = DEFAULT_MIN_CONSISTENCY if method == "soft" else 0.0
     if (
@@ -1154,7 +1167,7 @@ def _select(
                 mean = float((step * weights).sum()) / held
                 se = math.sqrt(held * float(((step - mean) ** 2 * weights).sum())
                                / max(held - 1, 1))  # fmt: skip
-                need = max(DEFAULT_HELDOUT_GAIN * max(transitions, 1.0), se_factor * se)
+                need = max(heldout_gain * max(transitions, 1.0), se_factor * se)
                 if not mean * held >= need:
                     break
                 by_score += 1

@@ -130,6 +130,32 @@ def test_split_settles_a_subject_by_its_partners_moves_elsewhere():
     assert splits[0]["subjects"] == 4 and splits[0]["settled"] == 3
 
 
+def test_split_settles_a_subject_by_the_persons_own_moves():
+    # state 0, the split's: s0-s3 partners wait twice, s4-s6 hand twice; state 1: every
+    # partner waits, and the person then acts: s0-s3 (move 0), s4-s6 (move 1); s7 and s8
+    # never meet state 0 and their partners wait in state 1 as all do, but s7 acts as s4-s6
+    # do (move 1) and s8 as s0-s3 (move 0): s7 goes with the hands by her own moves
+    rows = [[(0, 0), (0, 0), (1, 0, 0), (1, 0, 0)]] * 4
+    rows += [[(0, 1), (0, 1), (1, 0, 1), (1, 0, 1)]] * 3
+    rows += [[(1, 0, 1), (1, 0, 1)], [(1, 0, 0), (1, 0, 0)]]
+    z, splits = split_divided(_steps(rows), torch.zeros(9, dtype=torch.long), torch.arange(9),
+                              num_types=1, num_states=2, num_actions=2, max_types=6)  # fmt: skip
+    assert z.tolist() == [0, 0, 0, 0, 1, 1, 1, 1, 0]
+    assert splits[0]["subjects"] == 3 and splits[0]["settled"] == 4
+    # where both halves act alike (state 2: the partner waits, the person makes move 2) a
+    # subject's many steps there weigh nothing: s7 has 60 such steps and one of move 1 in
+    # state 1, and still goes with the hands (a uniform prior over the person's moves in each
+    # half charged the smaller half about 0.05 nats a step there, 3 in all, more than the
+    # one step that tells the halves apart)
+    common = [(2, 0, 2)] * 4
+    rows = [[(0, 0), (0, 0), (1, 0, 0), (1, 0, 0), *common]] * 4
+    rows += [[(0, 1), (0, 1), (1, 0, 1), (1, 0, 1), *common]] * 3
+    rows += [[(1, 0, 1), *[(2, 0, 2)] * 60], [(1, 0, 0), (1, 0, 0), *common]]
+    z, _ = split_divided(_steps(rows), torch.zeros(9, dtype=torch.long), torch.arange(9),
+                         num_types=1, num_states=3, num_actions=2, max_types=6)  # fmt: skip
+    assert z.tolist() == [0, 0, 0, 0, 1, 1, 1, 1, 0]
+
+
 def test_split_restores_merged_types_and_leaves_true_ones():
     """Joining two types whose partners serve them differently, then splitting, gives back
     the true partition; the true partition is never split (suite tasks, 30 x 4)."""

@@ -137,8 +137,9 @@ def split_divided(
     a new type ``K`` the demonstrations of type ``y`` of every subject whose partners made
     ``m`` in ``x`` more often than the type's most common own move (a subject seen there once
     counts by that step). Then, with ``settle``, the subjects of the two halves are settled
-    by all their partners' moves (a subject whose partners met ``x`` rarely or never goes to
-    the half whose partners moved as its own did elsewhere: :func:`_settle`).
+    by all their partners' moves and all their own (a subject whose partners met ``x``
+    rarely or never goes to the half whose partners and people moved as its own did
+    elsewhere: :func:`_settle`).
 
     Args:
         steps: the demonstrations as task steps (``N`` sequences).
@@ -147,8 +148,8 @@ def split_divided(
         num_types, num_states, num_actions: ``K``, ``X``, ``A``.
         max_types: split no further than this many types.
         min_subjects, min_share: :func:`divided_states`'s thresholds.
-        settle: reassign the two halves' subjects by all their partners' moves after each
-            split.
+        settle: reassign the two halves' subjects by all their partners' moves and all
+            their own after each split.
 
     Returns:
         ``(N,)`` int64 the new types (the new ones numbered ``K``, ``K + 1``, ... in order of
@@ -209,27 +210,49 @@ def split_divided(
     return z, splits
 
 
-#: The pseudo-count of :func:`_settle`'s partner-move tables (per state and move).
+def _per_subject(subject: torch.Tensor, key: torch.Tensor) -> torch.Tensor:
+    """``(T,)`` float64: how many of the steps share each step's subject and ``key``."""
+    width = int(key.max()) + 1 if key.numel() else 1
+    _, inverse = torch.unique(subject * width + key, return_inverse=True)
+    return torch.bincount(inverse)[inverse].double()
+
+
+#: The pseudo-count of the pair's pooled tables in :func:`_settle` (per context and move).
 SETTLE_PSEUDO_COUNT = 0.5
 
-#: The most reassignment rounds of :func:`_settle`.
-SETTLE_ROUNDS = 10
+#: The weight, in steps, of the pair's pooled table in each half's table in :func:`_settle`:
+#: a half's ``P_g(o | c)`` is its counts plus this many steps of the pooled ``P(o | c)``, so
+#: that a context seen a few times in the smaller half scores as the pair does, not as a
+#: uniform guess (a uniform prior over the person's moves charged the smaller half about
+#: 0.7 nats a step where both halves act alike).
+SETTLE_POOL_STEPS = 2.0
+
+#: :func:`_settle` moves at most this many times the pair's number of subjects, one subject
+#: a move.
+SETTLE_MOVES_PER_SUBJECT = 2
 
 
 def _settle(steps: TaskSteps, z: torch.Tensor, subject: torch.Tensor, pair: tuple[int, int], *,
             num_states: int, num_actions: int) -> torch.Tensor:  # fmt: skip
-    """Reassign the subjects of the two types of a split by all their partners' moves.
+    """Reassign the subjects of the two types of a split by all their partners' moves and
+    all their own.
 
     The split reads one state; a subject whose partners never met it, or met it once, can sit
-    in the wrong half while its partners' moves elsewhere (the other states where the halves'
-    partners differ) say which half it belongs to. Each round scores every subject of the
-    pair under each half's table of partner moves, ``P_g(a | x)`` (the half's counts plus
-    :data:`SETTLE_PSEUDO_COUNT`, leaving the subject's own steps out of its half) and the
-    half's share of subjects (leave-one-out, plus one), and moves it to the better half
-    (a tie stays), until no subject moves, :data:`SETTLE_ROUNDS` rounds, or a half would
+    in the wrong half while the rest of its demonstrations say which half it belongs to: its
+    partners' moves elsewhere (the other states where the halves' partners differ) and the
+    person's own moves (where the halves' people act otherwise, as the held-out task
+    ``bento_line``'s two types that differ only at the end: one fetches the sauce, the other
+    the lid, and the partner's move in the state that tells them apart is often pre-empted
+    by the person's own). Every subject of the pair is scored under each half's tables of
+    partner moves, ``P_g(a | x)``, and of the person's moves after them, ``P_g(a_h | x, a)``
+    (a turn let pass is a move): the half's counts, leaving the subject's own steps out of
+    its own half, plus :data:`SETTLE_POOL_STEPS` steps of the pair's pooled table (its
+    counts plus :data:`SETTLE_PSEUDO_COUNT` a move), and the half's share of subjects
+    (leave-one-out, plus one). The subject that gains most by changing halves moves, one at
+    a time, until none gains, ``SETTLE_MOVES_PER_SUBJECT`` moves a subject, or a half would
     keep fewer than :data:`DIVIDED_MIN_SUBJECTS` subjects (then the last assignment stays).
-    States where the halves' partners move alike score both halves the same, up to the
-    counts' noise.
+    Where the halves' partners and people move alike both halves score alike. (Moving every
+    subject that gains at once, as this did first, can swing subjects back and forth.)
     """
     X, A = num_states, num_actions
     mask = steps.mask
@@ -239,39 +262,44 @@ def _settle(steps: TaskSteps, z: torch.Tensor, subject: torch.Tensor, pair: tupl
     s_step = subject[:, None].expand_as(mask)[at]
     cell = steps.states[at] * A + steps.actions[at]  # (T,) (x, a) of each step
     row = steps.states[at]
+    H = int(steps.human[mask].max()) + 2 if bool(mask.any()) else 1  # the moves and a pass
+    said = cell * H + steps.human[at] + 1  # (T,) (x, a, a_h): the person's move after it
     subs, s_local = torch.unique(s_step, return_inverse=True)  # the pair's subjects
     n = subs.numel()
-    # each (subject, x, a) cell's count, and each (subject, x) row's, to leave out
-    _, key_sa_inv = torch.unique(s_local * (X * A) + cell, return_inverse=True)
-    own_sa = torch.bincount(key_sa_inv)[key_sa_inv].double()  # (T,)
-    _, key_sx_inv = torch.unique(s_local * X + row, return_inverse=True)
-    own_sx = torch.bincount(key_sx_inv)[key_sx_inv].double()  # (T,)
+    # (outcome, context, outcomes, width) of each table: the partner's move in x (A moves),
+    # the person's after it in (x, a) (H moves)
+    tables = ((cell, row, X * A, A), (said, cell, X * A * H, H))
+    # each (subject, outcome) and (subject, context) count, to leave the subject's steps out
+    own = [(_per_subject(s_local, out), _per_subject(s_local, ctx)) for out, ctx, _, _ in tables]
     # a subject's half: its demonstrations in the pair are in one half (moved together)
     half = torch.zeros(n, dtype=torch.long, device=z.device)
     half[s_local] = g_step
-    alpha = SETTLE_PSEUDO_COUNT
-    for _ in range(SETTLE_ROUNDS):
+    alpha, beta = SETTLE_PSEUDO_COUNT, SETTLE_POOL_STEPS
+    for _ in range(SETTLE_MOVES_PER_SUBJECT * n):
         g = half[s_local]  # (T,)
-        cells = torch.zeros(2, X * A, dtype=torch.float64, device=z.device)
-        cells.index_put_((g, cell), torch.ones_like(cell, dtype=torch.float64), accumulate=True)
-        rows = cells.view(2, X, A).sum(-1)  # (2, X)
         sizes = torch.bincount(half, minlength=2).double()  # (2,)
         score = torch.zeros(n, 2, dtype=torch.float64, device=z.device)
+        for (out, ctx, outcomes, width), (own_out, own_ctx) in zip(tables, own):
+            counts = torch.zeros(2, outcomes, dtype=torch.float64, device=z.device)
+            counts.index_put_((g, out), torch.ones_like(out, dtype=torch.float64),
+                              accumulate=True)  # fmt: skip
+            totals = counts.view(2, -1, width).sum(-1)  # (2, contexts)
+            pooled = (counts.sum(0)[out] + alpha) / (totals.sum(0)[ctx] + alpha * width)
+            for h in (0, 1):
+                mine = (g == h).double()  # leave the subject's own steps out of its own half
+                num = counts[h, out] - mine * own_out + beta * pooled
+                den = totals[h, ctx] - mine * own_ctx + beta
+                score[:, h].index_add_(0, s_local, torch.log(num) - torch.log(den))
         for h in (0, 1):
-            mine = (g == h).double()  # leave the subject's own steps out of its own half
-            num = cells[h, cell] - mine * own_sa + alpha
-            den = rows[h, row] - mine * own_sx + alpha * A
-            score[:, h].index_add_(0, s_local, torch.log(num) - torch.log(den))
             score[:, h] += torch.log(sizes[h] - (half == h).double() + 1.0)
-        other = 1 - half
-        kept = score.gather(1, half[:, None]).squeeze(1)
-        better = score.gather(1, other[:, None]).squeeze(1) > kept
-        if not bool(better.any()):
+        stay = score.gather(1, half[:, None]).squeeze(1)
+        gain = score.gather(1, (1 - half)[:, None]).squeeze(1) - stay  # (n,) by moving
+        best = int(gain.argmax())
+        if not float(gain[best]) > 0:
             break
-        new_half = torch.where(better, other, half)
-        if int(torch.bincount(new_half, minlength=2).min()) < DIVIDED_MIN_SUBJECTS:
+        if int((half == half[best]).sum()) - 1 < DIVIDED_MIN_SUBJECTS:
             break
-        half = new_half
+        half[best] = 1 - half[best]
     # write back: each subject's demonstrations in the pair go to its half
     out = z.clone()
     lookup = torch.full((int(subject.max()) + 1,), -1, dtype=torch.long, device=z.device)

@@ -509,8 +509,10 @@ class TaskWithPeople:
             seed: seed of the :class:`torch.Generator`.
 
         Returns:
-            ``(demonstrations, types (N,) int64)``; ``demonstrations.types`` holds the true
-            type names.
+            ``(demonstrations, types (N,) int64)``: the true type of each of the
+            ``N = subjects * per_subject`` sequences (one per demonstration, not per subject;
+            a subject's sequences share it, and ``demonstrations.subject_index`` maps each
+            sequence to its subject); ``demonstrations.types`` holds the true type names.
 
         Raises:
             ValueError: a bad size or noise, or fewer subjects than types (than types with

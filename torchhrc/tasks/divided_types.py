@@ -271,23 +271,26 @@ def _settle(steps: TaskSteps, z: torch.Tensor, subject: torch.Tensor, pair: tupl
     tables = ((cell, row, X * A, A), (said, cell, X * A * H, H))
     # each (subject, outcome) and (subject, context) count, to leave the subject's steps out
     own = [(_per_subject(s_local, out), _per_subject(s_local, ctx)) for out, ctx, _, _ in tables]
+    alpha, beta = SETTLE_PSEUDO_COUNT, SETTLE_POOL_STEPS
+    pooled = []  # (T,) per table: the pair's P(o | c) at each step, whatever the halves
+    for out, ctx, outcomes, width in tables:
+        both = torch.bincount(out, minlength=outcomes).double()
+        pooled.append((both[out] + alpha) / (both.view(-1, width).sum(-1)[ctx] + alpha * width))
     # a subject's half: its demonstrations in the pair are in one half (moved together)
     half = torch.zeros(n, dtype=torch.long, device=z.device)
     half[s_local] = g_step
-    alpha, beta = SETTLE_PSEUDO_COUNT, SETTLE_POOL_STEPS
     for _ in range(SETTLE_MOVES_PER_SUBJECT * n):
         g = half[s_local]  # (T,)
         sizes = torch.bincount(half, minlength=2).double()  # (2,)
         score = torch.zeros(n, 2, dtype=torch.float64, device=z.device)
-        for (out, ctx, outcomes, width), (own_out, own_ctx) in zip(tables, own):
+        for (out, ctx, outcomes, width), (own_out, own_ctx), prior in zip(tables, own, pooled):
             counts = torch.zeros(2, outcomes, dtype=torch.float64, device=z.device)
             counts.index_put_((g, out), torch.ones_like(out, dtype=torch.float64),
                               accumulate=True)  # fmt: skip
             totals = counts.view(2, -1, width).sum(-1)  # (2, contexts)
-            pooled = (counts.sum(0)[out] + alpha) / (totals.sum(0)[ctx] + alpha * width)
             for h in (0, 1):
                 mine = (g == h).double()  # leave the subject's own steps out of its own half
-                num = counts[h, out] - mine * own_out + beta * pooled
+                num = counts[h, out] - mine * own_out + beta * prior
                 den = totals[h, ctx] - mine * own_ctx + beta
                 score[:, h].index_add_(0, s_local, torch.log(num) - torch.log(den))
         for h in (0, 1):

@@ -7,7 +7,7 @@ issue's author runs. Per task:
   every seed, clustered with :func:`torchhrc.mixture.fit_mixture` under the options
   ``learn()`` passes it (:func:`torchhrc.tasks.pipeline.cluster_options`, with ``--cluster``'s
   fields; that is what decides k: the IRL and the solver come after), then learn()'s split
-  of divided types (:func:`torchhrc.tasks.pipeline.split_divided_types`; ``--no-split``:
+  of divided types (:func:`torchhrc.tasks.pipeline.find_types`; ``--no-split``:
   the clustering alone); the k found,
   the true k, the ARI against the true types, and on a miss the record of every k (gain,
   exact ICL, BIC, held-out gain, subject consistency) that chose it. ``--subjects 300`` is 10
@@ -44,8 +44,8 @@ from bench_evaluation import TABLE_HEADER, _seeds, evaluate_world, seeds_table
 from heldout_tasks import HELDOUT
 
 from torchhrc.metrics import adjusted_rand_index
-from torchhrc.mixture import ClusterConfig, fit_mixture
-from torchhrc.tasks.pipeline import cluster_options, split_divided_types
+from torchhrc.mixture import ClusterConfig
+from torchhrc.tasks.pipeline import cluster_options, find_types
 from torchhrc.tasks.suite import SUITE
 
 #: The clustering options ``torchhrc.tasks.learn`` passes to ``fit_mixture`` when given no
@@ -70,13 +70,8 @@ def cluster_row(name: str, seed: int, *, subjects: int, per_subject: int, noise:
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        options = cluster_options(cluster)
-        fit = fit_mixture(demos, seed=seed, **options)
-    z, splits = fit.assignments, []
-    if split:
-        z, splits = split_divided_types(world.task, demos, z, max_types=options["k_max"],
-                                        num_types=int(fit.k), objects=fit.objects,
-                                        separator=fit.model.object_separator)  # fmt: skip
+        fit, z, splits = find_types(world.task, demos, cluster_options(cluster), seed=seed,
+                                    split=split)  # fmt: skip
     k = int(fit.k) + len(splits)
     ari = adjusted_rand_index(types.tolist(), z.tolist())
     return dict(task=name, states=world.task.num_states, seed=seed, true_k=world.num_types,

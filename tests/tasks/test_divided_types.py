@@ -12,7 +12,7 @@ from _task_steps import steps_from_rows as _steps
 import torchhrc
 from torchhrc.metrics import adjusted_rand_index
 from torchhrc.tasks.divided_types import divided_states, split_divided
-from torchhrc.tasks.pipeline import split_divided_types
+from torchhrc.tasks.pipeline import cluster_options, find_types, split_divided_types
 from torchhrc.tasks.suite import make_task
 
 
@@ -189,6 +189,23 @@ def test_learn_splits_a_merged_type_unless_told_not_to():
     assert adjusted_rand_index(types.tolist(), split.assignments.tolist()) == pytest.approx(1.0)
     assert split.info["divided"]["states"] == 0  # what the split mended
     assert forced.info["k"] == 1 and forced.info["split"] == []  # a given k is kept
+
+
+def test_find_types_splits_the_clustering_up_to_its_max_types():
+    """``find_types`` (learn()'s clustering and split): a clustering held at one type is split
+    back into the task's two; not with ``split=False``, nor past ``options["k_max"]``."""
+    world = make_task("tool_handover")  # 2 types whose partners differ
+    demos, types = world.demonstrations(subjects=20, per_subject=3, seed=0)
+    one = cluster_options(k=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit, z, splits = find_types(world.task, demos, one, seed=0, max_types=6)
+        _, kept, none = find_types(world.task, demos, one, seed=0, max_types=6, split=False)
+        _, capped, beyond = find_types(world.task, demos, one, seed=0)  # k_max = 1
+    assert int(fit.k) == 1 and len(splits) == 1
+    assert adjusted_rand_index(types.tolist(), z.tolist()) == pytest.approx(1.0)
+    assert none == [] and kept.tolist() == [0] * len(types)
+    assert beyond == [] and capped.tolist() == [0] * len(types)
 
 
 def test_bad_arguments_are_named():

@@ -279,18 +279,22 @@ def _settle(steps: TaskSteps, z: torch.Tensor, subject: torch.Tensor, pair: tupl
     # a subject's half: its demonstrations in the pair are in one half (moved together)
     half = torch.zeros(n, dtype=torch.long, device=z.device)
     half[s_local] = g_step
+    # each half's counts of each table (whole numbers: updated by the steps of the subject
+    # that moves, they stay exact)
+    counts = []
+    for out, _, outcomes, _ in tables:
+        c = torch.zeros(2, outcomes, dtype=torch.float64, device=z.device)
+        c.index_put_((g_step, out), torch.ones_like(out, dtype=torch.float64), accumulate=True)
+        counts.append(c)
     for _ in range(SETTLE_MOVES_PER_SUBJECT * n):
         g = half[s_local]  # (T,)
         sizes = torch.bincount(half, minlength=2).double()  # (2,)
         score = torch.zeros(n, 2, dtype=torch.float64, device=z.device)
-        for (out, ctx, outcomes, width), (own_out, own_ctx), prior in zip(tables, own, pooled):
-            counts = torch.zeros(2, outcomes, dtype=torch.float64, device=z.device)
-            counts.index_put_((g, out), torch.ones_like(out, dtype=torch.float64),
-                              accumulate=True)  # fmt: skip
-            totals = counts.view(2, -1, width).sum(-1)  # (2, contexts)
+        for (out, ctx, _, width), (own_out, own_ctx), prior, c in zip(tables, own, pooled, counts):
+            totals = c.view(2, -1, width).sum(-1)  # (2, contexts)
             for h in (0, 1):
                 mine = (g == h).double()  # leave the subject's own steps out of its own half
-                num = counts[h, out] - mine * own_out + beta * prior
+                num = c[h, out] - mine * own_out + beta * prior
                 den = totals[h, ctx] - mine * own_ctx + beta
                 score[:, h].index_add_(0, s_local, torch.log(num) - torch.log(den))
         for h in (0, 1):
@@ -302,7 +306,13 @@ def _settle(steps: TaskSteps, z: torch.Tensor, subject: torch.Tensor, pair: tupl
             break
         if int((half == half[best]).sum()) - 1 < DIVIDED_MIN_SUBJECTS:
             break
-        half[best] = 1 - half[best]
+        was = int(half[best])
+        half[best] = 1 - was
+        mover = s_local == best  # its steps change halves
+        for (out, _, _, _), c in zip(tables, counts):
+            ones = torch.ones(int(mover.sum()), dtype=torch.float64, device=z.device)
+            c[was].index_add_(0, out[mover], -ones)
+            c[1 - was].index_add_(0, out[mover], ones)
     # write back: each subject's demonstrations in the pair go to its half
     out = z.clone()
     lookup = torch.full((int(subject.max()) + 1,), -1, dtype=torch.long, device=z.device)

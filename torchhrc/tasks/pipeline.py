@@ -57,7 +57,7 @@ from torchhrc.tasks.interface import (
 from torchhrc.tasks.wrong_moves import price_wrong_moves
 
 if TYPE_CHECKING:
-    from torchhrc.mixture.selection import ClusterConfig
+    from torchhrc.mixture.selection import ClusterConfig, MixtureFit
 
 __all__ = [
     "IRLConfig",
@@ -65,6 +65,7 @@ __all__ = [
     "build_model",
     "cluster_options",
     "compare_human_models",
+    "find_types",
     "learn",
     "learn_type_weights",
     "partner_moves",
@@ -831,6 +832,56 @@ def split_divided_types(
     return z, named
 
 
+def find_types(
+    task: CollaborativeTask,
+    demonstrations: Demonstrations,
+    options: dict[str, Any],
+    *,
+    seed: int | None = None,
+    split: bool = True,
+    max_types: int | None = None,
+) -> tuple[MixtureFit, torch.Tensor, list[dict[str, Any]]]:
+    """The human types of ``demonstrations`` as ``learn()`` finds them: the clustering
+    (:func:`~torchhrc.mixture.fit_mixture` with ``options``), then, with ``split``, each
+    divided type split by its partners' moves (:func:`split_divided_types`, the moves read
+    as the clustering read the objects).
+
+    Args:
+        task: the task; demonstrations: its ``N`` demonstrations.
+        options: ``fit_mixture``'s keyword arguments (:func:`cluster_options`).
+        seed: the clustering's seed.
+        split: split divided types (``learn()`` does unless it is given ``k``).
+        max_types: split no further than this many types (default: ``options["k_max"]``,
+            ``fit_mixture``'s 10 where it is not set).
+
+    Returns:
+        The clustering's :class:`~torchhrc.mixture.MixtureFit`, ``(N,)`` int64 the types
+        (the clustering's, then the split ones numbered after them) and one record per
+        split (:func:`split_divided_types`); the number of types is ``fit.k`` plus the
+        splits.
+
+    Example:
+        >>> from torchhrc.tasks.suite import make_task
+        >>> twp = make_task("tool_handover")
+        >>> demos, types = twp.demonstrations(subjects=12, per_subject=2, seed=0)
+        >>> one = cluster_options(k=1)  # the clustering held at one type ...
+        >>> fit, z, splits = find_types(twp.task, demos, one, seed=0, max_types=6)
+        >>> int(fit.k), len(splits), int(z.max()) + 1  # ... and split into the task's two
+        (1, 1, 2)
+    """
+    from torchhrc.mixture import fit_mixture
+
+    fit = fit_mixture(demonstrations, seed=seed, **options)
+    if not split:
+        return fit, fit.assignments, []
+    z, splits = split_divided_types(
+        task, demonstrations, fit.assignments,
+        max_types=options.get("k_max", 10) if max_types is None else max_types,
+        num_types=int(fit.k), objects=fit.objects, separator=fit.model.object_separator,
+    )  # fmt: skip
+    return fit, z, splits
+
+
 def task_momdp(
     task: CollaborativeTask,
     Tx: torch.Tensor,
@@ -1147,7 +1198,7 @@ def learn(
         >>> m.info["criterion"], m.info["k"] in (1, 2, 3)
         ('bic', True)
     """
-    from torchhrc.mixture import fit_mixture, partition_chains
+    from torchhrc.mixture import partition_chains
     from torchhrc.mixture.selection import (
         DEFAULT_HELDOUT_GAIN,
         DEFAULT_STRONG_GAIN,
@@ -1188,13 +1239,8 @@ def learn(
     elif irl_given:
         raise ValueError("pass the IRL settings either in irl= or as irl_epsilon/irl_iterations/"
                          "irl_l2/irl_pooling/irl_wrong_moves, not both")  # fmt: skip
-    fit = fit_mixture(demonstrations, seed=seed, **options)
-    assignments, splits = fit.assignments, []
-    if split_divided and k is None:
-        assignments, splits = split_divided_types(
-            task, demonstrations, assignments, max_types=options["k_max"],
-            num_types=int(fit.k), objects=fit.objects,
-            separator=fit.model.object_separator)  # fmt: skip
+    fit, assignments, splits = find_types(task, demonstrations, options, seed=seed,
+                                          split=split_divided and k is None)  # fmt: skip
     K = int(fit.k) + len(splits)
     info: dict[str, Any] = {
         "k": K,

@@ -62,7 +62,8 @@ def cluster_row(name: str, seed: int, *, subjects: int, per_subject: int, noise:
                 split: bool = True) -> dict[str, Any]:  # fmt: skip
     """One clustering of task ``name`` (held-out or suite) at ``seed`` as ``learn()`` does it
     (``fit_mixture`` with learn()'s options, then ``split``: its split of divided types): k,
-    true k, ARI, the record of every k and the splits; ``cluster`` replaces learn()'s
+    true k, ARI, the chain order and the reading of the objects kept, the record of every k
+    and the splits; ``cluster`` replaces learn()'s
     clustering defaults field by field."""
     world = _world(name)
     demos, types = world.demonstrations(subjects=subjects, per_subject=per_subject, noise=noise,
@@ -77,6 +78,7 @@ def cluster_row(name: str, seed: int, *, subjects: int, per_subject: int, noise:
     return dict(task=name, states=world.task.num_states, seed=seed, true_k=world.num_types,
                 k=k, k_clustered=int(fit.k), splits=splits, ari=float(ari),
                 hit=k == world.num_types and ari >= 0.9, order=int(fit.order),
+                objects=fit.objects,
                 seconds=time.perf_counter() - start,
                 per_k={int(k): dict(v) for k, v in fit.per_k.items()})  # fmt: skip
 

@@ -112,6 +112,17 @@ name                   X    types  depends on    what is unusual
                                                  one-slot tray (sauce or lid); two types alike
                                                  until the box is full (sauce, then lid, or the
                                                  lid alone); 30 / 25 / 25 / 20 %
+``jar_slip``           42   3      state         the robot's own random mistake (a sixth of its
+                                                 hand-overs slip): the types differ only in
+                                                 taking it (pick the jar up, wait for the robot
+                                                 to, or no more hand-overs); 40 / 35 / 25 %
+``pad_sides``          25   3      state         which hand (pad) on some components only: all
+                                                 right, the large ones left, or the last half
+                                                 left; 45 / 35 / 20 %
+``tote_pack``          145  5      state         5 types, two rare (9 % each): two orders, the
+                                                 label first, fragile items fetched herself,
+                                                 and a wish that changes with the items left
+                                                 (the last two staged at once)
 =====================  ===  =====  ============  ===============================================
 
 ``slow_sanding`` and ``paint_crews`` were added after the selection rule of 6701614 and
@@ -156,6 +167,11 @@ two of which differ only at the end). ``bento_line`` (7/10 at 30 x 4: the split 
 types left people of its two late-differing types in the wrong half) led to the split's
 settling by the person's own moves (``torchhrc.tasks.divided_types._settle``), so it is no
 longer held out for the number of types; ``tile_crack`` and ``polish_passes`` are.
+``jar_slip``, ``pad_sides`` and ``tote_pack`` were written by the audit of session 33 from
+the docs alone (types that differ only in taking the robot's own random mistake, one of
+them for the rest of the task; types that differ in which hand they use on some parts only;
+a larger task with five types, two of them rare, one whose wish changes with how many items
+are left), and are kept out of tuning.
 
 ``HELDOUT[name]() -> HeldoutWorld`` (a ``TaskWithPeople``), whose ``shares`` (None:
 balanced) split the demonstrating subjects between the types and weigh them over the
@@ -2552,6 +2568,253 @@ def bento_line() -> HeldoutWorld:
     )  # fmt: skip
 
 
+# ====================================================================== the session-33 audit
+# jar_slip, pad_sides and tote_pack: written by the audit of session 33 from the docs alone
+# (held out: run once, kept out of tuning).
+# ------------------------------------------------------------------------------ jar_slip
+# A packing station: the robot takes six jars off a conveyor, one at a time, and either
+# hands each to the packer (she grabs it from the gripper) or sets it on her bench (she
+# collects it from there, a little slower). A hand-over slips a sixth of the time, at random:
+# the robot's mistake, the jar falls on the mat (unbroken), which the robot sees. From then
+# on the state remembers that a jar has slipped. The types differ only in how they take the
+# robot's mistake: "pickup_self" (40 %) picks the jar off the mat herself at once and wants
+# the robot out of her way (it waits), then hand-overs as before; "robot_fetch" (35 %) steps
+# back and waits for the robot to retrieve it to the bench (picks it up herself a fifth of
+# the turns); "lost_trust" (25 %) picks it up herself like "pickup_self", but after the
+# first slip no longer wants hand-overs: she wants every later jar set on the bench (an
+# offered jar she mostly leaves in the gripper, so the robot should set it down). Without a
+# slip (a third of the episodes) the three act and want alike. State: (jars packed, jar:
+# 0 none out, 1 offered in the gripper, 2 on the bench, 3 on the mat; a jar has slipped),
+# 48 states.
+def jar_slip() -> HeldoutWorld:
+    N, SLIP = 6, 1 / 6
+    types = ("pickup_self", "robot_fetch", "lost_trust")
+
+    def robot_step(s, a):
+        k, jar, slipped = s
+        if a == 1 and jar == 0:
+            return (k, 1, slipped)  # take the next jar off the conveyor and offer it
+        if a == 2 and jar in (0, 1):
+            return (k, 2, slipped)  # set the next (or the offered) jar on her bench
+        if a == 3 and jar == 3:
+            return (k, 2, slipped)  # retrieve the slipped jar from the mat to the bench
+        return s
+
+    def human_step(s, h):
+        k, jar, slipped = s
+        if k == N:
+            return None
+        if h in (0, 1):  # grab the offered jar and pack it (0), or it slips (1)
+            return None if jar != 1 else ((k + 1, 0, slipped) if h == 0 else (k, 3, 1))
+        if h == 2:  # collect the jar from the bench and pack it
+            return (k + 1, 0, slipped) if jar == 2 else None
+        return (k + 1, 0, slipped) if jar == 3 else None  # pick it up off the mat, pack it
+
+    def behaviour(y, m, s, a):
+        k, jar, slipped = s
+        if k == N or jar == 0:
+            return {-1: 1.0}
+        if jar == 1:
+            if y == 2 and slipped:
+                return {-1: 0.7, 0: 0.3 * (1 - SLIP), 1: 0.3 * SLIP}  # would rather not
+            return {0: 1.0 - SLIP, 1: SLIP}
+        if jar == 2:
+            return {2: 1.0} if (y == 2 and slipped) else {2: 0.7, -1: 0.3}
+        return {-1: 0.8, 3: 0.2} if y == 1 else {3: 1.0}
+
+    def reward(y, s, a):
+        _k, jar, slipped = s
+        if a != 0 and robot_step(s, a) == s:
+            return -0.5  # a move that changes nothing
+        bench_only = y == 2 and slipped
+        if jar == 0:
+            if bench_only:
+                return 1.0 if a == 2 else (-1.0 if a == 1 else -0.2)
+            return 1.0 if a == 1 else (0.3 if a == 2 else -0.2)
+        if jar == 1:  # she let the offered jar be
+            if bench_only:
+                return 1.0 if a == 2 else -0.5
+            return 0.2 if a == 0 else -0.3
+        if jar == 2:
+            return 0.2 if a == 0 else -0.5
+        if y == 1:  # the jar on the mat
+            return 1.0 if a == 3 else -0.3
+        return 0.3 if a == 0 else -0.5  # she reaches for it: the robot keeps clear
+
+    return tabulate(
+        "jar_slip", initial=(0, 0, 0), robot_actions=("wait", "hand", "bench", "retrieve"),
+        human_actions=("grab", "slip", "collect", "pickup"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s[0] == N, type_names=types,
+        behaviour=behaviour, reward=reward, horizon=24, shares=(0.40, 0.35, 0.25),
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ pad_sides
+# An assembler fits eight components on a board, in a fixed order (small, small, large,
+# small, large, small, small, large). The robot stages the next component on the left or the
+# right pad of her station (staging on the other pad moves it there); she takes it from the
+# pad with that hand and fits it at once if it is on the side she wants, else she reaches
+# across for it two turns in five and waits for the robot to move it otherwise. The types
+# differ in which hand they use, on some components only: "righty" (45 %) takes every
+# component with her right hand; "big_left" (35 %) takes the three large ones with her left
+# hand (she steadies the board with the right), the small ones with the right; "left_finish"
+# (20 %) moves to the other side of the board after the first four and takes the last four
+# with her left hand. The three want the same pad on components 0, 1 and 3 only. State:
+# (components fitted, pad: 0 empty, 1 left, 2 right), 25 states.
+_PAD_LARGE = (False, False, True, False, True, False, False, True)
+
+
+def pad_sides() -> HeldoutWorld:
+    N = len(_PAD_LARGE)
+    types = ("righty", "big_left", "left_finish")
+
+    def side(y, k):  # 1: left, 2: right
+        if y == 1:
+            return 1 if _PAD_LARGE[k] else 2
+        if y == 2:
+            return 1 if k >= N // 2 else 2
+        return 2
+
+    def robot_step(s, a):
+        k, pad = s
+        return s if (a == 0 or pad == a) else (k, a)
+
+    def human_step(s, h):
+        k, pad = s
+        if k == N:
+            return None
+        return (k + 1, 0) if pad == h + 1 else None  # take_left (h 0), take_right (h 1)
+
+    def behaviour(y, m, s, a):
+        k, pad = s
+        if k == N or pad == 0:
+            return {-1: 1.0}
+        if pad == side(y, k):
+            return {pad - 1: 1.0}
+        return {pad - 1: 0.4, -1: 0.6}  # reaching across is awkward: she mostly waits
+
+    def reward(y, s, a):
+        k, pad = s
+        if a != 0 and robot_step(s, a) == s:
+            return -0.5  # staging it where it already is
+        want = side(y, k)
+        if pad == want:
+            return _pick(0, a, good=0.2)
+        return _pick(want, a, idle=-0.3 if pad else -0.2, bad=-0.5)
+
+    return tabulate(
+        "pad_sides", initial=(0, 0), robot_actions=("wait", "stage_left", "stage_right"),
+        human_actions=("take_left", "take_right"), robot_step=robot_step,
+        human_step=human_step, terminal=lambda s: s[0] == N, type_names=types,
+        behaviour=behaviour, reward=reward, horizon=24, shares=(0.45, 0.35, 0.20),
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ tote_pack
+# A warehouse packing station: an order of four items (book, mug, towel, candle) goes into a
+# box. The robot can bring an item from the shelf into her staging bin (it holds two) or
+# print the shipping label; she packs a staged item, fetches one from the shelf herself
+# (slower), and closes the box once all four are in, with the printed label or one she
+# writes herself (slower). Five types, two of them rare: "in_order" (30 %) packs book, mug,
+# towel, candle and wants each brought when she needs it, then the label; "reverse" (28 %)
+# the same in the reverse order; "batch_end" (24 %) is "in_order" until two items are left,
+# then wants both of them staged at once (she hesitates over the third while the fourth is
+# not there): her wish changes with how many items are left; "label_first" (9 %) wants the
+# label printed before anything is packed (she mostly waits for it), then is "in_order";
+# "self_fragile" (9 %) fetches the fragile items (mug, candle) herself at once and does not
+# want them brought (a brought one she packs anyway), "in_order" otherwise. A wrong item in
+# the bin she packs out of order a third of the time. State: (per item: 0 on the shelf,
+# 1 staged, 2 packed; label printed), 145 states.
+_TOTE = ("book", "mug", "towel", "candle")
+
+
+def tote_pack() -> HeldoutWorld:
+    n = len(_TOTE)
+    types = ("in_order", "reverse", "batch_end", "label_first", "self_fragile")
+    orders = (
+        tuple(range(n)), tuple(range(n - 1, -1, -1)), tuple(range(n)), tuple(range(n)),
+        tuple(range(n)),
+    )  # fmt: skip
+    FRAGILE = (1, 3)
+    LABEL = n + 1  # the robot's print_label
+    PACK, FETCH, CLOSE, WRITE = 0, n, 2 * n, 2 * n + 1  # the person's actions
+
+    def robot_step(s, a):
+        items, label = s
+        if 1 <= a <= n and items[a - 1] == 0 and items.count(1) < 2:
+            return (_set(items, a - 1, 1), label)  # bring it to the bin
+        if a == LABEL and not label:
+            return (items, 1)
+        return s
+
+    def human_step(s, h):
+        items, label = s
+        if items == "done":
+            return None
+        if h < 2 * n:  # pack a staged item (h < n), or fetch one from the shelf and pack it
+            i, need = h % n, (1 if h < n else 0)
+            return (_set(items, i, 2), label) if items[i] == need else None
+        if any(v != 2 for v in items) or (h == CLOSE) != bool(label):
+            return None
+        return ("done", 0)  # close with the printed label (CLOSE) or a written one (WRITE)
+
+    def nxt(y, items):
+        return next(i for i in orders[y] if items[i] != 2)
+
+    def behaviour(y, m, s, a):
+        items, label = s
+        if items == "done":
+            return {-1: 1.0}
+        if all(v == 2 for v in items):
+            return {CLOSE: 1.0} if label else {WRITE: 0.5, -1: 0.5}
+        i = nxt(y, items)
+        if y == 3 and not label:
+            return {-1: 0.7, (PACK + i) if items[i] == 1 else (FETCH + i): 0.3}
+        if y == 4 and i in FRAGILE and items[i] == 0:
+            return {FETCH + i: 1.0}
+        if items[i] == 1:
+            left = sum(v != 2 for v in items)
+            if y == 2 and left == 2 and 0 in items:
+                return {PACK + i: 0.5, -1: 0.5}  # waits for the last item too
+            return {PACK + i: 1.0}
+        wrong = [j for j in range(n) if items[j] == 1]
+        if wrong:
+            return {PACK + wrong[0]: 1 / 3, FETCH + i: 1 / 3, -1: 1 / 3}
+        return {FETCH + i: 0.4, -1: 0.6}
+
+    def wanted(y, s):  # the robot move the type wants in the state before it
+        items, label = s
+        if all(v == 2 for v in items) or (y == 3 and not label):
+            return 0 if label else LABEL
+        i = nxt(y, items)
+        if y == 2 and sum(v != 2 for v in items) <= 2:
+            rest = [j for j in orders[y] if items[j] == 0]
+            return 1 + rest[0] if rest else 0
+        if items[i] == 1 or (y == 4 and i in FRAGILE):
+            return 0
+        return 1 + i
+
+    def reward(y, s, a):
+        if a != 0 and robot_step(s, a) == s:
+            return -0.5  # a move that changes nothing
+        want = wanted(y, s)
+        if a == want:
+            return 1.0 if a else 0.2
+        if a == 0:
+            return -0.2
+        return -0.3 if a == LABEL else -1.0  # a wrong item clutters the bin
+
+    return tabulate(
+        "tote_pack", initial=((0,) * n, 0),
+        robot_actions=("wait", *(f"bring_{i}" for i in _TOTE), "print_label"),
+        human_actions=(*(f"pack_{i}" for i in _TOTE), *(f"fetch_{i}" for i in _TOTE),
+                       "close", "write_label"),
+        robot_step=robot_step, human_step=human_step, terminal=lambda s: s[0] == "done",
+        type_names=types, behaviour=behaviour, reward=reward, horizon=20,
+        shares=(0.30, 0.28, 0.24, 0.09, 0.09),
+    )  # fmt: skip
+
+
 #: Every held-out task by name: ``HELDOUT[name]() -> HeldoutWorld``.
 HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "finish_late": finish_late,
@@ -2590,4 +2853,7 @@ HELDOUT: dict[str, Callable[[], HeldoutWorld]] = {
     "tile_crack": tile_crack,
     "polish_passes": polish_passes,
     "bento_line": bento_line,
+    "jar_slip": jar_slip,
+    "pad_sides": pad_sides,
+    "tote_pack": tote_pack,
 }

@@ -299,11 +299,15 @@ def test_cluster_order_option_finds_types_only_a_second_order_chain_sees(tmp_pat
     first = json.loads(out)
     assert code == 0 and first["k"] == 1 and first["order"] == 1
     assert "order_comparison" not in first
+    # why not two types in first order: the step's thresholds, as MixtureFit.next_step
+    names = {"min_gain", "strong_gain", "heldout_gain", "consistency", "split_consistency"}
+    assert first["next_step"]["k"] == 2 and set(first["next_step"]["short_of"]) <= names
     code, out, _ = _run(capsys, *base, "--order", "auto")
     auto = json.loads(out)
     assert code == 0 and auto["k"] == 2 and auto["order"] == 2
     assert auto["adjusted_rand_index"] == pytest.approx(1.0)
     assert {o: c["k"] for o, c in auto["order_comparison"].items()} == {"1": 1, "2": 2, "3": 2}
+    assert auto["next_step"]["k"] == 3
     code, out, _ = _run(capsys, *base, "--order", "3")
     third = json.loads(out)
     assert code == 0 and third["k"] == 2 and third["order"] == 3

@@ -286,6 +286,58 @@ def test_a_step_the_exact_icl_takes_and_that_splits_people_is_not_cut_by_min_gai
     assert fit_mixture(demos, min_consistency=0.0, **common).k == 1  # cut by min_gain
 
 
+def _sequence_level(subjects=30, per_subject=4, length=30, A=6):
+    """Each demonstration, not each person, draws one of two chains (over ``A`` symbols, each
+    symbol to the next two, or to the third and fourth after it, 1/2 each): two clusters of
+    demonstrations that every person shares."""
+    from torchhrc import Demonstrations
+
+    g = torch.Generator().manual_seed(0)
+    base, other = torch.zeros(A, A), torch.zeros(A, A)
+    for a in range(A):
+        base[a, (a + 1) % A] = base[a, (a + 2) % A] = 0.5
+        other[a, (a + 3) % A] = other[a, (a + 4) % A] = 0.5
+    rows, subject_ids = [], []
+    for s in range(subjects):
+        for _ in range(per_subject):
+            chain = base if float(torch.rand((), generator=g)) < 0.5 else other
+            x = [int(torch.randint(A, (), generator=g))]
+            for _ in range(length - 1):
+                x.append(int(torch.multinomial(chain[x[-1]], 1, generator=g)))
+            rows.append([("human", f"s{v}") for v in x])
+            subject_ids.append(f"S{s:02d}")
+    vocabulary = [("human", f"s{v}") for v in range(A)]
+    return Demonstrations.from_lists(rows, subjects=subject_ids, vocabulary=vocabulary)
+
+
+def test_next_step_names_the_thresholds_its_step_falls_short_of():
+    """``MixtureFit.next_step``: why ``k + 1`` was not chosen. Two types one row apart (k = 2):
+    a third cluster gains far less than ``min_gain``. Clusters of demonstrations that every
+    person shares: the second cluster gains 0.1 nats per transition, but no person's
+    demonstrations agree on it (subject consistency 0.04), so k = 1 and the step to 2 falls
+    short of the consistency checks only. Without them, the gain cut alone."""
+    common = dict(k_min=1, k_max=3, restarts=3, seed=0)
+    demos, _ = _one_row_apart()
+    fit = fit_mixture(demos, **common)
+    step = fit.next_step
+    assert fit.k == 2 and step["k"] == 3
+    assert {"min_gain", "strong_gain"} <= set(step["short_of"])
+    assert step["values"]["gain"] == fit.per_k[3]["gain"] < step["thresholds"]["min_gain"]
+    shared = _sequence_level()
+    fit = fit_mixture(shared, **common)
+    step = fit.next_step
+    assert fit.k == 1 and step["k"] == 2
+    assert step["short_of"] == ["consistency", "split_consistency"]
+    assert step["values"]["gain"] > 0.05 and step["values"]["consistency"] < 0.2
+    off = fit_mixture(demos, min_consistency=0.0, **common)  # cut by min_gain (see above)
+    # (a step the exact ICL takes needs no strong_gain)
+    assert off.k == 1 and off.next_step["short_of"] == ["min_gain"]
+    assert "consistency" not in off.next_step["values"]
+    at_max = fit_mixture(demos, k_min=1, k_max=2, restarts=3, seed=0)
+    assert at_max.k == 2 and at_max.next_step is None  # no k above k_max
+    assert fit_mixture(demos, criterion="bic", **common).next_step is None
+
+
 def test_partition_chains_of_a_hard_partition_counted_by_hand():
     """One-hot weights: each cluster's chain is its sequences' transition counts plus the
     pseudo-count, normalised; a row no sequence visits is ``alpha``-uniform."""

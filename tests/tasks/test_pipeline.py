@@ -463,6 +463,14 @@ def test_learn_passes_its_settings_through(monkeypatch):
     given = learn(task, demos, k_min=2, k_max=3, restarts=2, min_gain=0.03, solve=False)
     assert given.info["cluster"]["min_gain"] == given.info["cluster"]["strong_gain"] == 0.03
     assert given.info["cluster"]["heldout_gain"] == pytest.approx(0.015)
+    # why the clustering stopped where it did, against the thresholds it used
+    step = given.info["next_step"]
+    assert info["next_step"] is None  # (criterion="bic": only icl_or_gain's steps are named)
+    assert (step is None) == (given.info["k_clustered"] == 3)
+    if step is not None:
+        assert step["k"] == given.info["k_clustered"] + 1
+        assert step["thresholds"]["min_gain"] == 0.03
+        assert step["thresholds"]["heldout_gain"] == pytest.approx(0.015)
     second = learn(task, demos, k_min=2, k_max=3, restarts=2, order=2, solve=False)
     assert second.info["order"] == 2 and second.info["cluster"]["order"] == 2
     with pytest.raises(ValueError, match="either in cluster= or as keywords"):

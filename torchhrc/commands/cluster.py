@@ -15,7 +15,9 @@ JSON keys: ``k``, ``bic``, ``icl``, ``log_likelihood``, ``method``, ``criterion`
 ``objects``: the form the model is over (``"raw"`` or ``"exchangeable"``, ``--objects``), and
 ``object_comparison`` when ``--objects auto`` compared the two (k, BIC, exact ICL per form).
 ``order``: chains of order 1, 2 or 3 (``--order``), and ``order_comparison`` when
-``--order auto`` compared them (k, exact ICL, log-likelihood per order).
+``--order auto`` compared them (k, exact ICL, log-likelihood per order). ``next_step``
+(``--criterion icl_or_gain``, below ``--k-max``): the thresholds the step to one more
+cluster falls short of (:attr:`torchhrc.mixture.MixtureFit.next_step`).
 Non-finite numbers are written as ``null``.
 
 Example:
@@ -55,6 +57,12 @@ def read_demonstrations(path: str) -> Demonstrations:
     if path.lower().endswith(".json"):
         return Demonstrations.read_json(path)
     return Demonstrations.read_csv(path)
+
+
+def _next_step(step: dict[str, Any]) -> dict[str, Any]:
+    """``MixtureFit.next_step`` with non-finite numbers as None (JSON)."""
+    return {**step, **{part: {name: _finite(v) for name, v in step[part].items()}
+                       for part in ("values", "thresholds")}}  # fmt: skip
 
 
 def _finite(value: float) -> float | None:
@@ -289,6 +297,7 @@ def cluster_report(
         **({"object_comparison": fit.object_comparison} if fit.object_comparison else {}),
         "order": fit.order,
         **({"order_comparison": fit.order_comparison} if fit.order_comparison else {}),
+        **({"next_step": _next_step(fit.next_step)} if fit.next_step else {}),
         "cluster_sizes": sizes,
         "assignments": dict(zip(demos.keys, assignments.tolist())),
     }

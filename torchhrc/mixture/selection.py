@@ -167,6 +167,16 @@ class MixtureFit:
             orders found the most types, each of those orders' partition scored under each
             of those orders' chains, ``"exact_icl_at_<order>"``, and ``"partition"``, the
             lowest of those orders with the same partition; else ``None``.
+        next_step: with ``criterion="icl_or_gain"``, why ``k + 1`` was not chosen:
+            ``{"k": k + 1, "short_of": [...]}``, the thresholds its step falls below, of
+            ``"min_gain"`` and ``"strong_gain"`` (its gain per transition; a step the exact
+            ICL does not take needs ``strong_gain``), ``"heldout_gain"`` (its held-out gain
+            per transition, where cross-validated), ``"consistency"`` and
+            ``"split_consistency"`` (its subject consistency and split consistency, against
+            ``min_consistency``), with their ``"values"`` and ``"thresholds"``; an empty
+            ``short_of``: the step met each threshold it was measured against, and the rule
+            stopped below it (a step before it refused). None for ``k_max`` and other
+            criteria.
     """
 
     model: MarkovChainMixture
@@ -186,6 +196,7 @@ class MixtureFit:
     object_comparison: dict[str, dict[str, float]] | None = field(default=None, repr=False)
     order: int = 1
     order_comparison: dict[str, dict[str, float]] | None = field(default=None, repr=False)
+    next_step: dict[str, Any] | None = field(default=None, repr=False)
 
     def transition_over(
         self, demonstrations: Any, *, pseudo_count: float | None = None
@@ -1239,7 +1250,40 @@ def _select(
                 "log_likelihood_refined": float(result.log_likelihood[0]),
                 "bic_refined": float(bics[0]),
             })  # fmt: skip
-    return _finish(stats, result, chosen, k, bics, icls, per_k, method, used, vocabulary)
+    fit = _finish(stats, result, chosen, k, bics, icls, per_k, method, used, vocabulary)
+    if used != "icl_or_gain" or index + 1 >= len(ks):
+        return fit
+    thresholds = {"min_gain": float(min_gain), "strong_gain": float(strong_gain),
+                  "heldout_gain": float(heldout_gain),
+                  "min_consistency": float(min_consistency)}  # fmt: skip
+    step = _short_of(per_k, int(ks[index]), int(ks[index + 1]), thresholds,
+                     icl_k=int(ks[int(grouped[1].max(-1).values.argmax())]),
+                     transitions=num_transitions(stats))  # fmt: skip
+    return dataclasses.replace(fit, next_step=step)
+
+
+def _short_of(per_k: dict[int, dict[str, float]], k: int, nxt: int,
+              thresholds: dict[str, float], *, icl_k: int, transitions: float,
+              ) -> dict[str, Any]:  # fmt: skip
+    """``MixtureFit.next_step``: the thresholds the step from ``k`` to ``nxt`` falls below
+    (its records in ``per_k``; ``icl_k`` the exact ICL's k, ``transitions`` the data's)."""
+    row, short = per_k[nxt], []
+    gain = row.get("gain", math.nan)
+    values: dict[str, float] = {"gain": gain}
+    if not gain >= thresholds["min_gain"]:
+        short.append("min_gain")
+    if nxt > icl_k and not gain >= thresholds["strong_gain"]:
+        short.append("strong_gain")
+    if "heldout" in row and "heldout" in per_k[k]:
+        values["heldout_gain"] = (row["heldout"] - per_k[k]["heldout"]) / max(transitions, 1.0)
+        if not values["heldout_gain"] >= thresholds["heldout_gain"]:
+            short.append("heldout_gain")
+    for name in ("consistency", "split_consistency"):
+        if name in row and thresholds["min_consistency"] > 0:
+            values[name] = row[name]
+            if not row[name] >= thresholds["min_consistency"]:
+                short.append(name)
+    return {"k": nxt, "short_of": short, "values": values, "thresholds": dict(thresholds)}
 
 
 def _refine_run(

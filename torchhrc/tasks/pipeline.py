@@ -1183,8 +1183,10 @@ def learn(
         ``criterion``, ``scores`` (every k's scores
         under every criterion: ``bic``, ``exact_icl``, ``log_likelihood``, ``gain``,
         ``heldout`` and ``heldout_se``; with ``order="auto"``, of the order kept),
-        ``objects``, ``order`` and ``order_comparison`` (each order's k, exact ICL and
-        log-likelihood; on equal k each tied partition's exact ICL under each tied order),
+        ``next_step`` (why the clustering stopped below one more type: the thresholds its
+        step falls short of, :attr:`~torchhrc.mixture.MixtureFit.next_step`), ``objects``,
+        ``order`` and ``order_comparison`` (each order's k, exact ICL and log-likelihood; on
+        equal k each tied partition's exact ICL under each tied order),
         ``cluster`` (the settings used), ``irl``, ``solver``, ``human_model`` (requested,
         used, held-out likelihoods), ``prior`` (the rule and ``b0``) and ``seed``.
 
@@ -1248,6 +1250,7 @@ def learn(
         "split": splits,
         "criterion": fit.criterion,
         "scores": {str(kk): dict(row) for kk, row in fit.per_k.items()},
+        "next_step": fit.next_step,
         "bic": float(fit.bic),
         "log_likelihood": float(fit.log_likelihood),
         "objects": fit.objects,

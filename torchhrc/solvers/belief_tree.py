@@ -258,11 +258,12 @@ class SparseBeliefTree(BeliefTree):
         # maximum over the blocks as an argmax over all
         cols = max(1, min(N, (_GATHER_ELEMENTS * 8) // max(1, vectors.shape[1])))
         step = max(1, _GATHER_ELEMENTS // cols)  # (m, cols) scores a block at once
-        best_v = torch.full((M,), -torch.inf, dtype=vectors.dtype)
-        best_i = torch.zeros(M, dtype=torch.long)
         csr = [self.csr(nodes[start : start + step]) for start in range(0, M, step)]
+        dtype = csr[0].dtype  # the beliefs' (narrower vectors are scored in it, a block at a time)
+        best_v = torch.full((M,), -torch.inf, dtype=dtype)
+        best_i = torch.zeros(M, dtype=torch.long)
         for j in range(0, N, cols):
-            vt = vectors[j : j + cols].T.contiguous()
+            vt = vectors[j : j + cols].T.to(dtype).contiguous()
             for start, rows in zip(range(0, M, step), csr):
                 v, i = (rows @ vt).max(-1)
                 sl = slice(start, start + v.shape[0])

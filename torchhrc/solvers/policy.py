@@ -136,7 +136,7 @@ class AlphaVectorPolicy:
         check_shape("belief", belief, (size,), f"(..., {dim_name}={size})")
         if self.num_vectors == 0:
             raise ModelError("the policy has no alpha vectors")
-        scores = belief.to(self.alphas.dtype) @ self.alphas.T  # (..., N)
+        scores = self._products(belief)  # (..., N)
         if not self.is_momdp:
             if x is not None:
                 raise ModelError("x is only accepted by a MOMDP policy (observed is None)")
@@ -152,6 +152,19 @@ class AlphaVectorPolicy:
             missing = x.expand(covered.shape)[~covered].unique().tolist()
             raise ModelError(f"the policy has no alpha vector for observed value(s) x = {missing}")
         return scores.masked_fill(~mine, -torch.inf)
+
+    def _products(self, belief: torch.Tensor) -> torch.Tensor:
+        """``(..., N)`` ``belief . alphas[n]``, in the wider of the two dtypes: vectors held
+        narrower than the beliefs (``SARSOPConfig(alpha_dtype=torch.float32)``) are widened a
+        block of rows at a time, never all at once."""
+        wide = belief.is_floating_point() and (
+            torch.finfo(belief.dtype).bits > torch.finfo(self.alphas.dtype).bits
+        )
+        if not wide:
+            return belief.to(self.alphas.dtype) @ self.alphas.T
+        step = max(1, (1 << 21) // max(1, self.alphas.shape[1]))
+        return torch.cat([belief @ self.alphas[i : i + step].to(belief.dtype).T
+                          for i in range(0, self.alphas.shape[0], step)], -1)  # fmt: skip
 
     def value(
         self, x_or_belief: torch.Tensor | int, belief_y: torch.Tensor | None = None

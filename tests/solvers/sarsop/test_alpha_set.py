@@ -118,3 +118,32 @@ def test_child_records_start_afresh_at_each_alpha_pruning(monkeypatch) -> None:
     sol = sarsop(model, SARSOPConfig(time_limit=1e9, precision=1e-9, max_iterations=40))
     assert len(recorded_sizes) >= 2 and min(recorded_sizes) > 0  # prunings with records
     assert sol.lower <= sol.upper
+
+
+def test_vectors_held_narrower_are_rounded_down_by_at_most_one_step() -> None:
+    """A float32 store of float64 vectors (``SARSOPConfig(alpha_dtype=torch.float32)``):
+    every entry stored is the largest float32 at or below the computed one (so a stored
+    vector is a lower bound wherever the computed one is), through the constructor, ``add``
+    and ``add_np``; a float64 store keeps them bit for bit."""
+    g = torch.Generator().manual_seed(0)
+    v = (torch.rand(6, 50, generator=g, dtype=torch.float64) - 0.5) * 40.0
+    v[0, :3] = torch.tensor([0.5, -2.0, 19.0], dtype=torch.float64)  # exact in float32
+
+    def below(stored: torch.Tensor, exact: torch.Tensor) -> None:
+        s = stored.double()
+        assert bool((s <= exact).all())
+        above = torch.nextafter(stored, torch.full_like(stored, torch.inf)).double()
+        assert bool((above > exact).all())  # the next float32 up is above: the largest below
+
+    obs = torch.zeros(2, dtype=torch.long)
+    store = _AlphaSet(v[:2], torch.tensor([0, 1]), obs, 1, dtype=torch.float32)
+    store.add(v[2:4], torch.tensor([0, 1]), obs)
+    store.add_np(v[4].numpy(), 0, 0)
+    store.add_np(v[5].numpy(), 1, 0)
+    assert store.vectors.dtype == torch.float32 and store.size == 6
+    below(store.vectors[:6], v)
+    assert store.vectors[0, :3].tolist() == [0.5, -2.0, 19.0]
+    same = _AlphaSet(v[:2], torch.tensor([0, 1]), obs, 1)
+    same.add_np(v[4].numpy(), 0, 0)
+    assert same.vectors.dtype == torch.float64
+    assert torch.equal(same.vectors[:3], torch.cat([v[:2], v[4:5]]))

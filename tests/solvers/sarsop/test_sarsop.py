@@ -98,12 +98,15 @@ def _assert_history_brackets(history, lo: float, hi: float, tol: float = 1e-9) -
 
 
 # -- invariants against exact references ------------------------------------------------------
+@pytest.mark.parametrize("alpha_dtype", [None, torch.float32])
 @pytest.mark.parametrize("seed", [0, 2])  # seed 1 works too, but its exact reference takes 30 s
-def test_bounds_bracket_exact_value_every_iteration_flat(seed):
+def test_bounds_bracket_exact_value_every_iteration_flat(seed, alpha_dtype):
     model = _tiger_like(seed, discount=0.8)
     lo, hi = optimal_value_bounds(model.T, model.Z, model.R, model.discount, model.b0, 100)
     assert hi - lo < 1e-6
-    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-3, max_iterations=300))
+    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-3, max_iterations=300,
+                                     alpha_dtype=alpha_dtype))  # fmt: skip
+    assert sol.policy.alphas.dtype == (alpha_dtype or torch.float64)
     _assert_history_brackets(sol.history, lo, hi)
     assert sol.info["stop_reason"] == "precision"
     assert sol.history[0]["upper"] - sol.history[0]["lower"] > 10.0  # a real search happened
@@ -113,18 +116,65 @@ def test_bounds_bracket_exact_value_every_iteration_flat(seed):
     assert float(sol.policy.value(model.b0)) == pytest.approx(sol.lower, abs=1e-9)
 
 
+@pytest.mark.parametrize("alpha_dtype", [None, torch.float32])
 @pytest.mark.parametrize("seed", [0, 2, 3])
-def test_bounds_bracket_brute_force_every_iteration_momdp(seed):
+def test_bounds_bracket_brute_force_every_iteration_momdp(seed, alpha_dtype):
     # random MOMDPs whose initial bounds do not meet (static hidden value for seeds 0 and 2)
     model = random_momdp(2, 2, 2, 2, static=seed % 2 == 0, discount=0.6, concentration=0.3,
                          seed=seed)  # fmt: skip
     lo, hi = _brute_force_bounds(model, 7)
-    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-4, max_iterations=300))
+    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-4, max_iterations=300,
+                                     alpha_dtype=alpha_dtype))  # fmt: skip
     _assert_history_brackets(sol.history, lo, hi)
     assert sol.info["stop_reason"] == "precision"
     assert sol.policy.is_momdp
     value = sol.policy.value(torch.tensor(model.x0), model.b0)
     assert float(value) == pytest.approx(sol.lower, abs=1e-9)
+
+
+@pytest.mark.parametrize("form", ["dense", "sparse", "momdp", "sparse_momdp"])
+def test_alpha_vectors_held_in_float32_stay_lower_bounds(form):
+    """``alpha_dtype=torch.float32`` under a float64 solve: every vector is stored rounded
+    down, so the lower bound never passes the exact value (RockSample(4, 2), solved to 1e-6
+    in float64 as the reference, in each model form); the policy is scored in float64 (its
+    value at b0 is the reported lower bound to float64's accuracy, not float32's), and the
+    bounds meet those of the float64 solve to the precision asked."""
+    from torchhrc.tasks.classic import rock_sample
+
+    model = rock_sample(4, 2, form=form)
+    ref = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-6, max_iterations=3000))
+    assert ref.info["stop_reason"] == "precision"
+    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-3, max_iterations=3000,
+                                     alpha_dtype=torch.float32))  # fmt: skip
+    assert sol.info["stop_reason"] == "precision"
+    assert sol.policy.alphas.dtype == torch.float32
+    assert sol.lower <= ref.upper + 1e-9 and sol.upper >= ref.lower - 1e-9
+    assert sol.lower == pytest.approx(ref.lower, abs=2e-3)
+    form_ = as_solver_model(model)
+    widened = dataclasses.replace(sol.policy, alphas=sol.policy.alphas.double())
+    assert form_.value_at_roots(sol.policy) == pytest.approx(
+        form_.value_at_roots(widened), abs=1e-12
+    )
+
+
+def test_alpha_dtype_default_narrows_only_wide_vectors_of_a_float64_solve(monkeypatch):
+    """``alpha_dtype=None``: float32 where a vector has at least ``ALPHA_FLOAT32_MIN_WIDTH``
+    entries and the solve is float64 (recorded in ``info["alpha_dtype"]``); a given dtype
+    wins; a float32 solve stays float32."""
+    from torchhrc.solvers.sarsop import search
+
+    model = tiger()  # vectors of 2 entries
+    quick = dict(time_limit=LONG, max_iterations=3)
+    assert sarsop(model, SARSOPConfig(**quick)).info["alpha_dtype"] == "float64"
+    monkeypatch.setattr(search, "ALPHA_FLOAT32_MIN_WIDTH", 2)  # as if tiger were wide
+    wide = sarsop(model, SARSOPConfig(**quick))
+    assert wide.info["alpha_dtype"] == "float32" and wide.policy.alphas.dtype == torch.float32
+    given = sarsop(model, SARSOPConfig(alpha_dtype=torch.float64, **quick))
+    assert given.info["alpha_dtype"] == "float64"
+    single = sarsop(model, SARSOPConfig(dtype=torch.float32, **quick))
+    assert single.info["alpha_dtype"] == "float32"
+    with pytest.raises(TypeError, match="alpha_dtype"):
+        SARSOPConfig(alpha_dtype="float32")
 
 
 def test_tiger_known_optimum():

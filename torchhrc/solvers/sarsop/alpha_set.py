@@ -25,6 +25,34 @@ _SCORED = 64
 _SCORED_BYTES = 1 << 24
 
 
+def round_down(values: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+    """``values`` in ``dtype``, each entry rounded toward minus infinity where ``dtype`` is
+    the narrower, so that a stored alpha vector is never above the one computed (a vector below
+    a plan's value is a lower bound too).
+
+    Example:
+        >>> v = torch.tensor([0.1, -0.1, 0.5], dtype=torch.float64)
+        >>> low = round_down(v, torch.float32)
+        >>> bool((low.double() <= v).all()), low.dtype, low[2].item()
+        (True, torch.float32, 0.5)
+    """
+    out = values.to(dtype)
+    if dtype == values.dtype or torch.finfo(dtype).bits >= torch.finfo(values.dtype).bits:
+        return out
+    up = out.to(values.dtype) > values
+    return torch.where(up, torch.nextafter(out, torch.full_like(out, -torch.inf)), out)
+
+
+def round_down_np(values: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """:func:`round_down` of a numpy array (into ``dtype``)."""
+    out = values.astype(dtype)
+    if out.dtype.itemsize >= values.dtype.itemsize:
+        return out
+    up = out > values
+    out[up] = np.nextafter(out[up], out.dtype.type(-np.inf))
+    return out
+
+
 class _AlphaSet:
     """Alpha vectors ``(N, Y)`` with their action and observed value, grown geometrically.
 
@@ -45,6 +73,11 @@ class _AlphaSet:
     policy of the written vectors earns at least ``V_low(b0)``. The initial vectors (blind
     policies: fixed points of their own action) refer to none.
 
+    The storage's ``dtype`` may be narrower than the vectors computed (``SARSOPConfig``'s
+    ``alpha_dtype``: float32 under a float64 solve); each vector is then stored rounded down
+    (:func:`round_down`), so it stays a lower bound, and the compiled kernels that read rows
+    (float64 only) give way to their numpy paths.
+
     Memory: one copy of the vectors, also while the storage grows (on CPU the rows are copied
     into the larger storage from the last, a block at a time, and each copied block's old
     pages go back to the OS at once) and while a pruning compacts the rows in place (the
@@ -62,15 +95,16 @@ class _AlphaSet:
     """
 
     def __init__(self, alphas: torch.Tensor, actions: torch.Tensor, observed: torch.Tensor,
-                 num_observed: int = 1) -> None:  # fmt: skip
+                 num_observed: int = 1, dtype: torch.dtype | None = None) -> None:  # fmt: skip
         n = alphas.shape[0]
         self.refs: list[np.ndarray] = [np.zeros(0, dtype=np.int64) for _ in range(n)]
         cap = max(64, 2 * n)
         self.num_observed = int(num_observed)
-        self.vectors = alphas.new_zeros(cap, alphas.shape[1])
+        self.vectors = alphas.new_zeros(cap, alphas.shape[1], dtype=dtype or alphas.dtype)
         self.actions = torch.zeros(cap, dtype=torch.long, device=alphas.device)
         self.observed = torch.zeros(cap, dtype=torch.long, device=alphas.device)
-        self.vectors[:n], self.actions[:n], self.observed[:n] = alphas, actions, observed
+        self.vectors[:n] = round_down(alphas, self.vectors.dtype)
+        self.actions[:n], self.observed[:n] = actions, observed
         self.size = n
         self._gid: list[np.ndarray] = []  # per x: the indices of its vectors (CPU only)
         self._gn = np.zeros(self.num_observed, dtype=np.int64)  # how many of each in use
@@ -215,8 +249,9 @@ class _AlphaSet:
 
     @staticmethod
     def _gather(kernel: Any, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """``(c, len(rows))`` ``rows[:, cols].T`` (``rows`` C-contiguous)."""
-        if kernel is None:
+        """``(c, len(rows))`` ``rows[:, cols].T`` (``rows`` C-contiguous; compiled for
+        float64 rows)."""
+        if kernel is None or rows.dtype != np.float64:
             return np.ascontiguousarray(rows.T[cols])
         return backup_kernel.gather_columns(kernel, rows, rows.shape[0], cols)
 
@@ -249,7 +284,7 @@ class _AlphaSet:
         assert self.np_vectors is not None
         assert self.np_actions is not None and self.np_observed is not None
         n = self.size
-        self.np_vectors[n] = alpha
+        self.np_vectors[n] = round_down_np(alpha, self.np_vectors.dtype)
         self.np_actions[n] = action
         self.np_observed[n] = observed
         self.size = n + 1
@@ -289,7 +324,8 @@ class _AlphaSet:
         if self.size + m > self.vectors.shape[0]:
             self._reserve(self.size + m)
         s = slice(self.size, self.size + m)
-        self.vectors[s], self.actions[s], self.observed[s] = alphas, actions, observed
+        self.vectors[s] = round_down(alphas, self.vectors.dtype)
+        self.actions[s], self.observed[s] = actions, observed
         self.size += m
         if self.np_vectors is not None:
             assert self.np_observed is not None

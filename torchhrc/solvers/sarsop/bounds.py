@@ -43,7 +43,7 @@ class _Bounds:
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """``(B,)`` max alpha . b over the vectors of each ``x``, and the argmax index."""
         n = self.alphas.size
-        scores = beliefs @ self.alphas.vectors[:n].T  # (B, N)
+        scores = beliefs @ self.alphas.vectors[:n].T.to(beliefs.dtype)  # (B, N)
         if self.X > 1:
             scores = scores.masked_fill(x.unsqueeze(-1) != self.alphas.observed[:n], -torch.inf)
         return scores.max(-1)
@@ -125,10 +125,10 @@ class _Bounds:
                     rows, cols = rows[:, sup], sup
             if cols is None:
                 return self._best(rows @ V.T, ids)
-            return alphas.best_on_columns(self._kernel, rows, cols)  # (ids: 0..N-1)
-        if self._kernel is not None:  # each row against its own x's, compiled
+            return alphas.best_on_columns(self._vkernel, rows, cols)  # (ids: 0..N-1)
+        if self._vkernel is not None:  # each row against its own x's, compiled
             rows = np.ascontiguousarray(rows)
-            return alphas.group_scores(self._kernel, rows, rows_x, cols)
+            return alphas.group_scores(self._vkernel, rows, rows_x, cols)
         first = rows_x[0]
         if (rows_x == first).all():
             V, ids = alphas.group(int(first))
@@ -319,8 +319,8 @@ class _Bounds:
             return best
         # b itself under each distinct x2
         ux = np.array(distinct, dtype=np.int64)
-        if self._kernel is not None:  # one compiled call
-            ids = self.alphas.group_scores(self._kernel, b.reshape(1, -1), ux)[1]
+        if self._vkernel is not None:  # one compiled call
+            ids = self.alphas.group_scores(self._vkernel, b.reshape(1, -1), ux)[1]
         else:
             ids = self._lower_np(np.broadcast_to(b, (ux.size, b.shape[0])), ux)[1]
         best[imp] = ids[0] if ux.size == 1 else ids[np.searchsorted(ux, cx)]

@@ -14,10 +14,17 @@ from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers._budget import SolverBudget
 from torchhrc.solvers.policy import AlphaVectorPolicy
 
-__all__ = ["SARSOPConfig"]
+__all__ = ["ALPHA_FLOAT32_MIN_WIDTH", "SARSOPConfig"]
 
 LowerInit = Callable[[POMDP | MOMDP], AlphaVectorPolicy]
 UpperInit = Callable[[POMDP | MOMDP], torch.Tensor]
+
+
+#: ``SARSOPConfig(alpha_dtype=None)`` holds the alpha vectors in float32 (rounded down) where
+#: a vector has at least this many entries (``S`` of a flat model, ``Y`` of a MOMDP) and the
+#: solve is float64: there the vectors are most of the solve's memory (a 20,000-state model's
+#: 2,000 vectors at 10 s are 320 MB in float64), and below it they are a few MB.
+ALPHA_FLOAT32_MIN_WIDTH = 10_000
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -87,8 +94,18 @@ class SARSOPConfig(SolverBudget):
             True stops the solve.
         dtype: floating dtype of the solve (default float64). ``torch.float32`` halves the
             memory of the model, the beliefs and the alpha vectors (a 20,000-state sparse
-            model's net peak at 60 s: 796 against 1,351 MB, ``docs/benchmarks.md``, "The
-            20,000-state model in float32"), with both bounds in single precision.
+            model's net peak at 60 s: 796 against 1,223 MB, ``docs/benchmarks.md``, "The
+            alpha vectors in float32"), with both bounds in single precision.
+        alpha_dtype: the dtype the lower bound's alpha vectors are held in. ``torch.float32``
+            under a float64 solve halves the vectors' memory, most of a large model's, and
+            keeps the lower bound a bound: each vector is rounded toward minus infinity as it is
+            stored, so it stays below the plan's value it was computed as, and beliefs are
+            scored against it in float64 (the policy returned holds the float32 vectors).
+            Default ``None``: float32 where a vector has at least
+            :data:`ALPHA_FLOAT32_MIN_WIDTH` entries under a float64 solve (a 20,000-state
+            sparse model's net peak at 10 s: 328 against 553 MB, ``docs/benchmarks.md``,
+            "The alpha vectors in float32"), else ``dtype``; ``solution.info["alpha_dtype"]``
+            says which.
         clock: what ``time_limit`` counts: ``"wall"`` (``time.perf_counter``, default),
             ``"process"`` (``time.process_time``: the process's CPU time, user and system, as
             APPL's ``pomdpsol --timeout`` counts it, so that a solve on a shared machine gets
@@ -143,6 +160,7 @@ class SARSOPConfig(SolverBudget):
     forward_backups: bool = True
     callback: Callable[[dict[str, Any]], bool | None] | None = None
     dtype: torch.dtype = torch.float64
+    alpha_dtype: torch.dtype | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()  # clock, memory_limit, memory_reserve, policy_interval, checkpoint
@@ -178,3 +196,10 @@ class SARSOPConfig(SolverBudget):
             )
         if not isinstance(self.dtype, torch.dtype) or not self.dtype.is_floating_point:
             raise TypeError(f"expected dtype to be a floating torch.dtype, got {self.dtype!r}")
+        if self.alpha_dtype is not None and (
+            not isinstance(self.alpha_dtype, torch.dtype) or not self.alpha_dtype.is_floating_point
+        ):
+            raise TypeError(
+                f"expected alpha_dtype to be None or a floating torch.dtype, got "
+                f"{self.alpha_dtype!r}"
+            )

@@ -41,7 +41,7 @@ from torchhrc.solvers.sarsop.alpha_set import _AlphaSet
 from torchhrc.solvers.sarsop.backup import _Backups
 from torchhrc.solvers.sarsop.bins import _Bins
 from torchhrc.solvers.sarsop.bounds import _Bounds
-from torchhrc.solvers.sarsop.config import SARSOPConfig
+from torchhrc.solvers.sarsop.config import ALPHA_FLOAT32_MIN_WIDTH, SARSOPConfig
 from torchhrc.solvers.sarsop.pruning import _Pruning
 from torchhrc.solvers.sarsop.trial import _Trials
 from torchhrc.solvers.solution import Solution
@@ -89,6 +89,16 @@ def fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, *,
     """
     deadline = Deadline.after(time_limit)
     return as_solver_model(model).fib_corner_values(tol, deadline, max_iterations)[0]
+
+
+def _alpha_dtype(cfg: SARSOPConfig, width: int) -> torch.dtype:
+    """The alpha vectors' storage dtype: ``cfg.alpha_dtype``, or by default float32 for
+    vectors of at least :data:`~torchhrc.solvers.sarsop.config.ALPHA_FLOAT32_MIN_WIDTH`
+    entries under a float64 solve, else the solve's dtype."""
+    if cfg.alpha_dtype is not None:
+        return cfg.alpha_dtype
+    wide = width >= ALPHA_FLOAT32_MIN_WIDTH and cfg.dtype == torch.float64
+    return torch.float32 if wide else cfg.dtype
 
 
 class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
@@ -150,7 +160,11 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         if self.X > 1 and int(torch.bincount(observed, minlength=self.X).min()) == 0:
             raise ModelError("lower_bound_init's policy must have a vector for every observed x")
         self.alphas = _AlphaSet(
-            policy.alphas.to(cfg.dtype), policy.actions.long(), observed.long(), self.X
+            policy.alphas.to(cfg.dtype),
+            policy.actions.long(),
+            observed.long(),
+            self.X,
+            dtype=_alpha_dtype(cfg, policy.alphas.shape[1]),
         )
         n = self.alphas.size
         self.alphas.keep(prune_dominated(self.alphas.vectors[:n], self.alphas.observed[:n]))
@@ -200,6 +214,8 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         self._np = self.device.type == "cpu"
         # the compiled steps of a belief's evaluation (backup_kernel): float64 on the CPU
         self._kernel = backup_kernel.load() if self._np and cfg.dtype == torch.float64 else None
+        # ... and of those that read the alpha vectors' rows: float64 vectors only
+        self._vkernel = self._kernel if self.alphas.vectors.dtype == torch.float64 else None
         R = self.n_roots
         self.tree.lower[:R], self.tree.upper[:R] = self._root_bounds()
         # the memory limit, watched from here (what the initialisation holds is its base)
@@ -324,6 +340,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         last["stop_reason"] = reason
         info = {
             "stop_reason": reason,
+            "alpha_dtype": str(self.alphas.vectors.dtype).removeprefix("torch."),
             "iterations": iterations,
             "backups": self.backups,
             "n_beliefs": self.tree.size,

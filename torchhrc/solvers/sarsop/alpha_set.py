@@ -44,7 +44,10 @@ def round_down(values: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
 
 
 def round_down_np(values: np.ndarray, dtype: np.dtype) -> np.ndarray:
-    """:func:`round_down` of a numpy array (into ``dtype``)."""
+    """:func:`round_down` of a numpy array (into ``dtype``; ``values`` itself where it is of
+    ``dtype``: the store copies it)."""
+    if values.dtype == dtype:
+        return values
     out = values.astype(dtype)
     if out.dtype.itemsize >= values.dtype.itemsize:
         return out

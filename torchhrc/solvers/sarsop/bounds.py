@@ -43,6 +43,8 @@ class _Bounds:
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """``(B,)`` max alpha . b over the vectors of each ``x``, and the argmax index."""
         n = self.alphas.size
+        # (the batched torch path, GPU-sized sets: vectors held narrower, by alpha_dtype, are
+        # widened whole here; the CPU's numpy paths score them in place)
         scores = beliefs @ self.alphas.vectors[:n].T.to(beliefs.dtype)  # (B, N)
         if self.X > 1:
             scores = scores.masked_fill(x.unsqueeze(-1) != self.alphas.observed[:n], -torch.inf)

@@ -851,8 +851,8 @@ def find_types(
         options: ``fit_mixture``'s keyword arguments (:func:`cluster_options`).
         seed: the clustering's seed.
         split: split divided types (``learn()`` does unless it is given ``k``).
-        max_types: split no further than this many types (default: ``options["k_max"]``,
-            ``fit_mixture``'s 10 where it is not set).
+        max_types: split no further than this many types (default: the clustering's
+            ``k_max``, the largest k it scored).
 
     Returns:
         The clustering's :class:`~torchhrc.mixture.MixtureFit`, ``(N,)`` int64 the types
@@ -876,7 +876,7 @@ def find_types(
         return fit, fit.assignments, []
     z, splits = split_divided_types(
         task, demonstrations, fit.assignments,
-        max_types=options.get("k_max", 10) if max_types is None else max_types,
+        max_types=max(fit.per_k) if max_types is None else max_types,
         num_types=int(fit.k), objects=fit.objects, separator=fit.model.object_separator,
     )  # fmt: skip
     return fit, z, splits

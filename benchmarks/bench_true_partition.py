@@ -55,20 +55,21 @@ from torchhrc.mixture.selection import partition_chains
 ORDERS = (1, 2, 3)
 
 
-def _complete_log_likelihood(counts: torch.Tensor, z: torch.Tensor) -> float:
+def _complete_log_likelihood(data, counts: torch.Tensor, z: torch.Tensor) -> float:
     """``sum_n sum_(a, b) counts[n, a, b] log theta_(z_n)(b | a)`` at the maximum-likelihood
-    chains of partition ``z`` (``counts (N, A, A)``, ``z (N,)``)."""
-    total = 0.0
-    for c in torch.unique(z).tolist():
-        m = counts[z == c].sum(0)
-        p = m / m.sum(-1, keepdim=True).clamp_min(1.0)
-        total += float((m * p.clamp_min(1e-300).log()).sum())
-    return total
+    chains of partition ``z`` (``counts (N, P, P)`` of ``data``'s sequences, ``z (N,)``;
+    :func:`~torchhrc.mixture.selection.partition_chains` without pseudo-counts)."""
+    labels, z = torch.unique(z, return_inverse=True)
+    one_hot = torch.nn.functional.one_hot(z, labels.numel()).to(torch.float64)
+    chains = partition_chains(data, one_hot, pseudo_count=0.0)  # (k, P, P)
+    return float((counts * chains[z].clamp_min(1e-300).log()).sum())
 
 
 def _label_log_prior(z: torch.Tensor) -> float:
-    """``log p(z)`` of unit labels ``z`` under a Dirichlet(1) on the weights (the exact
-    ICL's weight term): ``log Gamma(K) + sum_k log Gamma(m_k + 1) - log Gamma(n + K)``."""
+    """``log p(z)`` of unit labels ``z`` under a Dirichlet(1) on the weights:
+    ``log Gamma(K) + sum_k log Gamma(m_k + 1) - log Gamma(n + K)``, the weight term of
+    :func:`~torchhrc.mixture.criteria.exact_icl` (``weight_prior = 1``), which that function
+    does not give apart."""
     m = torch.bincount(z)
     m = m[m > 0].to(torch.float64)
     K, n = float(m.numel()), float(m.sum())
@@ -96,14 +97,14 @@ def true_partition_rows(name: str, seed: int, *, subjects: int, per_subject: int
         score = torch.einsum("gab,kab->gk", per_subject_counts, chains.clamp_min(1e-300).log())
         oracle = (score + shares.clamp_min(1e-300).log()).argmax(-1)
         ari = adjusted_rand_index(truth.tolist(), oracle.tolist())
+        true_ll = _complete_log_likelihood(data, counts, types)  # the same for every pair
+        true_labels = _label_log_prior(truth)
         for i, j in itertools.combinations(range(K), 2):
             merged = torch.where(types == j, i, types)
             merged_units = torch.where(truth == j, i, truth)
             icl_true, icl_merged = partition_icl(demos, [types, merged], order, groups=g)
-            d_ll = _complete_log_likelihood(counts, types) - _complete_log_likelihood(
-                counts, merged
-            )
-            labels = _label_log_prior(truth) - _label_log_prior(merged_units)
+            d_ll = true_ll - _complete_log_likelihood(data, counts, merged)
+            labels = true_labels - _label_log_prior(merged_units)
             rows.append(
                 {
                     "task": name,

@@ -98,15 +98,23 @@ def _assert_history_brackets(history, lo: float, hi: float, tol: float = 1e-9) -
 
 
 # -- invariants against exact references ------------------------------------------------------
-@pytest.mark.parametrize("alpha_dtype", [None, torch.float32])
+# the float32 vectors, and the trials' draw among near-equal children from the first trial
+# (explore_after=0: every trial draws)
+VARIANTS = [(None, 10), (torch.float32, 10), (None, 0)]
+
+
+@pytest.mark.parametrize(("alpha_dtype", "explore_after"), VARIANTS)
 @pytest.mark.parametrize("seed", [0, 2])  # seed 1 works too, but its exact reference takes 30 s
-def test_bounds_bracket_exact_value_every_iteration_flat(seed, alpha_dtype):
+def test_bounds_bracket_exact_value_every_iteration_flat(seed, alpha_dtype, explore_after):
     model = _tiger_like(seed, discount=0.8)
     lo, hi = optimal_value_bounds(model.T, model.Z, model.R, model.discount, model.b0, 100)
     assert hi - lo < 1e-6
-    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-3, max_iterations=300,
-                                     alpha_dtype=alpha_dtype))  # fmt: skip
+    cfg = SARSOPConfig(time_limit=LONG, precision=1e-3, max_iterations=300,
+                       alpha_dtype=alpha_dtype, explore_after=explore_after)  # fmt: skip
+    sol = sarsop(model, cfg)
     assert sol.policy.alphas.dtype == (alpha_dtype or torch.float64)
+    if explore_after == 0:
+        assert sol.info["explored_trials"] == sol.info["iterations"] > 0
     _assert_history_brackets(sol.history, lo, hi)
     assert sol.info["stop_reason"] == "precision"
     assert sol.history[0]["upper"] - sol.history[0]["lower"] > 10.0  # a real search happened
@@ -116,15 +124,16 @@ def test_bounds_bracket_exact_value_every_iteration_flat(seed, alpha_dtype):
     assert float(sol.policy.value(model.b0)) == pytest.approx(sol.lower, abs=1e-9)
 
 
-@pytest.mark.parametrize("alpha_dtype", [None, torch.float32])
+@pytest.mark.parametrize(("alpha_dtype", "explore_after"), VARIANTS)
 @pytest.mark.parametrize("seed", [0, 2, 3])
-def test_bounds_bracket_brute_force_every_iteration_momdp(seed, alpha_dtype):
+def test_bounds_bracket_brute_force_every_iteration_momdp(seed, alpha_dtype, explore_after):
     # random MOMDPs whose initial bounds do not meet (static hidden value for seeds 0 and 2)
     model = random_momdp(2, 2, 2, 2, static=seed % 2 == 0, discount=0.6, concentration=0.3,
                          seed=seed)  # fmt: skip
     lo, hi = _brute_force_bounds(model, 7)
-    sol = sarsop(model, SARSOPConfig(time_limit=LONG, precision=1e-4, max_iterations=300,
-                                     alpha_dtype=alpha_dtype))  # fmt: skip
+    cfg = SARSOPConfig(time_limit=LONG, precision=1e-4, max_iterations=300,
+                       alpha_dtype=alpha_dtype, explore_after=explore_after)  # fmt: skip
+    sol = sarsop(model, cfg)
     _assert_history_brackets(sol.history, lo, hi)
     assert sol.info["stop_reason"] == "precision"
     assert sol.policy.is_momdp
@@ -445,6 +454,13 @@ def test_config_validation():
         SARSOPConfig(init_tol=0.0)
     with pytest.raises(ValueError, match="init_max_iterations"):
         SARSOPConfig(init_max_iterations=-1)
+    with pytest.raises(ValueError, match="explore_after"):
+        SARSOPConfig(explore_after=-1)
+    with pytest.raises(ValueError, match="explore_after"):
+        SARSOPConfig(explore_after=2.5)  # type: ignore[arg-type]
+    for bad in (0.0, 1.5, float("nan"), True):
+        with pytest.raises(ValueError, match="explore_within"):
+            SARSOPConfig(explore_within=bad)
 
 
 def test_model_validation():

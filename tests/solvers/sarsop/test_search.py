@@ -122,13 +122,68 @@ def test_tie_break_first_takes_the_lowest_action_and_is_validated():
 
 def test_tie_break_first_solve_is_deterministic_and_brackets():
     model = random_momdp(3, 4, 3, 2, discount=0.9, seed=5)
-    cfg = SARSOPConfig(time_limit=1e9, max_iterations=30, tie_break="first")
+    cfg = SARSOPConfig(time_limit=1e9, max_iterations=30, tie_break="first", explore_after=None)
     a, b = sarsop(model, cfg), sarsop(model, SARSOPConfig(time_limit=1e9, max_iterations=30,
-                                                          tie_break="first", seed=9))  # fmt: skip
-    # the seed only draws among ties, which "first" never does
+                                                          tie_break="first", seed=9,
+                                                          explore_after=None))  # fmt: skip
+    # the seed only draws among ties, which "first" never does, and among near-equal
+    # children once the lower bound stalls, which explore_after=None never does
     assert a.lower == b.lower and a.upper == b.upper
     assert a.lower <= a.upper
     assert torch.equal(a.policy.alphas, b.policy.alphas)
+
+
+def test_child_draw_takes_the_children_within_the_share_of_the_largest_excess():
+    """After a stall a trial draws its child uniformly among the possible children whose
+    excess gap ``(up - low) - target * P`` is at least ``explore_within`` times the largest;
+    where no excess is above 0 it takes the deterministic choice."""
+    solver = _SARSOP(random_momdp(2, 3, 3, 2, discount=0.9, seed=1),
+                     SARSOPConfig(seed=4), time.perf_counter())  # fmt: skip
+    prob = np.array([[0.2, 0.2, 0.0], [0.2, 0.2, 0.2]])
+    gap = np.array([[1.02, 0.97, 5.0], [0.52, 0.94, 0.93]])  # (1, 2) is impossible: P = 0
+    low = np.zeros_like(gap)
+    target = 0.1  # excess: 1.0, 0.95, -, 0.5, 0.92, 0.91
+    draws = {solver._child_draw(prob, gap, low, target)[:2] for _ in range(300)}
+    assert draws == {(0, 0), (0, 1), (1, 1), (1, 2)}  # 0.9 of 1.0: not (1, 0), not P = 0
+    k, o, p = solver._child_draw(prob, gap, low, target)
+    assert p == prob[k, o]
+    strict = _SARSOP(random_momdp(2, 3, 3, 2, discount=0.9, seed=1),
+                     SARSOPConfig(seed=4, explore_within=1.0), time.perf_counter())  # fmt: skip
+    assert {strict._child_draw(prob, gap, low, target)[:2] for _ in range(50)} == {(0, 0)}
+    shut = np.full_like(gap, 0.01)  # every excess <= 0: the first possible child, as before
+    assert solver._child_draw(prob, shut, low, target) == solver._child_choice(
+        prob, shut, low, target) == (0, 0, 0.2)  # fmt: skip
+
+
+def test_trials_draw_only_after_explore_after_trials_without_a_rise():
+    """The count of trials that drew their children, recomputed from the history: a trial
+    draws once the lower bound at the start has not risen over the ``explore_after`` trials
+    before it. Same seed, same solve."""
+    model = rock_sample(4, 4, form="momdp")
+    for after in (3, 8):
+        cfg = SARSOPConfig(time_limit=1e9, max_iterations=60, explore_after=after, seed=2)
+        sol = sarsop(model, cfg)
+        lows = [e["lower"] for e in sol.history]  # entry 0: before the first trial
+        stall, expected = 0, 0
+        for t in range(1, len(lows)):
+            expected += stall >= after  # trial t starts after t - 1 recorded iterations
+            rose = lows[t] > max(lows[:t]) + 1e-9 * max(1.0, abs(lows[t]))
+            stall = 0 if rose else stall + 1
+        assert sol.info["explored_trials"] == expected > 0
+        again = sarsop(model, cfg)
+        assert (again.lower, again.upper) == (sol.lower, sol.upper)
+    never = sarsop(model, SARSOPConfig(time_limit=1e9, max_iterations=60, explore_after=None))
+    assert never.info["explored_trials"] == 0
+
+    # the draw steers the trials: with ties among actions taken first, the seed then
+    # changes the search only where the trials draw their children
+    def runs(after):
+        configs = [SARSOPConfig(time_limit=1e9, max_iterations=40, explore_after=after,
+                                tie_break="first", seed=seed) for seed in range(4)]  # fmt: skip
+        solved = [sarsop(model, config) for config in configs]
+        return {(s.lower, s.upper, s.info["n_beliefs"]) for s in solved}
+
+    assert len(runs(None)) == 1 and len(runs(0)) > 1
 
 
 def test_trials_near_discount_one_run_past_a_thousand_steps():

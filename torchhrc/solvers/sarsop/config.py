@@ -90,6 +90,18 @@ class SARSOPConfig(SolverBudget):
             leaf-to-root backups of the path; on discount 0.999 this multiplies the value
             propagation per trial (aloha-10max at 10 CPU-s: lower 531.9 -> 533.4). A trial
             also ends, as APPL's, where the gap is within half its target error.
+        explore_after: after this many trials in a row without a rise of the lower bound at
+            the start, each step of a trial draws its child (seeded by ``seed``) among those
+            whose excess gap is at least ``explore_within`` times the largest, instead of
+            taking the first of largest excess, until the lower bound rises again (default
+            10; ``None``: never, APPL's rule). Where several children are nearly equal the
+            deterministic choice keeps sending trials down the same ones, and a region of
+            high reward under another may wait thousands of backups (the 20,000-state model
+            of ``make_suite.py --check-set scale`` at 60 CPU-s: lower 5.94 against 6.41-6.88
+            with the draw; ``docs/benchmarks.md``, "A draw among near-equal children once the
+            lower bound stalls"). The bounds stay bounds either way.
+        explore_within: the share of the largest excess a child needs to be drawn, in
+            ``(0, 1]`` (default 0.9; 1: exact ties only).
         callback: called after each iteration with the history entry (a dict); returning
             True stops the solve.
         dtype: floating dtype of the solve (default float64). ``torch.float32`` halves the
@@ -158,6 +170,8 @@ class SARSOPConfig(SolverBudget):
     sweep_interval: int = 0
     lazy_upper: bool = True
     forward_backups: bool = True
+    explore_after: int | None = 10
+    explore_within: float = 0.9
     callback: Callable[[dict[str, Any]], bool | None] | None = None
     dtype: torch.dtype = torch.float64
     alpha_dtype: torch.dtype | None = None
@@ -180,10 +194,16 @@ class SARSOPConfig(SolverBudget):
             raise ValueError(
                 f"expected init_max_iterations to be an int >= 0, got {self.init_max_iterations!r}"
             )
-        for name in ("max_iterations", "max_depth"):
+        for name in ("max_iterations", "max_depth", "explore_after"):
             value = getattr(self, name)
             if value is not None and (not isinstance(value, int) or value < 0):
                 raise ValueError(f"expected {name} to be None or an int >= 0, got {value!r}")
+        if (
+            not isinstance(self.explore_within, (int, float))
+            or isinstance(self.explore_within, bool)
+            or not 0.0 < self.explore_within <= 1.0
+        ):
+            raise ValueError(f"expected explore_within in (0, 1], got {self.explore_within!r}")
         if self.tie_break not in ("random", "first"):
             raise ValueError(f"expected tie_break 'random' or 'first', got {self.tie_break!r}")
         if self.prediction not in ("binning", "upper"):

@@ -209,6 +209,9 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         self.history: list[dict[str, Any]] = []
         self.backups = 0
         self._forward: set[int] = set()
+        # trials in a row without a rise of the lower bound at the start (cfg.explore_after),
+        # the bound they have not risen above, and the trials that drew their children
+        self._stall, self._stall_lower, self.explored = 0, -math.inf, 0
         # the sequential one-belief path runs in numpy on the CPU, whose per-op overhead at
         # these sizes is several times below torch's dispatch
         self._np = self.device.type == "cpu"
@@ -276,6 +279,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
     def run(self) -> Solution:
         cfg = self.cfg
         entry = self.record(0)
+        self._note_progress(entry["lower"])
         reason = "time_limit"
         iteration = 0
         try:
@@ -308,6 +312,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
                 if not self._out_of_budget():
                     self.prune()
                 entry = self.record(iteration)
+                self._note_progress(entry["lower"])
                 if cfg.callback is not None and cfg.callback(dict(entry)):
                     reason = "callback"
                     break
@@ -317,6 +322,15 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
             reason = "interrupted"
             entry = self.record(iteration)
         return self.solution(reason, iteration)
+
+    def _note_progress(self, lower: float) -> None:
+        """Count the trials since the lower bound at the start last rose (by more than
+        1e-9 relative): :meth:`sample` draws its children once there are
+        ``cfg.explore_after`` of them (:class:`SARSOPConfig`)."""
+        if lower > self._stall_lower + 1e-9 * max(1.0, abs(lower)):
+            self._stall, self._stall_lower = 0, lower
+        else:
+            self._stall += 1
 
     def _policy(self) -> AlphaVectorPolicy:
         """The alpha vectors so far as the form's policy (a copy)."""
@@ -343,6 +357,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
             "alpha_dtype": str(self.alphas.vectors.dtype).removeprefix("torch."),
             "iterations": iterations,
             "backups": self.backups,
+            "explored_trials": self.explored,
             "n_beliefs": self.tree.size,
             "n_points": self.ub.size,
             "init": dict(self.init_info),

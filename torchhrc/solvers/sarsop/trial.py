@@ -46,6 +46,9 @@ class _Trials:
         # than the arithmetic on a small model; the same values as before)
         cache, form, numpy_path = self._cache, self.form, self._np
         scale = 1.0  # g ** (-t)
+        # the lower bound at the start has stalled: draw each child among the near-largest
+        explore = cfg.explore_after is not None and self._stall >= cfg.explore_after
+        self.explored += explore
         while t < self.max_depth and not self._out_of_budget():
             lo, up = float(tree.lower[node]), float(tree.upper[node])
             v_hat = self.bins.predict(bid, up, lo) if binning else up
@@ -74,7 +77,10 @@ class _Trials:
             a = self._argmax_tie(q_up)
             prob, up_a, low_a = prob_all[a], up_all[a], low_all[a]  # (K, O) each
             scale_next = g ** (-(t + 1))
-            k, o, p = self._child_choice(prob, up_a, low_a, eps * scale_next)
+            if explore:
+                k, o, p = self._child_draw(prob, up_a, low_a, eps * scale_next)
+            else:
+                k, o, p = self._child_choice(prob, up_a, low_a, eps * scale_next)
             if p <= 0:
                 break
             low_c, up_c = float(low_a[k, o]), float(up_a[k, o])
@@ -128,6 +134,21 @@ class _Trials:
                 if e > best:
                     best, j = e, i
         return j // O, j % O, ps[j]
+
+    def _child_draw(self, prob: np.ndarray, up: np.ndarray, low: np.ndarray,
+                    target: float) -> tuple[int, int, float]:  # fmt: skip
+        """A child ``(k, o)`` drawn uniformly (by the search's seeded generator) among the
+        possible ones whose excess gap is at least ``cfg.explore_within`` times the largest,
+        and its ``P``; :meth:`_child_choice` where the largest excess is not above 0 (the
+        trial's end condition reads it there)."""
+        excess = np.where(prob > 0, (up - low) - target * prob, -np.inf).reshape(-1)
+        top = float(excess.max())
+        if not top > 0.0:
+            return self._child_choice(prob, up, low, target)
+        near = np.flatnonzero(excess >= self.cfg.explore_within * top)
+        j = int(near[self.rng.integers(near.size)]) if near.size > 1 else int(near[0])
+        O = prob.shape[1]
+        return j // O, j % O, float(prob.reshape(-1)[j])
 
     def _add_node(self, belief: torch.Tensor | np.ndarray, x: int, parent: int, action: int,
                   obs: int) -> int:  # fmt: skip

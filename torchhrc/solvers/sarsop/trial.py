@@ -112,6 +112,12 @@ class _Trials:
         return path
 
     @staticmethod
+    def _excess(prob: np.ndarray, up: np.ndarray, low: np.ndarray, target: float) -> np.ndarray:
+        """``(K * O,)`` each child's excess gap ``(up - low) - target * P``, ``-inf`` where
+        the child is impossible (``P = 0``)."""
+        return np.where(prob > 0, (up - low) - target * prob, -np.inf).reshape(-1)
+
+    @staticmethod
     def _child_choice(prob: np.ndarray, up: np.ndarray, low: np.ndarray,
                       target: float) -> tuple[int, int, float]:  # fmt: skip
         """The child ``(k, o)`` of largest excess gap ``(up - low) - target * P`` among the
@@ -122,8 +128,7 @@ class _Trials:
         """
         K, O = prob.shape
         if K * O > 64:
-            excess = np.where(prob > 0, (up - low) - target * prob, -np.inf)
-            j = int(excess.argmax())
+            j = int(_Trials._excess(prob, up, low, target).argmax())
             k, o = divmod(j, O)
             return k, o, float(prob[k, o])
         ps, us, ls = prob.ravel().tolist(), up.ravel().tolist(), low.ravel().tolist()
@@ -139,14 +144,15 @@ class _Trials:
                     target: float) -> tuple[int, int, float]:  # fmt: skip
         """A child ``(k, o)`` drawn uniformly (by the search's seeded generator) among the
         possible ones whose excess gap is at least ``cfg.explore_within`` times the largest,
-        and its ``P``; :meth:`_child_choice` where the largest excess is not above 0 (the
-        trial's end condition reads it there)."""
-        excess = np.where(prob > 0, (up - low) - target * prob, -np.inf).reshape(-1)
-        top = float(excess.max())
-        if not top > 0.0:
-            return self._child_choice(prob, up, low, target)
-        near = np.flatnonzero(excess >= self.cfg.explore_within * top)
-        j = int(near[self.rng.integers(near.size)]) if near.size > 1 else int(near[0])
+        and its ``P``; where the largest excess is not above 0, the first of largest excess,
+        as :meth:`_child_choice` (the trial's end condition reads it there)."""
+        excess = self._excess(prob, up, low, target)
+        j = int(excess.argmax())
+        top = float(excess[j])
+        if top > 0.0:
+            near = np.flatnonzero(excess >= self.cfg.explore_within * top)
+            if near.size > 1:
+                j = int(near[self.rng.integers(near.size)])
         O = prob.shape[1]
         return j // O, j % O, float(prob.reshape(-1)[j])
 

@@ -8,8 +8,18 @@ and upper bounds on the optimal value at the initial belief, and optionally writ
 (``.policyx``, APPL's format, or ``.safetensors``). Progress (bounds over time) goes to
 stderr unless ``--quiet``. With ``--json`` one JSON object is printed with the keys
 ``lower``, ``upper``, ``gap``, ``time_s``, ``n_alphas``, ``solver``, ``stop_reason``,
-``iterations``, ``policy`` (the written path or null), ``sparse`` and ``model`` (``"POMDP"``,
+``iterations``, ``explored_trials`` (SARSOP's trials that drew their children; null for the
+other solvers), ``policy`` (the written path or null), ``sparse`` and ``model`` (``"POMDP"``,
 ``"MOMDP"``, ``"SparseMOMDP"`` or ``"SparsePOMDP"``).
+
+A ``pomdpsol`` command line runs with ``pomdpsol`` replaced by ``torchhrc solve``: its
+``--timeout S`` (CPU seconds), ``-p/--precision``, ``-o/--output``, ``--memory``,
+``--policy-interval``, ``--randomization``, ``--trial-improvement-factor`` and ``--fast``
+(accepted, no effect) are options here too. SARSOP's search has two more:
+``--tie-break random|first`` (``random``, the default, is ``pomdpsol --randomization``) and
+``--explore-after N|never`` / ``--explore-within F`` (the draw among near-equal children once
+the lower bound stalls; :class:`~torchhrc.solvers.SARSOPConfig`). ``--tie-break first
+--explore-after never`` is ``pomdpsol``'s default search.
 
 ``--memory MB`` (as APPL's ``pomdpsol --memory``) bounds the process's resident memory: a
 model whose reading would take more than the limit leaves (or more than the machine's
@@ -72,6 +82,55 @@ def _non_negative(text: str) -> float:
     return value
 
 
+def _share(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1], got {text!r}") from None
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1], got {text!r}")
+    return value
+
+
+def _trials(text: str) -> int | str:
+    if text == "never":
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(
+            f"expected a number of trials >= 0 or 'never', got {text!r}"
+        )
+    return value
+
+
+#: The options only SARSOP reads, as (attribute, option, SARSOPConfig field).
+SARSOP_OPTIONS = (
+    ("tie_break", "--tie-break/--randomization", "tie_break"),
+    ("explore_after", "--explore-after", "explore_after"),
+    ("explore_within", "--explore-within", "explore_within"),
+    ("trial_improvement_factor", "--trial-improvement-factor", "kappa"),
+)
+
+
+def _search_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The SARSOPConfig fields of SARSOP's search options given (a clear error for another
+    solver)."""
+    search: dict[str, Any] = {}
+    for attribute, option, field in SARSOP_OPTIONS:
+        value = getattr(args, attribute, None)
+        if value is None:
+            continue
+        if args.solver != "sarsop":
+            from torchhrc.errors import TorchHRCError
+
+            raise TorchHRCError(f"{option} applies to --solver sarsop only, not {args.solver}")
+        search[field] = None if value == "never" else value
+    return search
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``solve`` sub-command."""
     parser = subparsers.add_parser(
@@ -89,8 +148,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="the model (Cassandra .pomdp; APPL .pomdpx by its suffix)",
     )
     parser.add_argument("--solver", choices=SOLVERS, default="sarsop", help="solver (sarsop)")
-    parser.add_argument(
-        "--time-limit", type=_positive, default=10.0, help="seconds (10; PBVI and SARSOP)"
+    limit = parser.add_mutually_exclusive_group()
+    limit.add_argument(
+        "--time-limit", type=_positive, default=None, help="seconds (10; PBVI and SARSOP)"
+    )
+    limit.add_argument(
+        "--timeout",
+        type=_positive,
+        default=None,
+        metavar="S",
+        help="pomdpsol's --timeout: a time limit of S CPU seconds (--time-limit S --cpu-time)",
     )
     parser.add_argument(
         "--cpu-time",
@@ -99,10 +166,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(PBVI and SARSOP; default: wall-clock seconds)",
     )
     parser.add_argument(
-        "--precision", type=_non_negative, default=1e-3, help="target gap upper - lower (1e-3)"
+        "-p",
+        "--precision",
+        type=_non_negative,
+        default=1e-3,
+        help="target gap upper - lower (1e-3)",
     )
     parser.add_argument(
-        "--out", type=policy_path, default=None, help="write the policy (.policyx / .safetensors)"
+        "-o",
+        "--out",
+        "--output",
+        dest="out",
+        type=policy_path,
+        default=None,
+        help="write the policy (.policyx / .safetensors; --output and -o as pomdpsol)",
     )
     parser.add_argument(
         "--memory",
@@ -125,6 +202,57 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     parser.add_argument("--seed", type=int, default=0, help="random seed (0)")
+    search = parser.add_argument_group(
+        "SARSOP's search (pomdpsol's options where it has them)",
+        "By default a trial draws among actions of equal upper bound (as pomdpsol "
+        "--randomization) and, once the lower bound has stalled for 10 trials, among "
+        "near-equal children; '--tie-break first --explore-after never' is pomdpsol's "
+        "default search.",
+    )
+    ties = search.add_mutually_exclusive_group()
+    ties.add_argument(
+        "--tie-break",
+        choices=("random", "first"),
+        default=None,
+        help="among actions of equal upper bound: draw one (random, the default, seeded) or "
+        "take the lowest index (first, pomdpsol's default)",
+    )
+    ties.add_argument(
+        "--randomization",
+        dest="tie_break",
+        action="store_const",
+        const="random",
+        help="pomdpsol's --randomization: --tie-break random (the default here)",
+    )
+    search.add_argument(
+        "--explore-after",
+        type=_trials,
+        default=None,
+        metavar="N|never",
+        help="draw among near-equal children after N trials without a rise of the lower "
+        "bound (10); never: always the first of largest excess gap, as pomdpsol",
+    )
+    search.add_argument(
+        "--explore-within",
+        type=_share,
+        default=None,
+        metavar="F",
+        help="a drawn child's excess gap is at least F times the largest, in (0, 1] (0.9)",
+    )
+    search.add_argument(
+        "--trial-improvement-factor",
+        type=_share,
+        default=None,
+        metavar="F",
+        help="pomdpsol's option: a trial ends where the gap is F times the gap at the start, "
+        "in (0, 1] (0.5)",
+    )
+    search.add_argument(
+        "--fast",
+        action="store_true",
+        help="accepted for pomdpsol command lines (its faster, picky .pomdp parser); no effect: "
+        "torchhrc has one reader",
+    )
     parser.set_defaults(func=run)
 
 
@@ -139,7 +267,12 @@ def make_config(args: argparse.Namespace, callback: Any = None, checkpoint: Any 
     """
     from torchhrc import solvers
 
-    clock = "process" if getattr(args, "cpu_time", False) else "wall"
+    timeout = getattr(args, "timeout", None)
+    cpu_time = getattr(args, "cpu_time", False) or timeout is not None
+    clock = "process" if cpu_time else "wall"
+    time_limit = timeout if timeout is not None else getattr(args, "time_limit", None)
+    time_limit = 10.0 if time_limit is None else time_limit
+    search = _search_options(args)
     memory = getattr(args, "memory", None)
     memory_limit = None if memory is None else memory * 2**20
     # kept free per byte of the vectors: the policy's copy and check (1.5), and its file's
@@ -156,7 +289,7 @@ def make_config(args: argparse.Namespace, callback: Any = None, checkpoint: Any 
         return solvers.FIBConfig()
     config = solvers.PBVIConfig if args.solver == "pbvi" else solvers.SARSOPConfig
     return config(
-        time_limit=args.time_limit,
+        time_limit=time_limit,
         precision=args.precision,
         seed=args.seed,
         callback=callback,
@@ -164,6 +297,7 @@ def make_config(args: argparse.Namespace, callback: Any = None, checkpoint: Any 
         memory_limit=memory_limit,
         memory_reserve=reserve,
         **checkpoints,
+        **search,
     )
 
 
@@ -195,6 +329,7 @@ def _finite(value: float) -> float | None:
 
 def run(args: argparse.Namespace) -> int:
     """Read, solve, print and write; return the exit status."""
+    _search_options(args)  # a SARSOP option given to another solver: refused before reading
     if getattr(args, "policy_interval", None) is not None and args.out is None:
         from torchhrc.errors import TorchHRCError
 
@@ -262,6 +397,7 @@ def run(args: argparse.Namespace) -> int:
         "solver": args.solver,
         "stop_reason": solution.info.get("stop_reason"),
         "iterations": solution.info.get("iterations"),
+        "explored_trials": solution.info.get("explored_trials"),
         "policy": written,
         "sparse": sparse,
         "model": type(model).__name__,

@@ -80,7 +80,7 @@ def test_depth_min_prob_and_svg(capsys, files, tmp_path):
     assert code == 0, err
     text, nodes, edges = _dot(out_dot)
     assert len(nodes) == 3 and len(edges) == 2 and text.count("style=dashed") == 2
-    assert "closed     false (cut by --depth, --min-prob or --max-nodes)" in out
+    assert "closed     false (cut by --depth, --min-prob, --max-branch or --max-nodes)" in out
     assert b"<svg" in image.read_bytes()[:2000]
     code, _, err = _run(
         capsys, "graph", files["model"], "--policy", files["policy"], "--out", out_dot,
@@ -90,6 +90,22 @@ def test_depth_min_prob_and_svg(capsys, files, tmp_path):
     _, _, edges = _dot(out_dot)
     probs = [float(re.search(r"p=([0-9.]+)", e[2]).group(1)) for e in edges]
     assert len(edges) == 8 and min(probs) >= 0.3
+
+
+def test_a_polgraph_command_line_runs(capsys, files, tmp_path):
+    """polgraph's own options, with ``polgraph`` replaced by ``torchhrc graph``."""
+    out_dot = tmp_path / "g.dot"
+    code, out, err = _run(
+        capsys, "graph", files["model"], "--fast", "--policy-file", files["policy"],
+        "--policy-graph", out_dot, "--graph-max-depth", "3", "--graph-min-prob", "0.01",
+        "--graph-max-branch", "1",
+    )  # fmt: skip
+    assert code == 0, err
+    _, nodes, edges = _dot(out_dot)
+    sources = [e[0] for e in edges]
+    assert len(sources) == len(set(sources)) == 3  # one edge out of each node, 3 deep
+    assert len(nodes) <= 4
+    assert "closed     false" in out
 
 
 def test_momdp_nodes_show_the_observed_state_and_type_belief(capsys, tmp_path):

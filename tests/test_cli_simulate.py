@@ -267,6 +267,27 @@ def test_trace_is_not_overwritten_and_its_folder_must_exist(capsys, files, tmp_p
     assert code == 0 and len(trace.read_text().splitlines()) == 10 * 3
 
 
+def test_pomdpsim_and_pomdpeval_command_lines_run(capsys, files, tmp_path):
+    """APPL's options, with ``pomdpsim`` / ``pomdpeval`` replaced by ``torchhrc simulate`` /
+    ``torchhrc evaluate``: the same runs as torchhrc's own names give."""
+    trace = tmp_path / "t.jsonl"
+    appl = ["--fast", "--policy-file", files["policyx"], "--simLen", "4", "--simNum", "3"]
+    code, out, err = _run(
+        capsys, "simulate", files["model"], *appl, "--srand", "5", "--output-file", trace, "--json"
+    )
+    assert code == 0, err
+    assert len(trace.read_text().splitlines()) == 3 * 4
+    ours = ["--policy", files["policyx"], "--horizon", "4", "--episodes", "3", "--seed", "5"]
+    code, same, _ = _run(capsys, "simulate", files["model"], *ours, "--json")
+    assert code == 0 and json.loads(same)["returns"] == json.loads(out)["returns"]
+    code, out, err = _run(capsys, "evaluate", files["model"], *appl, "--srand", "5", "--json")
+    assert code == 0, err
+    code, same, _ = _run(capsys, "evaluate", files["model"], *ours, "--json")
+    assert json.loads(same)["mean"] == json.loads(out)["mean"]
+    code, other, _ = _run(capsys, "evaluate", files["model"], *appl, "--srand", "6", "--json")
+    assert json.loads(other)["mean"] != json.loads(out)["mean"]  # --srand is the seed
+
+
 def test_help_names_the_appl_equivalents(capsys):
     for command in ("simulate", "evaluate"):
         with pytest.raises(SystemExit) as info:

@@ -99,6 +99,25 @@ def test_depth_and_min_prob_cut_the_graph(tiger_solution):
     assert len(cut.edges) == 8
 
 
+def test_max_branch_keeps_the_most_probable_edges(tiger_solution):
+    """Tiger listening: the root's two outcomes are 0.5 each (the first kept), and from a
+    belief of 0.85 the outcome that confirms it is 0.85^2 + 0.15^2 = 0.745, worked by hand."""
+    one = policy_graph(tiger(), tiger_solution.policy, max_branch=1, depth=3)
+    assert not one.closed
+    out: dict[int, list] = {}
+    for edge in one.edges:
+        out.setdefault(edge.source, []).append(edge)
+    assert all(len(edges) == 1 for edges in out.values())
+    assert out[0][0].probability == pytest.approx(0.5) and out[0][0].observation == 0
+    assert out[1][0].probability == pytest.approx(ACCURACY**2 + (1 - ACCURACY) ** 2)
+    assert one.nodes[2].belief[0] == pytest.approx(_net(2))  # the confirming outcome's belief
+    two = policy_graph(tiger(), tiger_solution.policy, max_branch=2)
+    full = policy_graph(tiger(), tiger_solution.policy)
+    assert two.closed and len(two.edges) == len(full.edges)  # at most 2 outcomes a node
+    with pytest.raises(ValueError, match="max_branch"):
+        policy_graph(tiger(), tiger_solution.policy, max_branch=0)
+
+
 def test_edge_probabilities_sum_to_one_and_momdp_labels():
     m = rock_sample(4, 4, form="momdp")
     g = policy_graph(m, qmdp_policy(m), depth=2)

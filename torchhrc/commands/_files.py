@@ -75,6 +75,18 @@ def add_model_and_policy(parser: argparse.ArgumentParser) -> None:
         metavar="POLICY",
         help="the policy: torchhrc's .safetensors or APPL's .policyx (as pomdpsol writes it)",
     )
+    add_fast(parser)
+
+
+def add_fast(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    """APPL's ``--fast`` (its faster, picky ``.pomdp`` parser), accepted so that APPL's
+    command lines run as they are; it has no effect: torchhrc has one reader."""
+    parser.add_argument(
+        "--fast",
+        action="store_true",
+        help="accepted for APPL command lines (its faster, picky .pomdp parser); no effect: "
+        "torchhrc has one reader",
+    )
 
 
 def read_model(path: str) -> Any:

@@ -55,15 +55,19 @@ def add_simulation_options(parser: argparse.ArgumentParser, *, episodes: int) ->
     add_model_and_policy(parser)
     parser.add_argument(
         "--episodes",
+        "--simNum",
+        dest="episodes",
         type=_at_least_two,
         default=episodes,
-        help=f"number of simulations, all stepped together (APPL: --simNum) ({episodes})",
+        help=f"number of simulations, all stepped together (--simNum as APPL) ({episodes})",
     )
     parser.add_argument(
         "--horizon",
+        "--simLen",
+        dest="horizon",
         type=positive_int,
         default=None,
-        help="steps per simulation (APPL: --simLen; default: until the discounted tail "
+        help="steps per simulation (--simLen as APPL; default: until the discounted tail "
         "is below --tail)",
     )
     parser.add_argument(
@@ -72,7 +76,14 @@ def add_simulation_options(parser: argparse.ArgumentParser, *, episodes: int) ->
         default=1e-3,
         help="bound on the rewards beyond the default horizon (1e-3)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="random seed (0; APPL: --srand)")
+    parser.add_argument(
+        "--seed",
+        "--srand",
+        dest="seed",
+        type=int,
+        default=0,
+        help="random seed (0; --srand as APPL, whose default is the clock)",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 

@@ -88,7 +88,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_model_and_policy(parser)
     parser.add_argument(
-        "--out", type=_dot_path, required=True, metavar="FILE.dot", help="the DOT file to write"
+        "--out",
+        "--policy-graph",
+        dest="out",
+        type=_dot_path,
+        required=True,
+        metavar="FILE.dot",
+        help="the DOT file to write (--policy-graph as APPL)",
     )
     parser.add_argument(
         "--image",
@@ -99,15 +105,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--depth",
+        "--graph-max-depth",
+        dest="depth",
         type=_non_negative_int,
         default=None,
-        help="the most edges from the root (APPL: --graph-max-depth; default: no limit)",
+        help="the most edges from the root (--graph-max-depth as APPL; default: no limit)",
     )
     parser.add_argument(
         "--min-prob",
+        "--graph-min-prob",
+        dest="min_prob",
         type=_probability,
         default=0.0,
-        help="the least probability of an edge drawn (APPL: --graph-min-prob) (0)",
+        help="the least probability of an edge drawn (--graph-min-prob as APPL) (0)",
+    )
+    parser.add_argument(
+        "--max-branch",
+        "--graph-max-branch",
+        dest="max_branch",
+        type=positive_int,
+        default=None,
+        help="the most edges out of a node, the most probable kept (--graph-max-branch as "
+        "APPL; default: no limit)",
     )
     parser.add_argument(
         "--max-nodes", type=positive_int, default=200, help="the most nodes drawn (200)"
@@ -129,7 +148,12 @@ def run(args: argparse.Namespace) -> int:
     policy = read_policy(args.policy)
     try:
         graph = policy_graph(
-            model, policy, depth=args.depth, min_prob=args.min_prob, max_nodes=args.max_nodes
+            model,
+            policy,
+            depth=args.depth,
+            min_prob=args.min_prob,
+            max_branch=getattr(args, "max_branch", None),
+            max_nodes=args.max_nodes,
         )
     except ModelError as error:
         raise policy_does_not_fit(error, args.policy, args.model) from None
@@ -158,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     cut = (
         "every node expanded, no edge dropped"
         if graph.closed
-        else "cut by --depth, --min-prob or --max-nodes"
+        else "cut by --depth, --min-prob, --max-branch or --max-nodes"
     )
     print(f"closed     {str(graph.closed).lower()} ({cut})")
     print(f"dot        {args.out}")

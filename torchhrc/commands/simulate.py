@@ -53,9 +53,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_simulation_options(parser, episodes=10)
     parser.add_argument(
         "--trace",
+        "--output-file",
+        dest="trace",
         metavar="FILE",
         default=None,
-        help="write every step as a JSON line (APPL: --output-file)",
+        help="write every step as a JSON line (--output-file as APPL, whose trace is text)",
     )
     parser.add_argument("--force", action="store_true", help="overwrite an existing trace")
     parser.set_defaults(func=run)

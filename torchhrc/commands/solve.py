@@ -55,7 +55,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from torchhrc.commands._files import policy_path
+from torchhrc.commands._files import add_fast, policy_path
 
 __all__ = ["make_config", "register", "run"]
 
@@ -247,12 +247,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="pomdpsol's option: a trial ends where the gap is F times the gap at the start, "
         "in (0, 1] (0.5)",
     )
-    search.add_argument(
-        "--fast",
-        action="store_true",
-        help="accepted for pomdpsol command lines (its faster, picky .pomdp parser); no effect: "
-        "torchhrc has one reader",
-    )
+    add_fast(parser)
     parser.set_defaults(func=run)
 
 

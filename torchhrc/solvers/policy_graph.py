@@ -88,8 +88,8 @@ class PolicyGraph:
 
     Attributes:
         nodes, edges: the graph.
-        closed: every node expanded and no edge dropped by ``min_prob``: the graph is a
-            finite-state controller that runs forever (see :func:`controller_value`).
+        closed: every node expanded and no edge dropped by ``min_prob`` or ``max_branch``: the
+            graph is a finite-state controller that runs forever (see :func:`controller_value`).
         factored: a MOMDP graph (nodes show their observed value and the type belief).
         actions, observations, observed_states, hidden_states: names, or None.
     """
@@ -180,6 +180,7 @@ def policy_graph(
     *,
     depth: int | None = None,
     min_prob: float = 0.0,
+    max_branch: int | None = None,
     merge_tol: float = 1e-9,
     max_nodes: int = 1000,
 ) -> PolicyGraph:
@@ -191,6 +192,8 @@ def policy_graph(
             a callable as :func:`~torchhrc.solvers.evaluate.evaluate_policy` takes.
         depth: the most edges from the root (None: until the graph closes or ``max_nodes``).
         min_prob: the least probability ``P(x2, o | x, b, a)`` of an edge that is drawn.
+        max_branch: the most edges out of a node (``polgraph --graph-max-branch``): the most
+            probable are kept, the first ``(x2, o)`` among equal probabilities (None: all).
         merge_tol: beliefs equal to within this (entrywise, after rounding) are one node.
         max_nodes: the most nodes; beyond, nodes are left unexpanded.
 
@@ -198,7 +201,8 @@ def policy_graph(
         :class:`PolicyGraph`, root first.
 
     Raises:
-        ValueError: a negative ``depth``, ``min_prob`` outside ``[0, 1]``, ``max_nodes < 1``.
+        ValueError: a negative ``depth``, ``min_prob`` outside ``[0, 1]``, ``max_branch < 1``,
+            ``max_nodes < 1``.
         ModelError: the policy does not fit the model.
 
     Example:
@@ -213,6 +217,8 @@ def policy_graph(
         raise ValueError(f"expected min_prob in [0, 1], got {min_prob}")
     if max_nodes < 1:
         raise ValueError(f"expected max_nodes >= 1, got {max_nodes}")
+    if max_branch is not None and max_branch < 1:
+        raise ValueError(f"expected max_branch >= 1 or None, got {max_branch}")
     if not merge_tol > 0:
         raise ValueError(f"expected merge_tol > 0, got {merge_tol}")
     form, choose = _form_and_chooser(model, policy)
@@ -256,11 +262,13 @@ def policy_graph(
         kx, J = form.expand(node["x"], node["belief"].unsqueeze(0).to(form.b0.dtype))
         Ja = J[0, node["action"]]  # (K, O, Y)
         prob = Ja.sum(-1)  # (K, O)
-        for k, o in (prob > 0).nonzero().tolist():
-            p = float(prob[k, o])
-            if p < min_prob:
-                closed = False
-                continue
+        outcomes = [(k, o, float(prob[k, o])) for k, o in (prob > 0).nonzero().tolist()]
+        drawn = [(k, o, p) for k, o, p in outcomes if p >= min_prob]
+        if max_branch is not None and len(drawn) > max_branch:  # the most probable, stably
+            kept = sorted(range(len(drawn)), key=lambda i: -drawn[i][2])[:max_branch]
+            drawn = [drawn[i] for i in sorted(kept)]
+        closed = closed and len(drawn) == len(outcomes)
+        for k, o, p in drawn:
             target = add(int(kx[k]), Ja[k, o] / prob[k, o], node["depth"] + 1)
             edges.append(PolicyGraphEdge(frontier, target, int(kx[k]), o, p))
         frontier += 1

@@ -333,7 +333,11 @@ def test_a_pomdpsol_command_line_runs(capsys, tiger_file, tmp_path):
 def test_search_options_reach_sarsop(capsys, tiger_file):
     parse = build_parser().parse_args
     config = make_config(parse(["solve", "m.pomdp"]))
-    assert (config.tie_break, config.explore_after, config.explore_within) == ("random", 10, 0.9)
+    assert (config.tie_break, config.explore_after, config.explore_within) == (
+        "random",
+        "auto",
+        0.9,
+    )
     assert (config.kappa, config.time_limit, config.clock) == (0.5, 10.0, "wall")
     config = make_config(
         parse(["solve", "m.pomdp", "--tie-break", "first", "--explore-after", "never"])
@@ -343,6 +347,9 @@ def test_search_options_reach_sarsop(capsys, tiger_file):
         parse(["solve", "m.pomdp", "--explore-after", "3", "--explore-within", "1"])
     )
     assert (config.explore_after, config.explore_within) == (3, 1.0)
+    assert (
+        make_config(parse(["solve", "m.pomdp", "--explore-after", "auto"])).explore_after == "auto"
+    )
     # in the solve: a draw from the first trial draws in every trial, never draws in none
     explored = {}
     for value in ("0", "never"):

@@ -17,9 +17,10 @@ A ``pomdpsol`` command line runs with ``pomdpsol`` replaced by ``torchhrc solve`
 ``--policy-interval``, ``--randomization``, ``--trial-improvement-factor`` and ``--fast``
 (accepted, no effect) are options here too. SARSOP's search has two more:
 ``--tie-break random|first`` (``random``, the default, is ``pomdpsol --randomization``) and
-``--explore-after N|never`` / ``--explore-within F`` (the draw among near-equal children once
-the lower bound stalls; :class:`~torchhrc.solvers.SARSOPConfig`). ``--tie-break first
---explore-after never`` is ``pomdpsol``'s default search.
+``--explore-after N|never|auto`` / ``--explore-within F`` (the draw among near-equal children
+once the lower bound stalls, by default on models of 10,000 states or more;
+:class:`~torchhrc.solvers.SARSOPConfig`). ``--tie-break first --explore-after never`` is
+``pomdpsol``'s default search.
 
 ``--memory MB`` (as APPL's ``pomdpsol --memory``) bounds the process's resident memory: a
 model whose reading would take more than the limit leaves (or more than the machine's
@@ -93,7 +94,7 @@ def _share(text: str) -> float:
 
 
 def _trials(text: str) -> int | str:
-    if text == "never":
+    if text in ("never", "auto"):
         return text
     try:
         value = int(text)
@@ -101,7 +102,7 @@ def _trials(text: str) -> int | str:
         value = -1
     if value < 0:
         raise argparse.ArgumentTypeError(
-            f"expected a number of trials >= 0 or 'never', got {text!r}"
+            f"expected a number of trials >= 0, 'never' or 'auto', got {text!r}"
         )
     return value
 
@@ -205,9 +206,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     search = parser.add_argument_group(
         "SARSOP's search (pomdpsol's options where it has them)",
         "By default a trial draws among actions of equal upper bound (as pomdpsol "
-        "--randomization) and, once the lower bound has stalled for 10 trials, among "
-        "near-equal children; '--tie-break first --explore-after never' is pomdpsol's "
-        "default search.",
+        "--randomization) and, on models of 10,000 states or more, among near-equal children "
+        "once the lower bound has stalled for 10 trials; '--tie-break first --explore-after "
+        "never' is pomdpsol's default search.",
     )
     ties = search.add_mutually_exclusive_group()
     ties.add_argument(
@@ -228,9 +229,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--explore-after",
         type=_trials,
         default=None,
-        metavar="N|never",
+        metavar="N|never|auto",
         help="draw among near-equal children after N trials without a rise of the lower "
-        "bound (10); never: always the first of largest excess gap, as pomdpsol",
+        "bound; never: always the first of largest excess gap, as pomdpsol; auto (the "
+        "default): 10 on models of 10,000 states (a MOMDP: hidden values) or more, else never",
     )
     search.add_argument(
         "--explore-within",

@@ -186,6 +186,32 @@ def test_trials_draw_only_after_explore_after_trials_without_a_rise():
     assert len(runs(None)) == 1 and len(runs(0)) > 1
 
 
+def test_explore_after_auto_draws_on_wide_beliefs_only(monkeypatch):
+    """``explore_after="auto"`` (the default) resolves by the beliefs' width: never below
+    ``EXPLORE_MIN_WIDTH`` entries (RockSample(4,4) as a MOMDP: 16 hidden values), and
+    ``EXPLORE_AFTER`` trials at or above it (the same model with the threshold lowered to
+    16): then the solve is the one of ``explore_after=EXPLORE_AFTER`` given explicitly."""
+    from torchhrc.solvers.sarsop import search
+    from torchhrc.solvers.sarsop.config import EXPLORE_AFTER, EXPLORE_MIN_WIDTH
+
+    assert (EXPLORE_AFTER, EXPLORE_MIN_WIDTH) == (10, 10_000)  # the documented defaults
+    model = rock_sample(4, 4, form="momdp")
+
+    def solve(**kw):
+        cfg = SARSOPConfig(time_limit=1e9, max_iterations=60, seed=2, **kw)
+        sol = sarsop(model, cfg)
+        return sol.info["explore_after"], sol.info["explored_trials"], sol.lower, sol.upper
+
+    narrow = solve()
+    assert narrow[:2] == (None, 0) and narrow == solve(explore_after=None)
+    monkeypatch.setattr(search, "EXPLORE_MIN_WIDTH", 16)
+    wide = solve()
+    assert wide[0] == EXPLORE_AFTER and wide[1] > 0
+    assert wide == solve(explore_after=EXPLORE_AFTER)
+    monkeypatch.setattr(search, "EXPLORE_MIN_WIDTH", 17)
+    assert solve()[:2] == (None, 0)
+
+
 def test_trials_near_discount_one_run_past_a_thousand_steps():
     """Identity moves and one observation: every child of b0 is b0 again, and the value is
     the best fixed action's, ``max_a b0 . R_a / (1 - g)``. At discount 0.9999 a trial ends by

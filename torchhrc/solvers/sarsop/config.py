@@ -14,7 +14,7 @@ from torchhrc.pomdp import MOMDP, POMDP
 from torchhrc.solvers._budget import SolverBudget
 from torchhrc.solvers.policy import AlphaVectorPolicy
 
-__all__ = ["ALPHA_FLOAT32_MIN_WIDTH", "SARSOPConfig"]
+__all__ = ["ALPHA_FLOAT32_MIN_WIDTH", "EXPLORE_AFTER", "EXPLORE_MIN_WIDTH", "SARSOPConfig"]
 
 LowerInit = Callable[[POMDP | MOMDP], AlphaVectorPolicy]
 UpperInit = Callable[[POMDP | MOMDP], torch.Tensor]
@@ -25,6 +25,16 @@ UpperInit = Callable[[POMDP | MOMDP], torch.Tensor]
 #: solve is float64: there the vectors are most of the solve's memory (a 20,000-state model's
 #: 2,000 vectors at 10 s are 320 MB in float64), and below it they are a few MB.
 ALPHA_FLOAT32_MIN_WIDTH = 10_000
+
+#: ``SARSOPConfig(explore_after="auto")`` draws among near-equal children after this many
+#: trials without a rise of the lower bound at the start ...
+EXPLORE_AFTER = 10
+#: ... where a belief has at least this many entries (``S`` of a flat model, ``Y`` of a
+#: MOMDP), and never below: on the large sparse models of ``make_suite.py --check-set scale``
+#: the draw raised the lower bound or left it (20,000 states, seeds 701 and 705; 100,000
+#: states), on TagAvoid (870 states) it lowered it on every seed tried, below APPL's
+#: (``docs/benchmarks.md``, "The draw among near-equal children: large models only").
+EXPLORE_MIN_WIDTH = 10_000
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -93,13 +103,17 @@ class SARSOPConfig(SolverBudget):
         explore_after: after this many trials in a row without a rise of the lower bound at
             the start, each step of a trial draws its child (seeded by ``seed``) among those
             whose excess gap is at least ``explore_within`` times the largest, instead of
-            taking the first of largest excess, until the lower bound rises again (default
-            10; ``None``: never, APPL's rule). Where several children are nearly equal the
-            deterministic choice keeps sending trials down the same ones, and a region of
-            high reward under another may wait thousands of backups (the 20,000-state model
-            of ``make_suite.py --check-set scale`` at 60 CPU-s: lower 5.94 against 6.41-6.88
-            with the draw; ``docs/benchmarks.md``, "A draw among near-equal children once the
-            lower bound stalls"). The bounds stay bounds either way.
+            taking the first of largest excess, until the lower bound rises again; ``None``:
+            never, APPL's rule. Default ``"auto"``: :data:`EXPLORE_AFTER` (10) where a belief
+            has at least :data:`EXPLORE_MIN_WIDTH` entries, else ``None``
+            (``solution.info["explore_after"]`` says which). Where several children are
+            nearly equal the deterministic choice keeps sending trials down the same ones,
+            and a region of high reward under another may wait thousands of backups (the
+            20,000-state model of ``make_suite.py --check-set scale`` at 60 CPU-s: lower
+            5.94 against 6.41-6.88 with the draw); on a small model whose trials are many
+            and cheap the deterministic deepening raises the lower bound faster (TagAvoid at
+            10 CPU-s: -6.27 to -6.33 against -6.40 to -6.55 with the draw; both in
+            ``docs/benchmarks.md``). The bounds stay bounds either way.
         explore_within: the share of the largest excess a child needs to be drawn, in
             ``(0, 1]`` (default 0.9; 1: exact ties only).
         callback: called after each iteration with the history entry (a dict); returning
@@ -170,7 +184,7 @@ class SARSOPConfig(SolverBudget):
     sweep_interval: int = 0
     lazy_upper: bool = True
     forward_backups: bool = True
-    explore_after: int | None = 10
+    explore_after: int | Literal["auto"] | None = "auto"
     explore_within: float = 0.9
     callback: Callable[[dict[str, Any]], bool | None] | None = None
     dtype: torch.dtype = torch.float64
@@ -196,8 +210,11 @@ class SARSOPConfig(SolverBudget):
             )
         for name in ("max_iterations", "max_depth", "explore_after"):
             value = getattr(self, name)
+            if name == "explore_after" and value == "auto":
+                continue
             if value is not None and (not isinstance(value, int) or value < 0):
-                raise ValueError(f"expected {name} to be None or an int >= 0, got {value!r}")
+                also = ", 'auto'" if name == "explore_after" else ""
+                raise ValueError(f"expected {name} to be None{also} or an int >= 0, got {value!r}")
         if (
             not isinstance(self.explore_within, (int, float))
             or isinstance(self.explore_within, bool)

@@ -41,7 +41,12 @@ from torchhrc.solvers.sarsop.alpha_set import _AlphaSet
 from torchhrc.solvers.sarsop.backup import _Backups
 from torchhrc.solvers.sarsop.bins import _Bins
 from torchhrc.solvers.sarsop.bounds import _Bounds
-from torchhrc.solvers.sarsop.config import ALPHA_FLOAT32_MIN_WIDTH, SARSOPConfig
+from torchhrc.solvers.sarsop.config import (
+    ALPHA_FLOAT32_MIN_WIDTH,
+    EXPLORE_AFTER,
+    EXPLORE_MIN_WIDTH,
+    SARSOPConfig,
+)
 from torchhrc.solvers.sarsop.pruning import _Pruning
 from torchhrc.solvers.sarsop.trial import _Trials
 from torchhrc.solvers.solution import Solution
@@ -99,6 +104,16 @@ def _alpha_dtype(cfg: SARSOPConfig, width: int) -> torch.dtype:
         return cfg.alpha_dtype
     wide = width >= ALPHA_FLOAT32_MIN_WIDTH and cfg.dtype == torch.float64
     return torch.float32 if wide else cfg.dtype
+
+
+def _explore_after(cfg: SARSOPConfig, width: int) -> int | None:
+    """The trials without a rise after which a trial draws its children:
+    ``cfg.explore_after``, or for ``"auto"`` :data:`~torchhrc.solvers.sarsop.config.EXPLORE_AFTER`
+    where a belief has at least :data:`~torchhrc.solvers.sarsop.config.EXPLORE_MIN_WIDTH`
+    entries, else None (never)."""
+    if cfg.explore_after != "auto":
+        return cfg.explore_after
+    return EXPLORE_AFTER if width >= EXPLORE_MIN_WIDTH else None
 
 
 class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
@@ -212,6 +227,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         # trials in a row without a rise of the lower bound at the start (cfg.explore_after),
         # the bound they have not risen above, and the trials that drew their children
         self._stall, self._stall_lower, self.explored = 0, -math.inf, 0
+        self.explore_after = _explore_after(cfg, self.alphas.vectors.shape[1])
         # the sequential one-belief path runs in numpy on the CPU, whose per-op overhead at
         # these sizes is several times below torch's dispatch
         self._np = self.device.type == "cpu"
@@ -326,7 +342,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
     def _note_progress(self, lower: float) -> None:
         """Count the trials since the lower bound at the start last rose (by more than
         1e-9 relative): :meth:`sample` draws its children once there are
-        ``cfg.explore_after`` of them (:class:`SARSOPConfig`)."""
+        ``explore_after`` of them (:class:`SARSOPConfig`)."""
         if lower > self._stall_lower + 1e-9 * max(1.0, abs(lower)):
             self._stall, self._stall_lower = 0, lower
         else:
@@ -357,6 +373,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
             "alpha_dtype": str(self.alphas.vectors.dtype).removeprefix("torch."),
             "iterations": iterations,
             "backups": self.backups,
+            "explore_after": self.explore_after,
             "explored_trials": self.explored,
             "n_beliefs": self.tree.size,
             "n_points": self.ub.size,

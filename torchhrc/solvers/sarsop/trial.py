@@ -47,7 +47,7 @@ class _Trials:
         cache, form, numpy_path = self._cache, self.form, self._np
         scale = 1.0  # g ** (-t)
         # the lower bound at the start has stalled: draw each child among the near-largest
-        explore = cfg.explore_after is not None and self._stall >= cfg.explore_after
+        explore = self.explore_after is not None and self._stall >= self.explore_after
         self.explored += explore
         while t < self.max_depth and not self._out_of_budget():
             lo, up = float(tree.lower[node]), float(tree.upper[node])

@@ -360,8 +360,8 @@ def test_search_options_reach_sarsop(capsys, tiger_file):
         assert code == 0
         report = json.loads(out)
         assert report["lower"] <= 19.3714 <= report["upper"] + 1e-9  # V*(b0), discount 0.95
-        explored[value] = report["explored_trials"]
-    assert explored["never"] == 0 and explored["0"] >= 1
+        explored[value] = (report["explore_after"], report["explored_trials"])
+    assert explored["never"] == (None, 0) and explored["0"][0] == 0 and explored["0"][1] >= 1
 
 
 @pytest.mark.parametrize(

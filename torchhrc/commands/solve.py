@@ -8,9 +8,10 @@ and upper bounds on the optimal value at the initial belief, and optionally writ
 (``.policyx``, APPL's format, or ``.safetensors``). Progress (bounds over time) goes to
 stderr unless ``--quiet``. With ``--json`` one JSON object is printed with the keys
 ``lower``, ``upper``, ``gap``, ``time_s``, ``n_alphas``, ``solver``, ``stop_reason``,
-``iterations``, ``explored_trials`` (SARSOP's trials that drew their children; null for the
-other solvers), ``policy`` (the written path or null), ``sparse`` and ``model`` (``"POMDP"``,
-``"MOMDP"``, ``"SparseMOMDP"`` or ``"SparsePOMDP"``).
+``iterations``, ``explore_after`` and ``explored_trials`` (SARSOP's resolved setting and the
+trials that drew their children; null for the other solvers), ``policy`` (the written path or
+null), ``sparse`` and ``model`` (``"POMDP"``, ``"MOMDP"``, ``"SparseMOMDP"`` or
+``"SparsePOMDP"``).
 
 A ``pomdpsol`` command line runs with ``pomdpsol`` replaced by ``torchhrc solve``: its
 ``--timeout S`` (CPU seconds), ``-p/--precision``, ``-o/--output``, ``--memory``,
@@ -394,6 +395,7 @@ def run(args: argparse.Namespace) -> int:
         "solver": args.solver,
         "stop_reason": solution.info.get("stop_reason"),
         "iterations": solution.info.get("iterations"),
+        "explore_after": solution.info.get("explore_after"),
         "explored_trials": solution.info.get("explored_trials"),
         "policy": written,
         "sparse": sparse,

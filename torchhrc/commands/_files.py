@@ -19,9 +19,11 @@ from torchhrc.errors import ModelError
 __all__ = [
     "MODEL_SUFFIXES",
     "POLICY_SUFFIXES",
+    "add_fast",
     "add_model_and_policy",
     "check_new_file",
     "model_path",
+    "non_negative_int",
     "policy_does_not_fit",
     "policy_path",
     "positive_int",
@@ -41,6 +43,17 @@ def positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    """An integer >= 0 (argparse type)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
     return value
 
 

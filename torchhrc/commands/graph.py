@@ -31,6 +31,7 @@ from pathlib import Path
 from torchhrc.commands._files import (
     add_model_and_policy,
     check_new_file,
+    non_negative_int,
     policy_does_not_fit,
     positive_int,
     read_model,
@@ -39,16 +40,6 @@ from torchhrc.commands._files import (
 from torchhrc.errors import ModelError, TorchHRCError
 
 __all__ = ["register", "run"]
-
-
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
-    return value
 
 
 def _probability(text: str) -> float:
@@ -107,7 +98,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--depth",
         "--graph-max-depth",
         dest="depth",
-        type=_non_negative_int,
+        type=non_negative_int,
         default=None,
         help="the most edges from the root (--graph-max-depth as APPL; default: no limit)",
     )

@@ -57,7 +57,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from torchhrc.commands._files import add_fast, policy_path
+from torchhrc.commands._files import add_fast, non_negative_int, policy_path
 
 __all__ = ["make_config", "register", "run"]
 
@@ -98,14 +98,11 @@ def _trials(text: str) -> int | str:
     if text in ("never", "auto"):
         return text
     try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
+        return non_negative_int(text)
+    except argparse.ArgumentTypeError:
         raise argparse.ArgumentTypeError(
             f"expected a number of trials >= 0, 'never' or 'auto', got {text!r}"
-        )
-    return value
+        ) from None
 
 
 #: The options only SARSOP reads, as (attribute, option, SARSOPConfig field).

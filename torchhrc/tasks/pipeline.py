@@ -1031,8 +1031,8 @@ def solve_model(
     config = _sarsop_config(model.momdp, time_limit, precision, max_iterations, seed, config)
     solution = solve_momdp(model.momdp, config=config)
     used = {name: getattr(config, name) for name in ("time_limit", "precision",
-            "max_iterations", "seed", "tie_break", "kappa", "prediction", "explore_after",
-            "explore_within", "clock")}  # fmt: skip
+            "max_iterations", "seed", "tie_break", "kappa", "prediction", "explore_within",
+            "clock")}  # fmt: skip
     used["explore_after"] = solution.info.get("explore_after", config.explore_after)  # resolved
     used["lower_bound_init"] = getattr(config.lower_bound_init, "__name__", "custom")
     info = {**model.info, "solver": {"name": "sarsop", **used}}

@@ -224,8 +224,9 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         self.history: list[dict[str, Any]] = []
         self.backups = 0
         self._forward: set[int] = set()
-        # trials in a row without a rise of the lower bound at the start (cfg.explore_after),
-        # the bound they have not risen above, and the trials that drew their children
+        # trials in a row without a rise of the lower bound at the start (compared with
+        # explore_after, cfg.explore_after resolved by the beliefs' width), the bound they have
+        # not risen above, and the trials that drew their children
         self._stall, self._stall_lower, self.explored = 0, -math.inf, 0
         self.explore_after = _explore_after(cfg, self.alphas.vectors.shape[1])
         # the sequential one-belief path runs in numpy on the CPU, whose per-op overhead at

@@ -7,6 +7,7 @@ arrays they cannot read."""
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 import pytest
@@ -161,30 +162,181 @@ _NAMES = ("q_low", "q_up", "prob", "low", "up", "best", "lo", "cu", "child_x", "
 
 
 def _assert_both_paths_agree(solver: object, switches: list[tuple[object, str]]) -> list[tuple]:
-    """Evaluate the first 40 tree beliefs, fresh and stale, compiled and with every
-    ``(object, attribute)`` of ``switches`` (the compiled steps) set to None: the same
-    vectors, and bounds within 1e-12. Returns the compiled evaluations."""
+    """Evaluate the first 40 tree beliefs, fresh and stale, three ways: as the search does
+    (one compiled call, ``backup_one``, where the form has its tables), with the compiled
+    steps called one by one (the one-call path switched off), and with every ``(object,
+    attribute)`` of ``switches`` (the compiled steps) set to None as well (numpy): the same
+    vectors, and bounds within 1e-12. Returns the search's evaluations."""
     tree, out = solver.tree, []
     for node in range(min(tree.size, 40)):
         x, b = int(tree.x[node]), tree.beliefs_np[node]
         stale = solver._cache.get(int(solver.belief_id[node]))
         for st in (None, stale):
             got = solver._evaluate_np(x, b, st)
-            saved = [getattr(o, a) for o, a in switches]
-            for o, a in switches:
-                setattr(o, a, None)
-            try:
-                ref = solver._evaluate_np(x, b, st)
-            finally:
-                for (o, a), v in zip(switches, saved):
-                    setattr(o, a, v)
-            for name, g, r in zip(_NAMES, got, ref):
-                if name in ("best", "child_x", "own"):
-                    np.testing.assert_array_equal(g, r, err_msg=name)
-                else:
-                    np.testing.assert_allclose(g, r, rtol=1e-12, atol=1e-12, err_msg=name)
+            for off in (_one_call_off(solver), [*switches, (solver, "_vkernel")]):
+                ref = _with_off(solver, off, solver._evaluate_np, x, b, st)
+                _assert_same_evaluation(got, ref)
             out.append(got)
     return out
+
+
+def _one_call_off(solver: object) -> list[tuple[object, str]]:
+    """The switch of the one-call path alone: the search's cache of the form's tables, read
+    as "none at any x"."""
+    return [(solver, "_compiled")]
+
+
+class _NoTables(dict):
+    def get(self, key: object, default: object = None) -> None:
+        return None
+
+
+def _with_off(solver: object, switches: list[tuple[object, str]], run: Any, *args: Any) -> Any:
+    """``run(*args)`` with each ``(object, attribute)`` set to None (the search's table cache
+    to one that has none), restored after."""
+    saved = [getattr(o, a) for o, a in switches]
+    for o, a in switches:
+        setattr(o, a, _NoTables() if (o, a) == (solver, "_compiled") else None)
+    try:
+        return run(*args)
+    finally:
+        for (o, a), v in zip(switches, saved):
+            setattr(o, a, v)
+
+
+def _assert_same_evaluation(got: tuple, ref: tuple) -> None:
+    for name, g, r in zip(_NAMES, got, ref):
+        if name in ("best", "child_x", "own"):
+            np.testing.assert_array_equal(g, r, err_msg=name)
+        else:
+            np.testing.assert_allclose(g, r, rtol=1e-12, atol=1e-12, err_msg=name)
+
+
+def _numpy_backup(solver: Any, x: int, b: np.ndarray, stale: tuple | None) -> tuple:
+    """The numpy steps of a backup (run with the compiled ones off): the evaluation, the
+    action of highest ``Q_low``, the vectors at its children (the impossible ones' by
+    ``_impossible_best_np``), the new vector by ``SolverModel.backup_vector_np``'s numpy body,
+    and how many of the action's children were impossible."""
+    ev = solver._evaluate_np(x, b, stale)
+    q_low, prob, best, child_x, own = ev[0], ev[2], ev[5], ev[8], ev[9]
+    a = int(q_low.argmax())
+    possible = prob[a] > 0
+    ch_a = child_x.reshape(prob.shape[0], -1)[a]
+    fill = solver._impossible_best_np(x, b, ch_a, possible.reshape(-1), own)
+    use = np.where(possible, best[a], fill.reshape(possible.shape))
+    vectors = solver.alphas.np_vectors
+    alpha = SolverModel.backup_vector_np(solver.form, x, a, use, vectors, solver.gamma)
+    return ev, a, alpha, int((~possible).sum())
+
+
+@needs_extension
+@pytest.mark.parametrize("name", sorted(_MODELS))
+def test_one_call_backup_equals_the_numpy_backup(name: str) -> None:
+    """``backup_one`` (children, lower bounds, lazy upper bounds and the new vector in one
+    call) against the numpy steps at the beliefs of a short solve, fresh and stale: the same
+    evaluation, the same action (the first of highest ``Q_low``), the new vector and its
+    value at the belief within 1e-12, impossible children included (their vector: the best
+    of their ``x2`` at the belief itself)."""
+    solver = _solver(_MODELS[name](), 6)
+    assert solver._compiled_tables(0) is not None
+    tree, form = solver.tree, solver.form
+    numpy_off = [(solver, "_kernel"), (solver, "_vkernel"), (form, "_kernel")]
+    impossible = 0
+    for node in range(min(tree.size, 40)):
+        x, b = int(tree.x[node]), tree.beliefs_np[node]
+        stale = solver._cache.get(int(solver.belief_id[node]))
+        for st in (None, stale):
+            got = solver._backup_compiled(x, b, st, solver._compiled_tables(x), vector=True)
+
+            ev, a, alpha, n_impossible = _with_off(solver, numpy_off, _numpy_backup, solver,
+                                                   x, b, st)  # fmt: skip
+            _assert_same_evaluation(got[:10], ev)
+            assert got.action == a
+            np.testing.assert_allclose(got.vector, alpha, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(got.value, alpha @ b, rtol=1e-12, atol=1e-12)
+            impossible += n_impossible
+    if "impossible" in name or "rocksample" in name:
+        assert impossible > 0  # the impossible children's vectors were compared too
+
+
+@needs_extension
+def test_the_one_call_path_is_taken_where_it_pays(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The dense forms give their tables; a flat model's backups go back to the separate
+    steps (a BLAS product for the lower bounds) once its vectors times their width pass
+    ``ONE_CALL_FLAT_MAX``; a MOMDP's stay in one call; the sparse forms have no tables; and
+    the environment switch turns the compiled paths off."""
+    bounds = __import__("torchhrc.solvers.sarsop.bounds", fromlist=["ONE_CALL_FLAT_MAX"])
+    flat = _solver(random_pomdp(6, 3, 3, seed=0), 3)
+    momdp = _solver(random_momdp(4, 5, 3, 3, static=False, seed=3), 3)
+    sparse = _solver(SparseMOMDP.from_dense(rock_sample(4, 4, form="momdp")), 2)
+    assert flat._compiled_tables(0) is not None and momdp._compiled_tables(0) is not None
+    assert sparse._compiled_tables(0) is None
+    monkeypatch.setattr(bounds, "ONE_CALL_FLAT_MAX", flat.alphas.size * flat.Y - 1)
+    assert flat._compiled_tables(0) is None and momdp._compiled_tables(0) is not None
+    monkeypatch.setenv("TORCHHRC_NO_EXTENSION", "1")
+    assert _solver(random_momdp(4, 5, 3, 3, static=False, seed=3), 1)._compiled_tables(0) is None
+
+
+@needs_extension
+def test_one_call_backup_by_hand() -> None:
+    """Two observed values, one action, two observations, hidden values ``Y = 2``, static:
+    from ``x = 0`` the action leads to ``x2 = 1`` surely. ``Z[1, y2=0] = (1, 0)`` and
+    ``Z[1, y2=1] = (0.5, 0.5)`` over the observations. Vectors: at ``x = 0`` rows 0 ``(0, 0)``
+    and 1 ``(3, 1)``; at ``x = 1`` rows 2 ``(1, 2)`` and 3 ``(2, 4)``; ``R = 1``, gamma 0.5.
+
+    At ``b = (1, 0)`` the child ``o = 0`` is ``(1, 0)`` (``P = 1``), best row 3 (2 against 1),
+    and ``o = 1`` is impossible. Its vector is the best of ``x2 = 1`` at ``b`` itself: row 3
+    again (not row 0, the first index, nor row 1, the best at ``b`` under ``x = 0``). The new
+    vector: ``1 + 0.5 sum_o Z[y2, o] V3[y2]`` = ``(1 + 0.5 * 2, 1 + 0.5 * (0.5 * 4 + 0.5 * 4))
+    = (2, 3)``, worth 2 at ``b``; ``Q_low = 1 + 0.5 * 2 = 2``; ``V_low(b)`` under ``x = 0``:
+    row 1, 3; the corners (10) bound the rest."""
+    tx = np.ones((1, 2, 1))  # Tx[a, x=0, y, k=0] (x2_0 = 1)
+    z = np.zeros((1, 1, 2, 2))  # Z[a, k, o, y2]
+    z[0, 0, 0] = (1.0, 0.5)
+    z[0, 0, 1] = (0.0, 0.5)
+    RT = np.ones((2, 1))
+    cx = np.ones(2, dtype=np.int64)
+    tables = (tx, np.empty((0, 0, 0, 0)), z, RT, cx)
+    V = np.array([[0.0, 0.0], [3.0, 1.0], [1.0, 2.0], [2.0, 4.0]])
+    scoring = (V, [np.array([0, 1]), np.array([2, 3])], np.array([2, 2]))
+    empty_i, empty_d = np.empty(0, dtype=np.int64), np.empty(0)
+    saw = (np.full((2, 2), 10.0), [(empty_i, empty_d)] * 2, empty_i, empty_d, empty_i, empty_i,
+           empty_d, empty_i)  # fmt: skip
+    b = np.array([1.0, 0.0])
+    out = backup_kernel.backup_one(kernel, b, 0, tables, scoring, saw, None, 0.5)
+    assert out.prob.tolist() == [[[1.0, 0.0]]] and out.best.tolist() == [[[3, 0]]]
+    assert out.low.tolist() == [[[2.0, 0.0]]] and out.q_low.tolist() == [2.0]
+    assert (out.lower, out.own, out.upper, out.q_up.tolist()) == (3.0, 1, 10.0, [6.0])
+    assert out.action == 0 and out.vector.tolist() == [2.0, 3.0] and out.value == 2.0
+    assert out.child_x.tolist() == [1, 1]
+    # the same action twice: Q_low ties exactly, and the first is taken (numpy's argmax)
+    twice = (np.concatenate([tx, tx]), tables[1], np.concatenate([z, z]), np.ones((2, 2)),
+             np.ones(4, dtype=np.int64))  # fmt: skip
+    tie = backup_kernel.backup_one(kernel, b, 0, twice, scoring, saw, None, 0.5)
+    assert tie.q_low.tolist() == [2.0, 2.0] and tie.action == 0
+    assert tie.vector.tolist() == [2.0, 3.0]
+    b = np.array([0.25, 0.75])
+    out = backup_kernel.backup_one(kernel, b, 0, tables, scoring, saw, None, 0.5)
+    only = backup_kernel.backup_one(kernel, b, 0, tables, scoring, saw, None, 0.5, vector=False)
+    assert only.action == -1 and only.vector is None and np.isnan(only.value)
+    assert only.q_low.tolist() == out.q_low.tolist()
+    # errors name what is wrong
+    with pytest.raises(IndexError, match="x=2 is outside"):
+        backup_kernel.backup_one(kernel, b, 2, tables, scoring, saw, None, 0.5)
+    with pytest.raises(TypeError, match="gid to be a list"):
+        backup_kernel.backup_one(kernel, b, 0, tables, (V, tuple(scoring[1]), scoring[2]), saw,
+                                 None, 0.5)  # fmt: skip
+    with pytest.raises(ValueError, match=r"backup_one\(\): inconsistent shapes for A=1"):
+        backup_kernel.backup_one(kernel, np.ones(3) / 3, 0, tables, scoring, saw, None, 0.5)
+    with pytest.raises(ValueError, match="V \\(N, Y\\) and corner"):
+        backup_kernel.backup_one(kernel, b, 0, tables, (V[:, :1].copy(), *scoring[1:]), saw,
+                                 None, 0.5)  # fmt: skip
+    with pytest.raises(ValueError, match="stale_q"):
+        backup_kernel.backup_one(kernel, b, 0, tables, scoring, saw, (np.zeros(1), np.zeros(1)),
+                                 0.5)  # fmt: skip
+    with pytest.raises(ValueError, match="n=0 >= 1 vector"):
+        backup_kernel.backup_one(kernel, b, 0, tables, (V, scoring[1], np.array([2, 0])), saw,
+                                 None, 0.5)  # fmt: skip
 
 
 @needs_extension

@@ -39,6 +39,15 @@
  *   storage (idx, inv, off, wid, gain, sig) as in _sawtooth.c. Written: out (B,) the sawtooth
  *   upper bound of each row at its own x, corner[x] . b + the correction of x's points.
  *
+ * backup_one(b, tx, tyk, z, RT, cx, rows, rows_x, prob, nz, reward, V, gid, gn, corner,
+ *            sorted, idx, inv, off, wid, gain, sig, stale_q, stale_up, low, best, q_low, up,
+ *            q_up, out, x, gamma) -> (m, V_low(b), its vector, V_up(b), a, out . b)
+ *   children(), the rows' lower bounds against each row's own x's vectors (V, gid, gn as
+ *   group_scores), bound_children() over them, and, where out (Y,) is given (not empty), the
+ *   new vector of the action a of highest Q_low into out (backup_vector(), the impossible
+ *   children taking the best vector of their x2 at b); a = -1 and out . b = NaN otherwise.
+ *   One call per backup of a dense model's belief.
+ *
  * propagate_inactive(parent, active) -> None
  *   parent (N,) int64 (-1 at a root; a parent's index below its child's), active (>= N,)
  *   bool, written: active[i] &= active[parent[i]] in index order (a tree's pruning reaches
@@ -77,6 +86,13 @@ static void release_all(Py_buffer *v, int n) {
     for (int i = 0; i < n; i++) PyBuffer_Release(&v[i]);
 }
 
+/* children()'s buffers (then its x); backup_one() takes the same first eleven. */
+static const spec_t children_spec[11] = {
+    {"b", 1, 'd', 0},    {"tx", 3, 'd', 0},     {"tyk", 4, 'd', 0},  {"z", 4, 'd', 0},
+    {"RT", 2, 'd', 0},   {"cx", 1, 'q', 0},     {"rows", 2, 'd', 1}, {"rows_x", 1, 'q', 1},
+    {"prob", 1, 'd', 1}, {"nz", 1, 'q', 1},     {"reward", 1, 'd', 1},
+};
+
 /* Two buffers per observed value x (a group's arrays), taken on the group's first row and
  * released together. */
 typedef struct {
@@ -114,22 +130,8 @@ static int row_x_ok(const char *fn, Py_ssize_t i, int64_t x, Py_ssize_t X) {
     return 0;
 }
 
-static PyObject *children(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    enum { NB = 11 };
-    static const spec_t spec[NB] = {
-        {"b", 1, 'd', 0},      {"tx", 3, 'd', 0},     {"tyk", 4, 'd', 0},   {"z", 4, 'd', 0},
-        {"RT", 2, 'd', 0},     {"cx", 1, 'q', 0},     {"rows", 2, 'd', 1},  {"rows_x", 1, 'q', 1},
-        {"prob", 1, 'd', 1},   {"nz", 1, 'q', 1},     {"reward", 1, 'd', 1},
-    };
-    Py_buffer v[NB];
-    (void)self;
-    if (nargs != NB + 1) {
-        PyErr_Format(PyExc_TypeError, "children() takes %d arguments (%zd given)", NB + 1, nargs);
-        return NULL;
-    }
-    const Py_ssize_t x = PyNumber_AsSsize_t(args[NB], PyExc_OverflowError);
-    if (x == -1 && PyErr_Occurred()) return NULL;
-    if (get_all(args, v, spec, NB) < 0) return NULL;
+/* The shapes of children()'s buffers v[0..11), or NULL if they agree (A, K, O, Y from z). */
+static const char *children_shapes(const Py_buffer *v) {
     const Py_ssize_t A = v[3].shape[0], K = v[3].shape[1], O = v[3].shape[2], Y = v[3].shape[3];
     const Py_ssize_t C = A * K * O;
     const int has_tx = v[1].shape[0] > 0, has_ty = v[2].shape[0] > 0;
@@ -139,37 +141,51 @@ static PyObject *children(PyObject *self, PyObject *const *args, Py_ssize_t narg
                     v[2].shape[3] != Y)) ||
         v[4].shape[0] != Y || v[4].shape[1] != A || v[5].shape[0] != C ||
         v[6].shape[0] != C + 1 || v[6].shape[1] != Y || v[7].shape[0] != C + 1 ||
-        v[8].shape[0] != C || v[9].shape[0] != C || v[10].shape[0] != A) {
-        PyErr_Format(PyExc_ValueError,
-                     "children(): inconsistent shapes for A=%zd actions, K=%zd next observed "
-                     "values, O=%zd observations, Y=%zd hidden values (b (Y,), tx (A, Y, K) and/or "
-                     "tyk (A, K, Y, Y), z (A, K, O, Y), RT (Y, A), cx (A K O,), rows (A K O + 1, "
-                     "Y), rows_x (A K O + 1,), prob and nz (A K O,), reward (A,))",
-                     A, K, O, Y);
-        release_all(v, NB);
-        return NULL;
-    }
-    double *pred = PyMem_Malloc((size_t)(Y > 0 ? Y : 1) * sizeof(double));
-    Py_ssize_t *supp = PyMem_Malloc((size_t)(Y > 0 ? Y : 1) * sizeof(Py_ssize_t));
-    if (pred == NULL || supp == NULL) {
-        PyMem_Free(pred);
-        PyMem_Free(supp);
-        release_all(v, NB);
-        return PyErr_NoMemory();
-    }
-    const double *b = v[0].buf, *tx = v[1].buf, *tyk = v[2].buf, *z = v[3].buf, *RT = v[4].buf;
-    const int64_t *cx = v[5].buf;
-    double *rows = v[6].buf, *prob = v[8].buf, *reward = v[10].buf;
-    int64_t *rows_x = v[7].buf, *nz = v[9].buf;
+        v[8].shape[0] != C || v[9].shape[0] != C || v[10].shape[0] != A)
+        return "b (Y,), tx (A, Y, K) and/or tyk (A, K, Y, Y), z (A, K, O, Y), RT (Y, A), cx "
+               "(A K O,), rows (A K O + 1, Y), rows_x (A K O + 1,), prob and nz (A K O,), "
+               "reward (A,)";
+    return NULL;
+}
+
+/* The ValueError of fn() whose buffers v (children()'s first eleven) disagree as bad says. */
+static void children_shape_error(const char *fn, const Py_buffer *v, const char *bad) {
+    PyErr_Format(PyExc_ValueError,
+                 "%s(): inconsistent shapes for A=%zd actions, K=%zd next observed values, "
+                 "O=%zd observations, Y=%zd hidden values: expected %s",
+                 fn, v[3].shape[0], v[3].shape[1], v[3].shape[2], v[3].shape[3], bad);
+}
+
+/* The dense model's tables at one observed value x (children()'s b to cx). */
+typedef struct {
+    const double *tx, *tyk, *z, *RT; /* tx or tyk NULL: absent */
+    const int64_t *cx;
+    Py_ssize_t A, K, O, Y;
+} tables_t;
+
+static tables_t tables_of(const Py_buffer *v) {
+    tables_t t = {v[1].shape[0] > 0 ? v[1].buf : NULL, v[2].shape[0] > 0 ? v[2].buf : NULL,
+                  v[3].buf, v[4].buf, v[5].buf, v[3].shape[0], v[3].shape[1], v[3].shape[2],
+                  v[3].shape[3]};
+    return t;
+}
+
+/* The children of b at x (see children() above), written into rows, rows_x, prob, nz and
+ * reward; pred and supp are (Y,) scratch. Returns m, the number of possible children. */
+static Py_ssize_t children_core(const tables_t *t, const double *b, Py_ssize_t x, double *rows,
+                                int64_t *rows_x, double *prob, int64_t *nz, double *reward,
+                                double *pred, Py_ssize_t *supp) {
+    const Py_ssize_t A = t->A, K = t->K, O = t->O, Y = t->Y;
+    const double *tx = t->tx, *tyk = t->tyk, *z = t->z, *RT = t->RT;
     Py_ssize_t m = 0;
     for (Py_ssize_t a = 0; a < A; a++) {
         for (Py_ssize_t k = 0; k < K; k++) {
             /* pred[y2] = sum_y b[y] tx[a, y, k] tyk[a, k, y, y2] (a flat model: tx = 1, tyk = T;
              * a static hidden value: tyk = identity), over the support of b in state order */
-            if (has_ty) {
+            if (tyk != NULL) {
                 memset(pred, 0, (size_t)Y * sizeof(double));
                 for (Py_ssize_t y = 0; y < Y; y++) {
-                    const double w = has_tx ? b[y] * tx[(a * Y + y) * K + k] : b[y];
+                    const double w = tx != NULL ? b[y] * tx[(a * Y + y) * K + k] : b[y];
                     if (w == 0.0) continue;
                     const double *row = tyk + ((a * K + k) * Y + y) * Y;
                     for (Py_ssize_t y2 = 0; y2 < Y; y2++) pred[y2] += w * row[y2];
@@ -193,7 +209,7 @@ static PyObject *children(PyObject *self, PyObject *const *args, Py_ssize_t narg
                 double *out = rows + m * Y; /* the m-th possible child */
                 memset(out, 0, (size_t)Y * sizeof(double));
                 for (Py_ssize_t q = 0; q < n; q++) out[supp[q]] = pred[supp[q]] * zo[supp[q]];
-                rows_x[m] = cx[c];
+                rows_x[m] = t->cx[c];
                 nz[m++] = c;
             }
         }
@@ -203,6 +219,37 @@ static PyObject *children(PyObject *self, PyObject *const *args, Py_ssize_t narg
     }
     memcpy(rows + m * Y, b, (size_t)Y * sizeof(double));
     rows_x[m] = x;
+    return m;
+}
+
+static PyObject *children(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    enum { NB = 11 };
+    Py_buffer v[NB];
+    (void)self;
+    if (nargs != NB + 1) {
+        PyErr_Format(PyExc_TypeError, "children() takes %d arguments (%zd given)", NB + 1, nargs);
+        return NULL;
+    }
+    const Py_ssize_t x = PyNumber_AsSsize_t(args[NB], PyExc_OverflowError);
+    if (x == -1 && PyErr_Occurred()) return NULL;
+    if (get_all(args, v, children_spec, NB) < 0) return NULL;
+    const char *bad = children_shapes(v);
+    if (bad != NULL) {
+        children_shape_error("children", v, bad);
+        release_all(v, NB);
+        return NULL;
+    }
+    const tables_t t = tables_of(v);
+    double *pred = PyMem_Malloc((size_t)(t.Y > 0 ? t.Y : 1) * sizeof(double));
+    Py_ssize_t *supp = PyMem_Malloc((size_t)(t.Y > 0 ? t.Y : 1) * sizeof(Py_ssize_t));
+    if (pred == NULL || supp == NULL) {
+        PyMem_Free(pred);
+        PyMem_Free(supp);
+        release_all(v, NB);
+        return PyErr_NoMemory();
+    }
+    const Py_ssize_t m = children_core(&t, v[0].buf, x, v[6].buf, v[7].buf, v[8].buf, v[9].buf,
+                                       v[10].buf, pred, supp);
     PyMem_Free(pred);
     PyMem_Free(supp);
     release_all(v, NB);
@@ -291,6 +338,73 @@ static double refresh(saw_t *u, const int64_t *nz, Py_ssize_t lo, Py_ssize_t hi,
     return reward + gamma * s;
 }
 
+/* bound_children()'s work (see the header): from the m possible children's lower bounds
+ * (low_r, best_r; row m is b), every child's bounds, Q_low and Q_up, the sawtooth read
+ * through u lazily when stale_q is given (stale_up then (C,)). ends (A + 1,) and fresh (A,)
+ * are scratch. Returns V_up(b). */
+static double bound_core(saw_t *u, const int64_t *nz, Py_ssize_t m, const double *low_r,
+                         const int64_t *best_r, const double *reward, const double *stale_q,
+                         const double *stale_up, Py_ssize_t A, Py_ssize_t C, double *low,
+                         int64_t *best, double *q_low, double *up, double *q_up, double gamma,
+                         Py_ssize_t *ends, char *fresh) {
+    const Py_ssize_t n = C / A;
+    /* the lower bounds of every child (0 where impossible) and Q_low */
+    memset(low, 0, (size_t)C * sizeof(double));
+    memset(best, 0, (size_t)C * sizeof(int64_t));
+    for (Py_ssize_t i = 0; i < m; i++) {
+        low[nz[i]] = low_r[i];
+        best[nz[i]] = best_r[i];
+    }
+    for (Py_ssize_t a = 0; a < A; a++) {
+        double s = 0.0;
+        for (Py_ssize_t j = 0; j < n; j++) s += low[a * n + j];
+        q_low[a] = reward[a] + gamma * s;
+    }
+    /* action a's possible children: entries ends[a] to ends[a + 1] of nz (nz increases) */
+    Py_ssize_t i = 0;
+    for (Py_ssize_t a = 0; a <= A; a++) {
+        while (i < m && nz[i] < a * n) i++;
+        ends[a] = i;
+    }
+    double cu;
+    if (stale_q == NULL) {
+        for (Py_ssize_t a = 0; a < A; a++)
+            q_up[a] = refresh(u, nz, ends[a], ends[a + 1], a, n, up, reward[a], gamma);
+        cu = saw_value(u, m);
+    } else {
+        /* the lazy loop of _SARSOP._upper_np: refresh the best stale action while it beats
+         * every fresh one (ties within 1e-12 relative go to the lowest index) */
+        memcpy(q_up, stale_q, (size_t)A * sizeof(double));
+        memcpy(up, stale_up, (size_t)C * sizeof(double));
+        for (Py_ssize_t a = 0; a < A; a++) fresh[a] = 0;
+        int have_top = 0;
+        double top = 0.0;
+        cu = saw_value(u, m); /* V_up(b) itself, whatever the loop refreshes */
+        for (;;) {
+            double over = 0.0, hi = -INFINITY;
+            int any = 0;
+            if (have_top) over = top + 1e-12 * fmax(1.0, fabs(top));
+            for (Py_ssize_t a = 0; a < A; a++)
+                if (!have_top || (!fresh[a] && q_up[a] > over)) {
+                    if (!any || q_up[a] > hi) hi = q_up[a];
+                    any = 1;
+                }
+            if (!any) break;
+            const double floor_ = hi - 1e-12 * fmax(1.0, fabs(hi));
+            Py_ssize_t pick = -1;
+            for (Py_ssize_t a = 0; a < A && pick < 0; a++)
+                if ((!have_top || (!fresh[a] && q_up[a] > over)) && q_up[a] >= floor_) pick = a;
+            if (pick < 0) break; /* NaN values: nothing compares */
+            q_up[pick] = refresh(u, nz, ends[pick], ends[pick + 1], pick, n, up, reward[pick],
+                                 gamma);
+            fresh[pick] = 1;
+            top = have_top ? fmax(top, q_up[pick]) : q_up[pick];
+            have_top = 1;
+        }
+    }
+    return cu;
+}
+
 static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     enum { NB = 20 };
     static const spec_t spec[NB] = {
@@ -364,65 +478,9 @@ static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_
         release_all(v, NB);
         return PyErr_NoMemory();
     }
-    const double *low_r = v[3].buf, *reward = v[5].buf;
-    const int64_t *best_r = v[4].buf;
-    double *low = v[15].buf, *q_low = v[17].buf, *up = v[18].buf, *q_up = v[19].buf;
-    int64_t *best = v[16].buf;
-    const Py_ssize_t n = C / A;
-    /* the lower bounds of every child (0 where impossible) and Q_low */
-    memset(low, 0, (size_t)C * sizeof(double));
-    memset(best, 0, (size_t)C * sizeof(int64_t));
-    for (Py_ssize_t i = 0; i < m; i++) {
-        low[nz[i]] = low_r[i];
-        best[nz[i]] = best_r[i];
-    }
-    for (Py_ssize_t a = 0; a < A; a++) {
-        double s = 0.0;
-        for (Py_ssize_t j = 0; j < n; j++) s += low[a * n + j];
-        q_low[a] = reward[a] + gamma * s;
-    }
-    /* action a's possible children: entries ends[a] to ends[a + 1] of nz (nz increases) */
-    Py_ssize_t i = 0;
-    for (Py_ssize_t a = 0; a <= A; a++) {
-        while (i < m && nz[i] < a * n) i++;
-        ends[a] = i;
-    }
-    double cu;
-    if (!stale) {
-        for (Py_ssize_t a = 0; a < A; a++)
-            q_up[a] = refresh(&u, nz, ends[a], ends[a + 1], a, n, up, reward[a], gamma);
-        cu = saw_value(&u, m);
-    } else {
-        /* the lazy loop of _SARSOP._upper_np: refresh the best stale action while it beats
-         * every fresh one (ties within 1e-12 relative go to the lowest index) */
-        memcpy(q_up, v[6].buf, (size_t)A * sizeof(double));
-        memcpy(up, v[7].buf, (size_t)C * sizeof(double));
-        for (Py_ssize_t a = 0; a < A; a++) fresh[a] = 0;
-        int have_top = 0;
-        double top = 0.0;
-        cu = saw_value(&u, m); /* V_up(b) itself, whatever the loop refreshes */
-        for (;;) {
-            double over = 0.0, hi = -INFINITY;
-            int any = 0;
-            if (have_top) over = top + 1e-12 * fmax(1.0, fabs(top));
-            for (Py_ssize_t a = 0; a < A; a++)
-                if (!have_top || (!fresh[a] && q_up[a] > over)) {
-                    if (!any || q_up[a] > hi) hi = q_up[a];
-                    any = 1;
-                }
-            if (!any) break;
-            const double floor_ = hi - 1e-12 * fmax(1.0, fabs(hi));
-            Py_ssize_t pick = -1;
-            for (Py_ssize_t a = 0; a < A && pick < 0; a++)
-                if ((!have_top || (!fresh[a] && q_up[a] > over)) && q_up[a] >= floor_) pick = a;
-            if (pick < 0) break; /* NaN values: nothing compares */
-            q_up[pick] = refresh(&u, nz, ends[pick], ends[pick + 1], pick, n, up, reward[pick],
-                                 gamma);
-            fresh[pick] = 1;
-            top = have_top ? fmax(top, q_up[pick]) : q_up[pick];
-            have_top = 1;
-        }
-    }
+    const double cu = bound_core(&u, nz, m, v[3].buf, v[4].buf, v[5].buf,
+                                 stale ? v[6].buf : NULL, v[7].buf, A, C, v[15].buf, v[16].buf,
+                                 v[17].buf, v[18].buf, v[19].buf, gamma, ends, fresh);
     PyMem_Free(ends);
     PyMem_Free(fresh);
     groups_release(&u.g);
@@ -434,6 +492,42 @@ static PyObject *bound_children(PyObject *self, PyObject *const *args, Py_ssize_
     return PyFloat_FromDouble(cu);
 }
 
+
+/* The new vector of action a (see backup_vector() above) into out (Y,): the reward r[y] is
+ * t->RT[y * r_stride] (backup_vector: r itself, stride 1; backup_one: RT's column a, stride
+ * A). vals is (K Y,) scratch. */
+static void vector_core(const tables_t *t, Py_ssize_t a, Py_ssize_t r_stride, const double *V,
+                        const int64_t *use, double gamma, double *out, double *vals) {
+    const Py_ssize_t K = t->K, O = t->O, Y = t->Y;
+    const double *tx = t->tx, *ty = t->tyk, *z = t->z, *r = t->RT;
+    /* vals[k, y2] = sum_o Z[a, k, o, y2] alpha_{k, o}[y2] */
+    memset(vals, 0, (size_t)(K * Y) * sizeof(double));
+    for (Py_ssize_t k = 0; k < K; k++) {
+        double *vk = vals + k * Y;
+        for (Py_ssize_t o = 0; o < O; o++) {
+            const double *zo = z + ((a * K + k) * O + o) * Y, *w = V + use[k * O + o] * Y;
+            for (Py_ssize_t y = 0; y < Y; y++) vk[y] += zo[y] * w[y];
+        }
+    }
+    /* out[y] = r[y] + gamma sum_k Tx[a, y, k] (Ty[a, k, y] . vals[k]) (Tx: 1 without tx, Ty:
+     * the identity without tyk) */
+    for (Py_ssize_t y = 0; y < Y; y++) {
+        double acc = 0.0;
+        for (Py_ssize_t k = 0; k < K; k++) {
+            const double *vk = vals + k * Y;
+            double inner;
+            if (ty != NULL) {
+                const double *row = ty + ((a * K + k) * Y + y) * Y;
+                inner = 0.0;
+                for (Py_ssize_t y2 = 0; y2 < Y; y2++) inner += row[y2] * vk[y2];
+            } else {
+                inner = vk[y];
+            }
+            acc += tx != NULL ? tx[(a * Y + y) * K + k] * inner : inner;
+        }
+        out[y] = r[y * r_stride] + gamma * acc;
+    }
+}
 
 static PyObject *backup_vector(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     enum { NB = 7 };
@@ -490,35 +584,9 @@ static PyObject *backup_vector(PyObject *self, PyObject *const *args, Py_ssize_t
         release_all(v, NB);
         return PyErr_NoMemory();
     }
-    const double *tx = v[0].buf, *ty = v[1].buf, *z = v[2].buf, *r = v[3].buf, *V = v[4].buf;
-    double *out = v[6].buf;
-    /* vals[k, y2] = sum_o Z[a, k, o, y2] alpha_{k, o}[y2] */
-    memset(vals, 0, (size_t)(K * Y) * sizeof(double));
-    for (Py_ssize_t k = 0; k < K; k++) {
-        double *vk = vals + k * Y;
-        for (Py_ssize_t o = 0; o < O; o++) {
-            const double *zo = z + ((a * K + k) * O + o) * Y, *w = V + use[k * O + o] * Y;
-            for (Py_ssize_t y = 0; y < Y; y++) vk[y] += zo[y] * w[y];
-        }
-    }
-    /* out[y] = r[y] + gamma sum_k Tx[a, y, k] (Ty[a, k, y] . vals[k]) (Tx: 1 without tx, Ty:
-     * the identity without tyk) */
-    for (Py_ssize_t y = 0; y < Y; y++) {
-        double acc = 0.0;
-        for (Py_ssize_t k = 0; k < K; k++) {
-            const double *vk = vals + k * Y;
-            double inner;
-            if (has_ty) {
-                const double *row = ty + ((a * K + k) * Y + y) * Y;
-                inner = 0.0;
-                for (Py_ssize_t y2 = 0; y2 < Y; y2++) inner += row[y2] * vk[y2];
-            } else {
-                inner = vk[y];
-            }
-            acc += has_tx ? tx[(a * Y + y) * K + k] * inner : inner;
-        }
-        out[y] = r[y] + gamma * acc;
-    }
+    const tables_t t = {has_tx ? v[0].buf : NULL, has_ty ? v[1].buf : NULL, v[2].buf, v[3].buf,
+                        NULL, A, K, O, Y};
+    vector_core(&t, a, 1, v[4].buf, use, gamma, v[6].buf, vals);
     PyMem_Free(vals);
     release_all(v, NB);
     Py_RETURN_NONE;
@@ -570,6 +638,73 @@ static PyObject *propagate_inactive(PyObject *self, PyObject *const *args, Py_ss
     PyBuffer_Release(&par);
     PyBuffer_Release(&act);
     Py_RETURN_NONE;
+}
+
+/* Take x's index array from the list gid into g (once; the caller releases g), checked: at
+ * least n >= 1 indices in [0, N). -1 with a ValueError naming fn otherwise. */
+static int take_group(groups_t *g, PyObject *gid, int64_t x, int64_t n, Py_ssize_t N,
+                      const char *fn) {
+    Py_buffer *ids = &g->buf[2 * x];
+    if (g->got[x]) return 0;
+    if (get_buffer(PyList_GET_ITEM(gid, x), ids, 1, 'q', "gid[x]", 0) < 0) return -1;
+    g->got[x] = 1;
+    int ok = ids->shape[0] >= n && n >= 1;
+    for (int64_t j = 0; j < n && ok; j++) {
+        const int64_t id = ((const int64_t *)ids->buf)[j];
+        ok = id >= 0 && id < N;
+    }
+    if (ok) return 0;
+    PyErr_Format(PyExc_ValueError,
+                 "%s(): observed value %lld: expected gid[x] of at least n=%lld >= 1 vector "
+                 "indices in [0, %zd), got %zd entries",
+                 fn, (long long)x, (long long)n, N, ids->shape[0]);
+    return -1;
+}
+
+/* The best score max_j b . V[id[j]] over the n vectors id (n >= 1), and its position *arg
+ * (the first maximum, as numpy's argmax; a NaN score wins as there). b (W,) is given on the
+ * columns cols of V (N, Y) (NULL: W = Y, every column); supp is (W,) scratch. */
+static double score_row(const double *b, Py_ssize_t W, const int64_t *cols, const double *V,
+                        Py_ssize_t Y, const int64_t *id, int64_t n, Py_ssize_t *supp,
+                        int64_t *arg) {
+    /* the row's support, in column order: each vector's score is the sum over it, in that
+     * order (the same floats as the column-by-column sum of the former per-x column blocks) */
+    Py_ssize_t m = 0;
+    for (Py_ssize_t q = 0; q < W; q++)
+        if (b[q] != 0.0) supp[m++] = q;
+    double top = 0.0;
+    *arg = 0;
+    for (int64_t j0 = 0; j0 < n; j0 += 4) {
+        /* four vectors at a time: four independent sums (each in support order) */
+        double s4[4] = {0.0, 0.0, 0.0, 0.0};
+        const int64_t nj = n - j0 < 4 ? n - j0 : 4;
+        const double *r0 = V + id[j0] * Y, *r1 = nj > 1 ? V + id[j0 + 1] * Y : r0;
+        const double *r2 = nj > 2 ? V + id[j0 + 2] * Y : r0;
+        const double *r3 = nj > 3 ? V + id[j0 + 3] * Y : r0;
+        for (Py_ssize_t k = 0; k < m; k++) {
+            const Py_ssize_t q = supp[k], c = cols != NULL ? cols[q] : q;
+            const double w = b[q];
+            s4[0] += w * r0[c];
+            s4[1] += w * r1[c];
+            s4[2] += w * r2[c];
+            s4[3] += w * r3[c];
+        }
+        for (int64_t t = 0; t < nj; t++) {
+            const double sc = s4[t];
+            const int64_t j = j0 + t;
+            if (j == 0) {
+                top = sc;
+                if (top != top) return top; /* NaN: numpy's argmax takes the first */
+            } else if (sc != sc) {
+                *arg = j;
+                return sc;
+            } else if (sc > top) {
+                top = sc;
+                *arg = j;
+            }
+        }
+    }
+    return top;
 }
 
 static PyObject *group_scores(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
@@ -629,71 +764,14 @@ static PyObject *group_scores(PyObject *self, PyObject *const *args, Py_ssize_t 
             break;
         }
         const int64_t n = gn[x];
-        Py_buffer *ids = &g.buf[2 * x];
-        if (!g.got[x]) {
-            if (get_buffer(PyList_GET_ITEM(gid, x), ids, 1, 'q', "gid[x]", 0) < 0) {
-                failed = 1;
-                break;
-            }
-            g.got[x] = 1;
-            int ok = ids->shape[0] >= n && n >= 1;
-            for (int64_t j = 0; j < n && ok; j++) {
-                const int64_t id = ((const int64_t *)ids->buf)[j];
-                ok = id >= 0 && id < N;
-            }
-            if (!ok) {
-                PyErr_Format(PyExc_ValueError,
-                             "group_scores(): observed value %lld: expected gid[x] of at least "
-                             "n=%lld >= 1 vector indices in [0, %zd), got %zd entries",
-                             (long long)x, (long long)n, N, ids->shape[0]);
-                failed = 1;
-                break;
-            }
+        if (take_group(&g, gid, x, n, N, "group_scores") < 0) {
+            failed = 1;
+            break;
         }
-        /* the row's support, in column order: each vector's score is the sum over it, in
-         * that order (the same floats as the column-by-column sum of the former per-x
-         * column blocks) */
-        const double *b = rows + i * step;
-        Py_ssize_t m = 0;
-        for (Py_ssize_t q = 0; q < W; q++)
-            if (b[q] != 0.0) supp[m++] = q;
-        const int64_t *id = ids->buf;
+        const int64_t *id = g.buf[2 * x].buf;
         int64_t arg = 0;
-        double top = 0.0;
-        for (int64_t j0 = 0; j0 < n; j0 += 4) {
-            /* four vectors at a time: four independent sums (each in support order) */
-            double s4[4] = {0.0, 0.0, 0.0, 0.0};
-            const int64_t nj = n - j0 < 4 ? n - j0 : 4;
-            const double *r0 = V + id[j0] * Y, *r1 = nj > 1 ? V + id[j0 + 1] * Y : r0;
-            const double *r2 = nj > 2 ? V + id[j0 + 2] * Y : r0;
-            const double *r3 = nj > 3 ? V + id[j0 + 3] * Y : r0;
-            for (Py_ssize_t k = 0; k < m; k++) {
-                const Py_ssize_t q = supp[k], c = ncols > 0 ? cols[q] : q;
-                const double w = b[q];
-                s4[0] += w * r0[c];
-                s4[1] += w * r1[c];
-                s4[2] += w * r2[c];
-                s4[3] += w * r3[c];
-            }
-            int nan = 0;
-            for (int64_t t = 0; t < nj; t++) {
-                const double sc = s4[t];
-                const int64_t j = j0 + t;
-                if (j == 0) {
-                    top = sc;
-                    if (top != top) nan = 1; /* NaN: numpy's argmax takes the first */
-                } else if (sc != sc) {
-                    arg = j;
-                    top = sc;
-                    nan = 1;
-                } else if (sc > top) {
-                    top = sc;
-                    arg = j;
-                }
-                if (nan) break;
-            }
-            if (nan) break;
-        }
+        const double top = score_row(rows + i * step, W, ncols > 0 ? cols : NULL, V, Y, id, n,
+                                     supp, &arg);
         val[i] = top;
         best[i] = id[arg];
     }
@@ -785,7 +863,180 @@ static PyObject *group_upper(PyObject *self, PyObject *const *args, Py_ssize_t n
     Py_RETURN_NONE;
 }
 
+/* backup_one(): children(), the rows' lower bounds (score_row against each row's own x's
+ * vectors), bound_children() and, where out is given, the new vector of the action of highest
+ * Q_low: one call per backup of a dense model's belief (see backup_kernel.backup_one). */
+static PyObject *backup_one(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    enum { NB = 28 };
+    static const spec_t spec[NB] = {
+        {"b", 1, 'd', 0},        {"tx", 3, 'd', 0},       {"tyk", 4, 'd', 0},
+        {"z", 4, 'd', 0},        {"RT", 2, 'd', 0},       {"cx", 1, 'q', 0},
+        {"rows", 2, 'd', 1},     {"rows_x", 1, 'q', 1},   {"prob", 1, 'd', 1},
+        {"nz", 1, 'q', 1},       {"reward", 1, 'd', 1},   {"V", 2, 'd', 0},
+        {"gn", 1, 'q', 0},       {"corner", 2, 'd', 0},   {"idx", 1, 'q', 0},
+        {"inv", 1, 'd', 0},      {"off", 1, 'q', 0},      {"wid", 1, 'q', 0},
+        {"gain", 1, 'd', 0},     {"sig", 1, 'q', 0},      {"stale_q", 1, 'd', 0},
+        {"stale_up", 1, 'd', 0}, {"low", 1, 'd', 1},      {"best", 1, 'q', 1},
+        {"q_low", 1, 'd', 1},    {"up", 1, 'd', 1},       {"q_up", 1, 'd', 1},
+        {"out", 1, 'd', 1},
+    };
+    Py_buffer v[NB];
+    (void)self;
+    if (nargs != NB + 4) {
+        PyErr_Format(PyExc_TypeError, "backup_one() takes %d arguments (%zd given)", NB + 4,
+                     nargs);
+        return NULL;
+    }
+    /* args: the 11 of children(), V, gid, gn, corner, sorted, idx .. sig, stale_q, stale_up,
+     * low, best, q_low, up, q_up, out, x, gamma */
+    PyObject *arrays[NB];
+    for (int k = 0; k < NB; k++) arrays[k] = args[k < 12 ? k : (k < 14 ? k + 1 : k + 2)];
+    PyObject *gid = args[12], *sorted = args[15];
+    const Py_ssize_t x = PyNumber_AsSsize_t(args[NB + 2], PyExc_OverflowError);
+    if (x == -1 && PyErr_Occurred()) return NULL;
+    const double gamma = PyFloat_AsDouble(args[NB + 3]);
+    if (gamma == -1.0 && PyErr_Occurred()) return NULL;
+    if (!PyList_Check(gid)) {
+        PyErr_Format(PyExc_TypeError, "backup_one(): expected gid to be a list of arrays, got %s",
+                     Py_TYPE(gid)->tp_name);
+        return NULL;
+    }
+    if (get_all(arrays, v, spec, NB) < 0) return NULL;
+    const tables_t t = tables_of(v);
+    const Py_ssize_t A = t.A, K = t.K, O = t.O, Y = t.Y, C = A * K * O;
+    const Py_ssize_t N = v[11].shape[0], X = v[12].shape[0], E = v[14].shape[0];
+    const Py_ssize_t cap = v[16].shape[0];
+    const int stale = v[20].shape[0] > 0, vector = v[27].shape[0] > 0;
+    const char *bad = children_shapes(v);
+    if (bad == NULL && A == 0)
+        bad = "at least one action";
+    else if (bad == NULL && (v[11].shape[1] != Y || v[13].shape[0] != X || v[13].shape[1] != Y))
+        bad = "V (N, Y) and corner (X, Y), X gn's length";
+    else if (bad == NULL && PyList_GET_SIZE(gid) < X)
+        bad = "gid of at least X entries (gn's length)";
+    else if (bad == NULL && (v[15].shape[0] != E || v[17].shape[0] != cap ||
+                             v[18].shape[0] != cap || (v[19].shape[0] != 0 && v[19].shape[0] != cap)))
+        bad = "the sawtooth storage of _sawtooth.corrections";
+    else if (bad == NULL && (stale ? (v[20].shape[0] != A || v[21].shape[0] != C)
+                                   : v[21].shape[0] != 0))
+        bad = "stale_q (A,) and stale_up (A K O,), or both empty";
+    else if (bad == NULL && (v[22].shape[0] != C || v[23].shape[0] != C || v[25].shape[0] != C ||
+                             v[24].shape[0] != A || v[26].shape[0] != A ||
+                             (vector && v[27].shape[0] != Y)))
+        bad = "low, best and up (A K O,), q_low and q_up (A,), out (Y,) or empty";
+    if (bad != NULL) {
+        children_shape_error("backup_one", v, bad);
+        release_all(v, NB);
+        return NULL;
+    }
+    if (x < 0 || x >= X) {
+        PyErr_Format(PyExc_IndexError, "backup_one(): x=%zd is outside [0, %zd)", x, X);
+        release_all(v, NB);
+        return NULL;
+    }
+    const size_t Y1 = (size_t)(Y > 0 ? Y : 1);
+    double *pred = PyMem_Malloc(Y1 * sizeof(double));
+    Py_ssize_t *supp = PyMem_Malloc(Y1 * sizeof(Py_ssize_t));
+    double *low_r = PyMem_Malloc((size_t)(C + 1) * sizeof(double));
+    int64_t *best_r = PyMem_Malloc((size_t)(C + 1) * sizeof(int64_t));
+    Py_ssize_t *ends = PyMem_Malloc((size_t)(A + 1) * sizeof(Py_ssize_t));
+    char *fresh = PyMem_Malloc((size_t)A);
+    double *vals = PyMem_Malloc((size_t)(K * Y > 0 ? K * Y : 1) * sizeof(double));
+    int64_t *use = PyMem_Malloc((size_t)(K * O > 0 ? K * O : 1) * sizeof(int64_t));
+    saw_t u = {v[6].buf, v[13].buf, v[15].buf, v[18].buf, v[7].buf, v[14].buf, v[16].buf,
+               v[17].buf, v[19].shape[0] > 0 ? v[19].buf : NULL, Y, {NULL, NULL, 0}, 0};
+    groups_t g = {NULL, NULL, 0};
+    PyObject *result = NULL;
+    if (pred == NULL || supp == NULL || low_r == NULL || best_r == NULL || ends == NULL ||
+        fresh == NULL || vals == NULL || use == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    if (groups_init(&g, X) < 0) goto done;
+    const double *b = v[0].buf, *V = v[11].buf, *prob = v[8].buf;
+    double *rows = v[6].buf;
+    const int64_t *rows_x = v[7].buf, *gn = v[12].buf, *best = v[23].buf;
+    const Py_ssize_t m = children_core(&t, b, x, rows, v[7].buf, v[8].buf, v[9].buf, v[10].buf,
+                                       pred, supp);
+    /* each row's lower bound among its own x's vectors (row m: b itself) */
+    for (Py_ssize_t i = 0; i <= m; i++) {
+        const int64_t xi = rows_x[i];
+        if (!row_x_ok("backup_one", i, xi, X) || take_group(&g, gid, xi, gn[xi], N, "backup_one") < 0)
+            goto done;
+        const int64_t *id = g.buf[2 * xi].buf;
+        int64_t arg;
+        low_r[i] = score_row(rows + i * Y, Y, NULL, V, Y, id, gn[xi], supp, &arg);
+        best_r[i] = id[arg];
+    }
+    if (saw_take(&u, sorted, X, m + 1, cap, E, "backup_one") < 0) goto done;
+    double *q_low = v[24].buf;
+    const double cu = bound_core(&u, v[9].buf, m, low_r, best_r, v[10].buf,
+                                 stale ? v[20].buf : NULL, v[21].buf, A, C, v[22].buf, v[23].buf,
+                                 q_low, v[25].buf, v[26].buf, gamma, ends, fresh);
+    if (u.stray) {
+        PyErr_SetString(PyExc_IndexError, "backup_one(): a support index is out of range");
+        goto done;
+    }
+    Py_ssize_t a = -1;
+    double nl = NAN;
+    if (vector) {
+        /* the action of highest Q_low (the first, as numpy's argmax) */
+        a = 0;
+        for (Py_ssize_t j = 1; j < A; j++)
+            if (q_low[j] > q_low[a] || (q_low[j] != q_low[j] && q_low[a] == q_low[a])) a = j;
+        /* each child's vector: its best where possible; at an impossible child, the best of
+         * its x2's vectors at b itself (APPL's getBestAlphaPlane of b under x2; b's own where
+         * x2 = x), one score per x2 */
+        for (Py_ssize_t k = 0; k < K; k++) {
+            int64_t fill = -1;
+            for (Py_ssize_t o = 0; o < O; o++) {
+                const Py_ssize_t c = (a * K + k) * O + o;
+                if (prob[c] > 0.0) {
+                    use[k * O + o] = best[c];
+                    continue;
+                }
+                if (fill < 0) {
+                    const int64_t x2 = t.cx[c];
+                    if (x2 == x) {
+                        fill = best_r[m];
+                    } else {
+                        if (!row_x_ok("backup_one", c, x2, X) ||
+                            take_group(&g, gid, x2, gn[x2], N, "backup_one") < 0)
+                            goto done;
+                        const int64_t *id = g.buf[2 * x2].buf;
+                        int64_t arg;
+                        score_row(b, Y, NULL, V, Y, id, gn[x2], supp, &arg);
+                        fill = id[arg];
+                    }
+                }
+                use[k * O + o] = fill;
+            }
+        }
+        double *out = v[27].buf;
+        const tables_t ta = {t.tx, t.tyk, t.z, t.RT + a, t.cx, A, K, O, Y};
+        vector_core(&ta, a, A, V, use, gamma, out, vals);
+        nl = 0.0;
+        for (Py_ssize_t y = 0; y < Y; y++) nl += out[y] * b[y];
+    }
+    result = Py_BuildValue("(ndndnd)", m, low_r[m], (Py_ssize_t)best_r[m], cu, a, nl);
+done:
+    PyMem_Free(pred);
+    PyMem_Free(supp);
+    PyMem_Free(low_r);
+    PyMem_Free(best_r);
+    PyMem_Free(ends);
+    PyMem_Free(fresh);
+    PyMem_Free(vals);
+    PyMem_Free(use);
+    groups_release(&u.g);
+    groups_release(&g);
+    release_all(v, NB);
+    return result;
+}
+
 static PyMethodDef methods[] = {
+    {"backup_one", (PyCFunction)(void (*)(void))backup_one, METH_FASTCALL,
+     "A dense model's belief: children, bounds and new vector in one call (see backup_kernel)."},
     {"children", (PyCFunction)(void (*)(void))children, METH_FASTCALL,
      "Children of one belief of a dense model (see torchhrc.solvers.backup_kernel)."},
     {"bound_children", (PyCFunction)(void (*)(void))bound_children, METH_FASTCALL,

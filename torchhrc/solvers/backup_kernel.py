@@ -24,6 +24,13 @@ built by ``pip install`` beside the sawtooth loop, the CPython API only):
 * :func:`group_upper`: the sawtooth upper bound of rows, each at its own ``x``'s points (the
   numpy reference: the per-``x`` loop of
   :meth:`~torchhrc.solvers.upper_bound.SawtoothUpperBound.value_np`).
+* :func:`backup_one`: the steps of one backup of a dense model's belief in one call: its
+  children, their lower bounds (each against its own ``x``'s vectors, as
+  :func:`group_scores`), :func:`bound_children`, and the new alpha vector of the action of
+  highest ``Q_low`` (``backup_vector``; an impossible child takes the best vector of its
+  ``x2`` at the belief itself). Each of the separate calls above cost about as much in
+  argument handling and numpy glue as its arithmetic on the small models; the numpy
+  references are those of the separate steps (``_SARSOP._evaluate_np``, ``_backup_one_np``).
 
 The algorithm is the same; the floats are not always bit-identical to the numpy path, whose
 sums are BLAS's and numpy's pairwise ones where these are sequential (they agree to about
@@ -48,11 +55,20 @@ from __future__ import annotations
 
 import os
 from types import ModuleType
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
-__all__ = ["bound_children", "children", "gather_columns", "group_scores", "group_upper", "load"]
+__all__ = [
+    "Backup",
+    "backup_one",
+    "bound_children",
+    "children",
+    "gather_columns",
+    "group_scores",
+    "group_upper",
+    "load",
+]
 
 
 def load() -> ModuleType | None:
@@ -160,6 +176,109 @@ def bound_children(
     return low, best, q_low, up, q_up, float(cu)
 
 
+class Backup(NamedTuple):
+    """What :func:`backup_one` gives for a belief ``b`` at ``x`` (``C = A K O`` children)."""
+
+    q_low: np.ndarray  # (A,)
+    q_up: np.ndarray  # (A,)
+    prob: np.ndarray  # (A, K, O) P(x2_k, o | b, a)
+    low: np.ndarray  # (A, K, O) P * V_low(child), 0 where impossible
+    up: np.ndarray  # (A, K, O) P * V_up(child)
+    best: np.ndarray  # (A, K, O) int64 the best vector at each possible child, 0 elsewhere
+    lower: float  # V_low(b)
+    upper: float  # V_up(b)
+    child_x: np.ndarray  # (C,) int64 each child's observed value
+    own: int  # the best vector at b itself
+    action: int  # the action of highest Q_low (-1 without the vector)
+    vector: np.ndarray | None  # (Y,) its new alpha vector (None: not asked for)
+    value: float  # vector . b (NaN without the vector)
+
+
+def backup_one(
+    kernel: ModuleType,
+    b: np.ndarray,
+    x: int,
+    tables: tuple[np.ndarray, ...],
+    scoring: tuple[np.ndarray, list[np.ndarray], np.ndarray],
+    sawtooth: tuple[Any, ...],
+    stale: tuple[np.ndarray, np.ndarray] | None,
+    gamma: float,
+    vector: bool = True,
+) -> Backup:
+    """One belief of a dense model evaluated, and backed up, in one compiled call.
+
+    The same steps as :func:`children`, :func:`group_scores` on the children and ``b``,
+    :func:`bound_children` and, with ``vector``, the new alpha vector ``R[a, x] + gamma
+    sum_k Tx (Ty (sum_o Z alpha_{k, o}))`` of the action ``a`` of highest ``Q_low`` (the
+    first), where ``alpha_{k, o}`` is the best vector at child ``(x2_k, o)``, or at an
+    impossible child the best vector of ``x2_k`` at ``b`` itself (APPL's
+    ``BackupAlphaPlaneMOMDP::getNewAlphaPlaneQ``).
+
+    Args:
+        kernel: the module of :func:`load`.
+        b: ``(Y,)`` float64 C-contiguous belief at observed value ``x``.
+        tables: ``(tx, tyk, z, RT, cx)`` at ``x``, as :func:`children` takes them
+            (:meth:`~torchhrc.solvers.forms.base.SolverModel.compiled_tables`).
+        scoring: ``(vectors (cap, Y), gid, gn)`` the alpha vectors as :func:`group_scores`
+            reads them (``_AlphaSet.scoring_storage``).
+        sawtooth: the upper bound as :func:`bound_children` reads it, ``sorted`` built for
+            ``x`` and every ``x2`` it reaches.
+        stale: ``(Q_up (A,), up (C,))`` of the belief's last evaluation, or ``None``.
+        gamma: the discount.
+        vector: whether to form the new vector (a backup) or only bound (a trial's step).
+
+    Returns:
+        :class:`Backup`.
+
+    Raises:
+        TypeError: an array of another dtype, rank, or not C-contiguous (named).
+        ValueError: shapes that do not agree, or a group without vectors.
+        IndexError: an observed value or a sawtooth point out of range.
+
+    Example:
+        >>> kernel = load()
+        >>> if kernel is not None:  # one state, action and observation; R = 2, gamma 0.5
+        ...     one = np.ones((1, 1, 1, 1))
+        ...     tables = (np.empty((0, 0, 0)), one, one, np.full((1, 1), 2.0),
+        ...               np.zeros(1, dtype=np.int64))
+        ...     scoring = (np.full((1, 1), 3.0), [np.zeros(1, dtype=np.int64)],
+        ...                np.ones(1, dtype=np.int64))
+        ...     empty_i, empty_d = np.empty(0, dtype=np.int64), np.empty(0)
+        ...     saw = (np.full((1, 1), 4.0), [(empty_i, empty_d)], empty_i, empty_d,
+        ...            np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.zeros(1),
+        ...            empty_i)
+        ...     out = backup_one(kernel, np.ones(1), 0, tables, scoring, saw, None, 0.5)
+        ...     bounds = (out.lower, out.upper, float(out.q_low[0]), float(out.q_up[0]))
+        ...     assert bounds == (3.0, 4.0, 3.5, 4.0)
+        ...     assert out.action == 0 and out.vector.tolist() == [3.5] and out.value == 3.5
+    """
+    tx, tyk, z, RT, cx = tables
+    A, K, O, Y = z.shape
+    C = A * K * O
+    scratch = _SCRATCH.get((C, Y))
+    if scratch is None:  # the children's rows and indices, read in the call only
+        if len(_SCRATCH) > 64:
+            _SCRATCH.clear()
+        scratch = _SCRATCH[(C, Y)] = (np.empty((C + 1, Y)), np.empty(C + 1, dtype=np.int64),
+                                      np.empty(C, dtype=np.int64))  # fmt: skip
+    rows, rows_x, nz = scratch
+    prob, reward = np.empty(C), np.empty(A)
+    low, best, up = np.empty(C), np.empty(C, dtype=np.int64), np.empty(C)
+    q_low, q_up = np.empty(A), np.empty(A)
+    out = np.empty(Y) if vector else _EMPTY
+    sq, su = stale if stale is not None else (_EMPTY, _EMPTY)
+    vectors, gid, gn = scoring
+    corner, sorted_points, idx, inv, off, wid, gain, sig = sawtooth
+    _, lo, own, cu, a, nl = kernel.backup_one(
+        b, tx, tyk, z, RT, cx, rows, rows_x, prob, nz, reward, vectors, gid, gn, corner,
+        sorted_points, idx, inv, off, wid, gain, sig, sq, su, low, best, q_low, up, q_up, out,
+        x, float(gamma),
+    )  # fmt: skip
+    shape = (A, K, O)
+    return Backup(q_low, q_up, prob.reshape(shape), low.reshape(shape), up.reshape(shape),
+                  best.reshape(shape), lo, cu, cx, own, a, out if vector else None, nl)  # fmt: skip
+
+
 def group_scores(
     kernel: ModuleType,
     rows: np.ndarray,
@@ -251,4 +370,7 @@ def group_upper(
 
 
 _EMPTY = np.empty(0)
+# backup_one's scratch arrays per (children, width): written and read within one compiled
+# call, which holds the GIL throughout, so solves in other threads cannot interleave
+_SCRATCH: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 _NO_COLS = np.empty(0, dtype=np.int64)

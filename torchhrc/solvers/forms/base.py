@@ -317,6 +317,14 @@ class SolverModel(ABC):
         cx_all.flags.writeable = False
         return z, np.ascontiguousarray(z.transpose(0, 1, 3, 2)), cx, cx_all, self.reward_np(x)
 
+    def compiled_tables(self, x: int) -> tuple[np.ndarray, ...] | None:
+        """The tables at ``x`` that one compiled call needs to back up a belief whole
+        (:func:`~torchhrc.solvers.backup_kernel.backup_one`: ``tx, tyk, z, RT, cx`` as
+        :func:`~torchhrc.solvers.backup_kernel.children` takes them), or ``None``: this form
+        has none (the sparse forms), the extension is not built, or the model is not float64.
+        The search then takes :meth:`children_np` and :meth:`backup_vector_np`."""
+        return None
+
     def backup_vector_np(self, x: int, a: int, use: np.ndarray, vectors: np.ndarray,
                          gamma: float) -> np.ndarray:  # fmt: skip
         """``(Y,)`` the alpha vector a point-based backup builds at ``x`` for action ``a``::
@@ -582,6 +590,13 @@ class TensorModelForm(SolverModel):
         self._kernel.backup_vector(tx, tyk, z, self.rewards_np()[a, x], vectors, use, a, gamma,
                                    out)  # fmt: skip
         return out
+
+    def compiled_tables(self, x: int) -> tuple[np.ndarray, ...] | None:
+        """:meth:`~.SolverModel.compiled_tables`: :meth:`_kernel_tables` where the extension
+        is built and the model is float64."""
+        if self._kernel is None or self.R.dtype != torch.float64 or self.R.device.type != "cpu":
+            return None
+        return self._kernel_tables(x)
 
     def _kernel_tables(self, x: int) -> tuple[np.ndarray, ...]:
         """What :meth:`children_np` hands the compiled loop at ``x`` (float64, C-contiguous,

@@ -266,8 +266,16 @@ class _AlphaSet:
         C-contiguous, or ``(1, Y)``: one belief under each ``x`` of ``rows_x``; or ``(B, c)``
         on the columns ``cols``)."""
         assert self.np_vectors is not None
-        return backup_kernel.group_scores(kernel, rows, rows_x.astype(np.int64, copy=False),
-                                          self.np_vectors, self._gid, self._gn, cols)  # fmt: skip
+        V, gid, gn = self.scoring_storage()
+        return backup_kernel.group_scores(kernel, rows, rows_x.astype(np.int64, copy=False), V,
+                                          gid, gn, cols)  # fmt: skip
+
+    def scoring_storage(self) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+        """``(vectors (cap, Y), gid, gn)``: the rows and, per observed value, the indices of
+        its vectors and how many are in use, as the compiled scoring reads them
+        (:func:`~torchhrc.solvers.backup_kernel.group_scores`, ``backup_one``)."""
+        assert self.np_vectors is not None
+        return self.np_vectors, self._gid, self._gn
 
     def _append_group(self, x: int, index: int) -> None:
         m = self._gn[x]

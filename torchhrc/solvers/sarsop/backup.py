@@ -20,16 +20,24 @@ class _Backups:
         tree = self.tree
         b = tree.beliefs_np[node]
         stale = self._cache.get(int(self.belief_id[node])) if self.cfg.lazy_upper else None
-        q_low, q_up, prob, low_c, up_c, best, lo, cu, child_x, own = self._evaluate_np(x, b, stale)
-        a = int(q_low.argmax())
-        use = best[a]  # (K, O); the impossible children's vectors for this action only
-        if np.count_nonzero(prob[a]) < prob[a].size:  # some child of a is impossible (P >= 0)
-            possible = prob[a] > 0
-            ch_a = child_x.reshape(best.shape[0], -1)[a]
-            fill = self._impossible_best_np(x, b, ch_a, possible.reshape(-1), own)
-            use = np.where(possible, use, fill.reshape(use.shape))
-        alpha = self.form.backup_vector_np(x, a, use, self.alphas.np_vectors, self.gamma)
-        nl = float(alpha @ b)
+        tables = self._compiled_tables(x)
+        if tables is not None:  # the whole backup in one compiled call
+            q_low, q_up, prob, low_c, up_c, best, lo, cu, _, _, a, alpha, nl = (
+                self._backup_compiled(x, b, stale, tables, vector=True)
+            )
+        else:
+            q_low, q_up, prob, low_c, up_c, best, lo, cu, child_x, own = self._evaluate_np(
+                x, b, stale
+            )
+            a = int(q_low.argmax())
+            use = best[a]  # (K, O); the impossible children's vectors for this action only
+            if np.count_nonzero(prob[a]) < prob[a].size:  # some child of a is impossible
+                possible = prob[a] > 0
+                ch_a = child_x.reshape(best.shape[0], -1)[a]
+                fill = self._impossible_best_np(x, b, ch_a, possible.reshape(-1), own)
+                use = np.where(possible, use, fill.reshape(use.shape))
+            alpha = self.form.backup_vector_np(x, a, use, self.alphas.np_vectors, self.gamma)
+            nl = float(alpha @ b)
         q_up_list = q_up.tolist()
         nu = max(q_up_list)
         self._cache[int(self.belief_id[node])] = (q_low, q_up, prob, low_c, up_c)

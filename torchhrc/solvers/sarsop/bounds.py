@@ -15,6 +15,14 @@ from torchhrc.solvers.upper_bound import _ROWS
 
 __all__: list[str] = []
 
+#: with one observed value, the one-call backup (its lower bounds a loop over each child's
+#: support) is used while the alpha vectors times their width stay below this; above it the
+#: separate steps score the children by one BLAS product, faster there (measured on
+#: Hallway, a 7 x 7 maze and random 20- and 30-state models: the two paths break even at
+#: 5,000-7,000; docs/benchmarks.md, "One compiled call per backup"). A MOMDP's children are
+#: scored by the same loop either way.
+ONE_CALL_FLAT_MAX = 6_000
+
 
 @dataclass
 class _Evaluation:
@@ -255,6 +263,9 @@ class _Bounds:
         (:meth:`_impossible_best_np`); the sampling and the pruning read possible ones only.
         ``stale``: the node's cached evaluation, see :meth:`_upper_np`.
         """
+        tables = self._compiled_tables(x)
+        if tables is not None:  # the whole evaluation in one compiled call
+            return self._backup_compiled(x, b, stale, tables, vector=False)[:10]
         ch = self.form.children_np(x, b)
         A, K, O = ch.prob.shape
         low_r, best_r = self._lower_np(ch.rows, ch.rows_x, ch.cols)
@@ -288,6 +299,34 @@ class _Bounds:
         shape = (A, K, O)
         return (q_low, q_up, ch.prob, low.reshape(shape), up.reshape(shape), best.reshape(shape),
                 float(low_r[m]), cu, ch.child_x, int(best_r[m]))  # fmt: skip
+
+    def _compiled_tables(self, x: int) -> tuple[np.ndarray, ...] | None:
+        """The form's tables at ``x`` for :func:`~torchhrc.solvers.backup_kernel.backup_one`,
+        or ``None``: the vectors are not float64 (or the extension is off), the form has no
+        such tables (:meth:`~torchhrc.solvers.forms.base.SolverModel.compiled_tables`), or a
+        flat model's vectors times their width exceed :data:`ONE_CALL_FLAT_MAX`."""
+        if self._vkernel is None:
+            return None
+        if self.X == 1 and self.alphas.size * self.Y > ONE_CALL_FLAT_MAX:
+            return None  # many wide vectors: a BLAS product scores the children faster
+        found = self._compiled.get(x, False)
+        if found is False:
+            found = self._compiled[x] = self.form.compiled_tables(x)
+        return found
+
+    def _backup_compiled(self, x: int, b: np.ndarray, stale: tuple[np.ndarray, ...] | None,
+                         tables: tuple[np.ndarray, ...], vector: bool,
+                         ) -> backup_kernel.Backup:  # fmt: skip
+        """:meth:`_evaluate_np` (the first ten fields) and, with ``vector``, the new alpha
+        vector of :meth:`_backup_one_np`, in one compiled call
+        (:func:`~torchhrc.solvers.backup_kernel.backup_one`)."""
+        xs = self._loop_xs.get(x)
+        if xs is None:
+            xs = self._loop_xs[x] = sorted({x, *self.form.reach_np(x).tolist()})
+        return backup_kernel.backup_one(
+            self._vkernel, b, x, tables, self.alphas.scoring_storage(), self.ub.loop_storage(xs),
+            None if stale is None else (stale[1], stale[4].reshape(-1)), self.gamma, vector,
+        )  # fmt: skip
 
     def _impossible_best_np(self, x: int, b: np.ndarray, child_x: np.ndarray, possible: np.ndarray,
                             own: int | None = None) -> np.ndarray:  # fmt: skip

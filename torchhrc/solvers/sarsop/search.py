@@ -189,6 +189,10 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         # that hold the same belief (its stale bounds stay valid bounds there)
         self._cache = EvaluationCache()
         self._rows_cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray]]] = {}
+        # per observed value x: x and the x2 it reaches (the sawtooth groups a backup reads),
+        # and the form's tables of the compiled backup (None: the numpy steps)
+        self._loop_xs: dict[int, list[int]] = {}
+        self._compiled: dict[int, tuple[np.ndarray, ...] | None] = {}
         # per distinct belief evaluated since the last alpha pruning: the best alpha vector at
         # each child ``(A, K, O)`` of its last evaluation; pruning keeps them (see
         # :meth:`_child_winners`)

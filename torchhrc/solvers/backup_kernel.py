@@ -68,6 +68,7 @@ __all__ = [
     "group_scores",
     "group_upper",
     "load",
+    "new_scratch",
 ]
 
 
@@ -204,6 +205,7 @@ def backup_one(
     stale: tuple[np.ndarray, np.ndarray] | None,
     gamma: float,
     vector: bool = True,
+    scratch: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> Backup:
     """One belief of a dense model evaluated, and backed up, in one compiled call.
 
@@ -226,6 +228,8 @@ def backup_one(
         stale: ``(Q_up (A,), up (C,))`` of the belief's last evaluation, or ``None``.
         gamma: the discount.
         vector: whether to form the new vector (a backup) or only bound (a trial's step).
+        scratch: :func:`new_scratch` ``(C, Y)``, reused between calls (the children's rows
+            and indices, read within the call only), or ``None``: allocated here.
 
     Returns:
         :class:`Backup`.
@@ -255,12 +259,8 @@ def backup_one(
     tx, tyk, z, RT, cx = tables
     A, K, O, Y = z.shape
     C = A * K * O
-    scratch = _SCRATCH.get((C, Y))
-    if scratch is None:  # the children's rows and indices, read in the call only
-        if len(_SCRATCH) > 64:
-            _SCRATCH.clear()
-        scratch = _SCRATCH[(C, Y)] = (np.empty((C + 1, Y)), np.empty(C + 1, dtype=np.int64),
-                                      np.empty(C, dtype=np.int64))  # fmt: skip
+    if scratch is None or scratch[0].shape != (C + 1, Y):
+        scratch = new_scratch(C, Y)
     rows, rows_x, nz = scratch
     prob, reward = np.empty(C), np.empty(A)
     low, best, up = np.empty(C), np.empty(C, dtype=np.int64), np.empty(C)
@@ -277,6 +277,15 @@ def backup_one(
     shape = (A, K, O)
     return Backup(q_low, q_up, prob.reshape(shape), low.reshape(shape), up.reshape(shape),
                   best.reshape(shape), lo, cu, cx, own, a, out if vector else None, nl)  # fmt: skip
+
+
+def new_scratch(num_children: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`backup_one`'s scratch for ``C`` children of width ``Y``: rows ``(C + 1, Y)``,
+    their observed values and the possible children's indices (a caller that backs up many
+    beliefs keeps one per shape; the rows' pages are touched only as far as children are
+    written)."""
+    C = num_children
+    return np.empty((C + 1, width)), np.empty(C + 1, dtype=np.int64), np.empty(C, dtype=np.int64)
 
 
 def group_scores(
@@ -370,7 +379,4 @@ def group_upper(
 
 
 _EMPTY = np.empty(0)
-# backup_one's scratch arrays per (children, width): written and read within one compiled
-# call, which holds the GIL throughout, so solves in other threads cannot interleave
-_SCRATCH: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 _NO_COLS = np.empty(0, dtype=np.int64)

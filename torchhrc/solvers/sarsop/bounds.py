@@ -323,9 +323,14 @@ class _Bounds:
         xs = self._loop_xs.get(x)
         if xs is None:
             xs = self._loop_xs[x] = sorted({x, *self.form.reach_np(x).tolist()})
+        shape = (tables[2].shape[0] * tables[2].shape[1] * tables[2].shape[2], b.shape[0])
+        scratch = self._scratch.get(shape)
+        if scratch is None:
+            scratch = self._scratch[shape] = backup_kernel.new_scratch(*shape)
         return backup_kernel.backup_one(
             self._vkernel, b, x, tables, self.alphas.scoring_storage(), self.ub.loop_storage(xs),
             None if stale is None else (stale[1], stale[4].reshape(-1)), self.gamma, vector,
+            scratch,
         )  # fmt: skip
 
     def _impossible_best_np(self, x: int, b: np.ndarray, child_x: np.ndarray, possible: np.ndarray,

@@ -193,6 +193,8 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         # and the form's tables of the compiled backup (None: the numpy steps)
         self._loop_xs: dict[int, list[int]] = {}
         self._compiled: dict[int, tuple[np.ndarray, ...] | None] = {}
+        # the compiled backup's scratch per (children, width)
+        self._scratch: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
         # per distinct belief evaluated since the last alpha pruning: the best alpha vector at
         # each child ``(A, K, O)`` of its last evaluation; pruning keeps them (see
         # :meth:`_child_winners`)

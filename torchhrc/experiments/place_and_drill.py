@@ -44,6 +44,7 @@ from typing import Any
 
 import torch
 
+from torchhrc._threads import torch_threads
 from torchhrc.data import Demonstrations
 from torchhrc.errors import ModelError
 from torchhrc.experiments.robustness import (
@@ -627,12 +628,8 @@ def reproduce_place_and_drill(
     path = prepare_output_dir(out_dir, force=force)
     # Every tensor here is tiny (27 states): one intra-op thread is the fastest, and it keeps
     # the run from spin-waiting on a shared machine (measured 70x on 2 busy cores).
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with torch_threads(1):
         study = run_study(settings, progress=progress)
-    finally:
-        torch.set_num_threads(threads)
     metrics = metrics_from_study(study)
     write_report(path, study, metrics)
     return metrics

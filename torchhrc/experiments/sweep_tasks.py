@@ -478,12 +478,10 @@ def run_job(task: str, params: tuple[tuple[str, Any], ...], seed: int, quick: bo
         >>> row["subjects"], row["seed"], 0.0 <= row["loo_accuracy"] <= 1.0
         (2, 0, True)
     """
-    import torch
+    from torchhrc._threads import torch_threads  # (torch loads with it: here, not at import)
 
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
     start = time.perf_counter()
-    try:
+    with torch_threads(1):
         kind = task_kind(task)
         if kind == "study":
             runner = _RUNNERS[task]
@@ -492,8 +490,6 @@ def run_job(task: str, params: tuple[tuple[str, Any], ...], seed: int, quick: bo
         else:
             runner = _function_metrics(task)
         metrics = runner(dict(params), seed, quick)
-    finally:
-        torch.set_num_threads(threads)
     scalars = flatten_scalars(metrics)
     row: dict[str, Any] = {name: value for name, value in params}
     row["seed"] = seed

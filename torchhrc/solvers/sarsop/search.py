@@ -28,6 +28,7 @@ import numpy.random
 import torch
 from threadpoolctl import threadpool_limits
 
+from torchhrc._threads import torch_threads
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP, SparsePOMDP
 from torchhrc.solvers import backup_kernel
@@ -447,5 +448,7 @@ def sarsop(model: POMDP | MOMDP | SparsePOMDP, config: SARSOPConfig | None = Non
     # OpenBLAS spends more time waking and spinning threads than computing (measured:
     # RockSample(7, 8), 2 busy cores, 28 ms against 1.6 ms per lower-bound evaluation; dense
     # RockSample(4, 4), 300 iterations: 7.4-8.1 s with 2 BLAS threads, 5.4-6.3 s with one).
-    with threadpool_limits(limits=1, user_api="blas"):
+    # Torch's own OpenMP threads likewise: their spin after each small parallel region is CPU
+    # time (a third of the backups under clock="process" on 2 cores; torchhrc._threads)
+    with threadpool_limits(limits=1, user_api="blas"), torch_threads(1):
         return _SARSOP(model, config, start, clock_start).run()

@@ -183,7 +183,7 @@ def _assert_both_paths_agree(solver: object, switches: list[tuple[object, str]])
 def _one_call_off(solver: object) -> list[tuple[object, str]]:
     """The switch of the one-call path alone: the search's cache of the form's tables, read
     as "none at any x"."""
-    return [(solver, "_compiled")]
+    return [(solver, "_one_calls")]
 
 
 class _NoTables(dict):
@@ -196,7 +196,7 @@ def _with_off(solver: object, switches: list[tuple[object, str]], run: Any, *arg
     to one that has none), restored after."""
     saved = [getattr(o, a) for o, a in switches]
     for o, a in switches:
-        setattr(o, a, _NoTables() if (o, a) == (solver, "_compiled") else None)
+        setattr(o, a, _NoTables() if (o, a) == (solver, "_one_calls") else None)
     try:
         return run(*args)
     finally:
@@ -238,7 +238,7 @@ def test_one_call_backup_equals_the_numpy_backup(name: str) -> None:
     value at the belief within 1e-12, impossible children included (their vector: the best
     of their ``x2`` at the belief itself)."""
     solver = _solver(_MODELS[name](), 6)
-    assert solver._compiled_tables(0) is not None
+    assert solver._one_call(0) is not None
     tree, form = solver.tree, solver.form
     numpy_off = [(solver, "_kernel"), (solver, "_vkernel"), (form, "_kernel")]
     impossible = 0
@@ -246,7 +246,7 @@ def test_one_call_backup_equals_the_numpy_backup(name: str) -> None:
         x, b = int(tree.x[node]), tree.beliefs_np[node]
         stale = solver._cache.get(int(solver.belief_id[node]))
         for st in (None, stale):
-            got = solver._backup_compiled(x, b, st, solver._compiled_tables(x), vector=True)
+            got = solver._backup_compiled(x, b, st, solver._one_call(x), vector=True)
 
             ev, a, alpha, n_impossible = _with_off(solver, numpy_off, _numpy_backup, solver,
                                                    x, b, st)  # fmt: skip
@@ -269,12 +269,12 @@ def test_the_one_call_path_is_taken_where_it_pays(monkeypatch: pytest.MonkeyPatc
     flat = _solver(random_pomdp(6, 3, 3, seed=0), 3)
     momdp = _solver(random_momdp(4, 5, 3, 3, static=False, seed=3), 3)
     sparse = _solver(SparseMOMDP.from_dense(rock_sample(4, 4, form="momdp")), 2)
-    assert flat._compiled_tables(0) is not None and momdp._compiled_tables(0) is not None
-    assert sparse._compiled_tables(0) is None
+    assert flat._one_call(0) is not None and momdp._one_call(0) is not None
+    assert sparse._one_call(0) is None
     monkeypatch.setattr(bounds, "ONE_CALL_FLAT_MAX", flat.alphas.size * flat.Y - 1)
-    assert flat._compiled_tables(0) is None and momdp._compiled_tables(0) is not None
+    assert flat._one_call(0) is None and momdp._one_call(0) is not None
     monkeypatch.setenv("TORCHHRC_NO_EXTENSION", "1")
-    assert _solver(random_momdp(4, 5, 3, 3, static=False, seed=3), 1)._compiled_tables(0) is None
+    assert _solver(random_momdp(4, 5, 3, 3, static=False, seed=3), 1)._one_call(0) is None
 
 
 @needs_extension

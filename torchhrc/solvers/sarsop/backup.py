@@ -20,10 +20,10 @@ class _Backups:
         tree = self.tree
         b = tree.beliefs_np[node]
         stale = self._cache.get(int(self.belief_id[node])) if self.cfg.lazy_upper else None
-        tables = self._compiled_tables(x)
-        if tables is not None:  # the whole backup in one compiled call
+        call = self._one_call(x)
+        if call is not None:  # the whole backup in one compiled call
             q_low, q_up, prob, low_c, up_c, best, lo, cu, _, _, a, alpha, nl = (
-                self._backup_compiled(x, b, stale, tables, vector=True)
+                self._backup_compiled(x, b, stale, call, vector=True)
             )
         else:
             q_low, q_up, prob, low_c, up_c, best, lo, cu, child_x, own = self._evaluate_np(

@@ -5,7 +5,7 @@ against the alpha vectors and one sawtooth evaluation cover every child ``(a, x2
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -38,6 +38,14 @@ class _Evaluation:
     q_up: torch.Tensor  # (B, A)
     self_low: torch.Tensor  # (B,) V_low(b) under the current alpha vectors
     self_up: torch.Tensor  # (B,) V_up(b) under the current sawtooth
+
+
+class _OneCall(NamedTuple):
+    """What a backup at one observed value ``x`` hands the compiled call beside the belief."""
+
+    tables: tuple[np.ndarray, ...]  # the form's tables at x (SolverModel.compiled_tables)
+    xs: list[int]  # x and the x2 it reaches: the sawtooth groups the call reads
+    scratch: tuple[np.ndarray, ...]  # backup_kernel.new_scratch of its (children, width)
 
 
 class _Bounds:
@@ -263,9 +271,9 @@ class _Bounds:
         (:meth:`_impossible_best_np`); the sampling and the pruning read possible ones only.
         ``stale``: the node's cached evaluation, see :meth:`_upper_np`.
         """
-        tables = self._compiled_tables(x)
-        if tables is not None:  # the whole evaluation in one compiled call
-            return self._backup_compiled(x, b, stale, tables, vector=False)[:10]
+        call = self._one_call(x)
+        if call is not None:  # the whole evaluation in one compiled call
+            return self._backup_compiled(x, b, stale, call, vector=False)[:10]
         ch = self.form.children_np(x, b)
         A, K, O = ch.prob.shape
         low_r, best_r = self._lower_np(ch.rows, ch.rows_x, ch.cols)
@@ -300,37 +308,39 @@ class _Bounds:
         return (q_low, q_up, ch.prob, low.reshape(shape), up.reshape(shape), best.reshape(shape),
                 float(low_r[m]), cu, ch.child_x, int(best_r[m]))  # fmt: skip
 
-    def _compiled_tables(self, x: int) -> tuple[np.ndarray, ...] | None:
-        """The form's tables at ``x`` for :func:`~torchhrc.solvers.backup_kernel.backup_one`,
-        or ``None``: the vectors are not float64 (or the extension is off), the form has no
-        such tables (:meth:`~torchhrc.solvers.forms.base.SolverModel.compiled_tables`), or a
-        flat model's vectors times their width exceed :data:`ONE_CALL_FLAT_MAX`."""
+    def _one_call(self, x: int) -> _OneCall | None:
+        """What :func:`~torchhrc.solvers.backup_kernel.backup_one` needs at ``x`` beyond the
+        belief (built once per ``x``), or ``None``: the vectors are not float64 (or the
+        extension is off), the form has no tables for it
+        (:meth:`~torchhrc.solvers.forms.base.SolverModel.compiled_tables`), or a flat model's
+        vectors times their width exceed :data:`ONE_CALL_FLAT_MAX`."""
         if self._vkernel is None:
             return None
         if self.X == 1 and self.alphas.size * self.Y > ONE_CALL_FLAT_MAX:
             return None  # many wide vectors: a BLAS product scores the children faster
-        found = self._compiled.get(x, False)
+        found = self._one_calls.get(x, False)
         if found is False:
-            found = self._compiled[x] = self.form.compiled_tables(x)
+            tables = self.form.compiled_tables(x)
+            found = None
+            if tables is not None:
+                shape = (tables[2].shape[0] * tables[2].shape[1] * tables[2].shape[2], self.Y)
+                scratch = self._scratch.get(shape)  # one per shape, shared by the x that have it
+                if scratch is None:
+                    scratch = self._scratch[shape] = backup_kernel.new_scratch(*shape)
+                found = _OneCall(tables, sorted({x, *self.form.reach_np(x).tolist()}), scratch)
+            self._one_calls[x] = found
         return found
 
     def _backup_compiled(self, x: int, b: np.ndarray, stale: tuple[np.ndarray, ...] | None,
-                         tables: tuple[np.ndarray, ...], vector: bool,
-                         ) -> backup_kernel.Backup:  # fmt: skip
+                         call: _OneCall, vector: bool) -> backup_kernel.Backup:  # fmt: skip
         """:meth:`_evaluate_np` (the first ten fields) and, with ``vector``, the new alpha
         vector of :meth:`_backup_one_np`, in one compiled call
         (:func:`~torchhrc.solvers.backup_kernel.backup_one`)."""
-        xs = self._loop_xs.get(x)
-        if xs is None:
-            xs = self._loop_xs[x] = sorted({x, *self.form.reach_np(x).tolist()})
-        shape = (tables[2].shape[0] * tables[2].shape[1] * tables[2].shape[2], b.shape[0])
-        scratch = self._scratch.get(shape)
-        if scratch is None:
-            scratch = self._scratch[shape] = backup_kernel.new_scratch(*shape)
         return backup_kernel.backup_one(
-            self._vkernel, b, x, tables, self.alphas.scoring_storage(), self.ub.loop_storage(xs),
+            self._vkernel, b, x, call.tables, self.alphas.scoring_storage(),
+            self.ub.loop_storage(call.xs),
             None if stale is None else (stale[1], stale[4].reshape(-1)), self.gamma, vector,
-            scratch,
+            call.scratch,
         )  # fmt: skip
 
     def _impossible_best_np(self, x: int, b: np.ndarray, child_x: np.ndarray, possible: np.ndarray,

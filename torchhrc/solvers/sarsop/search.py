@@ -190,11 +190,9 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         # that hold the same belief (its stale bounds stay valid bounds there)
         self._cache = EvaluationCache()
         self._rows_cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray]]] = {}
-        # per observed value x: x and the x2 it reaches (the sawtooth groups a backup reads),
-        # and the form's tables of the compiled backup (None: the numpy steps)
-        self._loop_xs: dict[int, list[int]] = {}
-        self._compiled: dict[int, tuple[np.ndarray, ...] | None] = {}
-        # the compiled backup's scratch per (children, width)
+        # per observed value x, what the compiled backup reads beside the belief (None: the
+        # numpy steps; see _one_call), and its scratch per (children, width)
+        self._one_calls: dict[int, Any] = {}
         self._scratch: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
         # per distinct belief evaluated since the last alpha pruning: the best alpha vector at
         # each child ``(A, K, O)`` of its last evaluation; pruning keeps them (see

@@ -35,26 +35,25 @@ MODEL_SUFFIXES = (".pomdp", ".pomdpx")
 POLICY_SUFFIXES = (".policyx", ".policy", ".xml", ".safetensors")
 
 
-def positive_int(text: str) -> int:
-    """An integer >= 1 (argparse type)."""
+def _int_at_least(text: str, low: int, kind: str) -> int:
+    """``text`` as an integer of at least ``low``; the error names ``kind`` otherwise."""
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    if value < low:
+        raise argparse.ArgumentTypeError(f"expected {kind}, got {text!r}")
     return value
+
+
+def positive_int(text: str) -> int:
+    """An integer >= 1 (argparse type)."""
+    return _int_at_least(text, 1, "a positive integer")
 
 
 def non_negative_int(text: str) -> int:
     """An integer >= 0 (argparse type)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
-    return value
+    return _int_at_least(text, 0, "a non-negative integer")
 
 
 def model_path(text: str) -> str:

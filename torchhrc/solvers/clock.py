@@ -14,12 +14,13 @@ Example:
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
-__all__ = ["NEVER", "Clock", "Deadline", "check_clock", "clock_function"]
+__all__ = ["NEVER", "Clock", "Deadline", "check_clock", "clock_function", "deadline_watch"]
 
 Clock = Literal["wall", "process"] | Callable[[], float]
 """``"wall"`` (``time.perf_counter``), ``"process"`` (``time.process_time``) or a callable."""
@@ -48,6 +49,42 @@ def clock_function(clock: Clock) -> Callable[[], float]:
     if clock == "process":
         return time.process_time
     return clock  # type: ignore[return-value]
+
+
+def deadline_watch(clock: Clock, at: float) -> Callable[[], bool]:
+    """A function telling whether ``clock`` has reached ``at``, cheap to call often.
+
+    The wall clock and a given callable are read at every call. The process's CPU time is a
+    system call (about 1 us, against 0.1 us for the wall clock: on a small model a search
+    asks at every step and after every backup, about 2 % of its time); it can rise at most
+    ``os.cpu_count()`` seconds per wall second, so after a reading ``c`` at wall time ``w``
+    the watch answers "not yet" without reading it until the wall clock reaches
+    ``w + (at - c) / os.cpu_count()``. It never answers "not yet" once the limit has
+    passed: the readings thin out as the limit nears, and the answer is the CPU clock's.
+
+    Example:
+        >>> deadline_watch("process", math.inf)()
+        False
+        >>> deadline_watch(lambda: 5.0, 4.0)()
+        True
+    """
+    read = clock_function(clock)
+    if clock != "process":
+        return lambda: read() >= at
+    cpus = max(1, os.cpu_count() or 1)
+    wall = time.perf_counter
+    quiet_until = [-math.inf]  # the wall time before which the CPU time cannot reach ``at``
+
+    def passed() -> bool:
+        if wall() < quiet_until[0]:
+            return False
+        now = read()
+        if now >= at:
+            return True
+        quiet_until[0] = wall() + (at - now) / cpus
+        return False
+
+    return passed
 
 
 @dataclass(frozen=True)

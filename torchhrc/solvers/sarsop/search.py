@@ -33,7 +33,7 @@ from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP, SparsePOMDP
 from torchhrc.solvers import backup_kernel
 from torchhrc.solvers._memory import MemoryGuard, release_free_memory
-from torchhrc.solvers.clock import Deadline, clock_function
+from torchhrc.solvers.clock import Deadline, clock_function, deadline_watch
 from torchhrc.solvers.eval_cache import EvaluationCache
 from torchhrc.solvers.forms import SolverModel, as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
@@ -142,6 +142,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         self.rng = np.random.default_rng(int(cfg.seed))
         self.device = form.b0.device
         self.deadline = clock_start + cfg.time_limit
+        self._time_up = deadline_watch(cfg.clock, self.deadline)  # (read at every step)
         # the initial bounds' safety net, on the same clock as the limit: a share of what is
         # left once the model's form is built (building it can take seconds on a large model)
         now = self.clock()
@@ -271,7 +272,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
 
     def _out_of_budget(self) -> bool:
         """Whether the time limit has passed or the memory limit is near."""
-        if self.clock() >= self.deadline:
+        if self._time_up():
             return True
         return self.memory is not None and self.memory.exceeded(self._pending_bytes)
 

@@ -159,3 +159,84 @@ def test_pruning_makes_a_few_beliefs_dense_at_a_time(compiled, monkeypatch):
     kept, rows = pruned(50 * Y)
     assert max(rows_all) == 256 and max(rows) <= 50 and sum(rows) == sum(rows_all) == n
     assert kept == kept_all and len(kept) < n  # the same points kept, and some pruned
+
+
+def _stored(ub: SawtoothUpperBound) -> dict:
+    n = ub.size
+    ids = torch.arange(n)
+    entries, _ = ub._entries(ids)
+    return {
+        "idx": ub._fidx[entries].tolist(),
+        "inv": ub._finv[entries].numpy(),
+        "x": ub._x[:n].tolist(),
+        "v": ub._v[:n].tolist(),
+        "gain": ub._gain[:n].numpy(),
+        "w": ub._w[:n].tolist(),
+        "mass": ub._mass[:n].numpy(),
+        "sig": ub._sig[:n].tolist(),
+        "members": [ub.members(x).tolist() for x in range(ub.num_observed)],
+        "sorted": [None if s is None else (s[0].tolist(), s[1]) for s in ub._sorted],
+        "corner": ub.corner.numpy().copy(),
+    }
+
+
+@pytest.mark.skipif(upper_bound_module.backup_kernel.load() is None, reason="no extension")
+def test_a_compiled_point_is_stored_as_the_numpy_steps_store_it():
+    """``add_np`` in one compiled call (``backup_kernel.add_point``) against its numpy steps,
+    point by point: the supports, every field, each x's members and key order (a point after
+    the equal keys before it), the corner case of a one-value belief, the storage's growth
+    and the key order's, built for some x and not for others."""
+    rng = np.random.default_rng(3)
+    X, Y = 3, 70
+    corner = torch.from_numpy(rng.random((X, Y)) * 5 + 10)
+    ubs = [SawtoothUpperBound(corner, capacity=2) for _ in range(2)]
+    ubs[1]._add_kernel = None  # the numpy steps
+    assert ubs[0]._add_kernel is not None
+    pts = _random_points(rng, Y, [int(w) for w in rng.integers(2, 8, 150)] + [Y, 1, 1])
+    adds = [(b, i % 2 if i < 100 else 2, v - 3.0 * (i % 3 == 0)) for i, (b, v) in enumerate(pts)]
+    adds += [adds[i] for i in range(0, 20, 2)]  # x = 0 again, keys equal to earlier ones
+    for ub in ubs:
+        ub._sorted_points(0)  # x = 0's key order built (and kept up to date), x = 1's not
+    for i, (b, x, v) in enumerate(adds):
+        for ub in ubs:
+            ub.add_np(b, x, v)
+            if i == 120:
+                ub._sorted_points(2)  # x = 2's built halfway
+        got, want = _stored(ubs[0]), _stored(ubs[1])
+        for key in ("idx", "x", "v", "w", "sig", "members"):
+            assert got[key] == want[key], (i, key)
+        for key in ("inv", "gain", "mass", "corner"):
+            np.testing.assert_allclose(got[key], want[key], rtol=1e-14, atol=1e-12)
+        for g, s in zip(got["sorted"], want["sorted"]):
+            assert (g is None) == (s is None)
+            if g is not None:
+                assert g[0] == s[0], i
+                np.testing.assert_allclose(g[1], s[1], rtol=1e-14, atol=1e-14)
+    # not vacuous: x = 0's key order followed 50 points; x = 2's was dropped when a one-value
+    # belief lowered its corner
+    assert len(got["sorted"][0][0]) == 60 and got["sorted"][2] is None
+    q = rng.random((20, Y))
+    q /= q.sum(-1, keepdims=True)
+    x = np.arange(20, dtype=np.int64) % X
+    np.testing.assert_allclose(ubs[0].value_np(q, x), ubs[1].value_np(q, x), rtol=1e-13)
+
+
+@pytest.mark.skipif(upper_bound_module.backup_kernel.load() is None, reason="no extension")
+def test_add_point_refuses_what_it_cannot_store():
+    kernel = upper_bound_module.backup_kernel.load()
+    i8, f8 = (lambda n: np.zeros(n, dtype=np.int64)), np.zeros
+    args = [np.full(3, 1 / 3), np.ones((2, 3)), i8(8), f8(8), i8(4), f8(4), f8(4), i8(4),
+            f8(4), i8(4), i8(4), i8(2), i8(2), f8(2)]  # fmt: skip
+    w, pos = kernel.add_point(*args, 1, 0.5, 0, 0, 0, 0)
+    assert (w, pos) == (3, 0)  # gain 0.5 - 1 < 0: put first in the empty key order
+    assert kernel.add_point(*args, 1, 2.0, 1, 3, 1, -1) == (3, -1)  # no key order built
+    with pytest.raises(ValueError, match="room for the point"):
+        kernel.add_point(*args, 1, 2.0, 0, 6, 0, 0)  # start + Y > len(idx)
+    with pytest.raises(ValueError, match="x in"):
+        kernel.add_point(*args, 2, 2.0, 0, 0, 0, 0)
+    with pytest.raises(ValueError, match="room in order"):
+        kernel.add_point(*args, 1, 2.0, 0, 0, 0, 2)
+    bad = list(args)
+    bad[1] = np.ones((2, 3), dtype=np.float32)
+    with pytest.raises(TypeError, match="corner"):
+        kernel.add_point(*bad, 1, 2.0, 0, 0, 0, 0)

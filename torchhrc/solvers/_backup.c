@@ -48,6 +48,20 @@
  *   children taking the best vector of their x2 at b); a = -1 and out . b = NaN otherwise.
  *   One call per backup of a dense model's belief.
  *
+ * add_point(b, corner, idx, inv, px, v, gain, wid, mass, off, sig, members, order, key,
+ *           x, value, n, start, m, p) -> (w, pos)
+ *   One point (x, b, value) of the sawtooth upper bound stored as point n:
+ *   SawtoothUpperBound.add_np's numpy steps. b (Y,) float64 a normalised belief, corner
+ *   (X, Y), then the storage: idx (E,) int64 and inv (E,) the supports end to end (b's
+ *   written from entry start), px, wid, off, sig (cap,) int64 and v, gain, mass (cap,)
+ *   float64 (entry n written); members (cap_x,) int64 x's point indices (n written at m);
+ *   order (cap_o,) int64 and key (cap_o,) x's points of negative gain by increasing key
+ *   g / s, the first p in use (p = -1: not built, left alone), n put at its place (after
+ *   equal keys) when its gain is negative. The caller leaves room: n < cap, start + Y <= E,
+ *   m < cap_x, p < cap_o. Returns b's support width w and n's place in order (-1: not
+ *   put). A belief of one hidden value y (w = 1) is not stored: w = 1 and nothing written
+ *   (the caller lowers the corner instead).
+ *
  * propagate_inactive(parent, active) -> None
  *   parent (N,) int64 (-1 at a root; a parent's index below its child's), active (>= N,)
  *   bool, written: active[i] &= active[parent[i]] in index order (a tree's pruning reaches
@@ -1034,6 +1048,107 @@ done:
     return result;
 }
 
+static PyObject *add_point(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    enum { NB = 14 };
+    static const spec_t spec[NB] = {
+        {"b", 1, 'd', 0},     {"corner", 2, 'd', 0}, {"idx", 1, 'q', 1},     {"inv", 1, 'd', 1},
+        {"px", 1, 'q', 1},    {"v", 1, 'd', 1},      {"gain", 1, 'd', 1},    {"wid", 1, 'q', 1},
+        {"mass", 1, 'd', 1},  {"off", 1, 'q', 1},    {"sig", 1, 'q', 1},     {"members", 1, 'q', 1},
+        {"order", 1, 'q', 1}, {"key", 1, 'd', 1},
+    };
+    Py_buffer v[NB];
+    Py_ssize_t sc[6];
+    double value;
+    (void)self;
+    if (nargs != NB + 6) {
+        PyErr_Format(PyExc_TypeError, "add_point() takes %d arguments (%zd given)", NB + 6, nargs);
+        return NULL;
+    }
+    for (int k = 0; k < 6; k++) {
+        if (k == 1) continue;
+        sc[k] = PyNumber_AsSsize_t(args[NB + k], PyExc_OverflowError);
+        if (sc[k] == -1 && PyErr_Occurred()) return NULL;
+    }
+    value = PyFloat_AsDouble(args[NB + 1]);
+    if (value == -1.0 && PyErr_Occurred()) return NULL;
+    const Py_ssize_t x = sc[0], n = sc[2], start = sc[3], m = sc[4], p = sc[5];
+    if (get_all(args, v, spec, NB) < 0) return NULL;
+    const Py_ssize_t Y = v[0].shape[0], X = v[1].shape[0], E = v[2].shape[0];
+    const Py_ssize_t cap = v[4].shape[0], cap_o = v[12].shape[0];
+    const char *bad = NULL;
+    if (v[1].shape[1] != Y)
+        bad = "corner (X, Y) with b (Y,)";
+    else if (v[3].shape[0] != E)
+        bad = "inv as long as idx";
+    else if (v[5].shape[0] != cap || v[6].shape[0] != cap || v[7].shape[0] != cap ||
+             v[8].shape[0] != cap || v[9].shape[0] != cap || v[10].shape[0] != cap)
+        bad = "px, v, gain, wid, mass, off and sig of one length";
+    else if (v[13].shape[0] != cap_o)
+        bad = "key as long as order";
+    else if (x < 0 || x >= X)
+        bad = "x in [0, X)";
+    else if (n < 0 || n >= cap || start < 0 || start + Y > E)
+        bad = "room for the point: n < cap and start + Y <= len(idx)";
+    else if (m < 0 || m >= v[11].shape[0])
+        bad = "room in members: m < its length";
+    else if (p < -1 || p >= cap_o)
+        bad = "room in order: -1 <= p < its length";
+    if (bad != NULL) {
+        PyErr_Format(PyExc_ValueError,
+                     "add_point(): expected %s; got b (%zd,), corner (%zd, %zd), idx (%zd,), "
+                     "px (%zd,), members (%zd,), order (%zd,), x=%zd, n=%zd, start=%zd, m=%zd, "
+                     "p=%zd",
+                     bad, Y, X, v[1].shape[1], E, cap, v[11].shape[0], cap_o, x, n, start, m, p);
+        release_all(v, NB);
+        return NULL;
+    }
+    const double *b = v[0].buf, *c = (const double *)v[1].buf + x * Y;
+    int64_t *idx = (int64_t *)v[2].buf + start;
+    double *inv = (double *)v[3].buf + start;
+    Py_ssize_t w = 0, pos = -1;
+    double dot = 0.0, mass = 0.0;
+    uint64_t sig = 0;
+    for (Py_ssize_t y = 0; y < Y; y++) {
+        const double by = b[y];
+        if (by == 0.0) continue;
+        idx[w] = y;
+        inv[w] = 1.0 / by;
+        dot += c[y] * by;
+        mass += by;
+        sig |= SIG_BIT(y);
+        w++;
+    }
+    if (w > 1) {
+        const double g = value - dot;
+        ((int64_t *)v[4].buf)[n] = x;
+        ((double *)v[5].buf)[n] = value;
+        ((double *)v[6].buf)[n] = g;
+        ((int64_t *)v[7].buf)[n] = w;
+        ((double *)v[8].buf)[n] = mass;
+        ((int64_t *)v[9].buf)[n] = start;
+        ((int64_t *)v[10].buf)[n] = (int64_t)sig;
+        ((int64_t *)v[11].buf)[m] = n;
+        if (p >= 0 && g < 0.0) {
+            int64_t *order = v[12].buf;
+            double *key = v[13].buf;
+            const double k = g / mass;
+            Py_ssize_t lo = 0, hi = p; /* the first key above k (searchsorted, side right) */
+            while (lo < hi) {
+                const Py_ssize_t mid = lo + (hi - lo) / 2;
+                if (key[mid] <= k) lo = mid + 1;
+                else hi = mid;
+            }
+            pos = lo;
+            memmove(order + pos + 1, order + pos, (size_t)(p - pos) * sizeof(int64_t));
+            memmove(key + pos + 1, key + pos, (size_t)(p - pos) * sizeof(double));
+            order[pos] = n;
+            key[pos] = k;
+        }
+    }
+    release_all(v, NB);
+    return Py_BuildValue("(nn)", w, pos);
+}
+
 static PyMethodDef methods[] = {
     {"backup_one", (PyCFunction)(void (*)(void))backup_one, METH_FASTCALL,
      "A dense model's belief: children, bounds and new vector in one call (see backup_kernel)."},
@@ -1049,6 +1164,8 @@ static PyMethodDef methods[] = {
      "Sawtooth upper bound of each row at its own observed value (see backup_kernel)."},
     {"backup_vector", (PyCFunction)(void (*)(void))backup_vector, METH_FASTCALL,
      "The backed-up alpha vector of one action (see torchhrc.solvers.backup_kernel)."},
+    {"add_point", (PyCFunction)(void (*)(void))add_point, METH_FASTCALL,
+     "Store one sawtooth upper-bound point (see torchhrc.solvers.backup_kernel)."},
     {"propagate_inactive", (PyCFunction)(void (*)(void))propagate_inactive, METH_FASTCALL,
      "propagate_inactive(parent, active): a node is inactive when its parent is"},
     {NULL, NULL, 0, NULL},

@@ -56,6 +56,7 @@ _CHUNK = 1 << 19
 _COMPACT_ENTRIES = 1 << 18  # support entries moved at once when a pruning compacts them
 _ROWS = np.arange(1024)  # row indices 0..B-1 of a query, sliced (read only)
 _ROWS.flags.writeable = False
+_NO_IDS, _NO_KEYS = np.empty(0, dtype=np.int64), np.empty(0)  # no key order built yet
 
 
 #: At most this many dense belief entries at a time in :meth:`SawtoothUpperBound.prune`
@@ -113,8 +114,14 @@ class SawtoothUpperBound:
         self._members = [np.empty(4, dtype=np.int64) for _ in range(X)] if self._np else []
         self._count = np.zeros(X, dtype=np.int64)
         # per observed value, its points with a negative gain by increasing key g_i / s_i and
-        # those keys (the order of the compiled loop, sawtooth_kernel); None: to be rebuilt
+        # those keys (the order of the compiled loop, sawtooth_kernel); None: to be rebuilt.
+        # They are views of the first entries of _sorted_room[x], arrays with room to insert
+        # a new point in place
         self._sorted: list[tuple[np.ndarray, np.ndarray] | None] = [None] * X
+        self._sorted_room: list[tuple[np.ndarray, np.ndarray]] = [(_NO_IDS, _NO_KEYS)] * X
+        # a point stored in one compiled call (backup_kernel.add_point): float64 on the CPU
+        self._add_kernel = (backup_kernel.load()
+                            if self._np is not None and dt == torch.float64 else None)  # fmt: skip
         # several observed values, float64 on the CPU: queries of mixed x in one compiled
         # call (backup_kernel.group_upper) instead of one loop call per x
         usable = self._np is not None and X > 1 and dt == torch.float64
@@ -150,14 +157,22 @@ class SawtoothUpperBound:
         gain, mass = self._np[5], self._np[7]  # type: ignore[index]
         if gain[i] >= 0:
             return
-        ids, keys = cur
+        p = cur[0].size
+        ids, keys = self._sorted_space(x, p)
         k = gain[i] / mass[i]
-        pos = int(keys.searchsorted(k, side="right"))
-        new_ids = np.empty(ids.size + 1, dtype=ids.dtype)  # np.insert: 5x the overhead
-        new_keys = np.empty(ids.size + 1, dtype=keys.dtype)
-        new_ids[:pos], new_ids[pos], new_ids[pos + 1 :] = ids[:pos], i, ids[pos:]
-        new_keys[:pos], new_keys[pos], new_keys[pos + 1 :] = keys[:pos], k, keys[pos:]
-        self._sorted[x] = (new_ids, new_keys)
+        pos = int(keys[:p].searchsorted(k, side="right"))
+        ids[pos + 1 : p + 1], keys[pos + 1 : p + 1] = ids[pos:p].copy(), keys[pos:p].copy()
+        ids[pos], keys[pos] = i, k
+        self._sorted[x] = (ids[: p + 1], keys[: p + 1])
+
+    def _sorted_space(self, x: int, p: int) -> tuple[np.ndarray, np.ndarray]:
+        """``x``'s key-order arrays with room for one more than their ``p`` points."""
+        ids, keys = self._sorted_room[x]
+        if p >= ids.shape[0]:
+            new_ids, new_keys = np.empty(2 * p + 8, dtype=np.int64), np.empty(2 * p + 8)
+            new_ids[:p], new_keys[:p] = ids[:p], keys[:p]
+            ids, keys = self._sorted_room[x] = (new_ids, new_keys)
+        return ids, keys
 
     def _sorted_points(self, x: int) -> tuple[np.ndarray, np.ndarray]:
         """``(P',)`` x's points with a negative gain by increasing key ``g_i / s_i``; keys."""
@@ -168,7 +183,11 @@ class SawtoothUpperBound:
             ids = ids[gain[ids] < 0]
             key = gain[ids] / mass[ids]
             order = np.argsort(key, kind="stable")
-            cur = (ids[order], key[order])
+            p = order.size
+            room_ids, room_keys = self._sorted_room[x] = (np.empty(2 * p + 8, dtype=np.int64),
+                                                          np.empty(2 * p + 8))  # fmt: skip
+            room_ids[:p], room_keys[:p] = ids[order], key[order]
+            cur = (room_ids[:p], room_keys[:p])
             self._sorted[x] = cur
         return cur
 
@@ -521,9 +540,12 @@ class SawtoothUpperBound:
             x: its observed value.
             value: an upper bound ``v >= V*(x, b)``.
         """
+        assert self._np is not None
+        if self._add_kernel is not None and belief.dtype == np.float64:
+            if self._add_compiled(belief, x, value):
+                return
         idx = belief.nonzero()[0]  # (w,) the support (a 1-D belief: flatnonzero's array)
         w = idx.size
-        assert self._np is not None
         corner = self._np[0]
         if w == 1:
             y = int(idx[0])
@@ -553,6 +575,35 @@ class SawtoothUpperBound:
         sig[n] = support_signature(idx)
         self.size = n + 1
         self._add_member(x, n)
+
+    def _add_compiled(self, belief: np.ndarray, x: int, value: float) -> bool:
+        """:meth:`add_np` in one compiled call (:func:`backup_kernel.add_point`); ``False``
+        where the belief has one hidden value (the corner's case, left to the caller)."""
+        n, start, Y = self.size, self._used, belief.shape[0]
+        if n >= self._off.shape[0] or start + Y > self._fidx.shape[0]:
+            self._grow(n + 1, start + Y)  # (room for the widest support; the rest untouched)
+        m = int(self._count[x])
+        if m == self._members[x].shape[0]:
+            self._members[x] = np.concatenate([self._members[x], np.empty(m, dtype=np.int64)])
+        cur = self._sorted[x]
+        p = -1 if cur is None else cur[0].size
+        order, key = self._sorted_room[x] if cur is None else self._sorted_space(x, p)
+        _, idx, inv, px, v, gain, wid, mass, off, sig = self._np  # type: ignore[misc]
+        w, pos = self._add_kernel.add_point(  # type: ignore[union-attr]
+            np.ascontiguousarray(belief), self._np[0], idx, inv, px, v, gain, wid, mass, off,
+            sig, self._members[x], order, key, x, float(value), n, start, m, p,
+        )  # fmt: skip
+        if w == 1:
+            return False
+        self._used = start + w
+        if w > self._kmax:
+            self._kmax = w
+        self._stamp += 1
+        self.size = n + 1
+        self._count[x] = m + 1
+        if pos >= 0:
+            self._sorted[x] = (order[: p + 1], key[: p + 1])
+        return True
 
     def prune(self) -> int:
         """Remove points that the other points and the corners already bound as tightly.

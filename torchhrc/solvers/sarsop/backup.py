@@ -19,7 +19,8 @@ class _Backups:
         """:meth:`backup` of one node in numpy (the sequential path of a trial)."""
         tree = self.tree
         b = tree.beliefs_np[node]
-        stale = self._cache.get(int(self.belief_id[node])) if self.cfg.lazy_upper else None
+        bid = int(self.belief_id[node])
+        stale = self._cache.get(bid) if self.cfg.lazy_upper else None
         call = self._one_call(x)
         if call is not None:  # the whole backup in one compiled call
             q_low, q_up, prob, low_c, up_c, best, lo, cu, _, _, a, alpha, nl = (
@@ -40,8 +41,8 @@ class _Backups:
             nl = float(alpha @ b)
         q_up_list = q_up.tolist()
         nu = max(q_up_list)
-        self._cache[int(self.belief_id[node])] = (q_low, q_up, prob, low_c, up_c)
-        self._child_best[int(self.belief_id[node])] = best
+        self._cache[bid] = (q_low, q_up, prob, low_c, up_c)
+        self._child_best[bid] = best
         if nl > lo + 1e-10 * max(abs(nl), 1.0):
             self.alphas.add_np(alpha, a, x, best[a][prob[a] > 0])
         if nu < cu - 1e-10 * max(abs(cu), 1.0):
@@ -55,7 +56,15 @@ class _Backups:
                 if bad[tree.action[c]]:
                     tree.active[c] = False
         if self.cfg.prediction == "binning":
-            self.bins.update(int(self.belief_id[node]), x, b, float(self.entropy[node]), up, low)
+            self.bins.update(bid, x, b, float(self.entropy[node]), up, low)
+
+    def backup_node(self, x: int, node: int) -> None:
+        """:meth:`backup` of one tree node (a trial's path, one node at a time): the numpy
+        path's step directly, without a batch of one."""
+        if self._np:
+            self._backup_one_np(x, node)
+        else:
+            self.backup(x, np.array([node]))
 
     def backup(self, x: int, nodes: np.ndarray) -> None:
         """Point-based backup of tree nodes sharing observed value ``x``, all at once.

@@ -4,6 +4,8 @@ learned online, which tells a trial where to stop (Kurniawati et al. 2008, secti
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 __all__: list[str] = []
@@ -33,10 +35,9 @@ class _Bins:
         # (plain floats in lists: a backup updates two bins, where numpy scalar access cost
         # more than the arithmetic)
         self.cells: list[dict[tuple[int, int, int], list[float]]] = [{} for _ in self.sizes]
-        # belief id -> (x, its bin (i, j) per level, last lower bound, squared error per
-        # level, those bins' cells)
-        self.state: dict[int, tuple[int, list[tuple[int, int]], float, list[float],
-                                    list[list[float]]]] = {}  # fmt: skip
+        # belief id -> [x, its bin (i, j) per level, last lower bound, squared error per
+        # level, those bins' cells] (a list, updated in place: a backup allocates nothing)
+        self.state: dict[int, list[Any]] = {}
 
     def update(self, key: int, x: int, belief: np.ndarray, entropy: float, upper: float,
                lower: float) -> None:  # fmt: skip
@@ -57,10 +58,10 @@ class _Bins:
                 where.append((i, j))
                 cells.append(cell)
                 errs.append(err * err)
-            self.state[key] = (x, where, lower, errs, cells)
+            self.state[key] = [x, where, lower, errs, cells]
             return
-        _, where, prev, errs, cells = st
-        for lv, cell in enumerate(cells):
+        prev, errs = st[2], st[3]
+        for lv, cell in enumerate(st[4]):
             c = cell[1]
             if c == 1:
                 err = upper - lower
@@ -70,7 +71,7 @@ class _Bins:
                 cell[2] += err * err - errs[lv]
             errs[lv] = err * err
             cell[0] += lower - prev
-        self.state[key] = (x, where, lower, errs, cells)
+        st[2] = lower
 
     def predict(self, key: int, upper: float, lower: float) -> float:
         """The predicted optimal value at the belief ``key``, within ``[lower, upper]``."""

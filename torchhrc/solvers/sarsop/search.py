@@ -187,6 +187,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         self.alphas.keep(prune_dominated(self.alphas.vectors[:n], self.alphas.observed[:n]))
         self.tree = form.new_tree()
         self._child_x: dict[tuple[int, int], torch.Tensor] = {}
+        self._reach: dict[int, list[int]] = {}  # per x, the x2 it reaches (the trial's step)
         # per distinct belief (``belief_id``): the last evaluation, shared by the tree nodes
         # that hold the same belief (its stale bounds stay valid bounds there)
         self._cache = EvaluationCache()
@@ -326,8 +327,9 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
                 self._longest = max(self._longest, len(path))
                 if len(path) > 1 and path[-1] in self._forward:
                     path = path[:-1]  # the leaf was backed up when the trial reached it
+                tree_x = self.tree.x
                 for node in reversed(path):
-                    self.backup(int(self.tree.x[node]), np.array([node]))
+                    self.backup_node(int(tree_x[node]), node)
                     if self._out_of_budget():
                         break
                 if cfg.sweep_interval and iteration % cfg.sweep_interval == 0:

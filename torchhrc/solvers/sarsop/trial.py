@@ -44,7 +44,7 @@ class _Trials:
         binning = cfg.prediction == "binning"
         # (the step's loop reads these once: attribute chains and numpy scalars cost more
         # than the arithmetic on a small model; the same values as before)
-        cache, form, numpy_path = self._cache, self.form, self._np
+        cache, form, numpy_path, reach = self._cache, self.form, self._np, self._reach
         scale = 1.0  # g ** (-t)
         # the lower bound at the start has stalled: draw each child among the near-largest
         explore = self.explore_after is not None and self._stall >= self.explore_after
@@ -86,7 +86,10 @@ class _Trials:
             low_c, up_c = float(low_a[k, o]), float(up_a[k, o])
             L = (L1 - float(q_low[a]) + g * low_c) / (g * p)
             U = (U1 - float(q_up[a]) + g * up_c) / (g * p)
-            x2 = int(form.reach_np(x)[k]) if numpy_path else int(form.reach[x][k])
+            reach_x = reach.get(x)
+            if reach_x is None:  # (x's reachable x2 as plain ints, once per x)
+                reach_x = reach[x] = (form.reach_np(x) if numpy_path else form.reach[x]).tolist()
+            x2 = reach_x[k]
             child = tree.child(node, a, x2, o)
             if child < 0:
                 if numpy_path:
@@ -106,7 +109,7 @@ class _Trials:
                 # the trial reached a belief it already passed (a cycle of the model): back
                 # it up now, as APPL backs up every node a trial reaches, so that the descent
                 # itself propagates values around the cycle
-                self.backup(x2, np.array([node]))
+                self.backup_node(x2, node)
                 forward.add(node)
             seen.add(bid)
         return path

@@ -570,3 +570,75 @@ def test_refresh_active_compiled_equals_the_level_by_level_numpy(monkeypatch) ->
         kernel.propagate_inactive(np.array([-1, 2, 0]), np.ones(3, dtype=bool))
     with pytest.raises(ValueError, match="bool"):
         kernel.propagate_inactive(np.array([-1, 0]), np.ones(2))
+
+
+@needs_extension
+@pytest.mark.parametrize("K, O", [(1, 5), (3, 30)])  # 5 children of an action; 90 (numpy's way)
+def test_trial_step_chooses_as_the_python_step(K: int, O: int) -> None:
+    """``trial_step`` against ``_argmax_tie`` (the first of equal actions) and
+    ``_child_choice`` on random evaluations with equal and near-equal Q_up (within and just
+    outside 1e-12 relative), impossible children, equal excesses and no possible child."""
+    from torchhrc.solvers.sarsop.trial import _Trials
+
+    class _First:
+        cfg = SARSOPConfig(tie_break="first")
+
+    rng = np.random.default_rng(5)
+    A, seen_ties, seen_none = 6, 0, 0
+    for case in range(400):
+        prob = rng.integers(0, 3, (A, K, O)) * 0.25  # coarse: equal excesses happen
+        if case % 7 == 0:
+            prob[:] = 0.0  # no possible child
+        low = -rng.integers(0, 3, (A, K, O)) * prob
+        up = low + rng.integers(0, 3, (A, K, O)) * prob
+        # the tolerance is relative above 1 and absolute below: values of 0.1 to 6,000
+        q_up = rng.integers(1, 4, A) * [0.1, 10.0, 2000.0][case % 3]
+        top = q_up.max()
+        if case % 2 == 0:  # a near tie inside the tolerance, and one just outside it
+            q_up[rng.integers(A)] = top - 0.7e-12 * max(1.0, abs(top))
+            q_up[rng.integers(A)] = top - 2e-12 * max(1.0, abs(top))
+        q_low = rng.random(A) - 5.0
+        target = float(rng.random()) * 0.5
+        got = kernel.trial_step(q_low, q_up, prob, low, up, target)
+        a = _Trials._argmax_tie(_First(), q_up)
+        k, o, p = _Trials._child_choice(prob[a], up[a], low[a], target)
+        top = max(q_up.tolist())
+        ties = sum(v >= top - 1e-12 * max(1.0, abs(top)) for v in q_up.tolist())
+        want = (max(q_low.tolist()), a, ties, k, o, p, float(low[a, k, o]), float(up[a, k, o]))
+        assert got == want, case
+        seen_ties += ties > 1
+        seen_none += p <= 0
+    assert seen_ties > 50 and seen_none > 20  # not vacuous
+
+
+@needs_extension
+def test_trial_step_refuses_what_it_cannot_read() -> None:
+    q, cube = np.zeros(2), np.zeros((2, 1, 3))
+    with pytest.raises(ValueError, match=r"\(A, K, O\)"):
+        kernel.trial_step(q, np.zeros(3), cube, cube, cube, 0.1)
+    with pytest.raises(TypeError, match="prob"):
+        kernel.trial_step(q, q, cube.astype(np.float32), cube, cube, 0.1)
+    with pytest.raises(TypeError, match="low"):
+        kernel.trial_step(q, q, cube, cube[:, 0], cube, 0.1)
+
+
+@needs_extension
+@pytest.mark.parametrize("tie_break", ["random", "first"])
+def test_a_search_with_the_compiled_trial_step_takes_the_python_steps_path(
+    tie_break: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The same solves, step for step, with and without ``trial_step`` (equal actions drawn
+    by the seeded generator included): the same iterations, backups and bounds, bit for bit."""
+    from torchhrc.solvers.sarsop import sarsop
+    from torchhrc.tasks.classic import tiger
+
+    def run(model) -> list:
+        cfg = SARSOPConfig(time_limit=1e9, max_iterations=60, precision=1e-9, seed=3,
+                           tie_break=tie_break)  # fmt: skip
+        sol = sarsop(model, cfg)
+        return [sol.info["backups"]] + [(h["lower"], h["upper"]) for h in sol.history]
+
+    models = [tiger(), rock_sample(4, 4, form="momdp"), random_momdp(4, 3, 3, 2, seed=1)]
+    compiled = [run(m) for m in models]
+    monkeypatch.setattr(kernel, "trial_step", None)
+    assert [run(m) for m in models] == compiled

@@ -62,6 +62,13 @@
  *   put). A belief of one hidden value y (w = 1) is not stored: w = 1 and nothing written
  *   (the caller lowers the corner instead).
  *
+ * trial_step(q_low, q_up, prob, low, up, target) -> (max Q_low, a, ties, k, o, P, low, up)
+ *   A trial's choice at a node from its cached evaluation: q_low, q_up (A,), prob, low, up
+ *   (A, K, O) float64. a is the first action whose Q_up is within 1e-12 (relative) of the
+ *   largest, ties how many are; of a's children, (k, o) the possible one (P > 0) of largest
+ *   excess gap (up - low) - target * P, the first of equal ones ((0, 0) if none), with its P,
+ *   low and up (_SARSOP._argmax_tie and _child_choice, on Python floats).
+ *
  * propagate_inactive(parent, active) -> None
  *   parent (N,) int64 (-1 at a root; a parent's index below its child's), active (>= N,)
  *   bool, written: active[i] &= active[parent[i]] in index order (a tree's pruning reaches
@@ -1149,6 +1156,68 @@ static PyObject *add_point(PyObject *self, PyObject *const *args, Py_ssize_t nar
     return Py_BuildValue("(nn)", w, pos);
 }
 
+static PyObject *trial_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    enum { NB = 5 };
+    static const spec_t spec[NB] = {
+        {"q_low", 1, 'd', 0}, {"q_up", 1, 'd', 0}, {"prob", 3, 'd', 0},
+        {"low", 3, 'd', 0},   {"up", 3, 'd', 0},
+    };
+    Py_buffer v[NB];
+    (void)self;
+    if (nargs != NB + 1) {
+        PyErr_Format(PyExc_TypeError, "trial_step() takes %d arguments (%zd given)", NB + 1,
+                     nargs);
+        return NULL;
+    }
+    const double target = PyFloat_AsDouble(args[NB]);
+    if (target == -1.0 && PyErr_Occurred()) return NULL;
+    if (get_all(args, v, spec, NB) < 0) return NULL;
+    const Py_ssize_t A = v[1].shape[0], K = v[2].shape[1], O = v[2].shape[2];
+    int same = v[0].shape[0] == A && v[2].shape[0] == A && A > 0;
+    for (int i = 3; i < NB && same; i++)
+        same = v[i].shape[0] == A && v[i].shape[1] == K && v[i].shape[2] == O;
+    if (!same) {
+        PyErr_Format(PyExc_ValueError,
+                     "trial_step(): expected q_low and q_up (A,) and prob, low and up (A, K, O) "
+                     "with A >= 1; got q_low (%zd,), q_up (%zd,), prob (%zd, %zd, %zd)",
+                     v[0].shape[0], A, v[2].shape[0], K, O);
+        release_all(v, NB);
+        return NULL;
+    }
+    const double *q_low = v[0].buf, *q_up = v[1].buf;
+    double low_max = q_low[0], top = q_up[0];
+    for (Py_ssize_t i = 1; i < A; i++) {
+        if (q_low[i] > low_max) low_max = q_low[i];
+        if (q_up[i] > top) top = q_up[i];
+    }
+    const double floor = top - 1e-12 * (fabs(top) > 1.0 ? fabs(top) : 1.0);
+    Py_ssize_t a = -1, ties = 0;
+    for (Py_ssize_t i = 0; i < A; i++)
+        if (q_up[i] >= floor) {
+            if (a < 0) a = i;
+            ties++;
+        }
+    const Py_ssize_t KO = K * O;
+    const double *p = (const double *)v[2].buf + a * KO, *lo = (const double *)v[3].buf + a * KO,
+                 *up = (const double *)v[4].buf + a * KO;
+    Py_ssize_t j = 0;
+    double best = -INFINITY;
+    for (Py_ssize_t i = 0; i < KO; i++)
+        if (p[i] > 0.0) {
+            const double e = (up[i] - lo[i]) - target * p[i];
+            if (e > best) {
+                best = e;
+                j = i;
+            }
+        }
+    PyObject *out = KO > 0 ? Py_BuildValue("(dnnnnddd)", low_max, a, ties, j / O, j % O, p[j],
+                                           lo[j], up[j])
+                           : Py_BuildValue("(dnnnnddd)", low_max, a, ties, (Py_ssize_t)0,
+                                           (Py_ssize_t)0, 0.0, 0.0, 0.0);
+    release_all(v, NB);
+    return out;
+}
+
 static PyMethodDef methods[] = {
     {"backup_one", (PyCFunction)(void (*)(void))backup_one, METH_FASTCALL,
      "A dense model's belief: children, bounds and new vector in one call (see backup_kernel)."},
@@ -1166,6 +1235,8 @@ static PyMethodDef methods[] = {
      "The backed-up alpha vector of one action (see torchhrc.solvers.backup_kernel)."},
     {"add_point", (PyCFunction)(void (*)(void))add_point, METH_FASTCALL,
      "Store one sawtooth upper-bound point (see torchhrc.solvers.backup_kernel)."},
+    {"trial_step", (PyCFunction)(void (*)(void))trial_step, METH_FASTCALL,
+     "A trial's action and child at a node (see torchhrc.solvers.backup_kernel)."},
     {"propagate_inactive", (PyCFunction)(void (*)(void))propagate_inactive, METH_FASTCALL,
      "propagate_inactive(parent, active): a node is inactive when its parent is"},
     {NULL, NULL, 0, NULL},

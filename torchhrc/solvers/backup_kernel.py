@@ -37,6 +37,11 @@ built by ``pip install`` beside the sawtooth loop, the CPython API only):
   extended and the point put into ``x``'s key order in place (its numpy reference: the same
   method's steps, about twenty numpy calls: 30 us a point on bridge-repair, 9 us now; the
   arguments in ``_backup.c``'s header).
+* ``trial_step`` (the module's, called by the trial, ``_SARSOP.sample``): a trial's choice at
+  a node from its cached evaluation, the largest ``Q_low``, the first action of largest
+  ``Q_up`` and how many tie with it, and its child of largest excess gap (its numpy and
+  Python reference: ``_Trials._argmax_tie`` and ``_child_choice``; equal actions that the
+  seeded generator draws among go that way).
 
 The algorithm is the same; the floats are not always bit-identical to the numpy path, whose
 sums are BLAS's and numpy's pairwise ones where these are sequential (they agree to about

@@ -45,6 +45,8 @@ class _Trials:
         # (the step's loop reads these once: attribute chains and numpy scalars cost more
         # than the arithmetic on a small model; the same values as before)
         cache, form, numpy_path, reach = self._cache, self.form, self._np, self._reach
+        step = None if self._kernel is None else self._kernel.trial_step
+        draw_ties = cfg.tie_break == "random"
         scale = 1.0  # g ** (-t)
         # the lower bound at the start has stalled: draw each child among the near-largest
         explore = self.explore_after is not None and self._stall >= self.explore_after
@@ -71,19 +73,28 @@ class _Trials:
                     ev = self.evaluate(x, tree.beliefs[node].unsqueeze(0))
                     cached = self._store(node, ev, 0)
             q_low, q_up, prob_all, low_all, up_all = cached
-            q_low_max = max(q_low.tolist())
-            L1 = max(L, q_low_max)
-            U1 = max(U, q_low_max + eps * scale)
-            a = self._argmax_tie(q_up)
-            prob, up_a, low_a = prob_all[a], up_all[a], low_all[a]  # (K, O) each
             scale_next = g ** (-(t + 1))
-            if explore:
-                k, o, p = self._child_draw(prob, up_a, low_a, eps * scale_next)
-            else:
-                k, o, p = self._child_choice(prob, up_a, low_a, eps * scale_next)
+            target = eps * scale_next
+            ties = 0
+            if step is not None and not explore:
+                # the action and the child in one compiled call (the same choice as below);
+                # equal actions drawn among (tie_break="random") go the Python way
+                q_low_max, a, ties, k, o, p, low_c, up_c = step(
+                    q_low, q_up, prob_all, low_all, up_all, target
+                )
+            if step is None or explore or (ties > 1 and draw_ties):
+                q_low_max = max(q_low.tolist())
+                a = self._argmax_tie(q_up)
+                prob, up_a, low_a = prob_all[a], up_all[a], low_all[a]  # (K, O) each
+                if explore:
+                    k, o, p = self._child_draw(prob, up_a, low_a, target)
+                else:
+                    k, o, p = self._child_choice(prob, up_a, low_a, target)
+                low_c, up_c = float(low_a[k, o]), float(up_a[k, o])
             if p <= 0:
                 break
-            low_c, up_c = float(low_a[k, o]), float(up_a[k, o])
+            L1 = max(L, q_low_max)
+            U1 = max(U, q_low_max + eps * scale)
             L = (L1 - float(q_low[a]) + g * low_c) / (g * p)
             U = (U1 - float(q_up[a]) + g * up_c) / (g * p)
             reach_x = reach.get(x)

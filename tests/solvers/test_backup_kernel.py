@@ -642,3 +642,9 @@ def test_a_search_with_the_compiled_trial_step_takes_the_python_steps_path(
     compiled = [run(m) for m in models]
     monkeypatch.setattr(kernel, "trial_step", None)
     assert [run(m) for m in models] == compiled
+
+    def refuse(*args):  # as for arrays it cannot read: the trial goes on in Python
+        raise TypeError("expected prob to be a C-contiguous 3-D float64 array")
+
+    monkeypatch.setattr(kernel, "trial_step", refuse)
+    assert [run(m) for m in models] == compiled

@@ -78,10 +78,14 @@ class _Trials:
             ties = 0
             if step is not None and not explore:
                 # the action and the child in one compiled call (the same choice as below);
-                # equal actions drawn among (tie_break="random") go the Python way
-                q_low_max, a, ties, k, o, p, low_c, up_c = step(
-                    q_low, q_up, prob_all, low_all, up_all, target
-                )
+                # equal actions drawn among (tie_break="random") go the Python way, as does a
+                # form whose evaluations are arrays the call cannot read (not C-contiguous)
+                try:
+                    q_low_max, a, ties, k, o, p, low_c, up_c = step(
+                        q_low, q_up, prob_all, low_all, up_all, target
+                    )
+                except TypeError:
+                    step = None
             if step is None or explore or (ties > 1 and draw_ties):
                 q_low_max = max(q_low.tolist())
                 a = self._argmax_tie(q_up)

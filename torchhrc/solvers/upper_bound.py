@@ -140,14 +140,18 @@ class SawtoothUpperBound:
     def _add_member(self, x: int, i: int) -> None:
         if self._np is None:
             return
-        m = self._count[x]
-        arr = self._members[x]
-        if m == arr.shape[0]:
-            arr = np.concatenate([arr, np.empty(m, dtype=np.int64)])
-            self._members[x] = arr
+        arr, m = self._member_space(x)
         arr[m] = i
         self._count[x] = m + 1
         self._insert_sorted(x, i)
+
+    def _member_space(self, x: int) -> tuple[np.ndarray, int]:
+        """``x``'s member array with room for one more, and how many it holds."""
+        m = int(self._count[x])
+        arr = self._members[x]
+        if m == arr.shape[0]:
+            arr = self._members[x] = np.concatenate([arr, np.empty(m, dtype=np.int64)])
+        return arr, m
 
     def _insert_sorted(self, x: int, i: int) -> None:
         """Put a new point ``i`` of ``x`` into ``x``'s key order (if built and it can help)."""
@@ -169,10 +173,15 @@ class SawtoothUpperBound:
         """``x``'s key-order arrays with room for one more than their ``p`` points."""
         ids, keys = self._sorted_room[x]
         if p >= ids.shape[0]:
-            new_ids, new_keys = np.empty(2 * p + 8, dtype=np.int64), np.empty(2 * p + 8)
+            new_ids, new_keys = self._new_sorted_room(x, p)
             new_ids[:p], new_keys[:p] = ids[:p], keys[:p]
-            ids, keys = self._sorted_room[x] = (new_ids, new_keys)
+            ids, keys = new_ids, new_keys
         return ids, keys
+
+    def _new_sorted_room(self, x: int, p: int) -> tuple[np.ndarray, np.ndarray]:
+        """New key-order arrays of ``x`` with room for ``p`` points and as many more (and 8)."""
+        room = self._sorted_room[x] = (np.empty(2 * p + 8, dtype=np.int64), np.empty(2 * p + 8))
+        return room
 
     def _sorted_points(self, x: int) -> tuple[np.ndarray, np.ndarray]:
         """``(P',)`` x's points with a negative gain by increasing key ``g_i / s_i``; keys."""
@@ -184,8 +193,7 @@ class SawtoothUpperBound:
             key = gain[ids] / mass[ids]
             order = np.argsort(key, kind="stable")
             p = order.size
-            room_ids, room_keys = self._sorted_room[x] = (np.empty(2 * p + 8, dtype=np.int64),
-                                                          np.empty(2 * p + 8))  # fmt: skip
+            room_ids, room_keys = self._new_sorted_room(x, p)
             room_ids[:p], room_keys[:p] = ids[order], key[order]
             cur = (room_ids[:p], room_keys[:p])
             self._sorted[x] = cur
@@ -582,16 +590,14 @@ class SawtoothUpperBound:
         n, start, Y = self.size, self._used, belief.shape[0]
         if n >= self._off.shape[0] or start + Y > self._fidx.shape[0]:
             self._grow(n + 1, start + Y)  # (room for the widest support; the rest untouched)
-        m = int(self._count[x])
-        if m == self._members[x].shape[0]:
-            self._members[x] = np.concatenate([self._members[x], np.empty(m, dtype=np.int64)])
+        members, m = self._member_space(x)
         cur = self._sorted[x]
         p = -1 if cur is None else cur[0].size
         order, key = self._sorted_room[x] if cur is None else self._sorted_space(x, p)
         _, idx, inv, px, v, gain, wid, mass, off, sig = self._np  # type: ignore[misc]
         w, pos = self._add_kernel.add_point(  # type: ignore[union-attr]
             np.ascontiguousarray(belief), self._np[0], idx, inv, px, v, gain, wid, mass, off,
-            sig, self._members[x], order, key, x, float(value), n, start, m, p,
+            sig, members, order, key, x, float(value), n, start, m, p,
         )  # fmt: skip
         if w == 1:
             return False

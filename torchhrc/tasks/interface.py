@@ -680,6 +680,10 @@ class CollaborativeTask:
 #: (:func:`_state_counts`): the chain weighs as one demonstration step in each state.
 HABIT_CHAIN_STRENGTH: float = 1.0
 
+#: Strength of the shrinkage of a type's off-script lift toward none (:func:`_offscript_lift`):
+#: two turns' worth.
+OFFSCRIPT_STRENGTH: float = 2.0
+
 
 def check_state_smoothing(habit_weight: float, prior_strength: float) -> None:
     """Raise a ValueError unless ``habit_weight`` is in ``[0, 1]`` and ``prior_strength``
@@ -734,6 +738,12 @@ def _state_counts(
       same move in any state, with the weight ``rho_y`` that predicts the type's own steps
       best, each left out (:func:`_reaction`; 0 unless the type's turns after moves its
       partners rarely made follow the move rather than its habit).
+      Its share of "no action" after a move is then raised, by how unusual the move was
+      for the type's partners in that state (``u[y, a, x]`` of :func:`_unusual_moves`), by
+      the type's *off-script lift* ``d_y`` (:func:`_offscript_lift`): how many more of its
+      turns it let pass after its partners' unusual moves than its habit in the same
+      states predicts: ``clamp(p + u d_y, 0, 1)`` for its share ``p``, its other actions
+      rescaled to the rest.
     * ``population``: every type's counts in ``x`` (after the move), smoothed (strength
       ``c``) toward the types' habits weighted by their shares of the demonstrations.
 
@@ -760,9 +770,22 @@ def _state_counts(
     nothing while the robot waits (``lead_follow_phase``), a person who hands back a tool
     she did not ask for. Her few turns after such moves (the partners' slips) show it in
     every state where they happened, and the reaction carries them to the states where
-    they did not (``rho_y``).
+    they did not (``rho_y``). And neither habit nor reaction knows how *often* a person
+    acts at all after a move that breaks her routine: a person who needs a part and is
+    handed another, or nothing, may fetch it herself or wait (``cabinet_glue``: 0.4 of such
+    turns let pass), while after the handed part, the only turns her demonstrations show
+    there, she acts at once. The habit then predicts that she acts at once after a robot
+    wait (no action 0.02), so in the learned model a wait costs nothing and shows her type,
+    and the type-aware robot waited where the person stood idle. The partners' own slips
+    (the demonstrating robot's, at the noise rate) are where her turns after unusual moves
+    are seen; how many more turns she let pass there than in the same states after the
+    usual move, pooled over the states, carries to the states where none was (``d_y``).
+    Measured against her habit, so that a person who lingers in some states whatever the
+    robot does (``pace_split``'s careful types) is not read as stalling after every odd
+    move (a pass share pooled over the odd moves, tried first, lost those tasks).
 
-    ``want_reaction``: return ``rho (K,)`` instead (:func:`reaction_weights`).
+    ``want_reaction``: return ``(2, K)``, ``rho`` and ``d``, instead (:func:`reaction_weights`,
+    :func:`offscript_lifts`).
     """
     steps = evidence.steps
     assert steps is not None
@@ -802,12 +825,26 @@ def _state_counts(
     habit = before.unsqueeze(1) * possible + HABIT_CHAIN_STRENGTH * chain  # (K, A, X, H + 1)
     habit = habit / habit.sum(-1, keepdim=True).clamp_min(1e-300)
     # ... mixed, per type, with what the type did after the same robot move anywhere
-    rho, react, unusual = _reaction(before, chain, possible, effect, steps, keep, y, column)
+    u_k, unusual = _unusual_moves(before, effect, steps, keep, y)
+    h_k = column[keep]  # (n,) each kept step's human action
+    one = torch.nn.functional.one_hot(h_k, H + 1).to(dtype)  # (n, H + 1) the step itself
+    own = _left_out_habit(before, chain, possible, steps, keep, y, one)  # (n, H + 1)
+    rho, react = _reaction(K, possible, effect, steps, keep, y, h_k, one, own, u_k)
+    d = _offscript_lift(u_k, y, one[:, H] - own[:, H], K)  # (K,)
     if want_reaction:
-        return rho
+        return torch.stack([rho, d])  # (2, K)
     react = torch.where(react.sum(-1, keepdim=True) > 0, react, habit)  # (none possible)
     mixed = rho.view(K, 1, 1, 1) * unusual.unsqueeze(-1)  # (K, A, X, 1)
     habit = (1.0 - mixed) * habit + mixed * react
+    # ... and its share of turns let pass raised by its lift, by how unusual the move was
+    u = unusual.unsqueeze(-1)  # (K, A, X, 1)
+    passed = habit[..., H:]
+    acts = habit[..., :H]
+    new_pass = (passed + u * d.view(K, 1, 1, 1)).clamp(0.0, 1.0)
+    mended = torch.cat([acts * ((1.0 - new_pass) / (1.0 - passed).clamp_min(1e-300)), new_pass], -1)
+    # where an action is possible (so is letting the turn pass)
+    some = (possible[..., H:].unsqueeze(0) > 0) & (acts.sum(-1, keepdim=True) > 0)
+    habit = torch.where(some, mended, habit)
     # the population: every type's counts in the state after the move, with the types'
     # habits (weighted by their sizes) as its prior
     size = torch.bincount(evidence.assignments.to(sdev), minlength=K).to(dtype)
@@ -823,9 +860,83 @@ def _state_counts(
 REACTION_GRID: tuple[float, ...] = tuple(i / 20 for i in range(21))
 
 
-def _reaction(before: torch.Tensor, chain: torch.Tensor, possible: torch.Tensor,
-              effect: torch.Tensor, steps: TaskSteps, keep: torch.Tensor, y: torch.Tensor,
-              column: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:  # fmt: skip
+def _unusual_moves(
+    before: torch.Tensor,
+    effect: torch.Tensor,
+    steps: TaskSteps,
+    keep: torch.Tensor,
+    y: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """How unusual each robot move was for a type's partners in a state.
+
+    ``u[y, a, x]``: one less the share of type ``y``'s partners' moves in ``x`` that were
+    ``a`` (1 where they never came). ``u_k``: the same for each kept step's own move, the
+    step left out (its partners' other moves there; 1 for a state visited once).
+
+    Args:
+        before: ``(K, X, H + 1)`` the types' counts by the state before the robot's move;
+            effect: ``(A, X)``; steps, keep, y: the kept steps and their types
+            (:func:`_state_counts`).
+
+    Returns:
+        ``u_k (n,)`` over the kept steps and ``u (K, A, X)``.
+    """
+    dtype, dev = before.dtype, before.device
+    K, X = before.shape[:2]
+    A = effect.shape[0]
+    a_k, s_k = steps.actions[keep], steps.states[keep]
+    moves = torch.zeros(K, X, A, dtype=dtype, device=dev)
+    moves.view(-1).index_add_(0, (y * X + s_k) * A + a_k, torch.ones_like(a_k, dtype=dtype))
+    visits = before.sum(-1)  # (K, X) the same steps by their state before the move
+    rest = (visits[y, s_k] - 1.0).clamp_min(0.0)
+    u_k = torch.where(rest > 0, 1.0 - (moves[y, s_k, a_k] - 1.0) / rest.clamp_min(1.0), 1.0)
+    share = moves.transpose(1, 2) / visits.unsqueeze(1).clamp_min(1.0)  # (K, A, X)
+    unusual = torch.where(visits.unsqueeze(1) > 0, 1.0 - share, torch.ones_like(share))
+    return u_k, unusual
+
+
+def _left_out_habit(before: torch.Tensor, chain: torch.Tensor, possible: torch.Tensor,
+                    steps: TaskSteps, keep: torch.Tensor, y: torch.Tensor,
+                    one: torch.Tensor) -> torch.Tensor:  # fmt: skip
+    """``(n, H + 1)`` each kept step's habit with the step left out: what its type did in
+    the step's state before the robot's move, over the actions possible after the move,
+    with the chain prior (strength :data:`HABIT_CHAIN_STRENGTH`), normalised
+    (:func:`_state_counts`; ``one`` ``(n, H + 1)``: the steps' own actions)."""
+    a_k, s_k = steps.actions[keep], steps.states[keep]
+    b = (before[y, s_k] - one) * possible[a_k, s_k] + HABIT_CHAIN_STRENGTH * chain[y, a_k, s_k]
+    return b / b.sum(-1, keepdim=True).clamp_min(1e-300)
+
+
+def _offscript_lift(u_k: torch.Tensor, y: torch.Tensor, excess: torch.Tensor,
+                    K: int) -> torch.Tensor:  # fmt: skip
+    """``d (K,)``: how many more turns each type let pass after moves off its partners'
+    script than its habit predicts there.
+
+    ``d_y = sum_k u_k e_k / (sum_k u_k + s)`` over the type's kept steps ``k``, each
+    weighted by how unusual its move was for the type's partners there (``u_k``,
+    :func:`_unusual_moves`), where ``e_k`` is 1 for a turn let pass (else 0) less the
+    type's habit's share of passes in the step's state, the step left out
+    (:func:`_left_out_habit`); shrunk toward 0 by ``s`` turns (:data:`OFFSCRIPT_STRENGTH`).
+    A type whose partners never slipped, or who keeps her pace after a slip, has ``d``
+    near 0; one who stands and waits after a slip where she otherwise acts, well above.
+
+    Args:
+        u_k: ``(n,)`` the kept steps' unusualness; y: ``(n,)`` int64 their types;
+            excess: ``(n,)`` ``e_k``; K: the number of types.
+
+    Returns:
+        ``(K,)`` lifts in ``[-1, 1]``.
+    """
+    dtype, dev = u_k.dtype, u_k.device
+    num = torch.zeros(K, dtype=dtype, device=dev).index_add_(0, y, u_k * excess)
+    den = torch.zeros(K, dtype=dtype, device=dev).index_add_(0, y, u_k)
+    return num / (den + OFFSCRIPT_STRENGTH)
+
+
+def _reaction(
+    K: int, possible: torch.Tensor, effect: torch.Tensor, steps: TaskSteps, keep: torch.Tensor,
+    y: torch.Tensor, h_k: torch.Tensor, one: torch.Tensor, own: torch.Tensor, u_k: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
     """Each type's reaction to the robot's move and the weight its own steps give it.
 
     ``react[y, a, x]``: what type ``y`` did after robot move ``a``, in any state (counts by
@@ -834,7 +945,7 @@ def _reaction(before: torch.Tensor, chain: torch.Tensor, possible: torch.Tensor,
     ``u rho react + (1 - u rho) habit`` that predicts type ``y``'s own steps best, each
     step left out of the counts, under a Beta(1, 2) prior (the habit unless the steps say
     otherwise). ``u[y, a, x]`` is how unusual move ``a`` was for type ``y``'s partners in
-    ``x``: one less the share of their moves there that were ``a`` (1 where they never came):
+    ``x`` (:func:`_unusual_moves`; ``u_k`` for each step's own move, the step left out):
     the habit is what the type did after its partners' usual move, and the reaction is
     what it did after the same move elsewhere, so only the steps after a move its partners
     rarely made can tell them apart, and only there does the reaction enter. A person who
@@ -843,39 +954,32 @@ def _reaction(before: torch.Tensor, chain: torch.Tensor, possible: torch.Tensor,
     did not want, does nothing while the robot waits) raises it.
 
     Args:
-        before: ``(K, X, H + 1)`` the types' counts by the state before the robot's move.
-        chain: ``(K, A, X, H + 1)`` the habit's prior (:func:`_state_counts`).
+        K: the number of types.
         possible: ``(A, X, H + 1)`` the actions possible after each move (the last column:
             "no action", possible where any action is).
-        effect: ``(A, X)`` the robot's effect; steps, keep, y, column: the kept steps, their
-            types and their human actions' columns (:func:`_state_counts`).
+        effect: ``(A, X)`` the robot's effect; steps, keep, y: the kept steps and their
+            types (:func:`_state_counts`); h_k: ``(n,)`` their human actions' columns, one
+            ``(n, H + 1)`` the same one-hot; own: ``(n, H + 1)`` their habits, each left out
+            (:func:`_left_out_habit`); u_k: ``(n,)`` their unusualness
+            (:func:`_unusual_moves`).
 
     Returns:
-        ``rho (K,)``, ``react (K, A, X, H + 1)`` (rows over the possible actions, each
-        summing to 1; all zero where no action is possible) and ``u (K, A, X)``.
+        ``rho (K,)`` and ``react (K, A, X, H + 1)`` (rows over the possible actions, each
+        summing to 1; all zero where no action is possible).
     """
-    dtype, dev = before.dtype, before.device
-    K, _, H1 = before.shape
+    dtype, dev = own.dtype, own.device
+    H1 = own.shape[-1]
     A = effect.shape[0]
-    a_k, s_k, h_k = steps.actions[keep], steps.states[keep], column[keep]  # (n,) each
+    a_k, s_k = steps.actions[keep], steps.states[keep]  # (n,) each
     counts = torch.zeros(K, A, H1, dtype=dtype, device=dev)
     counts.view(-1).index_add_(0, (y * A + a_k) * H1 + h_k, torch.ones_like(h_k, dtype=dtype))
     poss = possible[a_k, s_k]  # (n, H + 1)
-    one = torch.nn.functional.one_hot(h_k, H1).to(dtype)  # (n, H + 1) the step itself
     spread = poss / poss.sum(-1, keepdim=True).clamp_min(1.0)
     # each step under each part, left out of its counts
     r = (counts[y, a_k] - one) * poss + spread
     p_react = (r * one).sum(-1) / r.sum(-1).clamp_min(1e-300)
-    b = (before[y, s_k] - one) * poss + HABIT_CHAIN_STRENGTH * chain[y, a_k, s_k]
-    p_habit = (b * one).sum(-1) / b.sum(-1).clamp_min(1e-300)
+    p_habit = (own * one).sum(-1)
     grid = torch.tensor(REACTION_GRID, dtype=dtype, device=dev)
-    # how unusual each step's move was for its type's partners in its state, left out
-    X = effect.shape[1]
-    moves = torch.zeros(K, X, A, dtype=dtype, device=dev)
-    moves.view(-1).index_add_(0, (y * X + s_k) * A + a_k, torch.ones_like(a_k, dtype=dtype))
-    visits = before.sum(-1)  # (K, X) the same steps by their state before the move
-    rest = (visits[y, s_k] - 1.0).clamp_min(0.0)
-    u_k = torch.where(rest > 0, 1.0 - (moves[y, s_k, a_k] - 1.0) / rest.clamp_min(1.0), 1.0)
     mix = (grid.view(-1, 1) * u_k) * p_react + (1.0 - grid.view(-1, 1) * u_k) * p_habit
     score = torch.zeros(grid.numel(), K, dtype=dtype, device=dev)
     score.index_add_(1, y, mix.clamp_min(1e-300).log())
@@ -884,9 +988,7 @@ def _reaction(before: torch.Tensor, chain: torch.Tensor, possible: torch.Tensor,
     spread_all = possible / possible.sum(-1, keepdim=True).clamp_min(1.0)  # (A, X, H + 1)
     react = counts[:, :, None, :] * possible + spread_all  # (K, A, X, H + 1)
     react = react / react.sum(-1, keepdim=True).clamp_min(1e-300)
-    share = moves.transpose(1, 2) / visits.unsqueeze(1).clamp_min(1.0)  # (K, A, X)
-    unusual = torch.where(visits.unsqueeze(1) > 0, 1.0 - share, torch.ones_like(share))
-    return rho, react, unusual
+    return rho, react
 
 
 def reaction_weights(task: CollaborativeTask, evidence: TypeEvidence) -> torch.Tensor:
@@ -899,6 +1001,35 @@ def reaction_weights(task: CollaborativeTask, evidence: TypeEvidence) -> torch.T
     Returns:
         ``(K,)`` float64 weights in ``[0, 1]``, from :data:`REACTION_GRID`.
     """
+    return _back_off_weights(task, evidence)[0]
+
+
+def offscript_lifts(task: CollaborativeTask, evidence: TypeEvidence) -> torch.Tensor:
+    """``(K,)`` each type's off-script lift: how many more of its turns it let pass after its
+    partners' unusual moves than its habit predicts in the same states, which the state
+    model's back-off adds to its "no action" after a move the type's partners rarely made
+    (:func:`_offscript_lift`; ``info["human_model"]["offscript_lift"]`` records it).
+
+    Args:
+        task: the task; evidence: its :class:`TypeEvidence` with ``steps``.
+
+    Returns:
+        ``(K,)`` float64 lifts in ``[-1, 1]``.
+
+    Example:
+        >>> from torchhrc.tasks.suite import make_task
+        >>> from torchhrc.tasks.pipeline import learn
+        >>> world = make_task("pace")
+        >>> demos, _ = world.demonstrations(subjects=9, per_subject=2, seed=0)
+        >>> lifts = learn(world.task, demos, k=3, solver_time=0.2, seed=0).info[
+        ...     "human_model"]["offscript_lift"]
+        >>> len(lifts), all(-1.0 <= d <= 1.0 for d in lifts)
+        (3, True)
+    """
+    return _back_off_weights(task, evidence)[1]
+
+
+def _back_off_weights(task: CollaborativeTask, evidence: TypeEvidence) -> torch.Tensor:
     if evidence.steps is None:
         raise ValueError("expected evidence.steps (the demonstrations as task steps), got None")
     return _state_counts(task, evidence, torch.float64, torch.device("cpu"), want_reaction=True)

@@ -52,6 +52,7 @@ from torchhrc.tasks.interface import (
     TaskSteps,
     TypeEvidence,
     check_task,
+    offscript_lifts,
     reaction_weights,
 )
 from torchhrc.tasks.wrong_moves import price_wrong_moves
@@ -580,7 +581,9 @@ def build_model(
             (:func:`compare_human_models`); ``info["human_model"]`` records the choice and
             the held-out likelihoods, and with the state model each type's weight on its
             reaction to the robot's move (``"reaction"``,
-            :func:`~torchhrc.tasks.interface.reaction_weights`).
+            :func:`~torchhrc.tasks.interface.reaction_weights`) and how many more turns it
+            lets pass after moves off its partners' script (``"offscript_lift"``,
+            :func:`~torchhrc.tasks.interface.offscript_lifts`).
         state_smoothing: the state model's ``(habit_weight, prior_strength)``
             (:class:`~torchhrc.tasks.interface.TypeEvidence`), or ``"auto"``: the best of
             :data:`~torchhrc.tasks.human_model_choice.STATE_SMOOTHING_GRID` on held-out
@@ -648,6 +651,7 @@ def build_model(
     )
     if model_name == "state" and steps is not None:
         chosen["reaction"] = reaction_weights(task, evidence).tolist()
+        chosen["offscript_lift"] = offscript_lifts(task, evidence).tolist()
     behaviour = _check_types("human_policy()", task.human_policy(evidence), 0, K,
                              f"(Y={K}, A={A}, X={X}, H+1={H + 1})")  # fmt: skip
     if tuple(behaviour.shape) != (K, A, X, H + 1):

@@ -1,12 +1,15 @@
-"""``torchhrc._threads.torch_threads``: the count inside the block, restored after (also after
-an exception), bad counts refused; and SARSOP's search runs with one intra-op thread."""
+"""``torchhrc._threads.torch_threads`` and ``blas_threads``: the count inside the block,
+restored after (also after an exception), bad counts refused, the BLAS libraries looked up
+once per process; and SARSOP's search runs with one intra-op thread and one BLAS thread."""
 
 from __future__ import annotations
 
 import pytest
 import torch
+from threadpoolctl import threadpool_info, threadpool_limits
 
-from torchhrc._threads import torch_threads
+import torchhrc._threads as threads
+from torchhrc._threads import blas_threads, torch_threads
 from torchhrc.solvers import SARSOPConfig, sarsop
 from torchhrc.tasks.classic import tiger
 
@@ -39,13 +42,47 @@ def test_bad_counts_are_refused(bad: object) -> None:
             pass
 
 
+def _blas_counts() -> list[int]:
+    return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+
 def test_sarsop_searches_with_one_thread(two_threads: None) -> None:
-    seen: list[int] = []
+    seen: list[tuple[int, list[int]]] = []
 
     def callback(entry: dict) -> bool:
-        seen.append(torch.get_num_threads())
+        seen.append((torch.get_num_threads(), _blas_counts()))
         return len(seen) >= 3
 
-    sol = sarsop(tiger(), SARSOPConfig(time_limit=30.0, callback=callback))
-    assert sol.info["stop_reason"] == "callback" and seen == [1, 1, 1]
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = _blas_counts()
+        sol = sarsop(tiger(), SARSOPConfig(time_limit=30.0, callback=callback))
+        assert _blas_counts() == before
+    assert sol.info["stop_reason"] == "callback" and len(seen) == 3
+    assert all(n == 1 and blas and set(blas) == {1} for n, blas in seen), seen
     assert torch.get_num_threads() == 2
+
+
+def test_blas_threads_sets_and_restores_and_looks_the_libraries_up_once(monkeypatch) -> None:
+    made: list[object] = []
+    real = threads.ThreadpoolController
+
+    def counted() -> object:
+        made.append(1)
+        return real()
+
+    monkeypatch.setattr(threads, "ThreadpoolController", counted)
+    monkeypatch.setattr(threads, "_CONTROLLER", [])
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = _blas_counts()
+        for _ in range(3):
+            with blas_threads(1):
+                assert set(_blas_counts()) == {1}
+            assert _blas_counts() == before
+        with pytest.raises(RuntimeError, match="inside"):
+            with blas_threads(1):
+                raise RuntimeError("inside")
+        assert _blas_counts() == before
+    assert len(made) == 1
+    for bad in (0, -1, 1.5, True, "1"):
+        with pytest.raises(ValueError, match="expected n to be an int of at least 1"):
+            blas_threads(bad)  # type: ignore[arg-type]

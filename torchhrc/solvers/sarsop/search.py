@@ -26,9 +26,8 @@ import numpy as np
 import numpy.ma
 import numpy.random
 import torch
-from threadpoolctl import threadpool_limits
 
-from torchhrc._threads import torch_threads
+from torchhrc._threads import blas_threads, torch_threads
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP, SparsePOMDP
 from torchhrc.solvers import backup_kernel
@@ -451,5 +450,5 @@ def sarsop(model: POMDP | MOMDP | SparsePOMDP, config: SARSOPConfig | None = Non
     # RockSample(4, 4), 300 iterations: 7.4-8.1 s with 2 BLAS threads, 5.4-6.3 s with one).
     # Torch's own OpenMP threads likewise: their spin after each small parallel region is CPU
     # time (a third of the backups under clock="process" on 2 cores; torchhrc._threads)
-    with threadpool_limits(limits=1, user_api="blas"), torch_threads(1):
+    with blas_threads(1), torch_threads(1):
         return _SARSOP(model, config, start, clock_start).run()

@@ -59,28 +59,30 @@ def test_counts_no_action_and_backs_off_to_the_type_habit_and_the_population():
     # p = (counts + prior) / (n + 1).
     # Where a type's partners never went (x_before unvisited: the move is unusual, u = 1),
     # the habit's "no action" is raised by the type's off-script lift d (its other actions
-    # rescaled to the rest): d = sum of u (pass - habit's pass share, the turn left out) over
-    # its turns / (sum of u + 2); u = 1 for a turn in a state the type visited once, 0 here
-    # for one of two "go"s. Type 0: its turn at "none" (u = 1, do_a), whose left-out habit
-    # is the chain prior (pass 3/8): d = -3/8 / 3 = -1/8; its turns at "a": u = 0.
-    # Type 1: its turn at "none" (u = 1, do_b), chain prior pass 1/4: d = -1/4 / 3 = -1/12.
-    # Type 2: no turns, d = 0.
+    # rescaled to the rest): d = (sum of u (pass - habit's pass share, the turn left out)
+    # over its turns + 2 D) / (sum of u + 2), D the same over every type's turns toward 0;
+    # u = 1 for a turn in a state the type visited once, 0 here for one of two "go"s.
+    # Type 0: its turn at "none" (u = 1, do_a), whose left-out habit is the chain prior
+    # (pass 3/8): -3/8; its turns at "a": u = 0. Type 1: its turn at "none" (u = 1, do_b),
+    # chain prior pass 1/4: -1/4. D = (-3/8 - 1/4) / (2 + 2) = -5/32; d = (-3/8 - 5/16) / 3
+    # = -11/48, (-1/4 - 5/16) / 3 = -3/16, and D for type 2 (no turns).
     habit = {
         (0, 0): [47 / 64, 5 / 64, 12 / 64],  # (1, 0, 0) + (5/8 * (.75, .25), 3/8), over 2
         (0, 1): [0.0, 13 / 24, 11 / 24],  # "a", only do_b legal: (0, 1, 1) + (0, 5/8, 3/8)
         (1, 0): [1 / 16, 13 / 16, 1 / 8],  # (0, 1, 0) + (3/4 * (1/6, 5/6), 1/4), over 2
-        (1, 1): [0.0, 5 / 6, 1 / 6],  # "a" never seen: the chain prior (0, .75, .25), d -1/12
-        (1, 2): [5 / 6, 0.0, 1 / 6],  # "b" never seen with a turn: (.75, 0, .25), d -1/12
-        (0, 2): [3 / 4, 0.0, 1 / 4],  # the chain prior (5/8, 0, 3/8), d -1/8
-        (2, 0): [0.375, 0.125, 0.5],  # no data: its chain preference x 1/2, rate 1/2
+        (1, 1): [0.0, 15 / 16, 1 / 16],  # "a" never seen: the chain prior (0, .75, .25)
+        (1, 2): [15 / 16, 0.0, 1 / 16],  # "b" never seen with a turn: (.75, 0, .25)
+        (0, 2): [41 / 48, 0.0, 7 / 48],  # the chain prior (5/8, 0, 3/8)
+        # no data: its chain preference x 1/2 and rate 1/2, less 5/32
+        (2, 0): [63 / 128, 21 / 128, 44 / 128],
     }
     population = {
         # counts (1, 1, 0) + (habit00 + habit10) / 2 = (51, 57, 20) / 128, over 3
         0: [179 / 384, 185 / 384, 20 / 384],
-        # counts (0, 1, 1) + (habit01 + habit11) / 2 = (0, 33, 15) / 48, over 3
-        1: [0.0, 81 / 144, 63 / 144],
+        # counts (0, 1, 1) + (habit01 + habit11) / 2 = (0, 71, 25) / 96, over 3
+        1: [0.0, 167 / 288, 121 / 288],
         # no counts: (habit02 + habit12) / 2
-        2: [19 / 24, 0.0, 5 / 24],
+        2: [43 / 48, 0.0, 5 / 48],
     }
     counts = {(0, 0): [1.0, 0.0, 0.0], (0, 1): [0.0, 1.0, 1.0], (1, 0): [0.0, 1.0, 0.0],
               (1, 2): [0.0, 0.0, 0.0], (2, 0): [0.0, 0.0, 0.0]}  # fmt: skip
@@ -90,8 +92,8 @@ def test_counts_no_action_and_backs_off_to_the_type_habit_and_the_population():
         want = (n_ + 0.75 * h + 0.25 * q) / (n_.sum() + 1)
         assert torch.allclose(p[y, x], want, atol=1e-12), (y, x)
     # type 2 has no data: 3/4 its own chain preference, not the others' behaviour
-    assert torch.allclose(p[2, 0], torch.tensor([0.397, 0.214, 0.388], dtype=p.dtype),
-                          atol=1e-3)  # fmt: skip
+    assert torch.allclose(p[2, 0], torch.tensor([746, 374, 416], dtype=p.dtype) / 1536,
+                          atol=1e-12)  # fmt: skip
     # "ab": nothing legal, "no action" is certain for every type
     assert torch.allclose(p[:, 3], torch.tensor([0.0, 0.0, 1.0], dtype=p.dtype))
 

@@ -49,11 +49,13 @@ def test_the_lift_worked_by_hand():
     # r = (2 + 0.5) / (18 + 1) = 5/38 her pass share over all turns), over 5 turns: after
     # either pass (1 + 5/38) / 5 = 43/190, after a left (2 + 5/38) / 5 = 81/190; in state 1
     # only the prior, 5/38 = 25/190. Sum of u * excess: 147/190 (the fetch)
-    # + (147 - 3 * 81) / 190 / 4 (the waits) - 25/190 (state 1) = 98/190, over 3 + 2
-    # (two turns' shrinkage toward none): d = 49/475.
-    # Type 0: no unusual move, d = 0.
+    # + (147 - 3 * 81) / 190 / 4 (the waits) - 25/190 (state 1) = 98/190, of weight 3.
+    # Type 0: no unusual move, weight 0. The lift of all types, shrunk toward none by two
+    # turns: (98/190) / (3 + 2) = 49/475; each type's, shrunk toward it by two turns:
+    # type 0 (0 + 2 * 49/475) / (0 + 2) = 49/475, type 1 (98/190 + 2 * 49/475) / (3 + 2)
+    # = 343/2375.
     d = offscript_lifts(FetchPhases(), _evidence(FetchPhases()))
-    torch.testing.assert_close(d, torch.tensor([0.0, 49 / 475], dtype=torch.float64))
+    torch.testing.assert_close(d, torch.tensor([49 / 475, 343 / 2375], dtype=torch.float64))
 
 
 @pytest.mark.numeric
@@ -65,9 +67,8 @@ def test_after_a_move_the_partners_never_made_she_lets_more_turns_pass():
     # a right part fetched in phase 1 (state 3): no partner of either type did it there,
     # and no demonstration reached the state after it, so the habit decides: both types
     # always worked left in phase 1, so its pass share is the chain prior's, r / 5 (type 0:
-    # r = 0.5 / 17, type 1: r = 5/38); type 1 lets d = 49/475 more turns pass after the
-    # unusual move, type 0 none more
-    want = torch.tensor([1 / 170, 1 / 38 + 49 / 475], dtype=torch.float64)
+    # r = 0.5 / 17, type 1: r = 5/38); after the unusual move each lets its lift more pass
+    want = torch.tensor([1 / 170 + 49 / 475, 1 / 38 + 343 / 2375], dtype=torch.float64)
     torch.testing.assert_close(b[:, 2, 3, 2], want)
     torch.testing.assert_close(b.sum(-1), torch.ones(b.shape[:-1], dtype=torch.float64))
     # her actions share the rest in their proportions (the habit's left : right)

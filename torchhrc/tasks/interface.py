@@ -800,8 +800,10 @@ def _state_counts(
     keep = steps.mask & choice & ~(last & (steps.human < 0))
     column = torch.where(steps.human < 0, H, steps.human)  # (N, L)
     y = evidence.assignments.to(sdev).view(-1, 1).expand_as(mid)[keep]
+    # each kept step's robot move, state before it and human action: (n,) each
+    a_k, s_k, h_k = steps.actions[keep], steps.states[keep], column[keep]
     counts = torch.zeros(K, X, H + 1, dtype=dtype, device=sdev)
-    flat = (y * X + mid[keep]) * (H + 1) + column[keep]
+    flat = (y * X + mid[keep]) * (H + 1) + h_k
     counts.view(-1).index_add_(0, flat, torch.ones_like(flat, dtype=dtype))
     # the prior: the type's chain preference after the same robot move, its pooled waiting
     pref = chain_preferences(evidence.chains.to(sdev, dtype), evidence.vocabulary,
@@ -819,17 +821,16 @@ def _state_counts(
     # the move (counts by x_before), restricted to what is possible after this move, with
     # the chain preference as its own prior
     before = torch.zeros(K, X, H + 1, dtype=dtype, device=sdev)
-    flat = (y * X + steps.states[keep]) * (H + 1) + column[keep]
+    flat = (y * X + s_k) * (H + 1) + h_k
     before.view(-1).index_add_(0, flat, torch.ones_like(flat, dtype=dtype))
     possible = torch.cat([legal_f, legal_f.amax(-1, keepdim=True)], -1)  # (A, X, H + 1)
     habit = before.unsqueeze(1) * possible + HABIT_CHAIN_STRENGTH * chain  # (K, A, X, H + 1)
     habit = habit / habit.sum(-1, keepdim=True).clamp_min(1e-300)
     # ... mixed, per type, with what the type did after the same robot move anywhere
-    u_k, unusual = _unusual_moves(before, effect, steps, keep, y)
-    h_k = column[keep]  # (n,) each kept step's human action
+    u_k, unusual = _unusual_moves(before, effect.shape[0], a_k, s_k, y)
     one = torch.nn.functional.one_hot(h_k, H + 1).to(dtype)  # (n, H + 1) the step itself
-    own = _left_out_habit(before, chain, possible, steps, keep, y, one)  # (n, H + 1)
-    rho, react = _reaction(K, possible, effect, steps, keep, y, h_k, one, own, u_k)
+    own = _left_out_habit(before, chain, possible, a_k, s_k, y, one)  # (n, H + 1)
+    rho, react = _reaction(K, possible, a_k, s_k, y, h_k, one, own, u_k)
     d = _offscript_lift(u_k, y, one[:, H] - own[:, H], K)  # (K,)
     if want_reaction:
         return torch.stack([rho, d])  # (2, K)
@@ -861,11 +862,7 @@ REACTION_GRID: tuple[float, ...] = tuple(i / 20 for i in range(21))
 
 
 def _unusual_moves(
-    before: torch.Tensor,
-    effect: torch.Tensor,
-    steps: TaskSteps,
-    keep: torch.Tensor,
-    y: torch.Tensor,
+    before: torch.Tensor, A: int, a_k: torch.Tensor, s_k: torch.Tensor, y: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """How unusual each robot move was for a type's partners in a state.
 
@@ -875,16 +872,14 @@ def _unusual_moves(
 
     Args:
         before: ``(K, X, H + 1)`` the types' counts by the state before the robot's move;
-            effect: ``(A, X)``; steps, keep, y: the kept steps and their types
-            (:func:`_state_counts`).
+            A: the robot's actions; a_k, s_k, y: ``(n,)`` the kept steps' robot moves,
+            states before them and types (:func:`_state_counts`).
 
     Returns:
         ``u_k (n,)`` over the kept steps and ``u (K, A, X)``.
     """
     dtype, dev = before.dtype, before.device
     K, X = before.shape[:2]
-    A = effect.shape[0]
-    a_k, s_k = steps.actions[keep], steps.states[keep]
     moves = torch.zeros(K, X, A, dtype=dtype, device=dev)
     moves.view(-1).index_add_(0, (y * X + s_k) * A + a_k, torch.ones_like(a_k, dtype=dtype))
     visits = before.sum(-1)  # (K, X) the same steps by their state before the move
@@ -896,13 +891,13 @@ def _unusual_moves(
 
 
 def _left_out_habit(before: torch.Tensor, chain: torch.Tensor, possible: torch.Tensor,
-                    steps: TaskSteps, keep: torch.Tensor, y: torch.Tensor,
+                    a_k: torch.Tensor, s_k: torch.Tensor, y: torch.Tensor,
                     one: torch.Tensor) -> torch.Tensor:  # fmt: skip
     """``(n, H + 1)`` each kept step's habit with the step left out: what its type did in
     the step's state before the robot's move, over the actions possible after the move,
     with the chain prior (strength :data:`HABIT_CHAIN_STRENGTH`), normalised
-    (:func:`_state_counts`; ``one`` ``(n, H + 1)``: the steps' own actions)."""
-    a_k, s_k = steps.actions[keep], steps.states[keep]
+    (:func:`_state_counts`; ``a_k``, ``s_k``, ``y``: the steps' robot moves, states and
+    types; ``one`` ``(n, H + 1)``: their own actions)."""
     b = (before[y, s_k] - one) * possible[a_k, s_k] + HABIT_CHAIN_STRENGTH * chain[y, a_k, s_k]
     return b / b.sum(-1, keepdim=True).clamp_min(1e-300)
 
@@ -940,8 +935,8 @@ def _offscript_lift(u_k: torch.Tensor, y: torch.Tensor, excess: torch.Tensor,
 
 
 def _reaction(
-    K: int, possible: torch.Tensor, effect: torch.Tensor, steps: TaskSteps, keep: torch.Tensor,
-    y: torch.Tensor, h_k: torch.Tensor, one: torch.Tensor, own: torch.Tensor, u_k: torch.Tensor,
+    K: int, possible: torch.Tensor, a_k: torch.Tensor, s_k: torch.Tensor, y: torch.Tensor,
+    h_k: torch.Tensor, one: torch.Tensor, own: torch.Tensor, u_k: torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
     """Each type's reaction to the robot's move and the weight its own steps give it.
 
@@ -963,8 +958,8 @@ def _reaction(
         K: the number of types.
         possible: ``(A, X, H + 1)`` the actions possible after each move (the last column:
             "no action", possible where any action is).
-        effect: ``(A, X)`` the robot's effect; steps, keep, y: the kept steps and their
-            types (:func:`_state_counts`); h_k: ``(n,)`` their human actions' columns, one
+        a_k, s_k, y: ``(n,)`` the kept steps' robot moves, states before them and types
+            (:func:`_state_counts`); h_k: ``(n,)`` their human actions' columns, one
             ``(n, H + 1)`` the same one-hot; own: ``(n, H + 1)`` their habits, each left out
             (:func:`_left_out_habit`); u_k: ``(n,)`` their unusualness
             (:func:`_unusual_moves`).
@@ -974,9 +969,7 @@ def _reaction(
         summing to 1; all zero where no action is possible).
     """
     dtype, dev = own.dtype, own.device
-    H1 = own.shape[-1]
-    A = effect.shape[0]
-    a_k, s_k = steps.actions[keep], steps.states[keep]  # (n,) each
+    A, H1 = possible.shape[0], own.shape[-1]
     counts = torch.zeros(K, A, H1, dtype=dtype, device=dev)
     counts.view(-1).index_add_(0, (y * A + a_k) * H1 + h_k, torch.ones_like(h_k, dtype=dtype))
     poss = possible[a_k, s_k]  # (n, H + 1)

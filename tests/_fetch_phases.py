@@ -26,11 +26,18 @@ class FetchPhases(CollaborativeTask):
     human_model = "state"
 
 
-def fetch_demonstrations(side, subjects: int = 16, per_subject: int = 3, seed: int = 0):
-    """Demonstrations of the task, 8 turns each: subject ``s`` is of type ``s % 2``; every
-    partner waits, and one move in 10 fetches a part (left or right, even odds); the person
-    then works ``side(type, turn, move)`` (0 left, 1 right). Returns the demonstrations and
-    the ``(N,)`` types."""
+def waiting_partner(y: int, u: float) -> int:
+    """Every partner waits, and one move in 10 fetches a part (left or right, even odds),
+    whatever the type (``u`` uniform in [0, 1))."""
+    return 0 if u >= 0.1 else (1 if u < 0.05 else 2)
+
+
+def fetch_demonstrations(side, subjects: int = 16, per_subject: int = 3, seed: int = 0,
+                         partner=waiting_partner):  # fmt: skip
+    """Demonstrations of the task, 8 turns each: subject ``s`` is of type ``s % 2``; the
+    partner moves ``partner(type, u)`` for a uniform ``u`` (default :func:`waiting_partner`);
+    the person then works ``side(type, turn, move)`` (0 left, 1 right). Returns the
+    demonstrations and the ``(N,)`` types."""
     rng = random.Random(seed)
     seqs, who, types = [], [], []
     for s in range(subjects):
@@ -38,8 +45,7 @@ def fetch_demonstrations(side, subjects: int = 16, per_subject: int = 3, seed: i
         for _ in range(per_subject):
             seq = []
             for t in range(8):
-                u = rng.random()
-                a = 0 if u >= 0.1 else (1 if u < 0.05 else 2)
+                a = partner(y, rng.random())
                 seq += [("robot", FetchPhases.robot_actions[a]),
                         ("human", FetchPhases.human_actions[side(y, t, a)])]  # fmt: skip
             seqs.append(seq)

@@ -25,7 +25,8 @@ def _demos(reactive: bool, subjects: int = 16, per_subject: int = 3, seed: int =
 def _rare_turn(task, demos, types, smoothing) -> float:
     """P(own side | the other part fetched) for type 0 under ``smoothing``: after
     ``fetch_right`` at phase 0 (nothing fetched), which type 0's partners made once in 20."""
-    evidence = TypeEvidence(torch.full((2, 5, 5), 0.2, dtype=torch.float64),
+    V = len(demos.vocabulary)
+    evidence = TypeEvidence(torch.full((2, V, V), 1.0 / V, dtype=torch.float64),
                             tuple(tuple(v) for v in demos.vocabulary), types,
                             task.read_steps(demos), noise=0.05, pause=0.01,
                             human_model="state", habit_weight=smoothing[0],
@@ -64,6 +65,45 @@ def test_the_chosen_smoothing_predicts_rare_turns_as_the_people_make_them(reacti
         assert w == 0.98
         assert own > own_default + 0.02
         assert own > 0.95
+
+
+def _own_side_partner(y: int, u: float) -> int:
+    """Each type's partners fetch the type's own side's part (type 0 left, 1 right), and one
+    move in 10 the other side's: every state's partner move carries the type."""
+    return 1 + y if u >= 0.1 else 2 - y
+
+
+@pytest.mark.numeric
+@pytest.mark.parametrize("seed", [0, 1])
+def test_where_partners_carry_the_type_the_smoothing_is_judged_on_the_moves_made(seed):
+    # Every state is confounded (the partners of the two types fetch different parts), so
+    # the choice of human model scores a held-out person without the move, under the pooled
+    # partners' moves. The smoothing is the carry of a type's turns to moves its partners
+    # rarely made; judged that way, each move's prediction would be scored by the turn that
+    # followed another move (type 0 works left after the left part, her partners' usual
+    # move: a model that predicts "left" after the right part too scores well). These
+    # people work the side fetched, and the held-out turns after the partners' rare moves,
+    # scored with the moves made, say so.
+    task = FetchPhases()
+    demos, types = fetch_demonstrations(lambda y, t, a: a - 1, seed=seed,
+                                        partner=_own_side_partner)  # fmt: skip
+    record = compare_human_models(task, demos, types, noise=0.05, pause=0.01, seed=0,
+                                  models=("state",))  # fmt: skip
+    assert record["confounded"] == 1.0
+    grid = record["state_grid"]
+    by_moves = max(grid, key=lambda g: g["heldout_demonstrated"])
+    without = max(grid, key=lambda g: g["heldout"])
+    chosen = record["state_smoothing"]
+    pair = (chosen["habit_weight"], chosen["prior_strength"])
+    assert pair == (by_moves["habit_weight"], by_moves["prior_strength"])
+    blind = (without["habit_weight"], without["prior_strength"])
+    assert blind != pair  # the two scores disagree here (a habit weight of 0.98 without)
+    # type 0 after the right part, which her partners fetched one move in 20: she works
+    # right, so "left" is the learner's noise and pause, about 0.03; the smoothing the
+    # score without the move prefers predicts "left" 4 times as often
+    own, other = _rare_turn(task, demos, types, pair), _rare_turn(task, demos, types, blind)
+    assert own < 0.05
+    assert other > 2 * own
 
 
 @pytest.mark.filterwarnings("ignore::torchhrc.irl.projection.IRLConvergenceWarning")
@@ -115,18 +155,24 @@ def test_bad_smoothing_is_refused_before_any_work(value, error, match):
 
 
 @pytest.mark.numeric
-def test_a_gain_within_one_standard_error_keeps_the_default_smoothing():
+def test_few_subjects_keep_the_best_pair_of_the_held_out_turns():
     # 6 subjects, 2 demonstrations each, people who answer the rare fetch: another pair
-    # scores best by 0.5 nats, less than one standard error of the 6 subjects' differences
-    # (with the full 16 x 3 above the gain is tens of nats, and the pair moves)
+    # than the default scores best by about 0.5 nats. The pair with the best held-out
+    # score is kept however small its gain (a guard of one standard error of the subjects'
+    # differences kept the default here; on the 480 runs of the held-out tasks it kept the
+    # default where the best pair won: docs/evaluation_history.md, "The smoothing judged on
+    # the moves made")
     task = FetchPhases()
     demos, types = _demos(reactive=True, subjects=6, per_subject=2, seed=4)
     record = compare_human_models(task, demos, types, noise=0.05, pause=0.01, seed=0,
                                   models=("state",))  # fmt: skip
     grid = record["state_grid"]
-    top = max(grid, key=lambda g: g["heldout"])
+    top = max(grid, key=lambda g: g["heldout_demonstrated"])
     assert (top["habit_weight"], top["prior_strength"]) != STATE_SMOOTHING_GRID[0]
-    assert 0.0 < top["heldout"] - grid[0]["heldout"] < 1.0
+    assert 0.0 < top["heldout_demonstrated"] - grid[0]["heldout_demonstrated"] < 1.0
     chosen = record["state_smoothing"]
-    assert (chosen["habit_weight"], chosen["prior_strength"]) == STATE_SMOOTHING_GRID[0]
-    assert record["heldout"]["state"] == grid[0]["heldout"]
+    assert (chosen["habit_weight"], chosen["prior_strength"]) == (
+        top["habit_weight"],
+        top["prior_strength"],
+    )
+    assert record["heldout"]["state"] == top["heldout"]

@@ -648,3 +648,171 @@ def test_a_search_with_the_compiled_trial_step_takes_the_python_steps_path(
 
     monkeypatch.setattr(kernel, "trial_step", refuse)
     assert [run(m) for m in models] == compiled
+
+
+def _planted_vectors(seed: int, N: int = 40, Y: int = 6) -> np.ndarray:
+    """``(N, Y)`` random alpha vectors with planted dominance: equal pairs, vectors a little
+    and 1e-9 below others, and one above two others' maximum (random normal rows in 6
+    dimensions seldom dominate each other on their own)."""
+    rng = np.random.default_rng(seed)
+    V = rng.normal(size=(N, Y))
+    V[5] = V[3]  # equal: the first of the two is kept
+    V[7] = V[2] - 0.5  # dominated
+    V[9] = V[4] - 1e-9  # dominated, and within atol=1e-6 of dominating back
+    V[11] = np.maximum(V[0], V[1]) + 0.1  # dominates 0 and 1
+    V[13] = V[11]  # equal to it
+    return V
+
+
+@needs_extension
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("grouped", [False, True])
+@pytest.mark.parametrize("atol", [0.0, 1e-6])
+def test_dominated_equals_prune_dominated(seed: int, grouped: bool, atol: float) -> None:
+    """The compiled dominance test drops what :func:`~torchhrc.solvers.pruning.
+    prune_dominated` drops, on shuffled candidates of a store (their order the tie order),
+    in one group or several (the groups unsorted), with and without a tolerance."""
+    from torchhrc.solvers.pruning import prune_dominated
+
+    rng = np.random.default_rng(100 + seed)
+    V = _planted_vectors(seed)
+    ids = np.concatenate([[13, 11, 5, 3], rng.permutation(np.arange(40))])
+    ids = ids[np.sort(np.unique(ids, return_index=True)[1])][:34]  # distinct, order kept
+    groups = rng.integers(0, 3, 40)[ids] if grouped else None
+    if grouped:
+        groups[:6] = 1  # the planted pairs in one group: (13, 11), (5, 3)
+    expected = prune_dominated(torch.from_numpy(V[ids]),
+                               None if groups is None else torch.from_numpy(groups),
+                               atol=atol).numpy()  # fmt: skip
+    got = backup_kernel.dominated(kernel, V, ids, groups, atol)
+    assert got.dtype == bool and got.shape == (ids.size,)
+    np.testing.assert_array_equal(got, expected)
+    assert 0 < got.sum() < ids.size
+    # the first listed of two equal vectors is kept: 13 before 11, 5 before 3
+    at = {int(i): k for k, i in enumerate(ids)}
+    assert got[at[13]] and not got[at[11]] and got[at[5]] and not got[at[3]]
+
+
+@needs_extension
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("X", [1, 3])
+def test_keep_alphas_equals_the_torch_pruning(seed: int, X: int) -> None:
+    """:func:`~torchhrc.solvers.backup_kernel.keep_alphas` keeps what the tree's torch rule
+    keeps (:func:`~torchhrc.solvers.pruning.prune_by_beliefs` at the given beliefs, each
+    against its own observed value's vectors, then
+    :func:`~torchhrc.solvers.pruning.prune_dominated` on the winners): the winners, all the
+    vectors of an observed value without a belief (the last one, where X = 3), and no
+    dominated vector; the beliefs gathered a few rows at a time."""
+    from torchhrc.solvers.pruning import prune_by_beliefs, prune_dominated
+
+    rng = np.random.default_rng(seed)
+    N, Y = 40, 6
+    V = _planted_vectors(seed, N, Y)
+    store = np.vstack([V, np.full((8, Y), np.nan)])  # capacity beyond the rows in use
+    observed = rng.integers(0, X, N)
+    gid = [np.concatenate([np.flatnonzero(observed == x), np.full(3, -1)]) for x in range(X)]
+    gn = np.bincount(observed, minlength=X).astype(np.int64)
+    beliefs = rng.dirichlet(np.ones(Y), size=30)
+    beliefs[3] = np.eye(Y)[0]  # a corner: a few vectors tie there only if equal
+    nodes = rng.choice(30, size=24, replace=False)
+    nodes_x = rng.integers(0, max(X - 1, 1), nodes.size)  # no belief at x = X - 1 (X > 1)
+    groups = None if X == 1 else torch.from_numpy(observed)
+    by_beliefs = prune_by_beliefs(torch.from_numpy(V), torch.from_numpy(beliefs), groups,
+                                  None if X == 1 else torch.from_numpy(nodes_x),
+                                  rows=torch.from_numpy(nodes))  # fmt: skip
+    idx = by_beliefs.nonzero().squeeze(-1)
+    expected = by_beliefs.clone()
+    expected[idx] = prune_dominated(
+        torch.from_numpy(V)[idx], None if groups is None else groups[idx]
+    )
+    original = backup_kernel._BLOCK_ROWS
+    try:
+        backup_kernel._BLOCK_ROWS = 5 * N  # five beliefs a block (N vectors > Y)
+        got = backup_kernel.keep_alphas(kernel, store, gid, gn, observed, beliefs, nodes, nodes_x)
+    finally:
+        backup_kernel._BLOCK_ROWS = original
+    np.testing.assert_array_equal(got, expected.numpy())
+    if X > 1:  # the observed value without a belief keeps all its undominated vectors
+        last = np.flatnonzero(observed == X - 1)
+        alone = prune_dominated(torch.from_numpy(V[last])).numpy()
+        assert last.size > 2 and (got[last] == alone).all() and alone.sum() > 2
+    assert 0 < got.sum() < N
+
+
+@needs_extension
+@pytest.mark.parametrize("name", ["tiger", "rocksample_momdp", "random_momdp"])
+def test_a_search_prunes_with_the_compiled_kernel(name: str, monkeypatch: pytest.MonkeyPatch
+                                                  ) -> None:  # fmt: skip
+    """SARSOP's alpha pruning of a dense model with float64 vectors takes the compiled kernel,
+    which keeps what the tree's torch rule keeps (``BeliefTree.keep_alphas`` at the tree's
+    observed values; a vector may differ only where it scores within 1e-9 of a winner),
+    and every pruning of the search keeps the lower bound at every active tree belief (the
+    best score among the vectors of the belief's own observed value, read from the tree,
+    before and after; the kept set also holds the vectors the kept ones' plans refer to, so
+    dominated vectors may stay); the solve still brackets the value (Tiger's 19.3713, from
+    the exact tests of the bounds)."""
+    from torchhrc.solvers.sarsop import sarsop
+    from torchhrc.solvers.sarsop.pruning import _Pruning
+    from torchhrc.tasks.classic import tiger
+
+    model = {
+        "tiger": tiger,
+        "rocksample_momdp": lambda: rock_sample(4, 4, form="momdp"),
+        "random_momdp": lambda: random_momdp(4, 5, 3, 3, static=False, seed=3),
+    }[name]()
+    calls, prunings, current = [], [], []
+    real_keep, real_prune = backup_kernel.keep_alphas, _Pruning._prune_alphas
+
+    def values(search, nodes: np.ndarray) -> np.ndarray:
+        n = search.alphas.size
+        V, obs = search.alphas.np_vectors[:n], search.alphas.np_observed[:n]
+        scores = search.tree.beliefs_np[nodes] @ V.T  # (M, n)
+        return np.where(search.tree.x[nodes][:, None] == obs[None, :], scores, -np.inf).max(1)
+
+    def checked_prune(search) -> bool:
+        nodes = np.flatnonzero(search.tree.active[: search.tree.size])
+        before = values(search, nodes)
+        current[:] = [search]
+        ran = real_prune(search)
+        if ran:
+            np.testing.assert_allclose(values(search, nodes), before, rtol=1e-12, atol=1e-12)
+            prunings.append(search.alphas.size)
+        return ran
+
+    def checked_keep(kernel, V, gid, gn, observed, beliefs, nodes, nodes_x, atol=0.0):
+        keep = real_keep(kernel, V, gid, gn, observed, beliefs, nodes, nodes_x, atol)
+        tree, n = current[0].tree, observed.shape[0]  # the torch rule at the tree's own x
+        groups = torch.from_numpy(observed.copy()) if gn.shape[0] > 1 else None
+        ref = tree.keep_alphas(torch.from_numpy(V[:n].copy()), groups, nodes).numpy()
+        scores = beliefs[nodes] @ V[:n].T
+        mine = tree.x[nodes][:, None] == observed[None, :]
+        gap = np.where(mine, scores.max(1, where=mine, initial=-np.inf)[:, None] - scores, np.inf)
+        for i in np.flatnonzero(keep != ref).tolist():  # only where a winner is a near tie
+            assert (gap[:, i] <= 1e-9).any(), f"vector {i}: kept {keep[i]}, torch {ref[i]}"
+        calls.append(int((keep != ref).sum()))
+        return keep
+
+    monkeypatch.setattr(backup_kernel, "keep_alphas", checked_keep)
+    monkeypatch.setattr(_Pruning, "_prune_alphas", checked_prune)
+    sol = sarsop(model, SARSOPConfig(precision=1e-3, time_limit=1e9, max_iterations=150))
+    assert len(prunings) >= 3 and len(calls) == len(prunings)
+    if name == "tiger":
+        assert sol.lower <= 19.3713 <= sol.upper and sol.upper - sol.lower <= 1e-3
+        calls.clear()
+        monkeypatch.setenv("TORCHHRC_NO_EXTENSION", "1")  # the torch rule
+        sol = sarsop(model, SARSOPConfig(precision=1e-3, time_limit=1e9, max_iterations=150))
+        assert not calls and sol.lower <= 19.3713 <= sol.upper
+
+
+@needs_extension
+def test_dominated_refuses_what_it_cannot_read() -> None:
+    V = np.zeros((3, 2))
+    with pytest.raises(ValueError, match="ids within V's rows"):
+        kernel.dominated(V, np.array([0, 3]), np.empty(0, dtype=np.int64),
+                         np.empty(2, dtype=np.int64), 0.0)  # fmt: skip
+    with pytest.raises(ValueError, match="groups non-decreasing"):
+        kernel.dominated(V, np.array([0, 1]), np.array([1, 0]), np.empty(2, dtype=np.int64), 0.0)
+    with pytest.raises(TypeError, match="keep"):
+        kernel.dominated(V, np.array([0, 1]), np.empty(0, dtype=np.int64), np.empty(2), 0.0)
+    with pytest.raises(ValueError, match="groups of shape"):
+        backup_kernel.dominated(kernel, V, np.array([0, 1]), np.array([0]))

@@ -74,6 +74,14 @@
  *   bool, written: active[i] &= active[parent[i]] in index order (a tree's pruning reaches
  *   every descendant; BeliefTree.refresh_active).
  *
+ * dominated(V, ids, groups, keep, atol) -> None
+ *   V (N, Y) float64 the alpha vectors (their one store), ids (n,) int64 the candidates'
+ *   rows, grouped: groups (n,) int64 their observed values, non-decreasing (equal values
+ *   contiguous), or empty: one group. Written: keep (n,) int64, 0 where another candidate j
+ *   of the same group dominates candidate i (V[ids[j]] >= V[ids[i]] - atol at every entry)
+ *   and either i does not dominate j back or j comes first (of equal vectors the first is
+ *   kept); 1 elsewhere (pruning.prune_dominated's rule, the order of ids the tie order).
+ *
  * backup_vector(tx, tyk, z, r, V, use, a, gamma, out) -> None
  *   tx (A, Y, K) and/or tyk (A, K, Y, Y) as for children (tx empty: K = 1 and Tx = 1; tyk
  *   empty: Ty the identity), z (A, K, O, Y), r (Y,) = R[a, x], V (N, Y) alpha vectors,
@@ -1218,6 +1226,69 @@ static PyObject *trial_step(PyObject *self, PyObject *const *args, Py_ssize_t na
     return out;
 }
 
+/* Whether u >= v - atol at each of the Y entries (a NaN entry fails). */
+static int covers(const double *u, const double *v, Py_ssize_t Y, double atol) {
+    for (Py_ssize_t y = 0; y < Y; y++)
+        if (!(u[y] >= v[y] - atol)) return 0;
+    return 1;
+}
+
+static PyObject *dominated(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    enum { NB = 4 };
+    static const spec_t spec[NB] = {
+        {"V", 2, 'd', 0}, {"ids", 1, 'q', 0}, {"groups", 1, 'q', 0}, {"keep", 1, 'q', 1}};
+    Py_buffer v[NB];
+    (void)self;
+    if (nargs != NB + 1) {
+        PyErr_Format(PyExc_TypeError, "dominated() takes %d arguments (%zd given)", NB + 1,
+                     nargs);
+        return NULL;
+    }
+    const double atol = PyFloat_AsDouble(args[NB]);
+    if (atol == -1.0 && PyErr_Occurred()) return NULL;
+    if (get_all(args, v, spec, NB) < 0) return NULL;
+    const Py_ssize_t N = v[0].shape[0], Y = v[0].shape[1], n = v[1].shape[0];
+    const double *V = v[0].buf;
+    const int64_t *ids = v[1].buf, *groups = v[2].buf;
+    int64_t *keep = v[3].buf;
+    const int grouped = v[2].shape[0] > 0;
+    const char *bad = NULL;
+    if (v[3].shape[0] != n || (grouped && v[2].shape[0] != n))
+        bad = "keep, and groups where given, of ids' length";
+    for (Py_ssize_t i = 0; i < n && bad == NULL; i++) {
+        if (ids[i] < 0 || ids[i] >= N)
+            bad = "ids within V's rows";
+        else if (i > 0 && grouped && groups[i] < groups[i - 1])
+            bad = "groups non-decreasing";
+    }
+    if (bad != NULL) {
+        PyErr_Format(PyExc_ValueError,
+                     "dominated(): expected %s (V (%zd, %zd), %zd ids, %zd groups, %zd keep)",
+                     bad, N, Y, n, v[2].shape[0], v[3].shape[0]);
+        release_all(v, NB);
+        return NULL;
+    }
+    for (Py_ssize_t lo = 0; lo < n;) {
+        Py_ssize_t hi = lo + 1; /* [lo, hi): one group */
+        while (hi < n && (!grouped || groups[hi] == groups[lo])) hi++;
+        for (Py_ssize_t i = lo; i < hi; i++) {
+            const double *vi = V + ids[i] * Y;
+            keep[i] = 1;
+            for (Py_ssize_t j = lo; j < hi; j++) {
+                if (j == i) continue;
+                const double *vj = V + ids[j] * Y;
+                if (covers(vj, vi, Y, atol) && (j < i || !covers(vi, vj, Y, atol))) {
+                    keep[i] = 0;
+                    break;
+                }
+            }
+        }
+        lo = hi;
+    }
+    release_all(v, NB);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"backup_one", (PyCFunction)(void (*)(void))backup_one, METH_FASTCALL,
      "A dense model's belief: children, bounds and new vector in one call (see backup_kernel)."},
@@ -1237,6 +1308,8 @@ static PyMethodDef methods[] = {
      "Store one sawtooth upper-bound point (see torchhrc.solvers.backup_kernel)."},
     {"trial_step", (PyCFunction)(void (*)(void))trial_step, METH_FASTCALL,
      "A trial's action and child at a node (see torchhrc.solvers.backup_kernel)."},
+    {"dominated", (PyCFunction)(void (*)(void))dominated, METH_FASTCALL,
+     "Alpha vectors that another of their group dominates pointwise (see backup_kernel)."},
     {"propagate_inactive", (PyCFunction)(void (*)(void))propagate_inactive, METH_FASTCALL,
      "propagate_inactive(parent, active): a node is inactive when its parent is"},
     {NULL, NULL, 0, NULL},

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from torchhrc.solvers import backup_kernel
 from torchhrc.solvers._memory import release_free_memory
 
 __all__: list[str] = []
@@ -89,7 +90,14 @@ class _Pruning:
         # from: a backup chooses child vectors at children outside the tree, and without
         # them the greedy policy cannot realise a kept vector's value (before:
         # RockSample_7_8.pomdpx, written policy 16.4 simulated against a lower bound 20.3)
-        mask = self.tree.keep_alphas(vec, groups, act)
+        rows = self.tree.beliefs_np if self._vkernel is not None else None
+        if isinstance(rows, np.ndarray):  # a dense tree and float64 vectors: compiled
+            V, gid, gn = self.alphas.scoring_storage()
+            mask = torch.from_numpy(backup_kernel.keep_alphas(
+                self._vkernel, V, gid, gn, self.alphas.np_observed[:n], rows, act,
+                self.tree.x[act]))  # fmt: skip
+        else:
+            mask = self.tree.keep_alphas(vec, groups, act)
         # and the best vectors at the children of the active tree beliefs (APPL certifies
         # a vector at any belief of its cache, the unexpanded children of the tree
         # included): a backup of a tree belief combines the best vectors at its children,

@@ -383,16 +383,25 @@ class _AlphaSet:
             self.actions, self.observed = self.actions.clone(), self.observed.clone()
             self._lent = False
             self._views()
-        idx = torch.from_numpy(kept).to(self.vectors.device)
-        n = idx.numel()
+        n = kept.size
         # in place, a block of rows at a time: ``kept`` rises, so a block's rows are read
-        # before a later block writes over them (kept[i] >= i)
+        # before a later block writes over them (kept[i] >= i); on the CPU through the numpy
+        # views (the same copies without torch's calls: a small model prunes every iteration)
         step = max(1, _BLOCK // max(self.vectors.shape[1], 1))
-        for b0 in range(0, n, step):
-            part = idx[b0 : b0 + step]
-            self.vectors[b0 : b0 + part.numel()] = self.vectors[part]
-        self.actions[:n] = self.actions[idx]
-        self.observed[:n] = self.observed[idx]
+        if self.np_vectors is not None:
+            assert self.np_actions is not None and self.np_observed is not None
+            for b0 in range(0, n, step):
+                part = kept[b0 : b0 + step]
+                self.np_vectors[b0 : b0 + part.size] = self.np_vectors[part]
+            self.np_actions[:n] = self.np_actions[kept]
+            self.np_observed[:n] = self.np_observed[kept]
+        else:
+            idx = torch.from_numpy(kept).to(self.vectors.device)
+            for b0 in range(0, n, step):
+                part = idx[b0 : b0 + step]
+                self.vectors[b0 : b0 + part.numel()] = self.vectors[part]
+            self.actions[:n] = self.actions[idx]
+            self.observed[:n] = self.observed[idx]
         self.size = n
         self.forget_scores()  # (the vectors moved)
         self._regroup()

@@ -650,17 +650,18 @@ def test_a_search_with_the_compiled_trial_step_takes_the_python_steps_path(
     assert [run(m) for m in models] == compiled
 
 
-def _planted_vectors(seed: int, N: int = 40, Y: int = 6) -> np.ndarray:
-    """``(N, Y)`` random alpha vectors with planted dominance: equal pairs, vectors a little
-    and 1e-9 below others, and one above two others' maximum (random normal rows in 6
-    dimensions seldom dominate each other on their own)."""
+def _planted_vectors(seed: int, N: int = 40, Y: int = 6, equal: bool = True) -> np.ndarray:
+    """``(N, Y)`` random alpha vectors with planted dominance: vectors a little and 1e-9
+    below others, one above two others' maximum and, with ``equal``, equal pairs (random
+    normal rows in 6 dimensions seldom dominate each other on their own)."""
     rng = np.random.default_rng(seed)
     V = rng.normal(size=(N, Y))
-    V[5] = V[3]  # equal: the first of the two is kept
     V[7] = V[2] - 0.5  # dominated
     V[9] = V[4] - 1e-9  # dominated, and within atol=1e-6 of dominating back
     V[11] = np.maximum(V[0], V[1]) + 0.1  # dominates 0 and 1
-    V[13] = V[11]  # equal to it
+    if equal:
+        V[5] = V[3]  # equal: the first of the two is kept
+        V[13] = V[11]  # equal to it
     return V
 
 
@@ -702,18 +703,19 @@ def test_keep_alphas_equals_the_torch_pruning(seed: int, X: int) -> None:
     against its own observed value's vectors, then
     :func:`~torchhrc.solvers.pruning.prune_dominated` on the winners): the winners, all the
     vectors of an observed value without a belief (the last one, where X = 3), and no
-    dominated vector; the beliefs gathered a few rows at a time."""
+    dominated vector; the beliefs gathered a few rows at a time. (No two vectors are equal:
+    equal scores at a belief would leave the winner to the last bits of each BLAS's sums.)"""
     from torchhrc.solvers.pruning import prune_by_beliefs, prune_dominated
 
     rng = np.random.default_rng(seed)
     N, Y = 40, 6
-    V = _planted_vectors(seed, N, Y)
+    V = _planted_vectors(seed, N, Y, equal=False)
     store = np.vstack([V, np.full((8, Y), np.nan)])  # capacity beyond the rows in use
     observed = rng.integers(0, X, N)
     gid = [np.concatenate([np.flatnonzero(observed == x), np.full(3, -1)]) for x in range(X)]
     gn = np.bincount(observed, minlength=X).astype(np.int64)
     beliefs = rng.dirichlet(np.ones(Y), size=30)
-    beliefs[3] = np.eye(Y)[0]  # a corner: a few vectors tie there only if equal
+    beliefs[3] = np.eye(Y)[0]  # a corner: the vectors' first entries decide
     nodes = rng.choice(30, size=24, replace=False)
     nodes_x = rng.integers(0, max(X - 1, 1), nodes.size)  # no belief at x = X - 1 (X > 1)
     groups = None if X == 1 else torch.from_numpy(observed)

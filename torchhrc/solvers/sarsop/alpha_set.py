@@ -389,19 +389,16 @@ class _AlphaSet:
         # views (the same copies without torch's calls: a small model prunes every iteration)
         step = max(1, _BLOCK // max(self.vectors.shape[1], 1))
         if self.np_vectors is not None:
-            assert self.np_actions is not None and self.np_observed is not None
-            for b0 in range(0, n, step):
-                part = kept[b0 : b0 + step]
-                self.np_vectors[b0 : b0 + part.size] = self.np_vectors[part]
-            self.np_actions[:n] = self.np_actions[kept]
-            self.np_observed[:n] = self.np_observed[kept]
+            vectors, actions, observed, idx = (self.np_vectors, self.np_actions,
+                                               self.np_observed, kept)  # fmt: skip
         else:
+            vectors, actions, observed = self.vectors, self.actions, self.observed
             idx = torch.from_numpy(kept).to(self.vectors.device)
-            for b0 in range(0, n, step):
-                part = idx[b0 : b0 + step]
-                self.vectors[b0 : b0 + part.numel()] = self.vectors[part]
-            self.actions[:n] = self.actions[idx]
-            self.observed[:n] = self.observed[idx]
+        for b0 in range(0, n, step):
+            part = idx[b0 : b0 + step]
+            vectors[b0 : b0 + len(part)] = vectors[part]
+        actions[:n] = actions[idx]
+        observed[:n] = observed[idx]
         self.size = n
         self.forget_scores()  # (the vectors moved)
         self._regroup()

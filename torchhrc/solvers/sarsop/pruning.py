@@ -78,8 +78,6 @@ class _Pruning:
             return False
         t0 = self.clock()
         n = self.alphas.size
-        vec, obs = self.alphas.vectors[:n], self.alphas.observed[:n]
-        groups = obs if self.X > 1 else None
         act = np.flatnonzero(self.tree.active[: self.tree.size])
         # one active node per distinct belief: the tree holds a belief once per path that
         # reaches it (bridge-repair after 13 s: 12,882 active nodes, 1,844 distinct beliefs),
@@ -93,18 +91,20 @@ class _Pruning:
         rows = self.tree.beliefs_np if self._vkernel is not None else None
         if isinstance(rows, np.ndarray):  # a dense tree and float64 vectors: compiled
             V, gid, gn = self.alphas.scoring_storage()
-            mask = torch.from_numpy(backup_kernel.keep_alphas(
-                self._vkernel, V, gid, gn, self.alphas.np_observed[:n], rows, act,
-                self.tree.x[act]))  # fmt: skip
+            mask = backup_kernel.keep_alphas(self._vkernel, V, gid, gn,
+                                             self.alphas.np_observed[:n], rows, act,
+                                             self.tree.x[act])  # fmt: skip
         else:
-            mask = self.tree.keep_alphas(vec, groups, act)
+            obs = self.alphas.observed[:n]
+            mask = self.tree.keep_alphas(self.alphas.vectors[:n], obs if self.X > 1 else None,
+                                         act).cpu().numpy()  # fmt: skip
         # and the best vectors at the children of the active tree beliefs (APPL certifies
         # a vector at any belief of its cache, the unexpanded children of the tree
         # included): a backup of a tree belief combines the best vectors at its children,
         # and pruning those would lower the children's bounds, which only a search that
         # reaches each child again restores
-        mask[torch.from_numpy(self._child_winners(act)).to(mask.device)] = True
-        self.alphas.keep(mask)
+        mask[self._child_winners(act)] = True
+        self.alphas.keep(torch.from_numpy(mask))
         # the next pruning protects the children of the beliefs evaluated from now on
         self._child_best = {}
         self.last_alpha_prune = self.alphas.size

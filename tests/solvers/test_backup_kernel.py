@@ -15,6 +15,7 @@ import torch
 
 from torchhrc.pomdp import POMDP, SparseMOMDP
 from torchhrc.solvers import SARSOPConfig, backup_kernel
+from torchhrc.solvers.eval_cache import pack, unpack
 from torchhrc.solvers.forms import as_solver_model
 from torchhrc.solvers.forms.base import SolverModel
 from torchhrc.tasks.classic import rock_sample
@@ -158,7 +159,7 @@ def test_compiled_evaluation_equals_the_numpy_one(seed: int) -> None:
     _assert_both_paths_agree(solver, [(solver, "_kernel"), (solver.form, "_kernel")])
 
 
-_NAMES = ("q_low", "q_up", "prob", "low", "up", "best", "lo", "cu", "child_x", "own")
+_NAMES = ("record", "best", "lo", "cu", "child_x", "own")
 
 
 def _assert_both_paths_agree(solver: object, switches: list[tuple[object, str]]) -> list[tuple]:
@@ -212,18 +213,19 @@ def _assert_same_evaluation(got: tuple, ref: tuple) -> None:
             np.testing.assert_allclose(g, r, rtol=1e-12, atol=1e-12, err_msg=name)
 
 
-def _numpy_backup(solver: Any, x: int, b: np.ndarray, stale: tuple | None) -> tuple:
+def _numpy_backup(solver: Any, x: int, b: np.ndarray, stale: np.ndarray | None) -> tuple:
     """The numpy steps of a backup (run with the compiled ones off): the evaluation, the
     action of highest ``Q_low``, the vectors at its children (the impossible ones' by
     ``_impossible_best_np``), the new vector by ``SolverModel.backup_vector_np``'s numpy body,
     and how many of the action's children were impossible."""
     ev = solver._evaluate_np(x, b, stale)
-    q_low, prob, best, child_x, own = ev[0], ev[2], ev[5], ev[8], ev[9]
+    record, best, child_x, own = ev[0], ev[1], ev[4], ev[5]
+    q_low, _, prob, _, _ = unpack(record, solver.A, solver.O)
     a = int(q_low.argmax())
     possible = prob[a] > 0
     ch_a = child_x.reshape(prob.shape[0], -1)[a]
     fill = solver._impossible_best_np(x, b, ch_a, possible.reshape(-1), own)
-    use = np.where(possible, best[a], fill.reshape(possible.shape))
+    use = np.where(possible, best.reshape(prob.shape)[a], fill.reshape(possible.shape))
     vectors = solver.alphas.np_vectors
     alpha = SolverModel.backup_vector_np(solver.form, x, a, use, vectors, solver.gamma)
     return ev, a, alpha, int((~possible).sum())
@@ -250,7 +252,8 @@ def test_one_call_backup_equals_the_numpy_backup(name: str) -> None:
 
             ev, a, alpha, n_impossible = _with_off(solver, numpy_off, _numpy_backup, solver,
                                                    x, b, st)  # fmt: skip
-            _assert_same_evaluation(got[:10], ev)
+            _assert_same_evaluation((got.record, got.best, got.lower, got.upper, got.child_x,
+                                     got.own), ev)  # fmt: skip
             assert got.action == a
             np.testing.assert_allclose(got.vector, alpha, rtol=1e-12, atol=1e-12)
             np.testing.assert_allclose(got.value, alpha @ b, rtol=1e-12, atol=1e-12)
@@ -304,7 +307,9 @@ def test_one_call_backup_by_hand() -> None:
            empty_d, empty_i)  # fmt: skip
     b = np.array([1.0, 0.0])
     out = backup_kernel.backup_one(kernel, b, 0, tables, scoring, saw, None, 0.5)
-    assert out.prob.tolist() == [[[1.0, 0.0]]] and out.best.tolist() == [[[3, 0]]]
+    assert out.prob.tolist() == [[[1.0, 0.0]]] and out.best.tolist() == [3, 0]
+    # the record: q_low, q_up, then prob, low and up in (a, k, o) order
+    assert out.record.tolist() == [2.0, 6.0, 1.0, 0.0, 2.0, 0.0, 10.0, 0.0]
     assert out.low.tolist() == [[[2.0, 0.0]]] and out.q_low.tolist() == [2.0]
     assert (out.lower, out.own, out.upper, out.q_up.tolist()) == (3.0, 1, 10.0, [6.0])
     assert out.action == 0 and out.vector.tolist() == [2.0, 3.0] and out.value == 2.0
@@ -331,9 +336,13 @@ def test_one_call_backup_by_hand() -> None:
     with pytest.raises(ValueError, match="V \\(N, Y\\) and corner"):
         backup_kernel.backup_one(kernel, b, 0, tables, (V[:, :1].copy(), *scoring[1:]), saw,
                                  None, 0.5)  # fmt: skip
-    with pytest.raises(ValueError, match="stale_q"):
-        backup_kernel.backup_one(kernel, b, 0, tables, scoring, saw, (np.zeros(1), np.zeros(1)),
-                                 0.5)  # fmt: skip
+    with pytest.raises(ValueError, match="stale, a record"):
+        backup_kernel.backup_one(kernel, b, 0, tables, scoring, saw, np.zeros(7), 0.5)
+    # a stale record is read (one action: the lazy loop refreshes it whole, the same record)
+    stale = out.record.copy()
+    stale[1], stale[-2] = 4.0, 8.0
+    lazy = backup_kernel.backup_one(kernel, b, 0, tables, scoring, saw, stale, 0.5)
+    np.testing.assert_array_equal(lazy.record, out.record)
     with pytest.raises(ValueError, match="n=0 >= 1 vector"):
         backup_kernel.backup_one(kernel, b, 0, tables, (V, scoring[1], np.array([2, 0])), saw,
                                  None, 0.5)  # fmt: skip
@@ -431,7 +440,7 @@ def test_grouped_evaluation_equals_the_numpy_one(name: str) -> None:
     assert solver.ub.size > 0
     got = _assert_both_paths_agree(solver, [(solver, "_kernel"), (solver.ub, "_group_kernel")])
     # the children of some belief lie at several observed values
-    assert any(np.unique(ev[8]).size > 1 for ev in got)
+    assert any(np.unique(ev[4]).size > 1 for ev in got)
 
 
 def test_grouped_lower_bounds_on_given_columns_equal_the_full_rows() -> None:
@@ -599,7 +608,9 @@ def test_trial_step_chooses_as_the_python_step(K: int, O: int) -> None:
             q_up[rng.integers(A)] = top - 2e-12 * max(1.0, abs(top))
         q_low = rng.random(A) - 5.0
         target = float(rng.random()) * 0.5
-        got = kernel.trial_step(q_low, q_up, prob, low, up, target)
+        record = pack(q_low, q_up, prob, low, up)
+        got = kernel.trial_step(record, A, O, target)
+        assert unpack(record, A, O)[3].tolist() == low.tolist()  # (the layout read back)
         a = _Trials._argmax_tie(_First(), q_up)
         k, o, p = _Trials._child_choice(prob[a], up[a], low[a], target)
         top = max(q_up.tolist())
@@ -613,13 +624,16 @@ def test_trial_step_chooses_as_the_python_step(K: int, O: int) -> None:
 
 @needs_extension
 def test_trial_step_refuses_what_it_cannot_read() -> None:
-    q, cube = np.zeros(2), np.zeros((2, 1, 3))
-    with pytest.raises(ValueError, match=r"\(A, K, O\)"):
-        kernel.trial_step(q, np.zeros(3), cube, cube, cube, 0.1)
-    with pytest.raises(TypeError, match="prob"):
-        kernel.trial_step(q, q, cube.astype(np.float32), cube, cube, 0.1)
-    with pytest.raises(TypeError, match="low"):
-        kernel.trial_step(q, q, cube, cube[:, 0], cube, 0.1)
+    record = np.zeros(2 * 2 + 3 * 2 * 1 * 3)  # A = 2, K = 1, O = 3
+    kernel.trial_step(record, 2, 3, 0.1)
+    with pytest.raises(ValueError, match=r"2 A \+ 3 A K O entries .* got 21 entries"):
+        kernel.trial_step(np.zeros(21), 2, 3, 0.1)
+    with pytest.raises(ValueError, match="A=0"):
+        kernel.trial_step(record, 0, 3, 0.1)
+    with pytest.raises(TypeError, match="record"):
+        kernel.trial_step(record.astype(np.float32), 2, 3, 0.1)
+    with pytest.raises(TypeError, match="record"):
+        kernel.trial_step(np.zeros((2, 11)), 2, 3, 0.1)
 
 
 @needs_extension
@@ -644,7 +658,7 @@ def test_a_search_with_the_compiled_trial_step_takes_the_python_steps_path(
     assert [run(m) for m in models] == compiled
 
     def refuse(*args):  # as for arrays it cannot read: the trial goes on in Python
-        raise TypeError("expected prob to be a C-contiguous 3-D float64 array")
+        raise TypeError("expected record to be a C-contiguous 1-D float64 array")
 
     monkeypatch.setattr(kernel, "trial_step", refuse)
     assert [run(m) for m in models] == compiled

@@ -1,4 +1,5 @@
-"""Tests of torchhrc.solvers.eval_cache: packed entries read back bit for bit."""
+"""Tests of torchhrc.solvers.eval_cache: records laid out as documented, packed entries read
+back bit for bit."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from torchhrc.solvers.eval_cache import PACK_FRACTION, EvaluationCache
+from torchhrc.solvers.eval_cache import PACK_FRACTION, EvaluationCache, pack, unpack
 from torchhrc.solvers.sarsop import SARSOPConfig
 from torchhrc.solvers.sarsop.search import _SARSOP
 from torchhrc.tasks.classic import tag
@@ -38,30 +39,49 @@ def _entry(rng: np.random.Generator, possible: float, stray: bool = False):  # t
     return rng.random(3), rng.random(3), prob, low, up
 
 
+def test_a_record_is_laid_out_as_documented():
+    """A = 2 actions, K = 1, O = 2: q_low, q_up, then prob, low, up in (a, k, o) order."""
+    q_low, q_up = np.array([1.0, 2.0]), np.array([3.0, 4.0])
+    prob = np.array([[[0.5, 0.5]], [[1.0, 0.0]]])
+    record = pack(q_low, q_up, prob, prob * -1.0, prob * 10.0)
+    assert record.tolist() == [1, 2, 3, 4, 0.5, 0.5, 1, 0, -0.5, -0.5, -1, 0, 5, 5, 10, 0]
+    views = unpack(record, 2, 2)
+    assert [v.shape for v in views] == [(2,), (2,), (2, 1, 2), (2, 1, 2), (2, 1, 2)]
+    assert views[4][1, 0, 0] == 10.0 and views[1][1] == 4.0
+    views[3][0, 0, 1] = 7.0  # views, not copies
+    assert record[9] == 7.0
+    with pytest.raises(ValueError, match="2 A \\+ 3 A K O entries"):
+        unpack(record[:-1], 2, 2)
+    with pytest.raises(ValueError, match="K >= 1"):
+        unpack(record[:4], 2, 2)
+
+
 @pytest.mark.parametrize(("possible", "stray"), [(0.1, False), (0.1, True), (0.9, False)])
 def test_entries_read_back_bit_for_bit(possible, stray):
     rng = np.random.default_rng(0)
-    cache = EvaluationCache()
-    entries = {k: _entry(rng, possible, stray) for k in range(20)}
+    cache = EvaluationCache(num_actions=3)
+    entries = {k: pack(*_entry(rng, possible, stray)) for k in range(20)}
     for k, e in entries.items():
         cache[k] = e
     for k, e in entries.items():
         got = cache[k]
-        for a, b in zip(got, e):
-            assert a.shape == b.shape and a.dtype == b.dtype
-            np.testing.assert_array_equal(a, b)
-        few = np.count_nonzero(e[2]) <= PACK_FRACTION * e[2].size and e[2].size >= 128
+        assert got.shape == e.shape and got.dtype == e.dtype
+        np.testing.assert_array_equal(got, e)
+        prob = unpack(e, 3, 25)[2]
+        few = np.count_nonzero(prob) <= PACK_FRACTION * prob.size and prob.size >= 128
         assert cache.packed(k) == few
     assert cache.get(99) is None and len(cache) == 20 and 3 in cache
+    assert any(cache.packed(k) for k in entries) == (possible < PACK_FRACTION)
 
 
 def test_expanded_arrays_are_new():
     rng = np.random.default_rng(1)
-    cache = EvaluationCache()
-    cache[0] = _entry(rng, 0.1)
+    cache = EvaluationCache(num_actions=3)
+    cache[0] = pack(*_entry(rng, 0.1))
+    assert cache.packed(0)
     first = cache[0]
-    first[4][...] = 123.0
-    assert not (cache[0][4] == 123.0).any()
+    first[-5:] = 123.0
+    assert not (cache[0] == 123.0).any()
 
 
 def test_a_momdp_search_packs_its_entries():
@@ -72,5 +92,5 @@ def test_a_momdp_search_packs_its_entries():
     keys = list(s._cache)
     packed = sum(s._cache.packed(k) for k in keys)
     assert len(keys) > 20 and packed > 0.5 * len(keys)
-    dense = sum(sum(a.nbytes for a in s._cache[k]) for k in keys)
+    dense = sum(s._cache[k].nbytes for k in keys)
     assert s._cache.nbytes() < 0.3 * dense

@@ -39,13 +39,16 @@
  *   storage (idx, inv, off, wid, gain, sig) as in _sawtooth.c. Written: out (B,) the sawtooth
  *   upper bound of each row at its own x, corner[x] . b + the correction of x's points.
  *
- * backup_one(b, tx, tyk, z, RT, cx, rows, rows_x, prob, nz, reward, V, gid, gn, corner,
- *            sorted, idx, inv, off, wid, gain, sig, stale_q, stale_up, low, best, q_low, up,
- *            q_up, out, x, gamma) -> (m, V_low(b), its vector, V_up(b), a, out . b)
+ * backup_one(b, tx, tyk, z, RT, cx, rows, rows_x, nz, V, gid, gn, corner, sorted, idx, inv,
+ *            off, wid, gain, sig, stale, record, best, out, x, gamma)
+ *            -> (m, V_low(b), its vector, V_up(b), a, out . b)
  *   children(), the rows' lower bounds against each row's own x's vectors (V, gid, gn as
  *   group_scores), bound_children() over them, and, where out (Y,) is given (not empty), the
  *   new vector of the action a of highest Q_low into out (backup_vector(), the impossible
  *   children taking the best vector of their x2 at b); a = -1 and out . b = NaN otherwise.
+ *   The evaluation is written as one record (2 A + 3 A K O,): q_low (A), q_up (A), then
+ *   prob, low and up (A K O each, in (a, k, o) order); stale is the belief's last record, or
+ *   empty (bound_children's stale_q and stale_up are its q_up and up). best (A K O,) int64.
  *   One call per backup of a dense model's belief.
  *
  * add_point(b, corner, idx, inv, px, v, gain, wid, mass, off, sig, members, order, key,
@@ -62,12 +65,12 @@
  *   put). A belief of one hidden value y (w = 1) is not stored: w = 1 and nothing written
  *   (the caller lowers the corner instead).
  *
- * trial_step(q_low, q_up, prob, low, up, target) -> (max Q_low, a, ties, k, o, P, low, up)
- *   A trial's choice at a node from its cached evaluation: q_low, q_up (A,), prob, low, up
- *   (A, K, O) float64. a is the first action whose Q_up is within 1e-12 (relative) of the
- *   largest, ties how many are; of a's children, (k, o) the possible one (P > 0) of largest
- *   excess gap (up - low) - target * P, the first of equal ones ((0, 0) if none), with its P,
- *   low and up (_SARSOP._argmax_tie and _child_choice, on Python floats).
+ * trial_step(record, A, O, target) -> (max Q_low, a, ties, k, o, P, low, up)
+ *   A trial's choice at a node from its cached evaluation, a record (2 A + 3 A K O,) float64
+ *   as backup_one writes it. a is the first action whose Q_up is within 1e-12 (relative) of
+ *   the largest, ties how many are; of a's children, (k, o) the possible one (P > 0) of
+ *   largest excess gap (up - low) - target * P, the first of equal ones ((0, 0) if none),
+ *   with its P, low and up (_SARSOP._argmax_tie and _child_choice, on Python floats).
  *
  * propagate_inactive(parent, active) -> None
  *   parent (N,) int64 (-1 at a root; a parent's index below its child's), active (>= N,)
@@ -159,8 +162,11 @@ static int row_x_ok(const char *fn, Py_ssize_t i, int64_t x, Py_ssize_t X) {
     return 0;
 }
 
-/* The shapes of children()'s buffers v[0..11), or NULL if they agree (A, K, O, Y from z). */
-static const char *children_shapes(const Py_buffer *v) {
+/* The shapes of the tables and scratch v[0..8) (b, tx, tyk, z, RT, cx, rows, rows_x, as
+ * children() takes them) and the lengths of prob, nz and reward, or NULL if they agree (A, K,
+ * O, Y from z). */
+static const char *children_shapes(const Py_buffer *v, Py_ssize_t n_prob, Py_ssize_t n_nz,
+                                   Py_ssize_t n_reward) {
     const Py_ssize_t A = v[3].shape[0], K = v[3].shape[1], O = v[3].shape[2], Y = v[3].shape[3];
     const Py_ssize_t C = A * K * O;
     const int has_tx = v[1].shape[0] > 0, has_ty = v[2].shape[0] > 0;
@@ -170,7 +176,7 @@ static const char *children_shapes(const Py_buffer *v) {
                     v[2].shape[3] != Y)) ||
         v[4].shape[0] != Y || v[4].shape[1] != A || v[5].shape[0] != C ||
         v[6].shape[0] != C + 1 || v[6].shape[1] != Y || v[7].shape[0] != C + 1 ||
-        v[8].shape[0] != C || v[9].shape[0] != C || v[10].shape[0] != A)
+        n_prob != C || n_nz != C || n_reward != A)
         return "b (Y,), tx (A, Y, K) and/or tyk (A, K, Y, Y), z (A, K, O, Y), RT (Y, A), cx "
                "(A K O,), rows (A K O + 1, Y), rows_x (A K O + 1,), prob and nz (A K O,), "
                "reward (A,)";
@@ -262,7 +268,7 @@ static PyObject *children(PyObject *self, PyObject *const *args, Py_ssize_t narg
     const Py_ssize_t x = PyNumber_AsSsize_t(args[NB], PyExc_OverflowError);
     if (x == -1 && PyErr_Occurred()) return NULL;
     if (get_all(args, v, children_spec, NB) < 0) return NULL;
-    const char *bad = children_shapes(v);
+    const char *bad = children_shapes(v, v[8].shape[0], v[9].shape[0], v[10].shape[0]);
     if (bad != NULL) {
         children_shape_error("children", v, bad);
         release_all(v, NB);
@@ -403,8 +409,8 @@ static double bound_core(saw_t *u, const int64_t *nz, Py_ssize_t m, const double
     } else {
         /* the lazy loop of _SARSOP._upper_np: refresh the best stale action while it beats
          * every fresh one (ties within 1e-12 relative go to the lowest index) */
-        memcpy(q_up, stale_q, (size_t)A * sizeof(double));
-        memcpy(up, stale_up, (size_t)C * sizeof(double));
+        memmove(q_up, stale_q, (size_t)A * sizeof(double)); /* (the same record: in place) */
+        memmove(up, stale_up, (size_t)C * sizeof(double));
         for (Py_ssize_t a = 0; a < A; a++) fresh[a] = 0;
         int have_top = 0;
         double top = 0.0;
@@ -896,18 +902,14 @@ static PyObject *group_upper(PyObject *self, PyObject *const *args, Py_ssize_t n
  * vectors), bound_children() and, where out is given, the new vector of the action of highest
  * Q_low: one call per backup of a dense model's belief (see backup_kernel.backup_one). */
 static PyObject *backup_one(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    enum { NB = 28 };
+    enum { NB = 22 };
     static const spec_t spec[NB] = {
-        {"b", 1, 'd', 0},        {"tx", 3, 'd', 0},       {"tyk", 4, 'd', 0},
-        {"z", 4, 'd', 0},        {"RT", 2, 'd', 0},       {"cx", 1, 'q', 0},
-        {"rows", 2, 'd', 1},     {"rows_x", 1, 'q', 1},   {"prob", 1, 'd', 1},
-        {"nz", 1, 'q', 1},       {"reward", 1, 'd', 1},   {"V", 2, 'd', 0},
-        {"gn", 1, 'q', 0},       {"corner", 2, 'd', 0},   {"idx", 1, 'q', 0},
-        {"inv", 1, 'd', 0},      {"off", 1, 'q', 0},      {"wid", 1, 'q', 0},
-        {"gain", 1, 'd', 0},     {"sig", 1, 'q', 0},      {"stale_q", 1, 'd', 0},
-        {"stale_up", 1, 'd', 0}, {"low", 1, 'd', 1},      {"best", 1, 'q', 1},
-        {"q_low", 1, 'd', 1},    {"up", 1, 'd', 1},       {"q_up", 1, 'd', 1},
-        {"out", 1, 'd', 1},
+        {"b", 1, 'd', 0},      {"tx", 3, 'd', 0},     {"tyk", 4, 'd', 0},    {"z", 4, 'd', 0},
+        {"RT", 2, 'd', 0},     {"cx", 1, 'q', 0},     {"rows", 2, 'd', 1},   {"rows_x", 1, 'q', 1},
+        {"nz", 1, 'q', 1},     {"V", 2, 'd', 0},      {"gn", 1, 'q', 0},     {"corner", 2, 'd', 0},
+        {"idx", 1, 'q', 0},    {"inv", 1, 'd', 0},    {"off", 1, 'q', 0},    {"wid", 1, 'q', 0},
+        {"gain", 1, 'd', 0},   {"sig", 1, 'q', 0},    {"stale", 1, 'd', 0},  {"record", 1, 'd', 1},
+        {"best", 1, 'q', 1},   {"out", 1, 'd', 1},
     };
     Py_buffer v[NB];
     (void)self;
@@ -916,11 +918,11 @@ static PyObject *backup_one(PyObject *self, PyObject *const *args, Py_ssize_t na
                      nargs);
         return NULL;
     }
-    /* args: the 11 of children(), V, gid, gn, corner, sorted, idx .. sig, stale_q, stale_up,
-     * low, best, q_low, up, q_up, out, x, gamma */
+    /* args: b, tx, tyk, z, RT, cx, rows, rows_x, nz, V, gid, gn, corner, sorted, idx .. sig,
+     * stale, record, best, out, x, gamma */
     PyObject *arrays[NB];
-    for (int k = 0; k < NB; k++) arrays[k] = args[k < 12 ? k : (k < 14 ? k + 1 : k + 2)];
-    PyObject *gid = args[12], *sorted = args[15];
+    for (int k = 0; k < NB; k++) arrays[k] = args[k < 10 ? k : (k < 12 ? k + 1 : k + 2)];
+    PyObject *gid = args[10], *sorted = args[13];
     const Py_ssize_t x = PyNumber_AsSsize_t(args[NB + 2], PyExc_OverflowError);
     if (x == -1 && PyErr_Occurred()) return NULL;
     const double gamma = PyFloat_AsDouble(args[NB + 3]);
@@ -932,27 +934,25 @@ static PyObject *backup_one(PyObject *self, PyObject *const *args, Py_ssize_t na
     }
     if (get_all(arrays, v, spec, NB) < 0) return NULL;
     const tables_t t = tables_of(v);
-    const Py_ssize_t A = t.A, K = t.K, O = t.O, Y = t.Y, C = A * K * O;
-    const Py_ssize_t N = v[11].shape[0], X = v[12].shape[0], E = v[14].shape[0];
-    const Py_ssize_t cap = v[16].shape[0];
-    const int stale = v[20].shape[0] > 0, vector = v[27].shape[0] > 0;
-    const char *bad = children_shapes(v);
+    const Py_ssize_t A = t.A, K = t.K, O = t.O, Y = t.Y, C = A * K * O, R = 2 * A + 3 * C;
+    const Py_ssize_t N = v[9].shape[0], X = v[10].shape[0], E = v[12].shape[0];
+    const Py_ssize_t cap = v[14].shape[0];
+    const int stale = v[18].shape[0] > 0, vector = v[21].shape[0] > 0;
+    const char *bad = children_shapes(v, C, v[8].shape[0], A);
     if (bad == NULL && A == 0)
         bad = "at least one action";
-    else if (bad == NULL && (v[11].shape[1] != Y || v[13].shape[0] != X || v[13].shape[1] != Y))
+    else if (bad == NULL && (v[9].shape[1] != Y || v[11].shape[0] != X || v[11].shape[1] != Y))
         bad = "V (N, Y) and corner (X, Y), X gn's length";
     else if (bad == NULL && PyList_GET_SIZE(gid) < X)
         bad = "gid of at least X entries (gn's length)";
-    else if (bad == NULL && (v[15].shape[0] != E || v[17].shape[0] != cap ||
-                             v[18].shape[0] != cap || (v[19].shape[0] != 0 && v[19].shape[0] != cap)))
+    else if (bad == NULL && (v[13].shape[0] != E || v[15].shape[0] != cap ||
+                             v[16].shape[0] != cap || (v[17].shape[0] != 0 && v[17].shape[0] != cap)))
         bad = "the sawtooth storage of _sawtooth.corrections";
-    else if (bad == NULL && (stale ? (v[20].shape[0] != A || v[21].shape[0] != C)
-                                   : v[21].shape[0] != 0))
-        bad = "stale_q (A,) and stale_up (A K O,), or both empty";
-    else if (bad == NULL && (v[22].shape[0] != C || v[23].shape[0] != C || v[25].shape[0] != C ||
-                             v[24].shape[0] != A || v[26].shape[0] != A ||
-                             (vector && v[27].shape[0] != Y)))
-        bad = "low, best and up (A K O,), q_low and q_up (A,), out (Y,) or empty";
+    else if (bad == NULL && stale && v[18].shape[0] != R)
+        bad = "stale, a record (2 A + 3 A K O,), or empty";
+    else if (bad == NULL && (v[19].shape[0] != R || v[20].shape[0] != C ||
+                             (vector && v[21].shape[0] != Y)))
+        bad = "record (2 A + 3 A K O,), best (A K O,), out (Y,) or empty";
     if (bad != NULL) {
         children_shape_error("backup_one", v, bad);
         release_all(v, NB);
@@ -972,21 +972,27 @@ static PyObject *backup_one(PyObject *self, PyObject *const *args, Py_ssize_t na
     char *fresh = PyMem_Malloc((size_t)A);
     double *vals = PyMem_Malloc((size_t)(K * Y > 0 ? K * Y : 1) * sizeof(double));
     int64_t *use = PyMem_Malloc((size_t)(K * O > 0 ? K * O : 1) * sizeof(int64_t));
-    saw_t u = {v[6].buf, v[13].buf, v[15].buf, v[18].buf, v[7].buf, v[14].buf, v[16].buf,
-               v[17].buf, v[19].shape[0] > 0 ? v[19].buf : NULL, Y, {NULL, NULL, 0}, 0};
+    double *reward = PyMem_Malloc((size_t)A * sizeof(double));
+    saw_t u = {v[6].buf, v[11].buf, v[13].buf, v[16].buf, v[7].buf, v[12].buf, v[14].buf,
+               v[15].buf, v[17].shape[0] > 0 ? v[17].buf : NULL, Y, {NULL, NULL, 0}, 0};
     groups_t g = {NULL, NULL, 0};
     PyObject *result = NULL;
     if (pred == NULL || supp == NULL || low_r == NULL || best_r == NULL || ends == NULL ||
-        fresh == NULL || vals == NULL || use == NULL) {
+        fresh == NULL || vals == NULL || use == NULL || reward == NULL) {
         PyErr_NoMemory();
         goto done;
     }
     if (groups_init(&g, X) < 0) goto done;
-    const double *b = v[0].buf, *V = v[11].buf, *prob = v[8].buf;
+    /* the record: q_low (A), q_up (A), prob, low, up (A K O each) */
+    double *rec = v[19].buf;
+    double *q_low = rec, *q_up = rec + A, *prob = rec + 2 * A;
+    double *low = prob + C, *up = prob + 2 * C;
+    const double *st = v[18].buf;
+    const double *b = v[0].buf, *V = v[9].buf;
     double *rows = v[6].buf;
-    const int64_t *rows_x = v[7].buf, *gn = v[12].buf, *best = v[23].buf;
-    const Py_ssize_t m = children_core(&t, b, x, rows, v[7].buf, v[8].buf, v[9].buf, v[10].buf,
-                                       pred, supp);
+    const int64_t *rows_x = v[7].buf, *gn = v[10].buf, *best = v[20].buf;
+    const Py_ssize_t m = children_core(&t, b, x, rows, v[7].buf, prob, v[8].buf, reward, pred,
+                                       supp);
     /* each row's lower bound among its own x's vectors (row m: b itself) */
     for (Py_ssize_t i = 0; i <= m; i++) {
         const int64_t xi = rows_x[i];
@@ -998,10 +1004,9 @@ static PyObject *backup_one(PyObject *self, PyObject *const *args, Py_ssize_t na
         best_r[i] = id[arg];
     }
     if (saw_take(&u, sorted, X, m + 1, cap, E, "backup_one") < 0) goto done;
-    double *q_low = v[24].buf;
-    const double cu = bound_core(&u, v[9].buf, m, low_r, best_r, v[10].buf,
-                                 stale ? v[20].buf : NULL, v[21].buf, A, C, v[22].buf, v[23].buf,
-                                 q_low, v[25].buf, v[26].buf, gamma, ends, fresh);
+    const double cu = bound_core(&u, v[8].buf, m, low_r, best_r, reward,
+                                 stale ? st + A : NULL, stale ? st + 2 * A + 2 * C : NULL, A, C,
+                                 low, v[20].buf, q_low, up, q_up, gamma, ends, fresh);
     if (u.stray) {
         PyErr_SetString(PyExc_IndexError, "backup_one(): a support index is out of range");
         goto done;
@@ -1041,7 +1046,7 @@ static PyObject *backup_one(PyObject *self, PyObject *const *args, Py_ssize_t na
                 use[k * O + o] = fill;
             }
         }
-        double *out = v[27].buf;
+        double *out = v[21].buf;
         const tables_t ta = {t.tx, t.tyk, t.z, t.RT + a, t.cx, A, K, O, Y};
         vector_core(&ta, a, A, V, use, gamma, out, vals);
         nl = 0.0;
@@ -1057,6 +1062,7 @@ done:
     PyMem_Free(fresh);
     PyMem_Free(vals);
     PyMem_Free(use);
+    PyMem_Free(reward);
     groups_release(&u.g);
     groups_release(&g);
     release_all(v, NB);
@@ -1165,34 +1171,29 @@ static PyObject *add_point(PyObject *self, PyObject *const *args, Py_ssize_t nar
 }
 
 static PyObject *trial_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    enum { NB = 5 };
-    static const spec_t spec[NB] = {
-        {"q_low", 1, 'd', 0}, {"q_up", 1, 'd', 0}, {"prob", 3, 'd', 0},
-        {"low", 3, 'd', 0},   {"up", 3, 'd', 0},
-    };
-    Py_buffer v[NB];
+    Py_buffer rec;
     (void)self;
-    if (nargs != NB + 1) {
-        PyErr_Format(PyExc_TypeError, "trial_step() takes %d arguments (%zd given)", NB + 1,
-                     nargs);
+    if (nargs != 4) {
+        PyErr_Format(PyExc_TypeError, "trial_step() takes 4 arguments (%zd given)", nargs);
         return NULL;
     }
-    const double target = PyFloat_AsDouble(args[NB]);
+    const Py_ssize_t A = PyNumber_AsSsize_t(args[1], PyExc_OverflowError);
+    if (A == -1 && PyErr_Occurred()) return NULL;
+    const Py_ssize_t O = PyNumber_AsSsize_t(args[2], PyExc_OverflowError);
+    if (O == -1 && PyErr_Occurred()) return NULL;
+    const double target = PyFloat_AsDouble(args[3]);
     if (target == -1.0 && PyErr_Occurred()) return NULL;
-    if (get_all(args, v, spec, NB) < 0) return NULL;
-    const Py_ssize_t A = v[1].shape[0], K = v[2].shape[1], O = v[2].shape[2];
-    int same = v[0].shape[0] == A && v[2].shape[0] == A && A > 0;
-    for (int i = 3; i < NB && same; i++)
-        same = v[i].shape[0] == A && v[i].shape[1] == K && v[i].shape[2] == O;
-    if (!same) {
+    if (get_buffer(args[0], &rec, 1, 'd', "record", 0) < 0) return NULL;
+    const Py_ssize_t n = rec.shape[0];
+    const Py_ssize_t K = (A > 0 && O > 0 && n > 2 * A) ? (n - 2 * A) / (3 * A * O) : 0;
+    if (A < 1 || O < 1 || K < 1 || n != 2 * A + 3 * A * K * O) {
         PyErr_Format(PyExc_ValueError,
-                     "trial_step(): expected q_low and q_up (A,) and prob, low and up (A, K, O) "
-                     "with A >= 1; got q_low (%zd,), q_up (%zd,), prob (%zd, %zd, %zd)",
-                     v[0].shape[0], A, v[2].shape[0], K, O);
-        release_all(v, NB);
+                     "trial_step(): expected a record of 2 A + 3 A K O entries with A >= 1, "
+                     "O >= 1 and K >= 1; got %zd entries for A=%zd, O=%zd", n, A, O);
+        PyBuffer_Release(&rec);
         return NULL;
     }
-    const double *q_low = v[0].buf, *q_up = v[1].buf;
+    const double *q_low = rec.buf, *q_up = q_low + A;
     double low_max = q_low[0], top = q_up[0];
     for (Py_ssize_t i = 1; i < A; i++) {
         if (q_low[i] > low_max) low_max = q_low[i];
@@ -1205,9 +1206,9 @@ static PyObject *trial_step(PyObject *self, PyObject *const *args, Py_ssize_t na
             if (a < 0) a = i;
             ties++;
         }
-    const Py_ssize_t KO = K * O;
-    const double *p = (const double *)v[2].buf + a * KO, *lo = (const double *)v[3].buf + a * KO,
-                 *up = (const double *)v[4].buf + a * KO;
+    if (a < 0) a = 0; /* (NaN values: none compares) */
+    const Py_ssize_t KO = K * O, C = A * KO;
+    const double *p = q_low + 2 * A + a * KO, *lo = p + C, *up = p + 2 * C;
     Py_ssize_t j = 0;
     double best = -INFINITY;
     for (Py_ssize_t i = 0; i < KO; i++)
@@ -1218,11 +1219,9 @@ static PyObject *trial_step(PyObject *self, PyObject *const *args, Py_ssize_t na
                 j = i;
             }
         }
-    PyObject *out = KO > 0 ? Py_BuildValue("(dnnnnddd)", low_max, a, ties, j / O, j % O, p[j],
-                                           lo[j], up[j])
-                           : Py_BuildValue("(dnnnnddd)", low_max, a, ties, (Py_ssize_t)0,
-                                           (Py_ssize_t)0, 0.0, 0.0, 0.0);
-    release_all(v, NB);
+    PyObject *out = Py_BuildValue("(dnnnnddd)", low_max, a, ties, j / O, j % O, p[j], lo[j],
+                                  up[j]);
+    PyBuffer_Release(&rec);
     return out;
 }
 

@@ -38,10 +38,10 @@ built by ``pip install`` beside the sawtooth loop, the CPython API only):
   method's steps, about twenty numpy calls: 30 us a point on bridge-repair, 9 us now; the
   arguments in ``_backup.c``'s header).
 * ``trial_step`` (the module's, called by the trial, ``_SARSOP.sample``): a trial's choice at
-  a node from its cached evaluation, the largest ``Q_low``, the first action of largest
-  ``Q_up`` and how many tie with it, and its child of largest excess gap (its numpy and
-  Python reference: ``_Trials._argmax_tie`` and ``_child_choice``; equal actions that the
-  seeded generator draws among go that way).
+  a node from its cached evaluation record (``trial_step(record, A, O, target)``), the
+  largest ``Q_low``, the first action of largest ``Q_up`` and how many tie with it, and its
+  child of largest excess gap (its numpy and Python reference: ``_Trials._argmax_tie`` and
+  ``_child_choice``; equal actions that the seeded generator draws among go that way).
 
 * :func:`keep_alphas` and :func:`dominated`: SARSOP's pruning of the alpha vectors, those
   that win at no tree belief and those another vector of their ``x`` dominates pointwise,
@@ -76,6 +76,8 @@ from types import ModuleType
 from typing import Any, NamedTuple
 
 import numpy as np
+
+from torchhrc.solvers.eval_cache import unpack
 
 __all__ = [
     "Backup",
@@ -200,12 +202,8 @@ def bound_children(
 class Backup(NamedTuple):
     """What :func:`backup_one` gives for a belief ``b`` at ``x`` (``C = A K O`` children)."""
 
-    q_low: np.ndarray  # (A,)
-    q_up: np.ndarray  # (A,)
-    prob: np.ndarray  # (A, K, O) P(x2_k, o | b, a)
-    low: np.ndarray  # (A, K, O) P * V_low(child), 0 where impossible
-    up: np.ndarray  # (A, K, O) P * V_up(child)
-    best: np.ndarray  # (A, K, O) int64 the best vector at each possible child, 0 elsewhere
+    record: np.ndarray  # (2 A + 3 C,) the evaluation (eval_cache.pack's layout)
+    best: np.ndarray  # (C,) int64 the best vector at each possible child, 0 elsewhere
     lower: float  # V_low(b)
     upper: float  # V_up(b)
     child_x: np.ndarray  # (C,) int64 each child's observed value
@@ -213,6 +211,32 @@ class Backup(NamedTuple):
     action: int  # the action of highest Q_low (-1 without the vector)
     vector: np.ndarray | None  # (Y,) its new alpha vector (None: not asked for)
     value: float  # vector . b (NaN without the vector)
+    shape: tuple[int, int, int]  # (A, K, O)
+
+    @property
+    def q_low(self) -> np.ndarray:
+        """``(A,)`` ``Q_low(b, a)`` (a view of the record)."""
+        return self.record[: self.shape[0]]
+
+    @property
+    def q_up(self) -> np.ndarray:
+        """``(A,)`` ``Q_up(b, a)``."""
+        return self.record[self.shape[0] : 2 * self.shape[0]]
+
+    @property
+    def prob(self) -> np.ndarray:
+        """``(A, K, O)`` ``P(x2_k, o | b, a)``."""
+        return unpack(self.record, self.shape[0], self.shape[2])[2]
+
+    @property
+    def low(self) -> np.ndarray:
+        """``(A, K, O)`` ``P * V_low(child)``, 0 where impossible."""
+        return unpack(self.record, self.shape[0], self.shape[2])[3]
+
+    @property
+    def up(self) -> np.ndarray:
+        """``(A, K, O)`` ``P * V_up(child)``."""
+        return unpack(self.record, self.shape[0], self.shape[2])[4]
 
 
 def backup_one(
@@ -222,7 +246,7 @@ def backup_one(
     tables: tuple[np.ndarray, ...],
     scoring: tuple[np.ndarray, list[np.ndarray], np.ndarray],
     sawtooth: tuple[Any, ...],
-    stale: tuple[np.ndarray, np.ndarray] | None,
+    stale: np.ndarray | None,
     gamma: float,
     vector: bool = True,
     scratch: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
@@ -234,7 +258,8 @@ def backup_one(
     sum_k Tx (Ty (sum_o Z alpha_{k, o}))`` of the action ``a`` of highest ``Q_low`` (the
     first), where ``alpha_{k, o}`` is the best vector at child ``(x2_k, o)``, or at an
     impossible child the best vector of ``x2_k`` at ``b`` itself (APPL's
-    ``BackupAlphaPlaneMOMDP::getNewAlphaPlaneQ``).
+    ``BackupAlphaPlaneMOMDP::getNewAlphaPlaneQ``). The evaluation is written as one record
+    (:func:`~torchhrc.solvers.eval_cache.pack`'s layout), the form the search caches.
 
     Args:
         kernel: the module of :func:`load`.
@@ -245,7 +270,8 @@ def backup_one(
             reads them (``_AlphaSet.scoring_storage``).
         sawtooth: the upper bound as :func:`bound_children` reads it, ``sorted`` built for
             ``x`` and every ``x2`` it reaches.
-        stale: ``(Q_up (A,), up (C,))`` of the belief's last evaluation, or ``None``.
+        stale: the record ``(2 A + 3 A K O,)`` of the belief's last evaluation (its ``Q_up``
+            and children's upper bounds stay upper bounds), or ``None``.
         gamma: the discount.
         vector: whether to form the new vector (a backup) or only bound (a trial's step).
         scratch: :func:`new_scratch` ``(C, Y)``, reused between calls (the children's rows
@@ -275,6 +301,7 @@ def backup_one(
         ...     bounds = (out.lower, out.upper, float(out.q_low[0]), float(out.q_up[0]))
         ...     assert bounds == (3.0, 4.0, 3.5, 4.0)
         ...     assert out.action == 0 and out.vector.tolist() == [3.5] and out.value == 3.5
+        ...     assert out.record.tolist() == [3.5, 4.0, 1.0, 3.0, 4.0]  # q_low q_up P low up
     """
     tx, tyk, z, RT, cx = tables
     A, K, O, Y = z.shape
@@ -282,21 +309,17 @@ def backup_one(
     if scratch is None or scratch[0].shape != (C + 1, Y):
         scratch = new_scratch(C, Y)
     rows, rows_x, nz = scratch
-    prob, reward = np.empty(C), np.empty(A)
-    low, best, up = np.empty(C), np.empty(C, dtype=np.int64), np.empty(C)
-    q_low, q_up = np.empty(A), np.empty(A)
+    record = np.empty(2 * A + 3 * C)
+    best = np.empty(C, dtype=np.int64)
     out = np.empty(Y) if vector else _EMPTY
-    sq, su = stale if stale is not None else (_EMPTY, _EMPTY)
     vectors, gid, gn = scoring
     corner, sorted_points, idx, inv, off, wid, gain, sig = sawtooth
     _, lo, own, cu, a, nl = kernel.backup_one(
-        b, tx, tyk, z, RT, cx, rows, rows_x, prob, nz, reward, vectors, gid, gn, corner,
-        sorted_points, idx, inv, off, wid, gain, sig, sq, su, low, best, q_low, up, q_up, out,
-        x, float(gamma),
+        b, tx, tyk, z, RT, cx, rows, rows_x, nz, vectors, gid, gn, corner, sorted_points, idx,
+        inv, off, wid, gain, sig, _EMPTY if stale is None else stale, record, best, out, x,
+        float(gamma),
     )  # fmt: skip
-    shape = (A, K, O)
-    return Backup(q_low, q_up, prob.reshape(shape), low.reshape(shape), up.reshape(shape),
-                  best.reshape(shape), lo, cu, cx, own, a, out if vector else None, nl)  # fmt: skip
+    return Backup(record, best, lo, cu, cx, own, a, out if vector else None, nl, (A, K, O))
 
 
 def new_scratch(num_children: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from torchhrc.solvers.eval_cache import unpack
 from torchhrc.solvers.sarsop import SARSOPConfig, sarsop
 from torchhrc.solvers.sarsop.alpha_set import _AlphaSet
 from torchhrc.solvers.sarsop.search import _SARSOP
@@ -57,10 +58,12 @@ def _children_bounds_after_pruning(model, iterations: int, monkeypatch, rule: bo
         original(self)
         if self.alphas.size == before:
             return  # no alpha pruning this iteration
-        for b, (q_low, q_up, prob, low, _up) in cached.items():
+        for b, record in cached.items():
+            q_low, q_up, prob, low, _up = unpack(record, self.A, self.O)
             n = first[b]
             live = (q_up >= q_low.max())[:, None, None] & (prob > 0)
-            now = self._evaluate_np(int(self.tree.x[n]), self.tree.beliefs_np[n])[3]
+            fresh = self._evaluate_np(int(self.tree.x[n]), self.tree.beliefs_np[n])[0]
+            now = unpack(fresh, self.A, self.O)[3]
             tol = 1e-9 * np.maximum(1.0, np.abs(low))
             counts[0] += int(live.sum())
             counts[1] += int((now < low - tol)[live].sum())

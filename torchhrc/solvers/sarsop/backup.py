@@ -22,38 +22,44 @@ class _Backups:
         bid = int(self.belief_id[node])
         stale = self._cache.get(bid) if self.cfg.lazy_upper else None
         call = self._one_call(x)
+        A = self.A
         if call is not None:  # the whole backup in one compiled call
-            q_low, q_up, prob, low_c, up_c, best, lo, cu, _, _, a, alpha, nl = (
-                self._backup_compiled(x, b, stale, call, vector=True)
-            )
+            out = self._backup_compiled(x, b, stale, call, vector=True)
+            record, best, lo, cu, a, alpha, nl = (out.record, out.best, out.lower, out.upper,
+                                                  out.action, out.vector, out.value)  # fmt: skip
         else:
-            q_low, q_up, prob, low_c, up_c, best, lo, cu, child_x, own = self._evaluate_np(
-                x, b, stale
-            )
-            a = int(q_low.argmax())
-            use = best[a]  # (K, O); the impossible children's vectors for this action only
-            if np.count_nonzero(prob[a]) < prob[a].size:  # some child of a is impossible
-                possible = prob[a] > 0
-                ch_a = child_x.reshape(best.shape[0], -1)[a]
-                fill = self._impossible_best_np(x, b, ch_a, possible.reshape(-1), own)
-                use = np.where(possible, use, fill.reshape(use.shape))
-            alpha = self.form.backup_vector_np(x, a, use, self.alphas.np_vectors, self.gamma)
+            record, best, lo, cu, child_x, own = self._evaluate_np(x, b, stale)
+            a = int(record[:A].argmax())
+            C = best.shape[0]
+            n = C // A  # the action's children (K O), in (k, o) order
+            use = best[a * n : (a + 1) * n]
+            p_a = record[2 * A + a * n : 2 * A + (a + 1) * n]
+            if np.count_nonzero(p_a) < n:  # some child of a is impossible
+                possible = p_a > 0
+                fill = self._impossible_best_np(x, b, child_x[a * n : (a + 1) * n], possible, own)
+                use = np.where(possible, use, fill)
+            K = C // (A * self.O)
+            alpha = self.form.backup_vector_np(x, a, use.reshape(K, self.O),
+                                               self.alphas.np_vectors, self.gamma)  # fmt: skip
             nl = float(alpha @ b)
-        q_up_list = q_up.tolist()
+        q = record[: 2 * A].tolist()  # q_low, then q_up
+        q_up_list = q[A:]
         nu = max(q_up_list)
-        self._cache[bid] = (q_low, q_up, prob, low_c, up_c)
+        self._cache[bid] = record
         self._child_best[bid] = best
         if nl > lo + 1e-10 * max(abs(nl), 1.0):
-            self.alphas.add_np(alpha, a, x, best[a][prob[a] > 0])
+            n = best.shape[0] // A
+            p_a = record[2 * A + a * n : 2 * A + (a + 1) * n]
+            self.alphas.add_np(alpha, a, x, best[a * n : (a + 1) * n][p_a > 0])
         if nu < cu - 1e-10 * max(abs(cu), 1.0):
             self.ub.add_np(b, x, nu)
         low, up = max(lo, nl), min(cu, nu)
         tree.lower[node], tree.upper[node] = low, up
         self.backups += 1
-        if self.cfg.prune_nodes and min(q_up_list) < q_low[a]:  # q_low[a] = max Q_low
-            bad = q_up < q_low[a]  # (A,)
+        top = q[a]  # q_low[a] = max Q_low
+        if self.cfg.prune_nodes and min(q_up_list) < top:
             for c in self.children.get(node, ()):
-                if bad[tree.action[c]]:
+                if q_up_list[tree.action[c]] < top:
                     tree.active[c] = False
         if self.cfg.prediction == "binning":
             self.bins.update(bid, x, b, float(self.entropy[node]), up, low)

@@ -11,6 +11,7 @@ import numpy as np
 import torch
 
 from torchhrc.solvers import backup_kernel
+from torchhrc.solvers.eval_cache import pack
 from torchhrc.solvers.upper_bound import _ROWS
 
 __all__: list[str] = []
@@ -175,14 +176,14 @@ class _Bounds:
         nz: np.ndarray,
         reward: np.ndarray,
         C: int,
-        stale: tuple[np.ndarray, ...] | None,
+        stale: np.ndarray | None,
     ) -> tuple[np.ndarray, np.ndarray, float]:
         """Upper bounds of a belief's possible children ``nz`` (of ``C``, ``C / A`` per
         action, in action order), ``Q_up``, ``V_up``.
 
         ``value(ids)`` bounds rows ``ids`` of the children (row ``nz.size`` is ``b`` itself).
-        Without ``stale`` every child is bounded. With ``stale`` (the node's cached
-        ``q_low, q_up, prob, low, up`` of an earlier evaluation) only the children of the
+        Without ``stale`` every child is bounded. With ``stale`` (the node's cached record of
+        an earlier evaluation, :func:`~torchhrc.solvers.eval_cache.pack`) only the children of the
         action with the highest ``Q_up`` are re-bounded, repeatedly, until the best action is
         one just refreshed (APPL's ``getNewUBValueUseCache``): every earlier sawtooth value is
         still an upper bound, so stale ``Q_up`` of the other actions stay valid, and a backup
@@ -195,8 +196,7 @@ class _Bounds:
             up[nz] = up_r[:m]
             q_up = reward + self.gamma * up.reshape(A, -1).sum(-1)
             return up, q_up, float(up_r[m])
-        q_up = stale[1].copy()
-        up = stale[4].reshape(-1).copy()
+        q_up, up = (v.copy() for v in _stale_upper(stale, A))
         # plain floats and lists: the loop runs over A values one to three times per
         # backup, where each numpy call costs more than the arithmetic (aloha: 9 actions)
         q = q_up.tolist()
@@ -257,23 +257,25 @@ class _Bounds:
         return rows
 
     def _evaluate_np(
-        self, x: int, b: np.ndarray, stale: tuple[np.ndarray, ...] | None = None
-    ) -> tuple[np.ndarray, ...]:
+        self, x: int, b: np.ndarray, stale: np.ndarray | None = None
+    ) -> tuple[Any, ...]:
         """:meth:`evaluate` for one belief ``b (Y,)`` in numpy.
 
         The form gives the possible children (:meth:`SolverModel.children_np`, on the columns
         they live on); they and ``b`` are bounded by one product against the alpha vectors
-        and one sawtooth evaluation. Returns ``q_low (A,)``, ``q_up (A,)``, ``prob``, ``low``,
-        ``up`` (``(A, K, O)`` each, as :class:`_Evaluation`), ``best (A, K, O)``,
+        and one sawtooth evaluation. Returns the evaluation's record (``q_low (A,)``,
+        ``q_up (A,)``, ``prob``, ``low``, ``up`` ``(A, K, O)`` as :class:`_Evaluation`, in
+        :func:`~torchhrc.solvers.eval_cache.pack`'s layout), ``best (A * K * O,)``,
         ``V_low(b)``, ``V_up(b)``, the children's observed values ``child_x (A * K * O,)`` and
         the best vector at ``b`` itself. ``best`` holds the possible children's vectors only
         (0 elsewhere): a backup fills the impossible children of the one action it takes
         (:meth:`_impossible_best_np`); the sampling and the pruning read possible ones only.
-        ``stale``: the node's cached evaluation, see :meth:`_upper_np`.
+        ``stale``: the node's cached record, see :meth:`_upper_np`.
         """
         call = self._one_call(x)
         if call is not None:  # the whole evaluation in one compiled call
-            return self._backup_compiled(x, b, stale, call, vector=False)[:10]
+            out = self._backup_compiled(x, b, stale, call, vector=False)
+            return out.record, out.best, out.lower, out.upper, out.child_x, out.own
         ch = self.form.children_np(x, b)
         A, K, O = ch.prob.shape
         low_r, best_r = self._lower_np(ch.rows, ch.rows_x, ch.cols)
@@ -284,15 +286,13 @@ class _Bounds:
             low, best, q_low, up, q_up, cu = backup_kernel.bound_children(
                 self._kernel, ch.rows, ch.rows_x.astype(np.int64, copy=False), ch.nz, low_r,
                 best_r, ch.reward, self.gamma,
-                None if stale is None else (stale[1], stale[4].reshape(-1)),
+                None if stale is None else _stale_upper(stale, A),
                 self.ub.loop_storage(xs), A * K * O,
             )  # fmt: skip
-            shape = (A, K, O)
-            low, up, best = low.reshape(shape), up.reshape(shape), best.reshape(shape)
             lo, own = float(low_r[m]), int(best_r[m])
-            return q_low, q_up, ch.prob, low, up, best, lo, cu, ch.child_x, own
+            return pack(q_low, q_up, ch.prob, low, up), best, lo, cu, ch.child_x, own
         if m == A * K * O:  # every child possible: the rows are the children in order
-            low, best = low_r[:m], best_r[:m]
+            low, best = low_r[:m], best_r[:m].copy()
         else:
             low = np.zeros(A * K * O, dtype=b.dtype)
             low[ch.nz] = low_r[:m]
@@ -304,9 +304,8 @@ class _Bounds:
             lambda ids: self.ub.value_np(rows[ids], rows_x[ids], cols),
             ch.nz, ch.reward, A * K * O, stale,
         )  # fmt: skip
-        shape = (A, K, O)
-        return (q_low, q_up, ch.prob, low.reshape(shape), up.reshape(shape), best.reshape(shape),
-                float(low_r[m]), cu, ch.child_x, int(best_r[m]))  # fmt: skip
+        return (pack(q_low, q_up, ch.prob, low, up), best, float(low_r[m]), cu, ch.child_x,
+                int(best_r[m]))  # fmt: skip
 
     def _one_call(self, x: int) -> _OneCall | None:
         """What :func:`~torchhrc.solvers.backup_kernel.backup_one` needs at ``x`` beyond the
@@ -331,16 +330,14 @@ class _Bounds:
             self._one_calls[x] = found
         return found
 
-    def _backup_compiled(self, x: int, b: np.ndarray, stale: tuple[np.ndarray, ...] | None,
+    def _backup_compiled(self, x: int, b: np.ndarray, stale: np.ndarray | None,
                          call: _OneCall, vector: bool) -> backup_kernel.Backup:  # fmt: skip
-        """:meth:`_evaluate_np` (the first ten fields) and, with ``vector``, the new alpha
+        """:meth:`_evaluate_np` and, with ``vector``, the new alpha
         vector of :meth:`_backup_one_np`, in one compiled call
         (:func:`~torchhrc.solvers.backup_kernel.backup_one`)."""
         return backup_kernel.backup_one(
             self._vkernel, b, x, call.tables, self.alphas.scoring_storage(),
-            self.ub.loop_storage(call.xs),
-            None if stale is None else (stale[1], stale[4].reshape(-1)), self.gamma, vector,
-            call.scratch,
+            self.ub.loop_storage(call.xs), stale, self.gamma, vector, call.scratch,
         )  # fmt: skip
 
     def _impossible_best_np(self, x: int, b: np.ndarray, child_x: np.ndarray, possible: np.ndarray,
@@ -392,13 +389,20 @@ class _Bounds:
         lo = self.lower_value(b, x)[0].cpu().double().numpy()
         return lo, self.ub.value(b, x).cpu().double().numpy()
 
-    def _store(self, node: int, ev: _Evaluation, i: int) -> tuple[np.ndarray, ...]:
-        """Cache a node's action and child bounds (row ``i`` of ``ev``) for the sampling.
+    def _store(self, node: int, ev: _Evaluation, i: int) -> np.ndarray:
+        """Cache a node's action and child bounds (row ``i`` of ``ev``) for the sampling, as
+        one record (:func:`~torchhrc.solvers.eval_cache.pack`); returns it.
 
         As in APPL, sampling reads the bounds of a node's last backup; they stay valid bounds
         (upper bounds only decrease and lower bounds only increase afterwards).
         """
-        entry = tuple(t[i].cpu().numpy() for t in (ev.q_low, ev.q_up, ev.prob, ev.low, ev.up))
-        self._cache[int(self.belief_id[node])] = entry
-        self._child_best[int(self.belief_id[node])] = ev.best[i].cpu().numpy()
-        return entry
+        record = pack(*(t[i].cpu().numpy() for t in (ev.q_low, ev.q_up, ev.prob, ev.low, ev.up)))
+        self._cache[int(self.belief_id[node])] = record
+        self._child_best[int(self.belief_id[node])] = ev.best[i].reshape(-1).cpu().numpy()
+        return record
+
+
+def _stale_upper(record: np.ndarray, A: int) -> tuple[np.ndarray, np.ndarray]:
+    """``Q_up (A,)`` and the children's upper bounds ``(A K O,)`` of a cached record (views)."""
+    C = (record.shape[0] - 2 * A) // 3
+    return record[A : 2 * A], record[2 * A + 2 * C :]

@@ -10,6 +10,7 @@ import torch
 
 from torchhrc.solvers import backup_kernel
 from torchhrc.solvers._memory import release_free_memory
+from torchhrc.solvers.eval_cache import unpack
 
 __all__: list[str] = []
 
@@ -42,8 +43,9 @@ class _Pruning:
             best = self._child_best.get(b)
             if best is None:
                 continue
-            q_low, q_up, prob = self._cache[b][:3]
-            parts.append(best[(q_up >= q_low.max())[:, None, None] & (prob > 0)])
+            q_low, q_up, prob = unpack(self._cache[b], self.A, self.O)[:3]
+            live = (q_up >= q_low.max())[:, None, None] & (prob > 0)
+            parts.append(best.reshape(prob.shape)[live])
         if not parts:
             return np.zeros(0, dtype=np.int64)
         ids = np.unique(np.concatenate(parts))

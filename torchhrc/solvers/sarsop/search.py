@@ -138,6 +138,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
             raise ModelError(f"SARSOP needs discount < 1, got {form.discount}")
         self.gamma = form.discount
         self.X, self.Y = form.num_observed, form.num_hidden
+        self.A, self.O = form.num_actions, form.num_observations
         self.rng = np.random.default_rng(int(cfg.seed))
         self.device = form.b0.device
         self.deadline = clock_start + cfg.time_limit
@@ -189,7 +190,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         self._reach: dict[int, list[int]] = {}  # per x, the x2 it reaches (the trial's step)
         # per distinct belief (``belief_id``): the last evaluation, shared by the tree nodes
         # that hold the same belief (its stale bounds stay valid bounds there)
-        self._cache = EvaluationCache()
+        self._cache = EvaluationCache(self.A)
         self._rows_cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray]]] = {}
         # per observed value x, what the compiled backup reads beside the belief (None: the
         # numpy steps; see _one_call), and its scratch per (children, width)
@@ -391,7 +392,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
             # the search's belief tree, upper-bound points and caches are done with: freed
             # before the policy copies the vectors (and checks them: about twice their size
             # at its peak)
-            self._cache, self._child_best, self.children = EvaluationCache(), {}, {}
+            self._cache, self._child_best, self.children = EvaluationCache(self.A), {}, {}
             self.tree = self.form.new_tree()
             del self.ub, self.bins  # (the solver is not used after this)
         # the policy takes the vectors as views of the alpha set's storage, not a copy (a

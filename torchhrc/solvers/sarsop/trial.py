@@ -10,6 +10,8 @@ import math
 import numpy as np
 import torch
 
+from torchhrc.solvers.eval_cache import unpack
+
 __all__: list[str] = []
 
 
@@ -45,6 +47,7 @@ class _Trials:
         # (the step's loop reads these once: attribute chains and numpy scalars cost more
         # than the arithmetic on a small model; the same values as before)
         cache, form, numpy_path, reach = self._cache, self.form, self._np, self._reach
+        A, O = self.A, self.O
         step = None if self._kernel is None else self._kernel.trial_step
         draw_ties = cfg.tie_break == "random"
         scale = 1.0  # g ** (-t)
@@ -62,31 +65,28 @@ class _Trials:
             if v_hat <= L and up <= max(U, lo + eps * scale):
                 break
             x = int(tree.x[node])
-            cached = cache.get(bid)
-            if cached is None:
+            record = cache.get(bid)
+            if record is None:
                 if numpy_path:
-                    full = self._evaluate_np(x, tree.beliefs_np[node])
-                    cached = full[:5]
-                    cache[bid] = cached
-                    self._child_best[bid] = full[5]
+                    record, best = self._evaluate_np(x, tree.beliefs_np[node])[:2]
+                    cache[bid] = record
+                    self._child_best[bid] = best
                 else:
                     ev = self.evaluate(x, tree.beliefs[node].unsqueeze(0))
-                    cached = self._store(node, ev, 0)
-            q_low, q_up, prob_all, low_all, up_all = cached
+                    record = self._store(node, ev, 0)
             scale_next = g ** (-(t + 1))
             target = eps * scale_next
             ties = 0
             if step is not None and not explore:
                 # the action and the child in one compiled call (the same choice as below);
                 # equal actions drawn among (tie_break="random") go the Python way, as does a
-                # form whose evaluations are arrays the call cannot read (not C-contiguous)
+                # record the call cannot read (float32: the torch path's)
                 try:
-                    q_low_max, a, ties, k, o, p, low_c, up_c = step(
-                        q_low, q_up, prob_all, low_all, up_all, target
-                    )
+                    q_low_max, a, ties, k, o, p, low_c, up_c = step(record, A, O, target)
                 except TypeError:
                     step = None
             if step is None or explore or (ties > 1 and draw_ties):
+                q_low, q_up, prob_all, low_all, up_all = unpack(record, A, O)
                 q_low_max = max(q_low.tolist())
                 a = self._argmax_tie(q_up)
                 prob, up_a, low_a = prob_all[a], up_all[a], low_all[a]  # (K, O) each
@@ -99,8 +99,8 @@ class _Trials:
                 break
             L1 = max(L, q_low_max)
             U1 = max(U, q_low_max + eps * scale)
-            L = (L1 - float(q_low[a]) + g * low_c) / (g * p)
-            U = (U1 - float(q_up[a]) + g * up_c) / (g * p)
+            L = (L1 - float(record[a]) + g * low_c) / (g * p)  # record[a]: Q_low(a)
+            U = (U1 - float(record[A + a]) + g * up_c) / (g * p)  # Q_up(a)
             reach_x = reach.get(x)
             if reach_x is None:  # (x's reachable x2 as plain ints, once per x)
                 reach_x = reach[x] = (form.reach_np(x) if numpy_path else form.reach[x]).tolist()

@@ -52,11 +52,11 @@ def test_bins_are_per_observed_value_and_fixed_by_the_initial_upper_bound():
     bins.update(2, 1, b, math.log(2.0), upper=104.0, lower=100.0)
     assert bins.predict(1, upper=9.0, lower=2.0) == 9.0
     assert bins.predict(2, upper=104.0, lower=100.0) == 104.0
-    cell0 = bins.state[1][1]
-    assert cell0 == bins.state[2][1]  # same relative position within each x's range
+    cell0 = bins.where(1)
+    assert cell0 == bins.where(2)  # same relative position within each x's range
     # the bin does not move when the belief's upper bound falls later
     bins.update(1, 0, b, math.log(2.0), upper=3.0, lower=2.5)
-    assert bins.state[1][1] == cell0
+    assert bins.where(1) == cell0
     # the finer level is chosen where its error is smaller: two beliefs share the coarse bin
     # of (ub 0.0..2.0) but not the fine one
     lo = np.array([1.0, 0.0])  # initial upper 0.0, entropy 0: coarse (0, 0), fine (0, 0)
@@ -65,9 +65,10 @@ def test_bins_are_per_observed_value_and_fixed_by_the_initial_upper_bound():
     bins.update(10, 0, lo, 0.0, upper=1.0, lower=0.0)
     bins.update(11, 0, lo, 0.0, upper=1.0, lower=0.2)
     assert bins.predict(10, upper=1.0, lower=0.0) == pytest.approx(0.1)
-    assert bins.state[10][1] == [(0, 0), (0, 0)]
+    assert bins.where(10) == [(0, 0), (0, 0)]
     bins.update(12, 0, mid, h, upper=2.0, lower=1.0)
-    assert bins.state[12][1][0][0] == 0 and bins.state[12][1][1][0] == 1
+    assert bins.where(12)[0][0] == 0 and bins.where(12)[1][0] == 1
+    assert bins.where(13) is None and bins.where(10**6) is None  # never binned
 
 
 def _solver(model) -> _SARSOP:

@@ -210,7 +210,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         self.entropy[:R] = self._entropy(root_b).cpu().double().numpy()
         # one id per distinct belief (APPL's belief cache): tree nodes holding the same belief
         # share its cached evaluation, and a trial that reaches a belief again is in a cycle
-        self._belief_ids: dict[tuple[int, bytes], int] = {}
+        self._belief_ids: dict[bytes, int] = {}
         self.belief_id = np.zeros(cap, dtype=np.int64)
         for r, row in enumerate(root_b.cpu().numpy()):
             self.belief_id[r] = self._belief_key(int(root_x[r]), row)

@@ -201,7 +201,7 @@ class _Trials:
                     values: np.ndarray | None = None) -> int:  # fmt: skip
         """The id of the distinct belief ``(x, row)`` (support and values to 12 digits).
 
-        Keyed by a 128-bit digest of the support and the rounded values rather than their
+        Keyed by a 128-bit digest of ``x``, the support and the rounded values rather than their
         bytes (RockSample_7_8.pomdpx: 4 kB a belief, 16 MB after 10 s), with the same ids
         unless two of the beliefs collide (probability about ``n^2 / 2^129``).
         """
@@ -209,9 +209,10 @@ class _Trials:
             nz = np.flatnonzero(row)  # (the caller's, when it has the support and its values)
         if values is None:
             values = row[nz]
-        digest = hashlib.blake2b(nz.tobytes(), digest_size=16)
-        digest.update(values.round(12).tobytes())  # same length: the split is unambiguous
-        return self._belief_ids.setdefault((x, digest.digest()), len(self._belief_ids))
+        digest = hashlib.blake2b(int(x).to_bytes(8, "little", signed=True), digest_size=16)
+        digest.update(nz.tobytes())  # (x's 8 bytes, then two parts of one length: unambiguous)
+        digest.update(values.round(12).tobytes())
+        return self._belief_ids.setdefault(digest.digest(), len(self._belief_ids))
 
     def _argmax_tie(self, q: np.ndarray) -> int:
         """The action of highest ``q`` (ties within 1e-12 relative: the first, or one drawn

@@ -43,6 +43,77 @@ def test_bins_levels_and_alone_predicts_upper():
     assert bins.predict(99, upper=1.5, lower=0.0) == 1.5
 
 
+class _ReferenceBins:
+    """The ``V_hat`` rule written plainly, a dict per belief and per bin (the bins' storage
+    before they moved to flat arrays): each bin holds the sum of its beliefs' latest lower
+    bounds, their count, and the sum of their latest squared errors, an error measured
+    against the bin's mean before the update (against the upper bound for a bin's first
+    belief, and a bin left with one belief restarts its sum at that one's error)."""
+
+    def __init__(self, corner: np.ndarray, max_entropy: float, n: int) -> None:
+        self.corner, self.max_entropy = corner, max_entropy
+        self.sizes = ((n + 1) // 2, n)
+        self.bins: dict[tuple, dict[str, float]] = {}
+        self.beliefs: dict[int, dict] = {}
+
+    def update(self, key, x, belief, entropy, upper, lower) -> None:
+        me = self.beliefs.get(key)
+        if me is None:
+            u0 = float(self.corner[x] @ belief)
+            lo, span = self.corner[x].min(), self.corner[x].max() - self.corner[x].min()
+            me = self.beliefs[key] = {"bins": [], "err2": [], "lower": lower}
+            for lv, k in enumerate(self.sizes):
+                i = int(min(k - 1, max(0.0, (u0 - lo) / span * k)))
+                j = int(min(k - 1, max(0.0, entropy / self.max_entropy * k)))
+                b = self.bins.setdefault((lv, x, i, j), {"sum": 0.0, "n": 0, "sq": 0.0})
+                err = upper - lower if b["n"] == 0 else b["sum"] / b["n"] - lower
+                b["sq"] += err * err
+                b["sum"] += lower
+                b["n"] += 1
+                me["bins"].append(b)
+                me["err2"].append(err * err)
+            return
+        for lv, b in enumerate(me["bins"]):
+            if b["n"] == 1:
+                err = upper - lower
+                b["sq"] = err * err
+            else:
+                err = b["sum"] / b["n"] - lower
+                b["sq"] += err * err - me["err2"][lv]
+            me["err2"][lv] = err * err
+            b["sum"] += lower - me["lower"]
+        me["lower"] = lower
+
+    def predict(self, key, upper, lower) -> float:
+        me = self.beliefs.get(key)
+        if me is None or me["bins"][0]["n"] <= 1:
+            return upper
+        coarse, fine = me["bins"]
+        b = fine if fine["sq"] + 1e-10 < coarse["sq"] else coarse
+        return min(upper, max(lower, b["sum"] / b["n"]))
+
+
+def test_bins_predict_as_the_plain_rule_over_a_long_run():
+    """Thousands of updates and predictions of beliefs at three observed values, most of them
+    updated many times: the bins' predictions equal the plain rule's (the same arithmetic),
+    and the beliefs fall in many bins of both levels (the test is not one bin's)."""
+    rng = np.random.default_rng(3)
+    corner = rng.random((3, 4)) * 10.0
+    bins, ref = _Bins(corner, math.log(4.0), 10), _ReferenceBins(corner, math.log(4.0), 10)
+    beliefs = rng.dirichlet(np.full(4, 0.3), 300)
+    entropy = [float(-(b[b > 0] * np.log(b[b > 0])).sum()) for b in beliefs]
+    for key in rng.integers(0, 300, 6000).tolist():
+        x = key % 3
+        lower = float(rng.normal(5.0, 2.0))
+        upper = lower + float(rng.random()) * 3.0
+        assert bins.predict(key, upper, lower) == ref.predict(key, upper, lower)
+        bins.update(key, x, beliefs[key], entropy[key], upper, lower)
+        ref.update(key, x, beliefs[key], entropy[key], upper, lower)
+    assert bins.predict(10**6, 1.0, 0.0) == 1.0  # never binned
+    assert min(len(level) for level in bins.cells) >= 20
+    assert len(ref.beliefs) == 300
+
+
 def test_bins_are_per_observed_value_and_fixed_by_the_initial_upper_bound():
     bins = _bins()
     b = np.array([0.5, 0.5])

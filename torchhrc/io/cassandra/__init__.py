@@ -81,11 +81,16 @@ __all__ = [
 ]
 
 #: ``read_pomdp(..., sparse="auto")`` reads a model sparsely when its dense ``T (A, S, S)`` or
-#: ``Z (A, S, O)`` would have more entries than this (80 MB in float64; ``torchhrc solve``
-#: with SARSOP uses it). Every problem of the SARSOP suite and its held-out sets below
-#: baseball has at most 6.4 million; a 5,000-state model with 4 successors a state has 150
-#: million, which were 1.2 GB and 3.6 s to read densely (0.4 s sparse).
-AUTO_SPARSE_ENTRIES = 10_000_000
+#: ``Z (A, S, O)`` would have more entries than this (8 MB in float64; ``torchhrc solve``
+#: with SARSOP uses it), and returns it dense after all where ``T`` is dense enough
+#: (:data:`AUTO_DENSE_FRACTION`). It was 10 million until the forty-first session: the six
+#: problems of the SARSOP suite and its held-out sets between 1 and 10 million entries
+#: (TagAvoid and two generated Tags, RockSample(5, 5) and (6, 4) layouts, 0.1-0.6 % of ``T``
+#: nonzero) then solved densely, with twice to five times APPL's memory; sparsely their gap
+#: after 10 CPU-s is narrower on five and equal on one, at 1.1-1.5x APPL's memory
+#: (docs/benchmarks.md, "Sparse above a million entries"). A 5,000-state model with 4
+#: successors a state has 150 million, which were 1.2 GB and 3.6 s to read densely.
+AUTO_SPARSE_ENTRIES = 1_000_000
 #: ...unless at least this fraction of ``T``'s entries are nonzero (a dense model, held as
 #: coordinate lists of 4 numbers an entry, would take more memory and a slower solver path)
 #: and it fits under :data:`~torchhrc.pomdp.sparse.MAX_DENSE_ENTRIES`: it is then returned dense,
@@ -142,7 +147,7 @@ def read_pomdp(
         sparse: return a :class:`~torchhrc.pomdp.sparse.SparsePOMDP` (coordinate lists; for models
             too large to hold densely, e.g. RockSample(7, 8); rewards must then be given as
             ``R: a : s : * : * v``); ``"auto"``: sparse when the dense ``T (A, S, S)`` or
-            ``Z (A, S, O)`` would exceed :data:`AUTO_SPARSE_ENTRIES` entries (1e7: 80 MB in
+            ``Z (A, S, O)`` would exceed :data:`AUTO_SPARSE_ENTRIES` entries (1e6: 8 MB in
             float64), else dense; also dense above it when the model fits under
             :data:`~torchhrc.pomdp.sparse.MAX_DENSE_ENTRIES` (2e8) and at least
             :data:`AUTO_DENSE_FRACTION` of ``T``'s entries are nonzero or its rewards depend

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 from torchhrc._checks import broadcast_shapes
@@ -71,12 +72,25 @@ SPARSE_DIRECT_SOLVE_SIZE = 256
 
 
 def _batched_solve(lhs: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
-    """``torch.linalg.solve(lhs (..., n, n), rhs (..., n, 1))``, one system at a time on a
-    multi-threaded CPU: torch 2.13's batched LU (MKL) with 2 or more threads returns invalid
-    pivots for ``n`` above about 150 (``lu_solve`` then raises; found by the 2-thread rerun of
-    ``.ci/run``); a single system is factored correctly."""
+    """``torch.linalg.solve(lhs (..., n, n), rhs (..., n, 1))``.
+
+    On the CPU without autograd, by numpy's LAPACK (``numpy.linalg.solve``, the same LU with
+    partial pivoting): a process's first ``torch.linalg.solve`` touches pages of libtorch's
+    code that nothing else of a small model's SARSOP solve needs (Tiger's net peak 14.5 ->
+    13.5 MB; docs/benchmarks.md, "One record a belief, ..."). Otherwise one system
+    at a time on a multi-threaded CPU: torch 2.13's batched LU (MKL) with 2 or more threads
+    returns invalid pivots for ``n`` above about 150 (``lu_solve`` then raises; found by the
+    2-thread rerun of ``.ci/run``); a single system is factored correctly."""
     batch = lhs.shape[:-2]
-    if lhs.device.type != "cpu" or torch.get_num_threads() < 2 or math.prod(batch) < 2:
+    cpu = lhs.device.type == "cpu" and rhs.device.type == "cpu"
+    if cpu and not (lhs.requires_grad or rhs.requires_grad) and lhs.dtype == rhs.dtype \
+            and lhs.dtype in (torch.float32, torch.float64):  # fmt: skip
+        try:
+            out = np.linalg.solve(lhs.numpy(), rhs.numpy())
+        except np.linalg.LinAlgError as e:  # torch's error for a singular system
+            raise torch.linalg.LinAlgError(str(e)) from None
+        return torch.from_numpy(out)
+    if not cpu or torch.get_num_threads() < 2 or math.prod(batch) < 2:
         return torch.linalg.solve(lhs, rhs)
     n = lhs.shape[-1]
     flat_l, flat_r = lhs.reshape(-1, n, n), rhs.reshape(-1, n, rhs.shape[-1])

@@ -27,6 +27,19 @@ from torchhrc.solvers.pruning import _GATHER_ELEMENTS, prune_by_beliefs, prune_d
 
 __all__ = ["BeliefTree", "SparseBeliefTree"]
 
+#: bits of a child's key per field: an action, observed value or observation below 2**21
+_EDGE_BITS = 21
+_EDGE_LIMIT = 1 << _EDGE_BITS
+
+
+def _edge_key(parent: int, action: int, x: int, observation: int) -> int:
+    """The one int that keys the child ``(action, x, observation)`` of ``parent``."""
+    for name, v in (("action", action), ("x", x), ("observation", observation)):
+        if not 0 <= v < _EDGE_LIMIT:
+            raise ValueError(f"expected a child's {name} in [0, 2**{_EDGE_BITS}), got {v}")
+    key = ((int(parent) << _EDGE_BITS | int(action)) << _EDGE_BITS | int(x)) << _EDGE_BITS
+    return key | int(observation)
+
 
 class BeliefTree:
     """Sampled beliefs ``(x, b_y)`` in preallocated storage grown geometrically.
@@ -34,9 +47,11 @@ class BeliefTree:
     Per node ``n``: ``belief[n] (Y,)``, ``x[n]``, ``parent[n]`` (-1 at the root), the
     ``action[n]`` and ``observation[n]`` that led to it (with ``x[n]``), ``depth[n]``,
     cached ``lower[n]`` and ``upper[n]`` bounds, and ``active[n]`` (False once pruned as
-    sub-optimal). Children are looked up by ``(node, a, x2, o)``. Scalars live in numpy
-    arrays (cheap single-element access on the sequential trial path); beliefs in one
-    ``(N, Y)`` tensor for batched bounds.
+    sub-optimal). Children are looked up by ``(node, a, x2, o)`` (one int key, a below
+    ``2**21`` each of ``a``, ``x2`` and ``o``) and listed by :meth:`children_of` (each
+    node's first child and next sibling, two arrays: a tuple key and a list per parent held
+    about 170 bytes a node). Scalars live in numpy arrays (cheap single-element access on
+    the sequential trial path); beliefs in one ``(N, Y)`` tensor for batched bounds.
 
     Args:
         belief: ``(Y,)`` the root belief.
@@ -62,7 +77,9 @@ class BeliefTree:
         self.lower = np.full(cap, -np.inf)
         self.upper = np.full(cap, np.inf)
         self.active = np.ones(cap, dtype=bool)
-        self._children: dict[tuple[int, int, int, int], int] = {}
+        self.first_child = np.full(cap, -1, dtype=np.int64)
+        self.next_sibling = np.full(cap, -1, dtype=np.int64)
+        self._children: dict[int, int] = {}
         self._np_beliefs: np.ndarray | None = None
         self._kernel = backup_kernel.load()  # refresh_active's compiled pass (None: numpy)
         self.size = 0
@@ -105,6 +122,7 @@ class BeliefTree:
         for name, fill in (
             ("x", 0), ("parent", -1), ("action", -1), ("observation", -1),
             ("depth", 0), ("lower", -np.inf), ("upper", np.inf), ("active", True),
+            ("first_child", -1), ("next_sibling", -1),
         ):  # fmt: skip
             old = getattr(self, name)
             arr = np.full(cap, fill, dtype=old.dtype)
@@ -117,7 +135,13 @@ class BeliefTree:
         (``belief`` ``(Y,)``: a tensor, or a numpy row when the storage is on the CPU).
 
         Returns the new node's id (the root, with ``parent = -1``, is node 0).
+
+        Raises:
+            ValueError: ``action``, ``x`` or ``observation`` of a child outside
+                ``[0, 2**21)``.
         """
+        if parent >= 0:
+            key = _edge_key(parent, action, int(x), observation)
         if self.size == self.x.shape[0]:
             self._grow()
         n = self.size
@@ -129,12 +153,25 @@ class BeliefTree:
         self.depth[n] = 0 if parent < 0 else self.depth[parent] + 1
         self.size = n + 1
         if parent >= 0:
-            self._children[(parent, action, int(x), observation)] = n
+            self._children[key] = n
+            self.next_sibling[n] = self.first_child[parent]
+            self.first_child[parent] = n
         return n
 
     def child(self, node: int, action: int, x_next: int, observation: int) -> int:
         """The child id for ``(action, x_next, observation)``, or -1 if not sampled yet."""
-        return self._children.get((node, action, x_next, observation), -1)
+        # (as ints: a numpy int64 would overflow the shifts)
+        key = ((int(node) << _EDGE_BITS | int(action)) << _EDGE_BITS | int(x_next)) << _EDGE_BITS
+        return self._children.get(key | int(observation), -1)
+
+    def children_of(self, node: int) -> list[int]:
+        """The children of ``node``, the latest added first."""
+        out = []
+        c = int(self.first_child[node])
+        while c >= 0:
+            out.append(c)
+            c = int(self.next_sibling[c])
+        return out
 
     def refresh_active(self) -> None:
         """Propagate pruning: a node is active only if its parent is.

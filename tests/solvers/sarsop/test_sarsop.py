@@ -436,6 +436,15 @@ def test_belief_tree_grows_and_indexes_children():
     tree.active[2] = False
     tree.refresh_active()
     assert not tree.active[grand] and tree.active[1]
+    # each node's children, the latest first; (a, x2, o) keys do not alias one another
+    assert tree.children_of(0) == [5, 4, 3, 2, 1] and tree.children_of(2) == [grand]
+    assert tree.children_of(grand) == [] and tree.child(2, 1, 0, 1) == grand
+    assert tree.child(2, 0, 1, 1) == -1 and tree.child(2, 1, 1, 0) == -1
+    big = tree.add(torch.tensor([0.5, 0.5], dtype=torch.float64), 2**21 - 1, 0, 2**21 - 1, 7)
+    assert tree.child(0, 2**21 - 1, 2**21 - 1, 7) == big and tree.child(0, 0, 2**21 - 1, 7) == -1
+    assert tree.child(np.int64(0), np.int64(3), np.int64(1), np.int64(0)) == 4  # numpy ints
+    with pytest.raises(ValueError, match=r"child's observation in \[0, 2\*\*21\), got 2097152"):
+        tree.add(torch.tensor([0.5, 0.5], dtype=torch.float64), 0, 1, 0, 2**21)
 
 
 # -- input validation -------------------------------------------------------------------------

@@ -58,7 +58,7 @@ class _Backups:
         self.backups += 1
         top = q[a]  # q_low[a] = max Q_low
         if self.cfg.prune_nodes and min(q_up_list) < top:
-            for c in self.children.get(node, ()):
+            for c in tree.children_of(node):
                 if q_up_list[tree.action[c]] < top:
                     tree.active[c] = False
         if self.cfg.prediction == "binning":
@@ -131,7 +131,7 @@ class _Backups:
         if self.cfg.prune_nodes:
             bad = (ev.q_up < ev.q_low.amax(-1, keepdim=True)).cpu().numpy()  # (B, A)
             for i, n in enumerate(nodes.tolist()):
-                for c in self.children.get(n, ()):
+                for c in tree.children_of(n):
                     if bad[i, tree.action[c]]:
                         tree.active[c] = False
         if self.cfg.prediction == "binning":

@@ -214,7 +214,6 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         self.belief_id = np.zeros(cap, dtype=np.int64)
         for r, row in enumerate(root_b.cpu().numpy()):
             self.belief_id[r] = self._belief_key(int(root_x[r]), row)
-        self.children: dict[int, list[int]] = {}
         span = float(form.R.max() - form.R.min()) / (1.0 - self.gamma)
         if cfg.max_depth is not None:
             self.max_depth = cfg.max_depth
@@ -392,7 +391,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
             # the search's belief tree, upper-bound points and caches are done with: freed
             # before the policy copies the vectors (and checks them: about twice their size
             # at its peak)
-            self._cache, self._child_best, self.children = EvaluationCache(self.A), {}, {}
+            self._cache, self._child_best = EvaluationCache(self.A), {}
             self.tree = self.form.new_tree()
             del self.ub, self.bins  # (the solver is not used after this)
         # the policy takes the vectors as views of the alpha set's storage, not a copy (a

@@ -194,7 +194,6 @@ class _Trials:
         else:
             self.entropy[node] = float(self._entropy(belief.unsqueeze(0))[0])
             self.belief_id[node] = self._belief_key(x, belief.cpu().numpy())
-        self.children.setdefault(parent, []).append(node)
         return node
 
     def _belief_key(self, x: int, row: np.ndarray, nz: np.ndarray | None = None,

@@ -357,17 +357,30 @@ def _appl_row(appl: str, path: Path, limit: float, precision: float) -> dict:
         cmd = [appl, str(path), "--timeout", str(limit), "--precision", str(precision),
                "-o", str(Path(tmp) / "out.policy")]  # fmt: skip
         rc, text, rss, wall = _run_measured(cmd, 3 * limit + 120)
-    found = _appl_rows(text)
-    m = re.search(r"loading time\s*:\s*([0-9.]+)", text)
-    if rc != 0 or not found:
+    if rc != 0 or not _appl_rows(text):
         row["status"] = f"failed (exit {rc}): {text.strip()[-160:]!r}"
         return row
-    t, lo, up, _ = found[-1]
-    reach = next((r[0] for r in found if r[3] <= precision), None)
-    row.update(lower=lo, upper=up, gap=up - lo, time_to_precision_s=reach, peak_rss_mb=rss,
-               solve_s=t, status="ok", wall_s=wall,
-               load_s=float(m.group(1)) if m else None)  # fmt: skip
+    row.update(_appl_figures(text, precision), peak_rss_mb=rss, status="ok", wall_s=wall)
     return row
+
+
+def _appl_figures(text: str, precision: float) -> dict:
+    """From ``pomdpsol``'s output: its last progress row's bounds, its gap (the row's
+    precision column, APPL's own ``upper - lower``: its bounds are printed to 6 significant
+    digits, so on bridge-repair, near -24,269, their difference reads 0 where the gap is
+    8e-4), its CPU time, the first time its gap met ``precision`` and its loading time."""
+    found = _appl_rows(text)
+    m = re.search(r"loading time\s*:\s*([0-9.]+)", text)
+    t, lo, up, gap = found[-1]
+    reach = next((r[0] for r in found if r[3] <= precision), None)
+    return {
+        "lower": lo,
+        "upper": up,
+        "gap": gap,
+        "time_to_precision_s": reach,
+        "solve_s": t,
+        "load_s": float(m.group(1)) if m else None,
+    }
 
 
 def _ours_row(path: Path, limit: float, precision: float, base_mb: float | None = None) -> dict:

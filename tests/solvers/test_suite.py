@@ -395,6 +395,24 @@ def test_suite_goals_compare_bounds_at_equal_cpu() -> None:
     )
 
 
+def test_appl_figures_take_its_gap_from_the_precision_column() -> None:
+    """APPL prints bounds to 6 significant digits: on bridge-repair both read -24269.2 while
+    its gap is 0.000815 (its last row at 10 s, precision 1e-9); the figures take the gap
+    from the precision column, and the time to precision from the first row that met it."""
+    bench = _bench_module()
+    text = """loading time : 0.01s
+ Time   |#Trial |#Backup |LBound    |UBound    |Precision  |#Alphas |#Beliefs
+ 0       0       0        -24300.1   -24100.3   199.8       5        1
+ 3.55    1200    190000   -24269.2   -24269.2   0.000999    4        280
+ 10.01   3772    548010   -24269.2   -24269.2   0.000814926 3        281
+"""
+    fig = bench._appl_figures(text, 1e-3)
+    assert fig["gap"] == 0.000814926 and fig["lower"] == fig["upper"] == -24269.2
+    assert fig["time_to_precision_s"] == 3.55 and fig["solve_s"] == 10.01
+    assert fig["load_s"] == 0.01
+    assert bench._appl_figures(text, 1e-4)["time_to_precision_s"] is None
+
+
 def test_make_suite_rewrites_a_model_too_large_to_hold_densely(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

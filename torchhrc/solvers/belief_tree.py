@@ -32,6 +32,14 @@ _EDGE_BITS = 21
 _EDGE_LIMIT = 1 << _EDGE_BITS
 
 
+#: each node's scalar arrays and their fill (:meth:`BeliefTree._grow`)
+_NODE_ARRAYS = (
+    ("x", 0), ("parent", -1), ("action", -1), ("observation", -1), ("depth", 0),
+    ("lower", -np.inf), ("upper", np.inf), ("active", True), ("first_child", -1),
+    ("next_sibling", -1),
+)  # fmt: skip
+
+
 def _edge_key(parent: int, action: int, x: int, observation: int) -> int:
     """The one int that keys the child ``(action, x, observation)`` of ``parent``."""
     for name, v in (("action", action), ("x", x), ("observation", observation)):
@@ -116,14 +124,18 @@ class BeliefTree:
         else:
             self._beliefs[n] = belief
 
+    def node_bytes(self) -> int:
+        """The bytes a node takes in the storage that :meth:`add` grows by doubling: its
+        scalar arrays and, stored densely, its belief row (a doubling copies
+        ``size * node_bytes()``; the search's memory guard reserves it)."""
+        beliefs = getattr(self, "_beliefs", None)
+        row = beliefs.shape[1] * beliefs.element_size() if isinstance(beliefs, torch.Tensor) else 0
+        return row + sum(getattr(self, name).itemsize for name, _ in _NODE_ARRAYS)
+
     def _grow(self) -> None:
         cap = self.x.shape[0] * 2
         self._grow_beliefs(cap)
-        for name, fill in (
-            ("x", 0), ("parent", -1), ("action", -1), ("observation", -1),
-            ("depth", 0), ("lower", -np.inf), ("upper", np.inf), ("active", True),
-            ("first_child", -1), ("next_sibling", -1),
-        ):  # fmt: skip
+        for name, fill in _NODE_ARRAYS:
             old = getattr(self, name)
             arr = np.full(cap, fill, dtype=old.dtype)
             arr[: self.size] = old[: self.size]

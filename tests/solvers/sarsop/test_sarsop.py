@@ -443,6 +443,10 @@ def test_belief_tree_grows_and_indexes_children():
     big = tree.add(torch.tensor([0.5, 0.5], dtype=torch.float64), 2**21 - 1, 0, 2**21 - 1, 7)
     assert tree.child(0, 2**21 - 1, 2**21 - 1, 7) == big and tree.child(0, 0, 2**21 - 1, 7) == -1
     assert tree.child(np.int64(0), np.int64(3), np.int64(1), np.int64(0)) == 4  # numpy ints
+    # what a doubling copies a node: 2 float64 belief entries, 7 int64 and 2 float64 scalars
+    # (x, parent, action, observation, depth, first child, next sibling; lower, upper) and
+    # the active flag
+    assert tree.node_bytes() == 2 * 8 + 7 * 8 + 2 * 8 + 1
     with pytest.raises(ValueError, match=r"child's observation in \[0, 2\*\*21\), got 2097152"):
         tree.add(torch.tensor([0.5, 0.5], dtype=torch.float64), 0, 1, 0, 2**21)
 

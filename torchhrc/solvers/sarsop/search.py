@@ -264,10 +264,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         if alphas.vectors.shape[0] - alphas.size <= self._longest:
             pending += alphas.size * row
         if tree.x.shape[0] - tree.size <= self._longest:
-            beliefs = getattr(tree, "_beliefs", None)
-            per_node = 64 + (beliefs.shape[1] * beliefs.element_size()
-                             if isinstance(beliefs, torch.Tensor) else 0)  # fmt: skip
-            pending += tree.size * per_node
+            pending += tree.size * tree.node_bytes()
         return pending
 
     def _out_of_budget(self) -> bool:

@@ -55,9 +55,9 @@ class BeliefTree:
     Per node ``n``: ``belief[n] (Y,)``, ``x[n]``, ``parent[n]`` (-1 at the root), the
     ``action[n]`` and ``observation[n]`` that led to it (with ``x[n]``), ``depth[n]``,
     cached ``lower[n]`` and ``upper[n]`` bounds, and ``active[n]`` (False once pruned as
-    sub-optimal). Children are looked up by ``(node, a, x2, o)`` (one int key, a below
-    ``2**21`` each of ``a``, ``x2`` and ``o``) and listed by :meth:`children_of` (each
-    node's first child and next sibling, two arrays: a tuple key and a list per parent held
+    sub-optimal). Children are looked up by ``(node, a, x2, o)``, packed into one int key
+    (``a``, ``x2`` and ``o`` each below ``2**21``), and listed by :meth:`children_of` (each
+    node's first child and next sibling, two arrays; a tuple key and a list per parent held
     about 170 bytes a node). Scalars live in numpy arrays (cheap single-element access on
     the sequential trial path); beliefs in one ``(N, Y)`` tensor for batched bounds.
 

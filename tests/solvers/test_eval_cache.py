@@ -10,7 +10,13 @@ import numpy as np
 import pytest
 import torch
 
-from torchhrc.solvers.eval_cache import PACK_FRACTION, EvaluationCache, pack, unpack
+from torchhrc.solvers.eval_cache import (
+    PACK_FRACTION,
+    EvaluationCache,
+    pack,
+    unpack,
+    upper_part,
+)
 from torchhrc.solvers.sarsop import SARSOPConfig
 from torchhrc.solvers.sarsop.search import _SARSOP
 from torchhrc.tasks.classic import tag
@@ -50,6 +56,8 @@ def test_a_record_is_laid_out_as_documented():
     assert views[4][1, 0, 0] == 10.0 and views[1][1] == 4.0
     views[3][0, 0, 1] = 7.0  # views, not copies
     assert record[9] == 7.0
+    q_up, up = upper_part(record, 2)  # what a backup reads of a stale record
+    assert q_up.tolist() == [3, 4] and up.tolist() == [5, 5, 10, 0]
     with pytest.raises(ValueError, match="2 A \\+ 3 A K O entries"):
         unpack(record[:-1], 2, 2)
     with pytest.raises(ValueError, match="K >= 1"):

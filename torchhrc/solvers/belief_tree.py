@@ -41,12 +41,18 @@ _NODE_ARRAYS = (
 
 
 def _edge_key(parent: int, action: int, x: int, observation: int) -> int:
-    """The one int that keys the child ``(action, x, observation)`` of ``parent``."""
+    """The one int that keys the child ``(action, x, observation)`` of ``parent`` (as ints: a
+    numpy int64 would overflow the shifts); unchecked, see :func:`_checked_edge_key`."""
+    key = ((int(parent) << _EDGE_BITS | int(action)) << _EDGE_BITS | int(x)) << _EDGE_BITS
+    return key | int(observation)
+
+
+def _checked_edge_key(parent: int, action: int, x: int, observation: int) -> int:
+    """:func:`_edge_key`, each of ``action``, ``x`` and ``observation`` checked to fit."""
     for name, v in (("action", action), ("x", x), ("observation", observation)):
         if not 0 <= v < _EDGE_LIMIT:
             raise ValueError(f"expected a child's {name} in [0, 2**{_EDGE_BITS}), got {v}")
-    key = ((int(parent) << _EDGE_BITS | int(action)) << _EDGE_BITS | int(x)) << _EDGE_BITS
-    return key | int(observation)
+    return _edge_key(parent, action, x, observation)
 
 
 class BeliefTree:
@@ -153,7 +159,7 @@ class BeliefTree:
                 ``[0, 2**21)``.
         """
         if parent >= 0:
-            key = _edge_key(parent, action, int(x), observation)
+            key = _checked_edge_key(parent, action, int(x), observation)
         if self.size == self.x.shape[0]:
             self._grow()
         n = self.size
@@ -172,9 +178,7 @@ class BeliefTree:
 
     def child(self, node: int, action: int, x_next: int, observation: int) -> int:
         """The child id for ``(action, x_next, observation)``, or -1 if not sampled yet."""
-        # (as ints: a numpy int64 would overflow the shifts)
-        key = ((int(node) << _EDGE_BITS | int(action)) << _EDGE_BITS | int(x_next)) << _EDGE_BITS
-        return self._children.get(key | int(observation), -1)
+        return self._children.get(_edge_key(node, action, x_next, observation), -1)
 
     def children_of(self, node: int) -> list[int]:
         """The children of ``node``, the latest added first."""

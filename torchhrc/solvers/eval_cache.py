@@ -33,7 +33,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-__all__ = ["EvaluationCache", "pack", "unpack"]
+__all__ = ["EvaluationCache", "pack", "unpack", "upper_part"]
 
 Entry = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
@@ -70,6 +70,14 @@ def unpack(record: np.ndarray, num_actions: int, num_obs: int) -> Entry:
     p = 2 * A
     return (record[:A], record[A:p], record[p : p + C].reshape(s),
             record[p + C : p + 2 * C].reshape(s), record[p + 2 * C :].reshape(s))  # fmt: skip
+
+
+def upper_part(record: np.ndarray, num_actions: int) -> tuple[np.ndarray, np.ndarray]:
+    """``Q_up (A,)`` and the children's upper bounds ``(A K O,)`` of a record (views; what a
+    backup reads of a belief's last evaluation, without the observation count)."""
+    A = num_actions
+    C = (record.shape[0] - 2 * A) // 3
+    return record[A : 2 * A], record[2 * A + 2 * C :]
 
 
 class EvaluationCache:

@@ -34,11 +34,9 @@ class _Bins:
         self.sizes = (max(1, (n + 1) // 2), n) if n > 1 else (1,)
         # per level, the bins in use: (x, i, j) -> [sum of lower bounds, count, squared error,
         # the bin's number] (plain floats in lists: a backup updates two bins, where numpy
-        # scalar access cost more than the arithmetic), and the same cells by number, with
-        # their (x, i, j)
+        # scalar access cost more than the arithmetic), and the same cells by number
         self.cells: list[dict[tuple[int, int, int], list[float]]] = [{} for _ in self.sizes]
         self._cell_list: list[list[list[float]]] = [[] for _ in self.sizes]
-        self._cell_key: list[list[tuple[int, int, int]]] = [[] for _ in self.sizes]
         # per belief id (the search's ids run 0, 1, 2, ...): its cell's number per level (-1:
         # not binned yet), its last lower bound and its squared error per level, in flat
         # arrays (8 bytes an entry, where a list per belief held about 650 bytes of objects)
@@ -59,7 +57,9 @@ class _Bins:
         """The bin ``(i, j)`` of the belief ``key`` at each level, or None if not binned."""
         if key >= len(self._lower) or self._at[0][key] < 0:
             return None
-        return [self._cell_key[lv][at[key]][1:] for lv, at in enumerate(self._at)]
+        # (a lookup for tests and inspection: the cells are few)
+        return [next(k[1:] for k, cell in self.cells[lv].items() if cell[3] == at[key])
+                for lv, at in enumerate(self._at)]  # fmt: skip
 
     def update(self, key: int, x: int, belief: np.ndarray, entropy: float, upper: float,
                lower: float) -> None:  # fmt: skip
@@ -76,7 +76,6 @@ class _Bins:
                     cell = [0.0, 0.0, 0.0, len(self._cell_list[lv])]
                     self.cells[lv][(x, i, j)] = cell
                     self._cell_list[lv].append(cell)
-                    self._cell_key[lv].append((x, i, j))
                 c = cell[1]
                 err = upper - lower if c == 0 else cell[0] / c - lower
                 cell[2] += err * err

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from torchhrc.solvers import backup_kernel
-from torchhrc.solvers.eval_cache import pack
+from torchhrc.solvers.eval_cache import pack, upper_part
 from torchhrc.solvers.upper_bound import _ROWS
 
 __all__: list[str] = []
@@ -196,7 +196,7 @@ class _Bounds:
             up[nz] = up_r[:m]
             q_up = reward + self.gamma * up.reshape(A, -1).sum(-1)
             return up, q_up, float(up_r[m])
-        q_up, up = (v.copy() for v in _stale_upper(stale, A))
+        q_up, up = (v.copy() for v in upper_part(stale, A))
         # plain floats and lists: the loop runs over A values one to three times per
         # backup, where each numpy call costs more than the arithmetic (aloha: 9 actions)
         q = q_up.tolist()
@@ -286,7 +286,7 @@ class _Bounds:
             low, best, q_low, up, q_up, cu = backup_kernel.bound_children(
                 self._kernel, ch.rows, ch.rows_x.astype(np.int64, copy=False), ch.nz, low_r,
                 best_r, ch.reward, self.gamma,
-                None if stale is None else _stale_upper(stale, A),
+                None if stale is None else upper_part(stale, A),
                 self.ub.loop_storage(xs), A * K * O,
             )  # fmt: skip
             lo, own = float(low_r[m]), int(best_r[m])
@@ -400,9 +400,3 @@ class _Bounds:
         self._cache[int(self.belief_id[node])] = record
         self._child_best[int(self.belief_id[node])] = ev.best[i].reshape(-1).cpu().numpy()
         return record
-
-
-def _stale_upper(record: np.ndarray, A: int) -> tuple[np.ndarray, np.ndarray]:
-    """``Q_up (A,)`` and the children's upper bounds ``(A K O,)`` of a cached record (views)."""
-    C = (record.shape[0] - 2 * A) // 3
-    return record[A : 2 * A], record[2 * A + 2 * C :]

@@ -117,6 +117,13 @@ def test_validation_and_to():
         AlphaVectorPolicy(torch.zeros(2, 2), torch.zeros(2))
     with pytest.raises(ModelError, match="not finite"):
         AlphaVectorPolicy(torch.tensor([[0.0, float("nan")]]), torch.zeros(1, dtype=torch.long))
+    for bad in (float("nan"), float("inf"), -float("inf")):  # one entry deep in the vectors
+        for dtype in (torch.float32, torch.float64):
+            alphas = torch.randn(300, 70, dtype=dtype)
+            alphas[211, 43] = bad
+            with pytest.raises(ModelError, match=r"alphas\[211, 43\] = (nan|-?inf) is not"):
+                AlphaVectorPolicy(alphas, torch.zeros(300, dtype=torch.long))
+    AlphaVectorPolicy(torch.zeros(0, 3), torch.zeros(0, dtype=torch.long))  # no vector: fine
     with pytest.raises(ModelError, match=r"belief to have shape \(\.\.\., S=2\)"):
         _flat().value(torch.ones(3))
     p32 = _flat().to(dtype=torch.float32)

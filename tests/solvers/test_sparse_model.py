@@ -249,6 +249,35 @@ def test_sparse_belief_tree_stores_supports() -> None:
     assert tree.child(4, 2, 0, 0) == 9 and int(tree.depth[9]) == 3
 
 
+@pytest.mark.parametrize("entries", [1 << 18, 3 * 40])
+def test_sparse_tree_keep_alphas_is_the_first_argmax_at_any_block(entries, monkeypatch) -> None:
+    """The sparse tree keeps, at each node's belief, the vector of largest value (against a
+    plain dense argmax), the first of equal ones, whatever the block of vectors it scores at
+    once (``entries // S`` vectors: all 20 at once, or 3 at a time)."""
+    import torchhrc.solvers.belief_tree as belief_tree_module
+
+    monkeypatch.setattr(belief_tree_module, "_GATHER_ELEMENTS", entries)
+    g = torch.Generator().manual_seed(3)
+    S, N = 40, 20
+    vectors = torch.randn(N, S, generator=g, dtype=torch.float64)
+    root = torch.zeros(S, dtype=torch.float64)
+    root[[0, 7]] = 0.5
+    tree = SparseBeliefTree(root, x=0, capacity=2)
+    for i in range(11):
+        b = torch.rand(S, generator=g, dtype=torch.float64) * (torch.rand(S, generator=g) < 0.3)
+        b[i] += 0.1
+        tree.add(b / b.sum(), 0, 0, i % 3, i)
+    nodes = np.array([3, 0, 9, 5, 11, 7])
+    keep = tree.keep_alphas(vectors, None, nodes)
+    winners = set((tree.beliefs[nodes] @ vectors.T).argmax(-1).tolist())
+    assert len(winners) > 2 and keep.tolist() == [i in winners for i in range(N)]
+    vectors[12] = vectors[5] + 10.0  # equal vectors in blocks apart, best everywhere:
+    vectors[5] = vectors[12]  # the first is kept
+    assert tree.keep_alphas(vectors, None, nodes).tolist() == [i == 5 for i in range(N)]
+    vectors[5] -= 20.0  # now vector 12 is
+    assert tree.keep_alphas(vectors, None, nodes).tolist() == [i == 12 for i in range(N)]
+
+
 def _same_inits(model: POMDP) -> dict:
     """Both solves start from the same bounds (their equality is tested above, to 1e-6; a
     difference at that level may break a tie differently and grow another tree)."""

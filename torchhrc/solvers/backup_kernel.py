@@ -466,6 +466,26 @@ def dominated(kernel: ModuleType, vectors: np.ndarray, ids: np.ndarray,
     return keep
 
 
+class AlphaStore(NamedTuple):
+    """The alpha vectors' one store as the compiled scoring reads it (SARSOP's ``_AlphaSet``,
+    :meth:`~torchhrc.solvers.sarsop.alpha_set._AlphaSet.scoring_storage`): what a belief tree
+    passes to :func:`keep_alphas` where its storage allows the compiled pruning
+    (:meth:`~torchhrc.solvers.belief_tree.BeliefTree.keep_alphas`).
+
+    Example:
+        >>> store = AlphaStore(None, np.zeros((4, 2)), [np.array([0, 1])], np.array([2]),
+        ...                    np.zeros(2, dtype=np.int64))
+        >>> store.observed.shape  # the two vectors in use
+        (2,)
+    """
+
+    kernel: Any  #: the module of :func:`load`
+    vectors: np.ndarray  #: ``(capacity, Y)`` float64, the rows in use first
+    gid: list[np.ndarray]  #: per observed value, the indices of its vectors
+    gn: np.ndarray  #: per observed value, how many of ``gid[x]`` are in use
+    observed: np.ndarray  #: ``(n,)`` int64, each vector's observed value
+
+
 def keep_alphas(kernel: ModuleType, vectors: np.ndarray, gid: list[np.ndarray], gn: np.ndarray,
                 observed: np.ndarray, beliefs: np.ndarray, nodes: np.ndarray,
                 nodes_x: np.ndarray, atol: float = 0.0) -> np.ndarray:  # fmt: skip

@@ -214,15 +214,23 @@ class BeliefTree:
             act[nodes] &= act[parent[nodes]]
 
     def keep_alphas(self, vectors: torch.Tensor, groups: torch.Tensor | None,
-                    nodes: np.ndarray) -> torch.Tensor:  # fmt: skip
+                    nodes: np.ndarray, store: backup_kernel.AlphaStore | None = None,
+                    ) -> torch.Tensor:  # fmt: skip
         """``(N,)`` bool: the alpha vectors ``(N, Y)`` to keep, those that win at some of the
         tree beliefs ``nodes`` and are not pointwise dominated.
 
         The quadratic dominance test runs only on the survivors of the cheap belief test
         (both keep the maximum at every tree belief). ``groups`` ``(N,)``: the observed value
         of each vector (None: one observed value); a vector competes only at beliefs of its
-        own observed value.
+        own observed value. With ``store``, the same vectors' store as the compiled scoring
+        reads it, and rows of float64 on the CPU, the compiled rule decides
+        (:func:`~torchhrc.solvers.backup_kernel.keep_alphas`: the same winners, a vector
+        apart only where it scores within rounding of a winner).
         """
+        if store is not None and self._beliefs.dtype == torch.float64 and not self._beliefs.is_cuda:
+            return torch.from_numpy(backup_kernel.keep_alphas(
+                store.kernel, store.vectors, store.gid, store.gn, store.observed,
+                self.beliefs_np, nodes, self.x[nodes]))  # fmt: skip
         dev = self._beliefs.device
         bgroups = None
         if groups is not None:
@@ -295,9 +303,11 @@ class SparseBeliefTree(BeliefTree):
         return self.csr(np.arange(self.size)).to_dense()
 
     def keep_alphas(self, vectors: torch.Tensor, groups: torch.Tensor | None,
-                    nodes: np.ndarray) -> torch.Tensor:  # fmt: skip
+                    nodes: np.ndarray, store: backup_kernel.AlphaStore | None = None,
+                    ) -> torch.Tensor:  # fmt: skip
         """``(N,)`` bool: the vectors that win at some tree belief of ``nodes`` (a sparse
-        ``(M, S) x (S, N)`` product, by blocks; flat, so ``groups`` is unused).
+        ``(M, S) x (S, N)`` product, by blocks; flat, so ``groups`` is unused, and the
+        compiled rule, which reads dense rows, too: ``store``).
 
         The pointwise-dominance test is skipped: it costs ``N^2 S`` comparisons (large ``S``
         is why this storage exists), and a dominated vector never wins at a belief unless tied.
@@ -306,10 +316,12 @@ class SparseBeliefTree(BeliefTree):
         keep = torch.zeros(N, dtype=torch.bool)
         if not M or not N:
             return keep
-        # the vectors as columns a block at a time (16 MB; a whole transposed copy is as large
-        # as the vectors: 200 MB at 1,300 vectors of 20,000 states), each belief's first
-        # maximum over the blocks as an argmax over all
-        cols = max(1, min(N, (_GATHER_ELEMENTS * 8) // max(1, vectors.shape[1])))
+        # the vectors as columns a block at a time (2^18 entries, 2 MB; a whole transposed
+        # copy is as large as the vectors: 200 MB at 1,300 vectors of 20,000 states), each
+        # belief's first maximum over the blocks as an argmax over all. Blocks of 16 MB left
+        # up to 120 MB more resident after each pruning of the 20,000-state model's vectors
+        # (freed heap that glibc kept), and took twice as long
+        cols = max(1, min(N, _GATHER_ELEMENTS // max(1, vectors.shape[1])))
         step = max(1, _GATHER_ELEMENTS // cols)  # (m, cols) scores a block at once
         csr = [self.csr(nodes[start : start + step]) for start in range(0, M, step)]
         dtype = csr[0].dtype  # the beliefs' (narrower vectors are scored in it, a block at a time)

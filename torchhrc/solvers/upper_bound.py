@@ -60,8 +60,11 @@ _NO_IDS, _NO_KEYS = np.empty(0, dtype=np.int64), np.empty(0)  # no key order bui
 
 
 #: At most this many dense belief entries at a time in :meth:`SawtoothUpperBound.prune`
-#: (2^22 floats: 32 MB), whatever the block of points it disables together.
-_DENSE_ENTRIES = 1 << 22
+#: (2^20 floats: 8 MB, and as much again for their product with the corners), whatever the
+#: block of points it disables together. At 2^22 each pruning of the 20,000-state model's
+#: points raised the resident memory by about 70 MB for its duration, the solve's peak at
+#: 10 s where it fell late; the values are the same at any size (each row's own).
+_DENSE_ENTRIES = 1 << 20
 
 
 class SawtoothUpperBound:

@@ -90,16 +90,13 @@ class _Pruning:
         # from: a backup chooses child vectors at children outside the tree, and without
         # them the greedy policy cannot realise a kept vector's value (before:
         # RockSample_7_8.pomdpx, written policy 16.4 simulated against a lower bound 20.3)
-        rows = self.tree.beliefs_np if self._vkernel is not None else None
-        if isinstance(rows, np.ndarray):  # a dense tree and float64 vectors: compiled
-            V, gid, gn = self.alphas.scoring_storage()
-            mask = backup_kernel.keep_alphas(self._vkernel, V, gid, gn,
-                                             self.alphas.np_observed[:n], rows, act,
-                                             self.tree.x[act])  # fmt: skip
-        else:
-            obs = self.alphas.observed[:n]
-            mask = self.tree.keep_alphas(self.alphas.vectors[:n], obs if self.X > 1 else None,
-                                         act).cpu().numpy()  # fmt: skip
+        # (float64 vectors: their store for the compiled rule, which the tree takes where
+        # its storage allows)
+        store = None if self._vkernel is None else backup_kernel.AlphaStore(
+            self._vkernel, *self.alphas.scoring_storage(), self.alphas.np_observed[:n])  # fmt: skip
+        obs = self.alphas.observed[:n]
+        mask = self.tree.keep_alphas(self.alphas.vectors[:n], obs if self.X > 1 else None, act,
+                                     store).cpu().numpy()  # fmt: skip
         # and the best vectors at the children of the active tree beliefs (APPL certifies
         # a vector at any belief of its cache, the unexpanded children of the tree
         # included): a backup of a tree belief combines the best vectors at its children,

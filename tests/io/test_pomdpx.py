@@ -615,6 +615,28 @@ def test_sparse_auto_above_the_dense_threshold(monkeypatch):
     _same_pomdp(m.to_dense(), read_pomdpx(text, momdp=False))
 
 
+@pytest.mark.parametrize("limit", [None, 10])
+def test_sparse_auto_reads_a_flat_model_as_read_pomdp_does(limit, tmp_path, monkeypatch):
+    """A flat model's ``sparse="auto"`` form is the one ``read_pomdp`` gives the same model
+    from a ``.pomdp`` file: sparse above ``io.cassandra.AUTO_SPARSE_ENTRIES`` entries (1e6;
+    ``limit``: 10) unless a tenth of ``T`` is nonzero (Tiger: 12 entries, 83 %), so that the
+    two files solve the same way. RockSample(4, 4) flat (594,441 entries of ``T``, 0.4 %
+    nonzero) is dense at 1e6 and sparse at 10."""
+    from torchhrc.io import cassandra
+
+    if limit is not None:
+        monkeypatch.setattr(cassandra, "AUTO_SPARSE_ENTRIES", limit)
+    for name, model in (("tiger", tiger()), ("rs44", rock_sample(4, 4))):
+        write_pomdpx(model, tmp_path / f"{name}.pomdpx")
+        cassandra.write_pomdp(model, tmp_path / f"{name}.pomdp")
+        got = read_pomdpx(tmp_path / f"{name}.pomdpx")
+        assert type(got) is type(cassandra.read_pomdp(tmp_path / f"{name}.pomdp", sparse="auto"))
+        sparse = name == "rs44" and limit is not None
+        assert isinstance(got, SparsePOMDP if sparse else POMDP), name
+        if sparse:
+            _same_pomdp(got.to_dense(), model)
+
+
 # ----------------------------------------------------------------------------- round trips
 
 

@@ -91,6 +91,7 @@ from typing import Any, Literal
 import torch
 
 from torchhrc.errors import ModelError, ParseError
+from torchhrc.io import cassandra
 from torchhrc.io._budget import check_budget, resolve_budget
 from torchhrc.io._gc import gc_paused
 from torchhrc.io.pomdpx.builder import _Builder
@@ -194,7 +195,9 @@ def read_pomdpx(
             every dense tensor is within :data:`AUTO_SPARSE_ENTRIES` (by default the same
             2e8) and a MOMDP's ``Tx`` and ``Ty`` within :data:`AUTO_SPARSE_MOMDP_ENTRIES`
             (1e7), else sparse (a MOMDP's transitions as a
-            :class:`~torchhrc.pomdp.sparse_momdp.SparseMOMDP` when its ``Z`` fits).
+            :class:`~torchhrc.pomdp.sparse_momdp.SparseMOMDP` when its ``Z`` fits); a flat
+            model is also read sparsely where :func:`~torchhrc.io.cassandra.read_pomdp` would
+            read it so (``T`` or ``Z`` above 1e6 entries, under a tenth of ``T`` nonzero).
         momdp: return a :class:`~torchhrc.pomdp.MOMDP` when the file has an observed
             (``fullyObs="true"``) state variable and the dense ``Tx``, ``Ty`` (unless
             static) and ``Z`` fit, a :class:`~torchhrc.pomdp.sparse_momdp.SparseMOMDP` when only
@@ -308,9 +311,21 @@ def _parse_tree(
             f"(more than {MAX_DENSE_ENTRIES:.3g}); read it with sparse=True or 'auto'",
             path=path,
         )
-    use_sparse = sparse is True or (sparse == "auto" and (dense > limit or not fits("dense")))
+    use_sparse = sparse is True or (
+        sparse == "auto" and (dense > limit or not fits("dense") or _sparse_as_pomdp(b, dense))
+    )
     check("sparse" if use_sparse else "dense")
     return _wrap(lambda: b.flat(b0, use_sparse, dtype, device), path)
+
+
+def _sparse_as_pomdp(b: _Builder, dense: int) -> bool:
+    """Whether ``read_pomdp(..., sparse="auto")`` would read this flat model sparsely: ``T`` or
+    ``Z`` above :data:`torchhrc.io.cassandra.AUTO_SPARSE_ENTRIES` entries (1e6) and under
+    :data:`~torchhrc.io.cassandra.AUTO_DENSE_FRACTION` of ``T`` nonzero (here estimated from
+    the tables), so that a model solves the same way from either file."""
+    if dense <= cassandra.AUTO_SPARSE_ENTRIES:
+        return False
+    return b.transition_nonzeros() < cassandra.AUTO_DENSE_FRACTION * b.A * b.S * b.S
 
 
 def _wrap(build: Any, path: str) -> Any:

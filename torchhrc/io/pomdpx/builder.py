@@ -256,6 +256,10 @@ class _Builder:
 
     # ------------------------------------------------------------------ memory
 
+    def transition_nonzeros(self) -> float:
+        """The flat ``T``'s nonzeros, estimated from the tables (:meth:`_entries`)."""
+        return self._entries([self.r.transition[n] for n in self.xc + self.yc])
+
     def _entries(self, tables: list[_Table]) -> float:
         """The nonzeros an expansion over ``tables`` from every ``(a, s)`` row makes, estimated
         as ``A S`` times each table's mean nonzeros per row (exact for tables whose rows have

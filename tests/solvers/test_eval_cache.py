@@ -13,6 +13,7 @@ import torch
 from torchhrc.solvers.eval_cache import (
     PACK_FRACTION,
     EvaluationCache,
+    action_prob,
     pack,
     unpack,
     upper_part,
@@ -58,6 +59,8 @@ def test_a_record_is_laid_out_as_documented():
     assert record[9] == 7.0
     q_up, up = upper_part(record, 2)  # what a backup reads of a stale record
     assert q_up.tolist() == [3, 4] and up.tolist() == [5, 5, 10, 0]
+    assert action_prob(record, 2, 0).tolist() == [0.5, 0.5]  # an action's children's P
+    assert action_prob(record, 2, 1).tolist() == [1, 0]
     with pytest.raises(ValueError, match="2 A \\+ 3 A K O entries"):
         unpack(record[:-1], 2, 2)
     with pytest.raises(ValueError, match="K >= 1"):

@@ -33,7 +33,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-__all__ = ["EvaluationCache", "pack", "unpack", "upper_part"]
+__all__ = ["EvaluationCache", "action_prob", "pack", "unpack", "upper_part"]
 
 Entry = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
@@ -78,6 +78,20 @@ def upper_part(record: np.ndarray, num_actions: int) -> tuple[np.ndarray, np.nda
     A = num_actions
     C = (record.shape[0] - 2 * A) // 3
     return record[A : 2 * A], record[2 * A + 2 * C :]
+
+
+def action_prob(record: np.ndarray, num_actions: int, action: int) -> np.ndarray:
+    """``(K O,)`` the probabilities of action ``action``'s children in a record (a view;
+    what a backup reads to tell the action's possible children).
+
+    Example:
+        >>> prob = np.arange(8.0).reshape(2, 2, 2)
+        >>> action_prob(pack(np.zeros(2), np.ones(2), prob, prob, prob), 2, 1).tolist()
+        [4.0, 5.0, 6.0, 7.0]
+    """
+    A = num_actions
+    n = (record.shape[0] - 2 * A) // (3 * A)  # K O
+    return record[2 * A + action * n : 2 * A + (action + 1) * n]
 
 
 class EvaluationCache:

@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from torchhrc.solvers.eval_cache import action_prob
+
 __all__: list[str] = []
 
 
@@ -33,7 +35,7 @@ class _Backups:
             C = best.shape[0]
             n = C // A  # the action's children (K O), in (k, o) order
             use = best[a * n : (a + 1) * n]
-            p_a = record[2 * A + a * n : 2 * A + (a + 1) * n]
+            p_a = action_prob(record, A, a)
             if np.count_nonzero(p_a) < n:  # some child of a is impossible
                 possible = p_a > 0
                 fill = self._impossible_best_np(x, b, child_x[a * n : (a + 1) * n], possible, own)
@@ -49,8 +51,9 @@ class _Backups:
         self._child_best[bid] = best
         if nl > lo + 1e-10 * max(abs(nl), 1.0):
             n = best.shape[0] // A
-            p_a = record[2 * A + a * n : 2 * A + (a + 1) * n]
-            self.alphas.add_np(alpha, a, x, best[a * n : (a + 1) * n][p_a > 0])
+            self.alphas.add_np(
+                alpha, a, x, best[a * n : (a + 1) * n][action_prob(record, A, a) > 0]
+            )
         if nu < cu - 1e-10 * max(abs(cu), 1.0):
             self.ub.add_np(b, x, nu)
         low, up = max(lo, nl), min(cu, nu)

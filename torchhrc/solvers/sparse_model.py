@@ -126,7 +126,6 @@ class SparseFlatModel:
         # so row sums are plain gathers
         self._one_per_row = vals.size == A * S and bool((np.diff(self._ptr) == 1).all())
         self.nnz = int(vals.size)
-        self._pairs: tuple[np.ndarray, ...] | None = None  # FIB's (T, Z) pairs, on first use
         # torch CSR: T[a] (S, S) per action and the stacked transposes (A S, S)
         self.T_csr = [
             _csr(
@@ -253,57 +252,80 @@ class SparseFlatModel:
 
             R[a, s] + gamma sum_o max_a2 sum_s2 T[a, s, s2] Z[a, s2, o] alpha[a2, s2]
 
-        over the pairs of a nonzero of ``T`` and a nonzero of ``Z`` in the row it leads to
-        (:meth:`_fib_pairs`): one ``(A2,)`` product per pair, summed per ``(a, s, o)``. The
-        work is ``A2`` times the pairs, where a product over every observation was ``O A2``
-        per nonzero of ``T`` (a random sparse model of 5,000 states, 16 observations, 3
-        possible a state: 330 ms a step, so SARSOP's initial bound stopped on its budget).
+        (:meth:`fib_operator`'s step; an iteration takes the operator, which forms the pairs
+        of nonzeros once).
+        """
+        return self.fib_operator()(alpha)
+
+    def fib_operator(self) -> Callable[[np.ndarray], np.ndarray]:
+        """:meth:`fib_np` as a function of ``alpha``, over the pairs of a nonzero of ``T`` and
+        a nonzero of ``Z`` in the row it leads to (:meth:`_fib_pairs`), formed once for the
+        operator and freed with it: one ``(A2,)`` product per pair, summed per ``(a, s, o)``.
+        The work is ``A2`` times the pairs, where a product over every observation was
+        ``O A2`` per nonzero of ``T`` (a random sparse model of 5,000 states, 16 observations,
+        3 possible a state: 330 ms a step, so SARSOP's initial bound stopped on its budget).
+        The pairs are the initial bound's only (14 MB on the 20,000-state model of the scale
+        check set, 70 MB at 100,000 states): the model held them for the whole solve until
+        the forty-second session.
+
+        Example:
+            >>> from torchhrc.pomdp import SparsePOMDP
+            >>> from torchhrc.tasks.classic import tiger
+            >>> model = SparseFlatModel.from_model(SparsePOMDP.from_dense(tiger()))
+            >>> step = model.fib_operator()
+            >>> alpha = np.zeros((3, 2))
+            >>> bool(np.allclose(step(alpha), model.R.numpy()))  # from 0: the rewards
+            True
         """
         A, S, O = self.num_actions, self.num_states, self.num_observations
         zval, tval, col, starts, cells = self._fib_pairs()
-        # the products as (Z alpha) T, summed in T's order, and the sum over o of a dense
-        # (A, S, O), as the product over every observation did: the same floats but where
-        # numpy's reduceat adds a group's terms in another order (three of them against four
-        # with a zero: the last bit, on Tag). The (P, A2) products are formed a run of whole
-        # groups at a time (about 2^20 pairs), in place, and each run's maxima go straight
-        # into the (A, S, O) table: a step's temporaries on a 100,000-state model 168 -> 88 MB
-        U, P = starts.size, zval.size
-        best = np.zeros(A * S * O, dtype=np.result_type(alpha, zval))
-        i0 = 0
-        while i0 < U:
-            p0 = int(starts[i0])
-            i1 = max(i0 + 1, int(np.searchsorted(starts, p0 + _FIB_PAIRS, side="left")))
-            p1 = int(starts[i1]) if i1 < U else P
-            contrib = alpha.T[col[p0:p1]]  # (p, A2), then (Z alpha) T in place
-            np.multiply(zval[p0:p1, None], contrib, out=contrib)
-            np.multiply(contrib, tval[p0:p1, None], out=contrib)
-            # per (a, s, o): the sum over its pairs, the max over a2
-            best[cells[i0:i1]] = np.add.reduceat(contrib, starts[i0:i1] - p0, axis=0).max(1)
-            i0 = i1
-        return self.R.numpy() + self.discount * best.reshape(A, S, O).sum(-1)
+        R, gamma = self.R.numpy(), self.discount
+
+        def step(alpha: np.ndarray) -> np.ndarray:
+            # the products as (Z alpha) T, summed in T's order, and the sum over o of a dense
+            # (A, S, O), as the product over every observation did: the same floats but where
+            # numpy's reduceat adds a group's terms in another order (three of them against
+            # four with a zero: the last bit, on Tag). The (P, A2) products are formed a run
+            # of whole groups at a time (about 2^20 pairs), in place, and each run's maxima go
+            # straight into the (A, S, O) table: a step's temporaries on a 100,000-state
+            # model 168 -> 88 MB
+            U, P = starts.size, zval.size
+            best = np.zeros(A * S * O, dtype=np.result_type(alpha, zval))
+            i0 = 0
+            while i0 < U:
+                p0 = int(starts[i0])
+                i1 = max(i0 + 1, int(np.searchsorted(starts, p0 + _FIB_PAIRS, side="left")))
+                p1 = int(starts[i1]) if i1 < U else P
+                contrib = alpha.T[col[p0:p1]]  # (p, A2), then (Z alpha) T in place
+                np.multiply(zval[p0:p1, None], contrib, out=contrib)
+                np.multiply(contrib, tval[p0:p1, None], out=contrib)
+                # per (a, s, o): the sum over its pairs, the max over a2
+                best[cells[i0:i1]] = np.add.reduceat(contrib, starts[i0:i1] - p0, axis=0).max(1)
+                i0 = i1
+            return R + gamma * best.reshape(A, S, O).sum(-1)
+
+        return step
 
     def _fib_pairs(self) -> tuple[np.ndarray, ...]:
         """The pairs ``(t, z)`` of a nonzero ``t`` of ``T`` (row ``(a, s)``, column ``s2``) and
         a nonzero ``z`` of ``Z[a, s2]`` (observation ``o``), sorted by ``(a, s, o)`` (stable:
-        within a group in ``T``'s order), built once: ``Z`` values, ``T`` values, ``s2``
-        ``(P,)`` each, the start of each ``(a, s, o)`` group ``(U,)`` and its cell
-        ``(a S + s) O + o`` ``(U,)``."""
-        if self._pairs is None:
-            A, S, O = self.num_actions, self.num_states, self.num_observations
-            Z = self.Z.numpy().reshape(A * S, O)
-            zr, zo = np.nonzero(Z)  # row-major: sorted by the row a S + s2
-            zptr = np.searchsorted(zr, np.arange(A * S + 1))
-            first = zptr[self._acol]
-            counts = zptr[self._acol + 1] - first  # (nnz,) observations after each nonzero
-            t = np.repeat(np.arange(self.nnz), counts)
-            ends = np.cumsum(counts)
-            z = np.repeat(first - (ends - counts), counts) + np.arange(int(ends[-1]))
-            key = self._row[t] * O + zo[z]  # (a S + s) O + o
-            order = np.argsort(key, kind="stable")
-            key, t, z = key[order], t[order], z[order]
-            starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-            self._pairs = (Z[zr[z], zo[z]], self._val[t], self._col[t], starts, key[starts])
-        return self._pairs
+        within a group in ``T``'s order): ``Z`` values, ``T`` values, ``s2`` ``(P,)`` each,
+        the start of each ``(a, s, o)`` group ``(U,)`` and its cell ``(a S + s) O + o``
+        ``(U,)``."""
+        A, S, O = self.num_actions, self.num_states, self.num_observations
+        Z = self.Z.numpy().reshape(A * S, O)
+        zr, zo = np.nonzero(Z)  # row-major: sorted by the row a S + s2
+        zptr = np.searchsorted(zr, np.arange(A * S + 1))
+        first = zptr[self._acol]
+        counts = zptr[self._acol + 1] - first  # (nnz,) observations after each nonzero
+        t = np.repeat(np.arange(self.nnz), counts)
+        ends = np.cumsum(counts)
+        z = np.repeat(first - (ends - counts), counts) + np.arange(int(ends[-1]))
+        key = self._row[t] * O + zo[z]  # (a S + s) O + o
+        order = np.argsort(key, kind="stable")
+        key, t, z = key[order], t[order], z[order]
+        starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        return Z[zr[z], zo[z]], self._val[t], self._col[t], starts, key[starts]
 
     # -- torch, batched --------------------------------------------------------------------------
     def predict(self, beliefs: torch.Tensor) -> torch.Tensor:

@@ -94,7 +94,8 @@ class SparseForm(FlatFields, SolverModel):
         alpha = torch.from_numpy(self.sparse.qmdp_np(tol))  # whatever the clock says (_iterate_fib)
         if self.sparse.deterministic:  # one successor per (a, s)
             return alpha, None
-        return alpha, lambda a: torch.from_numpy(self.sparse.fib_np(a.numpy()))
+        step = self.sparse.fib_operator()  # (its pairs freed with it, after the iteration)
+        return alpha, lambda a: torch.from_numpy(step(a.numpy()))
 
     def new_tree(self) -> BeliefTree:
         """A :class:`SparseBeliefTree` (beliefs stored by their support)."""

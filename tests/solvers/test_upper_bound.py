@@ -123,11 +123,13 @@ def test_a_corner_change_refreshes_the_gains_of_its_observed_value_only():
 
 
 @pytest.mark.parametrize("compiled", [True, False])
-def test_pruning_makes_a_few_beliefs_dense_at_a_time(compiled, monkeypatch):
-    """The pruning disables 256 points at a time and evaluates them against the others; their
-    beliefs are made dense a few rows at a time (at most ``_DENSE_ENTRIES`` entries: 256 rows
-    of a 100,000-state model were 205 MB, and their corner product as much again), and it
-    keeps exactly the points it keeps with all 256 rows dense at once."""
+def test_pruning_evaluates_a_few_beliefs_at_a_time(compiled, monkeypatch):
+    """The pruning disables 256 points at a time and evaluates them against the others, a
+    few rows at a time (at most ``_DENSE_ENTRIES`` dense entries: 256 rows of a 100,000-state
+    model were 205 MB, and their corner product as much again). The narrow beliefs of a flat
+    model are given on the union of their supports (``_on_supports``: 2-6 of 2,000 states),
+    not as dense rows. Either way it keeps exactly the points it keeps with all 256 rows dense
+    at once."""
     rng = np.random.default_rng(7)
     Y = 2000
     corner = np.full(Y, 10.0)
@@ -136,29 +138,35 @@ def test_pruning_makes_a_few_beliefs_dense_at_a_time(compiled, monkeypatch):
     pts = pts + [(b, v + 0.01) for b, v in pts[:100]]
     n = len(pts)
 
-    def pruned(entries: int) -> tuple[list, list]:
+    def pruned(entries: int, dense: bool) -> tuple[list, list, list]:
         monkeypatch.setattr(upper_bound_module, "_DENSE_ENTRIES", entries)
         ub = SawtoothUpperBound(torch.from_numpy(corner[None].copy()), capacity=2)
         if not compiled:
             monkeypatch.setattr(ub, "_group_kernel", None, raising=False)
         for b, v in pts:
             ub.add_np(b, 0, v)
-        dense = ub._dense
+        on_supports = ub._on_supports
         rows: list = []
+        widths: list = []
 
         def watched(ids):
             rows.append(int(ids.shape[0]))
-            return dense(ids)
+            if dense:
+                return ub._dense(ids).numpy(), None
+            out = on_supports(ids)
+            widths.append(out[0].shape[1])
+            return out
 
-        monkeypatch.setattr(ub, "_dense", watched)
+        monkeypatch.setattr(ub, "_on_supports", watched)
         ub.prune()
-        monkeypatch.setattr(ub, "_dense", dense)
-        return ub.points[2].tolist(), rows
+        monkeypatch.setattr(ub, "_on_supports", on_supports)
+        return ub.points[2].tolist(), rows, widths
 
-    kept_all, rows_all = pruned(256 * Y)  # one dense block of 256 rows, as before
-    kept, rows = pruned(50 * Y)
+    kept_all, rows_all, _ = pruned(256 * Y, dense=True)  # one dense block of 256 rows
+    kept, rows, widths = pruned(50 * Y, dense=False)
     assert max(rows_all) == 256 and max(rows) <= 50 and sum(rows) == sum(rows_all) == n
     assert kept == kept_all and len(kept) < n  # the same points kept, and some pruned
+    assert max(widths) <= 6 * 50 and max(widths) < Y  # the supports' union, not Y columns
 
 
 def _stored(ub: SawtoothUpperBound) -> dict:

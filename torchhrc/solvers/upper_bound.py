@@ -646,9 +646,10 @@ class SawtoothUpperBound:
         saved = self._gain[:n].clone()
         keep = useful.clone()
         block = max(1, min(n, 256))
-        # the block's beliefs are made dense some rows at a time: 256 rows of a 100,000-state
-        # model are 205 MB, and the corner product as much again (a transient of a solve's
-        # peak); each belief's value is its own, so the values are the same
+        # the block's beliefs are evaluated some rows at a time (on the union of their
+        # supports where it is narrow, :meth:`_on_supports`; else as dense rows: 256 rows of a
+        # 100,000-state model are 205 MB, and the corner product as much again, a transient
+        # of a solve's peak); each belief's value is its own, so the values are the same
         dense_rows = max(1, _DENSE_ENTRIES // max(1, self.num_hidden))
         for start in range(0, n, block):
             stop = min(n, start + block)

@@ -23,8 +23,12 @@ UpperInit = Callable[[POMDP | MOMDP], torch.Tensor]
 #: ``SARSOPConfig(alpha_dtype=None)`` holds the alpha vectors in float32 (rounded down) where
 #: a vector has at least this many entries (``S`` of a flat model, ``Y`` of a MOMDP) and the
 #: solve is float64: there the vectors are most of the solve's memory (a 20,000-state model's
-#: 2,000 vectors at 10 s are 320 MB in float64), and below it they are a few MB.
-ALPHA_FLOAT32_MIN_WIDTH = 10_000
+#: 2,000 vectors at 10 s are 320 MB in float64; the scale check set's 5,000-state model's
+#: 2,500 are 94 MB of its 176), and below it they are a few MB (its 2,000-state model: 700
+#: vectors, 11 MB, where float32 changed neither the peak nor the bounds). It was 10,000 until
+#: the forty-second session (``docs/benchmarks.md``, "The alpha vectors in float32 from 4,096
+#: entries").
+ALPHA_FLOAT32_MIN_WIDTH = 4_096
 
 #: ``SARSOPConfig(explore_after="auto")`` draws among near-equal children after this many
 #: trials without a rise of the lower bound at the start ...

@@ -247,6 +247,9 @@ def test_sparse_belief_tree_stores_supports() -> None:
     torch.testing.assert_close(tree.csr(nodes).to_dense(), stacked[nodes])
     assert tree.support_sizes().tolist() == [int((r > 0).sum()) for r in stacked]
     assert tree.child(4, 2, 0, 0) == 9 and int(tree.depth[9]) == 3
+    # a doubling copies the scalar arrays only (7 int64, 2 float64, the active flag): the
+    # supports are each node's own arrays
+    assert tree.node_bytes() == 7 * 8 + 2 * 8 + 1
 
 
 @pytest.mark.numeric

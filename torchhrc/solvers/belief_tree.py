@@ -132,11 +132,13 @@ class BeliefTree:
 
     def node_bytes(self) -> int:
         """The bytes a node takes in the storage that :meth:`add` grows by doubling: its
-        scalar arrays and, stored densely, its belief row (a doubling copies
-        ``size * node_bytes()``; the search's memory guard reserves it)."""
-        beliefs = getattr(self, "_beliefs", None)
-        row = beliefs.shape[1] * beliefs.element_size() if isinstance(beliefs, torch.Tensor) else 0
-        return row + sum(getattr(self, name).itemsize for name, _ in _NODE_ARRAYS)
+        scalar arrays and its dense belief row (a doubling copies ``size * node_bytes()``;
+        the search's memory guard reserves it)."""
+        return self._beliefs.shape[1] * self._beliefs.element_size() + self._scalar_bytes()
+
+    def _scalar_bytes(self) -> int:
+        """The bytes of a node's entries in the scalar arrays (:data:`_NODE_ARRAYS`)."""
+        return sum(getattr(self, name).itemsize for name, _ in _NODE_ARRAYS)
 
     def _grow(self) -> None:
         cap = self.x.shape[0] * 2
@@ -276,6 +278,11 @@ class SparseBeliefTree(BeliefTree):
 
     def _grow_beliefs(self, cap: int) -> None:
         pass
+
+    def node_bytes(self) -> int:
+        """:meth:`BeliefTree.node_bytes` without a belief row: a support is its node's own
+        array, not part of the storage a doubling copies."""
+        return self._scalar_bytes()
 
     def _set_belief(self, n: int, belief: torch.Tensor | np.ndarray) -> None:
         row = belief if isinstance(belief, np.ndarray) else belief.detach().cpu().numpy()

@@ -333,10 +333,16 @@ class SawtoothUpperBound:
     def _dense(self, ids: torch.Tensor) -> torch.Tensor:
         """``(n, Y)`` the beliefs of points ``ids (n,)`` as dense rows."""
         pos, w = self._entries(ids)
-        rows = torch.repeat_interleave(torch.arange(ids.shape[0], device=w.device), w)
-        dense = self.corner.new_zeros(ids.shape[0], self.num_hidden)
-        dense[rows, self._fidx[pos]] = 1.0 / self._finv[pos]
-        return dense
+        return self._rows(pos, w, self._fidx[pos], self.num_hidden)
+
+    def _rows(self, pos: torch.Tensor, w: torch.Tensor, columns: torch.Tensor,
+              width: int) -> torch.Tensor:  # fmt: skip
+        """``(n, width)`` rows of the supports at ``pos`` (point ``i``'s ``w[i]`` entries one
+        after the other, :meth:`_entries`), each entry in its column of ``columns``."""
+        rows = torch.repeat_interleave(torch.arange(w.shape[0], device=w.device), w)
+        out = self.corner.new_zeros(w.shape[0], width)
+        out[rows, columns] = 1.0 / self._finv[pos]
+        return out
 
     def _on_supports(self, ids: torch.Tensor) -> tuple[np.ndarray, np.ndarray | None]:
         """The beliefs of points ``ids (n,)`` for :meth:`value_np`: ``(n, C)`` rows on the
@@ -349,11 +355,8 @@ class SawtoothUpperBound:
         if self.num_observed == 1 and pos.numel():
             cols, local = torch.unique(idx, sorted=True, return_inverse=True)
             if 2 * cols.numel() <= self.num_hidden:
-                rows = torch.repeat_interleave(torch.arange(ids.shape[0]), w)
-                out = self.corner.new_zeros(ids.shape[0], cols.numel())
-                out[rows, local] = 1.0 / self._finv[pos]
-                return out.numpy(), cols.numpy()
-        return self._dense(ids).numpy(), None
+                return self._rows(pos, w, local, cols.numel()).numpy(), cols.numpy()
+        return self._rows(pos, w, idx, self.num_hidden).numpy(), None
 
     # -- evaluation --------------------------------------------------------------------------
     def value(self, beliefs: torch.Tensor, x: torch.Tensor) -> torch.Tensor:

@@ -42,7 +42,16 @@ class Jump(NamedTuple):
     at: float  # seconds since the start
     low: float  # the least reading of the window (MB)
     high: float  # this reading (MB)
-    frames: str  # the main thread's innermost frames, innermost last ("" when not recorded)
+
+
+def _window_low(samples: list[tuple[float, float]], i: int, window: float) -> float:
+    """The least reading of ``samples[i]`` and those of the ``window`` seconds before it."""
+    t, low = samples[i]
+    j = i - 1
+    while j >= 0 and samples[j][0] >= t - window:
+        low = min(low, samples[j][1])
+        j -= 1
+    return low
 
 
 def find_jumps(samples: list[tuple[float, float]], jump: float, window: float) -> list[Jump]:
@@ -57,13 +66,10 @@ def find_jumps(samples: list[tuple[float, float]], jump: float, window: float) -
         [(0.2, 10.0, 80.0), (2.0, 12.0, 70.0)]
     """
     found: list[Jump] = []
-    start = 0
     for i, (t, mb) in enumerate(samples):
-        while samples[start][0] < t - window:
-            start += 1
-        low = min(m for _, m in samples[start : i + 1])
+        low = _window_low(samples, i, window)
         if mb - low >= jump and (not found or t - found[-1].at >= window):
-            found.append(Jump(t, low, mb, ""))
+            found.append(Jump(t, low, mb))
     return found
 
 
@@ -100,8 +106,8 @@ def main() -> None:
         while not done.is_set():
             t, mb = time.perf_counter() - t0, _rss_mb() - base
             samples.append((t, mb))
-            recent = [m for s, m in samples[-400:] if s >= t - args.window]
-            if mb - min(recent) >= args.jump and main_id in sys._current_frames():
+            rise = mb - _window_low(samples, len(samples) - 1, args.window)
+            if rise >= args.jump and main_id in sys._current_frames():
                 stack = traceback.extract_stack(sys._current_frames()[main_id])[-5:]
                 frames[t] = " | ".join(f"{Path(f.filename).name}:{f.lineno} {f.name}"
                                        for f in stack)  # fmt: skip

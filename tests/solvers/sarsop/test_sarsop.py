@@ -510,7 +510,9 @@ def test_fixed_max_iterations_gives_bit_identical_solves(kind):
     cfg = SARSOPConfig(time_limit=LONG, precision=1e-9, max_iterations=12)
     a, b = sarsop(model, cfg), sarsop(model, cfg)
     init = a.info["init"]
-    assert init["upper_stop"] == "converged" and init["upper_iterations"] > 1  # FIB iterated
+    # FIB ran to its fixed point: iterated (the MOMDP), or by policy iteration (a few states)
+    assert init["upper_stop"] == "converged" and init["upper_iterations"] >= 1
+    assert init["upper_method"] == ("policy iteration" if kind == "flat" else "iteration")
     assert init["upper_iterations"] == b.info["init"]["upper_iterations"]
     assert a.info["stop_reason"] == b.info["stop_reason"] == "max_iterations"
     keys = ("lower", "upper", "n_alphas", "n_beliefs", "n_points", "iteration")

@@ -379,7 +379,9 @@ class SolverModel(ABC):
     def fib_start(self, tol: float, deadline: Deadline, info: dict[str, Any],
                   ) -> tuple[torch.Tensor, FIBOperator | None]:  # fmt: skip
         """QMDP vectors ``(A, *state_shape)`` (an upper bound) and the FIB operator, or None
-        when no FIB iteration is needed (FIB = QMDP, or ``info["stop"]`` set)."""
+        when no FIB iteration is needed: FIB = QMDP, the vectors are FIB's fixed point already
+        (``info["method"] = "policy iteration"``: :mod:`~torchhrc.solvers.fib_exact`), or
+        ``info["stop"]`` is set."""
 
     def corner_values(self, corner: torch.Tensor, what: str) -> torch.Tensor:
         """``(X, Y)`` corner values from ``corner``: ``state_shape`` corner values or

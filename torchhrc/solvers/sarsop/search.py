@@ -160,6 +160,7 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
             corner, fib = form.fib_corner_values(tol, init_deadline, cfg.init_max_iterations)
             self.init_info["upper_iterations"] = fib["iterations"]
             self.init_info["upper_stop"] = fib["stop"]
+            self.init_info["upper_method"] = fib.get("method", "iteration")
         else:
             corner = cfg.upper_bound_init(form.init_argument)
         self.init_info["upper_s"] = time.perf_counter() - t_upper

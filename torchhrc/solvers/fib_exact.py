@@ -11,7 +11,7 @@ o]``). Howard's policy iteration therefore reaches ``F*`` in a few steps: the va
 fixed ``pi`` are one linear system of ``A S`` unknowns, ``(I - gamma M_pi) alpha = R``, and
 improving ``pi`` greedily never lowers them. On a model of a few states the iteration from
 QMDP takes hundreds of steps to close within the search's tolerance (Tiger at precision 1e-3:
-329 steps, 8 of the 14 ms of a one-iteration solve); a system of 6 unknowns solved four times
+329 steps, 8 of the 14 ms of a one-iteration solve); one system of 6 unknowns, solved once,
 replaces them.
 
 The result is certified as the iteration's is: one step ``F(alpha)`` from the policy's values
@@ -58,7 +58,7 @@ def fib_exact_pays(A: int, S: int, O: int) -> bool:
     :data:`FIB_EXACT_MAX_UNKNOWNS` unknowns, and a solve (``(A S)^3 / 3`` multiply-adds)
     within 16 steps of the iteration it replaces (``(A S)^2 O`` each; the iteration takes
     16-330 steps on the small problems of the suite at precision 1e-3, the policy iteration
-    2-6 solves).
+    one or two solves from QMDP's choices).
 
     Example:
         >>> fib_exact_pays(3, 2, 2), fib_exact_pays(5, 60, 21), fib_exact_pays(5, 870, 30)
@@ -92,8 +92,9 @@ def fib_fixed_point(T: np.ndarray, Z: np.ndarray, R: np.ndarray, gamma: float,
 
     Returns:
         The vectors and the steps taken, or ``None`` where the iteration cannot certify its
-        result: the linear system is singular, the steps run out, or the operator's weight on
-        a constant is not below 1 (no bracket). The caller then iterates ``F``.
+        result: the linear system is singular (or its solution not finite), the steps run out,
+        or the operator's weight on a constant is not below 1 (no bracket). The caller then
+        iterates ``F``.
 
     Raises:
         ValueError: shapes that do not match, or ``gamma`` outside ``[0, 1)``.
@@ -129,6 +130,8 @@ def fib_fixed_point(T: np.ndarray, Z: np.ndarray, R: np.ndarray, gamma: float,
         try:
             alpha = np.linalg.solve(eye - gamma * M, R.reshape(n)).reshape(A, S)
         except np.linalg.LinAlgError:
+            return None
+        if not np.isfinite(alpha).all():
             return None
         Q = (W2 @ alpha.T).reshape(A, S, O, A)
         best = Q.argmax(-1)

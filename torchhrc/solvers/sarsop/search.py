@@ -73,7 +73,9 @@ def fib_corner_values(model: POMDP | MOMDP | SparsePOMDP | SparseFlatModel, *,
     deterministically, when the largest change is below ``tol`` or after ``max_iterations``;
     ``time_limit`` is only a safety net (hitting it makes the result depend on the machine's
     speed). For a MOMDP with a static hidden value FIB equals QMDP (the next hidden value is
-    known given the current one), so no FIB iteration runs.
+    known given the current one), so no FIB iteration runs. A small dense flat model in
+    float64 on the CPU gets the fixed point itself, by policy iteration
+    (:mod:`~torchhrc.solvers.fib_exact`; ``tol`` and the limits do not apply).
 
     Args:
         model: an unbatched POMDP or MOMDP, or a flat model with sparse transitions

@@ -32,6 +32,7 @@ NUMERIC_MODULES = frozenset(
     {
         "tests/solvers/test_forms_regression.py",
         "tests/solvers/test_bounds.py",
+        "tests/solvers/test_fib_exact.py",
         "tests/solvers/test_backup.py",
         "tests/solvers/test_backup_kernel.py",
         "tests/solvers/test_value_iteration.py",

@@ -88,6 +88,7 @@ def test_bad_arguments_and_the_rule() -> None:
     assert fib_exact_pays(3, 2, 2) and fib_exact_pays(5, 60, 21)
     assert not fib_exact_pays(5, 61, 21)  # 305 unknowns: above the cap
     assert not fib_exact_pays(50, 4, 2)  # 200 unknowns: a solve costs more than 16 steps
+    assert not fib_exact_pays(1, 300, 1000)  # T Z would hold 9e7 floats (720 MB)
 
 
 def test_the_dense_form_and_sarsop_use_it_on_a_few_states() -> None:

@@ -38,11 +38,19 @@ import numpy as np
 
 from torchhrc.solvers._factored import bracket_slack
 
-__all__ = ["FIB_EXACT_MAX_UNKNOWNS", "FIBFixedPoint", "fib_exact_pays", "fib_fixed_point"]
+__all__ = [
+    "FIB_EXACT_MAX_ENTRIES",
+    "FIB_EXACT_MAX_UNKNOWNS",
+    "FIBFixedPoint",
+    "fib_exact_pays",
+    "fib_fixed_point",
+]
 
 #: Largest system ``A S`` solved by :func:`fib_fixed_point` (a 300-unknown LU is about 9e6
 #: multiply-adds, a millisecond).
 FIB_EXACT_MAX_UNKNOWNS = 300
+#: Largest ``W[a, s, o, s2] = T Z`` it forms (``A S O S`` floats: 32 MB; hallway's is 378,000).
+FIB_EXACT_MAX_ENTRIES = 1 << 22
 
 
 class FIBFixedPoint(NamedTuple):
@@ -55,7 +63,8 @@ class FIBFixedPoint(NamedTuple):
 def fib_exact_pays(A: int, S: int, O: int) -> bool:
     """Whether :func:`fib_fixed_point` is the cheaper way to FIB's fixed point of a dense
     flat model with ``A`` actions, ``S`` states and ``O`` observations: at most
-    :data:`FIB_EXACT_MAX_UNKNOWNS` unknowns, and a solve (``(A S)^3 / 3`` multiply-adds)
+    :data:`FIB_EXACT_MAX_UNKNOWNS` unknowns and :data:`FIB_EXACT_MAX_ENTRIES` entries of
+    ``T Z``, and a solve (``(A S)^3 / 3`` multiply-adds)
     within 16 steps of the iteration it replaces (``(A S)^2 O`` each; the iteration takes
     16-330 steps on the small problems of the suite at precision 1e-3, the policy iteration
     one or two solves from QMDP's choices).
@@ -63,9 +72,11 @@ def fib_exact_pays(A: int, S: int, O: int) -> bool:
     Example:
         >>> fib_exact_pays(3, 2, 2), fib_exact_pays(5, 60, 21), fib_exact_pays(5, 870, 30)
         (True, True, False)
+        >>> fib_exact_pays(1, 300, 1000)  # 300 unknowns, but T Z of 9e7 entries
+        False
     """
     n = A * S
-    return n <= FIB_EXACT_MAX_UNKNOWNS and n <= 48 * O
+    return n <= FIB_EXACT_MAX_UNKNOWNS and n <= 48 * O and n * O * S <= FIB_EXACT_MAX_ENTRIES
 
 
 def _step(W2: np.ndarray, R: np.ndarray, gamma: float, alpha: np.ndarray, O: int) -> np.ndarray:

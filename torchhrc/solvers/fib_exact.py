@@ -162,9 +162,10 @@ def _certified(W2: np.ndarray, R: np.ndarray, gamma: float, alpha: np.ndarray, O
     without a bracket."""
     stepped = _step(W2, R, gamma, alpha, O)
     m = float((stepped - alpha).max())
-    # the weight of a constant, per row (gamma times the row's sum, 1 within the model's
-    # tolerance); a bracket widened by the largest weight if m > 0, the smallest if not
-    unit = _step(W2, R, gamma, np.ones_like(alpha), O) - _step(W2, R, gamma, 0 * alpha, O)
+    # the weight of a constant, per row: gamma times the row's sum over (o, s2) of T Z (1
+    # within the model's tolerance); a bracket widened by the largest weight if m > 0, the
+    # smallest if not
+    unit = gamma * W2.sum(1).reshape(*R.shape, O).sum(-1)
     k = bracket_slack(float(unit.max() if m > 0 else unit.min()))
     if not np.isfinite(k):
         return None

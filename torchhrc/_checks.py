@@ -11,9 +11,11 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+from torchhrc._host import host_view
 from torchhrc.errors import ModelError
 
 __all__ = [
+    "all_finite",
     "broadcast_shapes",
     "check_discount",
     "check_index",
@@ -154,6 +156,14 @@ def check_probabilities(
 
     The error names the tensor, the first offending index and its value.
     """
+    v = host_view(value)
+    if v is not None:  # the common case on the CPU, by numpy (see host_view)
+        ok = not v.size or (float(v.min()) >= -atol and float(v.max()) <= 1 + atol)
+        if ok and sums_to_one:
+            tol = max(atol, 1e-4 if v.dtype == np.float32 else atol)
+            ok = bool((np.abs(v.sum(axis=tuple(range(-dims, 0))) - 1) <= tol).all())
+        if ok:
+            return
     # one pass for the common case: every entry in range (NaN fails both comparisons), so
     # the full masks below are built only to locate an offending entry
     if value.numel():
@@ -180,6 +190,19 @@ def check_probabilities(
                 f"{name}{format_index(bad)} {over} sums to {total[tuple(bad)].item():.6g}, "
                 "expected 1 (within tolerance)"
             )
+
+
+def all_finite(value: torch.Tensor) -> bool:
+    """Whether every entry of ``value`` is finite (on the CPU by numpy: see :func:`host_view`).
+
+    Example:
+        >>> all_finite(torch.tensor([0.0, 1.0])), all_finite(torch.tensor([0.0, float("nan")]))
+        (True, False)
+    """
+    v = host_view(value)
+    if v is not None:
+        return bool(np.isfinite(v).all())
+    return bool(torch.isfinite(value).all())
 
 
 def check_discount(discount: object) -> float:

@@ -127,7 +127,7 @@ def test_pruning_evaluates_a_few_beliefs_at_a_time(compiled, monkeypatch):
     """The pruning disables 256 points at a time and evaluates them against the others, a
     few rows at a time (at most ``_DENSE_ENTRIES`` dense entries: 256 rows of a 100,000-state
     model were 205 MB, and their corner product as much again). The narrow beliefs of a flat
-    model are given on the union of their supports (``_on_supports``: 2-6 of 2,000 states),
+    model are given on the union of their supports (``_supports_np``: 2-6 of 2,000 states),
     not as dense rows. Either way it keeps exactly the points it keeps with all 256 rows dense
     at once."""
     rng = np.random.default_rng(7)
@@ -145,21 +145,21 @@ def test_pruning_evaluates_a_few_beliefs_at_a_time(compiled, monkeypatch):
             monkeypatch.setattr(ub, "_group_kernel", None, raising=False)
         for b, v in pts:
             ub.add_np(b, 0, v)
-        on_supports = ub._on_supports
+        on_supports = ub._supports_np
         rows: list = []
         widths: list = []
 
         def watched(ids):
             rows.append(int(ids.shape[0]))
             if dense:
-                return ub._dense(ids).numpy(), None
+                return ub._dense(torch.from_numpy(ids)).numpy(), ub._np[3][ids], None
             out = on_supports(ids)
             widths.append(out[0].shape[1])
             return out
 
-        monkeypatch.setattr(ub, "_on_supports", watched)
+        monkeypatch.setattr(ub, "_supports_np", watched)
         ub.prune()
-        monkeypatch.setattr(ub, "_on_supports", on_supports)
+        monkeypatch.setattr(ub, "_supports_np", on_supports)
         return ub.points[2].tolist(), rows, widths
 
     kept_all, rows_all, _ = pruned(256 * Y, dense=True)  # one dense block of 256 rows
@@ -167,6 +167,49 @@ def test_pruning_evaluates_a_few_beliefs_at_a_time(compiled, monkeypatch):
     assert max(rows_all) == 256 and max(rows) <= 50 and sum(rows) == sum(rows_all) == n
     assert kept == kept_all and len(kept) < n  # the same points kept, and some pruned
     assert max(widths) <= 6 * 50 and max(widths) < Y  # the supports' union, not Y columns
+
+
+@pytest.mark.parametrize("X", [1, 3])
+def test_cpu_pruning_keeps_what_the_tensor_pruning_keeps(X):
+    """On the CPU the pruning runs on the storage's numpy views (``_prune_np``: no libtorch
+    kernel); elsewhere on tensors. Both keep the same points, in the same order, with the
+    same supports, values and gains: random points (narrow and wide supports, some a little
+    above others at the same belief, so that both keep and drop), one and three observed
+    values."""
+    rng = np.random.default_rng(3 + X)
+    Y = 40
+    corner = 10.0 + rng.random((X, Y))
+    pts = _random_points(rng, Y, [int(w) for w in rng.integers(1, Y, 300)])
+    above, below = [(b, v + 0.01) for b, v in pts[:80]], [(b, v - 0.5) for b, v in pts[80:120]]
+    pts = pts + above + below + pts[120:140]  # (exact copies: each bounds the other as tightly)
+    xs = rng.integers(0, X, len(pts))
+
+    def filled() -> SawtoothUpperBound:
+        ub = SawtoothUpperBound(torch.from_numpy(corner.copy()), capacity=2)
+        for (b, v), x in zip(pts, xs.tolist()):
+            ub.add_np(b, x, v)
+        return ub
+
+    host, tensors = filled(), filled()
+    assert host._np is not None
+    tensors._np = None  # as on another device: the storage's tensors only
+    removed = host.prune()
+    assert removed == SawtoothUpperBound.prune(tensors) and 0 < removed < len(pts)
+    assert host.size == tensors.size
+    for a, b in zip(host.points, tensors.points):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    n, used = host.size, host._used
+    assert used == tensors._used
+    for name in ("_x", "_v", "_gain", "_w", "_mass", "_sig", "_off"):
+        torch.testing.assert_close(getattr(host, name)[:n], getattr(tensors, name)[:n],
+                                   rtol=0, atol=0, msg=name)  # fmt: skip
+    for name in ("_fidx", "_finv"):
+        torch.testing.assert_close(getattr(host, name)[:used], getattr(tensors, name)[:used],
+                                   rtol=0, atol=0, msg=name)  # fmt: skip
+    # and the pruned bound is at most each kept point's value at its belief (a point of the
+    # same block, disabled beside it while it was judged, may lie below it there)
+    rows, x, v = host.points
+    assert (host.value_np(rows.numpy(), x.numpy()) <= v.numpy() + 1e-12).all()
 
 
 def _stored(ub: SawtoothUpperBound) -> dict:

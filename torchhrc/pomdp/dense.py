@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 import torch
 
 from torchhrc._checks import (
+    all_finite,
     broadcast_shapes,
     check_discount,
     check_probabilities,
@@ -124,7 +125,7 @@ class POMDP:
                 f"{tuple(T.shape[:-3])}, {tuple(Z.shape[:-3])}, {tuple(R.shape[:-2])}, "
                 f"{tuple(b0.shape[:-1])}"
             ) from None
-        if not torch.isfinite(R).all():
+        if not all_finite(R):
             raise ModelError("R has non-finite entries")
         if self.validate_probabilities:
             check_probabilities("T", T)
@@ -236,7 +237,7 @@ class MOMDP(MOMDPBase, _DenseTransition):
             raise ModelError(
                 f"batch dims of Tx, Z, R, b0 (, Ty) do not broadcast: {[tuple(s) for s in shapes]}"
             ) from None
-        if not torch.isfinite(R).all():
+        if not all_finite(R):
             raise ModelError("R has non-finite entries")
         if self.validate_probabilities:
             check_probabilities("Tx", Tx)

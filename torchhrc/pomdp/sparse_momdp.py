@@ -27,9 +27,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
-from torchhrc._checks import check_probabilities, check_shape, check_tensor
+from torchhrc._checks import all_finite, check_probabilities, check_shape, check_tensor
+from torchhrc._host import to_numpy
 from torchhrc.errors import ModelError
 from torchhrc.pomdp.base import MOMDPBase, initial_joint
 from torchhrc.pomdp.dense import MOMDP, POMDP
@@ -81,7 +83,7 @@ class SparseMOMDP(MOMDPBase, _SparseTransition):
         check_shape("R", R, (A, X, Y), f"(A={A}, X={X}, Y={Y})")
         b0 = check_tensor("b0", self.b0)
         check_shape("b0", b0, (Y,), f"(Y={Y},)")
-        if not torch.isfinite(R).all():
+        if not all_finite(R):
             raise ModelError("R has non-finite entries")
         check_probabilities("Z", Z)
         check_probabilities("b0", b0)
@@ -99,20 +101,21 @@ class SparseMOMDP(MOMDPBase, _SparseTransition):
                 f"{tuple(index.shape)}, {tuple(getattr(prob, 'shape', ()))}"
             )
         sizes = (A, X, Y, X, Y)
-        if index.numel():
-            bad = (index < 0) | (index >= torch.tensor(sizes))
+        idx, p = to_numpy(index), to_numpy(prob)  # (numpy: torchhrc._host)
+        if idx.size:
+            bad = ((idx < 0) | (idx >= np.array(sizes))).any(1)
             if bad.any():
-                row = int(torch.nonzero(bad)[0, 0])
+                row = int(np.flatnonzero(bad)[0])
                 raise ModelError(
-                    f"transitions index {index[row].tolist()} is out of range for sizes {sizes}"
+                    f"transitions index {idx[row].tolist()} is out of range for sizes {sizes}"
                 )
-            if prob.min() < 0 or prob.max() > 1 + 1e-6:
+            if not (p.min() >= 0 and p.max() <= 1 + 1e-6):  # (NaN fails both)
                 raise ModelError("transitions has entries outside [0, 1]")
-        rows = torch.zeros(A * X * Y, dtype=torch.float64)
-        rows.index_add_(0, (index[:, 0] * X + index[:, 1]) * Y + index[:, 2], prob.double())
-        off = (rows - 1).abs() > 1e-6
+        rows = np.bincount((idx[:, 0] * X + idx[:, 1]) * Y + idx[:, 2],
+                           weights=p.astype(np.float64), minlength=A * X * Y)  # fmt: skip
+        off = np.abs(rows - 1) > 1e-6
         if off.any():
-            i = int(torch.nonzero(off)[0])
+            i = int(np.flatnonzero(off)[0])
             a, x, y = i // (X * Y), i // Y % X, i % Y
             raise ModelError(
                 f"P(x2, y2 | a={a}, x={x}, y={y}) sums to {rows[i].item():.6g}, expected 1"

@@ -22,6 +22,7 @@ import warnings
 import numpy as np
 import torch
 
+from torchhrc._host import alloc, copy_front
 from torchhrc.solvers import backup_kernel
 from torchhrc.solvers.pruning import _GATHER_ELEMENTS, prune_by_beliefs, prune_dominated
 
@@ -100,7 +101,7 @@ class BeliefTree:
         self.add(belief, x, -1, -1, -1)
 
     def _init_beliefs(self, belief: torch.Tensor, cap: int) -> None:
-        self._beliefs = belief.new_zeros(cap, belief.shape[-1])
+        self._beliefs = alloc((cap, belief.shape[-1]), belief.dtype, belief.device)
 
     @property
     def beliefs_np(self) -> np.ndarray:
@@ -117,8 +118,9 @@ class BeliefTree:
     def _grow_beliefs(self, cap: int) -> None:
         # empty, not zeros: a row is written whole when its node is added, and the slots
         # past ``size`` stay untouched pages (not resident) until then
-        new = self._beliefs.new_empty(cap, self._beliefs.shape[1])
-        new[: self.size] = self._beliefs[: self.size]
+        old = self._beliefs
+        new = alloc((cap, old.shape[1]), old.dtype, old.device, fill=None)
+        copy_front(new, old, self.size)
         self._beliefs = new
         self._np_beliefs = None
 

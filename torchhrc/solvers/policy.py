@@ -24,9 +24,12 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from torchhrc._checks import check_shape, check_tensor
+from torchhrc._host import arange as alloc_range
+from torchhrc._host import host_view
 from torchhrc.errors import ModelError
 from torchhrc.solvers.pruning import prune_by_beliefs, prune_dominated
 
@@ -67,7 +70,14 @@ class AlphaVectorPolicy:
         # without a temporary of the vectors' size. torch.isfinite makes a float copy (its
         # abs) besides its mask, and at the end of a 20,000-state solve those blocks of
         # 20 MB left 85 MB more resident than before the check
-        if alphas.numel() and not bool(torch.isfinite(torch.stack(torch.aminmax(alphas))).all()):
+        host = host_view(alphas)  # (numpy on the CPU: torchhrc._host)
+        if not alphas.numel():
+            finite = True
+        elif host is not None:
+            finite = bool(np.isfinite([host.min(), host.max()]).all())
+        else:
+            finite = bool(torch.isfinite(torch.stack(torch.aminmax(alphas))).all())
+        if not finite:
             bad = torch.nonzero(~torch.isfinite(alphas))[0].tolist()
             raise ModelError(f"alphas{bad} = {alphas[tuple(bad)].item()} is not finite")
         N = alphas.shape[0]
@@ -82,9 +92,12 @@ class AlphaVectorPolicy:
                 raise ModelError(
                     f"expected {name} to have shape (N={N},), actual shape = {tuple(value.shape)}"
                 )
-            if N and value.min() < 0:
-                raise ModelError(f"expected {name} >= 0, got {value.min().item()}")
-            object.__setattr__(self, name, value.long())
+            host = host_view(value)
+            lowest = (host.min() if host is not None else value.min().item()) if N else 0
+            if lowest < 0:
+                raise ModelError(f"expected {name} >= 0, got {lowest}")
+            if value.dtype != torch.long:
+                object.__setattr__(self, name, value.long())
 
     @classmethod
     def from_action_vectors(cls, vectors: torch.Tensor, *, momdp: bool) -> AlphaVectorPolicy:
@@ -107,7 +120,7 @@ class AlphaVectorPolicy:
                 raise ModelError(
                     f"expected vectors to have shape (A, S), actual shape = {tuple(vectors.shape)}"
                 )
-            return cls(vectors, torch.arange(vectors.shape[0], device=device))
+            return cls(vectors, alloc_range(vectors.shape[0], device))
         if vectors.dim() != 3:
             raise ModelError(
                 f"expected vectors to have shape (A, X, Y), actual shape = {tuple(vectors.shape)}"

@@ -40,6 +40,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from torchhrc._checks import all_finite
+from torchhrc._host import alloc, copy_front, host_view
 from torchhrc.errors import ModelError
 from torchhrc.solvers import backup_kernel
 from torchhrc.solvers.sawtooth_kernel import (
@@ -86,29 +88,30 @@ class SawtoothUpperBound:
             raise ModelError(
                 f"expected corner to have shape (X, Y), actual shape = {tuple(corner.shape)}"
             )
-        if not torch.isfinite(corner).all():
+        if not all_finite(corner):
             raise ModelError("corner values must be finite")
-        self.corner = corner.clone()  # (X, Y)
         X, Y = corner.shape
         self.num_observed, self.num_hidden = X, Y
         dev, dt = corner.device, corner.dtype
+        c = host_view(corner)
+        self.corner = corner.clone() if c is None else torch.from_numpy(c.copy())  # (X, Y)
         cap = max(int(capacity), 1)
         # the supports end to end: point i's are entries _off[i] to _off[i] + _w[i]
-        self._fidx = torch.empty(cap * 4, dtype=torch.long, device=dev)  # (E,) hidden values
-        self._finv = torch.empty(cap * 4, dtype=dt, device=dev)  # (E,) 1 / b_i(y) on them
-        self._off = torch.zeros(cap, dtype=torch.long, device=dev)  # (P,) start of a support
+        self._fidx = alloc(cap * 4, torch.long, dev, fill=None)  # (E,) hidden values
+        self._finv = alloc(cap * 4, dt, dev, fill=None)  # (E,) 1 / b_i(y) on them
+        self._off = alloc(cap, torch.long, dev)  # (P,) start of a support
         self._used = 0  # entries of _fidx / _finv in use
         self._kmax = 1  # the widest support ever stored (the width of the padded rows)
         self._padded_cache: tuple[int, torch.Tensor, torch.Tensor] | None = None
         self._stamp = 0  # counts changes of the stored supports (for _padded_cache)
-        self._x = torch.zeros(cap, dtype=torch.long, device=dev)  # (P,) observed value of point
-        self._v = torch.zeros(cap, dtype=dt, device=dev)  # (P,) upper value v_i at b_i
-        self._gain = torch.zeros(cap, dtype=dt, device=dev)  # (P,) v_i - b_i . c (<= 0 useful)
-        self._w = torch.ones(cap, dtype=torch.long, device=dev)  # (P,) support width of point
-        self._mass = torch.ones(cap, dtype=dt, device=dev)  # (P,) sum_y b_i(y) (1 up to round-off)
+        self._x = alloc(cap, torch.long, dev)  # (P,) observed value of point
+        self._v = alloc(cap, dt, dev)  # (P,) upper value v_i at b_i
+        self._gain = alloc(cap, dt, dev)  # (P,) v_i - b_i . c (<= 0 useful)
+        self._w = alloc(cap, torch.long, dev, fill=1)  # (P,) support width of point
+        self._mass = alloc(cap, dt, dev, fill=1)  # (P,) sum_y b_i(y) (1 up to round-off)
         # (P,) support signature, bit y % 64 per hidden value y of the support (CPU storage;
         # the compiled loops skip a point that covers a value where the row is 0)
-        self._sig = torch.zeros(cap, dtype=torch.long, device=dev)
+        self._sig = alloc(cap, torch.long, dev)
         self.size = 0
         self._alive_after_prune = 0
         self._views()
@@ -231,8 +234,8 @@ class SawtoothUpperBound:
                 new_cap *= 2
             for name in ("_x", "_v", "_gain", "_w", "_mass", "_off", "_sig"):
                 old = getattr(self, name)
-                new = old.new_zeros(new_cap)
-                new[: self.size] = old[: self.size]
+                new = alloc(new_cap, old.dtype, old.device)
+                copy_front(new, old, self.size)
                 setattr(self, name, new)
         ecap = self._fidx.shape[0]
         if entries > ecap:
@@ -241,9 +244,10 @@ class SawtoothUpperBound:
                 new_e *= 2
             # empty, not zeros: only the entries written are touched, so the free room stays
             # pages that are not resident
-            fidx, finv = self._fidx.new_empty(new_e), self._finv.new_empty(new_e)
-            fidx[: self._used] = self._fidx[: self._used]
-            finv[: self._used] = self._finv[: self._used]
+            fidx = alloc(new_e, self._fidx.dtype, self._fidx.device, fill=None)
+            finv = alloc(new_e, self._finv.dtype, self._finv.device, fill=None)
+            copy_front(fidx, self._fidx, self._used)
+            copy_front(finv, self._finv, self._used)
             self._fidx, self._finv = fidx, finv
         if need > cap or entries > ecap:
             self._views()
@@ -343,20 +347,6 @@ class SawtoothUpperBound:
         out = self.corner.new_zeros(w.shape[0], width)
         out[rows, columns] = 1.0 / self._finv[pos]
         return out
-
-    def _on_supports(self, ids: torch.Tensor) -> tuple[np.ndarray, np.ndarray | None]:
-        """The beliefs of points ``ids (n,)`` for :meth:`value_np`: ``(n, C)`` rows on the
-        sorted union ``(C,)`` of their supports where one observed value's points span at
-        most half of ``Y`` (a flat model's beliefs: a few of 20,000 states, whose dense rows
-        were 8 MB a block of a pruning, and their corner product as much), else ``(n, Y)``
-        dense rows and ``None``."""
-        pos, w = self._entries(ids)
-        idx = self._fidx[pos]
-        if self.num_observed == 1 and pos.numel():
-            cols, local = torch.unique(idx, sorted=True, return_inverse=True)
-            if 2 * cols.numel() <= self.num_hidden:
-                return self._rows(pos, w, local, cols.numel()).numpy(), cols.numpy()
-        return self._rows(pos, w, idx, self.num_hidden).numpy(), None
 
     # -- evaluation --------------------------------------------------------------------------
     def value(self, beliefs: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -643,16 +633,19 @@ class SawtoothUpperBound:
         n = self.size
         if n == 0:
             return 0
+        if self._np is not None:
+            return self._prune_np()
         x, v = self._x[:n], self._v[:n]
         useful = self._gain[:n] < 0
         # Evaluate each point against all others, excluding itself, by masking its own gain.
         saved = self._gain[:n].clone()
         keep = useful.clone()
         block = max(1, min(n, 256))
-        # the block's beliefs are evaluated some rows at a time (on the union of their
-        # supports where it is narrow, :meth:`_on_supports`; else as dense rows: 256 rows of a
-        # 100,000-state model are 205 MB, and the corner product as much again, a transient
-        # of a solve's peak); each belief's value is its own, so the values are the same
+        # the block's beliefs are evaluated some rows at a time (on the CPU on the union of
+        # their supports where it is narrow, :meth:`_supports_np`; else as dense rows: 256 rows
+        # of a 100,000-state model are 205 MB, and the corner product as much again, a
+        # transient of a solve's peak); each belief's value is its own, so the values are the
+        # same
         dense_rows = max(1, _DENSE_ENTRIES // max(1, self.num_hidden))
         for start in range(0, n, block):
             stop = min(n, start + block)
@@ -661,15 +654,8 @@ class SawtoothUpperBound:
             # exact; disabling the whole block is conservative: it only keeps more points).
             self._gain[start:stop] = 0.0
             self._sorted = [None] * self.num_observed  # the key order follows the gains
-            parts = []
-            for part in rows.split(dense_rows):
-                if self._np is not None:
-                    beliefs, cols = self._on_supports(part)
-                    parts.append(torch.from_numpy(self.value_np(beliefs, x[part].numpy(),
-                                                                cols)))  # fmt: skip
-                else:
-                    parts.append(self.value(self._dense(part), x[part]))
-            others = torch.cat(parts)
+            others = torch.cat([self.value(self._dense(part), x[part])
+                                for part in rows.split(dense_rows)])  # fmt: skip
             self._gain[start:stop] = saved[start:stop]
             self._sorted = [None] * self.num_observed
             keep[start:stop] &= v[rows] < others - 1e-12 * others.abs().clamp(min=1.0)
@@ -702,3 +688,76 @@ class SawtoothUpperBound:
             self._rebuild_members()
         self._alive_after_prune = self.size
         return removed
+
+    def _prune_np(self) -> int:
+        """:meth:`prune` on CPU storage, through its numpy views (a small model prunes every
+        few iterations, and torch's operations on these few points cost more than the
+        arithmetic, besides the code pages of their first calls: torchhrc._host)."""
+        assert self._np is not None
+        n = self.size
+        _, fidx, finv, px, pv, gain, wid, mass, off, sig = self._np
+        v = pv[:n]
+        saved = gain[:n].copy()
+        keep = saved < 0
+        block = max(1, min(n, 256))
+        dense_rows = max(1, _DENSE_ENTRIES // max(1, self.num_hidden))
+        for start in range(0, n, block):
+            stop = min(n, start + block)
+            gain[start:stop] = 0.0  # the block's own points disabled (as prune)
+            self._sorted = [None] * self.num_observed
+            others = np.concatenate([
+                self.value_np(*self._supports_np(np.arange(a, min(stop, a + dense_rows))))
+                for a in range(start, stop, dense_rows)
+            ])  # fmt: skip
+            gain[start:stop] = saved[start:stop]
+            self._sorted = [None] * self.num_observed
+            keep[start:stop] &= v[start:stop] < others - 1e-12 * np.maximum(np.abs(others), 1.0)
+        sel = np.flatnonzero(keep)
+        removed = n - sel.size
+        if removed:
+            # the kept supports moved to the front, as prune moves them
+            w = wid[sel]
+            start = np.cumsum(w) - w
+            step = max(1, _COMPACT_ENTRIES // max(1, self._kmax))
+            for i in range(0, sel.size, step):
+                pos = self._entries_np(sel[i : i + step])
+                at = int(start[i])
+                fidx[at : at + pos.size] = fidx[pos]
+                finv[at : at + pos.size] = finv[pos]
+            off[: sel.size] = start
+            self._used = int(w.sum())
+            self._stamp += 1
+            for arr in (px, pv, gain, wid, mass, sig):
+                arr[: sel.size] = arr[sel]
+            self.size = sel.size
+            self._rebuild_members()
+        self._alive_after_prune = self.size
+        return removed
+
+    def _entries_np(self, ids: np.ndarray) -> np.ndarray:
+        """:meth:`_entries`' positions ``(E',)`` of the supports of points ``ids``, in numpy."""
+        assert self._np is not None
+        off, w = self._np[8][ids], self._np[6][ids]
+        start = np.cumsum(w) - w
+        return np.repeat(off - start, w) + np.arange(int(w.sum()))
+
+    def _supports_np(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The arguments of :meth:`value_np` for the beliefs of points ``ids``: their rows
+        (on the sorted union of their supports where it spans at most half of ``Y``, with
+        one observed value: a flat model's beliefs, a few of 20,000 states, whose dense rows were 8
+        MB a block), their observed values and the columns."""
+        assert self._np is not None
+        _, fidx, finv, px = self._np[:4]
+        w = self._np[6][ids]
+        pos = self._entries_np(ids)
+        idx = fidx[pos]
+        rows = np.repeat(np.arange(ids.size), w)
+        cols = None
+        width = self.num_hidden
+        if self.num_observed == 1 and pos.size:
+            union, local = np.unique(idx, return_inverse=True)
+            if 2 * union.size <= self.num_hidden:
+                cols, idx, width = union, local, union.size
+        out = np.zeros((ids.size, width), dtype=finv.dtype)
+        out[rows, idx] = 1.0 / finv[pos]
+        return out, px[ids], cols

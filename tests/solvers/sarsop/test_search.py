@@ -303,3 +303,43 @@ def test_trials_near_discount_one_run_past_a_thousand_steps():
     assert best == pytest.approx(10_000.0)
     assert sol.info["n_beliefs"] > 6_000  # one trial, a node a step
     assert sol.lower - 1e-6 <= best <= sol.upper + 1e-6
+
+
+class _TorchCalls(torch.overrides.TorchFunctionMode):
+    """The names of the torch functions and tensor methods called while active."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.names: set[str] = set()
+
+    def __torch_function__(self, func, types, args=(), kwargs=None):  # type: ignore[no-untyped-def]
+        self.names.add(getattr(func, "__name__", str(func)))
+        return func(*args, **(kwargs or {}))
+
+
+#: what a small dense CPU solve may still call: metadata (shape, dtype and device getters,
+#: ``dim``, ``numel``, ``is_floating_point``) and the numpy view of a tensor (no kernel)
+_NO_KERNEL = {"__get__", "dim", "numel", "is_floating_point", "numpy"}
+
+
+@pytest.mark.skipif(
+    __import__("torchhrc.solvers.backup_kernel", fromlist=["load"]).load() is None,
+    reason="the compiled kernels are not built (TORCHHRC_NO_EXTENSION or no compiler)",
+)
+@pytest.mark.parametrize("seed", [None, 0, 1])
+def test_small_dense_cpu_solve_runs_no_torch_kernel(seed):
+    """A small dense model's whole SARSOP solve on the CPU, from the model to the policy,
+    reads and makes its tensors through numpy (torchhrc._host): each first call of a libtorch
+    operation maps that kernel's code into the process (Tiger's net peak was 13.8 MB, three
+    times APPL's whole process; docs/benchmarks.md, "A small solve without libtorch's
+    kernels")."""
+    from torchhrc.tasks.classic import tiger
+    from torchhrc.testing import random_pomdp
+
+    model = tiger() if seed is None else random_pomdp(12, 3, 4, seed=seed)
+    calls = _TorchCalls()
+    with calls:
+        sol = sarsop(model, SARSOPConfig(max_iterations=40, time_limit=600))
+    assert sol.info["iterations"] == 40 or sol.info["stop_reason"] == "precision"
+    assert sol.info["backups"] > 100 and sol.info["n_points"] > 0
+    assert calls.names <= _NO_KERNEL, sorted(calls.names - _NO_KERNEL)

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from torchhrc._host import as_host
 from torchhrc.errors import ModelError
 from torchhrc.io.pomdpx.reader import _Reader, _Table
 from torchhrc.io.pomdpx.variables import PomdpxVariable, PomdpxVariables
@@ -449,7 +450,10 @@ class _Builder:
 
 def _tensor_factory(dtype: torch.dtype, device: torch.device | str | None):  # type: ignore[no-untyped-def]
     def make(a: np.ndarray) -> torch.Tensor:
-        return torch.from_numpy(np.ascontiguousarray(a)).to(dtype=dtype, device=device)
+        t = torch.from_numpy(np.ascontiguousarray(a))
+        if device is None or torch.device(device).type == "cpu":
+            return as_host(t, dtype)  # (numpy's conversion: torchhrc._host)
+        return t.to(dtype=dtype, device=device)
 
     return make
 

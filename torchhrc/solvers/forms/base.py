@@ -63,6 +63,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
+from torchhrc._host import alloc, host_view, rows, to_numpy
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import split_initial
 from torchhrc.solvers import backup_kernel
@@ -236,7 +237,14 @@ class SolverModel(ABC):
 
     def _reward_table(self, x: int) -> torch.Tensor:
         """``(Y, A)`` ``R[:, x, :]`` transposed, contiguous (built once per ``x``)."""
-        return self._cached("RT", x, lambda: self.R[:, x, :].T.contiguous())
+
+        def build() -> torch.Tensor:
+            r = host_view(self.R)
+            if r is None:
+                return self.R[:, x, :].T.contiguous()
+            return torch.from_numpy(np.ascontiguousarray(r[:, x, :].T))
+
+        return self._cached("RT", x, build)
 
     def observation_slice(self, x: int, actions: torch.Tensor) -> torch.Tensor:
         """``(B, K, O, Y)``: ``Z[a_i, x2_k, y2, o]`` for ``actions (B,)``."""
@@ -342,7 +350,7 @@ class SolverModel(ABC):
 
     def rewards_np(self) -> np.ndarray:
         """``(A, X, Y)`` :attr:`R` as a contiguous numpy view (CPU)."""
-        return self._cached("R_np", 0, lambda: self.R.contiguous().numpy())
+        return self._cached("R_np", 0, lambda: np.ascontiguousarray(to_numpy(self.R)))
 
     def reward_np(self, x: int) -> np.ndarray:
         """``(Y, A)`` ``R[:, x, :]`` transposed, contiguous (numpy, CPU)."""
@@ -364,7 +372,8 @@ class SolverModel(ABC):
         or ``"time_limit"`` (the only outcome that depends on the wall clock).
         """
         vectors, info = self.fib_vectors(tol, deadline, max_iterations)
-        return vectors.amax(0), info
+        v = host_view(vectors)
+        return (vectors.amax(0) if v is None else torch.from_numpy(v.max(0))), info
 
     def fib_vectors(self, tol: float, deadline: Deadline = NEVER, max_iterations: int = 100_000,
                     ) -> tuple[torch.Tensor, dict[str, Any]]:  # fmt: skip
@@ -390,14 +399,18 @@ class SolverModel(ABC):
         Raises:
             ModelError: ``corner`` has another shape (``what`` names its origin).
         """
+        c = host_view(corner)
         if corner.dim() == len(self.state_shape) + 1:  # per-action vectors
-            corner = corner.amax(0)
+            corner = corner.amax(0) if c is None else torch.from_numpy(c.max(0))
         if tuple(corner.shape) != self.state_shape:
             raise ModelError(
                 f"expected {what} to return corner values {self.state_doc} or per-action "
                 f"vectors, got {tuple(corner.shape)}"
             )
-        return corner.reshape(self.num_observed, self.num_hidden)
+        shape = (self.num_observed, self.num_hidden)
+        if c is None:
+            return corner.reshape(shape)
+        return torch.from_numpy(corner.numpy().reshape(shape))
 
     def check_policy(self, policy: object, what: str) -> AlphaVectorPolicy:
         """``policy`` if it is an :class:`AlphaVectorPolicy` of this form's vectors.
@@ -432,9 +445,11 @@ class SolverModel(ABC):
         over the hidden value at each, ``weights (R,)`` their probabilities. One root
         ``(x0, b0, 1)`` unless the model starts at a random ``x``
         (:attr:`~torchhrc.pomdp.MOMDP.initial`, see :meth:`_start_from`)."""
-        if self._roots is not None:
-            return self._roots
-        return np.array([self.x0]), self.b0.unsqueeze(0), np.ones(1)
+        if self._roots is None:  # the one root (kept: a search reads it at each iteration)
+            b0 = host_view(self.b0)
+            row = self.b0.unsqueeze(0) if b0 is None else torch.from_numpy(b0[None])
+            self._roots = (np.array([self.x0]), row, np.ones(1))
+        return self._roots
 
     def _start_from(self, initial: torch.Tensor | None) -> None:
         """Set :attr:`roots` from a model's random start ``initial (X, Y)`` (one root per
@@ -449,8 +464,9 @@ class SolverModel(ABC):
     def new_tree(self) -> BeliefTree:
         """An empty SARSOP belief tree (dense rows) with :attr:`roots` as nodes ``0..R-1``."""
         xs, beliefs, _ = self.roots
-        tree = BeliefTree(beliefs[0], int(xs[0]))
-        for x, belief in zip(xs[1:].tolist(), beliefs[1:]):
+        first, *others = rows(beliefs)
+        tree = BeliefTree(first, int(xs[0]))
+        for x, belief in zip(xs[1:].tolist(), others):
             tree.add(belief, x, -1, -1, -1)
         return tree
 
@@ -681,12 +697,17 @@ class FlatFields:
         A, S, O = Z.shape
         form.num_actions, form.num_observed, form.num_hidden, form.num_observations = A, 1, S, O
         form.discount = float(discount)
-        form.R = R.reshape(A, 1, S)
         form.x0, form.b0 = 0, b0
         form.factored = False
         form.state_shape, form.state_doc = (S,), "(S,)"
-        form.reach = [torch.zeros(1, dtype=torch.long, device=b0.device)]
-        self._z = Z.permute(0, 2, 1).unsqueeze(1).contiguous()  # (A, 1, O, S)
+        form.reach = [alloc(1, torch.long, b0.device)]
+        z, r = host_view(Z), host_view(R)
+        if z is not None and r is not None:  # (numpy on the CPU: torchhrc._host)
+            form.R = torch.from_numpy(r.reshape(A, 1, S))
+            self._z = torch.from_numpy(np.ascontiguousarray(z.transpose(0, 2, 1)[:, None]))
+        else:
+            form.R = R.reshape(A, 1, S)
+            self._z = Z.permute(0, 2, 1).unsqueeze(1).contiguous()  # (A, 1, O, S)
 
     def observation(self, x: int) -> torch.Tensor:
         return self._z

@@ -23,7 +23,9 @@ from typing import Any
 import numpy as np
 import torch
 
+from torchhrc._host import host_view
 from torchhrc.pomdp import POMDP
+from torchhrc.solvers._factored import SPARSE_DIRECT_SOLVE_SIZE
 from torchhrc.solvers.backup import BackupResult, point_backup
 from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.fib_exact import fib_exact_pays, fib_fixed_point
@@ -42,7 +44,8 @@ class DenseForm(FlatFields, TensorModelForm):
     def __init__(self, model: POMDP, source: Any = None) -> None:
         super().__init__(model, source)
         self._flat(model.Z, model.R, model.b0, model.discount)
-        self.T = model.T.contiguous()  # (A, S, S)
+        T = host_view(model.T)
+        self.T = model.T.contiguous() if T is None else torch.from_numpy(np.ascontiguousarray(T))
 
     # -- torch ---------------------------------------------------------------------------------
     def predict(self, x: int, beliefs: torch.Tensor) -> torch.Tensor:
@@ -84,6 +87,23 @@ class DenseForm(FlatFields, TensorModelForm):
         return None, T.reshape(T.shape[0], 1, *T.shape[1:])
 
     # -- initial bounds ----------------------------------------------------------------------
+    def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
+        """:meth:`~.base.SolverModel.blind_policy`; a CPU model of at most
+        :data:`~torchhrc.solvers._factored.SPARSE_DIRECT_SOLVE_SIZE` states solves ``(I -
+        gamma T_a) alpha_a = R_a`` by numpy's LU here, as
+        :func:`~torchhrc.solvers.blind.blind_vectors` does for it (the same LU on the same
+        floats), without building the model's expectation operator in torch."""
+        T, R = host_view(self.T), host_view(self.model.R)
+        S = self.num_hidden
+        if max_iterations is not None or T is None or R is None or S > SPARSE_DIRECT_SOLVE_SIZE \
+                or self.discount >= 1.0 or T.dtype != R.dtype:  # fmt: skip
+            return super().blind_policy(max_iterations)
+        try:
+            vectors = np.linalg.solve(np.eye(S, dtype=T.dtype) - self.discount * T, R[..., None])
+        except np.linalg.LinAlgError:
+            return super().blind_policy(max_iterations)
+        return AlphaVectorPolicy.from_action_vectors(torch.from_numpy(vectors[..., 0]), momdp=False)
+
     def fib_start(self, tol: float, deadline: Deadline, info: dict[str, Any],
                   ) -> tuple[torch.Tensor, FIBOperator | None]:  # fmt: skip
         """QMDP vectors and the FIB operator (Hauskrecht 2000)::
@@ -111,7 +131,7 @@ qmdp_iteration_np` (from zero, with the contraction bound; to ``tol`` whatever
             return self.qmdp_start(tol), lambda alpha: fib_backup(model, alpha)
         R, Z, g = model.R, model.Z, self.discount
         A, S, O = Z.shape
-        if int((T != 0).sum()) * 10 > T.numel() or S < 64:  # dense products
+        if S < 64 or np.count_nonzero(T.numpy()) * 10 > T.numel():  # dense products
             Tn, Zn, Rn = T.numpy(), Z.numpy(), R.numpy()
 
             def expect(V: np.ndarray) -> np.ndarray:

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from torchhrc._host import as_host, to_numpy
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import SparseMOMDP
 from torchhrc.pomdp.sparse import coalesce
@@ -91,18 +92,17 @@ class SparseMOMDPForm(SolverModel):
         A, X, Y, O = model.num_actions, model.num_observed, model.num_hidden, model.num_observations
         self.num_actions, self.num_observed, self.num_hidden, self.num_observations = A, X, Y, O
         self.discount = float(model.discount)
-        self.Z = model.Z.to("cpu", dt).contiguous()
-        self.R = model.R.to("cpu", dt).contiguous()
-        self.x0, self.b0 = int(model.x0), model.b0.to("cpu", dt).contiguous()
+        self.Z, self.R = as_host(model.Z, dt), as_host(model.R, dt)
+        self.x0, self.b0 = int(model.x0), as_host(model.b0, dt)
         self._start_from(model.initial)
         self.factored = True
         self.state_shape, self.state_doc = (X, Y), "(X, Y)"
         index, prob = model.transitions
-        idx = index.cpu().numpy().astype(np.int64, copy=False)
+        idx = to_numpy(index).astype(np.int64, copy=False)
         row = (idx[:, 0] * X + idx[:, 1]) * Y + idx[:, 2]
         col = idx[:, 3] * Y + idx[:, 4]
         key = row * (X * Y) + col
-        vals = prob.cpu().numpy().astype(np.float64, copy=False)
+        vals = to_numpy(prob).astype(np.float64, copy=False)
         if key.size and bool((key[1:] > key[:-1]).all()):
             # already sorted without duplicates (read_pomdpx's order): no sort, no divisions
             vals = vals + 0.0  # as the sum below: -0.0 becomes 0.0
@@ -148,10 +148,10 @@ class SparseMOMDPForm(SolverModel):
         vals = np.zeros((A * Y, W), dtype=self.prob.dtype)
         cols[r, slot] = k * Y + y2
         vals[r, slot] = self.prob[e]
-        reach_t = torch.from_numpy(reach.astype(np.int64))
-        z = self.Z[:, reach_t].permute(0, 1, 3, 2).contiguous()  # (A, K, O, Y)
-        return (reach_t, torch.from_numpy(cols).view(A, Y, W),
-                torch.from_numpy(vals).view(A, Y, W), z)  # fmt: skip
+        reach = reach.astype(np.int64)
+        z = np.ascontiguousarray(to_numpy(self.Z)[:, reach].transpose(0, 1, 3, 2))  # (A, K, O, Y)
+        return (torch.from_numpy(reach), torch.from_numpy(cols.reshape(A, Y, W)),
+                torch.from_numpy(vals.reshape(A, Y, W)), torch.from_numpy(z))  # fmt: skip
 
     def _ell(self, x: int) -> tuple[torch.Tensor, torch.Tensor]:
         s = self.slices[x]
@@ -298,12 +298,13 @@ class SparseMOMDPForm(SolverModel):
         # one vector per kind of action (the first of each: identical actions have identical
         # vectors, and of equal vectors pruning keeps the first anyway); RockSample(11, 11):
         # 732 vectors instead of 1952, the same value function and the same pruned set
-        kinds = torch.from_numpy(np.sort(self.distinct_actions()[0].acts))
-        X, U = self.num_observed, kinds.numel()
+        kinds = np.sort(self.distinct_actions()[0].acts)
+        X, U = self.num_observed, kinds.size
+        alphas = to_numpy(vectors)[kinds].transpose(1, 0, 2).reshape(X * U, self.num_hidden)
         return AlphaVectorPolicy(
-            alphas=vectors[kinds].transpose(0, 1).reshape(X * U, self.num_hidden),
-            actions=kinds.repeat(X),
-            observed=torch.arange(X).repeat_interleave(U),
+            alphas=torch.from_numpy(alphas),
+            actions=torch.from_numpy(np.tile(kinds.astype(np.int64), X)),
+            observed=torch.from_numpy(np.repeat(np.arange(X, dtype=np.int64), U)),
         )
 
     def qmdp_np(self, tol: float = 1e-8, deadline: Deadline = NEVER) -> np.ndarray:

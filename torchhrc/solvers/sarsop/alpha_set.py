@@ -10,8 +10,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from torchhrc._host import alloc, copy_front, host_view, to_numpy
 from torchhrc.solvers import backup_kernel
 from torchhrc.solvers._memory import release_pages
+from torchhrc.solvers.pruning import prune_dominated
 
 __all__: list[str] = []
 
@@ -54,6 +56,12 @@ def round_down_np(values: np.ndarray, dtype: np.dtype) -> np.ndarray:
     up = out > values
     out[up] = np.nextafter(out[up], out.dtype.type(-np.inf))
     return out
+
+
+def _copy(t: torch.Tensor) -> torch.Tensor:
+    """A copy of ``t`` (by numpy on the CPU: torchhrc._host)."""
+    v = host_view(t)
+    return t.clone() if v is None else torch.from_numpy(v.copy())
 
 
 class _AlphaSet:
@@ -103,11 +111,18 @@ class _AlphaSet:
         self.refs: list[np.ndarray] = [np.zeros(0, dtype=np.int64) for _ in range(n)]
         cap = max(64, 2 * n)
         self.num_observed = int(num_observed)
-        self.vectors = alphas.new_zeros(cap, alphas.shape[1], dtype=dtype or alphas.dtype)
-        self.actions = torch.zeros(cap, dtype=torch.long, device=alphas.device)
-        self.observed = torch.zeros(cap, dtype=torch.long, device=alphas.device)
-        self.vectors[:n] = round_down(alphas, self.vectors.dtype)
-        self.actions[:n], self.observed[:n] = actions, observed
+        dev = alphas.device
+        self.vectors = alloc((cap, alphas.shape[1]), dtype or alphas.dtype, dev)
+        self.actions, self.observed = alloc(cap, torch.long, dev), alloc(cap, torch.long, dev)
+        self._views()
+        given = host_view(alphas), host_view(actions), host_view(observed)
+        if self.np_vectors is not None and all(g is not None for g in given):
+            assert self.np_actions is not None and self.np_observed is not None
+            self.np_vectors[:n] = round_down_np(given[0], self.np_vectors.dtype)
+            self.np_actions[:n], self.np_observed[:n] = given[1], given[2]
+        else:
+            self.vectors[:n] = round_down(alphas, self.vectors.dtype)
+            self.actions[:n], self.observed[:n] = actions, observed
         self.size = n
         self._gid: list[np.ndarray] = []  # per x: the indices of its vectors (CPU only)
         self._gn = np.zeros(self.num_observed, dtype=np.int64)  # how many of each in use
@@ -124,6 +139,18 @@ class _AlphaSet:
         )
         self._views()
         self._regroup()
+
+    def undominated(self) -> np.ndarray:
+        """``(N,)`` bool: the vectors that no other of their observed value dominates
+        pointwise (:func:`~torchhrc.solvers.pruning.prune_dominated`'s rule; compiled,
+        :func:`~torchhrc.solvers.backup_kernel.dominated`, on float64 CPU storage)."""
+        n = self.size
+        kernel = backup_kernel.load() if self.np_vectors is not None else None
+        if kernel is not None and self.np_vectors.dtype == np.float64:
+            assert self.np_observed is not None
+            groups = None if self.num_observed == 1 else self.np_observed[:n]
+            return backup_kernel.dominated(kernel, self.np_vectors, np.arange(n), groups)
+        return prune_dominated(self.vectors[:n], self.observed[:n]).cpu().numpy()
 
     def _dominating(self, need: np.ndarray, kept: np.ndarray) -> np.ndarray:
         """``(len(need),)``: for each vector of ``need``, a vector of ``kept`` of the same
@@ -201,8 +228,18 @@ class _AlphaSet:
         vector at the end of the solve). The set stays usable: adding writes past the views,
         and a pruning, which moves rows, first moves the set to storage of its own."""
         self._lent = True
+        return self.in_use()
+
+    def in_use(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The first :attr:`size` rows of the storage, as :meth:`lend` gives them (views; on
+        the CPU made from the numpy views, torchhrc._host), without lending them: valid until
+        the set next changes."""
         n = self.size
-        return self.vectors[:n], self.actions[:n], self.observed[:n]
+        if self.np_vectors is None:
+            return self.vectors[:n], self.actions[:n], self.observed[:n]
+        assert self.np_actions is not None and self.np_observed is not None
+        return (torch.from_numpy(self.np_vectors[:n]), torch.from_numpy(self.np_actions[:n]),
+                torch.from_numpy(self.np_observed[:n]))  # fmt: skip
 
     def group(self, x: int) -> tuple[np.ndarray, np.ndarray]:
         """``(N_x, Y)`` the vectors of observed value ``x`` and ``(N_x,)`` their indices in
@@ -318,18 +355,18 @@ class _AlphaSet:
             old = getattr(self, name)
             # rows past ``size`` are written before they are read; empty leaves their pages
             # untouched (not resident) until then
-            new = old.new_empty(cap, *old.shape[1:])
+            new = alloc((cap, *old.shape[1:]), old.dtype, old.device, fill=None)
             if name == "vectors" and self.np_vectors is not None:
                 # from the last rows to the first, a block at a time, each block's old pages
                 # handed back once copied: one copy of the vectors at the peak, not two
                 step = max(1, _BLOCK // max(old.shape[1], 1))
                 for b1 in range(self.size, 0, -step):
                     b0 = max(0, b1 - step)
-                    new[b0:b1] = old[b0:b1]
+                    new.numpy()[b0:b1] = self.np_vectors[b0:b1]
                     release_pages(self.np_vectors, b0 * self.np_vectors.strides[0])
                 self.np_vectors = None  # (a view of the old storage)
             else:
-                new[: self.size] = old[: self.size]
+                copy_front(new, old, self.size)
             setattr(self, name, new)
             del old, new
         self._views()
@@ -351,14 +388,14 @@ class _AlphaSet:
             for i in range(s.start, s.stop):
                 self._append_group(int(self.np_observed[i]), i)
 
-    def keep(self, mask: torch.Tensor) -> np.ndarray:
+    def keep(self, mask: torch.Tensor | np.ndarray) -> np.ndarray:
         """Keep the vectors of ``mask (N,)`` and, transitively, those they refer to; a
         referred vector that a kept one of its ``x`` dominates pointwise is replaced by it in
         the references instead (the plan only gains).
 
         Returns ``(N,)`` the new index of each old vector (of its replacement, for a replaced
         one; -1 for a dropped one)."""
-        m = mask[: self.size].cpu().numpy().copy()
+        m = np.array(mask if isinstance(mask, np.ndarray) else to_numpy(mask))[: self.size]
         target = np.arange(self.size)  # reference i now means vector target[i]
         frontier = np.flatnonzero(m)
         while frontier.size:
@@ -379,8 +416,8 @@ class _AlphaSet:
         self.refs = [remap[target[self.refs[i]]] for i in kept.tolist()]
         moved = remap[target]
         if self._lent:  # the lent views keep the old rows: the set moves to a copy
-            self.vectors = self.vectors.clone()
-            self.actions, self.observed = self.actions.clone(), self.observed.clone()
+            self.vectors, self.actions, self.observed = (
+                _copy(self.vectors), _copy(self.actions), _copy(self.observed))  # fmt: skip
             self._lent = False
             self._views()
         n = kept.size

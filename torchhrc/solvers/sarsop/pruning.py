@@ -6,8 +6,8 @@ points, when the sets have grown enough and the time left allows.
 from __future__ import annotations
 
 import numpy as np
-import torch
 
+from torchhrc._host import to_numpy
 from torchhrc.solvers import backup_kernel
 from torchhrc.solvers._memory import release_free_memory
 from torchhrc.solvers.eval_cache import unpack
@@ -94,16 +94,15 @@ class _Pruning:
         # its storage allows)
         store = None if self._vkernel is None else backup_kernel.AlphaStore(
             self._vkernel, *self.alphas.scoring_storage(), self.alphas.np_observed[:n])  # fmt: skip
-        obs = self.alphas.observed[:n]
-        mask = self.tree.keep_alphas(self.alphas.vectors[:n], obs if self.X > 1 else None, act,
-                                     store).cpu().numpy()  # fmt: skip
+        vectors, _, obs = self.alphas.in_use()
+        mask = to_numpy(self.tree.keep_alphas(vectors, obs if self.X > 1 else None, act, store))
         # and the best vectors at the children of the active tree beliefs (APPL certifies
         # a vector at any belief of its cache, the unexpanded children of the tree
         # included): a backup of a tree belief combines the best vectors at its children,
         # and pruning those would lower the children's bounds, which only a search that
         # reaches each child again restores
         mask[self._child_winners(act)] = True
-        self.alphas.keep(torch.from_numpy(mask))
+        self.alphas.keep(mask)
         # the next pruning protects the children of the beliefs evaluated from now on
         self._child_best = {}
         self.last_alpha_prune = self.alphas.size

@@ -27,6 +27,7 @@ import numpy.ma
 import numpy.random
 import torch
 
+from torchhrc._host import alloc, to_numpy
 from torchhrc._threads import blas_threads, torch_threads
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP, SparsePOMDP
@@ -36,7 +37,6 @@ from torchhrc.solvers.clock import Deadline, clock_function, deadline_watch
 from torchhrc.solvers.eval_cache import EvaluationCache
 from torchhrc.solvers.forms import SolverModel, as_solver_model
 from torchhrc.solvers.policy import AlphaVectorPolicy
-from torchhrc.solvers.pruning import prune_dominated
 from torchhrc.solvers.sarsop.alpha_set import _AlphaSet
 from torchhrc.solvers.sarsop.backup import _Backups
 from torchhrc.solvers.sarsop.bins import _Bins
@@ -166,7 +166,9 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         else:
             corner = cfg.upper_bound_init(form.init_argument)
         self.init_info["upper_s"] = time.perf_counter() - t_upper
-        corner = form.corner_values(corner.to(dtype=cfg.dtype), "upper_bound_init")
+        if corner.dtype != cfg.dtype:
+            corner = corner.to(dtype=cfg.dtype)
+        corner = form.corner_values(corner, "upper_bound_init")
         self.ub = SawtoothUpperBound(corner)
         t_init = time.perf_counter()
         # lower bound: alpha vectors of a policy (blind policies by default)
@@ -176,18 +178,15 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
             policy = cfg.lower_bound_init(form.init_argument)
         policy = form.check_policy(policy, "lower_bound_init")
         self.init_info["lower_s"] = time.perf_counter() - t_init
-        observed = torch.zeros_like(policy.actions) if policy.observed is None else policy.observed
-        if self.X > 1 and int(torch.bincount(observed, minlength=self.X).min()) == 0:
+        N = policy.alphas.shape[0]
+        observed = (alloc(N, torch.long, policy.actions.device) if policy.observed is None
+                    else policy.observed)  # fmt: skip
+        if self.X > 1 and np.bincount(to_numpy(observed), minlength=self.X).min() == 0:
             raise ModelError("lower_bound_init's policy must have a vector for every observed x")
-        self.alphas = _AlphaSet(
-            policy.alphas.to(cfg.dtype),
-            policy.actions.long(),
-            observed.long(),
-            self.X,
-            dtype=_alpha_dtype(cfg, policy.alphas.shape[1]),
-        )
-        n = self.alphas.size
-        self.alphas.keep(prune_dominated(self.alphas.vectors[:n], self.alphas.observed[:n]))
+        alphas = policy.alphas if policy.alphas.dtype == cfg.dtype else policy.alphas.to(cfg.dtype)
+        self.alphas = _AlphaSet(alphas, policy.actions, observed, self.X,
+                                dtype=_alpha_dtype(cfg, policy.alphas.shape[1]))  # fmt: skip
+        self.alphas.keep(self.alphas.undominated())
         self.tree = form.new_tree()
         self._child_x: dict[tuple[int, int], torch.Tensor] = {}
         self._reach: dict[int, list[int]] = {}  # per x, the x2 it reaches (the trial's step)
@@ -210,21 +209,23 @@ class _SARSOP(_Trials, _Backups, _Pruning, _Bounds):
         self.root_low = np.full(R, -np.inf)  # per root, the lower bound last recorded
         cap = max(1024, 2 * R)
         self.entropy = np.zeros(cap)
-        self.entropy[:R] = self._entropy(root_b).cpu().double().numpy()
+        roots_np = to_numpy(root_b)
+        self.entropy[:R] = self._entropy(roots_np)
         # one id per distinct belief (APPL's belief cache): tree nodes holding the same belief
         # share its cached evaluation, and a trial that reaches a belief again is in a cycle
         self._belief_ids: dict[bytes, int] = {}
         self.belief_id = np.zeros(cap, dtype=np.int64)
-        for r, row in enumerate(root_b.cpu().numpy()):
+        for r, row in enumerate(roots_np):
             self.belief_id[r] = self._belief_key(int(root_x[r]), row)
-        span = float(form.R.max() - form.R.min()) / (1.0 - self.gamma)
+        rewards = to_numpy(form.R)
+        span = float(rewards.max() - rewards.min()) / (1.0 - self.gamma)
         if cfg.max_depth is not None:
             self.max_depth = cfg.max_depth
         else:
             target = max(cfg.precision, 1e-6 * max(span, 1.0))
             depth = math.log(target / max(span, 1e-12)) / math.log(self.gamma) if span > 0 else 1
             self.max_depth = int(min(max(math.ceil(depth), 1), _MAX_DEPTH))
-        corners = corner.reshape(self.X, -1).cpu().double().numpy()
+        corners = to_numpy(corner).reshape(self.X, -1).astype(np.float64)
         self.bins = _Bins(corners, math.log(self.Y), cfg.bins)
 
         self.last_alpha_prune = self.alphas.size

@@ -20,9 +20,10 @@ class _Trials:
     sample a trial and grow the belief tree ``tree`` along it."""
 
     @staticmethod
-    def _entropy(beliefs: torch.Tensor) -> torch.Tensor:
-        p = beliefs.clamp(min=0)
-        return -(torch.where(p > 0, p * p.clamp(min=1e-300).log(), p.new_zeros(()))).sum(-1)
+    def _entropy(beliefs: np.ndarray) -> np.ndarray:
+        """``(B,)`` the entropy of each row of ``beliefs (B, Y)`` (0 log 0 = 0)."""
+        p = np.where(beliefs > 0, beliefs, 1.0)
+        return -(p * np.log(p)).sum(-1)
 
     def sample(self, eps: float) -> list[int]:
         tree, g, cfg = self.tree, self.gamma, self.cfg
@@ -192,8 +193,9 @@ class _Trials:
             self.entropy[node] = -float(np.add.reduce(p * np.log(p)))
             self.belief_id[node] = self._belief_key(x, belief, nz, p)
         else:
-            self.entropy[node] = float(self._entropy(belief.unsqueeze(0))[0])
-            self.belief_id[node] = self._belief_key(x, belief.cpu().numpy())
+            row = belief.cpu().numpy()
+            self.entropy[node] = float(self._entropy(row[None].astype(np.float64))[0])
+            self.belief_id[node] = self._belief_key(x, row)
         return node
 
     def _belief_key(self, x: int, row: np.ndarray, nz: np.ndarray | None = None,

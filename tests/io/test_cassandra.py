@@ -214,6 +214,52 @@ O: * uniform
     assert torch.equal(m.T[1], torch.tensor([[0, 0, 1], [0, 0, 1], [1, 0, 0]], dtype=f))
 
 
+@pytest.mark.parametrize("sparse", [False, True])
+def test_a_matrix_of_zeros_overrides_earlier_entries_of_its_actions(sparse):
+    """``T: * : * : * 0.0`` (the first line of APPL's TagAvoid) and ``T: a : * : * 0.0`` set
+    whole matrices to zero: earlier entries of those actions are gone, later ones count (the
+    sparse reader appends no cells for them, as for ``identity``), and a row left at zero is
+    reported as summing to 0, not as never set, by both readers (worked by hand)."""
+    head = "discount: 0.9\nvalues: reward\nstates: 3\nactions: 2\nobservations: 1\n"
+    text = (
+        head
+        + """T: * : 0 : 1 1.0
+T: * : * : * 0.0
+T: * : 0 : 0 1.0
+T: * : 1 : 2 1.0
+T: * : 2 : 2 1.0
+T: 1 : 2 : 0 1.0
+T: 1 : * : * 0
+T: 1 : 0 : 2 1.0
+T: 1 : 1 : 1 1.0
+T: 1 : 2 : 1 1.0
+O: * uniform
+"""
+    )
+    m = parse_pomdp(text, sparse=sparse)
+    if sparse:
+        m = m.to_dense()
+    f = torch.float64
+    assert torch.equal(m.T[0], torch.tensor([[1, 0, 0], [0, 0, 1], [0, 0, 1]], dtype=f))
+    assert torch.equal(m.T[1], torch.tensor([[0, 0, 1], [0, 1, 0], [0, 1, 0]], dtype=f))
+    missing = text.replace("T: 1 : 1 : 1 1.0\n", "")
+    with pytest.raises(ParseError, match="action 1, state 1 sums to 0, expected 1") as info:
+        parse_pomdp(missing, sparse=sparse)
+    assert info.value.line == 12  # the zero matrix was the row's last assignment
+
+
+def test_sparse_reader_keeps_no_cells_for_a_matrix_of_zeros():
+    """A tag-sized ``T: * : * : * 0.0`` (5 x 870 x 870 cells) costs the sparse table nothing:
+    the cells kept at the end are the entries after it."""
+    from torchhrc.io.cassandra.tables import _SparseTable
+
+    table = _SparseTable("T", 5, 870, 870)
+    table.fill(None, slice(None), slice(None), slice(None), 0.0, 7)  # type: ignore[arg-type]
+    assert table.length == 0 and table.cells == 0 and not table.keys
+    assert table.zeroed == dict.fromkeys(range(5), 7)
+    assert table.cleared == dict.fromkeys(range(5), 0)
+
+
 def test_sparse_reader_takes_an_identity_at_rocksample_7_8_size_and_a_long_name_list():
     # before: the identity wrote 13 x 12545^2 zeros (refused: too many cells), and the
     # duplicate check of 12,545 state names was quadratic

@@ -13,6 +13,7 @@ from _exact_pomdp import TIGER_OPTIMUM, exact_alpha_vectors, optimal_value_bound
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import MOMDP, POMDP, SparseMOMDP, SparsePOMDP
 from torchhrc.solvers.blind import blind_policy, blind_vectors
+from torchhrc.solvers.clock import NEVER as NEVER_DEADLINE
 from torchhrc.solvers.fib import fib, fib_backup, fib_policy, fib_vectors
 from torchhrc.solvers.qmdp import mdp_q_values, qmdp, qmdp_policy, qmdp_vectors
 from torchhrc.solvers.value_iteration import value_iteration
@@ -322,3 +323,31 @@ def test_qmdp_iteration_cap_reaches_the_unbatched_form():
     capped = qmdp_vectors(one, max_iterations=1)
     torch.testing.assert_close(capped, qmdp_vectors(batch, max_iterations=1)[1])
     assert float((capped - qmdp_vectors(one)).max()) > 1e-2  # an upper bound, not converged
+
+
+@pytest.mark.parametrize("static", [False, True])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_small_momdp_form_bounds_by_numpy_match_the_torch_kernels(static, seed):
+    """A small dense MOMDP on the CPU starts SARSOP from numpy (its joint transition as one
+    ``(A, S, S)`` table: QMDP's expectations, the blind policy's LU, and the FIB operator over
+    its per-``x`` slices; torchhrc._host). They agree with the batched torch kernels the
+    other devices use (``blind_vectors``, ``qmdp_vectors``, ``fib_backup``) to round-off, on
+    a moving and a static hidden value (Tx, Ty random)."""
+    from torchhrc.solvers.forms import as_solver_model
+
+    model = random_momdp(5, 3, 4, 3, seed=seed, static=static, discount=0.93)
+    form = as_solver_model(model)
+    A, X, Y = model.num_actions, model.num_observed, model.num_hidden
+    blind = form.blind_policy()
+    expected = blind_vectors(model, tol=1e-13)  # (A, X, Y), iterated in torch
+    assert blind.is_momdp and blind.alphas.shape == (X * A, Y)
+    torch.testing.assert_close(
+        blind.alphas.view(X, A, Y).transpose(0, 1), expected, rtol=0, atol=1e-9
+    )
+    q = form.qmdp_start(1e-12)
+    torch.testing.assert_close(q, qmdp_vectors(model, tol=1e-12), rtol=0, atol=1e-9)
+    alpha = q - torch.rand(q.shape, generator=torch.Generator().manual_seed(seed), dtype=q.dtype)
+    if not static:  # (a static hidden value: FIB equals QMDP, no operator)
+        torch.testing.assert_close(form._fib(alpha), fib_backup(model, alpha), rtol=0, atol=1e-12)
+    else:
+        assert form.fib_start(1e-9, NEVER_DEADLINE, {})[1] is None

@@ -126,6 +126,13 @@ class AlphaVectorPolicy:
                 f"expected vectors to have shape (A, X, Y), actual shape = {tuple(vectors.shape)}"
             )
         A, X, Y = vectors.shape
+        host = host_view(vectors)
+        if host is not None:  # (numpy on the CPU: torchhrc._host)
+            return cls(
+                alphas=torch.from_numpy(host.transpose(1, 0, 2).reshape(X * A, Y)),
+                actions=torch.from_numpy(np.tile(np.arange(A, dtype=np.int64), X)),
+                observed=torch.from_numpy(np.repeat(np.arange(X, dtype=np.int64), A)),
+            )
         return cls(
             alphas=vectors.transpose(0, 1).reshape(X * A, Y),
             actions=torch.arange(A, device=device).repeat(X),

@@ -326,17 +326,23 @@ _NO_KERNEL = {"__get__", "dim", "numel", "is_floating_point", "numpy"}
     __import__("torchhrc.solvers.backup_kernel", fromlist=["load"]).load() is None,
     reason="the compiled kernels are not built (TORCHHRC_NO_EXTENSION or no compiler)",
 )
-@pytest.mark.parametrize("seed", [None, 0, 1])
-def test_small_dense_cpu_solve_runs_no_torch_kernel(seed):
-    """A small dense model's whole SARSOP solve on the CPU, from the model to the policy,
-    reads and makes its tensors through numpy (torchhrc._host): each first call of a libtorch
-    operation maps that kernel's code into the process (Tiger's net peak was 13.8 MB, three
-    times APPL's whole process; docs/benchmarks.md, "A small solve without libtorch's
-    kernels")."""
+@pytest.mark.parametrize("kind", ["tiger", "pomdp 0", "pomdp 1", "momdp", "static momdp"])
+def test_small_dense_cpu_solve_runs_no_torch_kernel(kind):
+    """A small dense model's whole SARSOP solve on the CPU (flat, and a MOMDP with a moving
+    or a static hidden value), from the model to the policy, reads and makes its tensors
+    through numpy (torchhrc._host): each first call of a libtorch operation maps that
+    kernel's code into the process (Tiger's net peak was 13.8 MB, three times APPL's whole
+    process; docs/benchmarks.md, "A small solve without libtorch's kernels")."""
     from torchhrc.tasks.classic import tiger
     from torchhrc.testing import random_pomdp
 
-    model = tiger() if seed is None else random_pomdp(12, 3, 4, seed=seed)
+    model = {
+        "tiger": tiger,
+        "pomdp 0": lambda: random_pomdp(12, 3, 4, seed=0),
+        "pomdp 1": lambda: random_pomdp(12, 3, 4, seed=1),
+        "momdp": lambda: random_momdp(4, 3, 3, 3, seed=2, static=False),
+        "static momdp": lambda: random_momdp(4, 3, 3, 3, seed=3, static=True),
+    }[kind]()
     calls = _TorchCalls()
     with calls:
         sol = sarsop(model, SARSOPConfig(max_iterations=40, time_limit=600))

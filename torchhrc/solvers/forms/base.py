@@ -67,7 +67,7 @@ from torchhrc._host import alloc, host_view, rows, to_numpy
 from torchhrc.errors import ModelError
 from torchhrc.pomdp import split_initial
 from torchhrc.solvers import backup_kernel
-from torchhrc.solvers._factored import Expectation
+from torchhrc.solvers._factored import SPARSE_DIRECT_SOLVE_SIZE, Expectation
 from torchhrc.solvers.backup import BackupResult
 from torchhrc.solvers.belief_tree import BeliefTree
 from torchhrc.solvers.blind import blind_policy
@@ -646,6 +646,25 @@ class TensorModelForm(SolverModel):
         # models are solved exactly by LU instead)
         k = int(min(2000, math.ceil(math.log(1e-12) / math.log(self.discount))))
         return blind_policy(self.model, max_iterations=k)
+
+    def _blind_by_lu(self, P: np.ndarray | None, R: np.ndarray | None) -> np.ndarray | None:
+        """``(A, S)`` the blind policies' values ``alpha_a = (I - gamma P_a)^-1 R_a`` by
+        numpy's LU, from a CPU model's transition ``P (A, S, S)`` and rewards ``R (A, S)``,
+        for at most :data:`~torchhrc.solvers._factored.SPARSE_DIRECT_SOLVE_SIZE` states (as
+        :func:`~torchhrc.solvers.blind.blind_vectors` solves them exactly); ``None`` where
+        that does not apply (no numpy view, more states, ``discount >= 1``, a singular
+        system): the caller then takes the torch path."""
+        if P is None or R is None or P.dtype != R.dtype or self.discount >= 1.0:
+            return None
+        S = P.shape[-1]
+        if S > SPARSE_DIRECT_SOLVE_SIZE:
+            return None
+        try:
+            return np.linalg.solve(np.eye(S, dtype=P.dtype) - self.discount * P, R[..., None])[
+                ..., 0
+            ]
+        except np.linalg.LinAlgError:
+            return None
 
     def upper_vectors(self, kind: str, tol: float, max_iterations: int = 100_000) -> torch.Tensor:
         if kind == "fib":

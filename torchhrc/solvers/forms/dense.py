@@ -25,7 +25,6 @@ import torch
 
 from torchhrc._host import host_view
 from torchhrc.pomdp import POMDP
-from torchhrc.solvers._factored import SPARSE_DIRECT_SOLVE_SIZE
 from torchhrc.solvers.backup import BackupResult, point_backup
 from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.fib_exact import fib_exact_pays, fib_fixed_point
@@ -88,21 +87,15 @@ class DenseForm(FlatFields, TensorModelForm):
 
     # -- initial bounds ----------------------------------------------------------------------
     def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
-        """:meth:`~.base.SolverModel.blind_policy`; a CPU model of at most
-        :data:`~torchhrc.solvers._factored.SPARSE_DIRECT_SOLVE_SIZE` states solves ``(I -
-        gamma T_a) alpha_a = R_a`` by numpy's LU here, as
-        :func:`~torchhrc.solvers.blind.blind_vectors` does for it (the same LU on the same
-        floats), without building the model's expectation operator in torch."""
-        T, R = host_view(self.T), host_view(self.model.R)
-        S = self.num_hidden
-        if max_iterations is not None or T is None or R is None or S > SPARSE_DIRECT_SOLVE_SIZE \
-                or self.discount >= 1.0 or T.dtype != R.dtype:  # fmt: skip
+        """:meth:`~.base.SolverModel.blind_policy`; a small CPU model by numpy's LU
+        (:meth:`~.base.TensorModelForm._blind_by_lu`: the same LU on the same floats as
+        :func:`~torchhrc.solvers.blind.blind_vectors`, without the model's expectation
+        operator in torch)."""
+        R = host_view(self.model.R)
+        values = None if max_iterations is not None else self._blind_by_lu(host_view(self.T), R)
+        if values is None:
             return super().blind_policy(max_iterations)
-        try:
-            vectors = np.linalg.solve(np.eye(S, dtype=T.dtype) - self.discount * T, R[..., None])
-        except np.linalg.LinAlgError:
-            return super().blind_policy(max_iterations)
-        return AlphaVectorPolicy.from_action_vectors(torch.from_numpy(vectors[..., 0]), momdp=False)
+        return AlphaVectorPolicy.from_action_vectors(torch.from_numpy(values), momdp=False)
 
     def fib_start(self, tol: float, deadline: Deadline, info: dict[str, Any],
                   ) -> tuple[torch.Tensor, FIBOperator | None]:  # fmt: skip

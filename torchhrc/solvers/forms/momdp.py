@@ -23,14 +23,17 @@ Example:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import torch
 
+from torchhrc._host import host_view
 from torchhrc.pomdp import MOMDP
+from torchhrc.solvers._factored import SPARSE_DIRECT_SOLVE_SIZE
 from torchhrc.solvers.backup import BackupResult, momdp_point_backup
-from torchhrc.solvers.clock import Deadline
+from torchhrc.solvers.clock import NEVER, Deadline
 from torchhrc.solvers.forms.base import (
     FIBOperator,
     PerObserved,
@@ -71,7 +74,10 @@ class MOMDPForm(TensorModelForm):
         self.discount = float(model.discount)
         self.factored = True
         self.state_shape, self.state_doc = (X, Y), "(X, Y)"
-        self.reach_mask = self.Tx.sum(dim=(0, 2)) > 0  # (X, X2)
+        tx = host_view(self.Tx)
+        # (X, X2) the x2 reachable from x (on the CPU by numpy: torchhrc._host)
+        self.reach_mask = (self.Tx.sum(dim=(0, 2)) > 0 if tx is None
+                           else torch.from_numpy(tx.sum(axis=(0, 2)) > 0))  # fmt: skip
         self.slices = PerObserved(X, self._slices)
         self.reach = field(self.slices, 0)
         self._tx = field(self.slices, 1)
@@ -79,6 +85,15 @@ class MOMDPForm(TensorModelForm):
         self._z = field(self.slices, 3)
 
     def _slices(self, x: int) -> tuple[Any, ...]:
+        arrays = [host_view(t) for t in (self.reach_mask, self.Tx, self.Z)]
+        ty = None if self.Ty is None else host_view(self.Ty)
+        if all(a is not None for a in arrays) and (self.Ty is None or ty is not None):
+            mask, Tx, Z = arrays  # (the same slices by numpy on the CPU: torchhrc._host)
+            k = np.flatnonzero(mask[x])
+            tyk = None if ty is None else ty[:, x][:, :, k].transpose(0, 2, 1, 3)
+            out = [k, Tx[:, x][:, :, k], tyk, Z[:, k].transpose(0, 1, 3, 2)]
+            return tuple(None if a is None else torch.from_numpy(np.ascontiguousarray(a))
+                         for a in out)  # fmt: skip
         k = self.reach_mask[x].nonzero().squeeze(-1)
         tx = self.Tx[:, x][:, :, k].contiguous()  # (A, Y, K)
         tyk = None
@@ -162,19 +177,72 @@ class MOMDPForm(TensorModelForm):
         return alpha, self._fib
 
     def _fib(self, alpha: torch.Tensor) -> torch.Tensor:
-        out = []
+        """:meth:`fib_start`'s operator on the CPU, by numpy over the per-``x`` slices."""
+        al = alpha.numpy()  # (A2, X, Y)
+        out = np.empty(al.shape, dtype=al.dtype)
         for x in range(self.num_observed):
-            k = self.reach[x]
-            z = self._z[x]  # (A, K, O, Y2)
+            k = self.reach[x].numpy()
+            tx, tyk = self._np(x)  # (A, Y, K), (A, K, Y, Y2)
+            z = self._z[x].numpy()  # (A, K, O, Y2)
             A, K, O, Y = z.shape
             # Kt[a, k, y2, o, a2] = Z[a, x2_k, y2, o] alpha[a2, x2_k, y2]
-            Kt = (
-                z.permute(0, 1, 3, 2).unsqueeze(-1) * alpha[:, k].permute(1, 2, 0)[None, :, :, None]
-            )
-            tx = self._tx[x].permute(0, 2, 1).unsqueeze(-1)  # (A, K, Y, 1)
-            G = (tx * self._tyk[x]) @ Kt.reshape(A, K, Y, O * A)  # (A, K, Y, O A)
-            out.append(G.view(A, K, Y, O, A).amax(-1).sum((1, 3)))  # (A, Y)
-        return self.R + self.discount * torch.stack(out, 1)
+            Kt = z.transpose(0, 1, 3, 2)[..., None] * al[:, k].transpose(1, 2, 0)[None, :, :, None]
+            G = (tx.transpose(0, 2, 1)[..., None] * tyk) @ Kt.reshape(A, K, Y, O * A)
+            out[:, x] = G.reshape(A, K, Y, O, A).max(-1).sum((1, 3))  # (A, Y)
+        return torch.from_numpy(self.rewards_np() + self.discount * out)
+
+    def _joint_np(self) -> np.ndarray | None:
+        """``(A, S, S)`` the joint transition ``P[a, (x, y), (x2, y2)] = Tx Ty`` by numpy, for
+        a CPU model of at most ``SPARSE_DIRECT_SOLVE_SIZE`` states ``S = X Y`` (None
+        otherwise): QMDP's expectations and the blind policy's LU on it."""
+
+        def build() -> np.ndarray | None:
+            A, X, Y = self.num_actions, self.num_observed, self.num_hidden
+            tx = host_view(self.Tx)
+            ty = None if self.Ty is None else host_view(self.Ty)
+            if (
+                tx is None
+                or (self.Ty is not None and ty is None)
+                or X * Y > SPARSE_DIRECT_SOLVE_SIZE
+            ):
+                return None
+            if ty is None:  # a static hidden value: y2 = y
+                P = np.zeros((A, X, Y, X, Y), dtype=tx.dtype)
+                ys = np.arange(Y)
+                P[:, :, ys, :, ys] = tx.transpose(2, 0, 1, 3)  # (Y, A, X, X2)
+            else:
+                P = tx[..., None] * ty
+            return np.ascontiguousarray(P.reshape(A, X * Y, X * Y))
+
+        return self._cached("joint", 0, build)
+
+    def qmdp_start(
+        self,
+        tol: float,
+        deadline: Deadline = NEVER,
+        expect: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> torch.Tensor:
+        P = self._joint_np() if expect is None else None
+        if P is not None:  # a small CPU model: the expectations by one product (numpy)
+            A, X, Y = self.num_actions, self.num_observed, self.num_hidden
+
+            def expect(V: np.ndarray) -> np.ndarray:
+                return (P @ V.reshape(X * Y)).reshape(A, X, Y)
+
+        return super().qmdp_start(tol, deadline, expect)
+
+    def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
+        """:meth:`~.base.SolverModel.blind_policy`; a small CPU model by numpy's LU on its
+        joint transition (:meth:`_joint_np`, :meth:`~.base.TensorModelForm._blind_by_lu`)."""
+        A, X, Y = self.num_actions, self.num_observed, self.num_hidden
+        R = host_view(self.R)
+        values = None if max_iterations is not None or R is None else self._blind_by_lu(
+            self._joint_np(), R.reshape(A, X * Y))  # fmt: skip
+        if values is None:
+            return super().blind_policy(max_iterations)
+        return AlphaVectorPolicy.from_action_vectors(
+            torch.from_numpy(values.reshape(A, X, Y)), momdp=True
+        )
 
     # -- PBVI ----------------------------------------------------------------------------------
     def self_loop_probs(self) -> torch.Tensor:

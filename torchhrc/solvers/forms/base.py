@@ -647,6 +647,11 @@ class TensorModelForm(SolverModel):
         k = int(min(2000, math.ceil(math.log(1e-12) / math.log(self.discount))))
         return blind_policy(self.model, max_iterations=k)
 
+    def _host_expect(self) -> Callable[[np.ndarray], np.ndarray] | None:
+        """:meth:`qmdp_start`'s default ``expect`` in numpy where this form has one for its
+        model (a small MOMDP's joint table); ``None``: the torch ``Expectation``."""
+        return None
+
     def _blind_by_lu(self, P: np.ndarray | None, R: np.ndarray | None) -> np.ndarray | None:
         """``(A, S)`` the blind policies' values ``alpha_a = (I - gamma P_a)^-1 R_a`` by
         numpy's LU, from a CPU model's transition ``P (A, S, S)`` and rewards ``R (A, S)``,
@@ -696,6 +701,8 @@ class TensorModelForm(SolverModel):
         model = self.model
         if model.R.device.type != "cpu":
             return mdp_upper_vectors(model, tol=tol)
+        if expect is None:
+            expect = self._host_expect()
         if expect is None:
             E = Expectation(model)
 

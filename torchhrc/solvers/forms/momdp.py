@@ -33,7 +33,7 @@ from torchhrc._host import host_view
 from torchhrc.pomdp import MOMDP
 from torchhrc.solvers._factored import SPARSE_DIRECT_SOLVE_SIZE
 from torchhrc.solvers.backup import BackupResult, momdp_point_backup
-from torchhrc.solvers.clock import NEVER, Deadline
+from torchhrc.solvers.clock import Deadline
 from torchhrc.solvers.forms.base import (
     FIBOperator,
     PerObserved,
@@ -216,20 +216,12 @@ class MOMDPForm(TensorModelForm):
 
         return self._cached("joint", 0, build)
 
-    def qmdp_start(
-        self,
-        tol: float,
-        deadline: Deadline = NEVER,
-        expect: Callable[[np.ndarray], np.ndarray] | None = None,
-    ) -> torch.Tensor:
-        P = self._joint_np() if expect is None else None
-        if P is not None:  # a small CPU model: the expectations by one product (numpy)
-            A, X, Y = self.num_actions, self.num_observed, self.num_hidden
-
-            def expect(V: np.ndarray) -> np.ndarray:
-                return (P @ V.reshape(X * Y)).reshape(A, X, Y)
-
-        return super().qmdp_start(tol, deadline, expect)
+    def _host_expect(self) -> Callable[[np.ndarray], np.ndarray] | None:
+        P = self._joint_np()
+        if P is None:
+            return None
+        A, X, Y = self.num_actions, self.num_observed, self.num_hidden
+        return lambda V: (P @ V.reshape(X * Y)).reshape(A, X, Y)  # one product (numpy)
 
     def blind_policy(self, max_iterations: int | None = None) -> AlphaVectorPolicy:
         """:meth:`~.base.SolverModel.blind_policy`; a small CPU model by numpy's LU on its
